@@ -1,0 +1,1 @@
+"""Alignment of virtual and actual records, discrepancy statistics, physical checks, reports."""

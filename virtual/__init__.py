@@ -1,0 +1,1 @@
+"""Virtual devices: Monte Carlo spectrophotometer and goniophotometer behind the bench interface."""

@@ -1,0 +1,1 @@
+"""Wire-level emulators: processes that speak the real protocols with virtual physics."""
