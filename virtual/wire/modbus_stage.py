@@ -1,0 +1,591 @@
+"""An Oriental-Motor-AZ-style stage on Modbus, emulated in its own process.
+
+The emulator is a pymodbus server (``pymodbus.simulator`` ``SimDevice`` with an action hook)
+answering either Modbus RTU on a pseudo-terminal or Modbus TCP on 127.0.0.1. Its register
+layout comes from the same register map as the driver (``drivers/registers/*.toml``): the
+direct-data block, the input command, output status, present alarm and feedback/command
+position; every other address answers exception 2 (illegal data address); status and
+positions are read-only (a write answers exception 2 too).
+
+Physics (:class:`StageModel`, pure, time driven): a trigger of an absolute positioning starts
+a move at the commanded speed (steps/s, constant-speed ramp; acceleration is accepted and
+ignored); the feedback position ramps with time; BUSY/MOVE while moving, IN-POS and READY at
+rest; an alarm (e.g. 0x30 overload) freezes the motion, raises ALM and keeps the code in the
+present-alarm register until an ALM-RST rising edge; STOP halts at once; a trigger while an
+alarm is present is ignored (counted in ``rejected_triggers``).
+
+RTU on a pty: pymodbus's serial server opens the slave of one pty pair, the driver opens the
+slave of a second pair, and a relay in the emulator's event loop joins the two masters (there
+is no socat here). The path the driver opens is :attr:`StageEmulator.port`.
+
+Start, inject faults, stop::
+
+    from virtual.wire.modbus_stage import StageEmulator
+    with StageEmulator.start("tcp") as emu:          # or "rtu"
+        emu.url                   # "tcp://127.0.0.1:40123" or "/dev/pts/7": give it to the driver
+        emu.alarm(0x30)           # overload alarm (motion freezes, ALM on)
+        emu.drop_replies(2)       # the next 2 replies are not sent
+        emu.corrupt_replies(1)    # the next reply has one byte flipped (CRC error on RTU)
+        emu.state()               # dict: position, target, moving, alarm, triggers, ...
+        emu.die()                 # the process exits at once (os._exit), like a pulled plug
+    # leaving the block stops (or kills) the process
+
+From a shell: ``python -m virtual.wire.modbus_stage --transport tcp`` prints one JSON line
+with the address and serves until killed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import multiprocessing as mp
+import os
+import sys
+import threading
+import time
+import tty
+import tomllib
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+log = logging.getLogger(__name__)
+
+__all__ = ["StageConfig", "StageModel", "StageEmulator"]
+
+
+@dataclass
+class StageConfig:
+    """Emulated drive settings (all in motor steps).
+
+    ``register_map`` is ``"oriental_az"`` (the built-in layout) or the path of a TOML register
+    map of the shape ``drivers/registers`` uses (read as data: the emulator imports nothing
+    from ``drivers``, the two meet only on the wire); ``max_speed_hz``
+    clips the commanded speed; ``travel_limits`` (lo, hi) in steps raises alarm 0x67
+    (software overtravel) on a trigger beyond them; ``time_scale`` > 1 makes motion faster
+    than real time (for tests).
+    """
+
+    device_id: int = 1
+    register_map: str = "oriental_az"
+    initial_position: int = 0
+    max_speed_hz: float = 4_000_000.0
+    in_pos_tolerance: int = 1
+    travel_limits: tuple[int, int] | None = None
+    time_scale: float = 1.0
+    baudrate: int = 115200
+    parity: str = "N"  # Linux ptys refuse PARENB (tcsetattr EINVAL); real AZ drives default to "E"
+
+
+AZ_LAYOUT: dict[str, Any] = {
+    "registers": {"direct_data_no": 0x58, "direct_type": 0x5A, "direct_position": 0x5C,
+                  "direct_speed": 0x5E, "direct_accel": 0x60, "direct_decel": 0x62,
+                  "direct_current": 0x64, "direct_trigger": 0x66, "input_command": 0x7C,
+                  "output_status": 0x7E, "present_alarm": 0x80, "feedback_position": 0x120,
+                  "command_position": 0x122},
+    "input_bits": {"START": 3, "ZHOME": 4, "STOP": 5, "FREE": 6, "ALM-RST": 7},
+    "status_bits": {"READY": 5, "ALM": 7, "BUSY": 8, "MOVE": 13, "IN-POS": 14},
+    "values": {"type_absolute": 1, "trigger_all": 1},
+    "word_order": "big",
+}
+_DIRECT = ("direct_data_no", "direct_type", "direct_position", "direct_speed", "direct_accel",
+           "direct_decel", "direct_current", "direct_trigger")
+
+
+class _Layout:
+    """The emulator's own view of a register layout (32-bit values, two registers each)."""
+
+    def __init__(self, d: dict[str, Any]) -> None:
+        self.registers = {k: int(v) for k, v in d["registers"].items()}
+        self.input_bits = {k: int(v) for k, v in d["input_bits"].items()}
+        self.status_bits = {k: int(v) for k, v in d["status_bits"].items()}
+        self.values = {k: int(v) for k, v in d.get("values", {}).items()}
+        self.big = d.get("word_order", "big") == "big"
+
+    @classmethod
+    def load(cls, spec: str) -> "_Layout":
+        if spec in ("oriental_az", "oriental-az"):
+            return cls(AZ_LAYOUT)
+        with open(spec, "rb") as fh:
+            return cls(tomllib.load(fh))
+
+    def addr(self, key: str) -> int:
+        return self.registers[key]
+
+    def value(self, key: str, default: int) -> int:
+        return self.values.get(key, default)
+
+    @property
+    def direct_block(self) -> tuple[int, int]:
+        return self.registers["direct_data_no"], 2 * len(_DIRECT)
+
+    def to_words(self, value: int) -> list[int]:
+        v = int(value) & 0xFFFFFFFF
+        w = [v >> 16, v & 0xFFFF]
+        return w if self.big else w[::-1]
+
+    def from_words(self, words: list[int]) -> int:
+        hi, lo = (words[0], words[1]) if self.big else (words[1], words[0])
+        v = (hi & 0xFFFF) << 16 | (lo & 0xFFFF)
+        return v - (1 << 32) if v & 0x80000000 else v
+
+
+@dataclass
+class StageModel:
+    """Time-driven state of one AZ axis; call :meth:`update` before reading anything."""
+
+    rmap: Any
+    cfg: StageConfig
+    clock: Callable[[], float] = time.monotonic
+    position: float = 0.0
+    target: float = 0.0
+    speed: float = 0.0
+    moving: bool = False
+    alarm: int = 0
+    last_input: int = 0
+    triggers: int = 0
+    rejected_triggers: int = 0
+    stops: int = 0
+    alarm_resets: int = 0
+    _t: float = field(default=0.0, repr=False)
+
+    def __post_init__(self) -> None:
+        self.position = self.target = float(self.cfg.initial_position)
+        self._t = self.clock()
+
+    def update(self) -> None:
+        now = self.clock()
+        dt = (now - self._t) * self.cfg.time_scale
+        self._t = now
+        if self.moving and not self.alarm:
+            step = self.speed * dt
+            remaining = self.target - self.position
+            if abs(remaining) <= step:
+                self.position = self.target
+                self.moving = False
+            else:
+                self.position += step if remaining > 0 else -step
+
+    def status(self) -> int:
+        b = self.rmap.status_bits
+        s = 0
+        if self.alarm:
+            s |= 1 << b["ALM"]
+        else:
+            if self.moving:
+                s |= 1 << b["BUSY"] | 1 << b["MOVE"]
+            else:
+                s |= 1 << b["READY"]
+                if abs(self.position - self.target) <= self.cfg.in_pos_tolerance:
+                    s |= 1 << b["IN-POS"]
+        return s
+
+    def trigger(self, op_type: int, position: int, speed: int) -> None:
+        self.update()
+        if self.alarm:
+            self.rejected_triggers += 1
+            log.info("trigger ignored: alarm 0x%02X present", self.alarm)
+            return
+        self.triggers += 1
+        if op_type != self.rmap.value("type_absolute", 1):
+            self.rejected_triggers += 1
+            log.info("trigger ignored: operation type %d not emulated", op_type)
+            return
+        lim = self.cfg.travel_limits
+        if lim is not None and not lim[0] <= position <= lim[1]:
+            self.raise_alarm(0x67)
+            return
+        self.target = float(position)
+        self.speed = float(min(max(speed, 1), self.cfg.max_speed_hz))
+        self.moving = self.position != self.target
+
+    def input_command(self, value: int) -> None:
+        self.update()
+        bits = self.rmap.input_bits
+        rising = value & ~self.last_input
+        self.last_input = value
+        if rising >> bits["STOP"] & 1:
+            self.stops += 1
+            self.moving = False
+            self.target = self.position
+        if rising >> bits["ALM-RST"] & 1 and self.alarm:
+            self.alarm_resets += 1
+            self.alarm = 0
+            self.moving = False
+            self.target = round(self.position)
+            self.position = self.target
+
+    def raise_alarm(self, code: int) -> None:
+        self.update()
+        self.alarm = int(code)
+        self.moving = False
+
+    def snapshot(self) -> dict[str, Any]:
+        self.update()
+        return {"position": self.position, "target": self.target, "moving": self.moving,
+                "alarm": self.alarm, "status": self.status(), "triggers": self.triggers,
+                "rejected_triggers": self.rejected_triggers, "stops": self.stops,
+                "alarm_resets": self.alarm_resets}
+
+
+# --------------------------------------------------------------------------------------------
+# the server process
+# --------------------------------------------------------------------------------------------
+
+
+class _Faults:
+    """Fault switches applied to outgoing packets (shared between control thread and loop)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.drop = 0
+        self.corrupt = 0
+        self.drop_all = False
+
+    def outgoing(self, data: bytes) -> bytes:
+        with self.lock:
+            if self.drop_all:
+                return b""
+            if self.drop > 0:
+                self.drop -= 1
+                log.info("fault: dropping reply %s", data.hex(" "))
+                return b""
+            if self.corrupt > 0 and data:
+                self.corrupt -= 1
+                i = len(data) // 2
+                bad = data[:i] + bytes([data[i] ^ 0x5A]) + data[i + 1:]
+                log.info("fault: corrupting reply %s -> %s", data.hex(" "), bad.hex(" "))
+                return bad
+        return data
+
+
+def _build_device(model: StageModel, lock: threading.Lock) -> Any:
+    from pymodbus.constants import ExcCodes
+    from pymodbus.simulator import DataType, SimData, SimDevice
+
+    r = model.rmap
+    a0, n = r.direct_block
+    rw = [SimData(a0, values=[0] * n, datatype=DataType.REGISTERS),
+          SimData(r.addr("input_command"), values=[0, 0], datatype=DataType.REGISTERS)]
+    ro = [SimData(r.addr(k), values=[0, 0], datatype=DataType.REGISTERS, readonly=True)
+          for k in ("output_status", "present_alarm", "feedback_position", "command_position")]
+    blocks = sorted(rw + ro, key=lambda s: s.address)
+    start = blocks[0].address
+    trig = r.addr("direct_trigger")
+
+    def word(regs: list[int], addr: int) -> int:
+        return r.from_words(regs[addr - start: addr - start + 2])
+
+    async def action(fc: int, start_address: int, address: int, count: int,
+                     registers: list[int], set_values: Any) -> Any:
+        assert start_address == start
+        with lock:
+            if set_values:
+                merged = list(registers)
+                merged[address - start: address - start + count] = list(set_values)
+                span = range(address, address + count)
+                if r.addr("input_command") in span or r.addr("input_command") + 1 in span:
+                    model.input_command(word(merged, r.addr("input_command")) & 0xFFFFFFFF)
+                if trig + 1 in span or trig in span:
+                    tv = word(merged, trig)
+                    if tv == r.value("trigger_all", 1):
+                        model.trigger(word(merged, r.addr("direct_type")),
+                                      word(merged, r.addr("direct_position")),
+                                      word(merged, r.addr("direct_speed")))
+                    # the trigger register reads back 0 once the operation is taken
+                    for k in (trig, trig + 1):
+                        if address <= k < address + count:
+                            set_values[k - address] = 0
+            model.update()
+            for key, val in (("output_status", model.status()), ("present_alarm", model.alarm),
+                             ("feedback_position", round(model.position)),
+                             ("command_position", round(model.target if model.moving
+                                                        else model.position))):
+                a = r.addr(key)
+                registers[a - start: a - start + 2] = r.to_words(val)
+        return None
+
+    _ = ExcCodes  # exceptions other than the datastore's own come from the hook if ever needed
+    return SimDevice(id=model.cfg.device_id, simdata=blocks, action=action)
+
+
+def _open_pty_pair() -> tuple[int, int, str]:
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    tty.setraw(master)
+    return master, slave, os.ttyname(slave)
+
+
+class _PtyRelay:
+    """Copy bytes both ways between two pty masters inside the event loop."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, a: int, b: int) -> None:
+        self.loop, self.a, self.b = loop, a, b
+        os.set_blocking(a, False)
+        os.set_blocking(b, False)
+        loop.add_reader(a, self._pump, a, b)
+        loop.add_reader(b, self._pump, b, a)
+
+    @staticmethod
+    def _pump(src: int, dst: int) -> None:
+        try:
+            data = os.read(src, 4096)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            return
+        if data:
+            try:
+                os.write(dst, data)
+            except OSError:
+                pass
+
+
+async def _serve(cfg: dict[str, Any], transport: str, conn: Any) -> None:
+    from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+
+    scfg = StageConfig(**cfg)
+    rmap = _Layout.load(scfg.register_map)
+    lock = threading.Lock()
+    model = StageModel(rmap, scfg)
+    faults = _Faults()
+    device = _build_device(model, lock)
+
+    def trace(sending: bool, data: bytes) -> bytes:
+        return faults.outgoing(data) if sending else data
+
+    keep: list[int] = []
+    if transport == "tcp":
+        server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_packet=trace)
+        await server.serve_forever(background=True)
+        port = server.transport.sockets[0].getsockname()[1]
+        address: dict[str, Any] = {"transport": "tcp", "host": "127.0.0.1", "port": port,
+                                   "url": f"tcp://127.0.0.1:{port}"}
+    elif transport == "rtu":
+        m_srv, s_srv, p_srv = _open_pty_pair()
+        m_cli, s_cli, p_cli = _open_pty_pair()
+        keep += [m_srv, s_srv, m_cli, s_cli]   # hold the slaves open: no EIO when a side closes
+        _PtyRelay(asyncio.get_running_loop(), m_srv, m_cli)
+        server = ModbusSerialServer(device, port=p_srv, baudrate=scfg.baudrate,
+                                    parity=scfg.parity, trace_packet=trace)
+        await server.serve_forever(background=True)
+        address = {"transport": "rtu", "port": p_cli, "url": p_cli,
+                   "baudrate": scfg.baudrate, "parity": scfg.parity}
+    else:
+        raise ValueError(f"transport must be 'tcp' or 'rtu', not {transport!r}")
+    address["device_id"] = scfg.device_id
+    address["pid"] = os.getpid()
+
+    loop = asyncio.get_running_loop()
+    done = asyncio.Event()
+
+    def control() -> None:
+        conn.send(address)
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                break
+            cmd = msg.get("cmd")
+            reply: dict[str, Any] = {"ok": True}
+            with lock:
+                if cmd == "die":
+                    os._exit(1)
+                elif cmd == "alarm":
+                    model.raise_alarm(int(msg["code"]))
+                elif cmd == "state":
+                    reply["state"] = model.snapshot()
+                elif cmd == "stop":
+                    conn.send(reply)
+                    break
+                else:
+                    with faults.lock:
+                        if cmd == "drop":
+                            faults.drop += int(msg.get("n", 1))
+                        elif cmd == "corrupt":
+                            faults.corrupt += int(msg.get("n", 1))
+                        elif cmd == "silence":
+                            faults.drop_all = bool(msg.get("on", True))
+                        elif cmd == "clear":
+                            faults.drop = faults.corrupt = 0
+                            faults.drop_all = False
+                        else:
+                            reply = {"ok": False, "error": f"unknown command {cmd!r}"}
+            conn.send(reply)
+        loop.call_soon_threadsafe(done.set)
+
+    threading.Thread(target=control, daemon=True, name="stage-control").start()
+    await done.wait()
+    await server.shutdown()
+    for fd in keep:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+
+
+def _child_main(cfg: dict[str, Any], transport: str, conn: Any, log_level: int) -> None:
+    logging.basicConfig(level=log_level, stream=sys.stderr,
+                        format="modbus-stage %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    try:
+        asyncio.run(_serve(cfg, transport, conn))
+    except Exception as exc:  # report start-up failures to the parent instead of hanging it
+        try:
+            conn.send({"error": f"{type(exc).__name__}: {exc}"})
+        except Exception:
+            pass
+        raise
+
+
+class StageEmulator:
+    """Handle on a running stage emulator process (see the module docstring).
+
+    Attributes
+    ----------
+    transport : str
+        ``"tcp"`` or ``"rtu"``.
+    url : str
+        What the driver opens: ``"tcp://127.0.0.1:<port>"`` or the pty path.
+    port : str | int
+        TCP port number or pty path.
+    device_id : int
+        Modbus unit id.
+    """
+
+    def __init__(self, proc: Any, conn: Any, address: dict[str, Any]) -> None:
+        self._proc = proc
+        self._conn = conn
+        self._lock = threading.Lock()
+        self.address = address
+        self.transport: str = address["transport"]
+        self.url: str = address["url"]
+        self.port = address["port"]
+        self.device_id: int = address["device_id"]
+
+    @classmethod
+    def start(cls, transport: str = "tcp", *, start_timeout: float = 10.0,
+              log_level: int = logging.WARNING, **config: Any) -> "StageEmulator":
+        """Start an emulator process; keyword arguments are :class:`StageConfig` fields."""
+        StageConfig(**config)  # validate names here, in the parent
+        ctx = mp.get_context("spawn")
+        parent, child = ctx.Pipe()
+        proc = ctx.Process(target=_child_main, args=(config, transport, child, log_level),
+                           daemon=True, name=f"modbus-stage-{transport}")
+        proc.start()
+        child.close()
+        if not parent.poll(start_timeout):
+            proc.kill()
+            proc.join(2)
+            raise TimeoutError(f"modbus stage emulator did not start within {start_timeout} s")
+        address = parent.recv()
+        if "error" in address:
+            proc.join(2)
+            raise RuntimeError(f"modbus stage emulator failed to start: {address['error']}")
+        return cls(proc, parent, address)
+
+    # --- control ---------------------------------------------------------------------------
+    def _call(self, msg: dict[str, Any], timeout: float = 5.0) -> dict[str, Any]:
+        with self._lock:
+            if not self.alive:
+                raise RuntimeError("the emulator process is not running")
+            self._conn.send(msg)
+            if not self._conn.poll(timeout):
+                raise TimeoutError(f"emulator did not answer {msg}")
+            reply = self._conn.recv()
+        if not reply.get("ok"):
+            raise RuntimeError(reply.get("error", "emulator refused"))
+        return reply
+
+    @property
+    def alive(self) -> bool:
+        return self._proc.is_alive()
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def state(self) -> dict[str, Any]:
+        """Position, target, moving, alarm, status word and command counters."""
+        return self._call({"cmd": "state"})["state"]
+
+    def alarm(self, code: int = 0x30) -> None:
+        """Raise alarm ``code`` now (0x30 overload by default)."""
+        self._call({"cmd": "alarm", "code": code})
+
+    def drop_replies(self, n: int = 1) -> None:
+        """Do not send the next ``n`` replies."""
+        self._call({"cmd": "drop", "n": n})
+
+    def corrupt_replies(self, n: int = 1) -> None:
+        """Flip one byte in each of the next ``n`` replies."""
+        self._call({"cmd": "corrupt", "n": n})
+
+    def silence(self, on: bool = True) -> None:
+        """Drop every reply until ``silence(False)``."""
+        self._call({"cmd": "silence", "on": on})
+
+    def clear_faults(self) -> None:
+        self._call({"cmd": "clear"})
+
+    def die(self) -> None:
+        """Make the process exit at once (like an unplugged adapter)."""
+        with self._lock:
+            try:
+                self._conn.send({"cmd": "die"})
+            except OSError:
+                pass
+        self._proc.join(5)
+        if self._proc.is_alive():
+            self.kill()
+
+    def kill(self) -> None:
+        """SIGKILL the process."""
+        if self._proc.is_alive():
+            self._proc.kill()
+        self._proc.join(5)
+
+    def stop(self, timeout: float = 3.0) -> None:
+        """Shut the server down cleanly (kill it if it does not go)."""
+        if self._proc.is_alive():
+            try:
+                self._call({"cmd": "stop"}, timeout=timeout)
+            except Exception:
+                pass
+            self._proc.join(timeout)
+        self.kill()
+        self._conn.close()
+
+    close = stop
+
+    def __enter__(self) -> "StageEmulator":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def __repr__(self) -> str:
+        return f"StageEmulator({self.transport}, {self.url}, pid={self._proc.pid})"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Serve until killed; print the address as one JSON line."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--transport", choices=("tcp", "rtu"), default="tcp")
+    p.add_argument("--config", default="{}", help="JSON object of StageConfig fields")
+    a = p.parse_args(argv)
+    emu = StageEmulator.start(a.transport, **json.loads(a.config))
+    print(json.dumps(emu.address), flush=True)
+    try:
+        while emu.alive:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emu.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
