@@ -29,7 +29,7 @@ from numba import njit
 
 from bench.errors import SpecimenError
 from virtual.rng import next_double
-from virtual.sampling import warp_cosine_hemisphere
+from virtual.sampling import sample_cosine_hemisphere
 
 __all__ = [
     "Spectral",
@@ -107,7 +107,7 @@ class Specimen:
     has_density: ClassVar[bool] = False
     reciprocal: ClassVar[bool] = True
     isotropic: ClassVar[bool] = True
-    label: str = field(default="", compare=False)
+    label: str = field(default="", compare=False, kw_only=True)
 
     def params(self, wavelength_nm: float) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -171,7 +171,7 @@ def _lambert(p, wz, s):
     u = next_double(s)
     if u >= p[0] + p[1]:
         return 0.0, 0.0, 0.0, False
-    x, y, z = warp_cosine_hemisphere(next_double(s), next_double(s))
+    x, y, z = sample_cosine_hemisphere(s)
     # reflected rays leave on the side of the source, transmitted rays on the other side
     up = wz >= 0.0
     if u >= p[0]:

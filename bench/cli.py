@@ -1,0 +1,197 @@
+"""The ``bench`` command line.
+
+Starts fast: heavy modules (numba kernels, colour-science, matplotlib, pandas) are imported
+inside the commands that use them. Exit status: 0 ok, 2 bad input, 1 a failed run. Every
+command that reports numbers has ``--json`` with stable keys.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from bench.errors import BenchError, InputError
+
+log = logging.getLogger("bench")
+
+
+def _emit_json(obj: Any) -> None:
+    print(json.dumps(obj, indent=None, sort_keys=False, default=_json_default))
+
+
+def _json_default(o: Any) -> Any:
+    import numpy as np
+
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    raise TypeError(f"not JSON serializable: {type(o).__name__}")
+
+
+# --- bench rays -----------------------------------------------------------------------------
+
+
+def cmd_rays(args: argparse.Namespace) -> int:
+    from virtual.bounds import hoeffding_rays
+
+    n = hoeffding_rays(args.uncertainty, args.delta, args.patches)
+    if args.json:
+        _emit_json({"N": n, "uncertainty": args.uncertainty, "delta": args.delta, "patches": args.patches,
+                    "bound": "eq. 3.12" if args.patches > 1 else "eq. 3.5"})
+    else:
+        print(n)
+    return 0
+
+
+# --- bench spectro --------------------------------------------------------------------------
+
+
+def _spectrum_json(s: Any) -> dict[str, Any]:
+    return {
+        "N": int(s.N[0]), "seed": s.seed, "geometry": s.geometry, "delta": s.delta,
+        "wavelength_nm": s.wavelengths.tolist(), "reflectance": s.reflectance.tolist(),
+        "transmittance": s.transmittance.tolist(), "reflectance_ci": s.reflectance_ci.tolist(),
+        "transmittance_ci": s.transmittance_ci.tolist(), "absorptance": s.absorptance.tolist(),
+        "quantity": s.meta.get("quantity"), "measured_as": s.meta.get("measured_as"),
+        "specimen": s.meta.get("specimen"), "beam": s.meta.get("beam"),
+    }
+
+
+def _spectro_instrument(args: argparse.Namespace):
+    from virtual.spectrophotometer import VirtualSpectrophotometer
+
+    kw: dict[str, Any] = {"beam": args.beam, "seed": args.seed, "delta": args.delta}
+    if args.rays is not None:
+        kw["rays"] = args.rays
+    else:
+        kw["uncertainty"] = args.uncertainty
+    return VirtualSpectrophotometer(args.specimen, **kw)
+
+
+def cmd_spectro(args: argparse.Namespace) -> int:
+    from bench.geometry import cie_geometry
+
+    cie_geometry(args.geometry)  # bad geometry: exit 2 before any work
+    sp = _spectro_instrument(args)
+    s = sp.measure(args.geometry, args.wavelengths)
+    if args.csv:
+        from bench.export import spectrum_to_csv
+
+        spectrum_to_csv(s, args.csv)
+    if args.plot:
+        from bench.plotting import plot_spectrum
+
+        plot_spectrum(s, args.plot)
+    if args.json:
+        _emit_json(_spectrum_json(s))
+        return 0
+    print(f"specimen {s.meta['specimen']}  geometry {s.geometry}  beam {sp.beam.kind}  "
+          f"N = {int(s.N[0])} rays/wavelength  seed {s.seed}  confidence {1 - s.delta:g}")
+    q = "RF" if s.meta.get("quantity") == "reflectance factor" else "R"
+    print(f"{'nm':>7} {q:>8} {'[lo, hi]':>20} {'T':>8} {'[lo, hi]':>20}")
+    for i, w in enumerate(s.wavelengths):
+        print(f"{w:7.1f} {s.reflectance[i]:8.5f} [{s.reflectance_ci[i, 0]:.5f}, {s.reflectance_ci[i, 1]:.5f}] "
+              f"{s.transmittance[i]:8.5f} [{s.transmittance_ci[i, 0]:.5f}, {s.transmittance_ci[i, 1]:.5f}]")
+    return 0
+
+
+# --- bench demo -----------------------------------------------------------------------------
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from bench.demo import run_demo
+
+    summary = run_demo(Path(args.out), seed=args.seed)
+    if args.json:
+        _emit_json(summary)
+    else:
+        for line in summary["lines"]:
+            print(line)
+    return 0
+
+
+# --- parser ---------------------------------------------------------------------------------
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(float(text)) if "e" in text.lower() else int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return v
+
+
+def _float(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="bench", description="goniobench: real, emulated and virtual "
+                                "goniophotometry and spectrophotometry behind one interface.")
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    r = sub.add_parser("rays", help="ray budget of eq. 3.5 (eq. 3.12 with --patches)")
+    r.add_argument("--uncertainty", "-u", type=_float, required=True, help="uncertainty v of the real instrument")
+    r.add_argument("--delta", "-d", type=_float, required=True, help="confidence delta, in (0, 1)")
+    r.add_argument("--patches", type=int, default=1, help="collector patches m (eq. 3.12)")
+    r.add_argument("--json", action="store_true")
+    r.set_defaults(func=cmd_rays)
+
+    s = sub.add_parser("spectro", help="virtual spectrophotometric measurement")
+    s.add_argument("--specimen", required=True, help="e.g. 'lambert:reflectance=0.375', 'colorchecker:dark skin'")
+    s.add_argument("--geometry", default="8/d", help="CIE geometry: 45/0, 0/45, d/0, 0/d, 8/d, 8/de")
+    s.add_argument("--wavelengths", default="400:700:10", help="START:STOP:STEP or a,b,c (nm)")
+    g = s.add_mutually_exclusive_group()
+    g.add_argument("--rays", type=_positive_int, help="rays per wavelength")
+    g.add_argument("--uncertainty", type=_float, default=0.005, help="v for eq. 3.5 (default 0.005)")
+    s.add_argument("--delta", type=_float, default=0.01, help="confidence delta (default 0.01)")
+    s.add_argument("--beam", choices=("collimated", "conical"), default="collimated")
+    s.add_argument("--seed", type=int)
+    s.add_argument("--json", action="store_true")
+    s.add_argument("--plot", metavar="FILE.png")
+    s.add_argument("--csv", metavar="FILE")
+    s.set_defaults(func=cmd_spectro)
+
+    d = sub.add_parser("demo", help="end-to-end demo on the embedded default bench")
+    d.add_argument("--out", default="demo-out", help="output folder (default ./demo-out)")
+    d.add_argument("--seed", type=int, default=20261122)
+    d.add_argument("--json", action="store_true")
+    d.set_defaults(func=cmd_demo)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except InputError as exc:
+        print(f"bench {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except BenchError as exc:
+        print(f"bench {args.command}: failed: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"bench {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
