@@ -1,0 +1,597 @@
+"""One stage axis on an Oriental-Motor-AZ-style drive, through pymodbus (RTU or TCP).
+
+The drive is operated in "direct data operation": the whole block operation No./type/
+position/speed/acceleration/deceleration/current/trigger is written with one function-16
+request and the trigger starts the move; the driver then polls the output status (READY,
+IN-POS, ALM, BUSY, MOVE) and the feedback position until the axis is in position. Every
+address, bit and code comes from a :class:`drivers.registers.RegisterMap` (TOML data), so a
+different drive is a different map.
+
+Connection
+----------
+``port`` is either a serial port for Modbus RTU (a device path, a pty slave path or any
+pyserial URL) or ``"tcp://host:port"`` for Modbus TCP. Alternatively pass ``transport=``, any
+:class:`drivers.transport.Transport` (e.g. a ``ScriptedTransport`` replaying a recorded
+session, or a ``RecordingTransport``): Modbus RTU frames are then built and parsed by
+pymodbus's own framer and moved by that transport.
+
+Faults
+------
+* A Modbus exception response -> :class:`ProtocolError` naming the function, address and
+  exception code (no retry: the drive answered).
+* No reply / a garbled reply -> retried ``retries`` times, then :class:`DeviceTimeoutError`
+  (or :class:`ChecksumError` when bytes came back but never a valid frame).
+* The connection cannot be made or is lost -> retried, then :class:`PortGoneError`.
+* ALM on the drive -> :class:`HardwareError` with the alarm code (``err.code``).
+* Any fault during a move (alarm, timeout, lost connection, not in position in time) latches:
+  no motion command is sent until :meth:`ModbusStageAxis.reset_alarm` succeeds; meanwhile
+  :meth:`ModbusStageAxis.move_to_deg` raises :class:`FaultLatchedError` without bus traffic.
+  :meth:`ModbusStageAxis.stop` is always allowed.
+
+Example
+-------
+>>> with ModbusStageAxis("tcp://127.0.0.1:5020", steps_per_rev=1000, gear_ratio=18,
+...                      limits_deg=(-170, 170), speed_deg_s=20) as axis:   # doctest: +SKIP
+...     reached = axis.move_to_deg(45.0)
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field, fields
+from typing import Any, Callable, Mapping
+
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from pymodbus.framer import FramerType
+
+from bench.errors import (
+    ChecksumError,
+    ConfigError,
+    DeviceError,
+    DeviceTimeoutError,
+    FaultLatchedError,
+    GeometryError,
+    HardwareError,
+    InputError,
+    PortGoneError,
+    ProtocolError,
+)
+from bench.instruments import InstrumentInfo
+from drivers.registers import RegisterMap, load_register_map
+
+__all__ = ["AxisConfig", "ModbusStageAxis", "TransportModbusClient", "MODBUS_EXCEPTIONS"]
+
+log = logging.getLogger(__name__)
+
+MODBUS_EXCEPTIONS = {
+    1: "ILLEGAL FUNCTION", 2: "ILLEGAL DATA ADDRESS", 3: "ILLEGAL DATA VALUE",
+    4: "SLAVE DEVICE FAILURE", 5: "ACKNOWLEDGE", 6: "SLAVE DEVICE BUSY",
+    8: "MEMORY PARITY ERROR", 10: "GATEWAY PATH UNAVAILABLE",
+    11: "GATEWAY TARGET DEVICE FAILED TO RESPOND",
+}
+_FUNCTION_NAMES = {3: "read holding registers", 16: "write multiple registers"}
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    """Mechanics, motion and communication settings of one axis (all keys optional).
+
+    Attributes
+    ----------
+    steps_per_rev : int
+        Motor steps per motor revolution (AZ default 1000 = 0.36 deg/step).
+    gear_ratio : float
+        Motor revolutions per output revolution (e.g. 18 for an 18:1 rotary actuator).
+    units_per_rev : float
+        Output units per output revolution: 360 for a rotary axis in degrees, the screw lead
+        in mm for a linear axis. The API says ``_deg``; for a linear axis read "unit".
+    unit : str
+        ``"deg"`` or ``"mm"`` (metadata only).
+    zero_offset : float
+        Output position (units) at step 0.
+    limits : (float, float)
+        Software travel limits in units; targets outside raise :class:`GeometryError`.
+    speed : float
+        Operating speed, units/s.
+    accel, decel : int
+        Raw acceleration/deceleration written to the drive (drive units, AZ: kHz/s).
+    current : int
+        Operating current in 0.1 % (1000 = 100 %).
+    tolerance : float
+        Largest |feedback - target| (units) accepted as "reached".
+    move_timeout_s : float or None
+        Time allowed for one move; None = travel time at ``speed`` x 1.5 + ``settle_s`` + 1 s.
+    settle_s : float
+        Extra time allowed after the travel time.
+    poll_interval_s : float
+        Status polling period while moving.
+    timeout_s : float
+        Reply timeout for one Modbus request.
+    retries : int
+        Extra attempts after a timeout / lost connection (exception responses never retry).
+    retry_delay_s : float
+        Pause between attempts.
+    device_id : int
+        Modbus unit id (1..247).
+    baudrate, parity, stopbits, bytesize
+        Serial settings (AZ default 115200 8E1; a pty needs parity "N").
+    register_map : str
+        Name in ``drivers/registers`` or a TOML path.
+    """
+
+    steps_per_rev: int = 1000
+    gear_ratio: float = 1.0
+    units_per_rev: float = 360.0
+    unit: str = "deg"
+    zero_offset: float = 0.0
+    limits: tuple[float, float] = (-180.0, 180.0)
+    speed: float = 30.0
+    accel: int = 1000
+    decel: int = 1000
+    current: int = 1000
+    tolerance: float = 0.05
+    move_timeout_s: float | None = None
+    settle_s: float = 0.5
+    poll_interval_s: float = 0.01
+    timeout_s: float = 0.5
+    retries: int = 2
+    retry_delay_s: float = 0.05
+    device_id: int = 1
+    baudrate: int = 115200
+    parity: str = "E"
+    stopbits: int = 1
+    bytesize: int = 8
+    register_map: str = "oriental_az"
+
+    def __post_init__(self) -> None:
+        def bad(msg: str) -> None:
+            raise ConfigError(f"stage axis config: {msg}")
+
+        if not (isinstance(self.steps_per_rev, int) and self.steps_per_rev > 0):
+            bad(f"steps_per_rev must be a positive integer, got {self.steps_per_rev!r}")
+        for name in ("gear_ratio", "units_per_rev", "speed", "tolerance", "timeout_s",
+                     "poll_interval_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                bad(f"{name} must be a finite number > 0, got {v!r}")
+        lo, hi = self.limits
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            bad(f"limits must be finite (lo, hi) with lo < hi, got {self.limits!r}")
+        if not 1 <= self.device_id <= 247:
+            bad(f"device_id must be 1..247, got {self.device_id}")
+        if self.retries < 0:
+            bad("retries must be >= 0")
+        if not 0 <= self.current <= 1000:
+            bad(f"current must be 0..1000 (0.1 % units), got {self.current}")
+        if self.parity not in ("N", "E", "O"):
+            bad(f"parity must be N, E or O, got {self.parity!r}")
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "AxisConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ConfigError(f"stage axis config: unknown key(s) {', '.join(unknown)}; "
+                              f"known: {', '.join(sorted(known))}")
+        kw = dict(d)
+        if "limits" in kw:
+            kw["limits"] = tuple(float(x) for x in kw["limits"])
+        return cls(**kw)
+
+    @property
+    def steps_per_unit(self) -> float:
+        return self.steps_per_rev * self.gear_ratio / self.units_per_rev
+
+
+class TransportModbusClient(ModbusSerialClient):
+    """A pymodbus RTU client whose bytes go through a :class:`drivers.transport.Transport`.
+
+    pymodbus builds and parses the frames (CRC included); the transport only moves bytes, so
+    a ``ScriptedTransport`` pins the exact bytes on the wire and a ``RecordingTransport``
+    records them.
+    """
+
+    def __init__(self, transport: Any, *, timeout: float = 0.5, retries: int = 0,
+                 trace_packet: Callable[[bool, bytes], bytes] | None = None) -> None:
+        super().__init__("transport://", framer=FramerType.RTU, timeout=timeout,
+                         retries=retries, trace_packet=trace_packet)
+        self._transport = transport
+        self.socket = None
+
+    def connect(self) -> bool:
+        self.socket = self._transport  # type: ignore[assignment]
+        return True
+
+    def close(self) -> None:
+        self.socket = None
+
+    def is_socket_open(self) -> bool:
+        return self.socket is not None
+
+    def _in_waiting(self) -> int:
+        return int(getattr(self._transport, "in_waiting", 0))
+
+    def send(self, request: bytes, addr: tuple | None = None) -> int:
+        if not request:
+            return 0
+        if self._in_waiting():
+            self._transport.reset_input()
+        self._transport.write(request)
+        return len(request)
+
+    def recv(self, size: int | None) -> bytes:
+        timeout = self.comm_params.timeout_connect or 0.5
+        if size is not None:
+            return self._transport.read(size, timeout)
+        first = self._transport.read(1, timeout)
+        if not first:
+            return b""
+        # the rest of a frame follows within a few character times; take what is there
+        rest = b""
+        deadline = time.monotonic() + 0.02
+        while True:
+            n = self._in_waiting()
+            if n:
+                rest += self._transport.read(n, 0)
+                deadline = time.monotonic() + 0.005
+            elif time.monotonic() >= deadline:
+                break
+            else:
+                time.sleep(0.0005)
+        return first + rest
+
+
+@dataclass
+class _Fault:
+    kind: str
+    message: str
+    code: int | None = None
+    flags: list[str] = field(default_factory=list)
+
+
+class ModbusStageAxis:
+    """A single stage axis (rotary or linear) on a Modbus drive in direct data operation.
+
+    Parameters
+    ----------
+    port : str, optional
+        Serial port / pty path / pyserial URL (RTU) or ``"tcp://host:port"`` (TCP).
+    transport : Transport, optional
+        A :class:`drivers.transport.Transport` to carry RTU frames instead of ``port``.
+    config : AxisConfig or mapping, optional
+        Settings; keyword arguments override single keys (see :class:`AxisConfig`), and the
+        aliases ``limits_deg`` and ``speed_deg_s`` are accepted.
+    name : str
+        Name used in messages and ``describe()``.
+
+    Raises
+    ------
+    ConfigError
+        Bad configuration or register map.
+    PortGoneError
+        The port cannot be opened (first request after the bounded retries).
+    """
+
+    def __init__(self, port: str | None = None, *, transport: Any = None,
+                 config: AxisConfig | Mapping[str, Any] | None = None, name: str = "stage",
+                 **overrides: Any) -> None:
+        if (port is None) == (transport is None):
+            raise InputError("give exactly one of port= or transport=")
+        if "limits_deg" in overrides:
+            overrides["limits"] = overrides.pop("limits_deg")
+        if "speed_deg_s" in overrides:
+            overrides["speed"] = overrides.pop("speed_deg_s")
+        base = config if isinstance(config, AxisConfig) else AxisConfig.from_dict(config or {})
+        if overrides:
+            merged = {f.name: getattr(base, f.name) for f in fields(AxisConfig)}
+            unknown = sorted(set(overrides) - set(merged))
+            if unknown:
+                raise ConfigError(f"stage axis: unknown setting(s) {', '.join(unknown)}")
+            merged.update(overrides)
+            base = AxisConfig.from_dict(merged)
+        self.config: AxisConfig = base
+        self.rmap: RegisterMap = load_register_map(base.register_map)
+        self.name = name
+        self.port = port if port is not None else repr(transport)
+        self._fault: _Fault | None = None
+        self._rx_seen = False
+        self._closed = False
+        cfg = base
+        if transport is not None:
+            self._client: Any = TransportModbusClient(transport, timeout=cfg.timeout_s,
+                                                      trace_packet=self._trace)
+            self.link = "rtu"
+        elif port.startswith("tcp://"):
+            hostport = port[len("tcp://"):]
+            host, _, p = hostport.rpartition(":")
+            if not host or not p.isdigit():
+                raise ConfigError(f"TCP address must look like tcp://host:port, got {port!r}")
+            self._client = ModbusTcpClient(host, port=int(p), timeout=cfg.timeout_s, retries=0,
+                                           reconnect_delay=0, trace_packet=self._trace)
+            self.link = "tcp"
+        else:
+            self._client = ModbusSerialClient(port, framer=FramerType.RTU, baudrate=cfg.baudrate,
+                                              parity=cfg.parity, stopbits=cfg.stopbits,
+                                              bytesize=cfg.bytesize, timeout=cfg.timeout_s,
+                                              retries=0, reconnect_delay=0,
+                                              trace_packet=self._trace)
+            self.link = "rtu"
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any]) -> "ModbusStageAxis":
+        """Build from a bench-config table: ``port`` (required), ``name`` and AxisConfig keys."""
+        d = dict(cfg)
+        if "port" not in d:
+            raise ConfigError("stage axis config needs 'port'")
+        port = str(d.pop("port"))
+        name = str(d.pop("name", "stage"))
+        return cls(port, name=name, **d)
+
+    # --- unit conversion ----------------------------------------------------------------------
+    def to_steps(self, value: float) -> int:
+        """Output position (units) -> motor steps (rounded)."""
+        return int(round((value - self.config.zero_offset) * self.config.steps_per_unit))
+
+    def to_units(self, steps: int) -> float:
+        """Motor steps -> output position (units)."""
+        return steps / self.config.steps_per_unit + self.config.zero_offset
+
+    # --- Modbus plumbing ----------------------------------------------------------------------
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        if not sending and data:
+            self._rx_seen = True
+        return data
+
+    def _execute(self, fc: int, address: int, call: Callable[[], Any]) -> Any:
+        """Run one request with bounded retries; map every failure to a bench error."""
+        if self._closed:
+            raise PortGoneError(f"{self.name}: the axis is closed")
+        cfg = self.config
+        what = f"{_FUNCTION_NAMES.get(fc, f'function {fc}')} (0x{fc:02X}) at 0x{address:04X}"
+        last: BaseException | None = None
+        kind = "timeout"
+        garbled = False
+        for attempt in range(cfg.retries + 1):
+            if attempt:
+                time.sleep(cfg.retry_delay_s)
+            self._rx_seen = False
+            try:
+                resp = call()
+            except ConnectionException as exc:
+                last, kind = exc, "gone"
+                self._safe_close_client()
+                log.warning("%s: %s: connection failed (attempt %d): %s", self.name, what,
+                            attempt + 1, exc)
+                continue
+            except ModbusIOException as exc:
+                last, kind = exc, "timeout"
+                garbled = garbled or self._rx_seen
+                log.warning("%s: %s: no valid reply (attempt %d)", self.name, what, attempt + 1)
+                continue
+            except (PortGoneError, DeviceError):
+                raise
+            except ModbusException as exc:
+                last, kind = exc, "timeout"
+                continue
+            except OSError as exc:
+                last, kind = exc, "gone"
+                self._safe_close_client()
+                continue
+            if resp.isError():
+                code = getattr(resp, "exception_code", None)
+                ename = MODBUS_EXCEPTIONS.get(code, "unknown") if code is not None else "?"
+                raise ProtocolError(f"{self.name}: {what}: Modbus exception code {code} ({ename})"
+                                    f" from device {cfg.device_id}")
+            return resp
+        tries = cfg.retries + 1
+        if kind == "gone":
+            raise PortGoneError(f"{self.name}: {what}: cannot reach {self.port} after {tries} "
+                                f"attempt(s): {last}")
+        if garbled:
+            raise ChecksumError(f"{self.name}: {what}: replies from device {cfg.device_id} "
+                                f"failed the CRC/framing check {tries} time(s)")
+        raise DeviceTimeoutError(f"{self.name}: {what}: no reply from device {cfg.device_id} "
+                                 f"within {cfg.timeout_s} s after {tries} attempt(s)")
+
+    def _safe_close_client(self) -> None:
+        try:
+            self._client.close()
+        except Exception:  # pragma: no cover - closing a dead link
+            pass
+
+    def _read(self, address: int, count: int) -> list[int]:
+        resp = self._execute(3, address, lambda: self._client.read_holding_registers(
+            address, count=count, device_id=self.config.device_id))
+        regs = list(resp.registers)
+        if len(regs) != count:
+            raise ProtocolError(f"{self.name}: read of {count} registers at 0x{address:04X} "
+                                f"returned {len(regs)}")
+        return regs
+
+    def _write(self, address: int, values: list[int]) -> None:
+        self._execute(16, address, lambda: self._client.write_registers(
+            address, values, device_id=self.config.device_id))
+
+    def read_int32(self, key: str) -> int:
+        """Read the 32-bit register pair ``key`` of the register map (signed)."""
+        return self.rmap.from_words(self._read(self.rmap.addr(key), 2))
+
+    def write_int32(self, key: str, value: int) -> None:
+        """Write the 32-bit register pair ``key`` (function 16)."""
+        self._write(self.rmap.addr(key), self.rmap.to_words(value))
+
+    # --- status and faults --------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        """Read the output status: ``{"word": int, "flags": [...], "alarm": code or 0}``."""
+        word = self.read_int32("output_status") & 0xFFFFFFFF
+        flags = self.rmap.status_flags(word)
+        alarm = self.read_int32("present_alarm") if "ALM" in flags else 0
+        return {"word": word, "flags": flags, "alarm": alarm}
+
+    def _raise_alarm(self, st: dict[str, Any], during: str) -> None:
+        code = int(st["alarm"])
+        msg = (f"{self.name}: drive alarm 0x{code:02X} ({self.rmap.alarm_name(code)}) {during}; "
+               f"status {'|'.join(st['flags'])}; call reset_alarm() after removing the cause")
+        self._fault = _Fault("alarm", msg, code, list(st["flags"]))
+        log.error(msg)
+        raise HardwareError(msg, code=code, flags=st["flags"])
+
+    @property
+    def fault(self) -> str | None:
+        """The latched fault message, or None."""
+        return self._fault.message if self._fault else None
+
+    def _check_latch(self) -> None:
+        if self._fault is not None:
+            raise FaultLatchedError(f"{self.name}: no motion while a fault is latched "
+                                    f"({self._fault.message}); call reset_alarm() first")
+
+    def reset_alarm(self) -> None:
+        """Pulse ALM-RST, then clear the latched fault if the drive reports no alarm.
+
+        Raises
+        ------
+        HardwareError
+            The alarm is still present after the reset (its cause persists).
+        """
+        bit = 1 << self.rmap.input_bits["ALM-RST"]
+        self.write_int32("input_command", bit)
+        self.write_int32("input_command", 0)
+        st = self.status()
+        if "ALM" in st["flags"]:
+            self._raise_alarm(st, "persists after ALM-RST")
+        if self._fault is not None:
+            log.info("%s: fault cleared (%s)", self.name, self._fault.message)
+        self._fault = None
+
+    # --- motion ---------------------------------------------------------------------------------
+    def check(self, value: float) -> None:
+        """Raise :class:`GeometryError` if ``value`` (units) is not a finite in-limits target."""
+        lo, hi = self.config.limits
+        if not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise GeometryError(f"{self.name}: target {value!r} is not a finite number", value)
+        if not lo <= value <= hi:
+            raise GeometryError(f"{self.name}: target {value} {self.config.unit} is outside the "
+                                f"limits [{lo}, {hi}]", value)
+
+    def move_to_deg(self, angle: float) -> float:
+        """Move to ``angle`` (units), block until IN-POS, return the position read back.
+
+        Raises
+        ------
+        GeometryError
+            Outside the limits (nothing is sent).
+        FaultLatchedError
+            A fault is latched (nothing is sent).
+        HardwareError
+            The drive is in alarm before or during the move (fault latched).
+        DeviceTimeoutError
+            Not in position within the move timeout (a STOP is sent, fault latched).
+        """
+        self.check(angle)
+        self._check_latch()
+        cfg = self.config
+        target = self.to_steps(angle)
+        try:
+            st = self.status()
+            if "ALM" in st["flags"]:
+                self._raise_alarm(st, "before the move")
+            start = self.read_int32("feedback_position")
+            speed_hz = max(1, int(round(cfg.speed * cfg.steps_per_unit)))
+            block = [0, self.rmap.value("type_absolute", 1), target, speed_hz, cfg.accel,
+                     cfg.decel, cfg.current, self.rmap.value("trigger_all", 1)]
+            words: list[int] = []
+            for v in block:
+                words += self.rmap.to_words(v)
+            a0, n = self.rmap.direct_block
+            assert len(words) == n
+            log.debug("%s: move %s -> %s steps at %s Hz", self.name, start, target, speed_hz)
+            self._write(a0, words)
+            return self._wait_in_position(target, start, speed_hz)
+        except HardwareError:
+            raise
+        except (DeviceTimeoutError, ChecksumError, PortGoneError, ProtocolError) as exc:
+            if self._fault is None:
+                self._fault = _Fault("communication", f"{type(exc).__name__} during a move: {exc}")
+            raise
+
+    def _wait_in_position(self, target: int, start: int, speed_hz: int) -> float:
+        cfg = self.config
+        travel = abs(target - start) / speed_hz
+        limit = cfg.move_timeout_s if cfg.move_timeout_s is not None else \
+            travel * 1.5 + cfg.settle_s + 1.0
+        deadline = time.monotonic() + limit
+        tol = max(1, int(math.ceil(cfg.tolerance * cfg.steps_per_unit)))
+        busy = {"BUSY", "MOVE"}
+        while True:
+            st = self.status()
+            if "ALM" in st["flags"]:
+                self._raise_alarm(st, f"while moving to {self.to_units(target):.4g} {cfg.unit}")
+            if "IN-POS" in st["flags"] and not busy & set(st["flags"]):
+                fb = self.read_int32("feedback_position")
+                if abs(fb - target) <= tol:
+                    return self.to_units(fb)
+            if time.monotonic() >= deadline:
+                try:
+                    fb = self.read_int32("feedback_position")
+                    where = f"{self.to_units(fb):.4g} {cfg.unit}"
+                except DeviceError:
+                    where = "unknown"
+                try:
+                    self.stop()
+                except DeviceError:
+                    pass
+                msg = (f"{self.name}: not in position at {self.to_units(target):.4g} {cfg.unit} "
+                       f"within {limit:.3g} s (at {where}, status {'|'.join(st['flags'])})")
+                self._fault = _Fault("timeout", msg)
+                raise DeviceTimeoutError(msg)
+            time.sleep(cfg.poll_interval_s)
+
+    def move_to(self, value: float) -> float:
+        """Alias of :meth:`move_to_deg` (units of the axis)."""
+        return self.move_to_deg(value)
+
+    def position_deg(self) -> float:
+        """Feedback position in units (degrees for a rotary axis)."""
+        return self.to_units(self.read_int32("feedback_position"))
+
+    def position(self) -> float:
+        """Alias of :meth:`position_deg`."""
+        return self.position_deg()
+
+    def stop(self) -> None:
+        """Pulse STOP (always allowed, also with a latched fault)."""
+        bit = 1 << self.rmap.input_bits["STOP"]
+        self.write_int32("input_command", bit)
+        self.write_int32("input_command", 0)
+
+    # --- Instrument ---------------------------------------------------------------------------
+    def describe(self) -> InstrumentInfo:
+        cfg = self.config
+        step = 1.0 / cfg.steps_per_unit
+        return InstrumentInfo(
+            kind="stage-axis", model=f"modbus:{self.rmap.name}", serial="", firmware="",
+            uncertainty=step / math.sqrt(12.0),
+            ranges={f"position_{cfg.unit}": tuple(cfg.limits),
+                    f"speed_{cfg.unit}_s": (0.0, float(cfg.speed))},
+            extra={"name": self.name, "port": self.port, "link": self.link,
+                   "device_id": cfg.device_id, "steps_per_unit": cfg.steps_per_unit,
+                   "unit": cfg.unit, "register_map": self.rmap.name,
+                   "fault": self.fault})
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._safe_close_client()
+
+    def __enter__(self) -> "ModbusStageAxis":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"ModbusStageAxis({self.name!r}, {self.port!r}, device {self.config.device_id})"
