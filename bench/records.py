@@ -1,0 +1,46 @@
+"""Records: the tidy data every device, store, export and comparison shares.
+
+A :class:`BSDFRecord` is a ``pandas.DataFrame`` with one row per (wavelength, incidence,
+viewing patch or direction) and a metadata dict. Columns (angles in degrees):
+
+=================  ============================================================================
+wavelength_nm      wavelength
+theta_i, phi_i     incidence (toward the source)
+theta_r, phi_r     viewing direction (patch centre for a virtual collector)
+hemisphere         ``"R"`` (reflection side) or ``"T"`` (transmission side)
+value              BRDF or BTDF (1/sr)
+std                standard uncertainty of ``value`` (1/sr)
+ci_lo, ci_hi       interval at confidence ``1 - meta["delta"]`` (1/sr)
+theta_min ...      patch bounds ``theta_min, theta_max, phi_min, phi_max`` (virtual collectors;
+                   a physical detector gives its aperture instead)
+psa                projected solid angle of the patch or aperture (sr)
+count, N           rays in the patch and rays that reached the specimen (virtual)
+=================  ============================================================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["BSDFRecord", "BSDF_COLUMNS"]
+
+BSDF_COLUMNS = ["wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "hemisphere", "value", "std",
+                "ci_lo", "ci_hi", "theta_min", "theta_max", "phi_min", "phi_max", "psa", "count", "N"]
+
+
+@dataclass
+class BSDFRecord:
+    """A goniophotometric record: ``table`` (pandas DataFrame, :data:`BSDF_COLUMNS`) and ``meta``."""
+
+    table: Any
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def reflection(self) -> "BSDFRecord":
+        return BSDFRecord(self.table[self.table.hemisphere == "R"].reset_index(drop=True), dict(self.meta))
+
+    def transmission(self) -> "BSDFRecord":
+        return BSDFRecord(self.table[self.table.hemisphere == "T"].reset_index(drop=True), dict(self.meta))
+
+    def __len__(self) -> int:
+        return len(self.table)
