@@ -172,7 +172,7 @@ class CIEGeometry:
         """
         if self.illumination == "directional":
             return self
-        return CIEGeometry(self.name, "directional", self.theta_r, "diffuse", 0.0,
+        return CIEGeometry(f"{self.theta_r:g}/d", "directional", self.theta_r, "diffuse", 0.0,
                            self.cone_deg, self.specular_included)
 
     def __str__(self) -> str:

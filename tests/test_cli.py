@@ -1,0 +1,75 @@
+"""The CLI contract: outputs later checks rely on, JSON keys, exit status 2 for bad input."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bench.cli import main
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_rays_prints_eq_3_5_and_eq_3_12(capsys):
+    assert run(capsys, "rays", "--uncertainty", "0.005", "--delta", "0.01") == (0, "105967\n", "")
+    assert run(capsys, "rays", "--uncertainty", "0.005", "--delta", "0.01", "--patches", "900")[1] == "95370300\n"
+    code, out, _ = run(capsys, "rays", "-u", "0.005", "-d", "0.01", "--json")
+    assert code == 0 and json.loads(out)["N"] == 105967
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["rays", "--uncertainty", "0", "--delta", "0.01"], "uncertainty"),
+    (["rays", "--uncertainty", "-1", "--delta", "0.01"], "uncertainty"),
+    (["rays", "--uncertainty", "0.01", "--delta", "1"], "delta"),
+    (["rays", "--uncertainty", "0.01", "--delta", "0"], "delta"),
+    (["spectro", "--specimen", "lambert:reflectance=0.5", "--geometry", "9/9", "--rays", "10"], "geometry"),
+    (["spectro", "--specimen", "chalk", "--rays", "10"], "specimen"),
+    (["spectro", "--specimen", "colorchecker:dark skin", "--wavelengths", "300:400:10", "--rays", "10"], "300"),
+    (["spectro", "--specimen", "lambert:reflectance=0.5", "--uncertainty", "0", "--delta", "0.01"], "uncertainty"),
+])
+def test_bad_input_exits_2_with_a_one_line_message(capsys, argv, needle):
+    code, out, err = run(capsys, *argv)
+    assert code == 2
+    assert needle in err and err.count("\n") == 1
+
+
+def test_spectro_json_has_the_contract_keys(capsys):
+    code, out, _ = run(capsys, "spectro", "--specimen", "lambert:reflectance=0.5,transmittance=0.3",
+                       "--geometry", "8/d", "--wavelengths", "400:700:150", "--rays", "20000", "--seed", "7", "--json")
+    assert code == 0
+    d = json.loads(out)
+    for key in ("N", "seed", "geometry", "wavelength_nm", "reflectance", "transmittance",
+                "reflectance_ci", "transmittance_ci"):
+        assert key in d
+    assert d["N"] == 20000 and d["seed"] == 7 and d["wavelength_nm"] == [400.0, 550.0, 700.0]
+    assert all(lo <= r <= hi for r, (lo, hi) in zip(d["reflectance"], d["reflectance_ci"]))
+
+
+def test_spectro_writes_csv_and_plot(capsys, tmp_path):
+    csv, png = tmp_path / "s.csv", tmp_path / "s.png"
+    code, out, _ = run(capsys, "spectro", "--specimen", "colorchecker:dark skin", "--wavelengths", "400:700:20",
+                       "--rays", "5000", "--seed", "1", "--csv", str(csv), "--plot", str(png))
+    assert code == 0 and "dark skin" in out
+    assert csv.read_text().splitlines()[0].startswith("wavelength_nm,reflectance")
+    assert len(csv.read_text().splitlines()) == 1 + 16
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_console_script_runs_and_starts_without_heavy_imports():
+    # `bench rays` must not import numba kernels, colour or matplotlib
+    code = ("import sys; from bench.cli import main; main(['rays','-u','0.01','-d','0.05']); "
+            "heavy = [m for m in ('colour', 'matplotlib', 'pandas', 'virtual.engine') if m in sys.modules]; "
+            "print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines()[-1] == "[]"
+    exe = Path(sys.executable).parent / "bench"
+    if exe.exists():
+        r = subprocess.run([str(exe), "rays", "-u", "0.005", "-d", "0.01"], capture_output=True, text=True)
+        assert r.returncode == 0 and r.stdout == "105967\n"
