@@ -20,16 +20,17 @@ the source arm swings.
 Hence ``Geometry -> joints``: ``t = phi_i``, ``s = theta_i``, ``d = phi_r - phi_i``,
 ``e = theta_r`` (each angle taken as the representative of its class mod 360 inside the joint
 limits, nearest to a given current position if any), and back: ``theta_i = s``,
-``phi_i = t mod 360``, ``theta_r = e``, ``phi_r = (t + d) mod 360``.
+``phi_i = t mod 360``, ``theta_r = e``, ``phi_r = (t + d) mod 360`` (canonical at the poles).
 
 Degenerate poles. At ``theta_i = 0`` the source is on the normal and the turntable is a free
 degree of freedom; at ``theta_r = 0`` the detector azimuth is free. The canonical form of a
 geometry (:func:`canonical`) therefore sets ``phi_i = 0`` when ``theta_i = 0`` and ``phi_r = 0``
 when ``theta_r = 0`` (the convention of :func:`bench.geometry.spherical`), and
 :func:`joints_to_geometry` returns canonical geometries; round trips compare canonical forms.
-``geometry_to_joints`` still uses the given ``phi_i`` for the turntable at ``theta_i = 0``
-(a hint for the specimen orientation), and keeps the current (or zero) detector azimuth at
-``theta_r = 0``.
+``geometry_to_joints`` resolves the free joints so: at ``theta_i = 0`` (and ``theta_r > 0``)
+the turntable is set to ``phi_r - 180`` so that the detector sits opposite the source arm
+(``detector_azimuth = 180``, the most clearance); at ``theta_r = 0`` the detector azimuth
+stays where it is (``near``) or 0; with both at 0 the turntable stays too (or 0).
 
 Safety rules (:func:`check`), each named in the :class:`GeometryError` message
 -------------------------------------------------------------------------------
@@ -183,7 +184,7 @@ def _representative(angle: float, lo: float, hi: float, near: float | None) -> f
     if not cands:
         return None
     ref = 0.0 if near is None else near
-    return min(cands, key=lambda c: (abs(c - ref), c))
+    return min(cands, key=lambda c: (abs(c - ref), -c))  # ties: the larger
 
 
 def canonical(g: Geometry) -> Geometry:
@@ -196,11 +197,17 @@ def canonical(g: Geometry) -> Geometry:
 
 
 def _targets(g: Geometry, near: Joints | None) -> tuple[float, float, float, float]:
-    """Joint angles before limits (turntable and azimuth wrapped to (-180, 180])."""
-    t = g.phi_i
-    d = 0.0 if g.theta_r == 0.0 else g.phi_r - g.phi_i
-    if g.theta_r == 0.0 and near is not None:
-        d = near.detector_azimuth
+    """Joint angles before limits (see "Degenerate poles" in the module docstring)."""
+    if g.theta_i > 0.0:
+        t = g.phi_i
+    elif g.theta_r > 0.0:
+        t = g.phi_r - 180.0  # source on the normal: put the detector opposite the source boom
+    else:
+        t = near.turntable if near is not None else 0.0
+    if g.theta_r > 0.0:
+        d = g.phi_r - t
+    else:
+        d = near.detector_azimuth if near is not None else 0.0
     return t, g.theta_i, d, g.theta_r
 
 
@@ -287,9 +294,8 @@ def violations(g: Geometry, config: KinematicsConfig | None = None) -> list[tupl
         out.append(("beam_block", f"detector {sep:.3g} deg from the incident direction blocks the "
                                   f"beam (minimum {cfg.min_retro_deg:g} deg)"))
     # arm collision in the lab frame: the source arm is at lab azimuth 0
-    lab_view = direction(g.theta_r, g.phi_r - g.phi_i)
-    if g.theta_r == 0.0:
-        lab_view = np.array([0.0, 0.0, 1.0])
+    _, _, d, e = _targets(g, None)  # the detector in the lab frame (source arm at azimuth 0)
+    lab_view = direction(e, d) if e > 0.0 else np.array([0.0, 0.0, 1.0])
     dist = _arc_distance_deg(lab_view, g.theta_i)
     if dist < cfg.arm_clearance_deg:
         out.append(("arm_collision", f"detector head {dist:.3g} deg from the source arm "
