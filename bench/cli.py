@@ -102,6 +102,73 @@ def cmd_spectro(args: argparse.Namespace) -> int:
     return 0
 
 
+# --- bench gonio ----------------------------------------------------------------------------
+
+
+def _incidence(text: str) -> tuple[float, float]:
+    try:
+        parts = [float(p) for p in str(text).split(",")]
+    except ValueError:
+        raise InputError(f"--incidence {text!r}: expected THETA or THETA,PHI in degrees") from None
+    if len(parts) not in (1, 2):
+        raise InputError(f"--incidence {text!r}: expected THETA or THETA,PHI in degrees")
+    return parts[0], (parts[1] if len(parts) == 2 else 0.0)
+
+
+def gonio_json(record: Any) -> dict[str, Any]:
+    """The stable JSON of a goniophotometric record (scalars for the first wavelength)."""
+    t, m = record.table, record.meta
+    first = float(t.wavelength_nm.iloc[0])
+    sub = t[t.wavelength_nm == first]
+    patches = [{"hemisphere": r.hemisphere, "theta_min": r.theta_min, "theta_max": r.theta_max,
+                "phi_min": r.phi_min, "phi_max": r.phi_max, "theta": r.theta_r, "phi": r.phi_r,
+                "psa": r.psa, "count": int(r.count), "value": r.value, "ci": [r.ci_lo, r.ci_hi]}
+               for r in sub.itertuples(index=False)]
+    tot = m["totals"][0]
+    return {"N": int(m["rays"]), "seed": m["seed"], "collector": m["collector"], "beam": m["beam"],
+            "method": m["method"], "specimen": m["specimen"], "incidence": [float(t.theta_i.iloc[0]),
+                                                                           float(t.phi_i.iloc[0])],
+            "wavelength_nm": first, "delta": m["delta"], "reflectance": tot["reflectance"],
+            "transmittance": tot["transmittance"], "absorbed": tot["absorbed"], "missed": tot["missed"],
+            "by_wavelength": m["totals"], "patches": patches}
+
+
+def cmd_gonio(args: argparse.Namespace) -> int:
+    from virtual.goniophotometer import VirtualGoniophotometer
+
+    theta_i, phi_i = _incidence(args.incidence)
+    kw: dict[str, Any] = {"collector": args.collector, "beam": args.beam, "seed": args.seed, "delta": args.delta,
+                          "wavelengths": args.wavelengths, "method": args.method}
+    if args.rays is not None:
+        kw["rays"] = args.rays
+    elif args.uncertainty is not None:
+        kw["uncertainty"] = args.uncertainty
+    g = VirtualGoniophotometer(args.specimen, **kw)
+    record = g.measure_bsdf(theta_i, phi_i)
+    if args.csv:
+        Path(args.csv).parent.mkdir(parents=True, exist_ok=True)
+        record.table.to_csv(args.csv, index=False, float_format="%.8g")
+    if args.plot:
+        from bench.plotting import plot_bsdf_polar
+
+        plot_bsdf_polar(record, args.plot)
+    if args.json:
+        _emit_json(gonio_json(record))
+        return 0
+    m = record.meta
+    print(f"specimen {m['specimen']}  incidence ({theta_i:g}, {phi_i:g}) deg  collector {g.collector}  "
+          f"beam {g.beam.kind}  N = {g.rays:,}  method {m['method']}  seed {g.seed}")
+    for tot in m["totals"]:
+        print(f"  {tot['wavelength_nm']:7.1f} nm  reflectance {tot['reflectance']:.5f}  "
+              f"transmittance {tot['transmittance']:.5f}  absorbed {tot['absorbed']:,}")
+    t = record.table
+    top = t.sort_values("value", ascending=False).head(5)
+    print("  brightest patches (hemisphere, theta, phi, BSDF [1/sr], interval):")
+    for r in top.itertuples(index=False):
+        print(f"    {r.hemisphere}  {r.theta_r:6.2f} {r.phi_r:7.2f}  {r.value:.5g}  [{r.ci_lo:.5g}, {r.ci_hi:.5g}]")
+    return 0
+
+
 # --- bench demo -----------------------------------------------------------------------------
 
 
@@ -165,6 +232,24 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--plot", metavar="FILE.png")
     s.add_argument("--csv", metavar="FILE")
     s.set_defaults(func=cmd_spectro)
+
+    g = sub.add_parser("gonio", help="virtual goniophotometric measurement (whole collector sphere)")
+    g.add_argument("--specimen", required=True, help="e.g. 'lambert:albedo=0.5', 'ggx:alpha=0.2,eta=1.5,k=0'")
+    g.add_argument("--incidence", default="30", help="THETA[,PHI] in degrees (default 30)")
+    g.add_argument("--collector", default="equal-psa:9x36", help="SCHEME:NTHxNPHI, e.g. equal-psa:9x36")
+    gb = g.add_mutually_exclusive_group()
+    gb.add_argument("--rays", type=_positive_int, help="rays per wavelength (default 1e7)")
+    gb.add_argument("--uncertainty", type=_float, help="v for eq. 3.12 (patches = collector patches)")
+    g.add_argument("--delta", type=_float, default=0.01)
+    g.add_argument("--wavelengths", default="550", help="START:STOP:STEP or a,b,c (nm)")
+    g.add_argument("--beam", choices=("collimated", "conical"), default="collimated")
+    g.add_argument("--method", choices=("auto", "rays", "fast"), default="auto",
+                   help="rays: count rays; fast: one multinomial over integrated patch probabilities")
+    g.add_argument("--seed", type=int)
+    g.add_argument("--json", action="store_true")
+    g.add_argument("--csv", metavar="FILE")
+    g.add_argument("--plot", metavar="FILE.png")
+    g.set_defaults(func=cmd_gonio)
 
     d = sub.add_parser("demo", help="end-to-end demo on the embedded default bench")
     d.add_argument("--out", default="demo-out", help="output folder (default ./demo-out)")

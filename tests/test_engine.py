@@ -1,0 +1,95 @@
+"""The ray engine: per-ray accounting, determinism whatever the thread count, beams."""
+
+import math
+
+import numba
+import numpy as np
+import pytest
+
+from bench.errors import GeometryError, InputError
+from virtual.beam import Beam, rotation_to
+from virtual.engine import chunking, measurement_seed, spectro_counts
+from virtual.specimens import Lambertian
+
+
+def _count(specimen, beam, n, seed=1, theta=8.0, wl=550.0):
+    return spectro_counts(specimen.model, specimen.params(wl), beam.code, beam.disk_code,
+                          beam.kernel_args(theta, 0.0), n, measurement_seed(seed))
+
+
+def test_chunking_depends_on_n_only_and_sums_to_n():
+    for n in (0, 1, 7, 1 << 20, (1 << 20) + 1, 10**9):
+        sizes = chunking(n)
+        assert sizes.sum() == n and sizes.dtype == np.int64
+        assert sizes.max() - sizes.min() <= 1
+
+
+@pytest.mark.parametrize("kind", ["collimated", "conical"])
+def test_every_ray_is_reflected_transmitted_absorbed_or_missed(kind):
+    t = _count(Lambertian(0.5, 0.3), Beam(kind), 300_001)
+    assert t.reflected + t.transmitted + t.absorbed + t.missed == t.N
+
+
+def test_result_is_identical_whatever_the_thread_count():
+    spec, beam = Lambertian(0.375, 0.2), Beam("conical")
+    n = 5 * (1 << 20) + 3  # several chunks
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = _count(spec, beam, n, seed=99)
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        many = _count(spec, beam, n, seed=99)
+    finally:
+        numba.set_num_threads(before)
+    assert one == many
+    assert _count(spec, beam, n, seed=100) != one
+
+
+def test_collimated_and_conical_lambertian_agree_statistically():
+    # Two independent binomial estimates of the same R: the difference over its standard
+    # error is N(0, 1); |z| < 3.29 fails with probability 1e-3 when the beams agree.
+    spec, n = Lambertian(0.375, 0.25), 2_000_000
+    a = _count(spec, Beam("collimated"), n, seed=5)
+    b = _count(spec, Beam("conical"), n, seed=6)
+    for field, p in (("reflected", 0.375), ("transmitted", 0.25)):
+        pa, pb = getattr(a, field) / a.hits, getattr(b, field) / b.hits
+        se = math.sqrt(p * (1 - p) * (1 / a.hits + 1 / b.hits))
+        assert abs(pa - pb) / se < 3.29, field
+
+
+@pytest.mark.parametrize("disk", ["polar", "rejection"])
+def test_wide_conical_beam_near_grazing_misses_some_rays_but_never_nans(disk):
+    # disks larger than their distance, axis at 85 deg: part of the emitter sits below the
+    # specimen plane. Those rays are counted as missed, not scattered from behind.
+    beam = Beam("conical", emitter_radius_mm=40.0, specimen_radius_mm=12.5, distance_mm=20.0, disk_sampling=disk)
+    t = _count(Lambertian(0.8), beam, 200_000, theta=85.0)
+    assert 0 < t.missed < t.N
+    assert t.reflected + t.absorbed + t.missed == t.N
+    # the rays that did hit behave like any Lambertian: R = 0.8 within 4 binomial sigma
+    assert abs(t.reflected / t.hits - 0.8) < 4 * math.sqrt(0.16 / t.hits)
+
+
+def test_grazing_incidence_exactly_90_is_a_clear_error():
+    with pytest.raises(GeometryError, match="grazing"):
+        Beam("collimated").kernel_args(90.0, 0.0)
+    Beam("collimated").kernel_args(89.9, 0.0)  # legal, if extreme
+
+
+@pytest.mark.parametrize("theta", [0.0, 180.0])
+def test_rotation_is_exact_at_the_poles(theta):
+    r = rotation_to(theta, 123.0)
+    assert np.allclose(r @ r.T, np.eye(3), atol=1e-15)
+    assert r[2, 2] == (1.0 if theta == 0.0 else -1.0)
+
+
+def test_incidence_from_below_reflects_downward():
+    t = _count(Lambertian(0.6, 0.1), Beam("collimated"), 100_000, theta=180.0)
+    assert t.missed == 0
+    assert abs(t.reflected / t.N - 0.6) < 4 * math.sqrt(0.24 / t.N)
+
+
+def test_bad_beams_are_refused():
+    with pytest.raises(InputError, match="distance_mm"):
+        Beam("conical", distance_mm=0.0)
+    with pytest.raises(InputError, match="beam must be"):
+        Beam("laser")
