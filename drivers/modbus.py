@@ -206,6 +206,7 @@ class TransportModbusClient(ModbusSerialClient):
         return True
 
     def close(self) -> None:
+        # pymodbus calls this after errors; the transport stays open (its owner closes it)
         self.socket = None
 
     def is_socket_open(self) -> bool:
@@ -255,6 +256,9 @@ class _Fault:
 class ModbusStageAxis:
     """A single stage axis (rotary or linear) on a Modbus drive in direct data operation.
 
+    Deliberately *not* a ``Goniometer`` (no ``check``/``move_to``/``position`` taking a
+    Geometry): a goniometer composes axes like this one and maps geometries to their angles.
+
     Parameters
     ----------
     port : str, optional
@@ -297,6 +301,7 @@ class ModbusStageAxis:
         self.name = name
         self.port = port if port is not None else repr(transport)
         self._fault: _Fault | None = None
+        self._transport = transport
         self._rx_seen = False
         self._closed = False
         cfg = base
@@ -468,7 +473,7 @@ class ModbusStageAxis:
         self._fault = None
 
     # --- motion ---------------------------------------------------------------------------------
-    def check(self, value: float) -> None:
+    def check_deg(self, value: float) -> None:
         """Raise :class:`GeometryError` if ``value`` (units) is not a finite in-limits target."""
         lo, hi = self.config.limits
         if not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -491,7 +496,7 @@ class ModbusStageAxis:
         DeviceTimeoutError
             Not in position within the move timeout (a STOP is sent, fault latched).
         """
-        self.check(angle)
+        self.check_deg(angle)
         self._check_latch()
         cfg = self.config
         target = self.to_steps(angle)
@@ -550,17 +555,9 @@ class ModbusStageAxis:
                 raise DeviceTimeoutError(msg)
             time.sleep(cfg.poll_interval_s)
 
-    def move_to(self, value: float) -> float:
-        """Alias of :meth:`move_to_deg` (units of the axis)."""
-        return self.move_to_deg(value)
-
     def position_deg(self) -> float:
         """Feedback position in units (degrees for a rotary axis)."""
         return self.to_units(self.read_int32("feedback_position"))
-
-    def position(self) -> float:
-        """Alias of :meth:`position_deg`."""
-        return self.position_deg()
 
     def stop(self) -> None:
         """Pulse STOP (always allowed, also with a latched fault)."""
@@ -583,9 +580,12 @@ class ModbusStageAxis:
                    "fault": self.fault})
 
     def close(self) -> None:
+        """Close the connection (and a transport given to the constructor)."""
         if not self._closed:
             self._closed = True
             self._safe_close_client()
+            if self._transport is not None:
+                self._transport.close()
 
     def __enter__(self) -> "ModbusStageAxis":
         return self
