@@ -408,10 +408,10 @@ class DynamixelArm(InstrumentBase):
                 self._port.is_using = False
             if comm == COMM_SUCCESS:
                 alerts = [i for i, e in errors.items() if e & ERRBIT_ALERT]
-                if alerts:
+                if alerts and not isinstance(self._fault, HardwareError):
                     self._hardware_fault(alerts, what)
-                for i, e in errors.items():
-                    self._status(what, i, e)
+                for i, e in errors.items():  # already latched: reading stays possible
+                    self._status(what, i, e & 0x7F)
                 return data
             log.debug("%s: %s attempt %d: %s", self.config.name, what, attempt + 1,
                       self._ph.getTxRxResult(comm))
