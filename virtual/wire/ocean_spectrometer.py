@@ -51,7 +51,8 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 __all__ = ["SpectrometerConfig", "SpectrometerModel", "SpectrometerEmulator",
-           "constant_response", "encode_frame"]
+           "constant_response", "cosine_response", "file_geometry_source", "encode_frame",
+           "compress"]
 
 ACK, NAK, STX, ETX, CR = 0x06, 0x15, 0x02, 0x03, 0x0D
 #: commands followed by one 16-bit word in binary mode
@@ -62,6 +63,33 @@ _NO_DATA = set(b"SQLv")
 def constant_response(geometry: Any, wavelengths_nm: np.ndarray, factor: float = 0.5) -> np.ndarray:
     """The default signal model: the same reflected fraction at every wavelength."""
     return np.full(np.shape(wavelengths_nm), float(factor))
+
+
+def cosine_response(geometry: Any, wavelengths_nm: np.ndarray, factor: float = 0.5) -> np.ndarray:
+    """A Lambertian specimen seen by a fixed detector: ``factor * cos(theta_i)``.
+
+    ``geometry`` is a mapping or object with ``theta_i`` in degrees (``None``: normal incidence).
+    """
+    if geometry is None:
+        theta = 0.0
+    elif isinstance(geometry, dict):
+        theta = float(geometry.get("theta_i", 0.0))
+    else:
+        theta = float(getattr(geometry, "theta_i", 0.0))
+    return np.full(np.shape(wavelengths_nm), float(factor) * max(np.cos(np.radians(theta)), 0.0))
+
+
+def file_geometry_source(path: str) -> Any:
+    """Read the current geometry from a JSON file (``None`` when it does not exist yet).
+
+    A stand-in for a goniometer emulator publishing its joint angles: bind the path with
+    ``functools.partial(file_geometry_source, path)``.
+    """
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return json.load(fh)
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
 
 
 def _resolve(spec: Any) -> Any:
