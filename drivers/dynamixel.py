@@ -55,7 +55,8 @@ Config dict (TOML-friendly)
     direction = 1                  # +1 or -1
     gear_ratio = 1.0               # servo revolutions per joint revolution
     operating_mode = 3             # 3 position, 4 extended position
-    limits = [-170, 170]           # joint degrees (override the kinematics limits)
+    limits = [-170, 170]           # joint degrees (override the kinematics limits; without
+                                   #   it, mode 3 narrows them to what ticks 0..4095 reach)
     profile_velocity = 0           # 0.229 rpm units (0 = the servo's velocity limit)
     profile_acceleration = 0
 """
@@ -233,19 +234,28 @@ class ArmConfig:
                 raise ConfigError(f"{name} must be a finite number >= 0, got {v!r}")
         if not isinstance(self.retries, int) or self.retries < 0:
             raise ConfigError(f"retries must be an integer >= 0, got {self.retries!r}")
-        # the kinematics limits actually used: the axis limits where given
-        lim = {a.joint: a.limits for a in self.axes.values() if a.limits is not None}
-        kc = self.kinematics.with_limits(**lim) if lim else self.kinematics
-        object.__setattr__(self, "kinematics", kc)
+        # The joint limits actually used: the axis limits where given, else the kinematics
+        # limits; in position mode 3 the latter are narrowed to what ticks 0..4095 reach.
+        lim: dict[str, tuple[float, float]] = {}
         for a in self.axes.values():
-            if a.operating_mode == 3:
-                lo, hi = kc.limits[a.joint]
-                for deg in (lo, hi):
-                    t = a.to_ticks(deg)
-                    if not 0 <= t <= TICKS_PER_REV - 1:
-                        raise ConfigError(
-                            f"axes.{a.joint}: limit {deg:g} deg is tick {t}, outside 0..4095 of "
-                            f"position mode 3 (use operating_mode = 4, or change zero_offset/limits)")
+            if a.limits is not None:
+                lim[a.joint] = a.limits
+                if a.operating_mode == 3:
+                    for deg in a.limits:
+                        t = a.to_ticks(deg)
+                        if not 0 <= t <= TICKS_PER_REV - 1:
+                            raise ConfigError(
+                                f"axes.{a.joint}: limit {deg:g} deg is tick {t}, outside 0..4095 of "
+                                f"position mode 3 (use operating_mode = 4, or change zero_offset/limits)")
+            elif a.operating_mode == 3:
+                lo, hi = self.kinematics.limits[a.joint]
+                r = sorted((a.to_degrees(0), a.to_degrees(TICKS_PER_REV - 1)))
+                lo2, hi2 = max(lo, r[0]), min(hi, r[1])
+                if lo2 > hi2:
+                    raise ConfigError(f"axes.{a.joint}: joint limits [{lo:g}, {hi:g}] deg and the "
+                                      f"mode 3 tick range [{r[0]:g}, {r[1]:g}] deg do not overlap")
+                lim[a.joint] = (lo2, hi2)
+        object.__setattr__(self, "kinematics", self.kinematics.with_limits(**lim))
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "ArmConfig":
@@ -580,8 +590,8 @@ class DynamixelArm(InstrumentBase):
 
     def move_to(self, geometry: Geometry) -> Geometry:
         """Check, sync-write all goals, wait until settled; return the geometry read back."""
+        kin.check(geometry, self.config.kinematics)  # before any byte, latched or not
         self._require_unlatched(f"move_to({geometry})")
-        kin.check(geometry, self.config.kinematics)  # before any byte
         joints = kin.geometry_to_joints(geometry, self.config.kinematics, near=self._joints)
         goals = self._goal_ticks(joints)
         return self._guard("move_to", lambda: self._move(goals, f"move_to({geometry})"))

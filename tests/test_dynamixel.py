@@ -238,7 +238,11 @@ def test_config_from_dict_and_errors() -> None:
     with pytest.raises(ConfigError, match="unknown key"):
         ArmConfig.from_dict({"axes": {**AXES, "source": {"id": 2, "speed": 3}}})
     with pytest.raises(ConfigError, match="outside 0..4095"):
-        ArmConfig.from_dict({"axes": {**AXES, "turntable": {"id": 1}}})  # +-180 deg in mode 3
+        ArmConfig.from_dict({"axes": {**AXES, "turntable": {"id": 1, "limits": [-180, 180]}}})
+    # without explicit limits, mode 3 narrows the kinematics limits to the tick range
+    plain = ArmConfig.from_dict({"axes": {j: {"id": i} for i, j in enumerate(JOINTS, 1)}})
+    assert plain.kinematics.limits["turntable"] == (-180.0, 2047 * 360 / 4096)
+    assert plain.kinematics.limits["source"] == (0.0, 85.0)
     with pytest.raises(ConfigError, match="operating_mode"):
         ArmConfig.from_dict({"axes": {**AXES, "source": {"id": 2, "operating_mode": 1}}})
     with pytest.raises(ConfigError, match="unknown arm key"):
@@ -565,3 +569,32 @@ if __name__ == "__main__":
     if "--record" in sys.argv:
         record_session_fixture()
         print(f"recorded {SESSION_FIXTURE} ({len(load_fixture(SESSION_FIXTURE))} pairs)")
+
+
+def test_default_axes_reach_the_specular_direction() -> None:
+    bus = DynamixelBus((1, 2, 3, 4), time_scale=50.0)
+    cfg = {"axes": {j: {"id": i} for i, j in enumerate(JOINTS, 1)}, "poll_interval_s": 0.002}
+    arm = DynamixelArm(cfg, transport=BusTransport(bus))
+    g = Geometry.in_plane(45.0, 45.0, phi_i=180.0)  # detector azimuth 180 = tick -180 deg
+    assert angular_distance_deg(arm.move_to(g), g) < 0.1
+    arm.close()
+
+
+def test_emulator_exits_when_its_parent_dies() -> None:
+    import os
+    import subprocess
+
+    code = ("import os, sys; from virtual.wire.dynamixel_bus import start_bus; "
+            "e = start_bus(); print(e.pid, flush=True); os._exit(0)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, timeout=20)
+    pid = int(out.stdout.split()[0])
+    deadline = time.monotonic() + 3.0
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.05)
+    os.kill(pid, 9)
+    pytest.fail("an orphaned emulator kept running")

@@ -38,6 +38,8 @@ A TCP socket on 127.0.0.1 speaking JSON lines: send one object per line, get one
 ``{"cmd": "poke", "id": 1, "addr": 64, "size": 1, "value": 0}`` / ``{"cmd": "clear"}`` /
 ``{"cmd": "die"}`` (exit at once: the pty vanishes).
 
+The process exits by itself when the process that started it dies (unless ``--no-orphan``).
+
 Modelling simplifications: motion at constant profile velocity (Profile Acceleration is
 stored, not simulated); Profile Velocity 0 means the Velocity Limit; no return delay; Status
 Return Level is always 2; a Goal Position outside the position limits in mode 3 is refused
@@ -683,12 +685,19 @@ def _control(bus: DynamixelBus, req: Mapping[str, Any]) -> dict[str, Any]:
     raise KeyError(f"unknown command {cmd!r}")
 
 
-def serve(bus: DynamixelBus, master_fd: int, server: socket.socket) -> None:
-    """Serve the pty master and the control socket until ``die`` (or a signal)."""
+def serve(bus: DynamixelBus, master_fd: int, server: socket.socket,
+          parent_pid: int | None = None) -> None:
+    """Serve the pty master and the control socket until ``die`` (or a signal).
+
+    With ``parent_pid`` the emulator exits within a second once that process is gone (it is
+    re-parented), so a crashed test run leaves no emulator behind.
+    """
     clients: dict[socket.socket, bytearray] = {}
     while True:
+        if parent_pid is not None and os.getppid() != parent_pid:
+            os._exit(0)
         rlist = [master_fd, server, *clients]
-        r, _, _ = select.select(rlist, [], [], 1.0)
+        r, _, _ = select.select(rlist, [], [], 0.5)
         for s in r:
             if s == master_fd:
                 try:
@@ -827,10 +836,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--time-scale", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--control-port", type=int, default=0)
+    ap.add_argument("--no-orphan", action="store_true",
+                    help="keep running when the starting process dies (default: exit)")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
     from virtual.wire.pty import open_pty
 
+    parent = None if a.no_orphan else os.getppid()
     ids = [int(x) for x in a.ids.split(",") if x.strip()]
     positions = {int(k): int(v) for k, v in (kv.split(":") for kv in a.positions.split(",") if kv)}
     bus = DynamixelBus(ids, positions, time_scale=a.time_scale, seed=a.seed,
@@ -848,7 +860,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                  "ids": ids}) + "\n")
     sys.stdout.flush()
     try:
-        serve(bus, master, server)
+        serve(bus, master, server, parent_pid=parent)
     finally:  # pragma: no cover - process exit
         os.close(slave)
     return 0
