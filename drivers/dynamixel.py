@@ -579,7 +579,8 @@ class DynamixelArm(InstrumentBase):
             uncertainty=res / math.sqrt(12.0),
             ranges={"theta_i": lim["source"], "theta_r": lim["detector_elevation"],
                     "phi_i": (0.0, 360.0), "phi_r": (0.0, 360.0)},
-            extra={"ids": {a.joint: a.id for a in self._axes},
+            extra={"uncertainty_unit": "deg (joint quantisation, 1 tick / sqrt(12))",
+                   "ids": {a.joint: a.id for a in self._axes},
                    "models": dict(self._models), "resolution_deg": res,
                    "kinematics": self.config.kinematics.as_dict()})
 

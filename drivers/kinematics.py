@@ -242,11 +242,9 @@ def geometry_to_joints(g: Geometry, config: KinematicsConfig | None = None,
         else:
             v = val if lo <= val <= hi else None
         if v is None:
-            raise GeometryError(
-                f"joint_limit: {g} needs {name} = {val:.6g} deg (mod 360)"
-                f" outside its limits [{lo:g}, {hi:g}] deg" if periodic else
-                f"joint_limit: {g} needs {name} = {val:.6g} deg outside its limits [{lo:g}, {hi:g}] deg",
-                geometry=g)
+            mod = " (mod 360)" if periodic else ""
+            raise GeometryError(f"joint_limit: {g} refused: needs {name} = {val:.6g} deg{mod}, "
+                                f"outside its limits [{lo:g}, {hi:g}] deg", geometry=g)
         out.append(v)
     return Joints(*out)
 
@@ -288,7 +286,7 @@ def violations(g: Geometry, config: KinematicsConfig | None = None) -> list[tupl
     try:
         geometry_to_joints(g, cfg)
     except GeometryError as exc:
-        out.append(("joint_limit", str(exc).split(": ", 1)[1]))
+        out.append(("joint_limit", str(exc).split(" refused: ", 1)[1]))
     sep = g.angle_between_source_and_detector()
     if sep < cfg.min_retro_deg:
         out.append(("beam_block", f"detector {sep:.3g} deg from the incident direction blocks the "

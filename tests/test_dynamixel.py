@@ -598,3 +598,34 @@ def test_emulator_exits_when_its_parent_dies() -> None:
         time.sleep(0.05)
     os.kill(pid, 9)
     pytest.fail("an orphaned emulator kept running")
+
+
+def test_record_against_the_emulator_then_replay(emulator: Any, tmp_path: Path) -> None:
+    """RecordingTransport over a live pty session yields a fixture that replays byte-exactly."""
+    path = tmp_path / "live.jsonl"
+    arm = DynamixelArm(arm_config(emulator.port),
+                       transport=RecordingTransport(SerialTransport(emulator.port), path))
+    live = run_session(arm)
+    arm.close()
+    replay = ScriptedTransport(load_fixture(path))
+    arm = DynamixelArm(arm_config(), transport=replay, sleep=lambda s: None)
+    assert run_session(arm) == live
+    arm.close()
+    assert replay.done
+
+
+def test_thread_mode_pty() -> None:
+    from virtual.wire.dynamixel_bus import PtyBusThread
+
+    with PtyBusThread(DynamixelBus((1, 2, 3, 4), time_scale=20.0, axes=EMU_AXES)) as srv:
+        arm = DynamixelArm(arm_config(srv.port))
+        g = Geometry.in_plane(50.0, 20.0)
+        assert angular_distance_deg(arm.move_to(g), g) < 0.1
+        assert srv.state()["joints"]["source"] == pytest.approx(50.0, abs=0.09)
+        srv.bus.hardware_error(4, 1 << 4)
+        with pytest.raises(HardwareError, match="electrical_shock"):
+            arm.position()
+        srv.kill()
+        with pytest.raises(PortGoneError):
+            arm.reset()
+        arm.close()

@@ -10,7 +10,8 @@ Three layers, usable separately:
 2. **Model**: :class:`Servo` (control table, finite-speed motion, EEPROM lock, hardware errors)
    and :class:`DynamixelBus` (routes instructions: ping, read, write, reboot, sync read, sync
    write, bulk read, bulk write; fault injection). In process, :class:`BusTransport` wraps a bus
-   as a byte transport (``write``/``read``/``reset_input``/``close``) for fast tests.
+   as a byte transport (``write``/``read``/``reset_input``/``close``) for fast tests, and
+   :class:`PtyBusThread` serves it on a pty from a thread (thread mode).
 3. **Process**: ``python -m virtual.wire.dynamixel_bus --ids 1,2,3,4`` owns a pseudo-terminal,
    prints one JSON line ``{"port": "/dev/pts/N", "control": "127.0.0.1:PORT", "pid": ...}`` and
    serves until killed. :func:`start_bus` does that from Python and returns an
@@ -66,7 +67,8 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 __all__ = [
     "crc16", "stuff", "unstuff", "encode_instruction", "encode_status", "decode_packet",
     "Packet", "PacketParser", "PacketError",
-    "Servo", "DynamixelBus", "BusTransport", "BusControl", "start_bus", "serve", "main",
+    "Servo", "DynamixelBus", "BusTransport", "PtyBusThread", "BusControl", "start_bus", "serve",
+    "main",
     "INST", "ERR", "ERRBIT_ALERT", "BROADCAST_ID", "HW_ERROR_BITS", "ADDR",
 ]
 
@@ -399,7 +401,7 @@ class Servo:
             return ERR["access"]
         new = bytearray(self.table)
         new[addr:end] = data
-        if addr <= 116 < end or addr < 120 <= end:
+        if addr < 120 and end > 116:  # touches Goal Position
             if not (addr <= 116 and end >= 120):
                 return ERR["data_length"]  # Goal Position is written whole
             goal = int.from_bytes(new[116:120], "little", signed=True)
@@ -657,6 +659,71 @@ class BusTransport:
 
     def close(self) -> None:
         self.closed = True
+
+
+class PtyBusThread:
+    """Thread mode: serve a :class:`DynamixelBus` on a fresh pty from a thread of this process.
+
+    Convenient when a test wants the bus object itself at hand (``.bus``: faults, hardware
+    errors, state). Timing is worse than the process mode (the SDK's busy-poll competes for
+    the GIL), so prefer :func:`start_bus` for timing-sensitive work. :meth:`kill` closes the
+    master side: the port vanishes as if the device were unplugged.
+    """
+
+    def __init__(self, bus: DynamixelBus) -> None:
+        import threading
+
+        from virtual.wire.pty import open_pty
+
+        self.bus = bus
+        self._master, self._slave, self.port = open_pty()
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, name=f"dxl-bus {self.port}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                r, _, _ = select.select([self._master], [], [], 0.05)
+                if not r:
+                    continue
+                data = os.read(self._master, 4096)
+            except BlockingIOError:
+                continue
+            except (OSError, ValueError):
+                return
+            with self._lock:
+                reply = self.bus.handle(data)
+            if reply:
+                if self.bus.faults.delay_s:
+                    time.sleep(self.bus.faults.delay_s)
+                try:
+                    _write_all(self._master, reply)
+                except OSError:
+                    return
+
+    def state(self) -> dict[str, Any]:
+        with self._lock:
+            return self.bus.state()
+
+    def kill(self) -> None:
+        """Close the pty (both sides held here): the client's port vanishes."""
+        self._stop.set()
+        self._thread.join(timeout=2)
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    close = kill
+
+    def __enter__(self) -> "PtyBusThread":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.kill()
 
 
 # --- process -------------------------------------------------------------------------------
