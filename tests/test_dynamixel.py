@@ -629,3 +629,21 @@ def test_thread_mode_pty() -> None:
         with pytest.raises(PortGoneError):
             arm.reset()
         arm.close()
+
+
+def test_e2e_late_replies_time_out_and_leave_no_stale_bytes(emulator: Any) -> None:
+    """Replies later than the SDK's packet timeout count as timeouts; once the bus is prompt
+    again the stale late bytes (dropped before each send) do not confuse the next exchange."""
+    arm = DynamixelArm(arm_config(emulator.port, retries=1))
+    with BusControl(emulator.control) as ctl:
+        ctl.faults(delay_s=0.08)  # > 2 * 16 ms + 2 ms
+        t0 = time.monotonic()
+        with pytest.raises(DeviceTimeoutError):
+            arm.position()
+        assert time.monotonic() - t0 < 1.0
+        ctl.clear()
+    time.sleep(0.1)  # the late replies arrive in the input buffer
+    arm.reset()
+    g = Geometry.in_plane(20.0, 40.0)
+    assert angular_distance_deg(arm.move_to(g), g) < 0.1
+    arm.close()
