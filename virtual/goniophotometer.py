@@ -9,6 +9,8 @@ Clopper-Pearson interval on n_d. One instance fills two roles of a virtual bench
   ``gain * integration_s * f * |cos theta_r|`` counts (what a detector of fixed aperture sees of
   a specimen whose BSDF is f), with its Monte Carlo standard deviation.
 
+``off()``/``on()`` (LightSource role) switch the virtual source: dark readings are zero.
+
 A new incidence or wavelength runs one simulation of the whole sphere and caches it, so a scan
 over viewing directions costs one simulation per (incidence, wavelength).
 
@@ -89,6 +91,7 @@ class VirtualGoniophotometer(InstrumentBase):
         self._wavelengths = parse_wavelengths(wavelengths)
         self.specimen.check_wavelengths(self._wavelengths)
         self._geometry = Geometry(0.0, 0.0, 0.0, 0.0)
+        self._light_on = True
         self._cache: dict[tuple[float, float, float], np.ndarray] = {}
 
     # -- Instrument --------------------------------------------------------------------------
@@ -121,6 +124,15 @@ class VirtualGoniophotometer(InstrumentBase):
     def stop(self) -> None:
         pass
 
+    # -- LightSource -------------------------------------------------------------------------
+    def on(self) -> None:
+        self._light_on = True
+
+    def off(self) -> None:
+        """Source off: readings are dark (zero counts: a virtual detector has no dark current
+        unless a scene declares instrument noise)."""
+        self._light_on = False
+
     # -- Spectrometer ------------------------------------------------------------------------
     @property
     def wavelengths(self) -> np.ndarray:
@@ -131,6 +143,10 @@ class VirtualGoniophotometer(InstrumentBase):
             raise InputError(f"integration_s must be finite and > 0, got {integration_s!r}")
         if not isinstance(averages, (int, np.integer)) or averages < 1:
             raise InputError(f"averages must be an integer >= 1, got {averages!r}")
+        if not self._light_on:
+            zeros = np.zeros(self._wavelengths.size)
+            return Reading(wavelengths=self.wavelengths, signal=zeros, saturated=np.zeros(zeros.size, dtype=bool),
+                           integration_s=float(integration_s), averages=int(averages), dark=True, std=zeros.copy())
         g = self._geometry
         view = g.view
         b = int(self.collector.index(view[None, :])[0])

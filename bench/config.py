@@ -1,0 +1,125 @@
+"""Bench configs: one TOML file names the implementation filling each role.
+
+Switching a scan script from virtual to emulated to real hardware is a config change only::
+
+    name = "my-bench"
+    kind = "virtual"            # "virtual", "emulated" or "real"
+
+    [specimen]                  # virtual and emulated benches: what is mounted
+    spec = "ggx:alpha=0.2,eta=1.5,k=0"
+
+    [white]                     # the reflectance standard used for calibration
+    reflectance_factor = 0.99
+    uncertainty = 0.005
+    geometry = [0, 0, 45, 180]  # theta_i, phi_i, theta_r, phi_r
+
+    [virtual]                   # virtual goniophotometer (kind = "virtual")
+    collector = "equal-psa:18x72"
+    rays = 2000000
+    beam = "collimated"
+    wavelengths = "450:650:50"
+
+Emulated and real benches add ``[arm]`` (drivers.dynamixel), ``[turntable]`` (drivers.modbus)
+and ``[spectrometer]`` (drivers.ocean) tables; the emulated builder starts the wire emulators
+itself and points the real drivers at them (see :mod:`bench.emulated`).
+
+Builders are looked up by ``kind`` and imported lazily, so ``bench`` (the interface) does not
+depend on ``virtual`` or ``drivers`` at import time.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from bench.calibrate import WhiteStandard
+from bench.errors import BenchError, ConfigError
+from bench.instruments import Goniometer, LightSource, Reading, Spectrometer
+from bench.plans import MotionProfile
+
+__all__ = ["Bench", "load_bench", "read_toml", "BUILDERS"]
+
+#: kind -> "module:function" building a Bench from (config dict, seed)
+BUILDERS: dict[str, str] = {
+    "virtual": "virtual.bench:build_virtual_bench",
+    "emulated": "bench.emulated:build_emulated_bench",
+    "real": "bench.emulated:build_real_bench",
+}
+
+
+@dataclass
+class Bench:
+    """A named set of roles. Scan scripts only ever see this.
+
+    ``measure_white(integration_s, averages)`` returns a reading of the white standard at its
+    geometry (a virtual bench measures a virtual standard; an emulated one mounts it in the
+    emulator; a real one asks the operator). ``joints`` maps a geometry to joint angles for
+    time estimates, ``motion`` gives the axes' profiles.
+    """
+
+    name: str
+    kind: str
+    goniometer: Goniometer
+    spectrometer: Spectrometer
+    white: WhiteStandard
+    measure_white: Callable[[float, int], Reading]
+    light: LightSource | None = None
+    motion: MotionProfile | None = None
+    joints: Callable[[Any], Mapping[str, float]] | None = None
+    config: dict[str, Any] = field(default_factory=dict)
+    closers: list[Callable[[], None]] = field(default_factory=list)
+
+    def describe(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"name": self.name, "kind": self.kind}
+        for role in ("goniometer", "spectrometer", "light"):
+            dev = getattr(self, role)
+            if dev is not None:
+                out[role] = dev.describe().as_dict()
+        out["white"] = self.white.as_dict()
+        return out
+
+    def close(self) -> None:
+        """Close every device and stop what the builder started (emulators), last first."""
+        errors = []
+        for closer in reversed(self.closers):
+            try:
+                closer()
+            except BenchError as exc:  # keep closing the rest
+                errors.append(exc)
+        self.closers.clear()
+        if errors:
+            raise errors[0]
+
+    def __enter__(self) -> "Bench":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file; a missing or malformed file is a :class:`ConfigError` naming it."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib  # type: ignore[no-redef]
+    p = Path(path)
+    try:
+        return tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"config file {p} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"config file {p}: {exc}") from None
+
+
+def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None) -> Bench:
+    """Build the bench a config describes (a TOML path or its dict)."""
+    d = dict(config) if isinstance(config, Mapping) else read_toml(config)
+    kind = str(d.get("kind", "virtual"))
+    if kind not in BUILDERS:
+        raise ConfigError(f"bench kind must be one of {', '.join(BUILDERS)}, got {kind!r}")
+    module, func = BUILDERS[kind].split(":")
+    builder = getattr(importlib.import_module(module), func)
+    return builder(d, seed)

@@ -1,0 +1,312 @@
+"""Scan plans: which geometries to visit, how to read each, in what order, and at what cost.
+
+A plan is a TOML file (or a dict, or built in Python) with a ``kind`` and its table:
+
+``spectral``       CIE geometries (``45/0``, ``0/45``) measured on the goniometer: one point each.
+``in-plane``       the abridged record: emitter ``theta_i`` over a range, detector ``theta_r`` over
+                   a signed range (-90..90, > 0 on the specular side), in the plane ``phi_i``.
+``hemispherical``  every ``theta_i`` x (``theta_r`` x ``phi_r``) grid over the viewing hemisphere.
+``half-vector``    Rusinkiewicz half/difference angles (``theta_h``, ``theta_d``, ``phi_d``) at a
+                   fixed ``phi_h``, converted to incident and viewing directions.
+``list``           explicit ``points = [[theta_i, phi_i, theta_r, phi_r], ...]``.
+
+Common keys: ``name``, ``integration_s``, ``averages``, ``dark`` (``"none"``, ``"once"``,
+``"per-incidence"``, ``"per-point"``), ``white`` (``"none"``, ``"once"``), ``order``
+(``"travel"`` to cut motion time, or ``"as-given"``). Ranges are lists or
+``{start, stop, step}`` tables (stop included when on the grid).
+
+:func:`validate` checks every point against the bench *before any motion* and refuses the plan
+whole, naming each offending point. :func:`estimate` gives the duration from the axes' profile
+velocity and acceleration, settle time, integration x averages and references.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from bench.errors import ConfigError, GeometryError, PlanError
+from bench.geometry import Geometry, cie_geometry
+
+__all__ = [
+    "Plan",
+    "load_plan",
+    "plan_from_dict",
+    "validate",
+    "order_for_travel",
+    "MotionProfile",
+    "estimate",
+    "half_vector_to_geometry",
+]
+
+KINDS = ("spectral", "in-plane", "hemispherical", "half-vector", "list")
+DARK_MODES = ("none", "once", "per-incidence", "per-point")
+WHITE_MODES = ("none", "once")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A validated-shape plan: its points in the order given, and how to read them."""
+
+    name: str
+    kind: str
+    points: tuple[Geometry, ...]
+    integration_s: float = 0.1
+    averages: int = 1
+    dark: str = "once"
+    white: str = "once"
+    order: str = "travel"
+    source: Mapping[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The plan as given (its source table), for run metadata."""
+        return dict(self.source)
+
+
+# --- building -----------------------------------------------------------------------------------
+
+
+def _range(value: Any, where: str) -> list[float]:
+    if isinstance(value, (int, float)):
+        return [float(value)]
+    if isinstance(value, Mapping):
+        try:
+            start, stop, step = (float(value[k]) for k in ("start", "stop", "step"))
+        except KeyError as exc:
+            raise ConfigError(f"{where}: a range table needs start, stop and step (missing {exc})") from None
+        if step <= 0 or stop < start:
+            raise ConfigError(f"{where}: need start <= stop and step > 0, got {dict(value)}")
+        n = int(math.floor((stop - start) / step + 1e-9)) + 1
+        return [round(start + i * step, 10) for i in range(n)]
+    if isinstance(value, Sequence) and not isinstance(value, str):
+        try:
+            return [float(v) for v in value]
+        except (TypeError, ValueError):
+            raise ConfigError(f"{where}: expected numbers, got {list(value)!r}") from None
+    raise ConfigError(f"{where}: expected a number, a list or a {{start, stop, step}} table, got {value!r}")
+
+
+def half_vector_to_geometry(theta_h: float, phi_h: float, theta_d: float, phi_d: float) -> Geometry:
+    """Rusinkiewicz (1998): rotate the difference vector (theta_d, phi_d) into the frame of the
+    half vector (theta_h, phi_h); incident = h rotated by d, viewing = its mirror about h."""
+    th, ph, td, pd = (math.radians(v) for v in (theta_h, phi_h, theta_d, phi_d))
+    d = np.array([math.sin(td) * math.cos(pd), math.sin(td) * math.sin(pd), math.cos(td)])
+
+    def rot_z(a: float) -> np.ndarray:
+        return np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+
+    def rot_y(a: float) -> np.ndarray:
+        return np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+
+    wi = rot_z(ph) @ rot_y(th) @ d
+    h = np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
+    wo = 2.0 * float(np.dot(wi, h)) * h - wi
+    return Geometry.from_vectors(wi, wo)
+
+
+def _points(kind: str, t: Mapping[str, Any]) -> list[Geometry]:
+    where = f"plan [{kind}]"
+    if kind == "spectral":
+        out = []
+        for name in t.get("geometries", []):
+            g = cie_geometry(name)
+            if g.illumination == "diffuse" or g.viewing == "diffuse":
+                raise ConfigError(f"{where}: {g.name} needs an integrating sphere, not a goniometer "
+                                  f"(use the spectrophotometer)")
+            out.append(Geometry(g.theta_i, float(t.get("phi_i", 0.0)), g.theta_r, float(t.get("phi_i", 0.0)) + 180.0))
+        if not out:
+            raise ConfigError(f"{where}: list the CIE geometries, e.g. geometries = [\"45/0\", \"0/45\"]")
+        return out
+    if kind == "in-plane":
+        phi_i = float(t.get("phi_i", 0.0))
+        return [Geometry.in_plane(ti, tr, phi_i)
+                for ti in _range(t.get("theta_i", [30.0]), f"{where} theta_i")
+                for tr in _range(t.get("theta_r", {"start": -80, "stop": 80, "step": 10}), f"{where} theta_r")]
+    if kind == "hemispherical":
+        phis = _range(t.get("phi_r", {"start": 0, "stop": 345, "step": 15}), f"{where} phi_r")
+        pts = []
+        for ti in _range(t.get("theta_i", [30.0]), f"{where} theta_i"):
+            for tr in _range(t.get("theta_r", {"start": 0, "stop": 80, "step": 10}), f"{where} theta_r"):
+                for pr in ([0.0] if tr == 0 else phis):
+                    pts.append(Geometry(ti, float(t.get("phi_i", 0.0)), tr, pr))
+        return pts
+    if kind == "half-vector":
+        phi_h = float(t.get("phi_h", 90.0))
+        return [half_vector_to_geometry(th, phi_h, td, pd)
+                for th in _range(t.get("theta_h", [0.0, 10.0, 20.0]), f"{where} theta_h")
+                for td in _range(t.get("theta_d", [10.0, 30.0]), f"{where} theta_d")
+                for pd in _range(t.get("phi_d", [90.0]), f"{where} phi_d")]
+    if kind == "list":
+        rows = t.get("points")
+        if not isinstance(rows, Sequence) or not rows:
+            raise ConfigError(f"{where}: points = [[theta_i, phi_i, theta_r, phi_r], ...] is required")
+        out = []
+        for i, r in enumerate(rows):
+            if not isinstance(r, Sequence) or len(r) != 4:
+                raise ConfigError(f"{where}: point {i} must be [theta_i, phi_i, theta_r, phi_r], got {r!r}")
+            try:
+                out.append(Geometry(*(float(v) for v in r)))
+            except (GeometryError, TypeError, ValueError) as exc:
+                raise ConfigError(f"{where}: point {i} {r!r}: {exc}") from None
+        return out
+    raise ConfigError(f"unknown plan kind {kind!r}; known: {', '.join(KINDS)}")
+
+
+def plan_from_dict(d: Mapping[str, Any], name: str = "plan") -> Plan:
+    """Build a :class:`Plan` from its TOML table; errors name the key."""
+    d = dict(d)
+    kind = str(d.get("kind", "")).strip().lower()
+    if kind not in KINDS:
+        raise ConfigError(f"plan kind must be one of {', '.join(KINDS)}, got {d.get('kind')!r}")
+    table = d.get(kind.replace("-", "_"), d.get(kind, {}))
+    if kind == "list" and "points" in d:
+        table = {"points": d["points"]}
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"plan [{kind}] must be a table")
+    try:
+        integration = float(d.get("integration_s", 0.1))
+        averages = int(d.get("averages", 1))
+    except (TypeError, ValueError):
+        raise ConfigError("plan integration_s must be a number and averages an integer") from None
+    if not (math.isfinite(integration) and integration > 0):
+        raise ConfigError(f"plan integration_s must be > 0, got {integration}")
+    if averages < 1:
+        raise ConfigError(f"plan averages must be >= 1, got {averages}")
+    dark, white, order = str(d.get("dark", "once")), str(d.get("white", "once")), str(d.get("order", "travel"))
+    if dark not in DARK_MODES:
+        raise ConfigError(f"plan dark must be one of {', '.join(DARK_MODES)}, got {dark!r}")
+    if white not in WHITE_MODES:
+        raise ConfigError(f"plan white must be one of {', '.join(WHITE_MODES)}, got {white!r}")
+    if order not in ("travel", "as-given"):
+        raise ConfigError(f"plan order must be 'travel' or 'as-given', got {order!r}")
+    pts = _points(kind, table)
+    return Plan(name=str(d.get("name", name)), kind=kind, points=tuple(pts), integration_s=integration,
+                averages=averages, dark=dark, white=white, order=order, source=d)
+
+
+def load_plan(path: str | Path) -> Plan:
+    """Read a plan TOML file."""
+    p = Path(path)
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib  # type: ignore[no-redef]
+    try:
+        d = tomllib.loads(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"plan file {p} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"plan file {p}: {exc}") from None
+    return plan_from_dict(d, name=p.stem)
+
+
+# --- validation ---------------------------------------------------------------------------------
+
+
+def validate(plan: Plan, check: Callable[[Geometry], Any]) -> None:
+    """Run ``check`` (the bench goniometer's) on every point; refuse the plan whole.
+
+    Raises :class:`PlanError` listing every offending point as ``point i (geometry): reason``.
+    Nothing moves: call this before the first motion.
+    """
+    problems = []
+    for i, g in enumerate(plan.points):
+        try:
+            check(g)
+        except GeometryError as exc:
+            problems.append((i, g, str(exc)))
+    if problems:
+        shown = "; ".join(f"point {i} {g}: {why}" for i, g, why in problems[:10])
+        more = f" (and {len(problems) - 10} more)" if len(problems) > 10 else ""
+        raise PlanError(f"plan {plan.name!r} refused, {len(problems)} of {len(plan.points)} points "
+                        f"cannot be measured: {shown}{more}", problems)
+
+
+# --- ordering and time ----------------------------------------------------------------------------
+
+
+def order_for_travel(points: Sequence[Geometry]) -> list[int]:
+    """Indices that visit ``points`` with little motion: grouped by incidence (the source arm and
+    turntable are the slow, heavy axes), incidences in ascending order, and within a group the
+    detector sweeps back and forth (boustrophedon over signed theta_r, then phi_r)."""
+    groups: dict[tuple[float, float], list[int]] = {}
+    for i, g in enumerate(points):
+        groups.setdefault((g.theta_i, g.phi_i), []).append(i)
+    order: list[int] = []
+    forward = True
+    for key in sorted(groups):
+        idx = sorted(groups[key], key=lambda i: (points[i].theta_r_signed, points[i].phi_r))
+        order += idx if forward else idx[::-1]
+        forward = not forward
+    return order
+
+
+@dataclass(frozen=True)
+class MotionProfile:
+    """Per-axis trapezoidal motion: velocity (deg/s) and acceleration (deg/s^2), plus settle (s)."""
+
+    velocity: Mapping[str, float]
+    acceleration: Mapping[str, float]
+    settle_s: float = 0.2
+    overhead_s: float = 0.005
+
+    def move_time(self, a: Mapping[str, float], b: Mapping[str, float]) -> float:
+        """Time of a synchronised move (the slowest axis sets it), plus settle when anything moves."""
+        longest = 0.0
+        for joint, start in a.items():
+            dist = abs(b[joint] - start)
+            if dist == 0.0:
+                continue
+            v, acc = self.velocity.get(joint, 30.0), self.acceleration.get(joint, 60.0)
+            d_ramp = v * v / acc  # distance to reach v and stop again
+            t = 2.0 * math.sqrt(dist / acc) if dist < d_ramp else dist / v + v / acc
+            longest = max(longest, t)
+        return longest + (self.settle_s if longest > 0 else 0.0)
+
+
+def _joints(g: Geometry) -> dict[str, float]:
+    # the kinematic map of drivers/kinematics.py (turntable = phi_i, source = theta_i,
+    # detector azimuth = phi_r - phi_i, detector elevation = theta_r), in the small form a
+    # time estimate needs; the bench's own map is used when it has one
+    return {"turntable": g.phi_i, "source": g.theta_i,
+            "detector_azimuth": ((g.phi_r - g.phi_i + 180.0) % 360.0) - 180.0, "detector_elevation": g.theta_r}
+
+
+def estimate(plan: Plan, profile: MotionProfile, order: Sequence[int] | None = None,
+             joints: Callable[[Geometry], Mapping[str, float]] = _joints,
+             reading_overhead_s: float = 0.01, relative_noise_per_reading: float = 0.01) -> dict[str, Any]:
+    """Duration and expected uncertainty of a plan on a physical bench.
+
+    Returns seconds split into motion, acquisition and references, and the relative standard
+    uncertainty per point from averaging (``relative_noise_per_reading / sqrt(averages)``).
+    """
+    order = list(range(len(plan.points))) if order is None else list(order)
+    motion = 0.0
+    prev = None
+    n_incidences = 0
+    last_inc = None
+    for i in order:
+        g = plan.points[i]
+        j = joints(g)
+        if prev is not None:
+            motion += profile.move_time(prev, j)
+        prev = j
+        if (g.theta_i, g.phi_i) != last_inc:
+            n_incidences += 1
+            last_inc = (g.theta_i, g.phi_i)
+    per_reading = plan.integration_s * plan.averages + reading_overhead_s + profile.overhead_s
+    acquisition = len(order) * per_reading
+    darks = {"none": 0, "once": 1, "per-incidence": n_incidences, "per-point": len(order)}[plan.dark]
+    whites = {"none": 0, "once": 1}[plan.white]
+    references = (darks + whites) * per_reading + whites * 2 * profile.settle_s
+    total = motion + acquisition + references
+    return {"points": len(order), "incidences": n_incidences, "seconds": total, "motion_s": motion,
+            "acquisition_s": acquisition, "references_s": references,
+            "relative_uncertainty": relative_noise_per_reading / math.sqrt(plan.averages)}

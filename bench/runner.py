@@ -1,0 +1,176 @@
+"""The runner: per point move, settle, acquire (dark and white as the plan says), calibrate, record.
+
+* The plan is validated whole against the bench's ``check`` before anything moves.
+* Each point is committed to the store in one transaction; a killed process loses nothing
+  committed, and :func:`resume` finishes a run with exactly the missing points.
+* Ctrl-C or a device fault ends the run cleanly: it is stored as ``interrupted`` with the
+  reason, and :class:`bench.errors.RunInterrupted` is raised.
+* The white reference is measured once, before the run is created, and stored with it; a
+  resumed run reuses it, so its values are those an uninterrupted run would have recorded.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from bench.calibrate import Calibration
+from bench.config import Bench
+from bench.errors import BenchError, DeviceError, RunInterrupted, StoreError
+from bench.geometry import Geometry
+from bench.instruments import Reading
+from bench.plans import Plan, order_for_travel, plan_from_dict, validate
+
+log = logging.getLogger(__name__)
+
+__all__ = ["run_scan", "resume_scan", "ScanResult", "point_rows"]
+
+
+@dataclass(frozen=True)
+class ScanResult:
+    run_id: str
+    status: str
+    points_done: int
+    points_planned: int
+    seconds: float
+
+
+def point_rows(reading: Reading, cal: Calibration | None, geometry: Geometry, dark: Reading | None,
+               white_net: np.ndarray | None) -> list[dict[str, Any]]:
+    """The store rows of one point: one per wavelength."""
+    rows = []
+    if cal is not None:
+        c = cal.apply(reading, geometry, dark)
+        value, std, rf, reasons = c.brdf, c.std, c.reflectance_factor, c.mask_reason
+    else:
+        value = std = rf = np.full(reading.signal.shape, np.nan)
+        reasons = ["no white reference"] * reading.signal.size
+    z = 2.5758293035489004  # two-sided 99 % normal quantile for the interval columns
+    d = dark.signal if dark is not None else np.zeros_like(reading.signal)
+    for i, w in enumerate(reading.wavelengths):
+        masked = bool(reasons[i])
+        rows.append({
+            "wavelength_nm": float(w), "signal": float(reading.signal[i]), "dark": float(d[i]),
+            "white": None if white_net is None else float(white_net[i]),
+            "value": None if masked else float(value[i]), "std": None if masked else float(std[i]),
+            "ci_lo": None if masked else float(value[i] - z * std[i]),
+            "ci_hi": None if masked else float(value[i] + z * std[i]),
+            "saturated": bool(reading.saturated[i]),
+            "extra": {"reflectance_factor": None if masked else float(rf[i]), "mask": reasons[i] or None,
+                      "integration_s": reading.integration_s, "averages": reading.averages},
+        })
+    return rows
+
+
+def _acquire_dark(bench: Bench, plan: Plan) -> Reading | None:
+    if bench.light is None:
+        return None
+    bench.light.off()
+    try:
+        return bench.spectrometer.acquire(plan.integration_s, plan.averages)
+    finally:
+        bench.light.on()
+
+
+def _measure_calibration(bench: Bench, plan: Plan) -> Calibration | None:
+    if plan.white == "none":
+        return None
+    dark = _acquire_dark(bench, plan) if plan.dark != "none" else None
+    white = bench.measure_white(plan.integration_s, plan.averages)
+    return Calibration(bench.white, white, dark)
+
+
+def _progress(total: int, initial: int, enabled: bool, desc: str):
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, disable=not enabled, desc=desc, unit="pt", dynamic_ncols=True,
+                leave=True)
+
+
+def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, progress: bool = False,
+             on_point: Callable[[int, int], None] | None = None) -> ScanResult:
+    """Validate, then measure every point of ``plan`` on ``bench`` into ``store``.
+
+    ``on_point(k, idx)`` is called after point number ``k`` (plan index ``idx``) is committed
+    (tests use it to inject faults).
+    """
+    validate(plan, bench.goniometer.check)  # refuse the whole plan before any motion
+    order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))
+    cal = _measure_calibration(bench, plan)
+    meta = {"order": order, "calibration": None if cal is None else cal.as_dict(),
+            "bench_description": bench.describe()}
+    run_id = store.create_run(kind="scan", plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
+                              n_planned=len(plan.points))
+    return _execute(bench, plan, store, run_id, order, cal, set(), progress, on_point)
+
+
+def resume_scan(bench: Bench, store: Any, run_id: str, progress: bool = False,
+                on_point: Callable[[int, int], None] | None = None) -> ScanResult:
+    """Finish an interrupted run: measure exactly the points it lacks, with its calibration."""
+    info = store.run(run_id)
+    if info["status"] == "completed":
+        raise StoreError(f"run {run_id} is already completed")
+    plan = plan_from_dict(info["plan"], name=info["plan"].get("name", "plan"))
+    meta = info.get("meta") or {}
+    order = [int(i) for i in meta.get("order", range(len(plan.points)))]
+    cal = Calibration.from_dict(meta["calibration"]) if meta.get("calibration") else None
+    validate(plan, bench.goniometer.check)
+    done = set(store.done_indices(run_id))
+    store.set_status(run_id, "running", None)
+    return _execute(bench, plan, store, run_id, order, cal, done, progress, on_point)
+
+
+def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int], cal: Calibration | None,
+             done: set[int], progress: bool, on_point: Callable[[int, int], None] | None) -> ScanResult:
+    t_run = time.perf_counter()
+    white_net = cal.reference_rate()[0] if cal is not None else None
+    dark: Reading | None = None
+    if plan.dark == "once":
+        dark = _acquire_dark(bench, plan)
+    last_incidence: tuple[float, float] | None = None
+    bar = _progress(len(order), len(done), progress, f"run {run_id}")
+    k = len(done)
+    try:
+        for idx in order:
+            if idx in done:
+                continue
+            g = plan.points[idx]
+            t0 = time.time()
+            reached = bench.goniometer.move_to(g)
+            incidence = (g.theta_i, g.phi_i)
+            if plan.dark == "per-point" or (plan.dark == "per-incidence" and incidence != last_incidence):
+                dark = _acquire_dark(bench, plan)
+            last_incidence = incidence
+            reading = bench.spectrometer.acquire(plan.integration_s, plan.averages)
+            rows = point_rows(reading, cal, reached, dark, white_net)
+            store.add_point(run_id, idx, reached.as_dict(), rows, t_start=t0, t_end=time.time())
+            k += 1
+            bar.update(1)
+            if on_point is not None:
+                on_point(k, idx)
+    except KeyboardInterrupt:
+        store.set_status(run_id, "interrupted", "interrupted by the user (Ctrl-C)")
+        raise RunInterrupted(f"run {run_id} interrupted by the user after {k} of {len(order)} points; "
+                             f"finish it with: bench resume {run_id}") from None
+    except DeviceError as exc:
+        _safe_stop(bench)
+        store.set_status(run_id, "interrupted", f"{type(exc).__name__}: {exc}")
+        raise RunInterrupted(f"run {run_id} interrupted by a device fault after {k} of {len(order)} points "
+                             f"({type(exc).__name__}: {exc}); fix it, then: bench resume {run_id}") from exc
+    finally:
+        bar.close()
+    store.set_status(run_id, "completed", None)
+    return ScanResult(run_id, "completed", k, len(order), time.perf_counter() - t_run)
+
+
+def _safe_stop(bench: Bench) -> None:
+    try:
+        bench.goniometer.stop()
+    except BenchError as exc:  # the device may be gone; the run is being interrupted anyway
+        log.warning("stop after fault failed: %s", exc)
+    except OSError as exc:
+        log.warning("stop after fault failed: %s", exc)

@@ -1,0 +1,57 @@
+"""The virtual bench: a virtual goniophotometer in every role, and a virtual white standard."""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from bench.calibrate import WhiteStandard
+from bench.config import Bench
+from bench.errors import ConfigError
+from bench.instruments import Reading
+from virtual.goniophotometer import VirtualGoniophotometer
+from virtual.specimens import Lambertian
+
+__all__ = ["build_virtual_bench"]
+
+_VIRTUAL_KEYS = {"collector", "rays", "uncertainty", "delta", "beam", "wavelengths", "method", "gain"}
+
+
+def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
+    """Build from a bench config dict (see :mod:`bench.config`). The white standard is measured
+    by a second virtual goniophotometer holding a Lambertian of the standard's reflectance
+    factor, with the same collector, rays and seed (its streams are keyed apart by specimen)."""
+    spec = d.get("specimen", {}).get("spec")
+    if not spec:
+        raise ConfigError("virtual bench: [specimen] spec = \"...\" is required")
+    v = dict(d.get("virtual", {}))
+    unknown = set(v) - _VIRTUAL_KEYS
+    if unknown:
+        raise ConfigError(f"virtual bench: unknown [virtual] key(s) {sorted(unknown)}; known: {sorted(_VIRTUAL_KEYS)}")
+    if seed is not None:
+        v["seed"] = seed
+    elif "seed" in d:
+        v["seed"] = int(d["seed"])
+    gonio = VirtualGoniophotometer(spec, **v)
+    white = WhiteStandard.from_dict(_white_table(d))
+    v["seed"] = gonio.seed + 1  # the standard's rays are independent of the specimen's
+    rf = white.reflectance_factor
+    standard = VirtualGoniophotometer(Lambertian(reflectance=rf if isinstance(rf, (int, float)) else rf),
+                                      **{**v, "method": v.get("method", "auto")})
+
+    def measure_white(integration_s: float, averages: int) -> Reading:
+        standard.move_to(white.geometry)
+        return standard.acquire(integration_s, averages)
+
+    return Bench(name=str(d.get("name", "virtual")), kind="virtual", goniometer=gonio, spectrometer=gonio,
+                 light=gonio, white=white, measure_white=measure_white, config=dict(d),
+                 closers=[gonio.close, standard.close])
+
+
+def _white_table(d: Mapping[str, Any]) -> dict[str, Any]:
+    w = dict(d.get("white", {}))
+    g = w.get("geometry")
+    if isinstance(g, (list, tuple)):
+        if len(g) != 4:
+            raise ConfigError("[white] geometry must be [theta_i, phi_i, theta_r, phi_r]")
+        w["geometry"] = dict(zip(("theta_i", "phi_i", "theta_r", "phi_r"), (float(x) for x in g)))
+    return w
