@@ -303,6 +303,8 @@ class ModbusStageAxis:
         self._fault: _Fault | None = None
         self._transport = transport
         self._rx_seen = False
+        self._answered = False   # a reply ever came back on this link
+        self._gone: str | None = None
         self._closed = False
         cfg = base
         if transport is not None:
@@ -354,6 +356,8 @@ class ModbusStageAxis:
         """Run one request with bounded retries; map every failure to a bench error."""
         if self._closed:
             raise PortGoneError(f"{self.name}: the axis is closed")
+        if self._gone is not None:
+            raise PortGoneError(self._gone)
         cfg = self.config
         what = f"{_FUNCTION_NAMES.get(fc, f'function {fc}')} (0x{fc:02X}) at 0x{address:04X}"
         last: BaseException | None = None
@@ -368,6 +372,13 @@ class ModbusStageAxis:
             except ConnectionException as exc:
                 last, kind = exc, "gone"
                 self._safe_close_client()
+                if self.link == "rtu" and self._answered:
+                    # A serial port that worked and then failed has vanished (adapter unplugged,
+                    # emulator killed). Never reopen the path by itself: it may now name another
+                    # device (ptys and USB adapters reuse names). Build a new axis instead.
+                    self._gone = (f"{self.name}: {what}: port {self.port} vanished ({exc}); "
+                                  f"not reopened automatically, create a new axis")
+                    raise PortGoneError(self._gone) from None
                 log.warning("%s: %s: connection failed (attempt %d): %s", self.name, what,
                             attempt + 1, exc)
                 continue
@@ -390,6 +401,7 @@ class ModbusStageAxis:
                 ename = MODBUS_EXCEPTIONS.get(code, "unknown") if code is not None else "?"
                 raise ProtocolError(f"{self.name}: {what}: Modbus exception code {code} ({ename})"
                                     f" from device {cfg.device_id}")
+            self._answered = True
             return resp
         tries = cfg.retries + 1
         if kind == "gone":

@@ -354,6 +354,9 @@ def test_e2e_killed_emulator_is_port_gone(transport: str) -> None:
         assert isinstance(ei.value, PortGoneError), ei.value
         with pytest.raises(FaultLatchedError if axis.fault else PortGoneError):
             axis.move_to_deg(1.0)
+        if transport == "rtu":   # a vanished serial port is never reopened by itself
+            with pytest.raises(PortGoneError, match="not reopened"):
+                axis.position_deg()
         axis.close()
 
 
