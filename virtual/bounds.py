@@ -59,11 +59,13 @@ CI_METHODS: tuple[str, ...] = ("clopper-pearson", "wilson")
 CHECKPOINT_RATIO = 1.2
 #: cell width of the partition of [0, 1/2] used to certify a plan, as a fraction of v
 _CELL_FRACTION = 1.0 / 16.0
-#: certify only when cells x checkpoints stays below this (about v >= 2e-3); else union mode
-_CERTIFY_MAX_WORK = 150_000
+#: certify only when cells x checkpoints stays below this (about v >= 5e-4); else union mode
+_CERTIFY_MAX_WORK = 700_000
 #: a certified plan must keep its bound below this fraction of delta/m (margin for the
 #: rounding of scipy's binomial tails, which are accurate to ~1e-14 relative)
 _CERTIFY_MARGIN = 0.999
+#: binomial tails whose Chernoff bound is below this are not evaluated exactly
+_NEGLIGIBLE = 1e-20
 
 
 # --- validation --------------------------------------------------------------------------------
@@ -313,7 +315,59 @@ def _lower_thresholds(ns: np.ndarray, alpha: float, v: float) -> np.ndarray:
     return lo
 
 
-def _certify(ns: np.ndarray, L: np.ndarray, cap: int, v: float) -> float:
+def _chernoff_tail(t: np.ndarray, n: np.ndarray, p: np.ndarray, lower: bool) -> np.ndarray:
+    """Upper bound on ``P_p(X <= t)`` (``lower``) or ``P_p(X >= t)``, X ~ Binomial(n, p).
+
+    Chernoff: ``exp(-n kl(t/n || p))`` on the tail side of the mean, 1 on the other, and the
+    exact 0 / 1 outside ``[0, n]``. Arrays broadcast.
+    """
+    t, n, p = np.broadcast_arrays(np.asarray(t, dtype=np.float64), np.asarray(n, dtype=np.float64),
+                                  np.asarray(p, dtype=np.float64))
+    q = t / n
+    with np.errstate(all="ignore"):
+        kl = special.rel_entr(q, p) + special.rel_entr(1.0 - q, 1.0 - p)  # inf outside [0, 1]
+        chernoff = np.exp(-n * kl)
+    if lower:
+        return np.where(t < 0, 0.0, np.where(t >= n, 1.0, np.where(q < p, chernoff, 1.0)))
+    return np.where(t <= 0, 1.0, np.where(t > n, 0.0, np.where(q > p, chernoff, 1.0)))
+
+
+def _exact_tail(t: np.ndarray, n: np.ndarray, p: np.ndarray, lower: bool, mask: np.ndarray) -> np.ndarray:
+    """The exact tail (scipy) at the entries of ``mask``; NaN elsewhere."""
+    t, n, p = np.broadcast_arrays(np.asarray(t, dtype=np.float64), np.asarray(n, dtype=np.float64),
+                                  np.asarray(p, dtype=np.float64))
+    out = np.full(t.shape, np.nan)
+    if lower:
+        out[mask] = stats.binom.cdf(t[mask], n[mask], p[mask])
+    else:
+        out[mask] = stats.binom.sf(t[mask] - 1.0, n[mask], p[mask])
+    return out
+
+
+def _tail(t, n, p, lower: bool, cond=None) -> np.ndarray:
+    """``_chernoff_tail``, replaced by the exact tail wherever the bound is not negligible
+    (and ``cond`` holds; entries outside ``cond`` are 0)."""
+    bound = _chernoff_tail(t, n, p, lower)
+    if cond is not None:
+        bound = np.where(cond, bound, 0.0)
+    need = (bound > _NEGLIGIBLE) & (bound < 1.0)
+    if need.any():
+        bound = np.where(need, _exact_tail(t, n, p, lower, need), bound)
+    return bound
+
+
+def _min_tails(first: tuple, second: tuple, cond: np.ndarray) -> np.ndarray:
+    """``min`` of two tail bounds (each ``(t, n, p, lower)``) where ``cond``, else 0; exact
+    tails are evaluated only where the smaller Chernoff bound is not negligible."""
+    bound = np.where(cond, np.minimum(_chernoff_tail(*first), _chernoff_tail(*second)), 0.0)
+    need = bound > _NEGLIGIBLE
+    if need.any():
+        exact = np.minimum(_exact_tail(*first, need), _exact_tail(*second, need))
+        bound = np.where(need, exact, bound)
+    return bound
+
+
+def _certify(ns: np.ndarray, L: np.ndarray, cap: int, v: float, limit: float | None = None) -> float:
     """Upper bound, uniform in ``p``, on one patch's failure probability under a threshold plan.
 
     For one patch with probability ``p`` and counts ``X_k ~ Binomial(n_k, p)`` (any dependence
@@ -324,38 +378,45 @@ def _certify(ns: np.ndarray, L: np.ndarray, cap: int, v: float) -> float:
     ``[0, 1/2]`` is cut into cells ``[a, b]`` of width ``v/16``; on a cell, ``{X < n(p - v)}``
     is contained in ``{X <= t_b}`` and ``{X > n(p + v)}`` in ``{X >= s_a}`` with fixed integers,
     ``P_p(X <= t)`` decreases and ``P_p(X >= s)`` increases in ``p``, so each term is bounded
-    by exact binomial tails at the cell's ends. The design is symmetric (``X -> n - X``,
-    ``p -> 1 - p``), which covers ``[1/2, 1]``. Returns ``max`` over cells of the bound.
+    by binomial tails at the cell's ends (exact, or a Chernoff bound where that is below 1e-20;
+    see ``_tail``). The design is symmetric (``X -> n - X``, ``p -> 1 - p``), which covers
+    ``[1/2, 1]``. Returns ``max`` over cells of the bound.
+
+    With ``limit``, every 8th cell is tried first and, if one of them already exceeds
+    ``limit``, that (partial) maximum is returned: the full maximum exceeds it too.
     """
     w = v * _CELL_FRACTION
     m = max(1, math.ceil(0.5 / w))
-    a = np.minimum(np.arange(m) * w, 0.5)
-    b = np.minimum(a + w, 0.5)
-    n_all = np.append(np.asarray(ns, dtype=np.float64), float(cap))[:, None]
-    # largest integer < n(b - v), rounded up; smallest integer > n(a + v), rounded down
-    t_b = np.maximum(np.floor(n_all * (b - v) * (1 + 1e-12) + 1e-9), -1.0)
-    s_a = np.ceil(n_all * (a + v) * (1 - 1e-12) - 1e-9)
+    a_all = np.minimum(np.arange(m) * w, 0.5)
+    passes = [np.arange(0, m, 8), np.arange(m)] if limit is not None and m > 64 else [np.arange(m)]
+    worst = 0.0
+    for cells in passes:
+        a = a_all[cells]
+        b = np.minimum(a + w, 0.5)
+        n_all = np.append(np.asarray(ns, dtype=np.float64), float(cap))[:, None]
+        # largest integer < n(b - v), rounded up; smallest integer > n(a + v), rounded down
+        t_b = np.maximum(np.floor(n_all * (b - v) * (1 + 1e-12) + 1e-9), -1.0)
+        s_a = np.ceil(n_all * (a + v) * (1 - 1e-12) - 1e-9)
 
-    def cdf_a(t: np.ndarray, n: np.ndarray) -> np.ndarray:  # P_a(X <= t)
-        return stats.binom.cdf(t, n, a)
-
-    def sf_b(t: np.ndarray, n: np.ndarray) -> np.ndarray:  # P_b(X >= t)
-        return stats.binom.sf(t - 1.0, n, b)
-
-    total = np.zeros(m)
-    if len(ns):
-        n = n_all[:-1]
-        Lk = np.asarray(L, dtype=np.float64)[:, None]
-        Uk = n - Lk
-        tb, sa = t_b[:-1], s_a[:-1]
-        low_set = cdf_a(np.minimum(Lk, tb), n) + np.where(
-            sa <= Lk, np.minimum(cdf_a(Lk, n), sf_b(sa, n)), 0.0)
-        high_set = sf_b(np.maximum(Uk, sa), n) + np.where(
-            tb >= Uk, np.minimum(sf_b(Uk, n), cdf_a(tb, n)), 0.0)
-        total += np.minimum(low_set + high_set, 1.0).sum(axis=0)
-    ncap = n_all[-1]
-    total += np.minimum(cdf_a(t_b[-1], ncap) + sf_b(s_a[-1], ncap), 1.0)
-    return float(total.max())
+        total = np.zeros(len(cells))
+        if len(ns):
+            n = n_all[:-1]
+            Lk = np.asarray(L, dtype=np.float64)[:, None]
+            Uk = n - Lk
+            tb, sa = t_b[:-1], s_a[:-1]
+            # settled low (X <= L): too low (X <= t_b), or too high (s_a <= X <= L)
+            low_set = _tail(np.minimum(Lk, tb), n, a, True) + _min_tails(
+                (Lk, n, a, True), (sa, n, b, False), sa <= Lk)
+            # settled high (X >= U): too high (X >= s_a), or too low (U <= X <= t_b)
+            high_set = _tail(np.maximum(Uk, sa), n, b, False) + _min_tails(
+                (Uk, n, b, False), (tb, n, a, True), tb >= Uk)
+            total += np.minimum(low_set + high_set, 1.0).sum(axis=0)
+        ncap = n_all[-1]
+        total += np.minimum(_tail(t_b[-1], ncap, a, True) + _tail(s_a[-1], ncap, b, False), 1.0)
+        worst = max(worst, float(total.max()))
+        if limit is not None and worst > limit:
+            break
+    return worst
 
 
 def _geometric_grid(first: int, cap: int, ratio: float) -> list[int]:
@@ -389,7 +450,7 @@ def _plan(v: float, delta: float, m: int) -> AdaptivePlan:
             L = _lower_thresholds(ns, alpha, v) if len(ns) else np.empty(0)
             keep = L >= 0
             ns, L = ns[keep], L[keep]
-            bound = _certify(ns, L, cap, v)
+            bound = _certify(ns, L, cap, v, limit=_CERTIFY_MARGIN * dp)
             if bound <= _CERTIFY_MARGIN * dp:
                 return AdaptivePlan(
                     uncertainty=v, delta=delta, patches=m, mode="certified",
@@ -424,7 +485,7 @@ def adaptive_plan(uncertainty: float, delta: float, patches: int = 1) -> Adaptiv
 
     Two modes, both proving ``P(exists j: |p_hat_j - p_j| > v) <= delta`` for every ``p``:
 
-    ``"certified"`` (``v`` >= about 2e-3)
+    ``"certified"`` (``v`` >= about 5e-4)
         Cap = ``hoeffding_rays(v, delta/m)``: exactly eq. 3.5 for one patch, and at most
         eq. 3.12 for ``m`` patches (``ln(2m/delta) <= m ln(2/delta)``). The settled counts
         form threshold sets ``c <= L_k`` or ``c >= n_k - L_k``. The plan's per-patch failure
@@ -494,11 +555,12 @@ def _as_counts(raw: object, n_new: int, m: int) -> np.ndarray:
     arr = np.asarray(raw)
     if arr.dtype.kind not in "iu":
         raise BudgetError(f"draw() must return integer counts, got dtype {arr.dtype}")
-    arr = arr.astype(np.int64).reshape(-1) if arr.ndim else arr.astype(np.int64).reshape(1)
+    arr = arr.astype(np.int64, copy=False).reshape(-1)
     if arr.shape != (m,):
         raise BudgetError(f"draw() must return {m} count(s), got shape {np.shape(raw)}")
-    if np.any(arr < 0) or np.any(arr > n_new):
-        raise BudgetError(f"draw({n_new}) returned counts outside [0, {n_new}]: {arr.min()}..{arr.max()}")
+    lo, hi = int(arr.min()), int(arr.max())
+    if lo < 0 or hi > n_new:
+        raise BudgetError(f"draw({n_new}) returned counts outside [0, {n_new}]: {lo}..{hi}")
     return arr
 
 
