@@ -106,6 +106,8 @@ def test_huge_budgets_are_instant_and_exact():
     assert n == 2649158683275 and _exact_bracket_ok(n, 1e-6, 0.01)
     assert n900 == 900 * n  # Python int, no overflow (2.4e15)
     assert report["N"] == n900 and report["seconds"] == pytest.approx(n900 / 1e8, rel=1e-15)
+    absurd = budget_report(1e-300, 0.01)  # a 600-digit ray count: exact int, time inf
+    assert absurd["N"] > 10**600 and absurd["seconds"] == math.inf
 
 
 def test_hoeffding_ceiling_is_exact_for_many_inputs_and_near_integers():

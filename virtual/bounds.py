@@ -490,8 +490,9 @@ def adaptive_plan(uncertainty: float, delta: float, patches: int = 1) -> Adaptiv
         eq. 3.12 for ``m`` patches (``ln(2m/delta) <= m ln(2/delta)``). The settled counts
         form threshold sets ``c <= L_k`` or ``c >= n_k - L_k``. The plan's per-patch failure
         probability ``sum_k P_p(settled at k and |p_hat_k - p| > v) + P_p(|p_hat_cap - p| > v)``
-        is bounded for *every* ``p`` by exact binomial tails on a partition of ``[0, 1]``
-        (monotonicity of binomial tails in ``p``; see ``_certify``), and the largest level
+        is bounded for *every* ``p`` by binomial tails on a partition of ``[0, 1]`` into cells
+        of width ``v/16`` (monotonicity of binomial tails in ``p``; exact tails, or Chernoff
+        bounds where those are below 1e-20; see ``_certify``), and the largest level
         ``alpha`` whose bound is ``<= 0.999 delta/m`` is used. The union over checkpoints is
         thus sharp: only the one or two checkpoints whose thresholds sit near ``p`` contribute,
         instead of every checkpoint being charged its full ``alpha``.
@@ -622,6 +623,8 @@ def run_adaptive(draw: Callable[[int], object], uncertainty: float, delta: float
 def estimate_time(n_rays: int, rays_per_second: float) -> float:
     """Seconds to cast ``n_rays`` at ``rays_per_second`` (no simulation is run).
 
+    ``inf`` when the time does not fit a float (ray counts beyond ~1e308).
+
     Raises
     ------
     BudgetError
@@ -638,7 +641,10 @@ def estimate_time(n_rays: int, rays_per_second: float) -> float:
     rate = _real(rays_per_second, "rays_per_second")
     if not (math.isfinite(rate) and rate > 0.0):
         raise BudgetError(f"rays_per_second must be finite and > 0, got {rays_per_second!r}")
-    return n / rate
+    try:
+        return n / rate
+    except OverflowError:
+        return math.inf
 
 
 def budget_report(uncertainty: float, delta: float, patches: int = 1,
