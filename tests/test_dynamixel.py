@@ -636,13 +636,15 @@ def test_e2e_late_replies_time_out_and_leave_no_stale_bytes(emulator: Any) -> No
     again the stale late bytes (dropped before each send) do not confuse the next exchange."""
     arm = DynamixelArm(arm_config(emulator.port, retries=1))
     with BusControl(emulator.control) as ctl:
-        ctl.faults(delay_s=0.08)  # > 2 * 16 ms + 2 ms
+        # far beyond the SDK's 2 * 16 ms + 2 ms, so that even on a loaded machine the late
+        # reply to one attempt cannot land inside the next attempt's window
+        ctl.faults(delay_s=0.5)
         t0 = time.monotonic()
         with pytest.raises(DeviceTimeoutError):
             arm.position()
         assert time.monotonic() - t0 < 1.0
-        ctl.clear()
-    time.sleep(0.1)  # the late replies arrive in the input buffer
+        ctl.clear()  # answered after the emulator has sent both late replies
+    time.sleep(0.05)
     arm.reset()
     g = Geometry.in_plane(20.0, 40.0)
     assert angular_distance_deg(arm.move_to(g), g) < 0.1

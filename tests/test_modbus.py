@@ -38,7 +38,12 @@ from bench.errors import (  # noqa: E402
     TransportMismatchError,
 )
 from bench.testing import check_conformance  # noqa: E402
-from drivers.modbus import AxisConfig, ModbusStageAxis, TransportModbusClient  # noqa: E402
+from drivers.modbus import (  # noqa: E402
+    AxisConfig,
+    ModbusStageAxis,
+    StageAxis,
+    TransportModbusClient,
+)
 from drivers.registers import load_register_map  # noqa: E402
 from drivers.transport import (  # noqa: E402
     RecordingTransport,
@@ -250,7 +255,8 @@ def test_e2e_move_reads_back_and_takes_time(axis: ModbusStageAxis, emu: StageEmu
 
 
 def test_e2e_conformance_and_describe(axis: ModbusStageAxis) -> None:
-    assert check_conformance(axis) == ["Instrument"]
+    assert isinstance(axis, StageAxis)
+    assert check_conformance(axis) == ["Instrument"]   # an axis, deliberately not a Goniometer
     info = axis.describe()
     assert info.kind == "stage-axis" and info.ranges["position_deg"] == (-170.0, 170.0)
 

@@ -355,6 +355,25 @@ def test_e2e_reading_is_physical(spec: OceanSpectrometer) -> None:
     assert info.serial == "EMU00001"
 
 
+def test_e2e_queries_and_settings(emu: SpectrometerEmulator) -> None:
+    for mode in ("binary", "ascii"):
+        with OceanSpectrometer(emu.port, model="EMU2000+", mode=mode) as s:
+            s.acquire(0.025, 1)
+            assert s.query("I") == 25 and s.query("A") == 1
+            assert s.query("i") == 2500 and s.query("j") == 25000   # 10 us and 1 us units
+            assert s.read_slot(1).startswith("3.39")
+            s.set_trigger_mode(1)
+            assert s.query("T") == 1 and s.trigger_mode == 1
+            with pytest.raises(InputError):
+                s.set_trigger_mode(7)
+            s.reset_defaults()
+            assert s.query("T") == 0 and s.query("I") == 100
+            assert s.acquire(0.01, 1).integration_s == pytest.approx(0.01)
+            with pytest.raises(ProtocolError, match="NAK"):
+                s.query("Z")
+    assert emu.state()["mode"] == "ascii"
+
+
 def test_e2e_saturation(spec: OceanSpectrometer, emu: SpectrometerEmulator) -> None:
     r = spec.acquire(0.2, 1)
     assert r.saturated.any() and np.all(r.signal[r.saturated] == 65535)

@@ -243,5 +243,5 @@ def test_port_handler_reads_through_a_real_deadline() -> None:
     _, comm, _ = pk.ping(port, 1)
     dt = time.monotonic() - t0
     assert comm in (COMM_RX_TIMEOUT, COMM_RX_CORRUPT)
-    assert 0.02 <= dt < 0.3
+    assert 0.02 <= dt < 1.0
     port.closePort()
