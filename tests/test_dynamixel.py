@@ -321,7 +321,7 @@ def test_no_reply_is_a_timeout_then_latched(bus: DynamixelBus) -> None:
     t0 = time.monotonic()
     with pytest.raises(DeviceTimeoutError, match="after 3 attempt"):
         arm.move_to(REACHABLE[0])
-    assert time.monotonic() - t0 < 1.0
+    assert time.monotonic() - t0 < 2.0
     n = len(spy.written)
     with pytest.raises(FaultLatchedError, match="reset"):
         arm.move_to(REACHABLE[1])
@@ -384,7 +384,7 @@ def test_settle_timeout(bus: DynamixelBus) -> None:
     t0 = time.monotonic()
     with pytest.raises(DeviceTimeoutError, match="did not settle"):
         arm.move_to(REACHABLE[2])  # needs the detector azimuth (servo 3) to move
-    assert time.monotonic() - t0 < 1.0
+    assert time.monotonic() - t0 < 2.0
     arm.close()
 
 
@@ -642,7 +642,7 @@ def test_e2e_late_replies_time_out_and_leave_no_stale_bytes(emulator: Any) -> No
         t0 = time.monotonic()
         with pytest.raises(DeviceTimeoutError):
             arm.position()
-        assert time.monotonic() - t0 < 1.0
+        assert time.monotonic() - t0 < 2.0
         ctl.clear()  # answered after the emulator has sent both late replies
     time.sleep(0.05)
     arm.reset()
