@@ -41,7 +41,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field, fields
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Protocol, runtime_checkable
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -62,7 +62,8 @@ from bench.errors import (
 from bench.instruments import InstrumentInfo
 from drivers.registers import RegisterMap, load_register_map
 
-__all__ = ["AxisConfig", "ModbusStageAxis", "TransportModbusClient", "MODBUS_EXCEPTIONS"]
+__all__ = ["StageAxis", "AxisConfig", "ModbusStageAxis", "TransportModbusClient",
+           "MODBUS_EXCEPTIONS"]
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,30 @@ MODBUS_EXCEPTIONS = {
     11: "GATEWAY TARGET DEVICE FAILED TO RESPOND",
 }
 _FUNCTION_NAMES = {3: "read holding registers", 16: "write multiple registers"}
+
+
+@runtime_checkable
+class StageAxis(Protocol):
+    """What a goniometer needs from one motorised axis (degrees for a rotary axis).
+
+    ``move_to_deg`` blocks until in position and returns the position read back;
+    ``check_deg`` raises :class:`GeometryError` for a target it would refuse, before any motion.
+    (A candidate for ``bench.instruments``; defined here until its owner adopts it.)
+    """
+
+    def check_deg(self, angle: float) -> None: ...
+
+    def move_to_deg(self, angle: float) -> float: ...
+
+    def position_deg(self) -> float: ...
+
+    def stop(self) -> None: ...
+
+    def reset_alarm(self) -> None: ...
+
+    def describe(self) -> InstrumentInfo: ...
+
+    def close(self) -> None: ...
 
 
 @dataclass(frozen=True)

@@ -493,6 +493,29 @@ class OceanSpectrometer:
             self.command(letter, value)
             self._state[letter] = value
 
+    def set_trigger_mode(self, mode: int) -> None:
+        """``T``: 0 free running, 1 software, 2 external level, 3 external sync, 4 external edge.
+
+        In the external modes an acquisition waits for the trigger; ``timeout_s`` must cover
+        that wait.
+        """
+        if mode not in (0, 1, 2, 3, 4):
+            raise InputError(f"{self.name}: trigger mode must be 0..4, got {mode!r}")
+        self._set("T", int(mode))
+
+    @property
+    def trigger_mode(self) -> int:
+        return self._state.get("T", 0)
+
+    def reset_defaults(self) -> None:
+        """``Q``: reset the device to its defaults (mode unchanged), then re-apply the config."""
+        self.command("Q")
+        self._state.clear()
+        cfg = self.config
+        self._set("k", int(cfg.checksum))
+        self._set("G", int(cfg.compression))
+        self._set("T", cfg.trigger_mode)
+
     # --- open ---------------------------------------------------------------------------------
     def _open(self) -> None:
         cfg = self.config

@@ -187,6 +187,13 @@ class SpectrometerModel:
         self.lamp = lamp / lamp.max()
         self.settings = Settings()
         self.last_geometry: Any = None
+        k = np.asarray(cfg.nonlinearity_coeffs[: cfg.nonlinearity_order + 1], dtype=float)
+        grid = np.linspace(0.0, 65535.0, 257)
+        sane = k.size > 0 and np.all(np.isfinite(k)) and k[0] > 0
+        if sane:
+            f = _poly(k, grid)
+            sane = bool(np.all(np.isfinite(f)) and f.min() > 0.5 and f.max() < 2.0)
+        self._nl = k if sane else None
 
     def reset(self) -> None:
         mode = self.settings.mode
@@ -213,12 +220,13 @@ class SpectrometerModel:
         shot = np.sqrt(np.maximum(signal, 0.0) * cfg.counts_per_electron)
         noise = self.rng.normal(0.0, 1.0, signal.shape) * np.sqrt(shot**2 + cfg.read_noise**2)
         true = np.maximum(signal + dark + noise, 0.0)
-        # detector non-linearity: measured m with m / p(m) = true  (p from the calibration slots)
-        k = np.asarray(cfg.nonlinearity_coeffs[: cfg.nonlinearity_order + 1], dtype=float)
-        if k.size == 2 and k[0] == 1.0:
-            measured = true / (1.0 - k[1] * true)
-        else:
-            measured = true
+        # detector non-linearity: measured m with m / p(m) = true (p from the calibration
+        # slots), solved by fixed-point iteration; nonsense coefficients (what a driver must
+        # refuse) leave the emulated detector linear
+        measured = true
+        if self._nl is not None:
+            for _ in range(8):
+                measured = true * _poly(self._nl, measured)
         return np.clip(np.rint(measured), 0, 65535).astype(np.int64)
 
     def selected_pixels(self) -> np.ndarray:
@@ -244,6 +252,13 @@ class SpectrometerModel:
         for _ in range(self.settings.scans):
             total += self.scan(frac)
         return total[self.selected_pixels()]
+
+
+def _poly(k: np.ndarray, x: np.ndarray) -> np.ndarray:
+    acc = np.zeros_like(np.asarray(x, dtype=float))
+    for c in k[::-1]:
+        acc = acc * x + c
+    return acc
 
 
 def _words(values: list[int]) -> bytes:
