@@ -403,6 +403,14 @@ class OceanSpectrometer:
         return out
 
     def _send(self, cmd: bytes, deadline: float, what: str) -> None:
+        stale = bytes(self._rx)
+        self._rx.clear()
+        n = int(getattr(self.t, "in_waiting", 0) or 0)
+        if n:
+            stale += self.t.read(n, 0)
+        if stale:  # a late reply to an earlier command must not be taken for this one's
+            log.warning("%s: discarding %d stale byte(s) before %s: %s", self.name, len(stale),
+                        what, stale[:32].hex(" "))
         self.t.write(cmd)
         if self._mode == "ascii":
             echo = self._read_exact(len(cmd), deadline, f"{what} (echo)")

@@ -52,7 +52,7 @@ from typing import Any, Callable
 
 log = logging.getLogger(__name__)
 
-__all__ = ["StageConfig", "StageModel", "StageEmulator"]
+__all__ = ["StageConfig", "StageModel", "StageEmulator", "start_stage_emulator"]
 
 
 @dataclass
@@ -567,6 +567,11 @@ class StageEmulator:
 
     def __repr__(self) -> str:
         return f"StageEmulator({self.transport}, {self.url}, pid={self._proc.pid})"
+
+
+def start_stage_emulator(transport: str = "tcp", **config: Any) -> StageEmulator:
+    """Start a stage emulator process; the handle's ``url`` is what the driver opens."""
+    return StageEmulator.start(transport, **config)
 
 
 def main(argv: list[str] | None = None) -> int:

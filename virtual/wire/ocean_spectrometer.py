@@ -52,7 +52,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["SpectrometerConfig", "SpectrometerModel", "SpectrometerEmulator",
            "constant_response", "cosine_response", "file_geometry_source", "encode_frame",
-           "compress"]
+           "compress", "start_spectrometer_emulator"]
 
 ACK, NAK, STX, ETX, CR = 0x06, 0x15, 0x02, 0x03, 0x0D
 #: commands followed by one 16-bit word in binary mode
@@ -856,6 +856,11 @@ class SpectrometerEmulator:
 
     def __repr__(self) -> str:
         return f"SpectrometerEmulator({self.port}, pid={self._proc.pid})"
+
+
+def start_spectrometer_emulator(**kwargs: Any) -> SpectrometerEmulator:
+    """Start a spectrometer emulator process; the handle's ``port`` is what the driver opens."""
+    return SpectrometerEmulator.start(**kwargs)
 
 
 def main(argv: list[str] | None = None) -> int:
