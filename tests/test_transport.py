@@ -132,7 +132,7 @@ def test_serial_loop_exact_reads_and_deadline() -> None:
     assert t.read(4, 1.0) == b"abcd"
     t0 = time.monotonic()
     assert t.read(4, 0.05) == b"ef"  # short: the deadline passed
-    assert 0.04 <= time.monotonic() - t0 < 0.5
+    assert 0.04 <= time.monotonic() - t0 < 1.0
     t.write(b"xyz")
     t.reset_input()
     assert t.read(1, 0.0) == b""
@@ -220,7 +220,7 @@ def test_sdk_timeout_is_instant_and_deterministic_on_a_script() -> None:
     t0 = time.monotonic()
     for _ in range(50):
         assert pk.ping(port, 1) == (0, COMM_RX_TIMEOUT, 0)
-    assert time.monotonic() - t0 < 0.5  # no busy-wait of 34 ms each
+    assert time.monotonic() - t0 < 1.0  # 50 busy-waits of 34 ms would take 1.7 s
     st.close()
 
 
