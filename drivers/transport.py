@@ -38,7 +38,6 @@ import logging
 import os
 import select
 import time
-import termios
 from pathlib import Path
 from typing import Callable, Iterable, Protocol, Sequence, runtime_checkable
 
@@ -66,7 +65,12 @@ log = logging.getLogger(__name__)
 
 Pair = tuple[bytes, bytes]
 
-_GONE = (OSError, termios.error, serial.SerialException)
+try:
+    from termios import error as _TermiosError
+except ImportError:  # pragma: no cover - not POSIX
+    _TermiosError = OSError  # type: ignore[misc,assignment]
+
+_GONE = (OSError, _TermiosError, serial.SerialException)
 
 
 def hexbytes(data: bytes) -> str:
