@@ -49,7 +49,7 @@ DEFAULT_WAVELENGTH_TOL_NM = 0.5
 PAIR_COLUMNS = ["channel", "wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "actual_value", "actual_std",
                 "virtual_value", "virtual_std", "psa", "virtual_wavelength_nm", "virtual_theta_i", "virtual_phi_i",
                 "virtual_theta_r", "virtual_phi_r", "angle_distance_deg", "wavelength_method", "match_method",
-                "virtual_index", "actual_std_source", "virtual_std_source"]
+                "virtual_index", "actual_index", "actual_std_source", "virtual_std_source"]
 UNMATCHED_COLUMNS = ["side", "channel", "wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "reason"]
 
 
@@ -73,7 +73,8 @@ class Aligned:
     ----------
     pairs : pandas.DataFrame
         :data:`PAIR_COLUMNS`; the geometry and wavelength are the actual's, ``virtual_*`` say where
-        the candidate value came from.
+        the candidate value came from; ``actual_index``/``virtual_index`` are row labels of the
+        records' tables (BSDF; for spectra, rows of the per-channel long table).
     unmatched : pandas.DataFrame
         :data:`UNMATCHED_COLUMNS`: actual points without a counterpart (``side == "actual"``) and
         candidate groups (wavelength/incidence) that no actual point used (``side == "candidate"``).
@@ -333,8 +334,8 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
             chans = list(channels)
         meta["channels"] = chans
         dropped = a[~a.channel.isin(chans)]
-        a = a[a.channel.isin(chans)].reset_index(drop=True)
-        c = c[c.channel.isin(chans)].reset_index(drop=True)
+        a = a[a.channel.isin(chans)]  # keep the record's row labels: pairs name the rows they came from
+        c = c[c.channel.isin(chans)]
         if len(dropped):
             meta["channels_note"] = (f"{len(dropped)} actual points in hemisphere(s) "
                                      f"{sorted(set(dropped.channel))} not compared (all zero in the actual record)")
@@ -441,6 +442,7 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                         first_idx = np.where(idx >= 0, cw.index.to_numpy()[safe], -1)
                         vt = cw.theta_r.to_numpy(float)[safe]
                         vp = cw.phi_r.to_numpy(float)[safe]
+                        cpsa = cw.psa.to_numpy(float)[safe]
                 if (~ok).any():
                     miss(gw[~ok], "; ".join(sorted(set(reasons[~ok]) - {""})) or "no candidate point")
                 if not ok.any():
@@ -451,8 +453,7 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                         if not spectral else np.full(len(g), np.nan))
                 psa = g.psa.to_numpy(float)
                 if not spectral:
-                    cpsa = c.psa.to_numpy(float)[np.maximum(first_idx[ok], 0)] if "psa" in c else np.full(len(g), np.nan)
-                    psa = np.where(np.isfinite(psa), psa, cpsa)
+                    psa = np.where(np.isfinite(psa), psa, cpsa[ok])
                 rows.append(pd.DataFrame({
                     "channel": g.channel.to_numpy(), "wavelength_nm": g.wavelength_nm.to_numpy(float),
                     "theta_i": g.theta_i.to_numpy(float), "phi_i": g.phi_i.to_numpy(float),
@@ -463,7 +464,7 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                     "virtual_theta_r": vt[ok] if not spectral else np.nan,
                     "virtual_phi_r": vp[ok] if not spectral else np.nan,
                     "angle_distance_deg": dist, "wavelength_method": wmethod, "match_method": how,
-                    "virtual_index": first_idx[ok], "actual_std_source": g.std_source.to_numpy(),
+                    "virtual_index": first_idx[ok], "actual_index": g.index.to_numpy(), "actual_std_source": g.std_source.to_numpy(),
                     "virtual_std_source": srcs[ok],
                 }))
     # candidate groups no actual point used

@@ -1,0 +1,679 @@
+"""Comparison reports: one self-contained HTML page, a Markdown summary and a JSON summary.
+
+:func:`compare_records` is the one entry point (the ``bench compare`` command calls it): it
+aligns every candidate with the actual record, computes the statistics of
+:mod:`compare.stats`, ranks the candidates, runs the physical checks of :mod:`compare.checks`
+on BSDF records and writes
+
+* ``report.html`` -- figures embedded as base64 PNG (no external resource of any kind), each
+  ``<img>`` with a stable ``id`` and ``alt`` (see :func:`figure_ids`);
+* ``report.md`` -- the same tables, figures referenced as ``figures/<id>.png``;
+* ``summary.json`` -- the returned summary (stable keys);
+* ``figures/<id>.png``.
+
+Figures: spectra -- ``fig-spectral-overlay`` (values with k-sigma uncertainty bands) and
+``fig-spectral-z`` (discrepancy in sigma units against wavelength); BSDF -- ``fig-in-plane``
+(points with ``phi_r`` at ``phi_i`` or ``phi_i + 180``), ``fig-polar-actual``,
+``fig-polar-<candidate>`` and ``fig-sigma-<candidate>`` (hemispherical maps of the actual, each
+candidate and the discrepancy in sigma units); always ``fig-bland-altman``.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+import re
+import time
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from bench.errors import InputError
+from bench.instruments import Spectrum
+from bench.plotting import plot_bsdf_polar, plot_in_plane, pyplot
+from bench.records import BSDFRecord
+
+from compare.align import AlignmentError, as_record, record_kind, record_quantity
+from compare.stats import (DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, Comparison, compare, nominal_fraction,
+                           rank)
+
+__all__ = ["compare_records", "figure_ids", "slug", "load_record", "register_loader"]
+
+#: loaders for ``compare_records`` inputs given as paths: suffix -> callable(path) -> record
+_LOADERS: dict[str, Callable[[Path], BSDFRecord | Spectrum]] = {}
+
+
+def register_loader(suffix: str, loader: Callable[[Path], BSDFRecord | Spectrum]) -> None:
+    """Teach :func:`load_record` (and so :func:`compare_records`) a file format, e.g.
+    ``register_loader(".json", my_store_reader)``; the loader returns a BSDFRecord or Spectrum."""
+    _LOADERS[suffix.lower()] = loader
+
+
+def load_record(obj: Any) -> BSDFRecord | Spectrum:
+    """A record from a :class:`BSDFRecord`, :class:`Spectrum`, a BSDF ``DataFrame`` or a path
+    (``.csv`` with the BSDF columns -- a tidy ``bench gonio --csv`` export -- or any suffix
+    registered with :func:`register_loader`)."""
+    if isinstance(obj, (str, Path)):
+        p = Path(obj)
+        if not p.exists():
+            raise InputError(f"record file {p} does not exist")
+        loader = _LOADERS.get(p.suffix.lower())
+        if loader is not None:
+            return as_record(loader(p))
+        if p.suffix.lower() == ".csv":
+            t = pd.read_csv(p)
+            if "hemisphere" in t:
+                t["hemisphere"] = t["hemisphere"].astype(str)
+            return BSDFRecord(t, {"file": str(p)})
+        raise InputError(f"no loader for {p.suffix or 'files without a suffix'} ({p}); "
+                         f"register one with compare.report.register_loader")
+    return as_record(obj)
+
+
+def slug(name: str) -> str:
+    """The id-safe form of a candidate name (``"GGX a=0.2"`` -> ``"ggx-a-0-2"``)."""
+    s = re.sub(r"[^a-z0-9]+", "-", str(name).lower()).strip("-")
+    return s or "candidate"
+
+
+def figure_ids(kind: str, names: Sequence[str]) -> list[str]:
+    """The ids of the figures a report of ``kind`` (``"spectrum"``/``"bsdf"``) with candidates
+    ``names`` contains."""
+    if kind == "spectrum":
+        ids = ["fig-spectral-overlay", "fig-spectral-z"]
+    else:
+        ids = ["fig-in-plane", "fig-polar-actual"]
+        for n in names:
+            ids += [f"fig-polar-{slug(n)}", f"fig-sigma-{slug(n)}"]
+    return ids + ["fig-bland-altman"]
+
+
+def _json_safe(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {str(k): _json_safe(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_json_safe(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return [_json_safe(v) for v in o.tolist()]
+    if isinstance(o, (np.bool_, bool)):
+        return bool(o)
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (float, np.floating)):
+        f = float(o)
+        return f if math.isfinite(f) else None
+    if o is None or isinstance(o, (int, str)):
+        return o
+    return str(o)
+
+
+def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str | Path, *,
+                    primary_metric: str = "chi2_per_dof", title: str | None = None, k: float = 2.0,
+                    instrument_uncertainty: float | None = None, instrument_uncertainty_kind: str | None = None,
+                    allow_missing_uncertainty: bool = False, illuminant: str = DEFAULT_ILLUMINANT,
+                    observer: str = DEFAULT_OBSERVER, checks: bool = True, on_error: str = "raise",
+                    map_wavelength_nm: float | None = None, map_incidence: tuple[float, float] | None = None,
+                    **align_kwargs: Any) -> dict[str, Any]:
+    """Compare candidates (models, virtual records) with one actual record and write the report.
+
+    Parameters
+    ----------
+    actual : BSDFRecord, Spectrum, BSDF DataFrame or path (see :func:`load_record`)
+    candidates : mapping name -> record (same types); names label tables, figures and the ranking
+    report_dir : folder for ``report.html``, ``report.md``, ``summary.json`` and ``figures/``
+    primary_metric : ranking metric, one of :data:`compare.stats.RANK_METRICS` (lower is better)
+    title : report title
+    k, instrument_uncertainty, instrument_uncertainty_kind, allow_missing_uncertainty,
+    illuminant, observer : see :func:`compare.stats.compare`
+    checks : run the physical checks on BSDF records (actual and candidates)
+    on_error : ``"raise"`` (default) or ``"skip"``: a candidate that cannot be compared (bad
+        quantity, no overlap, no uncertainty) is left out and its error listed in ``errors``
+    map_wavelength_nm, map_incidence : which (wavelength, (theta_i, phi_i)) the hemispherical
+        maps and the in-plane figure show (default: the actual record's first)
+    **align_kwargs : ``angle_tol_deg``, ``wavelength_tol_nm``, ``match``, ``channels``
+
+    Returns
+    -------
+    dict
+        ``kind``, ``quantity``, ``actual`` (description), ``primary_metric``, ``candidates``
+        (name -> summary with :data:`compare.stats.SUMMARY_KEYS` plus ``delta_e2000_mean`` etc.),
+        ``ranking`` (list, best first), ``checks`` (record name -> check name -> result dict;
+        BSDF only), ``unmatched`` (name -> count), ``errors`` (name -> message), ``warnings``,
+        ``figures`` (ids), ``report_html``, ``report_md``, ``summary_json`` (paths).
+
+    Raises
+    ------
+    InputError (and subclasses from :mod:`compare.align`, :mod:`compare.stats`)
+    """
+    if on_error not in ("raise", "skip"):
+        raise InputError(f"on_error must be 'raise' or 'skip', got {on_error!r}")
+    if not candidates:
+        raise InputError("no candidates to compare with the actual record")
+    act = load_record(actual)
+    slugs = [slug(n) for n in candidates]
+    if len(set(slugs)) != len(slugs):
+        raise InputError(f"candidate names must stay distinct as ids: {list(candidates)} -> {slugs}")
+    comps: dict[str, Comparison] = {}
+    errors: dict[str, str] = {}
+    recs: dict[str, Any] = {}
+    for name, cand in candidates.items():
+        try:
+            rec = load_record(cand)
+            comps[name] = compare(act, rec, name=name, k=k, instrument_uncertainty=instrument_uncertainty,
+                                  instrument_uncertainty_kind=instrument_uncertainty_kind,
+                                  allow_missing_uncertainty=allow_missing_uncertainty, illuminant=illuminant,
+                                  observer=observer, **align_kwargs)
+            recs[name] = rec
+        except InputError as exc:
+            if on_error == "raise":
+                raise
+            errors[name] = f"{type(exc).__name__}: {exc}"
+    if not comps:
+        raise AlignmentError("no candidate could be compared: " + "; ".join(f"{n}: {e}" for n, e in errors.items()))
+    kind = record_kind(act)
+    summaries = {n: c.summary for n, c in comps.items()}
+    ranking = rank(summaries, primary_metric)
+    check_results: dict[str, Any] = {}
+    if checks and kind == "bsdf":
+        from compare.checks import run_checks
+
+        check_results["actual"] = {n: r.as_dict() for n, r in run_checks(act).items()}
+        for n, rec in recs.items():
+            check_results[n] = {c: r.as_dict() for c, r in run_checks(rec).items()}
+    out = Path(report_dir)
+    figdir = out / "figures"
+    figdir.mkdir(parents=True, exist_ok=True)
+    figures = _figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence)
+    warnings = sorted({w for c in comps.values() for w in c.summary["warnings"]})
+    summary: dict[str, Any] = {
+        "kind": kind, "quantity": record_quantity(act), "actual": _describe(act), "primary_metric": primary_metric,
+        "k": k, "nominal_fraction": nominal_fraction(k), "candidates": summaries, "ranking": ranking,
+        "checks": check_results, "unmatched": {n: int((c.aligned.unmatched.side == "actual").sum())
+                                               for n, c in comps.items()},
+        "errors": errors, "warnings": warnings, "figures": [f["id"] for f in figures],
+        "alignment": {n: {key: c.aligned.meta.get(key) for key in ("angle_tol_deg", "wavelength_tol_nm", "match_method",
+                                                                   "wavelength_interpolation", "channels")}
+                      for n, c in comps.items()},
+    }
+    title = title or f"Virtual vs actual: {summary['actual'].get('specimen') or kind}"
+    html_path, md_path, json_path = out / "report.html", out / "report.md", out / "summary.json"
+    summary.update({"report_html": str(html_path), "report_md": str(md_path), "summary_json": str(json_path)})
+    html_path.write_text(_html(title, summary, comps, figures, check_results), encoding="utf-8")
+    md_path.write_text(_markdown(title, summary, comps, figures, check_results), encoding="utf-8")
+    safe = _json_safe(summary)
+    json_path.write_text(json.dumps(safe, indent=1), encoding="utf-8")
+    return safe
+
+
+def _describe(rec: Any) -> dict[str, Any]:
+    m = dict(rec.meta)
+    d = {"kind": record_kind(rec), "quantity": record_quantity(rec), "specimen": m.get("specimen"),
+         "source": m.get("source", "virtual" if isinstance(rec, Spectrum) and np.any(rec.N > 0) else None),
+         "seed": m.get("seed", getattr(rec, "seed", None))}
+    if isinstance(rec, Spectrum):
+        d.update({"geometry": rec.geometry, "n_wavelengths": int(rec.wavelengths.size)})
+    else:
+        t = rec.table
+        d.update({"n_points": int(len(t)), "incidences": sorted({(float(a), float(b)) for a, b in
+                                                                 zip(t.theta_i, t.phi_i)}),
+                  "wavelengths_nm": sorted(set(map(float, t.wavelength_nm)))})
+    return d
+
+
+# --- figures ------------------------------------------------------------------------------
+
+_COLOURS = ["tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan"]
+
+
+def _save(fig: Any, path: Path) -> Path:
+    plt = pyplot()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def _fig(fid: str, path: Path, alt: str, caption: str) -> dict[str, Any]:
+    return {"id": fid, "path": path, "alt": alt, "caption": caption}
+
+
+def _figures(act: Any, comps: dict[str, Comparison], recs: dict[str, Any], figdir: Path, k: float,
+             map_wl: float | None, map_inc: tuple[float, float] | None) -> list[dict[str, Any]]:
+    figs: list[dict[str, Any]] = []
+    if record_kind(act) == "spectrum":
+        figs += _spectral_figures(comps, figdir, k)
+    else:
+        figs += _bsdf_figures(act, comps, recs, figdir, k, map_wl, map_inc)
+    figs.append(_bland_altman_figure(comps, figdir))
+    return figs
+
+
+def _spectral_figures(comps: dict[str, Comparison], figdir: Path, k: float) -> list[dict[str, Any]]:
+    plt = pyplot()
+    first = next(iter(comps.values()))
+    chans = list(dict.fromkeys(first.points.channel))
+    fig, axes = plt.subplots(len(chans), 1, figsize=(8, 3.6 * len(chans)), dpi=110, squeeze=False)
+    for ax, ch in zip(axes[:, 0], chans):
+        p = first.points[first.points.channel == ch].sort_values("wavelength_nm")
+        ua = np.sqrt(p.u_instrument ** 2 + np.nan_to_num(p.actual_std) ** 2)
+        ax.plot(p.wavelength_nm, p.actual_value, color="tab:blue", lw=1.8, label="actual")
+        ax.fill_between(p.wavelength_nm, p.actual_value - k * ua, p.actual_value + k * ua, color="tab:blue",
+                        alpha=0.2, label=f"actual +- {k:g} u (instrument + own std)")
+        for (name, c), colour in zip(comps.items(), _COLOURS):
+            q = c.points[c.points.channel == ch].sort_values("wavelength_nm")
+            sv = np.nan_to_num(q.virtual_std)
+            ax.plot(q.wavelength_nm, q.virtual_value, color=colour, lw=1.4, label=name)
+            ax.fill_between(q.wavelength_nm, q.virtual_value - k * sv, q.virtual_value + k * sv, color=colour,
+                            alpha=0.25)
+        ax.set_xlabel("wavelength (nm)")
+        ax.set_ylabel(ch)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+        ax.set_title(f"{ch}: actual and candidates with {k:g}-sigma bands", fontsize=10)
+    f1 = _fig("fig-spectral-overlay", _save(fig, figdir / "fig-spectral-overlay.png"),
+              "Spectral overlay of the actual record and every candidate with uncertainty bands",
+              f"Spectra with {k:g}-sigma bands (actual: instrument and own std; candidates: Monte Carlo std).")
+    fig, ax = plt.subplots(figsize=(8, 3.6), dpi=110)
+    for (name, c), colour in zip(comps.items(), _COLOURS):
+        for ch, q in c.points.groupby("channel", sort=False):
+            q = q.sort_values("wavelength_nm")
+            ax.plot(q.wavelength_nm, q.z, marker="o", ms=3, lw=1, color=colour,
+                    ls="-" if ch == chans[0] else "--", label=f"{name} ({ch})")
+    ax.axhspan(-k, k, color="grey", alpha=0.15, label=f"|z| <= {k:g}")
+    ax.axhline(0, color="black", lw=0.8)
+    ax.set_xlabel("wavelength (nm)")
+    ax.set_ylabel("z = (virtual - actual) / u_c")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Discrepancy in units of the combined standard uncertainty", fontsize=10)
+    f2 = _fig("fig-spectral-z", _save(fig, figdir / "fig-spectral-z.png"),
+              "Discrepancy in sigma units against wavelength for every candidate",
+              "z-scores per wavelength; the grey band is the coverage interval.")
+    return [f1, f2]
+
+
+def _select(rec: BSDFRecord, wl: float, inc: tuple[float, float]) -> BSDFRecord:
+    t = rec.table
+    sel = t[(t.wavelength_nm == wl) & (t.theta_i == inc[0]) & (t.phi_i == inc[1])]
+    return BSDFRecord(sel, dict(rec.meta))  # row labels kept: pairs refer to them
+
+
+def _has_bounds(t: pd.DataFrame) -> bool:
+    cols = ["theta_min", "theta_max", "phi_min", "phi_max"]
+    return len(t) > 0 and set(cols) <= set(t.columns) and bool(np.all(np.isfinite(t[cols].to_numpy(float))))
+
+
+def _polar_scatter(t: pd.DataFrame, values: np.ndarray, path: Path, title: str, label: str, cmap: str = "viridis",
+                   norm: Any = None) -> Path:
+    """A hemispherical map of a record without patch bounds: one dot per direction."""
+    plt = pyplot()
+    from matplotlib.colors import Normalize
+
+    fig, ax = plt.subplots(subplot_kw={"projection": "polar"}, figsize=(5.6, 4.8), dpi=110)
+    r = np.where(t.theta_r.to_numpy(float) > 90, 180 - t.theta_r.to_numpy(float), t.theta_r.to_numpy(float))
+    norm = norm or Normalize(vmin=0.0, vmax=max(float(np.nanmax(values)) if len(values) else 1.0, 1e-12))
+    sc = ax.scatter(np.radians(t.phi_r.to_numpy(float)), r, c=values, cmap=cmap, norm=norm, s=22)
+    ax.set_ylim(0, 90)
+    fig.colorbar(sc, ax=ax, shrink=0.75, pad=0.1, label=label)
+    ax.set_title(title, fontsize=10)
+    return _save(fig, path)
+
+
+def _sigma_map(c: Comparison, act_sel: pd.DataFrame, wl: float, inc: tuple[float, float], path: Path,
+               k: float) -> Path:
+    """z = (virtual - actual) / u_c on the actual's geometry: patches when the actual has bounds."""
+    plt = pyplot()
+    from matplotlib.colors import Normalize
+
+    p = c.points
+    p = p[(p.wavelength_nm == wl) & (p.theta_i == inc[0]) & (p.phi_i == inc[1])]
+    z = p.z.to_numpy(float)
+    lim = float(min(10.0, max(3.0, np.nanmax(np.abs(z)) if np.isfinite(z).any() else 3.0)))
+    norm = Normalize(vmin=-lim, vmax=lim)
+    title = f"{c.name}: (virtual - actual) / u_c, theta_i = {inc[0]:g} deg, {wl:g} nm"
+    panels = [h for h in ("R", "T") if (p.channel == h).any()] or ["R"]
+    if not _has_bounds(act_sel):
+        return _polar_scatter(p, np.nan_to_num(z), path, title, "z (sigma)", "RdBu_r", norm)
+    bounds = act_sel.loc[p.actual_index.to_numpy()] if len(p) else act_sel.iloc[0:0]
+    fig, axes = plt.subplots(1, len(panels), subplot_kw={"projection": "polar"}, figsize=(5.4 * len(panels), 4.8),
+                             dpi=110, squeeze=False)
+    cmap = plt.get_cmap("RdBu_r")
+    for ax, h in zip(axes[0], panels):
+        m = (p.channel == h).to_numpy()
+        b = bounds[m]
+        tmin = b.theta_min.to_numpy(float) if h == "R" else 180.0 - b.theta_max.to_numpy(float)
+        tmax = b.theta_max.to_numpy(float) if h == "R" else 180.0 - b.theta_min.to_numpy(float)
+        pmin, pmax = np.radians(b.phi_min.to_numpy(float)), np.radians(b.phi_max.to_numpy(float))
+        for a_, b_, c_, d_, val in zip(pmin, pmax, tmin, tmax, z[m]):
+            colour = cmap(norm(val)) if np.isfinite(val) else (0.85, 0.85, 0.85, 1.0)
+            ax.bar(x=0.5 * (a_ + b_), height=d_ - c_, width=b_ - a_, bottom=c_, color=colour, edgecolor="none",
+                   align="center")
+        ax.plot([np.radians(inc[1])], [inc[0]], marker="*", color="black", ms=11, ls="none")
+        ax.set_ylim(0, 90)
+        ax.set_yticks([30, 60, 90])
+        ax.set_title(f"{'reflection' if h == 'R' else 'transmission'} (grey: no z)", fontsize=9)
+        fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.75, pad=0.1,
+                     label=f"z (sigma); |z| <= {k:g} expected for {nominal_fraction(k):.1%}")
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def _bsdf_figures(act: BSDFRecord, comps: dict[str, Comparison], recs: dict[str, Any], figdir: Path, k: float,
+                  map_wl: float | None, map_inc: tuple[float, float] | None) -> list[dict[str, Any]]:
+    t = act.table
+    wl = float(t.wavelength_nm.iloc[0]) if map_wl is None else float(map_wl)
+    inc = (float(t.theta_i.iloc[0]), float(t.phi_i.iloc[0])) if map_inc is None else tuple(map(float, map_inc))
+    figs: list[dict[str, Any]] = []
+    # in-plane curves
+    first = next(iter(comps.values()))
+    p0 = first.points
+    p0 = p0[(p0.wavelength_nm == wl) & (p0.theta_i == inc[0]) & (p0.phi_i == inc[1]) & (p0.channel == "R")]
+    act_sel = _select(act, wl, inc)
+    sel, signed = _in_plane(p0, act_sel.table, inc, first.aligned.meta.get("angle_tol_deg", 1.0))
+    curves = []
+    tiny = 1e-12
+    if sel.any():
+        q = p0[sel].assign(x=signed[sel]).sort_values("x")
+        ua = np.sqrt(q.u_instrument ** 2 + np.nan_to_num(q.actual_std) ** 2)
+        curves.append(("actual", q.x.to_numpy(), np.maximum(q.actual_value.to_numpy(), tiny),
+                       np.maximum((q.actual_value - k * ua).to_numpy(), tiny),
+                       np.maximum((q.actual_value + k * ua).to_numpy(), tiny)))
+        for name, c in comps.items():
+            pc = c.points
+            pc = pc[(pc.wavelength_nm == wl) & (pc.theta_i == inc[0]) & (pc.phi_i == inc[1]) & (pc.channel == "R")]
+            s2, x2 = _in_plane(pc, act_sel.table, inc, c.aligned.meta.get("angle_tol_deg", 1.0))
+            qc = pc[s2].assign(x=x2[s2]).sort_values("x")
+            sv = np.nan_to_num(qc.virtual_std)
+            curves.append((name, qc.x.to_numpy(), np.maximum(qc.virtual_value.to_numpy(), tiny),
+                           np.maximum((qc.virtual_value - k * sv).to_numpy(), tiny),
+                           np.maximum((qc.virtual_value + k * sv).to_numpy(), tiny)))
+    path = figdir / "fig-in-plane.png"
+    if curves:
+        plot_in_plane(curves, path, title=f"In-plane BRDF, theta_i = {inc[0]:g} deg, phi_i = {inc[1]:g} deg, "
+                                          f"{wl:g} nm ({k:g}-sigma bands)")
+        caption = (f"Points with phi_r at phi_i or phi_i + 180 deg (patches containing the plane of incidence); "
+                   f"{k:g}-sigma bands.")
+    else:
+        plt = pyplot()
+        fig, ax = plt.subplots(figsize=(7, 2.5), dpi=110)
+        ax.text(0.5, 0.5, "no compared point lies in the plane of incidence", ha="center", va="center")
+        ax.set_axis_off()
+        _save(fig, path)
+        caption = "No compared point lies in the plane of incidence."
+    figs.append(_fig("fig-in-plane", path, "In-plane BRDF curves of the actual record and every candidate", caption))
+    # hemispherical maps
+    figs.append(_fig("fig-polar-actual", _map(act_sel, figdir / "fig-polar-actual.png", f"actual: {wl:g} nm, "
+                                              f"theta_i = {inc[0]:g} deg"),
+                     "Hemispherical map of the actual record", f"Actual record at theta_i = {inc[0]:g} deg, {wl:g} nm."))
+    for name, c in comps.items():
+        s = slug(name)
+        rec = recs[name]
+        # the candidate's incidence/wavelength nearest to the one shown (what the alignment used)
+        pc = c.points[(c.points.wavelength_nm == wl) & (c.points.theta_i == inc[0]) & (c.points.phi_i == inc[1])]
+        if len(pc):
+            vwl = pc.virtual_wavelength_nm.dropna()
+            cwl = float(vwl.iloc[0]) if len(vwl) else wl
+            cinc = (float(pc.virtual_theta_i.iloc[0]), float(pc.virtual_phi_i.iloc[0]))
+        else:
+            cwl, cinc = wl, inc
+        csel = _select(rec, cwl, cinc)
+        figs.append(_fig(f"fig-polar-{s}", _map(csel, figdir / f"fig-polar-{s}.png", f"{name}: {cwl:g} nm, "
+                                                f"theta_i = {cinc[0]:g} deg"),
+                         f"Hemispherical map of candidate {name}", f"Candidate {name}."))
+        figs.append(_fig(f"fig-sigma-{s}", _sigma_map(c, act_sel.table, wl, inc, figdir / f"fig-sigma-{s}.png", k),
+                         f"Discrepancy map of candidate {name} in sigma units",
+                         f"(virtual - actual) / u_c for {name}; blue: candidate low, red: candidate high."))
+    return figs
+
+
+def _in_plane(p: pd.DataFrame, act_sel: pd.DataFrame, inc: tuple[float, float], tol: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Which points lie in the plane of incidence (their patch contains phi_i or phi_i + 180, or,
+    without patch bounds, their azimuth is within ``tol``) and their signed viewing angle
+    (> 0 on the specular side)."""
+    phi = p.phi_r.to_numpy(float)
+    th = p.theta_r.to_numpy(float)
+    if _has_bounds(act_sel) and len(p):
+        b = act_sel.loc[p.actual_index.to_numpy()]
+        pmin, width = b.phi_min.to_numpy(float), (b.phi_max - b.phi_min).to_numpy(float)
+        src = np.mod(inc[1] - pmin, 360.0) < width
+        spec = np.mod(inc[1] + 180.0 - pmin, 360.0) < width
+    else:
+        d_src = np.abs((phi - inc[1] + 180.0) % 360.0 - 180.0)
+        d_spec = np.abs((phi - inc[1]) % 360.0 - 180.0)
+        src, spec = d_src <= tol, d_spec <= tol
+    sel = src | spec
+    signed = np.where(spec, th, -th)
+    return sel, signed
+
+
+def _map(sel: BSDFRecord, path: Path, title: str) -> Path:
+    if _has_bounds(sel.table):
+        return plot_bsdf_polar(sel, path, title=title)
+    t = sel.table
+    return _polar_scatter(t, t.value.to_numpy(float), path, title, "BSDF (1/sr)")
+
+
+def _bland_altman_figure(comps: dict[str, Comparison], figdir: Path) -> dict[str, Any]:
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(8, 4.2), dpi=110)
+    for (name, c), colour in zip(comps.items(), _COLOURS):
+        p = c.points
+        ax.scatter(0.5 * (p.actual_value + p.virtual_value), p["diff"], s=10, alpha=0.6, color=colour, label=name)
+        ba = c.summary["bland_altman"]
+        if ba["bias"] is not None:
+            ax.axhline(ba["bias"], color=colour, lw=1.4)
+        for key in ("lower", "upper"):
+            if ba[key] is not None:
+                ax.axhline(ba[key], color=colour, lw=1, ls="--")
+    ax.axhline(0, color="black", lw=0.8)
+    ax.set_xlabel("mean of actual and virtual")
+    ax.set_ylabel("virtual - actual")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Bland-Altman: bias (solid) and 95 % limits of agreement (dashed)", fontsize=10)
+    return _fig("fig-bland-altman", _save(fig, figdir / "fig-bland-altman.png"),
+                "Bland-Altman plot of every candidate against the actual record",
+                "Differences against means; bias +- 1.96 sd of the differences.")
+
+
+# --- documents ----------------------------------------------------------------------------
+
+_METRIC_ROWS = [("n_points", "points compared"), ("mean_abs_discrepancy_pct", "mean |discrepancy| (%)"),
+                ("rmse", "RMSE"), ("bias", "bias (virtual - actual)"), ("max_abs", "max |difference|"),
+                ("chi2", "chi-square"), ("dof", "degrees of freedom"), ("chi2_per_dof", "chi-square / dof"),
+                ("p_value", "p-value"), ("fraction_within_uncertainty", "fraction within k u_c"),
+                ("fraction_band", "nominal band (3 sigma)"), ("ba_bias", "Bland-Altman bias"),
+                ("ba_limits", "Bland-Altman 95 % limits"), ("delta_e2000_mean", "mean CIEDE2000"),
+                ("n_reference_zero", "zero references (excluded from %)"), ("n_both_zero", "zero in both"),
+                ("n_no_uncertainty", "no uncertainty"), ("n_unmatched", "unmatched actual points"),
+                ("u_model", "instrument uncertainty")]
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        v = float(v)
+        if not math.isfinite(v):
+            return "n/a"
+        if v == 0:
+            return "0"
+        return f"{v:.4g}" if 1e-3 <= abs(v) < 1e5 else f"{v:.3e}"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return str(v)
+
+
+def _metric_value(s: Mapping[str, Any], key: str) -> Any:
+    ba = s.get("bland_altman") or {}
+    if key == "ba_bias":
+        return ba.get("bias")
+    if key == "ba_limits":
+        return None if ba.get("lower") is None else [ba["lower"], ba["upper"]]
+    if key == "u_model":
+        u = s.get("uncertainty_model") or {}
+        return f"{_fmt(u.get('instrument'))} {u.get('kind', '')} ({u.get('source', '')})"
+    return s.get(key)
+
+
+def _metric_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    names = list(summary["candidates"])
+    rows = []
+    for key, label in _METRIC_ROWS:
+        if key == "delta_e2000_mean" and summary["kind"] != "spectrum":
+            continue
+        rows.append([label] + [_fmt(_metric_value(summary["candidates"][n], key)) for n in names])
+    return ["metric"] + names, rows
+
+
+def _ranking_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    metrics = ["chi2_per_dof", "mean_abs_discrepancy_pct", "rmse", "abs_bias", "max_abs"]
+    if summary["kind"] == "spectrum":
+        metrics.append("delta_e2000_mean")
+    head = ["rank", "candidate"] + [f"{m} (primary)" if m == summary["primary_metric"] else m for m in metrics] + [
+        "p_value", "fraction_within_uncertainty", "note"]
+    rows = [[_fmt(r["rank"]), r["name"]] + [_fmt(r[m]) for m in metrics] + [
+        _fmt(r["p_value"]), _fmt(r["fraction_within_uncertainty"]), r["note"]] for r in summary["ranking"]]
+    return head, rows
+
+
+def _check_rows(check_results: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    head = ["record", "check", "result", "statistic", "p-value", "max z", "n", "offending", "message"]
+    rows = []
+    for rec, res in check_results.items():
+        for name, r in res.items():
+            result = ("passed" if r["passed"] else "FAILED") if r["tested"] else "not tested"
+            rows.append([rec, name, result, _fmt(r["statistic"]), _fmt(r["p_value"]), _fmt(r["max_z"]),
+                         _fmt(r["n"]), _fmt(r["n_offending"]), r["message"]])
+    return head, rows
+
+
+def _frame_rows(df: pd.DataFrame, cols: Sequence[str], limit: int) -> tuple[list[str], list[list[str]]]:
+    cols = [c for c in cols if c in df.columns]
+    return list(cols), [[_fmt(v) if not isinstance(v, str) else v for v in row]
+                        for row in df[cols].head(limit).itertuples(index=False)]
+
+
+def _html_table(head: Sequence[str], rows: Sequence[Sequence[str]], cls: str = "") -> str:
+    e = html.escape
+    h = "".join(f"<th>{e(str(x))}</th>" for x in head)
+    b = "".join("<tr>" + "".join(f"<td>{e(str(x))}</td>" for x in r) + "</tr>" for r in rows)
+    return f'<table class="{cls}"><thead><tr>{h}</tr></thead><tbody>{b}</tbody></table>'
+
+
+def _md_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    def cell(x: Any) -> str:
+        return str(x).replace("|", "\\|").replace("\n", " ")
+
+    lines = ["| " + " | ".join(cell(x) for x in head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(cell(x) for x in r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;margin:24px auto;max-width:1200px;color:#222;
+line-height:1.4;padding:0 16px}
+h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;padding-bottom:4px;margin-top:2em}
+table{border-collapse:collapse;margin:8px 0;font-size:0.85em}
+th,td{border:1px solid #ccc;padding:3px 8px;text-align:right;vertical-align:top}
+th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
+td.msg{text-align:left}
+figure{margin:16px 0;display:inline-block;vertical-align:top}figure img{max-width:100%;border:1px solid #eee}
+figcaption{font-size:0.85em;color:#555;max-width:900px}
+.warn{background:#fff6e0;border-left:4px solid #e0a000;padding:6px 12px}
+.muted{color:#666;font-size:0.85em}
+"""
+
+_UNMATCHED_LIMIT = 50
+_GROUP_LIMIT = 60
+
+
+def _html(title: str, summary: Mapping[str, Any], comps: Mapping[str, Comparison], figures: list[dict[str, Any]],
+          check_results: Mapping[str, Any]) -> str:
+    e = html.escape
+    parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{e(title)}</title>"
+             f"<style>{_CSS}</style></head><body>", f"<h1>{e(title)}</h1>"]
+    a = summary["actual"]
+    parts.append(f"<p class=\"muted\">Generated {e(time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime()))}. "
+                 f"Actual record: {e(json.dumps(_json_safe(a)))}.<br>Quantity: {e(str(summary['quantity']))}; "
+                 f"coverage factor k = {summary['k']:g} (nominal fraction within {summary['nominal_fraction']:.2%})."
+                 f"</p>")
+    parts.append("<h2 id=\"ranking\">Model ranking</h2>")
+    parts.append(f"<p>Ranked by <b>{e(summary['primary_metric'])}</b> (lower is better).</p>")
+    parts.append(_html_table(*_ranking_rows(summary)))
+    parts.append("<h2 id=\"metrics\">Metrics</h2>")
+    parts.append(_html_table(*_metric_rows(summary)))
+    parts.append("<p class=\"muted\">z = (virtual - actual) / u_c with u_c = sqrt(u_instrument^2 + s_virtual^2 + "
+                 "s_actual^2); chi-square = sum z^2 on dof = number of z's; p = chi2.sf(chi2, dof).</p>")
+    parts.append("<h2 id=\"figures\">Figures</h2>")
+    for f in figures:
+        data = base64.b64encode(Path(f["path"]).read_bytes()).decode("ascii")
+        parts.append(f"<figure><img id=\"{e(f['id'])}\" alt=\"{e(f['alt'])}\" src=\"data:image/png;base64,{data}\">"
+                     f"<figcaption>{e(f['caption'])}</figcaption></figure>")
+    if check_results:
+        parts.append("<h2 id=\"checks\">Physical checks</h2>")
+        head, rows = _check_rows(check_results)
+        parts.append(_html_table(head, rows))
+    for name, c in comps.items():
+        parts.append(f"<h2 id=\"details-{e(slug(name))}\">Details: {e(name)}</h2>")
+        parts.append(f"<p class=\"muted\">Alignment: {e(json.dumps(_json_safe(summary['alignment'][name])))}</p>")
+        if len(c.by_wavelength):
+            parts.append("<h3>Per wavelength</h3>")
+            parts.append(_html_table(*_frame_rows(c.by_wavelength, list(c.by_wavelength.columns), _GROUP_LIMIT)))
+            if len(c.by_wavelength) > _GROUP_LIMIT:
+                parts.append(f"<p class=\"muted\">first {_GROUP_LIMIT} of {len(c.by_wavelength)} rows</p>")
+        if len(c.by_incidence):
+            parts.append("<h3>Per incidence</h3>")
+            parts.append(_html_table(*_frame_rows(c.by_incidence, list(c.by_incidence.columns), _GROUP_LIMIT)))
+        um = c.aligned.unmatched
+        parts.append(f"<h3 id=\"unmatched-{e(slug(name))}\">Unmatched ({int((um.side == 'actual').sum())} actual "
+                     f"points, {int((um.side == 'candidate').sum())} unused candidate groups)</h3>")
+        if len(um):
+            parts.append(_html_table(*_frame_rows(um, list(um.columns), _UNMATCHED_LIMIT)))
+            if len(um) > _UNMATCHED_LIMIT:
+                parts.append(f"<p class=\"muted\">first {_UNMATCHED_LIMIT} of {len(um)} rows</p>")
+        else:
+            parts.append("<p>Every actual point was matched.</p>")
+    parts.append("<h2 id=\"warnings\">Warnings</h2>")
+    if summary["warnings"] or summary["errors"]:
+        items = [f"<li>{e(w)}</li>" for w in summary["warnings"]]
+        items += [f"<li>candidate {e(n)} not compared: {e(m)}</li>" for n, m in summary["errors"].items()]
+        parts.append("<div class=\"warn\"><ul>" + "".join(items) + "</ul></div>")
+    else:
+        parts.append("<p>None.</p>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def _markdown(title: str, summary: Mapping[str, Any], comps: Mapping[str, Comparison], figures: list[dict[str, Any]],
+              check_results: Mapping[str, Any]) -> str:
+    out = [f"# {title}", "", f"Quantity: {summary['quantity']}; k = {summary['k']:g} (nominal fraction within "
+           f"{summary['nominal_fraction']:.2%}).", "", "## Model ranking", "",
+           f"Ranked by **{summary['primary_metric']}** (lower is better).", "", _md_table(*_ranking_rows(summary)),
+           "", "## Metrics", "", _md_table(*_metric_rows(summary)), "", "## Figures", ""]
+    for f in figures:
+        out.append(f"![{f['alt']}](figures/{Path(f['path']).name})")
+        out.append(f"*{f['caption']}*")
+        out.append("")
+    if check_results:
+        out += ["## Physical checks", "", _md_table(*_check_rows(check_results)), ""]
+    out += ["## Unmatched", ""]
+    for name, c in comps.items():
+        um = c.aligned.unmatched
+        out.append(f"- {name}: {int((um.side == 'actual').sum())} actual points unmatched, "
+                   f"{int((um.side == 'candidate').sum())} candidate groups unused")
+        for reason, n in um[um.side == "actual"].reason.value_counts().head(5).items():
+            out.append(f"  - {n} x {reason}")
+    out += ["", "## Warnings", ""]
+    out += [f"- {w}" for w in summary["warnings"]] or ["None."]
+    out += [f"- candidate {n} not compared: {m}" for n, m in summary["errors"].items()]
+    return "\n".join(out) + "\n"
