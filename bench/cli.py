@@ -169,6 +169,133 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     return 0
 
 
+# --- scans: plan, scan, resume, runs, show, export -------------------------------------------------
+
+DEFAULT_STORE = "goniobench-runs.sqlite"
+
+
+def _plan_and_bench(args: argparse.Namespace):
+    from bench.config import load_bench
+    from bench.plans import load_plan
+
+    plan = load_plan(args.plan)
+    bench = load_bench(args.bench, seed=getattr(args, "seed", None))
+    return plan, bench
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from bench.plans import MotionProfile, estimate, order_for_travel, validate
+
+    plan, bench = _plan_and_bench(args)
+    with bench:
+        validate(plan, bench.goniometer.check)
+        profile = bench.motion or MotionProfile.instantaneous()
+        kw = {"joints": bench.joints} if bench.joints is not None else {}
+        order = order_for_travel(plan.points) if plan.order == "travel" else None
+        est = estimate(plan, profile, order, **kw)
+        given = estimate(plan, profile, None, **kw)
+    out = {"plan": plan.name, "kind": plan.kind, "bench": bench.name, "bench_kind": bench.kind, **est,
+           "seconds_in_given_order": given["seconds"], "integration_s": plan.integration_s,
+           "averages": plan.averages}
+    if args.json:
+        _emit_json(out)
+        return 0
+    print(f"plan {plan.name} ({plan.kind}) on bench {bench.name} ({bench.kind}): all {est['points']} points "
+          f"reachable, {est['incidences']} incidences")
+    print(f"  estimated duration {_hms(est['seconds'])}: motion {_hms(est['motion_s'])}, acquisition "
+          f"{_hms(est['acquisition_s'])}, references {_hms(est['references_s'])}"
+          f"  (in the order given: {_hms(given['seconds'])})")
+    print(f"  expected relative uncertainty per point {est['relative_uncertainty']:.2%} "
+          f"({plan.averages} averages x {plan.integration_s:g} s)")
+    return 0
+
+
+def _hms(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 3600:d}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def _store(path: str, create: bool = True):
+    from bench.store import RunStore
+
+    return RunStore(path, create=create)
+
+
+def cmd_scan(args: argparse.Namespace) -> int:
+    from bench.runner import run_scan
+
+    plan, bench = _plan_and_bench(args)
+    with bench, _store(args.store) as store:
+        result = run_scan(bench, plan, store, seed=getattr(bench.goniometer, "seed", args.seed),
+                          progress=not args.quiet and sys.stderr.isatty())
+    if args.json:
+        _emit_json(result.__dict__)
+    else:
+        print(result.run_id)
+    return 0
+
+
+def cmd_resume(args: argparse.Namespace) -> int:
+    from bench.config import load_bench
+    from bench.runner import resume_scan
+
+    with _store(args.store, create=False) as store:
+        info = store.run(args.run)
+        config = args.bench if args.bench else info["bench"]
+        bench = load_bench(config, seed=info.get("seed"))
+        with bench:
+            result = resume_scan(bench, store, args.run, progress=not args.quiet and sys.stderr.isatty())
+    if args.json:
+        _emit_json(result.__dict__)
+    else:
+        print(result.run_id)
+    return 0
+
+
+def cmd_runs(args: argparse.Namespace) -> int:
+    with _store(args.store, create=False) as store:
+        runs = store.runs()
+    if args.json:
+        _emit_json(runs)
+        return 0
+    print(f"{'run':<24} {'kind':<6} {'status':<12} {'points':>11}  created (UTC)")
+    for r in runs:
+        pts = f"{r['points_done']}/{r['n_planned'] if r['n_planned'] is not None else '?'}"
+        print(f"{r['run_id']:<24} {r['kind']:<6} {r['status']:<12} {pts:>11}  {r['created_utc']}"
+              + (f"  ({r['reason']})" if r["reason"] else ""))
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    with _store(args.store, create=False) as store:
+        s = store.summary(args.run)
+    if args.json:
+        _emit_json(s)
+        return 0
+    print(f"run {s['run_id']} ({s['kind']}): {s['status']}" + (f" - {s['reason']}" if s["reason"] else ""))
+    print(f"  points {s['points_done']}/{s['points_planned']}, readings {s['readings']}, "
+          f"wavelengths {s['wavelengths']['n']} ({s['wavelengths']['min']}..{s['wavelengths']['max']} nm)")
+    for k, (lo, hi) in s["geometry"].items():
+        print(f"  {k:8s} {lo} .. {hi} deg")
+    v = s["value"]
+    print(f"  value {v['min']} .. {v['max']} ({v['n']} values, {v['n_missing']} masked), saturated {s['saturated']}")
+    t = s["timing"]
+    print(f"  created {t['created_utc']}, finished {t['finished_utc']}, elapsed {t['elapsed_s']} s, "
+          f"mean per point {t['mean_point_s']} s")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from bench import export
+
+    with _store(args.store, create=False) as store:
+        record = store.to_record(args.run)
+    out = Path(args.out or f"{args.run}.{ {'csv': 'csv', 'parquet': 'parquet', 'astm': 'astm.csv', 'zemax': 'bsdf'}[args.format]}")
+    path = export.export_record(record, out, args.format)
+    print(path)
+    return 0
+
+
 # --- bench demo -----------------------------------------------------------------------------
 
 
@@ -202,6 +329,11 @@ def _float(text: str) -> float:
         return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+#: Modules that add subcommands: each has ``register(subparsers)`` and imports nothing heavy at
+#: module level (the CLI must start fast). One module per feature keeps this file small.
+COMMAND_MODULES = ["bench.cli_compare", "bench.cli_tradeoff", "bench.cli_sweep", "bench.cli_emulate"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -251,11 +383,63 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--plot", metavar="FILE.png")
     g.set_defaults(func=cmd_gonio)
 
+    pl = sub.add_parser("plan", help="check a plan on a bench and estimate its duration")
+    pl.add_argument("plan", metavar="PLAN.toml")
+    pl.add_argument("--bench", required=True, metavar="BENCH.toml")
+    pl.add_argument("--json", action="store_true")
+    pl.set_defaults(func=cmd_plan)
+
+    sc = sub.add_parser("scan", help="run a plan on a bench; prints the run id")
+    sc.add_argument("plan", metavar="PLAN.toml")
+    sc.add_argument("--bench", required=True, metavar="BENCH.toml")
+    sc.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    sc.add_argument("--seed", type=int, help="root seed of virtual devices")
+    sc.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    sc.add_argument("--json", action="store_true")
+    sc.set_defaults(func=cmd_scan)
+
+    rs = sub.add_parser("resume", help="finish an interrupted run")
+    rs.add_argument("run", metavar="RUN")
+    rs.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    rs.add_argument("--bench", metavar="BENCH.toml", help="bench config (default: the one stored with the run)")
+    rs.add_argument("--quiet", "-q", action="store_true")
+    rs.add_argument("--json", action="store_true")
+    rs.set_defaults(func=cmd_resume)
+
+    ru = sub.add_parser("runs", help="list the runs in a store")
+    ru.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    ru.add_argument("--json", action="store_true")
+    ru.set_defaults(func=cmd_runs)
+
+    sh = sub.add_parser("show", help="summarize one run")
+    sh.add_argument("run", metavar="RUN")
+    sh.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    sh.add_argument("--json", action="store_true")
+    sh.set_defaults(func=cmd_show)
+
+    ex = sub.add_parser("export", help="export a run: csv, parquet, astm, zemax")
+    ex.add_argument("run", metavar="RUN")
+    ex.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    ex.add_argument("--format", choices=("csv", "parquet", "astm", "zemax"), default="csv")
+    ex.add_argument("--out", metavar="FILE")
+    ex.set_defaults(func=cmd_export)
+
     d = sub.add_parser("demo", help="end-to-end demo on the embedded default bench")
     d.add_argument("--out", default="demo-out", help="output folder (default ./demo-out)")
     d.add_argument("--seed", type=int, default=20261122)
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=cmd_demo)
+
+    import importlib
+
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:  # the module exists but something it needs is missing
+                raise
+            continue
+        module.register(sub)
     return p
 
 

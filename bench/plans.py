@@ -256,6 +256,13 @@ class MotionProfile:
     acceleration: Mapping[str, float]
     settle_s: float = 0.2
     overhead_s: float = 0.005
+    default_velocity: float = 30.0
+    default_acceleration: float = 60.0
+
+    @classmethod
+    def instantaneous(cls) -> "MotionProfile":
+        """Axes that move in no time (a virtual bench)."""
+        return cls({}, {}, 0.0, 0.0, math.inf, math.inf)
 
     def move_time(self, a: Mapping[str, float], b: Mapping[str, float]) -> float:
         """Time of a synchronised move (the slowest axis sets it), plus settle when anything moves."""
@@ -264,7 +271,10 @@ class MotionProfile:
             dist = abs(b[joint] - start)
             if dist == 0.0:
                 continue
-            v, acc = self.velocity.get(joint, 30.0), self.acceleration.get(joint, 60.0)
+            v = self.velocity.get(joint, self.default_velocity)
+            acc = self.acceleration.get(joint, self.default_acceleration)
+            if math.isinf(v) and math.isinf(acc):
+                continue
             d_ramp = v * v / acc  # distance to reach v and stop again
             t = 2.0 * math.sqrt(dist / acc) if dist < d_ramp else dist / v + v / acc
             longest = max(longest, t)
