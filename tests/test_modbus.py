@@ -275,6 +275,13 @@ def test_e2e_exception_response(axis: ModbusStageAxis) -> None:
         axis.write_int32("output_status", 1)
 
 
+def test_e2e_unknown_unit_id_is_a_protocol_error(emu: StageEmulator) -> None:
+    with ModbusStageAxis.from_config({"port": emu.url, "name": "turntable", "device_id": 7,
+                                      **AXIS}) as other:
+        with pytest.raises(ProtocolError, match="turntable.*device 7"):
+            other.position_deg()
+
+
 def test_e2e_dropped_and_corrupted_replies_are_retried(axis: ModbusStageAxis,
                                                        emu: StageEmulator) -> None:
     p = axis.position_deg()

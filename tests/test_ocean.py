@@ -342,6 +342,14 @@ def test_e2e_conformance(emu: SpectrometerEmulator, kw: dict) -> None:
     s.close()
 
 
+def test_e2e_from_config(emu: SpectrometerEmulator) -> None:
+    with OceanSpectrometer.from_config({"port": emu.port, "name": "detector", "model": "EMU2000+",
+                                        "mode": "binary", "checksum": True}) as s:
+        assert s.describe().extra["name"] == "detector"
+    with pytest.raises(ConfigError, match="unknown setting.*integraton"):
+        OceanSpectrometer.from_config({"port": emu.port, "integraton": 3})
+
+
 def test_e2e_reading_is_physical(spec: OceanSpectrometer) -> None:
     r = spec.acquire(0.01, 4)
     assert r.signal.shape == (2048,) and not r.saturated.any()
