@@ -273,6 +273,8 @@ def test_e2e_exception_response(axis: ModbusStageAxis) -> None:
         axis._read(0x0300, 2)
     with pytest.raises(ProtocolError, match="code 2"):   # status is read-only
         axis.write_int32("output_status", 1)
+    with pytest.raises(ProtocolError, match=r"0x10\).*0x0064.*code 3"):   # current > 100 %
+        axis.write_int32("direct_current", 5000)
 
 
 def test_e2e_unknown_unit_id_is_a_protocol_error(emu: StageEmulator) -> None:

@@ -2,10 +2,12 @@
 
 The emulator is a pymodbus server (``pymodbus.simulator`` ``SimDevice`` with an action hook)
 answering either Modbus RTU on a pseudo-terminal or Modbus TCP on 127.0.0.1. Its register
-layout comes from the same register map as the driver (``drivers/registers/*.toml``): the
-direct-data block, the input command, output status, present alarm and feedback/command
-position; every other address answers exception 2 (illegal data address); status and
-positions are read-only (a write answers exception 2 too).
+layout is its own copy of the AZ map (or any TOML of the shape ``drivers/registers`` uses, read
+as data: ``virtual`` never imports ``drivers``): the direct-data block, the input command,
+output status, present alarm and feedback/command position; every other address answers
+exception 2 (illegal data address); status and positions are read-only (a write answers
+exception 2 too); operation data out of range (current > 100 %, speed > ``max_speed_hz``)
+answers exception 3 (illegal data value).
 
 Physics (:class:`StageModel`, pure, time driven): a trigger of an absolute positioning starts
 a move at the commanded speed (steps/s, constant-speed ramp; acceleration is accepted and
@@ -287,6 +289,13 @@ def _build_device(model: StageModel, lock: threading.Lock) -> Any:
                 span = range(address, address + count)
                 if r.addr("input_command") in span or r.addr("input_command") + 1 in span:
                     model.input_command(word(merged, r.addr("input_command")) & 0xFFFFFFFF)
+                # out-of-range operation data is refused whole (exception 3), as a drive does
+                cur, spd = r.addr("direct_current"), r.addr("direct_speed")
+                if (cur in span or cur + 1 in span) and not 0 <= word(merged, cur) <= \
+                        r.value("current_max", 1000):
+                    return ExcCodes.ILLEGAL_VALUE
+                if (spd in span or spd + 1 in span) and word(merged, spd) > model.cfg.max_speed_hz:
+                    return ExcCodes.ILLEGAL_VALUE
                 if trig + 1 in span or trig in span:
                     tv = word(merged, trig)
                     if tv == r.value("trigger_all", 1):
@@ -306,7 +315,6 @@ def _build_device(model: StageModel, lock: threading.Lock) -> Any:
                 registers[a - start: a - start + 2] = r.to_words(val)
         return None
 
-    _ = ExcCodes  # exceptions other than the datastore's own come from the hook if ever needed
     return SimDevice(id=model.cfg.device_id, simdata=blocks, action=action)
 
 
