@@ -736,9 +736,8 @@ def _reading_tuples(run_id: str, idx: int, rows: Any) -> list[tuple]:
     path; anything else (numpy scalars, extra keys) is converted value by value. NaN is bound
     as is: SQLite stores a NaN as NULL.
     """
-    import pandas as pd
-
-    if isinstance(rows, pd.DataFrame):
+    pd = sys.modules.get("pandas")  # a DataFrame implies pandas is loaded; a scan loop needn't load it
+    if pd is not None and isinstance(rows, pd.DataFrame):
         return _frame_tuples(run_id, idx, rows)
     if isinstance(rows, Mapping):
         raise InputError(f"run {run_id!r} point {idx}: rows must be a list of dicts or a DataFrame, "
