@@ -290,6 +290,11 @@ class ModbusStageAxis:
         Serial port / pty path / pyserial URL (RTU) or ``"tcp://host:port"`` (TCP).
     transport : Transport, optional
         A :class:`drivers.transport.Transport` to carry RTU frames instead of ``port``.
+    client : pymodbus sync client, optional
+        A connected ``ModbusSerialClient``/``ModbusTcpClient`` shared by several axes on one
+        RS-485 line (different ``device_id``); the axis never closes it. With a shared client
+        the serial settings and ``timeout_s`` of the client apply; ``retries`` of the axis still
+        bound the attempts (create the client with ``retries=0``).
     config : AxisConfig or mapping, optional
         Settings; keyword arguments override single keys (see :class:`AxisConfig`), and the
         aliases ``limits_deg`` and ``speed_deg_s`` are accepted.
@@ -304,11 +309,11 @@ class ModbusStageAxis:
         The port cannot be opened (first request after the bounded retries).
     """
 
-    def __init__(self, port: str | None = None, *, transport: Any = None,
+    def __init__(self, port: str | None = None, *, transport: Any = None, client: Any = None,
                  config: AxisConfig | Mapping[str, Any] | None = None, name: str = "stage",
                  **overrides: Any) -> None:
-        if (port is None) == (transport is None):
-            raise InputError("give exactly one of port= or transport=")
+        if sum(x is not None for x in (port, transport, client)) != 1:
+            raise InputError("give exactly one of port=, transport= or client=")
         if "limits_deg" in overrides:
             overrides["limits"] = overrides.pop("limits_deg")
         if "speed_deg_s" in overrides:
@@ -324,15 +329,19 @@ class ModbusStageAxis:
         self.config: AxisConfig = base
         self.rmap: RegisterMap = load_register_map(base.register_map)
         self.name = name
-        self.port = port if port is not None else repr(transport)
+        self.port = port if port is not None else repr(transport if client is None else client)
         self._fault: _Fault | None = None
         self._transport = transport
+        self._owns_client = client is None
         self._rx_seen = False
         self._answered = False   # a reply ever came back on this link
         self._gone: str | None = None
         self._closed = False
         cfg = base
-        if transport is not None:
+        if client is not None:
+            self._client = client
+            self.link = "tcp" if isinstance(client, ModbusTcpClient) else "rtu"
+        elif transport is not None:
             self._client: Any = TransportModbusClient(transport, timeout=cfg.timeout_s,
                                                       trace_packet=self._trace)
             self.link = "rtu"
@@ -439,6 +448,8 @@ class ModbusStageAxis:
                                  f"within {cfg.timeout_s} s after {tries} attempt(s)")
 
     def _safe_close_client(self) -> None:
+        if not self._owns_client:
+            return  # a shared bus: its owner closes it
         try:
             self._client.close()
         except Exception:  # pragma: no cover - closing a dead link

@@ -375,6 +375,26 @@ def test_e2e_killed_emulator_is_port_gone(transport: str) -> None:
         axis.close()
 
 
+def test_e2e_two_drives_share_one_rs485_line() -> None:
+    with StageEmulator.start("rtu", extra_device_ids=(2,)) as e:
+        bus = ModbusSerialClient(e.port, baudrate=115200, parity="N", timeout=0.3, retries=0)
+        cfg = {k: v for k, v in AXIS.items() if k not in ("parity",)}
+        a1 = ModbusStageAxis(client=bus, name="turntable", device_id=1, **cfg)
+        a2 = ModbusStageAxis(client=bus, name="lift", device_id=2, **cfg)
+        assert a1.move_to_deg(30.0) == pytest.approx(30.0, abs=0.05)
+        assert a2.move_to_deg(-60.0) == pytest.approx(-60.0, abs=0.05)
+        assert a1.position_deg() == pytest.approx(30.0, abs=0.05)
+        e.alarm(0x30, unit=2)
+        with pytest.raises(HardwareError, match="lift"):
+            a2.move_to_deg(0.0)
+        assert a1.move_to_deg(0.0) == pytest.approx(0.0, abs=0.05)   # the other drive is fine
+        assert e.state(unit=2)["alarm"] == 0x30 and e.state(unit=1)["alarm"] == 0
+        a1.close()
+        a2.close()
+        assert bus.connected   # the shared client belongs to the caller
+        bus.close()
+
+
 def test_pymodbus_serial_client_against_rtu_emulator() -> None:
     """The plain pymodbus client (no driver) reads the feedback position over the pty."""
     with StageEmulator.start("rtu", initial_position=-1000) as e:

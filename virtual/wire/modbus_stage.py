@@ -66,10 +66,12 @@ class StageConfig:
     from ``drivers``, the two meet only on the wire); ``max_speed_hz``
     clips the commanded speed; ``travel_limits`` (lo, hi) in steps raises alarm 0x67
     (software overtravel) on a trigger beyond them; ``time_scale`` > 1 makes motion faster
-    than real time (for tests).
+    than real time (for tests); ``extra_device_ids`` adds more drives (same settings) on the
+    same line, as on an RS-485 bus.
     """
 
     device_id: int = 1
+    extra_device_ids: tuple[int, ...] = ()
     register_map: str = "oriental_az"
     initial_position: int = 0
     max_speed_hz: float = 4_000_000.0
@@ -262,7 +264,7 @@ class _Faults:
         return data
 
 
-def _build_device(model: StageModel, lock: threading.Lock) -> Any:
+def _build_device(model: StageModel, lock: threading.Lock, device_id: int) -> Any:
     from pymodbus.constants import ExcCodes
     from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -315,7 +317,7 @@ def _build_device(model: StageModel, lock: threading.Lock) -> Any:
                 registers[a - start: a - start + 2] = r.to_words(val)
         return None
 
-    return SimDevice(id=model.cfg.device_id, simdata=blocks, action=action)
+    return SimDevice(id=device_id, simdata=blocks, action=action)
 
 
 def _open_pty_pair() -> tuple[int, int, str]:
@@ -356,9 +358,10 @@ async def _serve(cfg: dict[str, Any], transport: str, conn: Any) -> None:
     scfg = StageConfig(**cfg)
     rmap = _Layout.load(scfg.register_map)
     lock = threading.Lock()
-    model = StageModel(rmap, scfg)
+    ids = [scfg.device_id] + [i for i in scfg.extra_device_ids if i != scfg.device_id]
+    models = {i: StageModel(rmap, scfg) for i in ids}
     faults = _Faults()
-    device = _build_device(model, lock)
+    device = [_build_device(models[i], lock, i) for i in ids]
 
     def trace(sending: bool, data: bytes) -> bytes:
         return faults.outgoing(data) if sending else data
@@ -383,6 +386,7 @@ async def _serve(cfg: dict[str, Any], transport: str, conn: Any) -> None:
     else:
         raise ValueError(f"transport must be 'tcp' or 'rtu', not {transport!r}")
     address["device_id"] = scfg.device_id
+    address["device_ids"] = ids
     address["pid"] = os.getpid()
 
     loop = asyncio.get_running_loop()
@@ -400,10 +404,12 @@ async def _serve(cfg: dict[str, Any], transport: str, conn: Any) -> None:
             with lock:
                 if cmd == "die":
                     os._exit(1)
+                elif msg.get("unit", scfg.device_id) not in models:
+                    reply = {"ok": False, "error": f"no unit {msg.get('unit')} (have {ids})"}
                 elif cmd == "alarm":
-                    model.raise_alarm(int(msg["code"]))
+                    models[msg.get("unit", scfg.device_id)].raise_alarm(int(msg["code"]))
                 elif cmd == "state":
-                    reply["state"] = model.snapshot()
+                    reply["state"] = models[msg.get("unit", scfg.device_id)].snapshot()
                 elif cmd == "stop":
                     conn.send(reply)
                     break
@@ -514,13 +520,13 @@ class StageEmulator:
     def pid(self) -> int:
         return self._proc.pid
 
-    def state(self) -> dict[str, Any]:
-        """Position, target, moving, alarm, status word and command counters."""
-        return self._call({"cmd": "state"})["state"]
+    def state(self, unit: int | None = None) -> dict[str, Any]:
+        """Position, target, moving, alarm, status word and command counters of one drive."""
+        return self._call({"cmd": "state", "unit": unit or self.device_id})["state"]
 
-    def alarm(self, code: int = 0x30) -> None:
-        """Raise alarm ``code`` now (0x30 overload by default)."""
-        self._call({"cmd": "alarm", "code": code})
+    def alarm(self, code: int = 0x30, unit: int | None = None) -> None:
+        """Raise alarm ``code`` now (0x30 overload by default) on one drive."""
+        self._call({"cmd": "alarm", "code": code, "unit": unit or self.device_id})
 
     def drop_replies(self, n: int = 1) -> None:
         """Do not send the next ``n`` replies."""
