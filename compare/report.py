@@ -237,8 +237,8 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
-def _fig(fid: str, path: Path, alt: str, caption: str) -> dict[str, Any]:
-    return {"id": fid, "path": path, "alt": alt, "caption": caption}
+def _fig(fid: str, path: Path, alt: str, caption: str, group: str | None = None) -> dict[str, Any]:
+    return {"id": fid, "path": path, "alt": alt, "caption": caption, "group": group or fid}
 
 
 def _figures(act: Any, comps: dict[str, Comparison], recs: dict[str, Any], figdir: Path, k: float,
@@ -408,7 +408,8 @@ def _bsdf_figures(act: BSDFRecord, comps: dict[str, Comparison], recs: dict[str,
     # hemispherical maps
     figs.append(_fig("fig-polar-actual", _map(act_sel, figdir / "fig-polar-actual.png", f"actual: {wl:g} nm, "
                                               f"theta_i = {inc[0]:g} deg"),
-                     "Hemispherical map of the actual record", f"Actual record at theta_i = {inc[0]:g} deg, {wl:g} nm."))
+                     "Hemispherical map of the actual record",
+                     f"Actual record at theta_i = {inc[0]:g} deg, {wl:g} nm (each map has its own colour scale)."))
     for name, c in comps.items():
         s = slug(name)
         rec = recs[name]
@@ -423,10 +424,12 @@ def _bsdf_figures(act: BSDFRecord, comps: dict[str, Comparison], recs: dict[str,
         csel = _select(rec, cwl, cinc)
         figs.append(_fig(f"fig-polar-{s}", _map(csel, figdir / f"fig-polar-{s}.png", f"{name}: {cwl:g} nm, "
                                                 f"theta_i = {cinc[0]:g} deg"),
-                         f"Hemispherical map of candidate {name}", f"Candidate {name}."))
+                         f"Hemispherical map of candidate {name}",
+                         f"Candidate {name} (each map has its own colour scale).", group=f"candidate-{s}"))
         figs.append(_fig(f"fig-sigma-{s}", _sigma_map(c, act_sel.table, wl, inc, figdir / f"fig-sigma-{s}.png", k),
                          f"Discrepancy map of candidate {name} in sigma units",
-                         f"(virtual - actual) / u_c for {name}; blue: candidate low, red: candidate high."))
+                         f"(virtual - actual) / u_c for {name}; blue: candidate low, red: candidate high.",
+                         group=f"candidate-{s}"))
     return figs
 
 
@@ -567,7 +570,7 @@ def _html_table(head: Sequence[str], rows: Sequence[Sequence[str]], cls: str = "
     e = html.escape
     h = "".join(f"<th>{e(str(x))}</th>" for x in head)
     b = "".join("<tr>" + "".join(f"<td>{e(str(x))}</td>" for x in r) + "</tr>" for r in rows)
-    return f'<table class="{cls}"><thead><tr>{h}</tr></thead><tbody>{b}</tbody></table>'
+    return f'<div class="scroll"><table class="{cls}"><thead><tr>{h}</tr></thead><tbody>{b}</tbody></table></div>'
 
 
 def _md_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -587,7 +590,8 @@ table{border-collapse:collapse;margin:8px 0;font-size:0.85em}
 th,td{border:1px solid #ccc;padding:3px 8px;text-align:right;vertical-align:top}
 th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
 td.msg{text-align:left}
-figure{margin:16px 0;display:inline-block;vertical-align:top}figure img{max-width:100%;border:1px solid #eee}
+.row{display:flex;flex-wrap:wrap;gap:12px;align-items:flex-start}.scroll{overflow-x:auto;max-width:100%}
+figure{margin:16px 0;flex:0 1 auto;max-width:100%}figure img{max-width:100%;border:1px solid #eee}
 figcaption{font-size:0.85em;color:#555;max-width:900px}
 .warn{background:#fff6e0;border-left:4px solid #e0a000;padding:6px 12px}
 .muted{color:#666;font-size:0.85em}
@@ -615,10 +619,18 @@ def _html(title: str, summary: Mapping[str, Any], comps: Mapping[str, Comparison
     parts.append("<p class=\"muted\">z = (virtual - actual) / u_c with u_c = sqrt(u_instrument^2 + s_virtual^2 + "
                  "s_actual^2); chi-square = sum z^2 on dof = number of z's; p = chi2.sf(chi2, dof).</p>")
     parts.append("<h2 id=\"figures\">Figures</h2>")
+    group = None
     for f in figures:
+        if f["group"] != group:
+            if group is not None:
+                parts.append("</div>")
+            parts.append(f"<div class=\"row\" id=\"group-{e(f['group'])}\">")
+            group = f["group"]
         data = base64.b64encode(Path(f["path"]).read_bytes()).decode("ascii")
         parts.append(f"<figure><img id=\"{e(f['id'])}\" alt=\"{e(f['alt'])}\" src=\"data:image/png;base64,{data}\">"
                      f"<figcaption>{e(f['caption'])}</figcaption></figure>")
+    if group is not None:
+        parts.append("</div>")
     if check_results:
         parts.append("<h2 id=\"checks\">Physical checks</h2>")
         head, rows = _check_rows(check_results)

@@ -285,7 +285,9 @@ def spectrum_lab(wavelengths: np.ndarray, values: np.ndarray, illuminant: str = 
 
     colour-science's ASTM E308 method needs a 1/5/10/20 nm grid: other grids are interpolated
     linearly onto a 5 nm grid inside their range first (noted). XYZ is scaled to [0, 1] (Y of the
-    perfect diffuser = 1) for ``XYZ_to_Lab`` with the illuminant's white under the same observer.
+    perfect diffuser = 1) for ``XYZ_to_Lab`` with the illuminant's white under the same observer
+    (``CCS_ILLUMINANTS``) when the spectrum spans 360-780 nm, else the white of the perfect
+    diffuser weighted over the same trimmed range (so a flat spectrum stays neutral).
     """
     import colour
 
@@ -301,16 +303,20 @@ def spectrum_lab(wavelengths: np.ndarray, values: np.ndarray, illuminant: str = 
         v = np.interp(grid, wl, v)
         wl = grid
         notes.append("spectrum interpolated linearly onto a 5 nm grid for ASTM E308 weighting")
-    if wl[0] > 380 or wl[-1] < 780:
+    trimmed = bool(wl[0] > 360 or wl[-1] < 780)
+    if trimmed:
         notes.append(f"spectrum covers {wl[0]:g}-{wl[-1]:g} nm: colour-science trims the CMFs and illuminant "
-                     f"to this range (normalization over the same range)")
+                     f"to this range; the white point is computed over the same range")
     cmfs = colour.MSDS_CMFS[observer]
     illum = colour.SDS_ILLUMINANTS[illuminant]
-    sd = colour.SpectralDistribution(v, wl)
     with _warnings.catch_warnings():
         _warnings.simplefilter("ignore")
-        xyz = colour.sd_to_XYZ(sd, cmfs, illum) / 100.0
-    white = colour.CCS_ILLUMINANTS[observer][illuminant]
+        xyz = colour.sd_to_XYZ(colour.SpectralDistribution(v, wl), cmfs, illum) / 100.0
+        if trimmed:
+            # the white of the same (trimmed) weighting, so that a flat spectrum stays neutral
+            white = colour.XYZ_to_xy(colour.sd_to_XYZ(colour.SpectralDistribution(np.ones_like(v), wl), cmfs, illum))
+        else:
+            white = colour.CCS_ILLUMINANTS[observer][illuminant]
     return np.asarray(colour.XYZ_to_Lab(xyz, white), float), notes
 
 
