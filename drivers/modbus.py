@@ -439,8 +439,10 @@ class ModbusStageAxis:
             return resp
         tries = cfg.retries + 1
         if kind == "gone":
+            hint = (" (is the port open elsewhere? axes on one RS-485 line must share one "
+                    "client: ModbusStageAxis(client=...))") if self.link == "rtu" else ""
             raise PortGoneError(f"{self.name}: {what}: cannot reach {self.port} after {tries} "
-                                f"attempt(s): {last}")
+                                f"attempt(s): {last}{hint}")
         if garbled:
             raise ChecksumError(f"{self.name}: {what}: replies from device {cfg.device_id} "
                                 f"failed the CRC/framing check {tries} time(s)")
