@@ -321,7 +321,7 @@ def test_e2e_alarm_during_move_latches_until_reset(axis: ModbusStageAxis,
         axis.move_to_deg(target)
     timer.join()
     assert ei.value.code == 0x30 and "overload" in str(ei.value) and "ALM" in ei.value.flags
-    assert time.monotonic() - t0 < 1.0
+    assert time.monotonic() - t0 < 2.0
     triggers = emu.state()["triggers"]
     with pytest.raises(FaultLatchedError):
         axis.move_to_deg(0.0)
