@@ -27,7 +27,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from bench.errors import CalibrationError
+from bench.errors import CalibrationError, ConfigError
 from bench.geometry import Geometry
 from bench.instruments import Reading
 
@@ -65,7 +65,12 @@ class WhiteStandard:
         if not isinstance(r, (int, float)):
             r = (tuple(r[0]), tuple(r[1]))
         g = d.get("geometry", {"theta_i": 0.0, "phi_i": 0.0, "theta_r": 45.0, "phi_r": 180.0})
-        geometry = Geometry(**g) if isinstance(g, Mapping) else Geometry(*g)
+        if isinstance(g, Mapping):
+            geometry = Geometry(**g)
+        elif isinstance(g, (list, tuple)) and len(g) == 4:
+            geometry = Geometry(*(float(x) for x in g))
+        else:
+            raise ConfigError(f"white standard geometry must be [theta_i, phi_i, theta_r, phi_r], got {g!r}")
         return cls(r, float(d.get("uncertainty", 0.005)), geometry, str(d.get("name", "white standard")))
 
 

@@ -101,10 +101,9 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     validate(plan, bench.goniometer.check)  # refuse the whole plan before any motion
     order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))
     cal = _measure_calibration(bench, plan)
-    meta = {"order": order, "calibration": None if cal is None else cal.as_dict(),
-            "bench_description": bench.describe()}
+    meta = {"order": order, "bench_description": bench.describe(), "bench_kind": bench.kind}
     run_id = store.create_run(kind="scan", plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
-                              n_planned=len(plan.points))
+                              n_planned=len(plan.points), calibration=None if cal is None else cal.as_dict())
     return _execute(bench, plan, store, run_id, order, cal, set(), progress, on_point)
 
 
@@ -117,7 +116,7 @@ def resume_scan(bench: Bench, store: Any, run_id: str, progress: bool = False,
     plan = plan_from_dict(info["plan"], name=info["plan"].get("name", "plan"))
     meta = info.get("meta") or {}
     order = [int(i) for i in meta.get("order", range(len(plan.points)))]
-    cal = Calibration.from_dict(meta["calibration"]) if meta.get("calibration") else None
+    cal = Calibration.from_dict(info["calibration"]) if info.get("calibration") else None
     validate(plan, bench.goniometer.check)
     done = set(store.done_indices(run_id))
     store.set_status(run_id, "running", None)

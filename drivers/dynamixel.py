@@ -217,14 +217,20 @@ class ArmConfig:
     model_number: int | None = 1020
     torque_off_on_close: bool = False
     name: str = "dynamixel-arm"
+    external: tuple[str, ...] = ()
 
     _KEYS = ("axes", "port", "baudrate", "kinematics", "tolerance_deg", "settle_timeout_s",
-             "poll_interval_s", "retries", "model_number", "torque_off_on_close", "name")
+             "poll_interval_s", "retries", "model_number", "torque_off_on_close", "name", "external")
 
     def __post_init__(self) -> None:
-        missing = [j for j in JOINTS if j not in self.axes]
+        object.__setattr__(self, "external", tuple(self.external))
+        for j in self.external:
+            if j not in JOINTS or j in self.axes:
+                raise ConfigError(f"external joint {j!r} must be one of {list(JOINTS)} and not also a servo axis")
+        missing = [j for j in JOINTS if j not in self.axes and j not in self.external]
         if missing:
-            raise ConfigError(f"axes: missing joint(s) {missing}; need {list(JOINTS)}")
+            raise ConfigError(f"axes: missing joint(s) {missing}; need {list(JOINTS)} "
+                              f"(or name them in external = [...] and drive them with another axis)")
         ids = [a.id for a in self.axes.values()]
         if len(set(ids)) != len(ids):
             raise ConfigError(f"axes: servo ids must be distinct, got {ids}")
@@ -272,8 +278,8 @@ class ArmConfig:
         return cls(axes=axes, kinematics=kc, **d)
 
     def axis_list(self) -> list[AxisConfig]:
-        """Axes in :data:`drivers.kinematics.JOINTS` order."""
-        return [self.axes[j] for j in JOINTS]
+        """Servo axes in :data:`drivers.kinematics.JOINTS` order (external joints left out)."""
+        return [self.axes[j] for j in JOINTS if j in self.axes]
 
 
 # --- driver --------------------------------------------------------------------------------
@@ -293,11 +299,21 @@ class DynamixelArm(InstrumentBase):
         call :meth:`connect` (or :meth:`reset`) yourself.
     sleep
         Sleep function used between settle polls (tests may pass a no-op).
+    external_axes
+        ``{joint: axis}`` for the joints of ``config.external`` driven by another drive (e.g. a
+        turntable on a Modbus stage, :class:`drivers.modbus.ModbusStageAxis`): objects with
+        ``move_to_deg(angle) -> reached``, ``position_deg()`` and ``stop()``. They move first
+        and settle (blocking), then the servos move together.
     """
 
     def __init__(self, config: ArmConfig | Mapping[str, Any], transport: Transport | None = None,
-                 *, connect: bool = True, sleep: Callable[[float], None] = time.sleep) -> None:
+                 *, connect: bool = True, sleep: Callable[[float], None] = time.sleep,
+                 external_axes: Mapping[str, Any] | None = None) -> None:
         self.config = config if isinstance(config, ArmConfig) else ArmConfig.from_dict(config)
+        self._external = dict(external_axes or {})
+        if set(self._external) != set(self.config.external):
+            raise ConfigError(f"external axes {sorted(self._external)} do not match the config's "
+                              f"external joints {list(self.config.external)}")
         if transport is None:
             if not self.config.port:
                 raise ConfigError("arm config needs a port (or pass a transport)")
@@ -554,11 +570,13 @@ class DynamixelArm(InstrumentBase):
 
     # -- geometry <-> ticks -----------------------------------------------------------------
     def _joints_from(self, block: Mapping[int, bytes]) -> Joints:
-        vals = []
+        vals = {}
         for a in self._axes:
             ticks = _s32(int.from_bytes(block[a.id][_BLOCK_LEN - 4:], "little"))
-            vals.append(a.to_degrees(ticks))
-        return Joints(*vals)
+            vals[a.joint] = a.to_degrees(ticks)
+        for joint, axis in self._external.items():
+            vals[joint] = float(axis.position_deg())
+        return Joints(**vals)
 
     @staticmethod
     def _geometry(j: Joints) -> Geometry:
@@ -595,7 +613,13 @@ class DynamixelArm(InstrumentBase):
         self._require_unlatched(f"move_to({geometry})")
         joints = kin.geometry_to_joints(geometry, self.config.kinematics, near=self._joints)
         goals = self._goal_ticks(joints)
-        return self._guard("move_to", lambda: self._move(goals, f"move_to({geometry})"))
+
+        def run() -> Geometry:
+            for joint, axis in self._external.items():
+                axis.move_to_deg(getattr(joints, joint))
+            return self._move(goals, f"move_to({geometry})")
+
+        return self._guard("move_to", run)
 
     def _move(self, goals: Mapping[int, int], what: str) -> Geometry:
         group = GroupSyncWrite(self._port, self._ph, ADDR["goal_position"], 4)
@@ -649,6 +673,8 @@ class DynamixelArm(InstrumentBase):
             return
 
         def run() -> None:
+            for axis in self._external.values():
+                axis.stop()
             block = self._sync_read_block()
             goals = {i: _s32(int.from_bytes(block[i][_BLOCK_LEN - 4:], "little")) for i in self._ids}
             group = GroupSyncWrite(self._port, self._ph, ADDR["goal_position"], 4)

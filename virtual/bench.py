@@ -32,7 +32,7 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     elif "seed" in d:
         v["seed"] = int(d["seed"])
     gonio = VirtualGoniophotometer(spec, **v)
-    white = WhiteStandard.from_dict(_white_table(d))
+    white = WhiteStandard.from_dict(d.get("white", {}))
     v["seed"] = gonio.seed + 1  # the standard's rays are independent of the specimen's
     rf = white.reflectance_factor
     standard = VirtualGoniophotometer(Lambertian(reflectance=rf if isinstance(rf, (int, float)) else rf),
@@ -46,12 +46,3 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
                  light=gonio, white=white, measure_white=measure_white, config=dict(d),
                  closers=[gonio.close, standard.close])
 
-
-def _white_table(d: Mapping[str, Any]) -> dict[str, Any]:
-    w = dict(d.get("white", {}))
-    g = w.get("geometry")
-    if isinstance(g, (list, tuple)):
-        if len(g) != 4:
-            raise ConfigError("[white] geometry must be [theta_i, phi_i, theta_r, phi_r]")
-        w["geometry"] = dict(zip(("theta_i", "phi_i", "theta_r", "phi_r"), (float(x) for x in g)))
-    return w

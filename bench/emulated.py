@@ -1,0 +1,305 @@
+"""The emulated bench: the real drivers talking to wire-level emulators, and real benches.
+
+``kind = "emulated"`` starts three emulator processes -- a Dynamixel bus on a pseudo-terminal
+(source arm, detector azimuth, detector elevation), an AZ stage on Modbus TCP at 127.0.0.1 (the
+specimen turntable) and an RS-232 spectrometer on a pseudo-terminal -- and connects the real
+drivers (dynamixel-sdk, pymodbus, pyserial) to them. The spectrometer emulator's physics comes
+from the virtual specimen: at each acquisition it asks the bus and the stage where the arms are
+(over their wire protocols), and its counts follow the specimen's BSDF averaged over the
+detector aperture, times ``cos(theta_r)``, times the lamp spectrum, plus dark and noise.
+
+The white standard is "mounted" by writing a small mount file the emulator reads; a real bench
+asks the operator instead. This module is application glue: it may import both ``drivers``
+and ``virtual``, which never import each other.
+
+Config (beside ``[specimen]`` and ``[white]``, see :mod:`bench.config`)::
+
+    [emulated]
+    time_scale = 20          # emulated motion runs 20x faster than the real drives would
+    bands = "450:650:100"    # band centres (nm) reported per point
+    bandwidth_nm = 10
+    aperture_deg = 1.0       # detector half-angle
+    seed = 7                 # emulator noise
+    [arm]                    # drivers.dynamixel ArmConfig keys (optional overrides)
+    [turntable]              # drivers.modbus AxisConfig keys
+    [spectrometer]           # drivers.ocean OceanConfig keys
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import logging
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from bench.bands import SpectralBands
+from bench.calibrate import WhiteStandard
+from bench.config import Bench
+from bench.errors import CalibrationError, ConfigError
+from bench.instruments import InstrumentBase, InstrumentInfo, Reading
+from bench.plans import MotionProfile
+
+log = logging.getLogger(__name__)
+
+__all__ = ["build_emulated_bench", "build_real_bench", "emulated_geometry", "emulated_response",
+           "LampLine", "ARM_IDS"]
+
+#: servo ids of the arm joints on the emulated bus (the turntable is on the Modbus stage)
+ARM_IDS = {"source": 1, "detector_azimuth": 2, "detector_elevation": 3}
+#: detector counts per unit of (BSDF x cos theta_r): a 0.99 white at 45 deg gives ~45 % of full scale
+RESPONSE_GAIN = 2.0
+STEPS_PER_REV = 1000
+TURNTABLE_GEAR = 18.0
+
+
+class LampLine(InstrumentBase):
+    """The LightSource role through the spectrometer's lamp-enable line (command ``J``)."""
+
+    def __init__(self, spectrometer: Any) -> None:
+        self.spectrometer = spectrometer
+
+    def describe(self) -> InstrumentInfo:
+        return InstrumentInfo(kind="light source", model="lamp on the spectrometer's lamp-enable line")
+
+    def on(self) -> None:
+        self.spectrometer.command("J", 1)
+
+    def off(self) -> None:
+        self.spectrometer.command("J", 0)
+
+
+# --- physics inside the spectrometer emulator process ------------------------------------------------
+
+_PROCESS_CACHE: dict[str, Any] = {}
+
+
+def emulated_geometry(bus_control: str, stage_url: str, steps_per_deg: float) -> Any:
+    """Where the emulated arms are, asked over the wire: joint angles from the bus emulator's
+    control channel, the turntable from the stage's feedback position register (Modbus TCP).
+    Runs inside the spectrometer emulator process."""
+    from drivers.kinematics import Joints, joints_to_geometry
+    from virtual.wire.dynamixel_bus import BusControl
+
+    bus = _PROCESS_CACHE.get("bus")
+    if bus is None:
+        bus = _PROCESS_CACHE["bus"] = BusControl(bus_control)
+    client = _PROCESS_CACHE.get("stage")
+    if client is None:
+        from pymodbus.client import ModbusTcpClient
+
+        host, port = stage_url.removeprefix("tcp://").rsplit(":", 1)
+        client = _PROCESS_CACHE["stage"] = ModbusTcpClient(host, port=int(port), timeout=1.0)
+        client.connect()
+    j = bus.joints()
+    rr = client.read_holding_registers(0x120, count=2, device_id=1)
+    steps = client.convert_from_registers(rr.registers, data_type=client.DATATYPE.INT32)
+    turntable = steps / steps_per_deg
+    clamp = lambda v: min(180.0, max(0.0, v))  # noqa: E731 - read-back noise at the poles
+    return joints_to_geometry(Joints(turntable, clamp(j["source"]), j["detector_azimuth"],
+                                     clamp(j["detector_elevation"])))
+
+
+def _aperture_directions(view: np.ndarray, half_angle_deg: float) -> np.ndarray:
+    """Seven directions averaging a cone of the given half-angle: its axis and a ring at the
+    radius that splits the cap's area in half (a 2-point radial rule, 6 azimuths)."""
+    a = math.radians(half_angle_deg)
+    if a == 0:
+        return view[None, :]
+    t = view
+    u = np.cross(t, [0.0, 0.0, 1.0] if abs(t[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(t, u)
+    r = math.acos(1 - (1 - math.cos(a)) / 2)  # half of the cap's solid angle inside
+    dirs = [t]
+    for k in range(6):
+        phi = 2 * math.pi * k / 6
+        dirs.append(math.cos(r) * t + math.sin(r) * (math.cos(phi) * u + math.sin(phi) * v))
+    return np.array(dirs)
+
+
+def emulated_response(geometry: Any, wavelengths_nm: np.ndarray, specimen: str, white_rf: float,
+                      mount_file: str, aperture_deg: float) -> np.ndarray:
+    """Reflected fraction the emulated detector sees: ``GAIN * mean_aperture(f) * cos(theta_r)``
+    for the mounted specimen (the virtual specimen, or a Lambertian white standard)."""
+    from virtual.specimens import Lambertian, parse_specimen
+
+    if geometry is None:
+        return np.zeros(np.shape(wavelengths_nm))
+    try:
+        mounted = json.loads(Path(mount_file).read_text()).get("mounted", "specimen")
+    except (OSError, ValueError):
+        mounted = "specimen"
+    key = f"specimen:{mounted}"
+    spec = _PROCESS_CACHE.get(key)
+    if spec is None:
+        spec = _PROCESS_CACHE[key] = Lambertian(white_rf) if mounted == "white" else parse_specimen(specimen)
+    g = geometry
+    wi, wo = g.incident, g.view
+    dirs = _aperture_directions(wo, aperture_deg)
+    wl = np.asarray(wavelengths_nm, dtype=float)
+    rng = spec.wavelength_range()
+    grid = np.linspace(max(wl.min(), rng[0]) if rng else wl.min(), min(wl.max(), rng[1]) if rng else wl.max(), 41)
+    f = np.array([float(np.mean(spec.bsdf(wi, dirs, float(w)))) for w in grid])
+    return RESPONSE_GAIN * np.interp(wl, grid, f) * max(math.cos(math.radians(g.theta_r)), 0.0)
+
+
+def _write_mount(path: Path, mounted: str) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps({"mounted": mounted}))
+    os.replace(tmp, path)
+
+
+# --- builders ----------------------------------------------------------------------------------------
+
+
+def _arm_config(d: Mapping[str, Any], port: str) -> dict[str, Any]:
+    arm = {"port": port, "name": "emulated-arm", "external": ["turntable"], "tolerance_deg": 0.2,
+           "settle_timeout_s": 10.0, "poll_interval_s": 0.002,
+           "axes": {j: {"id": i, "operating_mode": 4, "profile_velocity": 60} for j, i in ARM_IDS.items()}}
+    arm.update({k: v for k, v in d.get("arm", {}).items() if k != "port"})
+    return arm
+
+
+def _motion(arm: Mapping[str, Any], turntable: Mapping[str, Any], time_scale: float) -> MotionProfile:
+    # Profile Velocity unit 0.229 rpm = 1.374 deg/s; the emulator moves at constant speed
+    vel = {j: a.get("profile_velocity", 60) * 0.229 * 6.0 * time_scale for j, a in arm["axes"].items()}
+    vel["turntable"] = float(turntable.get("speed", 30.0)) * time_scale
+    acc = {j: math.inf for j in vel}
+    return MotionProfile(vel, acc, settle_s=0.01, overhead_s=0.002)
+
+
+def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
+    """Start the emulators and connect the real drivers to them (see the module docstring)."""
+    from drivers.dynamixel import DynamixelArm
+    from drivers.kinematics import geometry_to_joints
+    from drivers.modbus import ModbusStageAxis
+    from drivers.ocean import OceanSpectrometer
+    from virtual.spectrophotometer import parse_wavelengths
+    from virtual.specimens import parse_specimen
+    from virtual.wire.dynamixel_bus import start_bus
+    from virtual.wire.modbus_stage import StageEmulator
+    from virtual.wire.ocean_spectrometer import SpectrometerEmulator
+
+    spec = d.get("specimen", {}).get("spec")
+    if not spec:
+        raise ConfigError("emulated bench: [specimen] spec = \"...\" is required")
+    parse_specimen(spec)  # a bad specimen fails here, before any process starts
+    e = dict(d.get("emulated", {}))
+    time_scale = float(e.get("time_scale", 20.0))
+    emu_seed = int(e.get("seed", seed if seed is not None else 7))
+    white = WhiteStandard.from_dict(d.get("white", {}))
+    if not isinstance(white.reflectance_factor, (int, float)):
+        raise ConfigError("emulated bench: [white] reflectance_factor must be a number")
+    workdir = Path(tempfile.mkdtemp(prefix="goniobench-emulated-"))
+    mount = workdir / "mount.json"
+    _write_mount(mount, "specimen")
+    closers: list[Any] = []
+    try:
+        axes_map = {j: {"id": i, "zero_offset": 2048, "direction": 1, "gear_ratio": 1.0} for j, i in ARM_IDS.items()}
+        bus = start_bus(ids=tuple(ARM_IDS.values()), axes=axes_map, time_scale=time_scale, seed=emu_seed)
+        closers.append(bus.close)
+        stage = StageEmulator.start("tcp", time_scale=time_scale)
+        closers.append(stage.stop)
+        turntable_cfg = {"gear_ratio": TURNTABLE_GEAR, "steps_per_rev": STEPS_PER_REV, "speed": 30.0 * 1.0,
+                         "tolerance": 0.05, "settle_s": 0.2, "poll_interval_s": 0.002}
+        turntable_cfg.update(d.get("turntable", {}))
+        steps_per_deg = turntable_cfg["steps_per_rev"] * turntable_cfg["gear_ratio"] / 360.0
+        spectro_emu = SpectrometerEmulator.start(
+            geometry_source=functools.partial(emulated_geometry, f"{bus.control[0]}:{bus.control[1]}",
+                                              stage.url, steps_per_deg),
+            response=functools.partial(emulated_response, specimen=spec, white_rf=float(white.reflectance_factor),
+                                       mount_file=str(mount), aperture_deg=float(e.get("aperture_deg", 1.0))),
+            seed=emu_seed, time_scale=max(1.0, time_scale))
+        closers.append(spectro_emu.stop)
+        turntable = ModbusStageAxis(stage.url, config=turntable_cfg, name="turntable")
+        closers.append(turntable.close)
+        arm_cfg = _arm_config(d, bus.port)
+        arm = DynamixelArm(arm_cfg, external_axes={"turntable": turntable})
+        closers.append(arm.close)
+        ocean = OceanSpectrometer(spectro_emu.port, config=d.get("spectrometer", {}), name="spectrometer")
+        closers.append(ocean.close)
+        lamp = LampLine(ocean)
+        lamp.on()
+        bands = SpectralBands(ocean, parse_wavelengths(e.get("bands", "450:650:100")),
+                              float(e.get("bandwidth_nm", 10.0)))
+    except BaseException:
+        for c in reversed(closers):
+            try:
+                c()
+            except Exception as exc:  # keep cleaning up; the original error is what matters
+                log.warning("cleanup after a failed start: %s", exc)
+        raise
+
+    def measure_white(integration_s: float, averages: int) -> Reading:
+        _write_mount(mount, "white")
+        try:
+            arm.move_to(white.geometry)
+            return bands.acquire(integration_s, averages)
+        finally:
+            _write_mount(mount, "specimen")
+
+    kin = arm.config.kinematics
+    return Bench(name=str(d.get("name", "emulated")), kind="emulated", goniometer=arm, spectrometer=bands,
+                 white=white, measure_white=measure_white, light=lamp,
+                 motion=_motion(arm_cfg, turntable_cfg, time_scale),
+                 joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers)
+
+
+def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
+    """Real hardware: ``[arm]`` (with ``port``), optional ``[turntable]`` (``port`` or
+    ``tcp://host:port``; the arm then lists ``external = ["turntable"]``), ``[spectrometer]``
+    (``port``), ``[bands]`` (``centres``, ``bandwidth_nm``). The white standard is mounted by the
+    operator when the run asks for it (interactive runs only)."""
+    from drivers.dynamixel import DynamixelArm
+    from drivers.kinematics import geometry_to_joints
+    from drivers.modbus import ModbusStageAxis
+    from drivers.ocean import OceanSpectrometer
+    from virtual.spectrophotometer import parse_wavelengths
+
+    for table in ("arm", "spectrometer"):
+        if "port" not in d.get(table, {}):
+            raise ConfigError(f"real bench: [{table}] port = \"...\" is required")
+    closers: list[Any] = []
+    try:
+        external = {}
+        if "turntable" in d:
+            t = dict(d["turntable"])
+            external["turntable"] = ModbusStageAxis(str(t.pop("port")), config=t, name="turntable")
+            closers.append(external["turntable"].close)
+        arm = DynamixelArm(dict(d["arm"]), external_axes=external)
+        closers.append(arm.close)
+        ocean = OceanSpectrometer.from_config(d["spectrometer"])
+        closers.append(ocean.close)
+        b = d.get("bands")
+        spectrometer = SpectralBands(ocean, parse_wavelengths(b["centres"]), float(b.get("bandwidth_nm", 10))) \
+            if b else ocean
+    except BaseException:
+        for c in reversed(closers):
+            c()
+        raise
+    white = WhiteStandard.from_dict(d.get("white", {}))
+
+    def measure_white(integration_s: float, averages: int) -> Reading:
+        import sys
+
+        if not sys.stdin.isatty():
+            raise CalibrationError("mount the white standard: this run needs an operator at the bench "
+                                   "(run interactively, or use white = \"none\" in the plan)")
+        arm.move_to(white.geometry)
+        input(f"Mount the white standard ({white.name}) and press Enter... ")
+        try:
+            return spectrometer.acquire(integration_s, averages)
+        finally:
+            input("Mount the specimen again and press Enter... ")
+
+    kin = arm.config.kinematics
+    return Bench(name=str(d.get("name", "real")), kind="real", goniometer=arm, spectrometer=spectrometer,
+                 white=white, measure_white=measure_white, light=None,
+                 joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers)
+
