@@ -47,7 +47,7 @@ from bench.plans import MotionProfile
 
 log = logging.getLogger(__name__)
 
-__all__ = ["build_emulated_bench", "build_real_bench", "emulated_geometry", "emulated_response",
+__all__ = ["build_emulated_bench", "build_real_bench", "Emulators", "emulated_geometry", "emulated_response",
            "LampLine", "ARM_IDS"]
 
 #: servo ids of the arm joints on the emulated bus (the turntable is on the Modbus stage)
@@ -174,6 +174,83 @@ def _motion(arm: Mapping[str, Any], turntable: Mapping[str, Any], time_scale: fl
     return MotionProfile(vel, acc, settle_s=0.01, overhead_s=0.002)
 
 
+class Emulators:
+    """The three emulator processes of an emulated bench, and what the drivers need to reach them."""
+
+    def __init__(self, d: Mapping[str, Any], seed: int | None = None) -> None:
+        from virtual.specimens import parse_specimen
+        from virtual.wire.dynamixel_bus import start_bus
+        from virtual.wire.modbus_stage import StageEmulator
+        from virtual.wire.ocean_spectrometer import SpectrometerEmulator
+
+        spec = d.get("specimen", {}).get("spec")
+        if not spec:
+            raise ConfigError("emulated bench: [specimen] spec = \"...\" is required")
+        parse_specimen(spec)  # a bad specimen fails here, before any process starts
+        e = dict(d.get("emulated", {}))
+        self.options = e
+        self.time_scale = float(e.get("time_scale", 20.0))
+        emu_seed = int(e.get("seed", seed if seed is not None else 7))
+        self.white = WhiteStandard.from_dict(d.get("white", {}))
+        if not isinstance(self.white.reflectance_factor, (int, float)):
+            raise ConfigError("emulated bench: [white] reflectance_factor must be a number")
+        self.workdir = Path(tempfile.mkdtemp(prefix="goniobench-emulated-"))
+        self.mount = self.workdir / "mount.json"
+        _write_mount(self.mount, "specimen")
+        self._closers: list[Any] = []
+        try:
+            axes_map = {j: {"id": i, "zero_offset": 2048, "direction": 1, "gear_ratio": 1.0}
+                        for j, i in ARM_IDS.items()}
+            self.bus = start_bus(ids=tuple(ARM_IDS.values()), axes=axes_map, time_scale=self.time_scale,
+                                 seed=emu_seed)
+            self._closers.append(self.bus.close)
+            self.stage = StageEmulator.start("tcp", time_scale=self.time_scale)
+            self._closers.append(self.stage.stop)
+            self.turntable_config = {"gear_ratio": TURNTABLE_GEAR, "steps_per_rev": STEPS_PER_REV, "speed": 30.0,
+                                     "tolerance": 0.05, "settle_s": 0.2, "poll_interval_s": 0.002,
+                                     **d.get("turntable", {})}
+            steps_per_deg = self.turntable_config["steps_per_rev"] * self.turntable_config["gear_ratio"] / 360.0
+            self.spectrometer = SpectrometerEmulator.start(
+                geometry_source=functools.partial(emulated_geometry, f"{self.bus.control[0]}:{self.bus.control[1]}",
+                                                  self.stage.url, steps_per_deg),
+                response=functools.partial(emulated_response, specimen=spec,
+                                           white_rf=float(self.white.reflectance_factor), mount_file=str(self.mount),
+                                           aperture_deg=float(e.get("aperture_deg", 1.0))),
+                seed=emu_seed, time_scale=max(1.0, self.time_scale))
+            self._closers.append(self.spectrometer.stop)
+        except BaseException:
+            self.close()
+            raise
+        self.arm_config = _arm_config(d, self.bus.port)
+
+    def mount_white(self, white: bool) -> None:
+        """Put the white standard (or the specimen) on the emulated turntable."""
+        _write_mount(self.mount, "white" if white else "specimen")
+
+    def ports(self) -> dict[str, Any]:
+        return {"dynamixel_bus": self.bus.port, "dynamixel_control": f"{self.bus.control[0]}:{self.bus.control[1]}",
+                "modbus_stage": self.stage.url, "spectrometer": self.spectrometer.port,
+                "mount_file": str(self.mount)}
+
+    def real_bench_config(self) -> dict[str, Any]:
+        """A ``kind = "real"`` bench config whose ports are these emulators."""
+        arm = {k: v for k, v in self.arm_config.items()}
+        return {"name": "emulators", "kind": "real", "arm": arm,
+                "turntable": {"port": self.stage.url, **self.turntable_config},
+                "spectrometer": {"port": self.spectrometer.port},
+                "bands": {"centres": self.options.get("bands", "450:650:100"),
+                          "bandwidth_nm": self.options.get("bandwidth_nm", 10.0)},
+                "white": self.white.as_dict()}
+
+    def close(self) -> None:
+        for c in reversed(self._closers):
+            try:
+                c()
+            except Exception as exc:  # keep stopping the others
+                log.warning("stopping an emulator: %s", exc)
+        self._closers.clear()
+
+
 def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     """Start the emulators and connect the real drivers to them (see the module docstring)."""
     from drivers.dynamixel import DynamixelArm
@@ -181,73 +258,38 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
     from drivers.modbus import ModbusStageAxis
     from drivers.ocean import OceanSpectrometer
     from virtual.spectrophotometer import parse_wavelengths
-    from virtual.specimens import parse_specimen
-    from virtual.wire.dynamixel_bus import start_bus
-    from virtual.wire.modbus_stage import StageEmulator
-    from virtual.wire.ocean_spectrometer import SpectrometerEmulator
 
-    spec = d.get("specimen", {}).get("spec")
-    if not spec:
-        raise ConfigError("emulated bench: [specimen] spec = \"...\" is required")
-    parse_specimen(spec)  # a bad specimen fails here, before any process starts
-    e = dict(d.get("emulated", {}))
-    time_scale = float(e.get("time_scale", 20.0))
-    emu_seed = int(e.get("seed", seed if seed is not None else 7))
-    white = WhiteStandard.from_dict(d.get("white", {}))
-    if not isinstance(white.reflectance_factor, (int, float)):
-        raise ConfigError("emulated bench: [white] reflectance_factor must be a number")
-    workdir = Path(tempfile.mkdtemp(prefix="goniobench-emulated-"))
-    mount = workdir / "mount.json"
-    _write_mount(mount, "specimen")
-    closers: list[Any] = []
+    emu = Emulators(d, seed)
+    closers: list[Any] = [emu.close]
     try:
-        axes_map = {j: {"id": i, "zero_offset": 2048, "direction": 1, "gear_ratio": 1.0} for j, i in ARM_IDS.items()}
-        bus = start_bus(ids=tuple(ARM_IDS.values()), axes=axes_map, time_scale=time_scale, seed=emu_seed)
-        closers.append(bus.close)
-        stage = StageEmulator.start("tcp", time_scale=time_scale)
-        closers.append(stage.stop)
-        turntable_cfg = {"gear_ratio": TURNTABLE_GEAR, "steps_per_rev": STEPS_PER_REV, "speed": 30.0 * 1.0,
-                         "tolerance": 0.05, "settle_s": 0.2, "poll_interval_s": 0.002}
-        turntable_cfg.update(d.get("turntable", {}))
-        steps_per_deg = turntable_cfg["steps_per_rev"] * turntable_cfg["gear_ratio"] / 360.0
-        spectro_emu = SpectrometerEmulator.start(
-            geometry_source=functools.partial(emulated_geometry, f"{bus.control[0]}:{bus.control[1]}",
-                                              stage.url, steps_per_deg),
-            response=functools.partial(emulated_response, specimen=spec, white_rf=float(white.reflectance_factor),
-                                       mount_file=str(mount), aperture_deg=float(e.get("aperture_deg", 1.0))),
-            seed=emu_seed, time_scale=max(1.0, time_scale))
-        closers.append(spectro_emu.stop)
-        turntable = ModbusStageAxis(stage.url, config=turntable_cfg, name="turntable")
+        turntable = ModbusStageAxis(emu.stage.url, config=emu.turntable_config, name="turntable")
         closers.append(turntable.close)
-        arm_cfg = _arm_config(d, bus.port)
-        arm = DynamixelArm(arm_cfg, external_axes={"turntable": turntable})
+        arm = DynamixelArm(emu.arm_config, external_axes={"turntable": turntable})
         closers.append(arm.close)
-        ocean = OceanSpectrometer(spectro_emu.port, config=d.get("spectrometer", {}), name="spectrometer")
+        ocean = OceanSpectrometer(emu.spectrometer.port, config=d.get("spectrometer", {}), name="spectrometer")
         closers.append(ocean.close)
         lamp = LampLine(ocean)
         lamp.on()
-        bands = SpectralBands(ocean, parse_wavelengths(e.get("bands", "450:650:100")),
-                              float(e.get("bandwidth_nm", 10.0)))
+        bands = SpectralBands(ocean, parse_wavelengths(emu.options.get("bands", "450:650:100")),
+                              float(emu.options.get("bandwidth_nm", 10.0)))
     except BaseException:
         for c in reversed(closers):
-            try:
-                c()
-            except Exception as exc:  # keep cleaning up; the original error is what matters
-                log.warning("cleanup after a failed start: %s", exc)
+            c()
         raise
+    white = emu.white
 
     def measure_white(integration_s: float, averages: int) -> Reading:
-        _write_mount(mount, "white")
+        emu.mount_white(True)
         try:
             arm.move_to(white.geometry)
             return bands.acquire(integration_s, averages)
         finally:
-            _write_mount(mount, "specimen")
+            emu.mount_white(False)
 
     kin = arm.config.kinematics
     return Bench(name=str(d.get("name", "emulated")), kind="emulated", goniometer=arm, spectrometer=bands,
                  white=white, measure_white=measure_white, light=lamp,
-                 motion=_motion(arm_cfg, turntable_cfg, time_scale),
+                 motion=_motion(emu.arm_config, emu.turntable_config, emu.time_scale),
                  joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers)
 
 

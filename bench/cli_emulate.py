@@ -1,0 +1,45 @@
+"""``bench emulate BENCH.toml``: start the wire-level emulators of a bench and print their ports."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    from bench.config import read_toml
+    from bench.emulated import Emulators
+
+    emu = Emulators(read_toml(args.bench), seed=args.seed)
+    try:
+        if args.json:
+            print(json.dumps({"ports": emu.ports(), "real_bench": emu.real_bench_config()}), flush=True)
+        else:
+            print("emulators running (Ctrl-C stops them):")
+            for name, port in emu.ports().items():
+                print(f"  {name:18s} {port}")
+            print("a bench config for the real drivers on these ports (kind = \"real\"):")
+            print("  " + json.dumps(emu.real_bench_config()), flush=True)
+        if args.seconds is not None:
+            time.sleep(args.seconds)
+        else:
+            signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+            while True:
+                time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emu.close()
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("emulate", help="start a bench's emulators and print their ports")
+    p.add_argument("bench", metavar="BENCH.toml")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--seconds", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_emulate)
