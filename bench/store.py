@@ -45,7 +45,8 @@ import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from collections.abc import Mapping
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
@@ -745,9 +746,9 @@ def _reading_tuples(run_id: str, idx: int, rows: Any) -> list[tuple]:
     out = []
     fast = _FAST_TYPES
     for j, r in enumerate(rows):
-        if not isinstance(r, Mapping):
+        if type(r) is not dict and not isinstance(r, Mapping):
             raise InputError(f"run {run_id!r} point {idx}: reading {j} is {type(r).__name__}, not a mapping")
-        nums = [r.get(c) for c in _NUMERIC]
+        nums = tuple(map(r.get, _NUMERIC))
         hem = r.get("hemisphere")
         if (fast.issuperset(map(type, nums)) and (hem is None or type(hem) is str)
                 and _KNOWN_KEYS.issuperset(r.keys())):
