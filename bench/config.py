@@ -70,6 +70,7 @@ class Bench:
     joints: Callable[[Any], Mapping[str, float]] | None = None
     config: dict[str, Any] = field(default_factory=dict)
     closers: list[Callable[[], None]] = field(default_factory=list)
+    parts: dict[str, Any] = field(default_factory=dict)  # builder-specific handles (e.g. emulators)
 
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {"name": self.name, "kind": self.kind}

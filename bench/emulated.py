@@ -47,7 +47,7 @@ from bench.plans import MotionProfile
 
 log = logging.getLogger(__name__)
 
-__all__ = ["build_emulated_bench", "build_real_bench", "Emulators", "emulated_geometry", "emulated_response",
+__all__ = ["build_emulated_bench", "build_real_bench", "Emulators", "DEFAULT_EMULATED_CONFIG", "emulated_geometry", "emulated_response",
            "LampLine", "ARM_IDS"]
 
 #: servo ids of the arm joints on the emulated bus (the turntable is on the Modbus stage)
@@ -56,6 +56,15 @@ ARM_IDS = {"source": 1, "detector_azimuth": 2, "detector_elevation": 3}
 RESPONSE_GAIN = 2.0
 STEPS_PER_REV = 1000
 TURNTABLE_GEAR = 18.0
+
+
+#: The embedded emulated bench (fixtures/benches/emulated.toml says the same; a test checks it).
+DEFAULT_EMULATED_CONFIG: dict[str, Any] = {
+    "name": "emulated", "kind": "emulated",
+    "specimen": {"spec": "lambert:albedo=0.8"},
+    "white": {"reflectance_factor": 0.99, "uncertainty": 0.005, "geometry": [0, 0, 45, 180]},
+    "emulated": {"time_scale": 50, "bands": "450:650:100", "bandwidth_nm": 10, "aperture_deg": 1.0, "seed": 7},
+}
 
 
 class LampLine(InstrumentBase):
@@ -290,7 +299,8 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
     return Bench(name=str(d.get("name", "emulated")), kind="emulated", goniometer=arm, spectrometer=bands,
                  white=white, measure_white=measure_white, light=lamp,
                  motion=_motion(emu.arm_config, emu.turntable_config, emu.time_scale),
-                 joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers)
+                 joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers,
+                 parts={"emulators": emu, "arm": arm, "turntable": turntable, "spectrometer": ocean})
 
 
 def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:

@@ -160,7 +160,7 @@ class Settings:
     compression: bool = False
     checksum: bool = False
     trigger: int = 0
-    lamp: bool = False
+    lamp: bool = True  # the lamp-enable line (J): on at power-up here, so a plain acquisition sees light
     baud_code: int = 6
     storage: int = 0
     pixel_mode: int = 0
@@ -212,7 +212,8 @@ class SpectrometerModel:
         """One scan of counts (int64, saturated at 65535)."""
         cfg, s = self.cfg, self.settings
         t_ms = s.integration_ms
-        signal = self.lamp * fraction * cfg.peak_counts_per_ms * t_ms
+        # J0 switches the lamp-enable line off: the detector then sees only its dark signal
+        signal = self.lamp * fraction * cfg.peak_counts_per_ms * t_ms * float(s.lamp)
         lo, hi = cfg.dark_pixels
         signal = signal.copy()
         signal[lo:hi] = 0.0
