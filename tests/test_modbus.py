@@ -292,7 +292,7 @@ def test_e2e_dropped_and_corrupted_replies_are_retried(axis: ModbusStageAxis,
     assert axis.position_deg() == pytest.approx(p)
     emu.corrupt_replies(1)
     assert axis.position_deg() == pytest.approx(p)
-    assert time.monotonic() - t0 < 2.0
+    assert time.monotonic() - t0 < 4.0  # nominal 0.7 s; the bound is "no hang" on a loaded box
 
 
 def test_e2e_persistent_corruption_and_silence_are_typed(axis: ModbusStageAxis,
@@ -306,7 +306,7 @@ def test_e2e_persistent_corruption_and_silence_are_typed(axis: ModbusStageAxis,
     with pytest.raises(DeviceTimeoutError):
         axis.position_deg()
     emu.silence(False)
-    assert time.monotonic() - t0 < 3.0
+    assert time.monotonic() - t0 < 6.0  # nominal 1.3 s
     axis.position_deg()  # recovered
 
 
@@ -321,7 +321,7 @@ def test_e2e_alarm_during_move_latches_until_reset(axis: ModbusStageAxis,
         axis.move_to_deg(target)
     timer.join()
     assert ei.value.code == 0x30 and "overload" in str(ei.value) and "ALM" in ei.value.flags
-    assert time.monotonic() - t0 < 2.0
+    assert time.monotonic() - t0 < 3.0  # nominal 0.2 s
     triggers = emu.state()["triggers"]
     with pytest.raises(FaultLatchedError):
         axis.move_to_deg(0.0)
@@ -365,7 +365,7 @@ def test_e2e_killed_emulator_is_port_gone(transport: str) -> None:
         t0 = time.monotonic()
         with pytest.raises((PortGoneError, DeviceTimeoutError)) as ei:
             axis.position_deg()
-        assert time.monotonic() - t0 < 2.0
+        assert time.monotonic() - t0 < 3.0  # nominal 0.4 s
         assert isinstance(ei.value, PortGoneError), ei.value
         with pytest.raises(FaultLatchedError if axis.fault else PortGoneError):
             axis.move_to_deg(1.0)

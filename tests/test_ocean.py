@@ -463,7 +463,7 @@ def test_e2e_faults(spec: OceanSpectrometer, emu: SpectrometerEmulator) -> None:
         spec.acquire(0.01, 1)
     emu.clear_faults()
     spec.acquire(0.01, 1)                      # healthy again
-    assert time.monotonic() - t0 < 5.0
+    assert time.monotonic() - t0 < 8.0  # nominal 2.4 s; the bound is "no hang" on a loaded box
 
 
 def test_e2e_killed_emulator_is_port_gone() -> None:
@@ -474,7 +474,7 @@ def test_e2e_killed_emulator_is_port_gone() -> None:
         t0 = time.monotonic()
         with pytest.raises(PortGoneError):
             s.acquire(0.01, 1)
-        assert time.monotonic() - t0 < 2.0
+        assert time.monotonic() - t0 < 3.0  # nominal < 0.1 s
         s.close()
     # (the dead emulator's pty path may already name another pty: open a path that never was)
     with pytest.raises(PortGoneError):
