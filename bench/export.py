@@ -32,16 +32,19 @@ Zemax OpticStudio tabular BSDF (:func:`record_to_zemax`)
 
 Specular-centred angles (Zemax)
 -------------------------------
-For incidence (theta_i, phi_i) the specular direction is s = (theta_i, phi_i + 180). A frame
-about it: ``e_t`` = d s / d theta (in the plane of incidence, pointing *away from the specimen
-normal*, toward the forward grazing direction) and ``e_p = s x e_t`` (horizontal, perpendicular
-to the plane of incidence; at phi_i = 0 it is -y). A viewing direction v has
-``radial`` = angle(v, s) and ``azimuth`` = atan2(v . e_p, v . e_t) in [0, 360): azimuth 0 is in
-the plane of incidence beyond the specular direction, 180 in the plane of incidence toward the
-normal and the source. At theta_i = 0 the frame still follows phi_i. ``PlaneSymmetrical``
-files hold azimuths 0..180 (the half with v . e_p >= 0). For a BTDF the transmitted side is
-mirrored through the specimen plane (z -> -z) first, so the "specular" direction is the
-undeviated straight-through direction -incident (no refraction is assumed).
+For incidence (theta_i, phi_i) the specular direction is s = (theta_i, phi_i + 180). The frame
+about it is the one libbsdf's ``SpecularCoordinateSystem`` uses to read Zemax files: take
+spherical angles (radial, azimuth) about +z, rotate by theta_i about +y (x toward z), then by
+phi_i about +z. So ``e_1`` (azimuth 0) lies in the plane of incidence and points from the
+specular direction *toward the specimen normal and the source*; ``e_2`` (azimuth 90) is
+horizontal, perpendicular to the plane of incidence (+y when phi_i = 0); ``(e_1, e_2, s)`` is
+right-handed. A viewing direction v has ``radial`` = angle(v, s) and
+``azimuth`` = atan2(v . e_2, v . e_1) in [0, 360); azimuth 180 is in the plane of incidence
+beyond the specular direction (toward forward grazing). At theta_i = 0 the frame still follows
+phi_i. ``PlaneSymmetrical`` files hold azimuths 0..180 (the half with v . e_2 >= 0; readers
+mirror it). For a BTDF the transmitted side is mirrored through the specimen plane (z -> -z)
+first, so the "specular" direction is the undeviated straight-through direction -incident (no
+refraction is assumed). ``SampleRotation`` is read as phi_i (as libbsdf does).
 """
 
 from __future__ import annotations
@@ -215,7 +218,8 @@ def _quote(text: str) -> str:
 
 
 def record_to_astm(record: BSDFRecord, path: str | Path, *, sample_name: str | None = None,
-                   meas_date: str | None = None, digits: int = 9, scatter_type: str | None = None) -> Path:
+                   meas_date: str | None = None, digits: int = 9, scatter_type: str | None = None,
+                   hemisphere: str | None = None) -> Path:
     """Write the "ASTM" CSV layout (angles in radians, one channel per wavelength).
 
     Rows are the distinct geometries ``(theta_i, phi_i, theta_r, phi_r)`` sorted; a geometry
@@ -228,8 +232,17 @@ def record_to_astm(record: BSDFRecord, path: str | Path, *, sample_name: str | N
     meas_date : default ``meta["created_utc"]`` date or today (UTC)
     digits : significant digits of the values (angles always get 17)
     scatter_type : default ``BRDF`` (``BTDF`` when every row is on the transmission side)
+    hemisphere : ``"R"`` or ``"T"`` to write one side only (libbsdf's reader, for one, clamps
+        theta_s to pi/2 and expects one side per file); default both
     """
     table = _check_record(record)
+    if hemisphere is not None:
+        if hemisphere not in ("R", "T"):
+            raise InputError(f"hemisphere must be 'R', 'T' or None, got {hemisphere!r}")
+        side = table["hemisphere"] if "hemisphere" in table.columns else np.where(table.theta_r > 90, "T", "R")
+        table = table[np.asarray(side == hemisphere)]
+        if table.empty:
+            raise InputError(f"record has no rows on the {hemisphere} side")
     if not isinstance(digits, int) or not 1 <= digits <= 17:
         raise InputError(f"digits must be an integer in 1..17, got {digits!r}")
     geo = ["theta_i", "phi_i", "theta_r", "phi_r"]
@@ -264,14 +277,14 @@ def record_to_astm(record: BSDFRecord, path: str | Path, *, sample_name: str | N
 
 
 def specular_frame(theta_i: float, phi_i: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(s, e_t, e_p)``: the specular direction of incidence (theta_i, phi_i) (degrees) and the
-    two unit vectors of the frame about it (see the module docstring)."""
-    t, p = math.radians(theta_i), math.radians(phi_i + 180.0)
+    """``(s, e_1, e_2)``: the specular direction of incidence (theta_i, phi_i) (degrees) and the
+    unit vectors of azimuth 0 and 90 about it (see the module docstring)."""
+    t, p = math.radians(theta_i), math.radians(phi_i)
     st, ct, sp, cp = math.sin(t), math.cos(t), math.sin(p), math.cos(p)
-    s = np.array([st * cp, st * sp, ct])
-    e_t = np.array([ct * cp, ct * sp, -st])
-    e_p = np.cross(s, e_t)
-    return s, e_t, e_p
+    s = np.array([-st * cp, -st * sp, ct])
+    e_1 = np.array([ct * cp, ct * sp, st])
+    e_2 = np.array([-sp, cp, 0.0])
+    return s, e_1, e_2
 
 
 def _dirs(theta: Any, phi: Any) -> np.ndarray:
@@ -296,11 +309,11 @@ def to_specular(theta_i: float, phi_i: float, theta_r: Any, phi_r: Any,
     v = _dirs(theta_r, phi_r)
     if transmission:
         v = v * np.array([1.0, 1.0, -1.0])
-    s, e_t, e_p = specular_frame(theta_i, phi_i)
+    s, e_1, e_2 = specular_frame(theta_i, phi_i)
     c = v @ s
     sin_r = np.linalg.norm(np.cross(v, s), axis=-1)
     radial = np.degrees(np.arctan2(sin_r, c))
-    az = np.degrees(np.arctan2(v @ e_p, v @ e_t)) % 360.0
+    az = np.degrees(np.arctan2(v @ e_2, v @ e_1)) % 360.0
     az = np.where((sin_r == 0) | (az >= 360.0), 0.0, az)
     return radial, az
 
@@ -310,9 +323,9 @@ def from_specular(theta_i: float, phi_i: float, radial: Any, azimuth: Any,
     """Viewing directions ``(theta_r, phi_r)`` (degrees) of specular-centred angles
     (inverse of :func:`to_specular`)."""
     r, a = np.radians(np.asarray(radial, float)), np.radians(np.asarray(azimuth, float))
-    s, e_t, e_p = specular_frame(theta_i, phi_i)
-    v = (np.cos(r)[..., None] * s + np.sin(r)[..., None] * (np.cos(a)[..., None] * e_t
-                                                             + np.sin(a)[..., None] * e_p))
+    s, e_1, e_2 = specular_frame(theta_i, phi_i)
+    v = (np.cos(r)[..., None] * s + np.sin(r)[..., None] * (np.cos(a)[..., None] * e_1
+                                                             + np.sin(a)[..., None] * e_2))
     if transmission:
         v = v * np.array([1.0, 1.0, -1.0])
     return _angles(v)
@@ -472,7 +485,7 @@ def record_to_zemax(record: BSDFRecord | ZemaxGrid, path: str | Path, *, digits:
              f"# specimen {meta.get('specimen', meta.get('sample_name', ''))}",
              "# SampleRotation = incidence azimuth phi_i (deg); AngleOfIncidence = theta_i (deg)",
              "# ScatterRadial/ScatterAzimuth about the specular direction; azimuth 0 = plane of incidence,"
-             " away from the normal; 180 = toward the normal",
+             " toward the normal; 90 = +y at phi_i = 0 (libbsdf's specular frame)",
              "Source  Measured", f"Symmetry  {g.symmetry}", "SpectralContent  Monochrome",
              f"ScatterType  {g.scatter_type}",
              f"SampleRotation  {len(g.rotations)}", _fmt_list(g.rotations),

@@ -117,6 +117,8 @@ def test_astm_layout_and_round_trip_to_printed_precision(tmp_path, lambert):
     assert np.array_equal(b.value.to_numpy(), expected)  # exactly the printed digits
     assert list(b.hemisphere) == list(a.hemisphere)
     assert read_astm(path).meta["seed"] == 5
+    one = read_astm(record_to_astm(lambert, tmp_path / "r_only.astm", hemisphere="R")).table
+    assert len(one) == len(lambert.table) // 2 and (one.theta_r <= 90).all()
 
 
 def test_astm_reads_rgb_channels_and_refuses_duplicates(tmp_path, lambert):
@@ -153,22 +155,40 @@ def test_malformed_astm_names_file_line_and_expectation(tmp_path, text, line, wh
 # --- Zemax ---------------------------------------------------------------------------------
 
 
+def _libbsdf_out_dir(in_theta, in_phi, spec_theta, spec_phi):
+    """libbsdf's SpecularCoordinateSystem::toOutDirXyz (radians), the frame its Zemax reader uses."""
+    o = np.array([math.sin(spec_theta) * math.cos(spec_phi), math.sin(spec_theta) * math.sin(spec_phi),
+                  math.cos(spec_theta)])
+    rx = o[0] * math.cos(in_theta) - o[2] * math.sin(in_theta)
+    rz = o[0] * math.sin(in_theta) + o[2] * math.cos(in_theta)
+    return np.array([rx * math.cos(in_phi) - o[1] * math.sin(in_phi), rx * math.sin(in_phi) + o[1] * math.cos(in_phi), rz])
+
+
 def test_specular_frame_conventions():
-    s, e_t, e_p = specular_frame(30.0, 0.0)
+    s, e_1, e_2 = specular_frame(30.0, 0.0)
     np.testing.assert_allclose(s, [-0.5, 0.0, math.sqrt(3) / 2], atol=1e-15)
-    np.testing.assert_allclose(e_p, [0.0, -1.0, 0.0], atol=1e-15)
-    # specular -> radial 0; normal -> radial theta_i toward the normal (azimuth 180);
-    # further forward in the plane of incidence -> azimuth 0; out of plane -> 90 / 270
-    r, a = to_specular(30.0, 0.0, [30.0, 0.0, 50.0, 30.0, 30.0], [180.0, 0.0, 180.0, 270.0, 90.0])
+    np.testing.assert_allclose(e_2, [0.0, 1.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(np.cross(e_1, e_2), s, atol=1e-15)  # right-handed about s
+    # specular -> radial 0; normal -> radial theta_i at azimuth 0 (toward the normal);
+    # further forward in the plane of incidence -> azimuth 180; +y -> 90, -y -> 270
+    r, a = to_specular(30.0, 0.0, [30.0, 0.0, 50.0, 30.0, 30.0], [180.0, 0.0, 180.0, 90.0, 270.0])
     np.testing.assert_allclose(r[:3], [0.0, 30.0, 20.0], atol=1e-12)
-    np.testing.assert_allclose(a[1:3], [180.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(a[1:3], [0.0, 180.0], atol=1e-9)
     assert 0 < a[3] < 180 and 180 < a[4] < 360
     # normal incidence: the frame still follows phi_i
-    r, a = to_specular(0.0, 90.0, [20.0], [270.0])
+    r, a = to_specular(0.0, 90.0, [20.0], [90.0])
     assert r[0] == pytest.approx(20.0) and a[0] == pytest.approx(0.0, abs=1e-9)
     # the BTDF mirror: the straight-through direction is radial 0
     r, _ = to_specular(40.0, 10.0, [140.0], [190.0], transmission=True)
     assert r[0] == pytest.approx(0.0, abs=1e-6)
+    # the same directions as libbsdf's specular coordinate system (its Zemax reader)
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        ti, pi_, rad, az = rng.uniform(0, 80), rng.uniform(0, 360), rng.uniform(0, 90), rng.uniform(0, 360)
+        th, ph = from_specular(ti, pi_, rad, az)
+        v = np.array([math.sin(math.radians(th)) * math.cos(math.radians(ph)),
+                      math.sin(math.radians(th)) * math.sin(math.radians(ph)), math.cos(math.radians(th))])
+        np.testing.assert_allclose(v, _libbsdf_out_dir(*np.radians([ti, pi_, rad, az])), atol=1e-12)
 
 
 def test_specular_angles_invert():
@@ -294,8 +314,11 @@ def test_zemax_reader_accepts_a_hand_written_file(tmp_path):
     p.write_text(ZEMAX_OK)
     t = read_zemax(p).table
     assert list(t.value) == [1, 2, 3, 4, 5, 6]
+    # row 0: the specular direction; azimuth 0, radial 20: 20 deg from specular toward the normal,
+    # i.e. 10 deg on the source side; azimuth 180, radial 20: beyond the specular direction
     assert t.theta_r.iloc[0] == pytest.approx(10.0) and t.phi_r.iloc[0] == pytest.approx(180.0)
-    assert t.theta_r.iloc[5] == pytest.approx(10.0) and t.phi_r.iloc[5] == pytest.approx(0.0, abs=1e-9)
+    assert t.theta_r.iloc[2] == pytest.approx(10.0) and t.phi_r.iloc[2] == pytest.approx(0.0, abs=1e-9)
+    assert t.theta_r.iloc[5] == pytest.approx(30.0) and t.phi_r.iloc[5] == pytest.approx(180.0)
 
 
 @pytest.mark.parametrize("old, new, line, what", [
