@@ -1,1 +1,32 @@
-"""Alignment of virtual and actual records, discrepancy statistics, physical checks, reports."""
+"""Alignment of virtual and actual records, discrepancy statistics, physical checks, reports.
+
+Entry points (imported lazily, so ``import compare`` stays cheap for the CLI):
+
+* :func:`compare.report.compare_records` -- actual vs named candidates -> HTML/Markdown/JSON report
+  and a summary dict with stable keys (what ``bench compare`` calls);
+* :func:`compare.stats.compare` -- one candidate -> :class:`compare.stats.Comparison`;
+* :func:`compare.align.align` -- point-by-point matching -> :class:`compare.align.Aligned`;
+* :func:`compare.checks.run_checks` -- reciprocity, energy conservation, isotropy of a BSDF record.
+
+``compare`` reads records only (:mod:`bench.records`, :mod:`bench.instruments`); it never
+imports ``virtual`` or ``drivers``.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import Any
+
+__all__ = ["compare_records", "load_record", "register_loader", "compare", "rank", "align", "run_checks",
+           "reciprocity", "energy_conservation", "isotropy"]
+
+_WHERE = {"compare_records": "compare.report", "load_record": "compare.report", "register_loader": "compare.report",
+          "compare": "compare.stats", "rank": "compare.stats", "align": "compare.align",
+          "run_checks": "compare.checks", "reciprocity": "compare.checks",
+          "energy_conservation": "compare.checks", "isotropy": "compare.checks"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        return getattr(import_module(_WHERE[name]), name)
+    raise AttributeError(f"module 'compare' has no attribute {name!r}")

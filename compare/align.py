@@ -287,8 +287,8 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
     match : ``"auto"``, ``"patch"`` or ``"nearest"`` (BSDF only)
     channels : spectra: ``"auto"`` (reflectance, plus transmittance when either record has any
         non-zero transmittance) or a list of ``"reflectance"``/``"transmittance"``; BSDF:
-        ``"auto"`` (the hemispheres in which the actual record has a non-zero value) or a list of
-        ``"R"``/``"T"``.
+        ``"auto"`` (the hemispheres of the actual record in which either record has a non-zero
+        value; an all-zero hemisphere in both carries no information) or a list of ``"R"``/``"T"``.
 
     Returns
     -------
@@ -329,7 +329,10 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
     else:
         a, c = _bsdf_long(actual), _bsdf_long(candidate)
         if channels == "auto":
-            chans = [h for h in ("R", "T") if (a[a.channel == h].value.abs() > 0).any()] or ["R"]
+            present = set(a.channel)
+            chans = [h for h in ("R", "T") if h in present and ((a[a.channel == h].value.abs() > 0).any()
+                                                                or (c[c.channel == h].value.abs() > 0).any())]
+            chans = chans or sorted(present)[:1] or ["R"]
         else:
             chans = list(channels)
         meta["channels"] = chans
@@ -338,7 +341,7 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
         c = c[c.channel.isin(chans)]
         if len(dropped):
             meta["channels_note"] = (f"{len(dropped)} actual points in hemisphere(s) "
-                                     f"{sorted(set(dropped.channel))} not compared (all zero in the actual record)")
+                                     f"{sorted(set(dropped.channel))} not compared (zero in both records)")
         has_bounds = bool(len(c)) and bool(np.all(np.isfinite(c[["theta_min", "theta_max", "phi_min",
                                                                  "phi_max"]].to_numpy())))
         how = match if match != "auto" else ("patch" if has_bounds else "nearest")

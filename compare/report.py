@@ -348,10 +348,10 @@ def _sigma_map(c: Comparison, act_sel: pd.DataFrame, wl: float, inc: tuple[float
         tmin = b.theta_min.to_numpy(float) if h == "R" else 180.0 - b.theta_max.to_numpy(float)
         tmax = b.theta_max.to_numpy(float) if h == "R" else 180.0 - b.theta_min.to_numpy(float)
         pmin, pmax = np.radians(b.phi_min.to_numpy(float)), np.radians(b.phi_max.to_numpy(float))
-        for a_, b_, c_, d_, val in zip(pmin, pmax, tmin, tmax, z[m]):
-            colour = cmap(norm(val)) if np.isfinite(val) else (0.85, 0.85, 0.85, 1.0)
-            ax.bar(x=0.5 * (a_ + b_), height=d_ - c_, width=b_ - a_, bottom=c_, color=colour, edgecolor="none",
-                   align="center")
+        zz = z[m]
+        colours = np.where(np.isfinite(zz)[:, None], cmap(norm(np.nan_to_num(zz))), (0.85, 0.85, 0.85, 1.0))
+        ax.bar(x=0.5 * (pmin + pmax), height=tmax - tmin, width=pmax - pmin, bottom=tmin, color=colours,
+               edgecolor="none", align="center")  # one call for every patch
         ax.plot([np.radians(inc[1])], [inc[0]], marker="*", color="black", ms=11, ls="none")
         ax.set_ylim(0, 90)
         ax.set_yticks([30, 60, 90])

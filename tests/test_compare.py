@@ -303,6 +303,36 @@ def test_no_overlap_and_mismatched_quantities_are_clear_errors(gonio):
     assert issubclass(NoOverlapError, InputError) and issubclass(QuantityMismatchError, InputError)
 
 
+def test_a_hemisphere_zero_in_the_actual_is_still_compared_when_the_candidate_is_not(gonio):
+    opaque = gonio(0.5, 1)
+    t = gonio(0.5, 2).table.copy()
+    leak = t.hemisphere == "T"
+    t.loc[leak, "value"] = 0.05  # a candidate that predicts transmission the actual did not see
+    t.loc[leak, "std"] = 0.005
+    al = align(opaque, BSDFRecord(t, {"source": "virtual"}))
+    assert al.meta["channels"] == ["R", "T"]
+    c = compare(opaque, BSDFRecord(t, {"source": "virtual"}))
+    assert c.summary["n_reference_zero"] == 324 and c.summary["p_value"] < 1e-10
+    # both zero in T: nothing to learn there, so the hemisphere is left out and said so
+    assert align(opaque, gonio(0.5, 2)).meta["channels"] == ["R"]
+
+
+def test_compare_package_imports_lazily_and_never_virtual():
+    import ast
+    import pathlib
+    import subprocess
+    import sys
+
+    code = "import sys, compare; assert 'compare.report' not in sys.modules; compare.compare_records; " \
+           "assert not [m for m in sys.modules if m.startswith(('virtual', 'drivers'))], 'virtual imported'"
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=pathlib.Path(__file__).parents[1])
+    for f in pathlib.Path(__file__).parents[1].joinpath("compare").glob("*.py"):
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                names = [node.module or ""] if isinstance(node, ast.ImportFrom) else [a.name for a in node.names]
+                assert not any(n.split(".")[0] in ("virtual", "drivers") for n in names), (f, names)
+
+
 # --- virtual against virtual ----------------------------------------------------------------
 
 
