@@ -90,7 +90,7 @@ def plot_bsdf_polar(record, path: str | Path, wavelength_nm: float | None = None
         fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.75, pad=0.1)
         ax.legend(loc="lower left", fontsize=7, bbox_to_anchor=(-0.15, -0.12))
     meta = record.meta
-    fig.suptitle(title or f"{meta.get('specimen', '')}: theta_i = {ti:g} deg, {wavelength_nm:g} nm, "
+    fig.suptitle(title or f"{meta.get('specimen', '')}\ntheta_i = {ti:g} deg, {wavelength_nm:g} nm, "
                  f"{meta.get('rays', 0):,} rays ({meta.get('method', '')})", fontsize=10)
     fig.tight_layout()
     p = Path(path)

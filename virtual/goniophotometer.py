@@ -163,6 +163,20 @@ class VirtualGoniophotometer(InstrumentBase):
         return Reading(wavelengths=self.wavelengths, signal=signal, saturated=np.zeros(signal.size, dtype=bool),
                        integration_s=float(integration_s), averages=int(averages), std=std)
 
+    def bsdf_at(self, geometry: Geometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """BSDF (1/sr) of the patch that contains ``geometry``'s viewing direction, per detector
+        wavelength, with its interval: ``(value, lo, hi)``."""
+        self.check(geometry)
+        b = int(self.collector.index(geometry.view[None, :])[0])
+        psa = self.collector.psa[b]
+        out = np.empty((3, self._wavelengths.size))
+        for i, w in enumerate(self._wavelengths):
+            counts = self.simulate(geometry.theta_i, geometry.phi_i, float(w))
+            n = int(counts[:-2].sum() + counts[-2])
+            lo, hi = binomial_ci(np.array([counts[b]]), np.array([n]), self.delta)
+            out[:, i] = counts[b] / max(n, 1) / psa, lo[0] / psa, hi[0] / psa
+        return out[0], out[1], out[2]
+
     # -- simulation --------------------------------------------------------------------------
     def uses_fast_path(self) -> bool:
         if self.method == "fast":
