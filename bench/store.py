@@ -372,9 +372,16 @@ class RunStore:
             return self.db
 
         def __exit__(self, et: Any, ev: Any, tb: Any) -> None:
+            # an exception (including KeyboardInterrupt mid-point) rolls the whole point back
             if et is None:
-                self.db.execute("COMMIT")
-            else:
+                try:
+                    self.db.execute("COMMIT")
+                    return
+                except sqlite3.Error as e:
+                    if self.db.in_transaction:
+                        self.db.execute("ROLLBACK")
+                    raise StoreError(f"{self.path}: commit failed, nothing of it was stored ({e})") from e
+            if self.db.in_transaction:  # SQLite may already have rolled back (disk full, I/O error)
                 self.db.execute("ROLLBACK")
 
     def _transaction(self) -> "RunStore._Tx":

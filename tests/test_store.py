@@ -154,6 +154,37 @@ def test_a_failure_inside_the_transaction_leaves_no_trace(store, monkeypatch):
     assert store.done_indices(rid) == {0, 1}
 
 
+class _InterruptingConnection:
+    """Delegates to a real connection; ``executemany`` inserts some rows, then Ctrl-C arrives."""
+
+    def __init__(self, db):
+        self._real = db
+
+    def __getattr__(self, name):
+        return getattr(self._real, name)
+
+    def executemany(self, sql, rows):
+        rows = list(rows)
+        self._real.executemany(sql, rows[: len(rows) // 2])
+        raise KeyboardInterrupt
+
+
+def test_ctrl_c_in_the_middle_of_a_point_rolls_it_back(store):
+    rid = store.create_run("scan")
+    store.add_point(rid, 0, GEO, _rows(0))
+    real = store._db
+    store._db = _InterruptingConnection(real)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            store.add_point(rid, 1, GEO, _rows(1))
+    finally:
+        store._db = real
+    assert not real.in_transaction
+    assert store.done_indices(rid) == {0} and len(store.readings(rid)) == 31
+    store.add_point(rid, 1, GEO, _rows(1))
+    assert len(store.readings(rid)) == 62
+
+
 def test_duplicate_index_is_refused_without_duplicate_rows(store):
     rid = store.create_run("scan")
     store.add_point(rid, 0, GEO, _rows(0))
