@@ -426,8 +426,10 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                                             gw.channel.to_numpy(), cw)
                         reasons[idx < 0] = "direction outside every candidate patch"
                     else:
-                        dd = angular_distance_deg(gw.theta_r.to_numpy(float)[:, None], gw.phi_r.to_numpy(float)[:, None],
-                                                  cw.theta_r.to_numpy(float)[None, :], cw.phi_r.to_numpy(float)[None, :])
+                        dd = angular_distance_deg(gw.theta_r.to_numpy(float)[:, None],
+                                                  gw.phi_r.to_numpy(float)[:, None],
+                                                  cw.theta_r.to_numpy(float)[None, :],
+                                                  cw.phi_r.to_numpy(float)[None, :])
                         idx = np.argmin(dd, axis=1)
                         best = dd[np.arange(len(gw)), idx]
                         far = best > angle_tol
@@ -467,7 +469,8 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                     "virtual_theta_r": vt[ok] if not spectral else np.nan,
                     "virtual_phi_r": vp[ok] if not spectral else np.nan,
                     "angle_distance_deg": dist, "wavelength_method": wmethod, "match_method": how,
-                    "virtual_index": first_idx[ok], "actual_index": g.index.to_numpy(), "actual_std_source": g.std_source.to_numpy(),
+                    "virtual_index": first_idx[ok], "actual_index": g.index.to_numpy(),
+                    "actual_std_source": g.std_source.to_numpy(),
                     "virtual_std_source": srcs[ok],
                 }))
     # candidate groups no actual point used

@@ -281,8 +281,9 @@ def isotropy(record: Any, *, angle_tol_deg: float = 1.0, alpha: float = 0.01, k_
 def run_checks(record: Any, **kwargs: Any) -> dict[str, CheckResult]:
     """All three checks with shared keyword arguments (those a check does not take are ignored)."""
     out = {}
-    for name, fn, keys in (("reciprocity", reciprocity, {"angle_tol_deg", "alpha", "k_offend", "instrument_uncertainty"}),
+    pairs = {"angle_tol_deg", "alpha", "k_offend", "instrument_uncertainty"}
+    for name, fn, keys in (("reciprocity", reciprocity, pairs),
                            ("energy_conservation", energy_conservation, {"alpha", "instrument_uncertainty"}),
-                           ("isotropy", isotropy, {"angle_tol_deg", "alpha", "k_offend", "instrument_uncertainty"})):
+                           ("isotropy", isotropy, pairs)):
         out[name] = fn(record, **{k: v for k, v in kwargs.items() if k in keys})
     return out

@@ -143,6 +143,8 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
         (name -> summary with :data:`compare.stats.SUMMARY_KEYS` plus ``delta_e2000_mean`` etc.),
         ``ranking`` (list, best first), ``checks`` (record name -> check name -> result dict;
         BSDF only), ``unmatched`` (name -> count), ``errors`` (name -> message), ``warnings``,
+        ``breakdown`` (name -> ``by_wavelength``/``by_incidence`` lists of per-group metrics),
+        ``alignment`` (name -> tolerances and methods),
         ``figures`` (ids), ``report_html``, ``report_md``, ``summary_json`` (paths).
 
     Raises
@@ -195,6 +197,8 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
         "checks": check_results, "unmatched": {n: int((c.aligned.unmatched.side == "actual").sum())
                                                for n, c in comps.items()},
         "errors": errors, "warnings": warnings, "figures": [f["id"] for f in figures],
+        "breakdown": {n: {"by_wavelength": c.by_wavelength.to_dict(orient="records"),
+                          "by_incidence": c.by_incidence.to_dict(orient="records")} for n, c in comps.items()},
         "alignment": {n: {key: c.aligned.meta.get(key) for key in ("angle_tol_deg", "wavelength_tol_nm", "match_method",
                                                                    "wavelength_interpolation", "channels")}
                       for n, c in comps.items()},

@@ -92,6 +92,8 @@ def test_bsdf_summary_has_stable_keys_ranking_and_checks(bsdf_report):
     assert [r["name"] for r in s["ranking"]] == ["Lambert 0.5", "Lambert 0.6"]
     assert s["candidates"]["Lambert 0.5"]["p_value"] > 1e-3 and s["candidates"]["Lambert 0.6"]["p_value"] < 1e-10
     assert set(s["checks"]) == {"actual", "Lambert 0.5", "Lambert 0.6"}
+    inc = s["breakdown"]["Lambert 0.5"]["by_incidence"]
+    assert [(r["theta_i"], r["n_points"]) for r in inc] == [(0.0, 144), (30.0, 144), (60.0, 144)]
     actual_checks = s["checks"]["actual"]
     assert actual_checks["reciprocity"]["tested"] and actual_checks["reciprocity"]["passed"]
     assert actual_checks["energy_conservation"]["passed"] and actual_checks["isotropy"]["passed"]
