@@ -62,7 +62,7 @@ import numpy as np
 
 from bench.errors import InputError
 from bench.instruments import Spectrum
-from bench.records import BSDF_COLUMNS, BSDFRecord
+from bench.records import BSDFRecord
 
 __all__ = [
     "spectrum_table", "spectrum_to_csv", "atomic_write", "json_default",

@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import platform
 import secrets
 import sqlite3
@@ -54,7 +53,7 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 from collections.abc import Mapping
-from typing import Any, Iterable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
