@@ -226,8 +226,10 @@ def test_ciede2000_against_colour_science_and_physics():
     # a spectrum over the full 360-780 nm uses the tabulated white point of the illuminant
     full = np.arange(360, 781, 5.0)
     lab_full = delta_e2000(full, np.full(full.size, 0.3), np.full(full.size, 0.3))["lab_actual"]
-    xyz = colour.sd_to_XYZ(colour.SpectralDistribution(np.full(full.size, 0.3), full),
-                           colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"], colour.SDS_ILLUMINANTS["D65"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        xyz = colour.sd_to_XYZ(colour.SpectralDistribution(np.full(full.size, 0.3), full),
+                               colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"], colour.SDS_ILLUMINANTS["D65"])
     np.testing.assert_allclose(lab_full, colour.XYZ_to_Lab(xyz / 100, colour.CCS_ILLUMINANTS[
         "CIE 1931 2 Degree Standard Observer"]["D65"]), atol=1e-9)
 
