@@ -321,6 +321,10 @@ def _polar_scatter(t: pd.DataFrame, values: np.ndarray, path: Path, title: str, 
     r = np.where(t.theta_r.to_numpy(float) > 90, 180 - t.theta_r.to_numpy(float), t.theta_r.to_numpy(float))
     norm = norm or Normalize(vmin=0.0, vmax=max(float(np.nanmax(values)) if len(values) else 1.0, 1e-12))
     sc = ax.scatter(np.radians(t.phi_r.to_numpy(float)), r, c=values, cmap=cmap, norm=norm, s=22)
+    if len(t):
+        ax.plot([np.radians(float(t.phi_i.iloc[0]))], [float(t.theta_i.iloc[0])], marker="*", color="red", ms=12,
+                ls="none", label="incidence")
+        ax.legend(loc="lower left", fontsize=7, bbox_to_anchor=(-0.15, -0.12))
     ax.set_ylim(0, 90)
     fig.colorbar(sc, ax=ax, shrink=0.75, pad=0.1, label=label)
     ax.set_title(title, fontsize=10)

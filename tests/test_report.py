@@ -136,6 +136,29 @@ def test_load_record_reads_a_tidy_csv(tmp_path):
     assert len(back) == len(rec) and np.allclose(back.table.value, rec.table.value)
 
 
+def test_measured_record_without_patches_gets_point_maps_and_the_gonio_uncertainty(tmp_path):
+    """A physical in-plane record: points, no patch bounds, no std of its own."""
+    from bench.records import BSDF_COLUMNS
+    from virtual.goniophotometer import VirtualGoniophotometer
+
+    rng = np.random.default_rng(3)
+    rows = [{"wavelength_nm": 550.0, "theta_i": 30.0, "phi_i": 0.0, "theta_r": abs(x), "phi_r": 0.0 if x < 0 else 180.0,
+             "hemisphere": "R", "value": 0.5 / np.pi * (1 + 0.005 * rng.standard_normal()), "std": np.nan}
+            for x in np.arange(-75.0, 80.0, 10.0)]
+    t = pd.DataFrame(rows).reindex(columns=BSDF_COLUMNS)
+    actual = BSDFRecord(t, {"source": "measured", "specimen": "white tile"})
+    cands = {f"albedo {a}": VirtualGoniophotometer(f"lambert:albedo={a}", collector="equal-psa:6x24", rays=RAYS,
+                                                   seed=5, method="rays").measure_bsdf(30.0) for a in (0.5, 0.6)}
+    s = compare_records(actual, cands, tmp_path)
+    assert s["candidates"]["albedo 0.5"]["uncertainty_model"]["kind"] == "relative"
+    assert s["candidates"]["albedo 0.5"]["n_points"] == 16 and s["ranking"][0]["name"] == "albedo 0.5"
+    assert any("actual std missing" in w for w in s["warnings"])
+    assert s["checks"]["actual"]["energy_conservation"]["tested"] is False
+    html = _html(tmp_path)
+    for fid in figure_ids("bsdf", list(cands)):
+        assert f'id="{fid}"' in html
+
+
 def _png_size(path: Path) -> tuple[int, int]:
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n", "not a PNG"
