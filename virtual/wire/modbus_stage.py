@@ -42,15 +42,15 @@ import argparse
 import asyncio
 import json
 import logging
-import multiprocessing as mp
 import os
 import sys
 import threading
 import time
-import tty
 import tomllib
 from dataclasses import dataclass, field
 from typing import Any, Callable
+
+from virtual.wire.pty import PipeEmulator, open_raw_pty
 
 log = logging.getLogger(__name__)
 
@@ -320,13 +320,6 @@ def _build_device(model: StageModel, lock: threading.Lock, device_id: int) -> An
     return SimDevice(id=device_id, simdata=blocks, action=action)
 
 
-def _open_pty_pair() -> tuple[int, int, str]:
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    tty.setraw(master)
-    return master, slave, os.ttyname(slave)
-
-
 class _PtyRelay:
     """Copy bytes both ways between two pty masters inside the event loop."""
 
@@ -374,8 +367,8 @@ async def _serve(cfg: dict[str, Any], transport: str, conn: Any) -> None:
         address: dict[str, Any] = {"transport": "tcp", "host": "127.0.0.1", "port": port,
                                    "url": f"tcp://127.0.0.1:{port}"}
     elif transport == "rtu":
-        m_srv, s_srv, p_srv = _open_pty_pair()
-        m_cli, s_cli, p_cli = _open_pty_pair()
+        m_srv, s_srv, p_srv = open_raw_pty()
+        m_cli, s_cli, p_cli = open_raw_pty()
         keep += [m_srv, s_srv, m_cli, s_cli]   # hold the slaves open: no EIO when a side closes
         _PtyRelay(asyncio.get_running_loop(), m_srv, m_cli)
         server = ModbusSerialServer(device, port=p_srv, baudrate=scfg.baudrate,
@@ -453,7 +446,7 @@ def _child_main(cfg: dict[str, Any], transport: str, conn: Any, log_level: int) 
         raise
 
 
-class StageEmulator:
+class StageEmulator(PipeEmulator):
     """Handle on a running stage emulator process (see the module docstring).
 
     Attributes
@@ -468,10 +461,10 @@ class StageEmulator:
         Modbus unit id.
     """
 
+    label = "modbus stage emulator"
+
     def __init__(self, proc: Any, conn: Any, address: dict[str, Any]) -> None:
-        self._proc = proc
-        self._conn = conn
-        self._lock = threading.Lock()
+        super().__init__(proc, conn, address)
         self.address = address
         self.transport: str = address["transport"]
         self.url: str = address["url"]
@@ -483,42 +476,8 @@ class StageEmulator:
               log_level: int = logging.WARNING, **config: Any) -> "StageEmulator":
         """Start an emulator process; keyword arguments are :class:`StageConfig` fields."""
         StageConfig(**config)  # validate names here, in the parent
-        ctx = mp.get_context("spawn")
-        parent, child = ctx.Pipe()
-        proc = ctx.Process(target=_child_main, args=(config, transport, child, log_level),
-                           daemon=True, name=f"modbus-stage-{transport}")
-        proc.start()
-        child.close()
-        if not parent.poll(start_timeout):
-            proc.kill()
-            proc.join(2)
-            raise TimeoutError(f"modbus stage emulator did not start within {start_timeout} s")
-        address = parent.recv()
-        if "error" in address:
-            proc.join(2)
-            raise RuntimeError(f"modbus stage emulator failed to start: {address['error']}")
-        return cls(proc, parent, address)
-
-    # --- control ---------------------------------------------------------------------------
-    def _call(self, msg: dict[str, Any], timeout: float = 5.0) -> dict[str, Any]:
-        with self._lock:
-            if not self.alive:
-                raise RuntimeError("the emulator process is not running")
-            self._conn.send(msg)
-            if not self._conn.poll(timeout):
-                raise TimeoutError(f"emulator did not answer {msg}")
-            reply = self._conn.recv()
-        if not reply.get("ok"):
-            raise RuntimeError(reply.get("error", "emulator refused"))
-        return reply
-
-    @property
-    def alive(self) -> bool:
-        return self._proc.is_alive()
-
-    @property
-    def pid(self) -> int:
-        return self._proc.pid
+        return cls(*cls._spawn(_child_main, (config, transport), (log_level,), f"modbus-stage-{transport}",
+                               start_timeout))
 
     def state(self, unit: int | None = None) -> dict[str, Any]:
         """Position, target, moving, alarm, status word and command counters of one drive."""
@@ -539,45 +498,6 @@ class StageEmulator:
     def silence(self, on: bool = True) -> None:
         """Drop every reply until ``silence(False)``."""
         self._call({"cmd": "silence", "on": on})
-
-    def clear_faults(self) -> None:
-        self._call({"cmd": "clear"})
-
-    def die(self) -> None:
-        """Make the process exit at once (like an unplugged adapter)."""
-        with self._lock:
-            try:
-                self._conn.send({"cmd": "die"})
-            except OSError:
-                pass
-        self._proc.join(5)
-        if self._proc.is_alive():
-            self.kill()
-
-    def kill(self) -> None:
-        """SIGKILL the process."""
-        if self._proc.is_alive():
-            self._proc.kill()
-        self._proc.join(5)
-
-    def stop(self, timeout: float = 3.0) -> None:
-        """Shut the server down cleanly (kill it if it does not go)."""
-        if self._proc.is_alive():
-            try:
-                self._call({"cmd": "stop"}, timeout=timeout)
-            except Exception:
-                pass
-            self._proc.join(timeout)
-        self.kill()
-        self._conn.close()
-
-    close = stop
-
-    def __enter__(self) -> "StageEmulator":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def __repr__(self) -> str:
         return f"StageEmulator({self.transport}, {self.url}, pid={self._proc.pid})"

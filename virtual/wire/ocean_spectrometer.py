@@ -36,17 +36,17 @@ import argparse
 import importlib
 import json
 import logging
-import multiprocessing as mp
 import os
 import select
 import sys
 import threading
 import time
-import tty
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
+
+from virtual.wire.pty import PipeEmulator, open_raw_pty
 
 log = logging.getLogger(__name__)
 
@@ -647,13 +647,6 @@ class _Device:
             self.process()
 
 
-def _open_pty() -> tuple[int, int, str]:
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    tty.setraw(master)
-    return master, slave, os.ttyname(slave)
-
-
 def _child_main(cfg: dict[str, Any], geometry_source: Any, response: Any, conn: Any,
                 log_level: int) -> None:
     logging.basicConfig(level=log_level, stream=sys.stderr,
@@ -661,7 +654,7 @@ def _child_main(cfg: dict[str, Any], geometry_source: Any, response: Any, conn: 
     try:
         scfg = SpectrometerConfig(**cfg)
         model = SpectrometerModel(scfg, geometry_source, response)
-        master, slave, path = _open_pty()
+        master, slave, path = open_raw_pty()
     except Exception as exc:
         conn.send({"error": f"{type(exc).__name__}: {exc}"})
         raise
@@ -735,7 +728,7 @@ def _child_main(cfg: dict[str, Any], geometry_source: Any, response: Any, conn: 
             pass
 
 
-class SpectrometerEmulator:
+class SpectrometerEmulator(PipeEmulator):
     """Handle on a running spectrometer emulator process.
 
     Attributes
@@ -746,10 +739,10 @@ class SpectrometerEmulator:
         Number of detector pixels.
     """
 
+    label = "spectrometer emulator"
+
     def __init__(self, proc: Any, conn: Any, info: dict[str, Any]) -> None:
-        self._proc, self._conn = proc, conn
-        self._lock = threading.Lock()
-        self.info = info
+        super().__init__(proc, conn, info)
         self.port: str = info["port"]
         self.pixels: int = info["pixels"]
 
@@ -764,42 +757,8 @@ class SpectrometerEmulator:
         ``"module:attr"`` strings.
         """
         SpectrometerConfig(**config)
-        ctx = mp.get_context("spawn")
-        parent, child = ctx.Pipe()
-        proc = ctx.Process(target=_child_main,
-                           args=(config, geometry_source, response, child, log_level),
-                           daemon=True, name="ocean-spectrometer-emulator")
-        proc.start()
-        child.close()
-        if not parent.poll(start_timeout):
-            proc.kill()
-            proc.join(2)
-            raise TimeoutError(f"spectrometer emulator did not start within {start_timeout} s")
-        info = parent.recv()
-        if "error" in info:
-            proc.join(2)
-            raise RuntimeError(f"spectrometer emulator failed to start: {info['error']}")
-        return cls(proc, parent, info)
-
-    def _call(self, msg: dict[str, Any], timeout: float = 5.0) -> dict[str, Any]:
-        with self._lock:
-            if not self._proc.is_alive():
-                raise RuntimeError("the emulator process is not running")
-            self._conn.send(msg)
-            if not self._conn.poll(timeout):
-                raise TimeoutError(f"emulator did not answer {msg}")
-            reply = self._conn.recv()
-        if not reply.get("ok"):
-            raise RuntimeError(reply.get("error", "emulator refused"))
-        return reply
-
-    @property
-    def alive(self) -> bool:
-        return self._proc.is_alive()
-
-    @property
-    def pid(self) -> int:
-        return self._proc.pid
+        return cls(*cls._spawn(_child_main, (config, geometry_source, response), (log_level,),
+                               "ocean-spectrometer-emulator", start_timeout))
 
     def state(self) -> dict[str, Any]:
         return self._call({"cmd": "state"})["state"]
@@ -819,41 +778,6 @@ class SpectrometerEmulator:
 
     def trigger(self) -> None:
         self._call({"cmd": "trigger"})
-
-    def clear_faults(self) -> None:
-        self._call({"cmd": "clear"})
-
-    def die(self) -> None:
-        with self._lock:
-            try:
-                self._conn.send({"cmd": "die"})
-            except OSError:
-                pass
-        self._proc.join(5)
-        self.kill()
-
-    def kill(self) -> None:
-        if self._proc.is_alive():
-            self._proc.kill()
-        self._proc.join(5)
-
-    def stop(self, timeout: float = 3.0) -> None:
-        if self._proc.is_alive():
-            try:
-                self._call({"cmd": "stop"}, timeout=timeout)
-            except Exception:
-                pass
-            self._proc.join(timeout)
-        self.kill()
-        self._conn.close()
-
-    close = stop
-
-    def __enter__(self) -> "SpectrometerEmulator":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def __repr__(self) -> str:
         return f"SpectrometerEmulator({self.port}, pid={self._proc.pid})"

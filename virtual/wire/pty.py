@@ -22,7 +22,7 @@ import tty
 from pathlib import Path
 from typing import Any, Sequence
 
-__all__ = ["open_pty", "EmulatorProcess", "EmulatorStartError"]
+__all__ = ["open_pty", "open_raw_pty", "EmulatorProcess", "EmulatorStartError", "PipeEmulator"]
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +44,113 @@ def open_pty() -> tuple[int, int, str]:
     tty.setraw(slave)
     os.set_blocking(master, False)
     return master, slave, os.ttyname(slave)
+
+
+def open_raw_pty() -> tuple[int, int, str]:
+    """A pty pair with *both* ends raw and blocking (for emulators that read the master with
+    select/read themselves); return ``(master_fd, slave_fd, slave_path)``."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    tty.setraw(master)
+    return master, slave, os.ttyname(slave)
+
+
+class PipeEmulator:
+    """Handle on an emulator running in a spawned process, controlled over a multiprocessing pipe.
+
+    The child sends one announcement dict (or ``{"error": ...}``) when it is ready, then answers
+    control messages ``{"cmd": ...}`` with ``{"ok": True, ...}``; ``stop`` shuts it down cleanly
+    and ``die`` makes it exit at once (an unplugged adapter). Subclasses add their fault
+    injection methods on top of :meth:`_call`.
+    """
+
+    label = "emulator"
+
+    def __init__(self, proc: Any, conn: Any, info: dict[str, Any]) -> None:
+        import threading
+
+        self._proc, self._conn = proc, conn
+        self._lock = threading.Lock()
+        self.info = info
+
+    @classmethod
+    def _spawn(cls, target: Any, head: tuple, tail: tuple, name: str,
+               start_timeout: float) -> tuple[Any, Any, dict[str, Any]]:
+        """Start ``target(*head, conn, *tail)`` in a spawned process; wait for its announcement."""
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")
+        parent, child = ctx.Pipe()
+        proc = ctx.Process(target=target, args=(*head, child, *tail), daemon=True, name=name)
+        proc.start()
+        child.close()
+        if not parent.poll(start_timeout):
+            proc.kill()
+            proc.join(2)
+            raise TimeoutError(f"{cls.label} did not start within {start_timeout} s")
+        info = parent.recv()
+        if "error" in info:
+            proc.join(2)
+            raise RuntimeError(f"{cls.label} failed to start: {info['error']}")
+        return proc, parent, info
+
+    def _call(self, msg: dict[str, Any], timeout: float = 5.0) -> dict[str, Any]:
+        with self._lock:
+            if not self._proc.is_alive():
+                raise RuntimeError("the emulator process is not running")
+            self._conn.send(msg)
+            if not self._conn.poll(timeout):
+                raise TimeoutError(f"emulator did not answer {msg}")
+            reply = self._conn.recv()
+        if not reply.get("ok"):
+            raise RuntimeError(reply.get("error", "emulator refused"))
+        return reply
+
+    @property
+    def alive(self) -> bool:
+        return self._proc.is_alive()
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def clear_faults(self) -> None:
+        self._call({"cmd": "clear"})
+
+    def die(self) -> None:
+        """Make the process exit at once (like an unplugged adapter)."""
+        with self._lock:
+            try:
+                self._conn.send({"cmd": "die"})
+            except OSError:
+                pass
+        self._proc.join(5)
+        self.kill()
+
+    def kill(self) -> None:
+        """SIGKILL the process."""
+        if self._proc.is_alive():
+            self._proc.kill()
+        self._proc.join(5)
+
+    def stop(self, timeout: float = 3.0) -> None:
+        """Shut the emulator down cleanly (kill it if it does not go)."""
+        if self._proc.is_alive():
+            try:
+                self._call({"cmd": "stop"}, timeout=timeout)
+            except Exception:
+                pass
+            self._proc.join(timeout)
+        self.kill()
+        self._conn.close()
+
+    close = stop
+
+    def __enter__(self) -> Any:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
 
 
 class EmulatorProcess:
