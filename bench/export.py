@@ -353,13 +353,17 @@ class ZemaxGrid:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
-def _lookup(part: Any, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+def _lookup(part: Any, theta: np.ndarray, phi: np.ndarray,
+            max_distance_deg: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Values of ``part`` (rows of one hemisphere, incidence and wavelength) at directions
     (theta, phi) (degrees): the collector patch containing the direction when the rows carry
-    patch bounds, else the angularly nearest sample."""
+    patch bounds, else the angularly nearest sample (NaN when farther than
+    ``max_distance_deg``). Also returns the angular distance (degrees) to the sample used (0
+    inside a patch)."""
     vals = part["value"].to_numpy(float)
     bounds = ["theta_min", "theta_max", "phi_min", "phi_max"]
     out = np.full(theta.shape, np.nan)
+    dist = np.zeros(theta.shape)
     todo = np.ones(theta.shape, bool)
     if all(c in part.columns for c in bounds) and part[bounds].notna().all().all():
         tmin, tmax, pmin, pmax = (part[c].to_numpy(float) for c in bounds)
@@ -378,13 +382,20 @@ def _lookup(part: Any, theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
     if todo.any():
         d = _dirs(part["theta_r"].to_numpy(float), part["phi_r"].to_numpy(float))
         q = _dirs(theta[todo], phi[todo])
-        out[todo] = vals[np.argmax(q @ d.T, axis=1)]
-    return out
+        cos = q @ d.T
+        best = np.argmax(cos, axis=1)
+        gap = np.degrees(np.arccos(np.clip(cos[np.arange(len(best)), best], -1.0, 1.0)))
+        got = vals[best]
+        if max_distance_deg is not None:
+            got = np.where(gap <= max_distance_deg, got, np.nan)
+        out[todo] = got
+        dist[todo] = gap
+    return out, dist
 
 
 def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatter_type: str = "BRDF",
                symmetry: str = "Asymmetrical", azimuths: Iterable[float] | None = None,
-               radials: Iterable[float] | None = None) -> ZemaxGrid:
+               radials: Iterable[float] | None = None, max_distance_deg: float | None = None) -> ZemaxGrid:
     """Resample a record onto the regular specular-centred (azimuth, radial) grid of a Zemax file.
 
     Each grid node (rotation = phi_i, incidence = theta_i, azimuth, radial) is turned into a
@@ -393,6 +404,12 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
     when the record has patch bounds, else of the **angularly nearest measured direction**. Nodes
     beyond the hemisphere (below the specimen plane for a BRDF) get 0. Every (rotation,
     incidence) pair must be in the record.
+
+    Nearest-sample filling fills every node however far the nearest measurement is (an in-plane
+    scan would be spread over the whole hemisphere): pass ``max_distance_deg`` to write 0 at
+    nodes farther than that from any sample, or choose ``azimuths=(0, 180)`` with
+    ``PlaneSymmetrical`` for in-plane data. ``grid.meta["zemax_resampling"]`` reports the
+    method, the largest nearest-sample distance used and the nodes left at 0.
 
     TIS per (rotation, incidence): ``sum(value * psa)`` over the hemisphere's rows when the record
     has ``psa`` (exact for a collector), else a quadrature of the grid
@@ -405,6 +422,8 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
     symmetry : ``"Asymmetrical"`` (default azimuths 0..360 step 10) or ``"PlaneSymmetrical"``
         (0..180 step 10)
     radials : default 0..90 step 2 degrees
+    max_distance_deg : float, optional
+        Farthest a node may be from the sample it takes (point samples only; default: no limit).
     """
     import pandas as pd
 
@@ -443,6 +462,9 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
     tis = np.zeros((len(rots), len(incs)))
     A, R = np.meshgrid(az, rad, indexing="ij")
     groups = {k: g for k, g in sel.groupby(["phi_i", "theta_i"], sort=False)}
+    bounds = ["theta_min", "theta_max", "phi_min", "phi_max"]
+    patches = all(c in sel.columns for c in bounds) and bool(sel[bounds].notna().all().all())
+    unfilled, farthest = 0, 0.0
     for k, rot in enumerate(rots):
         for j, inc in enumerate(incs):
             part = groups.get((rot, inc))
@@ -454,7 +476,10 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
             inside = up <= 90.0 + 1e-9
             v = np.zeros(th.shape)
             if inside.any():
-                v[inside] = _lookup(part, th[inside], ph[inside])
+                got, dist = _lookup(part, th[inside], ph[inside], max_distance_deg)
+                unfilled += int(np.isnan(got).sum())
+                farthest = max(farthest, float(dist.max()))
+                v[inside] = np.nan_to_num(got, nan=0.0)
             values[k, j] = v
             if "psa" in part.columns and part["psa"].notna().all():
                 tis[k, j] = float(np.nansum(part["value"].to_numpy(float) * part["psa"].to_numpy(float)))
@@ -464,6 +489,9 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
                 wr = np.gradient(np.radians(rad)) if len(rad) > 1 else np.array([0.0])
                 tis[k, j] = float(np.sum(v * cos_t * np.sin(np.radians(R)) * wa[:, None] * wr[None, :]))
     meta = dict(record.meta)
+    meta["zemax_resampling"] = {"method": "containing patch" if patches else "nearest sample",
+                                "max_nearest_distance_deg": farthest, "nodes_unfilled": unfilled,
+                                "max_distance_deg": max_distance_deg}
     return ZemaxGrid(rots, incs, az, rad, values, tis, float(wavelength_nm), st, symmetry, meta)
 
 

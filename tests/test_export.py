@@ -382,3 +382,32 @@ def test_spectrum_to_csv_still_works(tmp_path):
     out = spectrum_to_csv(s, tmp_path / "a" / "s.csv")
     df = pd.read_csv(out)
     assert list(df.wavelength_nm) == [500, 600] and "reflectance_lo" in df.columns
+
+
+def test_zemax_from_in_plane_point_samples(tmp_path):
+    # an in-plane physical scan: no patch bounds, theta_r every 10 deg on both sides at theta_i 30
+    tr = np.arange(-80.0, 81.0, 10.0)
+    t = pd.DataFrame({"wavelength_nm": 550.0, "theta_i": 30.0, "phi_i": 0.0, "theta_r": np.abs(tr),
+                      "phi_r": np.where(tr >= 0, 180.0, 0.0), "hemisphere": "R",
+                      "value": 0.1 + np.exp(-((tr - 30.0) / 15.0) ** 2)})
+    rec = BSDFRecord(t, {"specimen": "in-plane"})
+    # in the plane of incidence the specular-centred grid hits the samples exactly
+    g = zemax_grid(rec, symmetry="PlaneSymmetrical", azimuths=[0.0, 180.0], radials=np.arange(0.0, 111.0, 10.0))
+    assert g.meta["zemax_resampling"]["method"] == "nearest sample"
+    # every node is a sample except the grazing one (azimuth 180, radial 60: theta_r = 90), 10 deg
+    # from the last sample at 80
+    assert g.meta["zemax_resampling"]["max_nearest_distance_deg"] == pytest.approx(10.0)
+    assert g.values[0, 0, 1, 6] == v[80.0] and np.all(g.values[0, 0, 1, 7:] == 0.0)
+    v = dict(zip(tr, t.value))
+    assert g.values[0, 0, 1, 0] == v[30.0]          # radial 0 = the specular sample
+    assert g.values[0, 0, 1, 3] == v[60.0]          # azimuth 180: beyond specular
+    assert g.values[0, 0, 0, 3] == v[0.0]           # azimuth 0: toward the normal
+    assert g.values[0, 0, 0, 11] == v[-80.0]        # ... and on to the source side
+    # off the plane nothing was measured: a distance limit leaves those nodes at 0 and says so
+    full = zemax_grid(rec, max_distance_deg=5.0)
+    res = full.meta["zemax_resampling"]
+    assert res["nodes_unfilled"] > 0 and res["max_nearest_distance_deg"] > 5.0
+    A, R = np.meshgrid(full.azimuths, full.radials, indexing="ij")
+    assert np.all(full.values[0, 0][(np.abs(A - 90) < 1) & (R > 20)] == 0.0)
+    back = read_zemax(record_to_zemax(full, tmp_path / "p.bsdf"))
+    assert back.meta["symmetry"] == "Asymmetrical" and len(back.table) > 0
