@@ -394,11 +394,11 @@ def test_zemax_from_in_plane_point_samples(tmp_path):
     # in the plane of incidence the specular-centred grid hits the samples exactly
     g = zemax_grid(rec, symmetry="PlaneSymmetrical", azimuths=[0.0, 180.0], radials=np.arange(0.0, 111.0, 10.0))
     assert g.meta["zemax_resampling"]["method"] == "nearest sample"
+    v = dict(zip(tr, t.value))
     # every node is a sample except the grazing one (azimuth 180, radial 60: theta_r = 90), 10 deg
     # from the last sample at 80
     assert g.meta["zemax_resampling"]["max_nearest_distance_deg"] == pytest.approx(10.0)
     assert g.values[0, 0, 1, 6] == v[80.0] and np.all(g.values[0, 0, 1, 7:] == 0.0)
-    v = dict(zip(tr, t.value))
     assert g.values[0, 0, 1, 0] == v[30.0]          # radial 0 = the specular sample
     assert g.values[0, 0, 1, 3] == v[60.0]          # azimuth 180: beyond specular
     assert g.values[0, 0, 0, 3] == v[0.0]           # azimuth 0: toward the normal
