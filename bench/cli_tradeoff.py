@@ -111,9 +111,9 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
           f"incidence {scene.incidence[0]:g} deg, effects: {', '.join(scene.effects.declared()) or 'none'}"
           f"{' (positions sampled)' if scene.needs_positions else ''}")
     print(_table(["strategy", "collector", "budget", "method", "N", "seconds", "max_abs_error", "rms_error",
-                  "predicted_bound", "predicted_rms", "within", "pareto"],
+                  "predicted_bound", "predicted_max", "predicted_rms", "within", "pareto"],
                  [[r["strategy"], r["collector"], r["budget"], r["method"], r["N"], r["seconds"], r["max_abs_error"],
-                   r["rms_error"], r["predicted_bound"], r["predicted_rms"], r["within_bound"],
+                   r["rms_error"], r["predicted_bound"], r["predicted_max"], r["predicted_rms"], r["within_bound"],
                    "*" if r["pareto"] else ""] for r in rows]))
     for r in rows:
         if r["budget"] == "adaptive":
