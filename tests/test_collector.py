@@ -140,6 +140,10 @@ def test_sector_partition_small_and_large_n_phi(n_phi):
     np.testing.assert_array_equal(sec, expected)
 
 
+def _subnormals_work() -> bool:
+    return bool((np.array([5e-324]) * 2.0)[0] > 0.0)
+
+
 def test_unnormalised_and_degenerate_vectors():
     d = np.array([0.3, -0.2, 0.7])
     ref = idx(*d)
@@ -149,7 +153,10 @@ def test_unnormalised_and_degenerate_vectors():
     assert idx(0.0, 0.0, 0.0) == 0
     assert idx(math.nan, 0.0, 1.0) in range(C.n_bins)
     assert idx(math.inf, 1.0, 1.0) in range(C.n_bins)
-    assert idx(5e-324, 5e-324, 5e-324) == idx(1.0, 1.0, 1.0)  # 1/5e-324 = inf: must divide
+    if _subnormals_work():  # some libraries switch on flush-to-zero/denormals-are-zero at import
+        assert idx(5e-324, 5e-324, 5e-324) == idx(1.0, 1.0, 1.0)  # 1/5e-324 = inf: must divide
+    else:
+        assert idx(5e-324, 5e-324, 5e-324) in range(C.n_bins)
     assert idx(math.inf, 0.0, 0.0) == idx(1.0, 0.0, 0.0)
     assert idx(0.0, 0.0, -math.inf) == C.n_patches
 

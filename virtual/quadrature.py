@@ -144,7 +144,7 @@ def _near_lobe(cells: np.ndarray, lobes: list[tuple[np.ndarray, float]],
 
 
 def integrate_patches(specimen: Specimen, wi: np.ndarray, collector: Collector, wavelength_nm: float,
-                      order: int = 5, rtol: float = 1e-7, atol: float = 1e-10,
+                      order: int = 5, rtol: float = 1e-7, atol: float = 1e-9,
                       max_level: int = 40, max_cells: int = 2_000_000) -> PatchIntegrals:
     """Per-bin probabilities ``int_P f_s |cos theta_o| d omega`` for one incident direction.
 
@@ -244,7 +244,7 @@ def integrate_patches(specimen: Specimen, wi: np.ndarray, collector: Collector, 
 
 
 def patch_integrals(specimen: Specimen, wi: np.ndarray, collector: Collector, wavelength_nm: float,
-                    order: int = 5, rtol: float = 1e-7, atol: float = 1e-10) -> np.ndarray:
+                    order: int = 5, rtol: float = 1e-7, atol: float = 1e-9) -> np.ndarray:
     """``(n_bins,)`` probability of each collector bin (see :func:`integrate_patches`).
 
     ``1 - result.sum()`` is the absorbed fraction.
