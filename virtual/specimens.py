@@ -14,8 +14,29 @@ wavelength and gets back an outgoing direction, or absorption. Two faces of the 
 * :meth:`Specimen.bsdf` (optional, ``has_density``): the BSDF value for arrays of directions,
   used by the exact fast path and by the quadrature references.
 
+Models (``model`` id, CLI name, parameter vector from :meth:`Specimen.params`):
+
+====  ==============  =========================  ==========================================
+id    CLI name        class                      params
+====  ==============  =========================  ==========================================
+0     lambert         :class:`Lambertian`        [R, T]
+1     oren-nayar      :class:`OrenNayar`         [albedo, A, B, albedo*A, 2*albedo*B/pi]
+2     phong           :class:`Phong`             [kd, ks, n, ks*(n+2)/(n+1)]
+3     ggx             :class:`GGX`               [alpha, alpha, eta, k]
+4     aniso-ggx       :class:`AnisoGGX`          [alpha_x, alpha_y, eta, k]
+5     plastic         :class:`RoughPlastic`      [alpha, eta, kd, 1/(1 - F_avg(eta))]
+6     dielectric      :class:`RoughDielectric`   [alpha, eta]
+====  ==============  =========================  ==========================================
+
+Every branch of ``scatter`` samples exactly (no weights): a proposal whose density dominates
+``f_s |cos theta_o|`` with total mass <= 1, then survival with the ratio (Russian roulette on a
+weight <= 1). Opaque models are two-sided (mirrored when the source is below). The class docs
+state each model's formula, its sampling argument, and its parameter ranges (a parameter out of
+range raises :class:`SpecimenError` naming it). ``reciprocal``/``isotropic`` are class flags.
+
 Specimen strings (CLI): ``name:key=value,key=value``, e.g. ``lambert:reflectance=0.375``,
-``colorchecker:dark skin``. :func:`parse_specimen` lists the known names on error.
+``ggx:alpha=0.2,eta=1.5,k=0``, ``colorchecker:dark skin``. :func:`parse_specimen` lists the
+known names on error.
 """
 
 from __future__ import annotations
@@ -535,6 +556,11 @@ class Phong(_Analytic):
         ca = np.maximum(-wi[0] * wo[:, 0] - wi[1] * wo[:, 1] + wi[2] * wo[:, 2], 0.0)
         f = kd / math.pi + ks * (n + 2.0) / (2.0 * math.pi) * ca ** n
         return np.where((wo[:, 2] > 0.0) & (wi[2] > 0.0), f, 0.0)
+
+    def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
+        kd, ks, n, _ = self.params(wavelength_nm)
+        # cos^n(a) ~ exp(-n a^2 / 2): angular width ~ 1 / sqrt(n)
+        return [(_mirror(wi), 2.0 / math.sqrt(n + 1.0))] if ks > 0 else []
 
 
 @njit(inline="always", cache=True)
