@@ -18,6 +18,10 @@ Where the work runs
   (``numba_threads=1``): a worker with ``--nthreads k`` runs k tasks at once on k cores without
   oversubscription. Workers need goniobench installed (same version as the client).
 
+This module lives in ``bench`` (application level: it drives ``virtual`` instruments and the
+store) rather than in ``virtual``, whose numba cache is dropped whenever a ``virtual/`` source
+changes.
+
 Only the client process writes the SQLite store: one transaction per task, point index = task
 index. A result whose index is already stored (a retried task, a resumed run) is skipped, never
 stored twice. A worker that dies mid-task is replaced by the scheduler and its tasks run
@@ -504,25 +508,14 @@ def _spectro_rows(task: SweepTask) -> Any:
 
 def warm_up(instrument: str = "gonio") -> float:
     """Import the virtual instruments and load the numba kernels (from the on-disk cache when
-    present) with a tiny measurement; return the seconds it took. Run once per worker process
-    so the first real task is not charged for it."""
+    present) with a tiny measurement through the whole task path; return the seconds it took.
+    Run once per worker process so the first real task is not charged for it."""
     t0 = time.perf_counter()
-    from virtual.engine import gonio_counts, measurement_seed, spectro_counts
-    from virtual.specimens import Lambertian
-
-    from virtual.beam import Beam
-
-    spec = Lambertian(0.5)
-    seq = measurement_seed(0)
-    beam = Beam("collimated")
-    args = beam.kernel_args(30.0, 0.0)
-    if instrument == "gonio":
-        from virtual.collector import parse_collector
-
-        gonio_counts(spec.model, spec.params(550.0), beam.code, beam.disk_code, args,
-                     parse_collector("equal-psa:2x4").kernel_args(), 64, seq)
-    else:
-        spectro_counts(spec.model, spec.params(550.0), beam.code, beam.disk_code, args, 64, seq)
+    tiny = SweepTask(idx=0, instrument=instrument, specimen="lambert:albedo=0.5", theta_i=30.0, phi_i=0.0,
+                     geometry=None if instrument == "gonio" else "8/d",
+                     collector="equal-psa:2x4" if instrument == "gonio" else None, wavelengths=(550.0,),
+                     rays=64, method="rays", beam="collimated", delta=0.01, cone_deg=None, key=0, seed=0)
+    run_task(tiny)
     return time.perf_counter() - t0
 
 
@@ -726,16 +719,33 @@ class _TaskFailed(Exception):
     pass
 
 
+def _warm_workers(client: Any, instrument: str) -> None:
+    """Run :func:`warm_up` once on every worker, as an ordinary task pinned to it (so a slow
+    numba compile after a source change never blocks a worker's event loop), and fail early
+    with a clear message if the workers cannot import goniobench. A worker that joins later
+    warms up on its first task."""
+    addrs = list(client.scheduler_info().get("workers", {}))
+    futs = {a: client.submit(warm_up, instrument, workers=[a], allow_other_workers=False, pure=False,
+                             key=f"goniobench-warm-up-{a}-{time.time_ns()}") for a in addrs}
+    took = {}
+    for a, f in futs.items():
+        try:
+            took[a] = round(f.result(), 2)
+        except ModuleNotFoundError as exc:
+            raise SimulationError(f"Dask worker {a} cannot import {exc.name!r}: install goniobench (the same "
+                                  f"version) in every worker's environment") from None
+        except Exception as exc:  # noqa: BLE001 - a worker lost during warm-up: its tasks go elsewhere
+            log.warning("warm-up on worker %s failed: %s: %s", a, type(exc).__name__, exc)
+        finally:
+            f.release()
+    log.info("workers warmed up (s): %s", took)
+
+
 def _on_dask(spec: SweepSpec, todo: list[SweepTask], client: Any, sink: _Sink, run_id: str, numba_threads: int,
              window: int | None, retries: int) -> None:
     from distributed import as_completed
 
-    try:
-        loads = client.run(warm_up, spec.instrument)  # also proves every worker can import goniobench
-        log.info("workers warmed up: %s", {k: round(v, 2) for k, v in loads.items()})
-    except ModuleNotFoundError as exc:
-        raise SimulationError(f"a Dask worker cannot import {exc.name!r}: install goniobench (same version) "
-                              f"in every worker's environment") from None
+    _warm_workers(client, spec.instrument)
     threads = sum(int(w.get("nthreads", 1)) for w in client.scheduler_info().get("workers", {}).values())
     limit = window if window is not None else max(8, 4 * max(threads, 1))
     queue = list(reversed(todo))
@@ -745,9 +755,9 @@ def _on_dask(spec: SweepSpec, todo: list[SweepTask], client: Any, sink: _Sink, r
         t = queue.pop()
         return client.submit(run_task, t, numba_threads, key=f"{tag}-{t.idx}", pure=False, retries=retries)
 
-    first = [submit() for _ in range(min(limit, len(queue)))]
-    ac = as_completed(first, with_results=True, raise_errors=False)
+    ac = as_completed(loop=client.loop, with_results=True, raise_errors=False)
     try:
+        ac.update([submit() for _ in range(min(limit, len(queue)))])
         for fut, res in ac:
             if fut.status == "error" or isinstance(res, BaseException):
                 exc = fut.exception() if fut.status == "error" else res

@@ -1,0 +1,103 @@
+"""``bench sweep``: many virtual measurements in-process, or on a Dask cluster, into a run store.
+
+Imports nothing heavy at module level: the sweep machinery (numba kernels, pandas, Dask) loads
+only when the command runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib.util
+import sys
+from typing import Any, Iterator
+
+from bench.errors import InputError
+
+DEFAULT_STORE = "goniobench-runs.sqlite"
+
+
+def _workers(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of workers >= 1, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a number of workers >= 1, got {text!r}")
+    return v
+
+
+def register(subparsers: Any) -> None:
+    """Add ``bench sweep`` to the CLI."""
+    p = subparsers.add_parser(
+        "sweep", help="run a sweep of virtual measurements (in-process, or on Dask); prints the run id",
+        description="Run every task of SWEEP.toml into the run store: in-process by default, on an existing "
+                    "Dask cluster with --scheduler, or on a local cluster of N worker processes with --workers. "
+                    "Results are identical however the work is split. --resume RUN finishes an interrupted "
+                    "sweep (SWEEP.toml is then taken from the store).")
+    p.add_argument("sweep", nargs="?", metavar="SWEEP.toml", help="the sweep (see fixtures/sweeps/)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="address of a running Dask scheduler")
+    where.add_argument("--workers", type=_workers, metavar="N", help="start a local Dask cluster of N processes")
+    p.add_argument("--threads-per-worker", type=_workers, default=1, metavar="K",
+                   help="threads of each local worker (default 1; every task runs numba single-threaded)")
+    p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    p.add_argument("--resume", metavar="RUN", help="finish this interrupted sweep run instead of starting one")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_sweep)
+
+
+@contextlib.contextmanager
+def _client(args: argparse.Namespace) -> Iterator[Any]:
+    if args.scheduler is None and args.workers is None:
+        yield None
+        return
+    import logging
+
+    from bench.sweep import dask_client
+
+    if not logging.getLogger("bench").isEnabledFor(logging.INFO):  # no -v: Dask's INFO chatter off
+        for name in ("distributed", "dask"):
+            logging.getLogger(name).setLevel(logging.WARNING)
+    kw: dict[str, Any] = {}
+    if args.workers is not None:
+        kw["threads_per_worker"] = args.threads_per_worker
+    with dask_client(args.scheduler, args.workers, **kw) as client:
+        info = client.scheduler_info()
+        n = len(info.get("workers", {}))
+        hint = ""
+        if args.workers is not None and importlib.util.find_spec("bokeh") is None:
+            hint = "  (install bokeh>=3.1 for the dashboard's pages)"
+        print(f"Dask scheduler {info.get('address')} with {n} workers; dashboard: {client.dashboard_link}{hint}",
+              file=sys.stderr)
+        yield client
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """Run (or resume) a sweep; print the run id, or the result as JSON."""
+    from bench.store import RunStore
+    from bench.sweep import load_sweep, resume_sweep, run_sweep
+
+    if args.resume is None and args.sweep is None:
+        raise InputError("give a SWEEP.toml, or --resume RUN")
+    if args.resume is not None and args.sweep is not None:
+        raise InputError("--resume takes the sweep stored with the run; do not also give SWEEP.toml")
+    spec = load_sweep(args.sweep) if args.sweep is not None else None  # bad input: exit 2 before any work
+    progress = not args.quiet and sys.stderr.isatty()
+    with RunStore(args.store, create=args.resume is None) as store, _client(args) as client:
+        if spec is not None:
+            print(f"sweep {spec.name}: {len(spec)} tasks, seed {spec.seed}", file=sys.stderr)
+            result = run_sweep(spec, store, client=client, progress=progress)
+        else:
+            result = resume_sweep(store, args.resume, client=client, progress=progress)
+    if args.json:
+        import json
+
+        print(json.dumps({"run_id": result.run_id, "status": result.status, "tasks_done": result.tasks_done,
+                          "tasks_planned": result.tasks_planned, "tasks_run": result.tasks_run,
+                          "duplicates_skipped": result.duplicates_skipped, "seconds": result.seconds,
+                          "executor": result.executor, "store": str(args.store)}))
+    else:
+        print(result.run_id)
+    return 0
