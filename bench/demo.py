@@ -56,6 +56,8 @@ def _spectro_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
 
 
 GLOSSY = "plastic:alpha=0.15,eta=1.5,kd=0.5"
+#: the second candidate model of the comparison: the same material, a lobe twice as rough
+ROUGHER = "plastic:alpha=0.3,eta=1.5,kd=0.5"
 
 
 def _gonio_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
@@ -103,16 +105,41 @@ def _scan_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
     runs = {}
     lines = [f"scan: plan '{plan.name}' ({len(plan)} points) on two benches, store {store_path}"]
     with RunStore(store_path) as store:
-        for kind in ("emulated", "virtual"):
+        for name, kind, spec in (("emulated", "emulated", GLOSSY), ("virtual", "virtual", GLOSSY),
+                                 ("virtual-rougher", "virtual", ROUGHER)):
             cfg = read_toml(fixtures / "benches" / f"{kind}.toml")
-            cfg["specimen"] = {"spec": GLOSSY}
+            cfg["specimen"] = {"spec": spec}
             t0 = time.perf_counter()
             with load_bench(cfg, seed=seed) as bench:
                 res = run_scan(bench, plan, store, seed=seed)
-            runs[kind] = {"run_id": res.run_id, "seconds": time.perf_counter() - t0, "points": res.points_done}
-            lines.append(f"  {kind:8s} bench: run {res.run_id}, {res.points_done} points in "
-                         f"{runs[kind]['seconds']:.1f} s")
+            runs[name] = {"run_id": res.run_id, "seconds": time.perf_counter() - t0, "points": res.points_done,
+                          "specimen": spec}
+            lines.append(f"  {kind:8s} bench, {spec}: run {res.run_id}, {res.points_done} points in "
+                         f"{runs[name]['seconds']:.1f} s")
     return {"store": str(store_path), "runs": runs}, lines
+
+
+def _compare_demo(out: Path, runs: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    """The emulated-hardware run against two virtual candidate models: which goes into the renderer?"""
+    from bench.store import RunStore
+    from compare.report import compare_records
+
+    with RunStore(runs["store"]) as store:
+        actual = store.to_record(runs["runs"]["emulated"]["run_id"])
+        candidates = {f"model A ({GLOSSY})": store.to_record(runs["runs"]["virtual"]["run_id"]),
+                      f"model B ({ROUGHER})": store.to_record(runs["runs"]["virtual-rougher"]["run_id"])}
+    summary = compare_records(actual, candidates, out / "compare",
+                              title="Emulated gonioreflectometer vs two virtual models")
+    lines = ["compare: emulated-hardware run against two virtual candidate models"]
+    for i, entry in enumerate(summary["ranking"], 1):
+        s = summary["candidates"][entry["name"]]
+        lines.append(f"  #{i} {entry['name']}: mean |discrepancy| {s['mean_abs_discrepancy_pct']:.2f} %, "
+                     f"chi2/dof {s['chi2_per_dof']:.2f}, within uncertainty {s['fraction_within_uncertainty']:.0%}")
+    lines.append(f"  report: {summary['report_html']}")
+    return {"ranking": [e["name"] for e in summary["ranking"]], "report": summary["report_html"],
+            "candidates": {n: {k: summary["candidates"][n][k] for k in ("mean_abs_discrepancy_pct", "chi2_per_dof",
+                                                                        "fraction_within_uncertainty", "p_value")}
+                           for n in summary["candidates"]}}, lines
 
 
 def run_demo(out: Path, seed: int = 20261122) -> dict[str, Any]:
@@ -123,4 +150,6 @@ def run_demo(out: Path, seed: int = 20261122) -> dict[str, Any]:
         part, lines = stage(out, seed)
         summary[name] = part
         summary["lines"] += lines
+    summary["compare"], lines = _compare_demo(out, summary["scan"])
+    summary["lines"] += lines
     return summary

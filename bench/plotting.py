@@ -45,11 +45,13 @@ def plot_spectrum(s: Spectrum, path: str | Path, title: str | None = None) -> Pa
     return p
 
 
-def plot_bsdf_polar(record, path: str | Path, wavelength_nm: float | None = None, title: str | None = None) -> Path:
+def plot_bsdf_polar(record, path: str | Path, wavelength_nm: float | None = None, title: str | None = None,
+                    norm=None) -> Path:
     """Hemispherical (polar) maps of a patch record: radius = theta, angle = phi, colour = BSDF.
 
     One panel per hemisphere that received light (reflection, transmission), log colour scale
-    when the values span more than two decades; the incidence is marked.
+    when the values span more than two decades (or the given matplotlib ``norm``, so several
+    maps can share one scale); the incidence is marked.
     """
     import numpy as np
     from matplotlib.colors import LogNorm, Normalize
@@ -66,19 +68,21 @@ def plot_bsdf_polar(record, path: str | Path, wavelength_nm: float | None = None
         sub = t[t.hemisphere == h]
         v = sub.value.to_numpy()
         positive = v[v > 0]
-        if positive.size and positive.max() / max(positive.min(), 1e-300) > 100:
-            norm = LogNorm(vmin=max(positive.min(), positive.max() * 1e-4), vmax=positive.max())
+        if norm is not None:
+            panel_norm = norm
+        elif positive.size and positive.max() / max(positive.min(), 1e-300) > 100:
+            panel_norm = LogNorm(vmin=max(positive.min(), positive.max() * 1e-4), vmax=positive.max())
         else:
-            norm = Normalize(vmin=0.0, vmax=max(float(v.max()), 1e-12))
+            panel_norm = Normalize(vmin=0.0, vmax=max(float(v.max()), 1e-12))
         # theta measured from this hemisphere's pole
         tmin = sub.theta_min.to_numpy() if h == "R" else 180.0 - sub.theta_max.to_numpy()
         tmax = sub.theta_max.to_numpy() if h == "R" else 180.0 - sub.theta_min.to_numpy()
         pmin, pmax = np.radians(sub.phi_min.to_numpy()), np.radians(sub.phi_max.to_numpy())
         cmap = plt.get_cmap("viridis")
-        for a, b, c, d, val in zip(pmin, pmax, tmin, tmax, v):
-            colour = cmap(norm(val)) if val > 0 else (0.92, 0.92, 0.92, 1.0)
-            ax.bar(x=0.5 * (a + b), height=d - c, width=b - a, bottom=c, color=colour, edgecolor="none",
-                   align="center")
+        colours = cmap(panel_norm(np.where(v > 0, v, np.nan)))
+        colours[~(v > 0)] = (0.92, 0.92, 0.92, 1.0)  # empty patches: light grey, not a colour
+        ax.bar(x=0.5 * (pmin + pmax), height=tmax - tmin, width=pmax - pmin, bottom=tmin, color=colours,
+               edgecolor="none", align="center")
         ti, pi_ = float(sub.theta_i.iloc[0]), float(sub.phi_i.iloc[0])
         ax.plot([np.radians(pi_)], [ti], marker="*", color="red", ms=12, ls="none", label="incidence")
         if h == "R":
@@ -87,7 +91,7 @@ def plot_bsdf_polar(record, path: str | Path, wavelength_nm: float | None = None
         ax.set_ylim(0, 90)
         ax.set_yticks([30, 60, 90])
         ax.set_title(("BRDF (reflection)" if h == "R" else "BTDF (transmission)") + " [1/sr]", fontsize=10)
-        fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.75, pad=0.1)
+        fig.colorbar(plt.cm.ScalarMappable(norm=panel_norm, cmap=cmap), ax=ax, shrink=0.75, pad=0.1)
         ax.legend(loc="lower left", fontsize=7, bbox_to_anchor=(-0.15, -0.12))
     meta = record.meta
     fig.suptitle(title or f"{meta.get('specimen', '')}\ntheta_i = {ti:g} deg, {wavelength_nm:g} nm, "

@@ -101,7 +101,9 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     validate(plan, bench.goniometer.check)  # refuse the whole plan before any motion
     order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))
     cal = _measure_calibration(bench, plan)
-    meta = {"order": order, "bench_description": bench.describe(), "bench_kind": bench.kind}
+    meta = {"order": order, "bench_description": bench.describe(), "bench_kind": bench.kind,
+            "source": "virtual" if bench.kind == "virtual" else "measured",
+            "specimen": (bench.config.get("specimen") or {}).get("spec"), "plan_name": plan.name}
     run_id = store.create_run(kind="scan", plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
                               n_planned=len(plan.points), calibration=None if cal is None else cal.as_dict())
     return _execute(bench, plan, store, run_id, order, cal, set(), progress, on_point)

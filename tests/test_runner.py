@@ -116,7 +116,7 @@ def test_sigkill_mid_scan_then_resume_gives_exactly_the_uninterrupted_record(tmp
     plan_path = tmp_path / "plan.toml"
     plan_path.write_text(
         'name = "crash"\nkind = "in-plane"\nintegration_s = 0.01\ndark = "once"\nwhite = "once"\n'
-        '[in_plane]\ntheta_i = [25, 50]\ntheta_r = { start = -76, stop = 76, step = 4 }\n')
+        '[in_plane]\ntheta_i = [25, 40, 55]\ntheta_r = { start = -76, stop = 76, step = 2 }\n')
     n_points = len(load_plan(plan_path))
     bench_exe = [sys.executable, "-m", "bench.cli"]
     env = dict(os.environ)
@@ -126,6 +126,7 @@ def test_sigkill_mid_scan_then_resume_gives_exactly_the_uninterrupted_record(tmp
     with RunStore(ref_store) as store:
         ref = _values(store, store.runs()[0]["run_id"])
     rng = random.Random(20261122)
+    mid_scan = 0
     for trial in range(3):
         db = tmp_path / f"crash{trial}.sqlite"
         target = rng.randrange(1, n_points - 1)
@@ -144,10 +145,13 @@ def test_sigkill_mid_scan_then_resume_gives_exactly_the_uninterrupted_record(tmp
             # every committed point is whole: all its readings are there
             counts = store.readings(rid).groupby("idx").size()
             assert set(counts) <= {3} and len(counts) == len(done)
-        r = subprocess.run(bench_exe + ["resume", rid, "--store", str(db), "-q"], capture_output=True, text=True,
-                           env=env)
-        assert r.returncode == 0, r.stderr
+        if len(done) < n_points:  # killed mid-scan (under heavy load the scan may win the race)
+            mid_scan += 1
+            r = subprocess.run(bench_exe + ["resume", rid, "--store", str(db), "-q"], capture_output=True,
+                               text=True, env=env)
+            assert r.returncode == 0, r.stderr
         with RunStore(db) as store:
             assert store.done_indices(rid) == set(range(n_points))
             assert store.run(rid)["status"] == "completed"
             assert _values(store, rid).equals(ref), f"trial {trial}: resumed record differs"
+    assert mid_scan >= 1, "no kill landed mid-scan: the test did not test a crash"
