@@ -633,6 +633,8 @@ class GGX(_Analytic):
         wi, wo, _ = _local(wi, wo)
         if not wi[2] > 0.0:
             return np.zeros(len(wo))
+        if k == 0.0:  # as in the kernel: the dielectric form (same value, better near TIR)
+            return _np_ggx_reflection(wi, wo, ax, ay, lambda c: _np_fresnel_dielectric(c, eta))
         return _np_ggx_reflection(wi, wo, ax, ay, lambda c: _np_fresnel_conductor(c, eta, k))
 
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
@@ -675,7 +677,11 @@ def _ggx(p, wx, wy, wz, s):
     oz = 2.0 * c * mz - wz
     if not (oz > 0.0):
         return _DEAD
-    w = _fresnel_conductor(c, p[2], p[3]) * _g2_over_g1(wx, wy, wz, ox, oy, oz, ax, ay)
+    if p[3] == 0.0:  # dielectric coat: the same value with one square root less
+        f, _ = _fresnel_dielectric(c, p[2])
+    else:
+        f = _fresnel_conductor(c, p[2], p[3])
+    w = f * _g2_over_g1(wx, wy, wz, ox, oy, oz, ax, ay)
     if not (next_double(s) < w):
         return _DEAD
     return ox, oy, (-oz if flip else oz), True
