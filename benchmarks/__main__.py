@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-STUDIES = ["spectro"]
+STUDIES = ["spectro", "gonio", "store", "scan"]
 
 
 def main(argv: list[str]) -> int:

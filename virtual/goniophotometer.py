@@ -93,6 +93,7 @@ class VirtualGoniophotometer(InstrumentBase):
         self._geometry = Geometry(0.0, 0.0, 0.0, 0.0)
         self._light_on = True
         self._cache: dict[tuple[float, float, float], np.ndarray] = {}
+        self._probabilities: dict[tuple[float, float, float], np.ndarray] = {}
 
     # -- Instrument --------------------------------------------------------------------------
     def describe(self) -> InstrumentInfo:
@@ -208,10 +209,15 @@ class VirtualGoniophotometer(InstrumentBase):
         collimated beam, by quadrature of the specimen's density over each patch."""
         from virtual.quadrature import patch_integrals
 
+        key = (round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))
+        if key in self._probabilities:  # a new seed or N redraws from the same integrals
+            return self._probabilities[key]
         wi = Geometry(theta_i, phi_i, 0.0, 0.0).incident
         p = np.clip(np.asarray(patch_integrals(self.specimen, wi, self.collector, wavelength_nm), float), 0.0, 1.0)
         absorbed = max(0.0, 1.0 - p.sum())
-        return np.concatenate([p / max(1.0, p.sum()), [absorbed, 0.0]])
+        probabilities = np.concatenate([p / max(1.0, p.sum()), [absorbed, 0.0]])
+        self._probabilities[key] = probabilities
+        return probabilities
 
     def measure_bsdf(self, theta_i: float, phi_i: float = 0.0,
                      wavelengths: Iterable[float] | None = None) -> BSDFRecord:
