@@ -153,9 +153,12 @@ def emulated_response(geometry: Any, wavelengths_nm: np.ndarray, specimen: str, 
     dirs = _aperture_directions(wo, aperture_deg)
     wl = np.asarray(wavelengths_nm, dtype=float)
     rng = spec.wavelength_range()
-    grid = np.linspace(max(wl.min(), rng[0]) if rng else wl.min(), min(wl.max(), rng[1]) if rng else wl.max(), 41)
+    cos_r = max(math.cos(math.radians(g.theta_r)), 0.0)
+    if rng is None:  # not spectral: one evaluation serves every pixel
+        return np.full(wl.shape, RESPONSE_GAIN * float(np.mean(spec.bsdf(wi, dirs, float(wl[0])))) * cos_r)
+    grid = np.linspace(max(wl.min(), rng[0]), min(wl.max(), rng[1]), 41)
     f = np.array([float(np.mean(spec.bsdf(wi, dirs, float(w)))) for w in grid])
-    return RESPONSE_GAIN * np.interp(wl, grid, f) * max(math.cos(math.radians(g.theta_r)), 0.0)
+    return RESPONSE_GAIN * np.interp(wl, grid, f) * cos_r
 
 
 def _write_mount(path: Path, mounted: str) -> None:

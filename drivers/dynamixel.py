@@ -311,6 +311,7 @@ class DynamixelArm(InstrumentBase):
                  external_axes: Mapping[str, Any] | None = None) -> None:
         self.config = config if isinstance(config, ArmConfig) else ArmConfig.from_dict(config)
         self._external = dict(external_axes or {})
+        self._external_deg: dict[str, float] = {}  # last read-back of each external axis
         if set(self._external) != set(self.config.external):
             raise ConfigError(f"external axes {sorted(self._external)} do not match the config's "
                               f"external joints {list(self.config.external)}")
@@ -575,7 +576,9 @@ class DynamixelArm(InstrumentBase):
             ticks = _s32(int.from_bytes(block[a.id][_BLOCK_LEN - 4:], "little"))
             vals[a.joint] = a.to_degrees(ticks)
         for joint, axis in self._external.items():
-            vals[joint] = float(axis.position_deg())
+            if joint not in self._external_deg:
+                self._external_deg[joint] = float(axis.position_deg())
+            vals[joint] = self._external_deg[joint]
         return Joints(**vals)
 
     @staticmethod
@@ -616,7 +619,11 @@ class DynamixelArm(InstrumentBase):
 
         def run() -> Geometry:
             for joint, axis in self._external.items():
-                axis.move_to_deg(getattr(joints, joint))
+                target = getattr(joints, joint)
+                last = self._external_deg.get(joint)
+                if last is None or abs(last - target) > self.config.tolerance_deg:
+                    self._external_deg.pop(joint, None)
+                    self._external_deg[joint] = float(axis.move_to_deg(target))  # blocks until in position
             return self._move(goals, f"move_to({geometry})")
 
         return self._guard("move_to", run)
@@ -654,6 +661,7 @@ class DynamixelArm(InstrumentBase):
         if self._closed:
             raise PortGoneError(f"{self.config.name} is closed")
         block = self._guard("position", self._sync_read_block)
+        self._external_deg.clear()  # read the external axes again too
         self._joints = self._joints_from(block)
         return self._geometry(self._joints)
 
