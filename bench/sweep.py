@@ -76,6 +76,8 @@ __all__ = [
     "run_task",
     "run_sweep",
     "resume_sweep",
+    "sweep_readings",
+    "task_table",
     "dask_client",
     "warm_up",
     "INSTRUMENTS",
@@ -88,8 +90,10 @@ _SWEEP_KEYS = {"name", "seed", "instrument", "specimens", "incidences", "geometr
                "wavelengths_per_task", "rays", "uncertainty", "delta", "method", "beam", "cone_deg"}
 _TASK_KEYS = {"specimen", "incidence", "geometry", "collector", "wavelengths", "rays", "uncertainty", "delta",
               "method", "beam", "cone_deg"}
-#: columns that differ between executions of the same task (who ran it, how long it took)
+#: per-task columns of :func:`sweep_readings` that differ between executions (who ran it, how long)
 RUN_COLUMNS = ("worker", "compute_s")
+#: per-task columns fixed by the spec (stored once, in the run's meta, at creation)
+TASK_COLUMNS = ("specimen", "collector", "geometry", "quantity", "method", "rays", "beam", "task_key", "series_seed")
 
 
 # --- the spec --------------------------------------------------------------------------------
@@ -415,6 +419,7 @@ class TaskResult:
     t_start: float
     t_end: float
     worker: str
+    compute_s: float
 
 
 def _worker_name() -> str:
@@ -440,9 +445,10 @@ def run_task(task: SweepTask, numba_threads: int | None = None) -> TaskResult:
     Returns
     -------
     TaskResult
-        ``rows``: a DataFrame of store rows (see :meth:`bench.store.RunStore.add_point`) with the
-        per-task metadata ``specimen``, ``collector`` or ``geometry``, ``method``, ``task_key``,
-        ``series_seed``, ``worker`` and ``compute_s`` (which go to the readings' ``extra``).
+        ``rows``: a DataFrame of store rows (see :meth:`bench.store.RunStore.add_point`), only
+        the record's own columns: the per-task metadata (specimen, collector, seed, ...) is a
+        function of the spec and is stored once per run, not once per row (which would cost a
+        JSON document per row: ~3x the write time of a 648-patch task).
     """
     import pandas as pd
 
@@ -460,23 +466,19 @@ def run_task(task: SweepTask, numba_threads: int | None = None) -> TaskResult:
                                    delta=task.delta)
         rows = g.measure_bsdf(task.theta_i, task.phi_i, list(task.wavelengths)).table
         rows = rows.drop(columns=["theta_i", "phi_i"])
-        meta = {"collector": task.collector}
     else:
         rows = _spectro_rows(task)
-        meta = {"geometry": task.geometry}
     compute_s = time.perf_counter() - c0
-    worker = _worker_name()
-    rows = rows.assign(specimen=task.specimen, **meta, method=task.method, task_key=f"{task.key:016x}",
-                       series_seed=task.seed, worker=worker, compute_s=compute_s)
     geometry = {"theta_i": task.theta_i, "phi_i": task.phi_i, "theta_r": None, "phi_r": None}
-    return TaskResult(task.idx, geometry, pd.DataFrame(rows).reset_index(drop=True), t0, time.time(), worker)
+    return TaskResult(task.idx, geometry, pd.DataFrame(rows).reset_index(drop=True), t0, time.time(),
+                      _worker_name(), compute_s)
 
 
 def _spectro_rows(task: SweepTask) -> Any:
     """Store rows of a spectrophotometric task: per wavelength a reflectance ("R") and a
     transmittance ("T") row with interval, standard uncertainty, count and N (rays that reached
     the specimen). The reflectance row holds a reflectance factor for bidirectional geometries
-    (``quantity`` says which); its ``std`` is scaled like its value."""
+    (45/0, 0/45; ``quantity`` in :func:`sweep_readings`); its ``std`` is scaled like its value."""
     import pandas as pd
 
     from bench.geometry import cie_geometry
@@ -502,7 +504,7 @@ def _spectro_rows(task: SweepTask) -> Any:
         std = np.where(k > 0, value * np.sqrt((1.0 - p) / np.maximum(p * n, 1e-300)), 0.0)
         out.append(pd.DataFrame({
             "wavelength_nm": s.wavelengths.astype(float), "hemisphere": hemi, "value": value.astype(float),
-            "std": std, "ci_lo": ci[:, 0], "ci_hi": ci[:, 1], "count": k, "N": n, "quantity": q}))
+            "std": std, "ci_lo": ci[:, 0], "ci_hi": ci[:, 1], "count": k, "N": n}))
     return pd.concat(out, ignore_index=True)
 
 
@@ -609,11 +611,13 @@ def run_sweep(spec: SweepSpec, store: Any, *, client: Any = None, progress: bool
     meta = {"sweep": spec.name, "instrument": spec.instrument, "n_tasks": len(spec),
             "seeding": "series_seed = SeedSequence(seed, spawn_key=(blake2b64(series parameters),)); "
                        "wavelength stream = measurement_seed(series_seed, pm, mdeg theta_i, mdeg phi_i)",
+            "tasks": task_table(spec), "task_runs": {"worker": [None] * len(spec), "compute_s": [None] * len(spec)},
             "executions": [executor]}
     run_id = store.create_run(kind="sweep", plan=spec.source, bench={"kind": "virtual", "instrument": spec.instrument},
                               seed=spec.seed, meta=meta, n_planned=len(spec))
     log.info("sweep %s: run %s, %d tasks, %s", spec.name, run_id, len(spec), executor["kind"])
-    return _execute(spec, store, run_id, set(), client, progress, numba_threads, window, retries, on_task, executor)
+    return _execute(spec, store, run_id, set(), client, progress, numba_threads, window, retries, on_task, executor,
+                    meta["task_runs"])
 
 
 def resume_sweep(store: Any, run_id: str, *, client: Any = None, progress: bool = False,
@@ -635,7 +639,8 @@ def resume_sweep(store: Any, run_id: str, *, client: Any = None, progress: bool 
     executions = list((info.get("meta") or {}).get("executions", [])) + [executor]
     store.update_meta(run_id, executions=executions)
     store.set_status(run_id, "running", None)
-    return _execute(spec, store, run_id, done, client, progress, numba_threads, window, retries, on_task, executor)
+    return _execute(spec, store, run_id, done, client, progress, numba_threads, window, retries, on_task, executor,
+                    (info.get("meta") or {}).get("task_runs"))
 
 
 def _executor(client: Any) -> dict[str, Any]:
@@ -655,14 +660,70 @@ def _progress(total: int, initial: int, enabled: bool, desc: str) -> Any:
                 leave=True)
 
 
+def task_table(spec: SweepSpec) -> dict[str, list[Any]]:
+    """The per-task metadata fixed by the spec, column-wise (lists aligned with the task index):
+    :data:`TASK_COLUMNS`. Stored in the run's meta as ``tasks``; :func:`sweep_readings` joins it."""
+    from bench.geometry import cie_geometry
+
+    def quantity(t: SweepTask) -> str | None:
+        if t.geometry is None:
+            return None
+        directional = cie_geometry(t.geometry).reciprocal_directional.viewing == "directional"
+        return "reflectance factor" if directional else "reflectance"
+
+    cols: dict[str, list[Any]] = {c: [] for c in TASK_COLUMNS}
+    for t in spec.tasks:
+        for c, v in (("specimen", t.specimen), ("collector", t.collector), ("geometry", t.geometry),
+                     ("quantity", quantity(t)), ("method", t.method), ("rays", t.rays), ("beam", t.beam),
+                     ("task_key", f"{t.key:016x}"), ("series_seed", t.seed)):
+            cols[c].append(v)
+    return cols
+
+
+def sweep_readings(store: Any, run_id: str) -> Any:
+    """The tidy readings of a sweep run (:meth:`bench.store.RunStore.readings`) with the per-task
+    metadata joined on ``idx``: :data:`TASK_COLUMNS` (``quantity`` of a spectro "T" row is
+    ``transmittance``) and :data:`RUN_COLUMNS` (the worker that stored it and its compute
+    seconds; None for tasks whose run info was not flushed before a crash)."""
+    import pandas as pd
+
+    info = store.run(run_id)
+    meta = info.get("meta") or {}
+    if info["kind"] != "sweep" or "tasks" not in meta:
+        raise StoreError(f"run {run_id} is a {info['kind']} run, not a sweep")
+    df = store.readings(run_id)
+    tasks = pd.DataFrame({**meta["tasks"], **meta.get("task_runs", {})})
+    tasks.insert(0, "idx", range(len(tasks)))
+    out = df.merge(tasks.dropna(axis=1, how="all"), on="idx", how="left", validate="many_to_one")
+    if "quantity" in out.columns:
+        out.loc[out["hemisphere"] == "T", "quantity"] = "transmittance"
+    return out
+
+
 class _Sink:
-    """The client side: stores each result once, counts, reports progress."""
+    """The client side: stores each result once, counts, reports progress, and keeps who ran
+    each task (flushed to the run's meta every ``flush_s`` seconds and at the end: diagnostic
+    metadata, not results, so it does not cost a second transaction per task)."""
 
     def __init__(self, store: Any, run_id: str, done: set[int], bar: Any,
-                 on_task: Callable[[int, int], None] | None) -> None:
+                 on_task: Callable[[int, int], None] | None, n_tasks: int | None = None,
+                 task_runs: Mapping[str, list[Any]] | None = None, flush_s: float = 10.0) -> None:
         self.store, self.run_id, self.done, self.bar, self.on_task = store, run_id, done, bar, on_task
         self.run = 0
         self.duplicates = 0
+        n = n_tasks if n_tasks is not None else 0
+        runs = dict(task_runs or {})
+        self.workers = list(runs.get("worker") or [None] * n)
+        self.compute = list(runs.get("compute_s") or [None] * n)
+        self.flush_s = flush_s
+        self._dirty = False
+        self._last_flush = time.monotonic()
+
+    def flush(self) -> None:
+        if self._dirty and self.workers:
+            self.store.update_meta(self.run_id, task_runs={"worker": self.workers, "compute_s": self.compute})
+            self._dirty = False
+        self._last_flush = time.monotonic()
 
     def put(self, r: TaskResult) -> None:
         if r.idx in self.done:
@@ -678,6 +739,11 @@ class _Sink:
             log.info("run %s: task %d stored meanwhile by another process; skipped", self.run_id, r.idx)
         self.done.add(r.idx)
         self.run += 1
+        if r.idx < len(self.workers):
+            self.workers[r.idx], self.compute[r.idx] = r.worker, round(r.compute_s, 6)
+            self._dirty = True
+            if time.monotonic() - self._last_flush > self.flush_s:
+                self.flush()
         self.bar.update(1)
         if self.on_task is not None:
             self.on_task(len(self.done), r.idx)
@@ -685,11 +751,12 @@ class _Sink:
 
 def _execute(spec: SweepSpec, store: Any, run_id: str, done: set[int], client: Any, progress: bool,
              numba_threads: int | None, window: int | None, retries: int,
-             on_task: Callable[[int, int], None] | None, executor: dict[str, Any]) -> SweepResult:
+             on_task: Callable[[int, int], None] | None, executor: dict[str, Any],
+             task_runs: Mapping[str, list[Any]] | None) -> SweepResult:
     t_run = time.perf_counter()
     todo = [t for t in spec.tasks if t.idx not in done]
     bar = _progress(len(spec), len(done), progress, f"sweep {run_id}")
-    sink = _Sink(store, run_id, done, bar, on_task)
+    sink = _Sink(store, run_id, done, bar, on_task, len(spec), task_runs)
     try:
         if client is None:
             for t in todo:
@@ -710,6 +777,7 @@ def _execute(spec: SweepSpec, store: Any, run_id: str, done: set[int], client: A
         raise
     finally:
         bar.close()
+        sink.flush()
     store.set_status(run_id, "completed", None)
     return SweepResult(run_id, "completed", len(done), len(spec), sink.run, sink.duplicates,
                        time.perf_counter() - t_run, executor["kind"])

@@ -12,8 +12,8 @@ import pytest
 from bench.cli import main
 from bench.errors import ConfigError, RunInterrupted, StoreError
 from bench.store import RunStore
-from bench.sweep import (RUN_COLUMNS, TaskResult, _Sink, load_sweep, resume_sweep, run_sweep, run_task, series_seed,
-                         sweep_from_dict, task_key)
+from bench.sweep import (TASK_COLUMNS, TaskResult, _Sink, load_sweep, resume_sweep, run_sweep, run_task, series_seed,
+                         sweep_from_dict, sweep_readings, task_key)
 
 ROOT = Path(__file__).parent.parent
 SWEEPS = ROOT / "fixtures" / "sweeps"
@@ -27,8 +27,7 @@ SMALL = {"sweep": {"name": "small", "seed": 99, "instrument": "gonio",
 
 def _science(store, run_id):
     """The stored results without what legitimately differs between executions (who, when)."""
-    df = store.readings(run_id)
-    return df.drop(columns=[*RUN_COLUMNS, "t_start", "t_end"]).reset_index(drop=True)
+    return store.readings(run_id).drop(columns=["t_start", "t_end"]).reset_index(drop=True)
 
 
 def _assert_once(store, run_id, n_tasks, rows_per_task):
@@ -98,8 +97,7 @@ def test_results_do_not_depend_on_grouping_or_numba_threads(tmp_path):
         pd.testing.assert_frame_equal(ra, rb, check_exact=True)
     t = one.tasks[1]
     r1, r2 = run_task(t, numba_threads=1), run_task(t, numba_threads=2)
-    pd.testing.assert_frame_equal(r1.rows.drop(columns=list(RUN_COLUMNS)), r2.rows.drop(columns=list(RUN_COLUMNS)),
-                                  check_exact=True)
+    pd.testing.assert_frame_equal(r1.rows, r2.rows, check_exact=True)
     # the stored seed reproduces the series with the plain instrument
     from virtual.goniophotometer import VirtualGoniophotometer
 
@@ -114,8 +112,10 @@ def test_spectro_sweep_stores_reflectance_and_transmittance_with_intervals(tmp_p
     spec = sweep_from_dict(d)
     with RunStore(tmp_path / "s.sqlite") as store:
         rid = run_sweep(spec, store).run_id
-        df = store.readings(rid)
+        df = sweep_readings(store, rid)
     assert len(df) == 2 * 3 * 2
+    assert set(df["quantity"]) == {"reflectance", "reflectance factor", "transmittance"}
+    assert df["worker"].str.startswith("in-process").all() and (df["compute_s"] > 0).all()
     assert set(df["geometry"]) == {"8/d", "45/0"} and set(df["hemisphere"]) == {"R", "T"}
     assert ((df["ci_lo"] <= df["value"]) & (df["value"] <= df["ci_hi"])).all()
     hemi = df[(df["geometry"] == "8/d")]
@@ -144,7 +144,7 @@ def test_a_result_already_stored_is_skipped_never_stored_twice(tmp_path):
         sink.put(res)  # a retried task's second answer
         assert sink.run == 1 and sink.duplicates == 1
         other = _Sink(store, rid, set(), Bar(), None)  # e.g. a second client on the same store
-        other.put(TaskResult(res.idx, res.geometry, res.rows, res.t_start, res.t_end, "x"))
+        other.put(TaskResult(res.idx, res.geometry, res.rows, res.t_start, res.t_end, "x", 0.0))
         assert other.duplicates == 1
         assert store.points(rid)["idx"].tolist() == [0]
 
@@ -209,8 +209,9 @@ def test_in_process_and_a_two_process_local_cluster_store_identical_results(tmp_
         assert dist.executor == "dask" and dist.tasks_done == 8
         _assert_once(store, dist.run_id, 8, 2 * 3 * 8)
         pd.testing.assert_frame_equal(_science(store, dist.run_id), reference, check_exact=True)
-        workers = set(store.readings(dist.run_id)["worker"])
-        assert all(w.startswith("tcp://") for w in workers)
+        tidy = sweep_readings(store, dist.run_id)
+        assert tidy["worker"].str.startswith("tcp://").all() and tidy["specimen"].notna().all()
+        assert set(TASK_COLUMNS) - {"geometry", "quantity"} <= set(tidy.columns)
         assert store.run(dist.run_id)["meta"]["executions"][0]["workers"] == 2
 
 
@@ -232,7 +233,7 @@ def test_a_worker_killed_mid_sweep_loses_and_duplicates_nothing(tmp_path, refere
         res = run_sweep(spec, store, client=cluster_client, on_task=kill_a_busy_worker)
         assert killed and res.status == "completed"
         _assert_once(store, res.run_id, 8, 2 * 3 * 8)
-        got = store.readings(res.run_id)
+        got = sweep_readings(store, res.run_id)
         rerun = {int(k.rsplit("-", 1)[1]) for k in killed["keys"]}
         # the tasks the dead worker held were recomputed elsewhere, and equal bit for bit
         assert any(killed["addr"] not in set(got.loc[got["idx"] == i, "worker"]) for i in rerun)
