@@ -47,7 +47,7 @@ def _timed(spec: object, store: RunStore, client: object = None, repeat: int = 2
     return t, float((pts["t_end"] - pts["t_start"]).mean())
 
 
-def run(n_tasks: int = 16, tiny_tasks: int = 64) -> str:
+def run(n_tasks: int = 16, tiny_tasks: int = 64, repeat: int = 3) -> str:
     load0 = os.getloadavg()
     warm_up()
     rays, rate = _rays_for(TASK_SECONDS)
@@ -59,27 +59,41 @@ def run(n_tasks: int = 16, tiny_tasks: int = 64) -> str:
         t_inproc, busy = _timed(heavy, store, repeat=1)
         rows.append(["in-process (numba, all threads)", n_tasks, t_inproc, n_tasks / t_inproc, busy, "-", "-"])
         run_sweep(tiny, store)
-        t_tiny_inproc, _ = _timed(tiny, store, repeat=3)
+        t_tiny_inproc, _ = _timed(tiny, store, repeat=5)
         tiny_rows.append(["in-process", tiny_tasks, t_tiny_inproc / tiny_tasks * 1e3, "-"])
-        t_cluster = {}
-        for k in (1, 2):
-            with dask_client(workers=k, threads_per_worker=1, dashboard_address=None) as client:
-                run_sweep(_spec(k, 10_000), store, client=client)  # warm every worker through a whole task
-                t, busy = _timed(heavy, store, client)
-                t_cluster[k] = t
+        # both clusters up at once and runs interleaved (1, 2, 1, 2, ...), so drifting load from
+        # other jobs on the machine hits both sizes alike; best of `repeat` each
+        best: dict[int, tuple[float, float]] = {}
+        with dask_client(workers=1, threads_per_worker=1, dashboard_address=":0") as c1, \
+                dask_client(workers=2, threads_per_worker=1, dashboard_address=":0") as c2:
+            clients = {1: c1, 2: c2}
+            for k, c in clients.items():
+                run_sweep(_spec(k, 10_000), store, client=c)  # warm every worker through a whole task
+            for _ in range(repeat):
+                for k, c in clients.items():
+                    t, busy = _timed(heavy, store, c, repeat=1)
+                    if k not in best or t < best[k][0]:
+                        best[k] = (t, busy)
+            for k, c in clients.items():
+                t, busy = best[k]
                 rows.append([f"Dask LocalCluster, {k} worker process(es) x 1 thread", n_tasks, t, n_tasks / t, busy,
-                             f"{n_tasks * busy / (k * t):.0%}", f"{t_cluster[1] / t:.2f}x"])
-                t_tiny, _ = _timed(tiny, store, client, repeat=3)
+                             f"{n_tasks * busy / (k * t):.0%}", f"{best[1][0] / t:.2f}x"])
+                t_tiny, _ = _timed(tiny, store, c, repeat=5)
                 tiny_rows.append([f"Dask, {k} worker(s)", tiny_tasks, t_tiny / tiny_tasks * 1e3,
                                   f"{(t_tiny - t_tiny_inproc) / tiny_tasks * 1e3:+.2f}"])
+        t_cluster = {k: v[0] for k, v in best.items()}
     load1 = os.getloadavg()
     speedup = t_cluster[1] / t_cluster[2]
+    # what the speed-up would have been had each task run as fast with 2 workers as with 1,
+    # i.e. without the other jobs taking cycles: scaling of the executor itself
+    corrected = speedup * best[2][1] / best[1][1]
     out = table(
         f"CPU-bound sweep: {n_tasks} tasks x {rays:,} rays (~{TASK_SECONDS} s each on 1 numba thread at "
         f"{rate:.3g} rays/s), Lambertian, equal-psa:9x36, method rays; {os.cpu_count()} cores",
         ["executor", "tasks", "wall s (best)", "tasks/s", "busy s/task", "workers busy", "speed-up vs 1 worker"],
         rows)
-    out += (f"\nspeed-up 1 -> 2 workers: {speedup:.2f}x (target >= 1.7x); load average before {load0[0]:.2f}, "
+    out += (f"\nspeed-up 1 -> 2 workers: {speedup:.2f}x (target >= 1.7x); {corrected:.2f}x corrected for the "
+            f"slower tasks under contention (x busy2/busy1); load average before {load0[0]:.2f}, "
             f"after {load1[0]:.2f} (other jobs share the cores). 'busy s/task' is a task's own wall time on its "
             f"worker: when it grows from 1 to 2 workers the cores were shared, not the work badly spread; "
             f"'workers busy' = tasks x busy / (workers x wall).\n\n")

@@ -198,7 +198,7 @@ def cluster_client():
     pytest.importorskip("distributed")
     from bench.sweep import dask_client
 
-    with dask_client(workers=2, dashboard_address=None) as client:
+    with dask_client(workers=2, dashboard_address=":0") as client:
         yield client
 
 
