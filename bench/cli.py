@@ -39,14 +39,15 @@ def _json_default(o: Any) -> Any:
 
 
 def cmd_rays(args: argparse.Namespace) -> int:
-    from virtual.bounds import hoeffding_rays
+    from virtual.bounds import budget_report
 
-    n = hoeffding_rays(args.uncertainty, args.delta, args.patches)
+    report = budget_report(args.uncertainty, args.delta, args.patches, rays_per_second=args.rate)
     if args.json:
-        _emit_json({"N": n, "uncertainty": args.uncertainty, "delta": args.delta, "patches": args.patches,
-                    "bound": "eq. 3.12" if args.patches > 1 else "eq. 3.5"})
+        _emit_json({**report, "bound": "eq. 3.12" if args.patches > 1 else "eq. 3.5"})
     else:
-        print(n)
+        print(report["N"])
+        if args.verbose:
+            print(f"about {report['seconds']:.3g} s at {args.rate:.3g} rays/s", file=sys.stderr)
     return 0
 
 
@@ -347,6 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--uncertainty", "-u", type=_float, required=True, help="uncertainty v of the real instrument")
     r.add_argument("--delta", "-d", type=_float, required=True, help="confidence delta, in (0, 1)")
     r.add_argument("--patches", type=int, default=1, help="collector patches m (eq. 3.12)")
+    r.add_argument("--rate", type=_float, default=5e7, help="rays/s for the time estimate in --json (default 5e7)")
     r.add_argument("--json", action="store_true")
     r.set_defaults(func=cmd_rays)
 
