@@ -58,8 +58,11 @@ def _client(args: argparse.Namespace) -> Iterator[Any]:
     from bench.sweep import dask_client
 
     if not logging.getLogger("bench").isEnabledFor(logging.INFO):  # no -v: Dask's INFO chatter off
-        for name in ("distributed", "dask"):
-            logging.getLogger(name).setLevel(logging.WARNING)
+        import distributed  # noqa: F401 - creates its loggers (with their own levels) first
+
+        for name in list(logging.root.manager.loggerDict):
+            if name.split(".")[0] in ("distributed", "dask"):
+                logging.getLogger(name).setLevel(logging.WARNING)
     kw: dict[str, Any] = {}
     if args.workers is not None:
         kw["threads_per_worker"] = args.threads_per_worker

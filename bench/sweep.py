@@ -53,10 +53,11 @@ import os
 import re
 import socket
 import sys
+import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 
@@ -432,6 +433,24 @@ def _worker_name() -> str:
     return f"in-process:{socket.gethostname()}:{os.getpid()}"
 
 
+#: numba's "workqueue" threading layer (used when neither OpenMP nor TBB is available) aborts the
+#: process if two threads launch parallel kernels at once: a Dask worker with several threads
+#: then runs its kernels one at a time (OpenMP and TBB need no lock)
+_KERNEL_LOCK = threading.Lock()
+
+
+def _kernel_guard(numba_threads: int | None) -> Any:
+    if numba_threads is None:
+        return contextlib.nullcontext()
+    import numba
+
+    try:
+        layer = numba.threading_layer()
+    except ValueError:  # no parallel kernel has run in this process yet: the layer is not chosen
+        return _KERNEL_LOCK
+    return _KERNEL_LOCK if layer == "workqueue" else contextlib.nullcontext()
+
+
 def run_task(task: SweepTask, numba_threads: int | None = None) -> TaskResult:
     """Run one task: a pure function of ``task`` (its seed included).
 
@@ -450,12 +469,17 @@ def run_task(task: SweepTask, numba_threads: int | None = None) -> TaskResult:
         function of the spec and is stored once per run, not once per row (which would cost a
         JSON document per row: ~3x the write time of a 648-patch task).
     """
-    import pandas as pd
-
     if numba_threads is not None:
         import numba
 
         numba.set_num_threads(max(1, min(int(numba_threads), numba.config.NUMBA_NUM_THREADS)))
+    with _kernel_guard(numba_threads):
+        return _run_task(task)
+
+
+def _run_task(task: SweepTask) -> TaskResult:
+    import pandas as pd
+
     t0 = time.time()
     c0 = time.perf_counter()
     if task.instrument == "gonio":
