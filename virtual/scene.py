@@ -63,7 +63,7 @@ from virtual.specimens import Lambertian, Specimen, parse_specimen
 __all__ = [
     "Aperture", "Noise", "StrayLight", "Sphere", "GlossTrap", "Bandpass", "SpecimenPattern", "Effects",
     "Scene", "SceneResult", "load_scene", "scene_from_dict", "effect_costs", "cone_probability",
-    "EFFECT_NAMES", "INSTRUMENTS",
+    "EFFECT_NAMES", "INSTRUMENTS", "single_chunk_threads",
 ]
 
 INSTRUMENTS = ("spectrophotometer", "goniophotometer", "physical")
@@ -351,6 +351,36 @@ class SceneResult:
 # --- the scene ----------------------------------------------------------------------------------
 
 
+class single_chunk_threads:
+    """Context manager: run numba kernels on one thread when ``n_rays`` fits one chunk.
+
+    A measurement of at most :data:`virtual.engine.CHUNK_RAYS` rays is one chunk, i.e. one
+    task of the parallel loop, so extra threads only add their wake-up (several ms per launch on
+    a loaded 2-core machine -- 16x the kernel time of an adaptive rule's small batches). Results
+    never depend on the thread count.
+    """
+
+    def __init__(self, n_rays: int) -> None:
+        self.n_rays = int(n_rays)
+        self.previous: int | None = None
+
+    def __enter__(self) -> "single_chunk_threads":
+        import numba
+
+        from virtual.engine import CHUNK_RAYS
+
+        if self.n_rays <= CHUNK_RAYS:
+            self.previous = numba.get_num_threads()
+            numba.set_num_threads(1)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.previous is not None:
+            import numba
+
+            numba.set_num_threads(self.previous)
+
+
 def cone_probability(specimen: Specimen, wi: np.ndarray, axis: np.ndarray, half_angle_deg: float,
                      wavelength_nm: float, order: int = 48) -> float:
     """``int_cone f |cos theta_o| d omega`` over a cone around ``axis``: Gauss-Legendre in the
@@ -528,7 +558,8 @@ class Scene:
                 c, p = self._fast_counts(float(w), n, seq)
                 probs.append(p)
             else:
-                c = self._ray_counts(float(w), n, seq, flags)
+                with single_chunk_threads(n):
+                    c = self._ray_counts(float(w), n, seq, flags)
             counts.append(np.asarray(c, dtype=np.int64))
         values, ci, hits = self._readings(counts, n, sd)
         seconds = time.perf_counter() - t0
