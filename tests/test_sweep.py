@@ -3,6 +3,10 @@
 import json
 import os
 import signal
+import sqlite3
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -168,6 +172,41 @@ def test_an_interrupted_sweep_resumes_to_the_results_of_an_uninterrupted_one(tmp
         pd.testing.assert_frame_equal(_science(store, rid), _science(store, full), check_exact=True)
         with pytest.raises(StoreError, match="completed"):
             resume_sweep(store, rid)
+
+
+def _points(db):
+    try:
+        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
+        try:
+            return con.execute("SELECT COUNT(*) FROM points").fetchone()[0]
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return 0
+
+
+def test_a_sigkilled_sweep_process_resumes_to_the_uninterrupted_results(tmp_path, reference):
+    toml = tmp_path / "small.toml"
+    sw = SMALL["sweep"]
+    toml.write_text("[sweep]\n" + "\n".join(f"{k} = {json.dumps(v)}" for k, v in sw.items()) + "\n")
+    db = tmp_path / "crash.sqlite"
+    proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "sweep", str(toml), "--store", str(db), "-q"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while _points(db) < 2 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(10)
+    with RunStore(db) as store:
+        rid = store.runs()[0]["run_id"]
+        done = store.done_indices(rid)
+        assert store.run(rid)["status"] == "running"  # killed: nobody recorded an end
+        assert (store.readings(rid).groupby("idx").size() == 2 * 3 * 8).all()  # committed tasks are whole
+        assert 2 <= len(done) < 8, "the kill did not land mid-sweep: the test did not test a crash"
+        res = resume_sweep(store, rid)
+        assert res.tasks_run == 8 - len(done)
+        _assert_once(store, rid, 8, 2 * 3 * 8)
+        pd.testing.assert_frame_equal(_science(store, rid), reference, check_exact=True)
 
 
 def test_cli_runs_a_sweep_and_resumes_by_run_id(tmp_path, capsys):
