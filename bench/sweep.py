@@ -23,8 +23,12 @@ store) rather than in ``virtual``, whose numba cache is dropped whenever a ``vir
 changes.
 
 Only the client process writes the SQLite store: one transaction per task, point index = task
-index. A result whose index is already stored (a retried task, a resumed run) is skipped, never
-stored twice. A worker that dies mid-task is replaced by the scheduler and its tasks run
+index, a sweep run's rows being a goniophotometric record's (or R/T rows per wavelength for the
+spectrophotometer). Per-task metadata (specimen, collector or geometry, method, rays, task key,
+series seed) is a function of the spec and is stored once, in the run's meta, at creation; who
+ran each task and for how long is flushed there every few seconds. :func:`sweep_readings` joins
+both onto the tidy readings. A result whose index is already stored (a retried task, a resumed
+run) is skipped, never stored twice. A worker that dies mid-task is replaced by the scheduler and its tasks run
 elsewhere. A sweep interrupted as a whole (Ctrl-C, a killed client, a failed task) keeps every
 committed task; :func:`resume_sweep` runs exactly the missing ones.
 
@@ -33,8 +37,8 @@ Determinism
 Every series has a *task key*: a 64-bit BLAKE2b hash of its canonical parameters (instrument,
 specimen text with the whitespace around ``: , =`` removed, incidence rounded to 1e-6 deg or the
 CIE geometry, collector, beam, method, rays, cone). Its seed is
-``SeedSequence(sweep_seed, spawn_key=(key,))`` reduced to a 63-bit integer (stored with every
-row as ``series_seed``); the instrument then draws wavelength ``w`` from
+``SeedSequence(sweep_seed, spawn_key=(key,))`` reduced to a 63-bit integer (``series_seed`` in
+the run's task table); the instrument then draws wavelength ``w`` from
 ``measurement_seed(series_seed, w in pm, theta_i, phi_i)``. A result therefore depends on the
 sweep seed and the measurement's own parameters only -- never on the task index, the order of
 the product, how wavelengths are grouped into tasks, which worker ran it, the thread count, or
@@ -655,9 +659,11 @@ def resume_sweep(store: Any, run_id: str, *, client: Any = None, progress: bool 
     if info["status"] == "completed":
         raise StoreError(f"run {run_id} is already completed")
     spec = sweep_from_dict(info["plan"])
-    if len(spec) != info["n_planned"]:
-        raise StoreError(f"run {run_id}: its stored sweep now gives {len(spec)} tasks, not {info['n_planned']} "
-                         f"(a different goniobench version?); refusing to mix results")
+    stored_keys = ((info.get("meta") or {}).get("tasks") or {}).get("task_key")
+    if len(spec) != info["n_planned"] or (stored_keys is not None and stored_keys != task_table(spec)["task_key"]):
+        raise StoreError(f"run {run_id}: its stored sweep no longer gives the same tasks ({len(spec)} tasks, "
+                         f"{info['n_planned']} planned, or other task keys: a different goniobench version?); "
+                         f"refusing to mix results")
     done = set(store.done_indices(run_id))
     executor = _executor(client)
     executions = list((info.get("meta") or {}).get("executions", [])) + [executor]
