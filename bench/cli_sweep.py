@@ -104,3 +104,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     else:
         print(result.run_id)
     return 0
+
+
+def resume_run(run_id: str, store: str, *, quiet: bool = False, json: bool = False) -> int:
+    """``bench resume RUN`` for a sweep run (in-process): what ``bench sweep --resume RUN`` does."""
+    args = argparse.Namespace(sweep=None, resume=run_id, store=store, scheduler=None, workers=None,
+                              threads_per_worker=1, quiet=quiet, json=json)
+    return cmd_sweep(args)
