@@ -254,6 +254,19 @@ def test_in_process_and_a_two_process_local_cluster_store_identical_results(tmp_
         assert store.run(dist.run_id)["meta"]["executions"][0]["workers"] == 2
 
 
+def test_cli_points_a_sweep_at_an_existing_scheduler_and_prints_the_dashboard(tmp_path, capsys, cluster_client):
+    address = cluster_client.scheduler_info()["address"]
+    store = tmp_path / "s.sqlite"
+    code = main(["sweep", str(SWEEPS / "gonio-tasks.toml"), "--scheduler", address, "--store", str(store), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    d = json.loads(out)
+    assert d["executor"] == "dask" and d["tasks_done"] == 5
+    assert f"Dask scheduler {address} with 2 workers; dashboard: http" in err
+    with RunStore(store) as s:
+        assert s.run(d["run_id"])["meta"]["executions"][0]["scheduler"] == address
+
+
 def test_a_worker_killed_mid_sweep_loses_and_duplicates_nothing(tmp_path, reference, cluster_client):
     spec = sweep_from_dict(SMALL)
     killed: dict = {}
