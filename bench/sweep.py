@@ -843,6 +843,7 @@ def _on_dask(spec: SweepSpec, todo: list[SweepTask], client: Any, sink: _Sink, r
              window: int | None, retries: int) -> None:
     from distributed import as_completed
 
+    log.info("Dask scheduler %s, dashboard %s", client.scheduler_info().get("address"), client.dashboard_link)
     _warm_workers(client, spec.instrument)
     threads = sum(int(w.get("nthreads", 1)) for w in client.scheduler_info().get("workers", {}).values())
     limit = window if window is not None else max(8, 4 * max(threads, 1))
