@@ -766,7 +766,9 @@ class _Sink:
             if r.idx not in self.store.done_indices(self.run_id):  # not a duplicate: a real refusal
                 raise
             self.duplicates += 1
+            self.done.add(r.idx)
             log.info("run %s: task %d stored meanwhile by another process; skipped", self.run_id, r.idx)
+            return
         self.done.add(r.idx)
         self.run += 1
         if r.idx < len(self.workers):

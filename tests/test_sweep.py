@@ -149,7 +149,7 @@ def test_a_result_already_stored_is_skipped_never_stored_twice(tmp_path):
         assert sink.run == 1 and sink.duplicates == 1
         other = _Sink(store, rid, set(), Bar(), None)  # e.g. a second client on the same store
         other.put(TaskResult(res.idx, res.geometry, res.rows, res.t_start, res.t_end, "x", 0.0))
-        assert other.duplicates == 1
+        assert other.duplicates == 1 and other.run == 0
         assert store.points(rid)["idx"].tolist() == [0]
 
 
