@@ -20,19 +20,9 @@ log = logging.getLogger("bench")
 
 
 def _emit_json(obj: Any) -> None:
-    print(json.dumps(obj, indent=None, sort_keys=False, default=_json_default))
+    from bench.records import json_default
 
-
-def _json_default(o: Any) -> Any:
-    import numpy as np
-
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    raise TypeError(f"not JSON serializable: {type(o).__name__}")
+    print(json.dumps(obj, indent=None, sort_keys=False, default=json_default))
 
 
 # --- bench rays -----------------------------------------------------------------------------

@@ -62,7 +62,7 @@ import numpy as np
 
 from bench.errors import InputError
 from bench.instruments import Spectrum
-from bench.records import BSDFRecord
+from bench.records import BSDFRecord, json_default
 
 __all__ = [
     "spectrum_table", "spectrum_to_csv", "atomic_write", "json_default",
@@ -135,19 +135,6 @@ def _write_text(path: str | Path, text: str) -> Path:
         with open(tmp, "w", encoding="utf-8", newline="\n") as f:
             f.write(text)
     return atomic_write(path, w)
-
-
-def json_default(o: Any) -> Any:
-    """``json.dumps`` fallback: numpy scalars/arrays, sets, objects with ``as_dict``, else str."""
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (set, frozenset, tuple)):
-        return list(o)
-    if hasattr(o, "as_dict"):
-        return o.as_dict()
-    return str(o)
 
 
 def _meta_json(meta: dict[str, Any]) -> str:

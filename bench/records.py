@@ -23,10 +23,26 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["BSDFRecord", "BSDF_COLUMNS"]
+__all__ = ["BSDFRecord", "BSDF_COLUMNS", "json_default"]
 
 BSDF_COLUMNS = ["wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "hemisphere", "value", "std",
                 "ci_lo", "ci_hi", "theta_min", "theta_max", "phi_min", "phi_max", "psa", "count", "N"]
+
+
+def json_default(o: Any) -> Any:
+    """``json.dumps`` fallback for record metadata: numpy scalars and arrays, sets and tuples,
+    objects with ``as_dict``; anything else as its string."""
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (set, frozenset, tuple)):
+        return list(o)
+    if hasattr(o, "as_dict"):
+        return o.as_dict()
+    return str(o)
 
 
 @dataclass

@@ -58,7 +58,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from bench.errors import InputError, StoreError
-from bench.records import BSDF_COLUMNS, BSDFRecord
+from bench.records import BSDF_COLUMNS, BSDFRecord, json_default
 
 __all__ = ["RunStore", "SCHEMA_VERSION", "RUN_KINDS", "RUN_STATUSES", "READING_COLUMNS",
            "package_versions", "new_run_id"]
@@ -172,22 +172,10 @@ def _iso(t: float) -> str:
     return datetime.fromtimestamp(t, tz=timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (set, frozenset, tuple)):
-        return list(o)
-    if hasattr(o, "as_dict"):
-        return o.as_dict()
-    return str(o)
-
-
 def _dumps(obj: Any) -> str | None:
     if obj is None:
         return None
-    return json.dumps(obj, default=_json_default, allow_nan=True, sort_keys=False)
+    return json.dumps(obj, default=json_default, allow_nan=True, sort_keys=False)
 
 
 def _loads(text: str | None) -> Any:
