@@ -209,11 +209,15 @@ def _ptab(ptab: np.ndarray, cdf: np.ndarray | None) -> tuple[np.ndarray, np.ndar
     return t, c
 
 
-def _effect_vector(e: np.ndarray | None) -> np.ndarray:
+def _effect_vector(e: np.ndarray | None, flags: int) -> np.ndarray:
     out = np.zeros(N_EFFECT_ARGS)
     if e is not None:
         out[: len(e)] = np.asarray(e, dtype=np.float64)
     out[5] = out[5] if out[5] > 0 else 1.0
+    if flags & FX_POSITIONS and not (math.isfinite(out[7]) and out[7] > 0):
+        raise ValueError(f"effects that sample positions need a spot radius e[7] > 0, got {out[7]!r}")
+    if flags & FX_NEAR and not (out[8] > 0 and out[9] > 0):
+        raise ValueError("near-field detectors need a distance e[8] > 0 and a radius e[9] > 0")
     return out
 
 
@@ -231,7 +235,7 @@ def spectro_effect_counts(model: int, ptab: np.ndarray, cdf: np.ndarray | None, 
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     out = _spectro_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b,
                              pinpoint_beam_args(b), np.ascontiguousarray(cone, dtype=np.float64),
-                             np.int64(flags), _effect_vector(e), sizes, states)
+                             np.int64(flags), _effect_vector(e, flags), sizes, states)
     return out.sum(axis=0)
 
 
@@ -299,7 +303,7 @@ def gonio_effect_counts(model: int, ptab: np.ndarray, cdf: np.ndarray | None, be
     t, c = _ptab(ptab, cdf)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     out = _gonio_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b, pinpoint_beam_args(b),
-                           tuple(collector_args), np.int64(n_bins), np.int64(flags), _effect_vector(e), det,
+                           tuple(collector_args), np.int64(n_bins), np.int64(flags), _effect_vector(e, flags), det,
                            sizes, states)
     return out.sum(axis=0)
 

@@ -519,6 +519,8 @@ class Scene:
             s = e.sphere
             v[1:5] = [s.wall_reflectance, s.detector_port, s.specimen_port, s.port_fraction]
         v[5] = 1.0
+        # the illuminated spot (positions of a collimated beam): the specimen disk by default
+        v[7] = self.beam.specimen_radius_mm
         if e.specimen is not None:
             v[5], v[6], v[7] = e.specimen.period_mm, e.specimen.contrast, e.specimen.spot_radius_mm
         if e.aperture is not None and e.aperture.near:
