@@ -39,6 +39,24 @@ def _rays_for(seconds: float) -> tuple[int, float]:
     return int(round(rate * seconds, -5)), rate
 
 
+def _raw_work(tasks: list) -> float:
+    """Run tasks one after another on one numba thread, no Dask, no store (in a pool process)."""
+    for t in tasks[:1]:
+        run_task(t, numba_threads=1)  # load kernels before the clock starts
+    t0 = time.perf_counter()
+    for t in tasks:
+        run_task(t, numba_threads=1)
+    return time.perf_counter() - t0
+
+
+def _raw(pool: object, tasks: list, k: int) -> float:
+    """Wall time for ``k`` plain processes to run ``tasks`` split evenly: the machine's own
+    ceiling for the speed-up, measured under the same load as the Dask runs."""
+    t0 = time.perf_counter()
+    pool.map(_raw_work, [tasks[i::k] for i in range(k)])
+    return time.perf_counter() - t0
+
+
 def _timed(spec: object, store: RunStore, client: object = None, repeat: int = 2) -> tuple[float, float]:
     """Best wall time of ``repeat`` runs, and the mean busy time per task of the last run (from
     the tasks' own start/end stamps: compute and building the rows, on whichever worker)."""
@@ -64,12 +82,19 @@ def run(n_tasks: int = 16, tiny_tasks: int = 64, repeat: int = 3) -> str:
         # both clusters up at once and runs interleaved (1, 2, 1, 2, ...), so drifting load from
         # other jobs on the machine hits both sizes alike; best of `repeat` each
         best: dict[int, tuple[float, float]] = {}
+        raw: dict[int, float] = {}
+        from multiprocessing import get_context
+
         with dask_client(workers=1, threads_per_worker=1, dashboard_address=":0") as c1, \
-                dask_client(workers=2, threads_per_worker=1, dashboard_address=":0") as c2:
+                dask_client(workers=2, threads_per_worker=1, dashboard_address=":0") as c2, \
+                get_context("spawn").Pool(2) as pool:
             clients = {1: c1, 2: c2}
             for k, c in clients.items():
                 run_sweep(_spec(k, 10_000), store, client=c)  # warm every worker through a whole task
+            pool.map(_raw_work, [list(_spec(1, 10_000).tasks)] * 2)
             for _ in range(repeat):
+                for k in (1, 2):
+                    raw[k] = min(raw.get(k, float("inf")), _raw(pool, list(heavy.tasks), k))
                 for k, c in clients.items():
                     t, busy = _timed(heavy, store, c, repeat=1)
                     if k not in best or t < best[k][0]:
@@ -92,6 +117,9 @@ def run(n_tasks: int = 16, tiny_tasks: int = 64, repeat: int = 3) -> str:
         f"{rate:.3g} rays/s), Lambertian, equal-psa:9x36, method rays; {os.cpu_count()} cores",
         ["executor", "tasks", "wall s (best)", "tasks/s", "busy s/task", "workers busy", "speed-up vs 1 worker"],
         rows)
+    ceiling = raw[1] / raw[2]
+    out += (f"\nplain processes without Dask (same tasks, no store), 1 -> 2: {raw[1]:.3g} s -> {raw[2]:.3g} s = "
+            f"{ceiling:.2f}x: the machine's ceiling right now; Dask reaches {speedup / ceiling:.0%} of it")
     out += (f"\nspeed-up 1 -> 2 workers: {speedup:.2f}x (target >= 1.7x); {corrected:.2f}x corrected for the "
             f"slower tasks under contention (x busy2/busy1); load average before {load0[0]:.2f}, "
             f"after {load1[0]:.2f} (other jobs share the cores). 'busy s/task' is a task's own wall time on its "
