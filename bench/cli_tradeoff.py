@@ -190,6 +190,9 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
     per_wl: list[int] = []
     if gonio:
         theta_i, phi_i = float(measure_kw.get("theta_i", 30.0)), float(measure_kw.get("phi_i", 0.0))
+        from bench.geometry import Geometry
+
+        instrument.check(Geometry(theta_i, phi_i % 360.0, 0.0, 0.0))  # refuse before any ray is cast
         wls = instrument.wavelengths if measure_kw.get("wavelengths") is None else parse_wavelengths(
             measure_kw["wavelengths"])
         b = instrument.beam.kernel_args(theta_i, phi_i)
