@@ -71,7 +71,15 @@ def cmd_spectro(args: argparse.Namespace) -> int:
 
     cie_geometry(args.geometry)  # bad geometry: exit 2 before any work
     sp = _spectro_instrument(args)
-    s = sp.measure(args.geometry, args.wavelengths)
+    adaptive = None
+    if args.rays is None and not args.no_adaptive:  # --uncertainty/--delta: the adaptive rule
+        from bench.cli_tradeoff import adaptive_measure
+
+        adaptive = adaptive_measure(sp, args.uncertainty, args.delta, geometry=args.geometry,
+                                    wavelengths=args.wavelengths, max_seconds=args.max_seconds)
+        s = adaptive["result"]
+    else:
+        s = sp.measure(args.geometry, args.wavelengths)
     if args.csv:
         from bench.export import spectrum_to_csv
 
@@ -81,10 +89,15 @@ def cmd_spectro(args: argparse.Namespace) -> int:
 
         plot_spectrum(s, args.plot)
     if args.json:
-        _emit_json(_spectrum_json(s))
+        out = _spectrum_json(s)
+        if adaptive:
+            out["budget"] = _budget(adaptive)
+        _emit_json(out)
         return 0
     print(f"specimen {s.meta['specimen']}  geometry {s.geometry}  beam {sp.beam.kind}  "
           f"N = {int(s.N[0])} rays/wavelength  seed {s.seed}  confidence {1 - s.delta:g}")
+    if adaptive:
+        print(adaptive["message"])
     q = "RF" if s.meta.get("quantity") == "reflectance factor" else "R"
     print(f"{'nm':>7} {q:>8} {'[lo, hi]':>20} {'T':>8} {'[lo, hi]':>20}")
     for i, w in enumerate(s.wavelengths):
@@ -135,7 +148,15 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     elif args.uncertainty is not None:
         kw["uncertainty"] = args.uncertainty
     g = VirtualGoniophotometer(args.specimen, **kw)
-    record = g.measure_bsdf(theta_i, phi_i)
+    adaptive = None
+    if args.uncertainty is not None and args.rays is None and not args.no_adaptive:
+        from bench.cli_tradeoff import adaptive_measure
+
+        adaptive = adaptive_measure(g, args.uncertainty, args.delta, theta_i=theta_i, phi_i=phi_i,
+                                    max_seconds=args.max_seconds)
+        record = adaptive["result"]
+    else:
+        record = g.measure_bsdf(theta_i, phi_i)
     if args.csv:
         Path(args.csv).parent.mkdir(parents=True, exist_ok=True)
         record.table.to_csv(args.csv, index=False, float_format="%.8g")
@@ -144,11 +165,16 @@ def cmd_gonio(args: argparse.Namespace) -> int:
 
         plot_bsdf_polar(record, args.plot)
     if args.json:
-        _emit_json(gonio_json(record))
+        out = gonio_json(record)
+        if adaptive:
+            out["budget"] = _budget(adaptive)
+        _emit_json(out)
         return 0
     m = record.meta
     print(f"specimen {m['specimen']}  incidence ({theta_i:g}, {phi_i:g}) deg  collector {g.collector}  "
-          f"beam {g.beam.kind}  N = {g.rays:,}  method {m['method']}  seed {g.seed}")
+          f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']}  seed {g.seed}")
+    if adaptive:
+        print(adaptive["message"])
     for tot in m["totals"]:
         print(f"  {tot['wavelength_nm']:7.1f} nm  reflectance {tot['reflectance']:.5f}  "
               f"transmittance {tot['transmittance']:.5f}  absorbed {tot['absorbed']:,}")
@@ -231,6 +257,12 @@ def cmd_resume(args: argparse.Namespace) -> int:
     from bench.runner import resume_scan
 
     with _store(args.store, create=False) as store:
+        kind = store.run(args.run)["kind"]
+    if kind == "sweep":
+        from bench.cli_sweep import resume_run
+
+        return resume_run(args.run, args.store, quiet=args.quiet, json=args.json)
+    with _store(args.store, create=False) as store:
         info = store.run(args.run)
         config = args.bench if args.bench else info["bench"]
         bench = load_bench(config, seed=info.get("seed"))
@@ -285,6 +317,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     path = export.export_record(record, out, args.format)
     print(path)
     return 0
+
+
+def _budget(adaptive: dict[str, Any]) -> dict[str, Any]:
+    return {k: adaptive[k] for k in ("N", "hoeffding_N", "saved_rays", "saved_fraction", "per_wavelength", "mode")}
 
 
 # --- bench demo -----------------------------------------------------------------------------
@@ -351,6 +387,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--uncertainty", type=_float, default=0.005, help="v for eq. 3.5 (default 0.005)")
     s.add_argument("--delta", type=_float, default=0.01, help="confidence delta (default 0.01)")
     s.add_argument("--beam", choices=("collimated", "conical"), default="collimated")
+    s.add_argument("--no-adaptive", action="store_true",
+                   help="with --uncertainty: the fixed eq. 3.5 ray count instead of the adaptive rule")
+    s.add_argument("--max-seconds", type=_float, default=3600.0,
+                   help="refuse budgets estimated to take longer (reports N and the time)")
     s.add_argument("--seed", type=int)
     s.add_argument("--json", action="store_true")
     s.add_argument("--plot", metavar="FILE.png")
@@ -369,6 +409,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--beam", choices=("collimated", "conical"), default="collimated")
     g.add_argument("--method", choices=("auto", "rays", "fast"), default="auto",
                    help="rays: count rays; fast: one multinomial over integrated patch probabilities")
+    g.add_argument("--no-adaptive", action="store_true",
+                   help="with --uncertainty: the fixed eq. 3.12 ray count instead of the adaptive rule")
+    g.add_argument("--max-seconds", type=_float, default=3600.0,
+                   help="refuse budgets estimated to take longer (reports N and the time)")
     g.add_argument("--seed", type=int)
     g.add_argument("--json", action="store_true")
     g.add_argument("--csv", metavar="FILE")

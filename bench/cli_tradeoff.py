@@ -175,7 +175,7 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
 
     from virtual.bounds import adaptive_plan, budget_report, hoeffding_rays, run_adaptive
     from virtual.engine import SpectroTally, gonio_counts, measurement_seed, multinomial_counts, spectro_counts
-    from virtual.scene import single_chunk_threads
+    from virtual.engine import single_chunk_threads
     from virtual.spectrophotometer import parse_wavelengths
 
     gonio = hasattr(instrument, "collector")

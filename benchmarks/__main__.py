@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-STUDIES = ["spectro", "gonio", "store", "scan"]
+STUDIES = ["spectro", "gonio", "store", "scan", "effects", "adaptive", "tradeoff", "sweep"]
 
 
 def main(argv: list[str]) -> int:

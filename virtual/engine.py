@@ -8,7 +8,6 @@ for a given seed whatever the thread count, and memory does not grow with ``N``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +24,7 @@ __all__ = [
     "spectro_counts",
     "SPECTRO_BINS",
     "SpectroTally",
+    "single_chunk_threads",
     "gonio_counts",
     "multinomial_counts",
 ]
@@ -106,6 +106,34 @@ class SpectroTally:
         return self.N - self.missed
 
 
+class single_chunk_threads:
+    """Context manager: run numba kernels on one thread when ``n_rays`` fits one chunk.
+
+    A measurement of at most :data:`virtual.engine.CHUNK_RAYS` rays is one chunk, i.e. one
+    task of the parallel loop, so extra threads only add their wake-up (several ms per launch on
+    a loaded 2-core machine -- 16x the kernel time of an adaptive rule's small batches). Results
+    never depend on the thread count.
+    """
+
+    def __init__(self, n_rays: int) -> None:
+        self.n_rays = int(n_rays)
+        self.previous: int | None = None
+
+    def __enter__(self) -> "single_chunk_threads":
+        import numba
+
+        if self.n_rays <= CHUNK_RAYS:
+            self.previous = numba.get_num_threads()
+            numba.set_num_threads(1)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.previous is not None:
+            import numba
+
+            numba.set_num_threads(self.previous)
+
+
 NO_CONE = np.array([0.0, 0.0, 1.0, 2.0])  # cos >= 2 never happens: no cone tally
 
 
@@ -118,10 +146,11 @@ def spectro_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, be
     """
     sizes = chunking(n_rays)
     states = stream_states(seq, sizes.shape[0])
-    out = _spectro_kernel(np.int64(model), np.ascontiguousarray(params, dtype=np.float64),
-                          np.int64(beam_kind), np.int64(disk),
-                          np.ascontiguousarray(beam_args, dtype=np.float64),
-                          np.ascontiguousarray(cone, dtype=np.float64), sizes, states)
+    with single_chunk_threads(n_rays):
+        out = _spectro_kernel(np.int64(model), np.ascontiguousarray(params, dtype=np.float64),
+                              np.int64(beam_kind), np.int64(disk),
+                              np.ascontiguousarray(beam_args, dtype=np.float64),
+                              np.ascontiguousarray(cone, dtype=np.float64), sizes, states)
     tot = out.sum(axis=0)
     return SpectroTally(int(n_rays), *(int(v) for v in tot))
 
@@ -159,9 +188,10 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     n_bins = 2 * int(collector_args[1]) * int(collector_args[2])  # (scheme, n_theta, n_phi, ...)
     sizes = chunking(n_rays)
     states = stream_states(seq, sizes.shape[0])
-    out = _gonio_kernel(np.int64(model), np.ascontiguousarray(params, dtype=np.float64), np.int64(beam_kind),
-                        np.int64(disk), np.ascontiguousarray(beam_args, dtype=np.float64), tuple(collector_args),
-                        np.int64(n_bins), sizes, states)
+    with single_chunk_threads(n_rays):
+        out = _gonio_kernel(np.int64(model), np.ascontiguousarray(params, dtype=np.float64),
+                            np.int64(beam_kind), np.int64(disk), np.ascontiguousarray(beam_args, dtype=np.float64),
+                            tuple(collector_args), np.int64(n_bins), sizes, states)
     return out.sum(axis=0)
 
 

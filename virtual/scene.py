@@ -58,12 +58,13 @@ import numpy as np
 from bench.errors import ConfigError, InputError
 from virtual.beam import Beam, check_incidence
 from virtual.collector import Collector, parse_collector
+from virtual.engine import single_chunk_threads
 from virtual.specimens import Lambertian, Specimen, parse_specimen
 
 __all__ = [
     "Aperture", "Noise", "StrayLight", "Sphere", "GlossTrap", "Bandpass", "SpecimenPattern", "Effects",
     "Scene", "SceneResult", "load_scene", "scene_from_dict", "effect_costs", "cone_probability",
-    "EFFECT_NAMES", "INSTRUMENTS", "single_chunk_threads",
+    "EFFECT_NAMES", "INSTRUMENTS",
 ]
 
 INSTRUMENTS = ("spectrophotometer", "goniophotometer", "physical")
@@ -349,36 +350,6 @@ class SceneResult:
 
 
 # --- the scene ----------------------------------------------------------------------------------
-
-
-class single_chunk_threads:
-    """Context manager: run numba kernels on one thread when ``n_rays`` fits one chunk.
-
-    A measurement of at most :data:`virtual.engine.CHUNK_RAYS` rays is one chunk, i.e. one
-    task of the parallel loop, so extra threads only add their wake-up (several ms per launch on
-    a loaded 2-core machine -- 16x the kernel time of an adaptive rule's small batches). Results
-    never depend on the thread count.
-    """
-
-    def __init__(self, n_rays: int) -> None:
-        self.n_rays = int(n_rays)
-        self.previous: int | None = None
-
-    def __enter__(self) -> "single_chunk_threads":
-        import numba
-
-        from virtual.engine import CHUNK_RAYS
-
-        if self.n_rays <= CHUNK_RAYS:
-            self.previous = numba.get_num_threads()
-            numba.set_num_threads(1)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.previous is not None:
-            import numba
-
-            numba.set_num_threads(self.previous)
 
 
 def cone_probability(specimen: Specimen, wi: np.ndarray, axis: np.ndarray, half_angle_deg: float,
