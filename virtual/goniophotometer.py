@@ -35,7 +35,7 @@ from virtual.beam import Beam, check_incidence
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.collector import Collector, parse_collector
 from virtual.engine import gonio_counts, measurement_seed, multinomial_counts
-from virtual.specimens import Specimen, parse_specimen
+from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
 from virtual.spectrophotometer import fresh_seed, parse_wavelengths
 
 __all__ = ["VirtualGoniophotometer", "METHODS"]
@@ -197,6 +197,11 @@ class VirtualGoniophotometer(InstrumentBase):
         params = self.specimen.params(wavelength_nm)
         if self.uses_fast_path():
             counts = multinomial_counts(self.bin_probabilities(theta_i, phi_i, wavelength_nm), self.rays, seq)
+        elif self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
+            from virtual.python_engine import gonio_counts_python
+
+            counts = gonio_counts_python(self.specimen, wavelength_nm, self.beam, theta_i, phi_i, self.collector,
+                                         self.rays, seq)
         else:
             counts = gonio_counts(self.specimen.model, params, self.beam.code, self.beam.disk_code,
                                   self.beam.kernel_args(theta_i, phi_i), self.collector.kernel_args(),

@@ -73,6 +73,7 @@ __all__ = [
     "MODEL_ANISO_GGX",
     "MODEL_PLASTIC",
     "MODEL_DIELECTRIC",
+    "MODEL_PYTHON",
 ]
 
 INV_PI = 1.0 / math.pi
@@ -85,6 +86,9 @@ MODEL_GGX = 3
 MODEL_ANISO_GGX = 4
 MODEL_PLASTIC = 5
 MODEL_DIELECTRIC = 6
+#: Specimens without a kernel (e.g. :class:`virtual.mitsuba.MitsubaSpecimen`): the devices count
+#: their rays with :mod:`virtual.python_engine`, which calls the specimen's ``sample`` method.
+MODEL_PYTHON = -1
 
 
 # --- spectral parameters ---------------------------------------------------------------------
@@ -1076,8 +1080,12 @@ def parse_specimen(spec: str | Specimen) -> Specimen:
     if name == "colorchecker":
         chart, _, patch = rest.rpartition("/")
         return _colorchecker(patch, chart) if chart else _colorchecker(patch)
+    if name == "mitsuba":  # optional extra: mitsuba:{json BSDF dict}
+        from virtual.mitsuba import parse_mitsuba
+
+        return parse_mitsuba(rest, text)
     if name not in SPECIMENS:
-        known = ", ".join(sorted([*SPECIMENS, "colorchecker"]))
+        known = ", ".join(sorted([*SPECIMENS, "colorchecker", "mitsuba"]))
         raise SpecimenError(f"unknown specimen {name!r}; known: {known}")
     factory, help_ = SPECIMENS[name]
     kw = _kwargs(rest, text)

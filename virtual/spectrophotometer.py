@@ -28,7 +28,7 @@ from bench.instruments import InstrumentBase, InstrumentInfo, Spectrum
 from virtual.beam import Beam
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.engine import NO_CONE, SpectroTally, measurement_seed, spectro_counts
-from virtual.specimens import Specimen, parse_specimen
+from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
 
 __all__ = ["VirtualSpectrophotometer", "parse_wavelengths", "fresh_seed"]
 
@@ -126,6 +126,12 @@ class VirtualSpectrophotometer(InstrumentBase):
         tallies: list[SpectroTally] = []
         for w in wl:
             seq = measurement_seed(self.seed, int(round(w * 1000)), int(round(theta_i * 1000)))
+            if self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
+                from virtual.python_engine import spectro_counts_python
+
+                tallies.append(spectro_counts_python(self.specimen, float(w), self.beam, theta_i, 0.0,
+                                                     self.rays, seq, cone))
+                continue
             tallies.append(spectro_counts(self.specimen.model, self.specimen.params(float(w)), self.beam.code,
                                           self.beam.disk_code, beam_args, self.rays, seq, cone))
         return self._spectrum(g, measured, wl, tallies, cone_psa_over_pi)
