@@ -516,13 +516,7 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     emu = StageEmulator.start(a.transport, **json.loads(a.config))
     print(json.dumps(emu.address), flush=True)
-    try:
-        while emu.alive:
-            time.sleep(0.5)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        emu.stop()
+    emu.serve_until_interrupted()
     return 0
 
 

@@ -146,6 +146,16 @@ class PipeEmulator:
 
     close = stop
 
+    def serve_until_interrupted(self, poll_s: float = 0.5) -> None:
+        """Block while the emulator runs (a command-line ``main``); stop it on Ctrl-C or exit."""
+        try:
+            while self.alive:
+                time.sleep(poll_s)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.stop()
+
     def __enter__(self) -> Any:
         return self
 
