@@ -245,7 +245,12 @@ def cmd_scan(args: argparse.Namespace) -> int:
     with bench, _store(args.store) as store:
         result = run_scan(bench, plan, store, seed=getattr(bench.goniometer, "seed", args.seed),
                           progress=not args.quiet and sys.stderr.isatty())
-    if args.json:
+    return _report_run(result, args.json)
+
+
+def _report_run(result: Any, as_json: bool) -> int:
+    """What scan and resume print: the run id (or the result as JSON)."""
+    if as_json:
         _emit_json(result.__dict__)
     else:
         print(result.run_id)
@@ -268,11 +273,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
         bench = load_bench(config, seed=info.get("seed"))
         with bench:
             result = resume_scan(bench, store, args.run, progress=not args.quiet and sys.stderr.isatty())
-    if args.json:
-        _emit_json(result.__dict__)
-    else:
-        print(result.run_id)
-    return 0
+    return _report_run(result, args.json)
 
 
 def cmd_runs(args: argparse.Namespace) -> int:
