@@ -404,18 +404,22 @@ def plot_tradeoff(rows: Sequence[dict[str, Any]], path: str, title: str = "") ->
         key = f"{r['method']} {r['strategy']} {r['collector']} {r['budget']}".replace(" -", "")
         families.setdefault(key, []).append(r)
     markers = "osD^v<>phX*"
+    bound_labelled = False
     for i, (key, rs) in enumerate(sorted(families.items())):
         rs = sorted(rs, key=lambda r: r["seconds"])
-        ax.loglog([r["seconds"] for r in rs], [max(r["max_abs_error"], 1e-16) for r in rs],
-                  marker=markers[i % len(markers)], linestyle="-" if len(rs) > 1 else "none", label=key, alpha=0.8)
+        line, = ax.loglog([r["seconds"] for r in rs], [max(r["max_abs_error"], 1e-16) for r in rs],
+                          marker=markers[i % len(markers)], linestyle="-" if len(rs) > 1 else "none", label=key,
+                          alpha=0.8)
+        fixed = [r for r in rs if r["budget"] == "fixed" and r["method"] == "rays"]
+        if len(fixed) > 1:  # each configuration's own bound, in its colour
+            ax.loglog([r["seconds"] for r in fixed], [r["predicted_bound"] for r in fixed], ":",
+                      color=line.get_color(), linewidth=1,
+                      label=None if bound_labelled else "predicted bound (Hoeffding), dotted per configuration")
+            bound_labelled = True
     front = sorted((r for r in rows if r["pareto"]), key=lambda r: r["seconds"])
     if front:
         ax.step([r["seconds"] for r in front], [max(r["max_abs_error"], 1e-16) for r in front], where="post",
                 color="k", linewidth=2.0, alpha=0.4, label="Pareto front")
-    fixed = sorted((r for r in rows if r["budget"] == "fixed" and r["method"] == "rays"), key=lambda r: r["seconds"])
-    if fixed:
-        ax.loglog([r["seconds"] for r in fixed], [r["predicted_bound"] for r in fixed], "k:", linewidth=1,
-                  label="predicted bound (Hoeffding)")
     ax.set_xlabel("wall time (s)")
     ax.set_ylabel("max |error| against the exact reference")
     ax.set_title(title or "accuracy versus time")
