@@ -89,6 +89,9 @@ MAX_RINGS = 100_000
 MAX_SECTORS = 100_000
 
 _TWO_PI = 2.0 * math.pi
+_SCALE_UP = 2.0 ** 600     # brings any tiny component (>= 2^-1074) to >= 2^-474: squares stay normal
+_SCALE_DOWN = 2.0 ** -600  # brings any huge finite component (< 2^1024) below 2^424
+_INF_AFTER_SCALING = 1e300  # no finite component exceeds 2^424 after scaling: larger means infinite
 _HALF_PI = 0.5 * math.pi
 _TINY2 = 1e-280  # |v|^2 below: squares may have underflowed -> rescale
 _HUGE2 = 1e280   # |v|^2 above: squares may overflow -> rescale
@@ -161,20 +164,25 @@ def _patch_core(x, y, z, rho2, r2, scheme_code, n_theta, n_phi, sin2_edges, phi_
 
 @njit(cache=True)
 def _patch_of_rare(x, y, z, scheme_code, n_theta, n_phi, sin2_edges, phi_cs):
-    """Slow path of :func:`patch_of`: rescale, or map zero/NaN to bin 0 and infinities to axes."""
+    """Slow path of :func:`patch_of`: rescale, or map zero/NaN to bin 0 and infinities to axes.
+
+    Written to stay right when compiled under fastmath (it is called from fastmath kernels, and
+    numba may cache that compilation for every caller): no division by a possibly subnormal
+    number (it may become a multiplication by an overflowing reciprocal) and no comparison
+    with infinity (``ninf`` lets LLVM fold it away).
+    """
     m = max(abs(x), max(abs(y), abs(z)))
     if not (m > 0.0):  # zero vector or NaN
         return 0
-    if m == math.inf:
-        x = math.copysign(1.0, x) if abs(x) == math.inf else 0.0
-        y = math.copysign(1.0, y) if abs(y) == math.inf else 0.0
-        z = math.copysign(1.0, z) if abs(z) == math.inf else 0.0
-    elif not (m < math.inf):
-        return 0
-    else:
-        x = x / m  # divide (1/m overflows for subnormal m)
-        y = y / m
-        z = z / m
+    # exact power-of-two rescaling: tiny components become normal, huge finite ones moderate
+    f = _SCALE_UP if m < 1.0 else _SCALE_DOWN
+    x = x * f
+    y = y * f
+    z = z * f
+    if max(abs(x), max(abs(y), abs(z))) > _INF_AFTER_SCALING:  # only an infinity stays this large
+        x = math.copysign(1.0, x) if abs(x) > _INF_AFTER_SCALING else 0.0
+        y = math.copysign(1.0, y) if abs(y) > _INF_AFTER_SCALING else 0.0
+        z = math.copysign(1.0, z) if abs(z) > _INF_AFTER_SCALING else 0.0
     rho2 = x * x + y * y
     r2 = rho2 + z * z
     if not (r2 > 0.0):
