@@ -168,6 +168,7 @@ def _png_size(path: Path) -> tuple[int, int]:
 JS_ERROR = re.compile(r"Uncaught|SyntaxError|TypeError|ReferenceError|CONSOLE\(\d+\).*error", re.I)
 
 
+# .ci/run installs Chromium; only a machine without it (and without root) skips the render
 @pytest.mark.skipif(not CHROMIUM.exists(),
                     reason="/usr/bin/chromium is not installed, so the report cannot be rendered headless here "
                            "(CI installs it with `apt-get install -y chromium`)")

@@ -4,7 +4,6 @@ import math
 import os
 import random
 import signal
-import sqlite3
 import subprocess
 import sys
 import time
@@ -18,6 +17,7 @@ from bench.errors import DeviceTimeoutError, PlanError, RunInterrupted
 from bench.plans import load_plan, plan_from_dict
 from bench.runner import resume_scan, run_scan
 from bench.store import RunStore
+from store_probe import committed_points
 
 ROOT = Path(__file__).parent.parent
 BENCH = ROOT / "fixtures" / "benches" / "virtual.toml"
@@ -100,17 +100,6 @@ def test_a_plan_with_one_unreachable_point_is_refused_before_any_motion(tmp_path
         assert moves == [] and store.runs() == []
 
 
-def _count_points(db_path):
-    try:
-        con = sqlite3.connect(f"file:{db_path}?mode=ro", uri=True, timeout=5)
-        try:
-            return con.execute("SELECT COUNT(*) FROM points").fetchone()[0]
-        finally:
-            con.close()
-    except sqlite3.Error:
-        return 0
-
-
 @pytest.mark.slow
 def test_sigkill_mid_scan_then_resume_gives_exactly_the_uninterrupted_record(tmp_path):
     plan_path = tmp_path / "plan.toml"
@@ -134,7 +123,7 @@ def test_sigkill_mid_scan_then_resume_gives_exactly_the_uninterrupted_record(tmp
                                              "--seed", "5", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 env=env)
         deadline = time.monotonic() + 60
-        while _count_points(db) < target and proc.poll() is None and time.monotonic() < deadline:
+        while committed_points(db) < target and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.002)
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(10)

@@ -3,7 +3,6 @@
 import json
 import os
 import signal
-import sqlite3
 import subprocess
 import sys
 import time
@@ -16,6 +15,7 @@ import pytest
 from bench.cli import main
 from bench.errors import ConfigError, RunInterrupted, StoreError
 from bench.store import RunStore
+from store_probe import committed_points
 from bench.sweep import (TASK_COLUMNS, TaskResult, _Sink, load_sweep, resume_sweep, run_sweep, run_task, series_seed,
                          sweep_from_dict, sweep_readings, task_key)
 
@@ -174,17 +174,6 @@ def test_an_interrupted_sweep_resumes_to_the_results_of_an_uninterrupted_one(tmp
             resume_sweep(store, rid)
 
 
-def _points(db):
-    try:
-        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
-        try:
-            return con.execute("SELECT COUNT(*) FROM points").fetchone()[0]
-        finally:
-            con.close()
-    except sqlite3.Error:
-        return 0
-
-
 def test_a_sigkilled_sweep_process_resumes_to_the_uninterrupted_results(tmp_path, reference):
     toml = tmp_path / "small.toml"
     sw = SMALL["sweep"]
@@ -193,7 +182,7 @@ def test_a_sigkilled_sweep_process_resumes_to_the_uninterrupted_results(tmp_path
     proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "sweep", str(toml), "--store", str(db), "-q"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
-    while _points(db) < 2 and proc.poll() is None and time.monotonic() < deadline:
+    while committed_points(db) < 2 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.005)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(10)
@@ -234,7 +223,7 @@ def reference(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def cluster_client():
-    pytest.importorskip("distributed")
+    import distributed  # noqa: F401 - the [scale] extra, installed by make test: a hard requirement
     from bench.sweep import dask_client
 
     with dask_client(workers=2, dashboard_address=":0") as client:
