@@ -23,12 +23,15 @@ from bench.errors import GeometryError, InputError
 from virtual.rng import next_double
 from virtual.sampling import warp_polar, warp_square
 
-__all__ = ["Beam", "BEAM_COLLIMATED", "BEAM_CONICAL", "emit", "rotation_to"]
+__all__ = ["Beam", "BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "emit",
+           "emit_given", "rotation_to"]
 
 BEAM_COLLIMATED = 0
 BEAM_CONICAL = 1
 DISK_POLAR = 0
 DISK_REJECTION = 1
+DISK_AUTO = 2
+DISK_CODES = {"polar": DISK_POLAR, "rejection": DISK_REJECTION, "auto": DISK_AUTO}
 
 
 def rotation_to(theta_deg: float, phi_deg: float) -> np.ndarray:
@@ -50,16 +53,18 @@ def rotation_to(theta_deg: float, phi_deg: float) -> np.ndarray:
 class Beam:
     """How rays reach the specimen. Lengths in mm; angles in degrees.
 
-    ``disk_sampling`` is ``"rejection"`` (eq. 3.3, the default: no trigonometry, 2.4x faster in
-    the kernel on this machine, see ``benchmarks/``) or ``"polar"`` (eq. 3.4) for both disks;
-    both are exactly uniform.
+    ``disk_sampling`` picks how both disks are sampled; every choice is exactly uniform, so it
+    changes the time, never the distribution: ``"rejection"`` (eq. 3.3, no trigonometry),
+    ``"polar"`` (eq. 3.4, a fixed two uniforms per point) or ``"auto"`` (the default: the faster
+    one for each kernel -- rejection in the ray-by-ray kernels, polar in the vectorized block
+    kernel of the goniophotometer, which cannot reject; see ``benchmarks/``).
     """
 
     kind: str = "collimated"
     emitter_radius_mm: float = 5.0
     specimen_radius_mm: float = 12.5
     distance_mm: float = 76.2
-    disk_sampling: str = "rejection"
+    disk_sampling: str = "auto"
 
     def __post_init__(self) -> None:
         if self.kind not in ("collimated", "conical"):
@@ -68,8 +73,8 @@ class Beam:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"beam {name} must be finite and > 0, got {v!r}")
-        if self.disk_sampling not in ("polar", "rejection"):
-            raise InputError(f"beam disk_sampling must be 'polar' or 'rejection', got {self.disk_sampling!r}")
+        if self.disk_sampling not in DISK_CODES:
+            raise InputError(f"beam disk_sampling must be one of {', '.join(DISK_CODES)}, got {self.disk_sampling!r}")
 
     @property
     def code(self) -> int:
@@ -77,7 +82,7 @@ class Beam:
 
     @property
     def disk_code(self) -> int:
-        return DISK_REJECTION if self.disk_sampling == "rejection" else DISK_POLAR
+        return DISK_CODES[self.disk_sampling]
 
     @property
     def max_half_angle_deg(self) -> float:
@@ -112,7 +117,7 @@ def check_incidence(theta_i: float) -> None:
 
 @njit(inline="always", cache=True)
 def _disk(u1, u2, r, code, s):
-    if code == DISK_REJECTION:
+    if code != DISK_POLAR:  # rejection, also for "auto" in this ray-by-ray form
         while True:  # eq. 3.3 with rejection; acceptance pi/4, so the loop ends fast
             x, y = warp_square(u1, u2, r)
             if x * x + y * y < r * r:
@@ -132,13 +137,28 @@ def emit(kind, disk, b, s):
         return b[12], b[13], b[14], True
     x1, y1 = _disk(next_double(s), next_double(s), b[9], disk, s)
     x2, y2 = _disk(next_double(s), next_double(s), b[10], disk, s)
+    return _toward_source(b, x1, y1, x2, y2)
+
+
+@njit(inline="always", cache=True)
+def _toward_source(b, x1, y1, x2, y2):
+    """Unit vector from the target (x2, y2, 0) to the emitter point R (x1, y1, D), and whether
+    it arrives on the front face (the side the beam axis comes from)."""
     d = b[11]
-    # origin = R @ (x1, y1, D); direction toward the source = origin - target
     ox = b[0] * x1 + b[1] * y1 + b[2] * d - x2
     oy = b[3] * x1 + b[4] * y1 + b[5] * d - y2
     oz = b[6] * x1 + b[7] * y1 + b[8] * d
     inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
     wx, wy, wz = ox * inv, oy * inv, oz * inv
-    # the front face is the side the beam axis comes from
-    hit = wz * b[14] > 0.0
-    return wx, wy, wz, hit
+    return wx, wy, wz, wz * b[14] > 0.0
+
+
+@njit(inline="always", cache=True)
+def emit_given(kind, b, u1, u2, u3, u4):
+    """:func:`emit` with both disks drawn by the polar warp from the given uniforms (none are
+    read for a collimated beam): branch-free, for the vectorized block kernel."""
+    x1, y1 = warp_polar(u1, u2, b[9])
+    x2, y2 = warp_polar(u3, u4, b[10])
+    wx, wy, wz, hit = _toward_source(b, x1, y1, x2, y2)
+    col = kind == BEAM_COLLIMATED
+    return (b[12] if col else wx), (b[13] if col else wy), (b[14] if col else wz), (True if col else hit)

@@ -45,8 +45,9 @@ def incidence(beam: Beam, theta_i: float, phi_i: float, n: int,
         return axis.copy(), np.ones(n, dtype=bool)
     rot = b[:9].reshape(3, 3)
     r1, r2, d = b[9], b[10], b[11]
-    p1 = sample_disk(n, r1, beam.disk_sampling, rng)
-    p2 = sample_disk(n, r2, beam.disk_sampling, rng)
+    strategy = "rejection" if beam.disk_sampling == "auto" else beam.disk_sampling
+    p1 = sample_disk(n, r1, strategy, rng)
+    p2 = sample_disk(n, r2, strategy, rng)
     origin = np.column_stack([p1, np.full(n, d)]) @ rot.T
     w = origin - np.column_stack([p2, np.zeros(n)])
     w /= np.sqrt(np.einsum("ij,ij->i", w, w))[:, None]

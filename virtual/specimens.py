@@ -51,13 +51,16 @@ from numba import njit
 
 from bench.errors import SpecimenError
 from virtual.rng import next_double
-from virtual.sampling import sample_cosine_hemisphere
+from virtual.sampling import sample_cosine_hemisphere, warp_cosine_hemisphere, warp_polar
 
 __all__ = [
     "Spectral",
     "Specimen",
     "Lambertian",
     "scatter",
+    "scatter_given",
+    "GIVEN_MODELS",
+    "GIVEN_UNIFORMS",
     "parse_specimen",
     "SPECIMENS",
     "OrenNayar",
@@ -338,8 +341,11 @@ def _unit_disk(s):
 
 
 @njit(inline="always", cache=True)
-def _fresnel_conductor(c, eta, k):
-    """Scalar twin of :func:`_np_fresnel_conductor` (c in [0, 1])."""
+def _fresnel_conductor_ratio(c, eta, k):
+    """Scalar twin of :func:`_np_fresnel_conductor` (c in [0, 1]) as ``(num, den)``, F = num / den,
+    den >= 0: F = (Rs + Rp) / 2 with Rp = Rs (t3 - t4) / (t3 + t4) is Rs t3 / (t3 + t4), and Rs
+    = (t1 - t2) / (t1 + t2); callers compare against F without dividing. With k = 0 it is the
+    dielectric's F, total internal reflection (eta < 1) included."""
     c2 = c * c
     s2 = 1.0 - c2
     e2 = eta * eta
@@ -349,11 +355,9 @@ def _fresnel_conductor(c, eta, k):
     t1 = a2b2 + c2
     a = math.sqrt(max(0.5 * (a2b2 + t0), 0.0))
     t2 = 2.0 * c * a
-    rs = (t1 - t2) / max(t1 + t2, 1e-300)
     t3 = c2 * a2b2 + s2 * s2
     t4 = t2 * s2
-    rp = rs * (t3 - t4) / max(t3 + t4, 1e-300)
-    return 0.5 * (rp + rs)
+    return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)
 
 
 @njit(inline="always", cache=True)
@@ -369,21 +373,20 @@ def _fresnel_dielectric(c, eta):
 
 
 @njit(inline="always", cache=True)
-def _ggx_vndf(wx, wy, wz, ax, ay, s):
-    """A microfacet normal from GGX's distribution of visible normals for w (wz > 0).
+def _ggx_vndf_given(wx, wy, wz, ax, ay, ni, a, b, r2):
+    """A microfacet normal from GGX's distribution of visible normals for w (wz > 0), given
+    ``ni`` = |(ax wx, ay wy, wz)| (:func:`_ggx_n`, which G1 needs too), a uniform point (a, b) of
+    the unit disk and r2 = a^2 + b^2. Branch-free.
 
     Dupuy & Benyoub (2023) "spherical caps" form of Heitz (2018): in the stretched frame the
     visible normal is h = c + v with c uniform on the cap z > -v_z of the unit sphere. The cap
-    point uses one uniform disk point (a, b), r2 = |(a, b)|^2: z = 1 - q r2 with q = 1 + v_z and
-    sin(theta) (cos, sin)(phi) = (a, b) sqrt(q (2 - q r2)) -- no trigonometric call.
+    point from the disk point: z = 1 - q r2 with q = 1 + v_z and sin(theta) (cos, sin)(phi) =
+    (a, b) sqrt(q (2 - q r2)) -- no trigonometric call.
     """
-    vx = ax * wx
-    vy = ay * wy
-    inv = 1.0 / math.sqrt(vx * vx + vy * vy + wz * wz)
-    vx *= inv
-    vy *= inv
+    inv = 1.0 / ni
+    vx = ax * wx * inv
+    vy = ay * wy * inv
     vz = wz * inv
-    a, b, r2 = _unit_disk(s)
     q = 1.0 + vz
     z = 1.0 - q * r2
     sc = math.sqrt(max(q * (2.0 - q * r2), 0.0))
@@ -393,10 +396,16 @@ def _ggx_vndf(wx, wy, wz, ax, ay, s):
     mx = ax * hx
     my = ay * hy
     n2 = mx * mx + my * my + hz * hz
-    if not (n2 > 0.0):
-        return 0.0, 0.0, 1.0
-    inv = 1.0 / math.sqrt(n2)
-    return mx * inv, my * inv, hz * inv
+    good = n2 > 0.0
+    inv = 1.0 / math.sqrt(n2 if good else 1.0)
+    return (mx * inv if good else 0.0), (my * inv if good else 0.0), (hz * inv if good else 1.0)
+
+
+@njit(inline="always", cache=True)
+def _ggx_vndf(wx, wy, wz, ax, ay, s):
+    """:func:`_ggx_vndf_given` with the disk point drawn by rejection from the stream ``s``."""
+    a, b, r2 = _unit_disk(s)
+    return _ggx_vndf_given(wx, wy, wz, ax, ay, _ggx_n(wx, wy, wz, ax, ay), a, b, r2)
 
 
 @njit(inline="always", cache=True)
@@ -666,29 +675,36 @@ class AnisoGGX(GGX):
 
 
 @njit(inline="always", cache=True)
-def _ggx(p, wx, wy, wz, s):
+def _ggx_given(p, wx, wy, wz, a, b, r2, u):
+    """GGX reflection of the ray from w (either side: two-sided) given the VNDF's disk point
+    (a, b), r2 = a^2 + b^2, and the survival uniform u. Branch-free (block kernels vectorize
+    it): ``(ox, oy, oz, alive)``, the ray surviving with probability F(w.m) G2/G1.
+
+    u < F G2/G1 is tested as u den_F den_G < num_F num_G (both denominators are >= 0, and > 0
+    when wz, oz > 0): no division. The conductor Fresnel formula with k = 0 is the dielectric
+    one (total internal reflection included), so one formula serves both.
+    """
     flip = wz < 0.0
-    if flip:
-        wz = -wz
-    if not (wz > 0.0):
-        return _DEAD
+    wz = abs(wz)
     ax = p[0]
     ay = p[1]
-    mx, my, mz = _ggx_vndf(wx, wy, wz, ax, ay, s)
+    ni = _ggx_n(wx, wy, wz, ax, ay)
+    mx, my, mz = _ggx_vndf_given(wx, wy, wz, ax, ay, ni, a, b, r2)
     c = max(wx * mx + wy * my + wz * mz, 0.0)
     ox = 2.0 * c * mx - wx
     oy = 2.0 * c * my - wy
     oz = 2.0 * c * mz - wz
-    if not (oz > 0.0):
-        return _DEAD
-    if p[3] == 0.0:  # dielectric coat: the same value with one square root less
-        f, _ = _fresnel_dielectric(c, p[2])
-    else:
-        f = _fresnel_conductor(c, p[2], p[3])
-    w = f * _g2_over_g1(wx, wy, wz, ox, oy, oz, ax, ay)
-    if not (next_double(s) < w):
-        return _DEAD
-    return ox, oy, (-oz if flip else oz), True
+    f_num, f_den = _fresnel_conductor_ratio(c, p[2], p[3])
+    no = _ggx_n(ox, oy, oz, ax, ay)
+    # G2/G1 = (wz + ni) oz / (ni oz + no wz), as in _g2_over_g1
+    alive = (wz > 0.0) & (oz > 0.0) & (u * f_den * (ni * oz + no * wz) < f_num * (wz + ni) * oz)
+    return ox, oy, (-oz if flip else oz), alive
+
+
+@njit(inline="always", cache=True)
+def _ggx(p, wx, wy, wz, s):
+    a, b, r2 = _unit_disk(s)
+    return _ggx_given(p, wx, wy, wz, a, b, r2, next_double(s))
 
 
 # --- rough plastic --------------------------------------------------------------------------------
@@ -971,16 +987,20 @@ def _vndf_mean(wi: np.ndarray, ax: float, ay: float, func) -> float:
 
 
 @njit(inline="always", cache=True)
+def _lambert_given(p, wz, u, x, y, z):
+    """Lambertian: alive when u < R + T; reflected rays (u < R) leave on the side of the source,
+    transmitted ones on the other side, along the cosine-distributed (x, y, z), z >= 0."""
+    up = (wz >= 0.0) != (u >= p[0])
+    return x, y, (z if up else -z), u < p[0] + p[1]
+
+
+@njit(inline="always", cache=True)
 def _lambert(p, wz, s):
     u = next_double(s)
-    if u >= p[0] + p[1]:
+    if u >= p[0] + p[1]:  # absorbed: no direction drawn
         return 0.0, 0.0, 0.0, False
     x, y, z = sample_cosine_hemisphere(s)
-    # reflected rays leave on the side of the source, transmitted rays on the other side
-    up = wz >= 0.0
-    if u >= p[0]:
-        up = not up
-    return x, y, (z if up else -z), True
+    return _lambert_given(p, wz, u, x, y, z)
 
 
 @njit(cache=True)
@@ -1012,6 +1032,29 @@ def scatter(model, p, wx, wy, wz, s):
     if model == MODEL_LAMBERT:
         return _lambert(p, wz, s)
     return _scatter_general(model, p, wx, wy, wz, s)
+
+
+#: Models with a branch-free form taking their uniforms as arguments (:func:`scatter_given`):
+#: the vectorized block kernel of :mod:`virtual.engine` runs them.
+GIVEN_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX)
+#: Uniforms :func:`scatter_given` consumes per ray.
+GIVEN_UNIFORMS = 3
+
+
+@njit(inline="always", cache=True)
+def scatter_given(model, p, wx, wy, wz, u0, u1, u2):
+    """:func:`scatter` for the :data:`GIVEN_MODELS`, with its three uniforms given instead of
+    drawn, and no branch: the same distribution of ``(ox, oy, oz, alive)``.
+
+    u0 decides survival (and reflection against transmission); (u1, u2) is a polar disk point
+    (:func:`~virtual.sampling.warp_polar`): the Lambertian's cosine-weighted direction
+    (Malley), GGX's visible-normal cap point. Callers only read the direction when ``alive``.
+    """
+    if model == MODEL_LAMBERT:
+        x, y, z = warp_cosine_hemisphere(u2, u1)
+        return _lambert_given(p, wz, u0, x, y, z)
+    a, b = warp_polar(u2, u1, 1.0)
+    return _ggx_given(p, wx, wy, wz, a, b, u1, u0)
 
 
 # --- specimen strings -------------------------------------------------------------------------
