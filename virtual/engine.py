@@ -224,6 +224,11 @@ def _gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin
     vx = np.empty(nb)
     vy = np.empty(nb)
     vz = np.empty(nb)
+    # Absorbed and missed rays are spread over 8 bins each (by i mod 8), summed at the end: when
+    # most rays are absorbed, one bin would chain every increment on the previous one's store.
+    h = np.zeros(n_bins + 16, dtype=np.int64)
+    absorbed = n_bins
+    missed = n_bins + 8
     left = n_rays
     while left > 0:
         m = min(left, nb)
@@ -235,13 +240,13 @@ def _gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin
                 wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
                 vx[i], vy[i], vz[i], alive = scatter_given(MODEL_LAMBERT, p, wx, wy, wz, u[s0 + i],
                                                            u[s0 + nb + i], u[s0 + 2 * nb + i])
-                code[i] = -2 if (alive & hit) else (n_bins if hit else n_bins + 1)
+                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
         else:
             for i in range(nb):
                 wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
                 vx[i], vy[i], vz[i], alive = scatter_given(MODEL_GGX, p, wx, wy, wz, u[s0 + i],
                                                            u[s0 + nb + i], u[s0 + 2 * nb + i])
-                code[i] = -2 if (alive & hit) else (n_bins if hit else n_bins + 1)
+                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
         if scheme == SCHEME_EQUAL_PSA:
             for i in range(nb):
                 g = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
@@ -259,8 +264,13 @@ def _gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin
             k = code[i]
             if k < 0:  # too near an edge (or the pole, or the horizon) for the guess: exact lookup
                 k = patch_of(vx[i], vy[i], vz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
-            hist[k] += 1
+            h[k] += 1
         left -= m
+    for k in range(n_bins):
+        hist[k] += h[k]
+    for k in range(8):
+        hist[n_bins] += h[absorbed + k]
+        hist[n_bins + 1] += h[missed + k]
 
 
 @njit(parallel=True, cache=True)

@@ -51,7 +51,7 @@ from numba import njit
 
 from bench.errors import SpecimenError
 from virtual.rng import next_double
-from virtual.sampling import sample_cosine_hemisphere, warp_cosine_hemisphere, warp_polar
+from virtual.sampling import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
 
 __all__ = [
     "Spectral",
@@ -373,25 +373,24 @@ def _fresnel_dielectric(c, eta):
 
 
 @njit(inline="always", cache=True)
-def _ggx_vndf_given(wx, wy, wz, ax, ay, ni, a, b, r2):
+def _ggx_vndf_given(wx, wy, wz, ax, ay, inv_ni, ca, sa, r2):
     """A microfacet normal from GGX's distribution of visible normals for w (wz > 0), given
-    ``ni`` = |(ax wx, ay wy, wz)| (:func:`_ggx_n`, which G1 needs too), a uniform point (a, b) of
-    the unit disk and r2 = a^2 + b^2. Branch-free.
+    ``inv_ni`` = 1 / |(ax wx, ay wy, wz)| (:func:`_ggx_n`, which G1 needs too) and a uniform
+    point of the unit disk as its direction (ca, sa) (unit) and squared radius r2. Branch-free.
 
     Dupuy & Benyoub (2023) "spherical caps" form of Heitz (2018): in the stretched frame the
     visible normal is h = c + v with c uniform on the cap z > -v_z of the unit sphere. The cap
     point from the disk point: z = 1 - q r2 with q = 1 + v_z and sin(theta) (cos, sin)(phi) =
-    (a, b) sqrt(q (2 - q r2)) -- no trigonometric call.
+    (ca, sa) sqrt(r2 q (2 - q r2)) -- no trigonometric call.
     """
-    inv = 1.0 / ni
-    vx = ax * wx * inv
-    vy = ay * wy * inv
-    vz = wz * inv
+    vx = ax * wx * inv_ni
+    vy = ay * wy * inv_ni
+    vz = wz * inv_ni
     q = 1.0 + vz
     z = 1.0 - q * r2
-    sc = math.sqrt(max(q * (2.0 - q * r2), 0.0))
-    hx = a * sc + vx
-    hy = b * sc + vy
+    sc = math.sqrt(max(r2 * q * (2.0 - q * r2), 0.0))
+    hx = ca * sc + vx
+    hy = sa * sc + vy
     hz = max(z + vz, 0.0)
     mx = ax * hx
     my = ay * hy
@@ -402,10 +401,19 @@ def _ggx_vndf_given(wx, wy, wz, ax, ay, ni, a, b, r2):
 
 
 @njit(inline="always", cache=True)
+def _disk_direction(s):
+    """A uniform point of the unit disk drawn by rejection from ``s``: its direction (unit) and
+    its squared radius, uniform in (0, 1)."""
+    a, b, r2 = _unit_disk(s)
+    inv = 1.0 / math.sqrt(r2)
+    return a * inv, b * inv, r2
+
+
+@njit(inline="always", cache=True)
 def _ggx_vndf(wx, wy, wz, ax, ay, s):
     """:func:`_ggx_vndf_given` with the disk point drawn by rejection from the stream ``s``."""
-    a, b, r2 = _unit_disk(s)
-    return _ggx_vndf_given(wx, wy, wz, ax, ay, _ggx_n(wx, wy, wz, ax, ay), a, b, r2)
+    ca, sa, r2 = _disk_direction(s)
+    return _ggx_vndf_given(wx, wy, wz, ax, ay, 1.0 / _ggx_n(wx, wy, wz, ax, ay), ca, sa, r2)
 
 
 @njit(inline="always", cache=True)
@@ -675,9 +683,9 @@ class AnisoGGX(GGX):
 
 
 @njit(inline="always", cache=True)
-def _ggx_given(p, wx, wy, wz, a, b, r2, u):
+def _ggx_given(p, wx, wy, wz, ca, sa, r2, u):
     """GGX reflection of the ray from w (either side: two-sided) given the VNDF's disk point
-    (a, b), r2 = a^2 + b^2, and the survival uniform u. Branch-free (block kernels vectorize
+    (direction (ca, sa), squared radius r2) and the survival uniform u. Branch-free (block kernels vectorize
     it): ``(ox, oy, oz, alive)``, the ray surviving with probability F(w.m) G2/G1.
 
     u < F G2/G1 is tested as u den_F den_G < num_F num_G (both denominators are >= 0, and > 0
@@ -689,7 +697,7 @@ def _ggx_given(p, wx, wy, wz, a, b, r2, u):
     ax = p[0]
     ay = p[1]
     ni = _ggx_n(wx, wy, wz, ax, ay)
-    mx, my, mz = _ggx_vndf_given(wx, wy, wz, ax, ay, ni, a, b, r2)
+    mx, my, mz = _ggx_vndf_given(wx, wy, wz, ax, ay, 1.0 / ni, ca, sa, r2)
     c = max(wx * mx + wy * my + wz * mz, 0.0)
     ox = 2.0 * c * mx - wx
     oy = 2.0 * c * my - wy
@@ -703,8 +711,8 @@ def _ggx_given(p, wx, wy, wz, a, b, r2, u):
 
 @njit(inline="always", cache=True)
 def _ggx(p, wx, wy, wz, s):
-    a, b, r2 = _unit_disk(s)
-    return _ggx_given(p, wx, wy, wz, a, b, r2, next_double(s))
+    ca, sa, r2 = _disk_direction(s)
+    return _ggx_given(p, wx, wy, wz, ca, sa, r2, next_double(s))
 
 
 # --- rough plastic --------------------------------------------------------------------------------
@@ -1053,8 +1061,8 @@ def scatter_given(model, p, wx, wy, wz, u0, u1, u2):
     if model == MODEL_LAMBERT:
         x, y, z = warp_cosine_hemisphere(u2, u1)
         return _lambert_given(p, wz, u0, x, y, z)
-    a, b = warp_polar(u2, u1, 1.0)
-    return _ggx_given(p, wx, wy, wz, a, b, u1, u0)
+    ca, sa = sincos_2pi(u2)
+    return _ggx_given(p, wx, wy, wz, ca, sa, u1, u0)
 
 
 # --- specimen strings -------------------------------------------------------------------------
