@@ -130,7 +130,7 @@ def gonio_json(record: Any) -> dict[str, Any]:
                for r in sub.itertuples(index=False)]
     tot = m["totals"][0]
     return {"N": int(m["rays"]), "seed": m["seed"], "collector": m["collector"], "beam": m["beam"],
-            "method": m["method"], "specimen": m["specimen"], "incidence": [float(t.theta_i.iloc[0]),
+            "method": m["method"], "kernel": m.get("kernel"), "specimen": m["specimen"], "incidence": [float(t.theta_i.iloc[0]),
                                                                            float(t.phi_i.iloc[0])],
             "wavelength_nm": first, "delta": m["delta"], "reflectance": tot["reflectance"],
             "transmittance": tot["transmittance"], "absorbed": tot["absorbed"], "missed": tot["missed"],
@@ -172,7 +172,7 @@ def cmd_gonio(args: argparse.Namespace) -> int:
         return 0
     m = record.meta
     print(f"specimen {m['specimen']}  incidence ({theta_i:g}, {phi_i:g}) deg  collector {g.collector}  "
-          f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']}  seed {g.seed}")
+          f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']} ({m.get('kernel')} kernel)  seed {g.seed}")
     if adaptive:
         print(adaptive["message"])
     for tot in m["totals"]:

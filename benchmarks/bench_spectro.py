@@ -19,7 +19,7 @@ def _uniforms_per_ray(beam: Beam, albedo: float) -> float:
     """Expected uniforms one ray draws: two disks, the Russian roulette and, for surviving
     rays, a rejection-sampled cosine direction (acceptance pi/4 for every rejection step)."""
     rejection = 4.0 / math.pi
-    disks = 0.0 if beam.kind == "collimated" else 4.0 * (rejection if beam.disk_sampling == "rejection" else 1.0)
+    disks = 0.0 if beam.kind == "collimated" else 4.0 * (1.0 if beam.disk_sampling == "polar" else rejection)
     return disks + 1.0 + albedo * 2.0 * rejection
 
 

@@ -9,6 +9,7 @@ from scipy import stats
 from bench.errors import GeometryError, InputError
 from bench.geometry import Geometry
 from bench.testing import check_conformance
+from virtual.beam import Beam
 from virtual.goniophotometer import VirtualGoniophotometer
 
 
@@ -81,6 +82,16 @@ def test_fast_path_matches_counting_rays_in_distribution():
     chi2, pvalue, _, _ = stats.chi2_contingency(np.vstack([a, b]))
     assert pvalue > 1e-3
     assert fast.meta["method"] == "fast" and rays.meta["method"] == "rays"
+    assert fast.meta["kernel"] == "fast" and rays.meta["kernel"] == "block"  # a Lambertian: the block kernel
+
+
+def test_record_says_which_kernel_counted():
+    g = VirtualGoniophotometer("phong:exponent=20", rays=1000, seed=1, method="rays")
+    assert g.kernel() == "ray"  # no branch-free form: ray by ray
+    g = VirtualGoniophotometer("ggx:alpha=0.3", beam=Beam("conical", disk_sampling="rejection"), rays=1000, seed=1)
+    assert g.kernel() == "ray"  # rejection-sampled disks are the ray-by-ray kernel's
+    g = VirtualGoniophotometer("ggx:alpha=0.3", beam=Beam("conical"), rays=1000, seed=1)
+    assert g.kernel() == "block" and g.measure_bsdf(30.0, 0.0).meta["kernel"] == "block"
 
 
 def test_roles_and_conformance():

@@ -34,7 +34,7 @@ from bench.records import BSDF_COLUMNS, BSDFRecord
 from virtual.beam import Beam, check_incidence
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.collector import Collector, parse_collector
-from virtual.engine import gonio_counts, measurement_seed, multinomial_counts
+from virtual.engine import gonio_counts, gonio_kernel_for, measurement_seed, multinomial_counts
 from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
 from virtual.spectrophotometer import fresh_seed, parse_wavelengths
 
@@ -184,6 +184,15 @@ class VirtualGoniophotometer(InstrumentBase):
             return True
         return self.method == "auto" and self.specimen.has_density and self.beam.kind == "collimated"
 
+    def kernel(self) -> str:
+        """What counts the rays: ``"fast"`` (one multinomial), ``"block"`` or ``"ray"`` (the
+        numba kernels, see :mod:`virtual.engine`) or ``"python"`` (a specimen without a kernel)."""
+        if self.uses_fast_path():
+            return "fast"
+        if self.specimen.model == MODEL_PYTHON:
+            return "python"
+        return gonio_kernel_for(self.specimen.model, self.beam.disk_code)
+
     def simulate(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.ndarray:
         """Counts per bin (R patches, T patches, absorbed, missed) for one incidence and
         wavelength; cached. The stream is keyed by (wavelength, incidence) so a repeated or
@@ -266,6 +275,6 @@ class VirtualGoniophotometer(InstrumentBase):
         table = pd.concat(frames, ignore_index=True)[BSDF_COLUMNS]
         meta = {"source": "virtual", "specimen": self.specimen.label, "collector": col.describe(),
                 "beam": self.beam.describe(), "rays": self.rays, "seed": self.seed, "delta": self.delta,
-                "method": "fast" if self.uses_fast_path() else "rays", "totals": totals,
+                "method": "fast" if self.uses_fast_path() else "rays", "kernel": self.kernel(), "totals": totals,
                 "reciprocal": self.specimen.reciprocal, "isotropic": self.specimen.isotropic}
         return BSDFRecord(table, meta)

@@ -6,7 +6,8 @@ For a simulated scene (:class:`virtual.scene.Scene`) the sweep covers
 * ray count ``N`` (``budget = "fixed"``),
 * sampling strategy of a conical beam's disks: ``rejection`` (eq. 3.3) and ``polar`` (eq. 3.4)
   in the kernel, ``jittered`` and ``sobol`` as precomputed points (spectrophotometer scenes
-  without per-ray effects),
+  without per-ray effects); for a goniophotometer the strategy also picks the kernel shape
+  (rejection: ray by ray; polar: the vectorized block kernel, for the models it serves),
 * collector subdivision (goniophotometer): equal angle / equal solid angle / equal PSA,
 * budget rule: ``eq3.5`` (eq. 3.5, or 3.12 with ``m`` patches, at the scene's ``v`` and
   ``delta``) against ``adaptive`` (:func:`virtual.bounds.run_adaptive`, same guarantee),
