@@ -454,11 +454,7 @@ class Collector:
                 np.ascontiguousarray(self.sin2_edges, dtype=np.float64), self.phi_cs)
 
     def guess_margins(self) -> tuple[float, float]:
-        """``(ring_margin, sector_margin)`` for :func:`guess_bin`, in ring and sector units.
-
-        Each is four times the polynomial atan's error bound plus 64 ulp of the rounding of
-        sin^2 theta near the edges (it grows as n^2 where sin^2 theta flattens, at the horizon).
-        """
+        """:func:`guess_margins` of this collector: the trailing arguments of :func:`guess_bin`."""
         return guess_margins(self.n_theta, self.n_phi)
 
     def index(self, dirs: np.ndarray) -> np.ndarray:

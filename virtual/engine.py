@@ -316,7 +316,7 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     (:func:`gonio_kernel_for`); the counts' distribution is the same either way.
     """
     shape = gonio_kernel_for(model, disk, kernel)
-    scheme, n_theta, n_phi = (int(v) for v in collector_args[:3])
+    n_theta, n_phi = int(collector_args[1]), int(collector_args[2])  # (scheme, n_theta, n_phi, ...)
     n_bins = 2 * n_theta * n_phi
     sizes = chunking(n_rays)
     p = np.ascontiguousarray(params, dtype=np.float64)

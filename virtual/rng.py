@@ -80,28 +80,21 @@ def fill_uniforms(lanes, out):
 
 def lane_states(seed: int | np.random.SeedSequence, n_streams: int, lanes: int = LANES) -> np.ndarray:
     """``(n_streams, 4, lanes)`` uint64: for each chunk, ``lanes`` xoshiro states drawn from one
-    child of ``seed`` (as :func:`stream_states`, one child per chunk)."""
-    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    states = np.empty((n_streams, 4, lanes), dtype=np.uint64)
-    for i, child in enumerate(ss.spawn(n_streams)):
-        st = child.generate_state(4 * lanes, dtype=np.uint64).reshape(lanes, 4)
-        st[~st.any(axis=1), 0] = 1  # all zero is xoshiro's fixed point
-        states[i] = st.T
-    return states
-
-
-def stream_states(seed: int | np.random.SeedSequence, n_streams: int) -> np.ndarray:
-    """``(n_streams, 4)`` uint64 xoshiro states, independent children of ``seed``.
+    independent child of ``seed``.
 
     A state of all zeros is a fixed point of xoshiro; SeedSequence output is never all zero
     in practice, but it is checked.
     """
     ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    children = ss.spawn(n_streams)
-    states = np.empty((n_streams, 4), dtype=np.uint64)
-    for i, child in enumerate(children):
-        st = child.generate_state(4, dtype=np.uint64)
-        if not st.any():
-            st[0] = 1
-        states[i] = st
+    states = np.empty((n_streams, 4, lanes), dtype=np.uint64)
+    for i, child in enumerate(ss.spawn(n_streams)):
+        st = child.generate_state(4 * lanes, dtype=np.uint64).reshape(lanes, 4)
+        st[~st.any(axis=1), 0] = 1
+        states[i] = st.T
     return states
+
+
+def stream_states(seed: int | np.random.SeedSequence, n_streams: int) -> np.ndarray:
+    """``(n_streams, 4)`` uint64 xoshiro states, independent children of ``seed``: one lane
+    per chunk (:func:`lane_states`)."""
+    return np.ascontiguousarray(lane_states(seed, n_streams, 1)[:, :, 0])

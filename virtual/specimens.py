@@ -422,11 +422,17 @@ def _ggx_n(wx, wy, wz, ax, ay):
 
 
 @njit(inline="always", cache=True)
+def _g2_over_g1_ratio(wz, ni, oz, no):
+    """G2(wi, wo) / G1(wi) as ``(num, den)`` from the cosines and :func:`_ggx_n` of both
+    directions; den > 0 for wz, oz > 0."""
+    return (wz + ni) * oz, ni * oz + no * wz
+
+
+@njit(inline="always", cache=True)
 def _g2_over_g1(wx, wy, wz, ox, oy, oz, ax, ay):
     """G2(wi, wo) / G1(wi) for wz, oz > 0 (<= 1)."""
-    ni = _ggx_n(wx, wy, wz, ax, ay)
-    no = _ggx_n(ox, oy, oz, ax, ay)
-    return (wz + ni) * oz / (ni * oz + no * wz)
+    num, den = _g2_over_g1_ratio(wz, _ggx_n(wx, wy, wz, ax, ay), oz, _ggx_n(ox, oy, oz, ax, ay))
+    return num / den
 
 
 @njit(inline="always", cache=True)
@@ -685,8 +691,9 @@ class AnisoGGX(GGX):
 @njit(inline="always", cache=True)
 def _ggx_given(p, wx, wy, wz, ca, sa, r2, u):
     """GGX reflection of the ray from w (either side: two-sided) given the VNDF's disk point
-    (direction (ca, sa), squared radius r2) and the survival uniform u. Branch-free (block kernels vectorize
-    it): ``(ox, oy, oz, alive)``, the ray surviving with probability F(w.m) G2/G1.
+    (direction (ca, sa), squared radius r2) and the survival uniform u. Branch-free (block
+    kernels vectorize it): ``(ox, oy, oz, alive)``, the ray surviving with probability
+    F(w.m) G2/G1.
 
     u < F G2/G1 is tested as u den_F den_G < num_F num_G (both denominators are >= 0, and > 0
     when wz, oz > 0): no division. The conductor Fresnel formula with k = 0 is the dielectric
@@ -703,9 +710,8 @@ def _ggx_given(p, wx, wy, wz, ca, sa, r2, u):
     oy = 2.0 * c * my - wy
     oz = 2.0 * c * mz - wz
     f_num, f_den = _fresnel_conductor_ratio(c, p[2], p[3])
-    no = _ggx_n(ox, oy, oz, ax, ay)
-    # G2/G1 = (wz + ni) oz / (ni oz + no wz), as in _g2_over_g1
-    alive = (wz > 0.0) & (oz > 0.0) & (u * f_den * (ni * oz + no * wz) < f_num * (wz + ni) * oz)
+    g_num, g_den = _g2_over_g1_ratio(wz, ni, oz, _ggx_n(ox, oy, oz, ax, ay))
+    alive = (wz > 0.0) & (oz > 0.0) & (u * f_den * g_den < f_num * g_num)
     return ox, oy, (-oz if flip else oz), alive
 
 
