@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import ConfigError
-from bench.instruments import InstrumentBase, InstrumentInfo, Reading, Spectrometer
+from bench.core.errors import ConfigError
+from bench.core.roles import InstrumentBase, InstrumentInfo, Reading, Spectrometer
 
 __all__ = ["SpectralBands"]
 

@@ -14,13 +14,13 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from bench.errors import BenchError, InputError
+from bench.core.errors import BenchError, InputError
 
 log = logging.getLogger("bench")
 
 
 def _emit_json(obj: Any) -> None:
-    from bench.records import json_default
+    from bench.core.records import json_default
 
     print(json.dumps(obj, indent=None, sort_keys=False, default=json_default))
 
@@ -67,7 +67,7 @@ def _spectro_instrument(args: argparse.Namespace):
 
 
 def cmd_spectro(args: argparse.Namespace) -> int:
-    from bench.geometry import cie_geometry
+    from bench.core.geometry import cie_geometry
 
     cie_geometry(args.geometry)  # bad geometry: exit 2 before any work
     sp = _spectro_instrument(args)

@@ -23,7 +23,7 @@ def _load(ref: str, store_path: str) -> tuple[str, Any]:
         from bench.importers import read_record
 
         return name or path.stem, read_record(path)
-    from bench.errors import InputError
+    from bench.core.errors import InputError
     from bench.store import RunStore
 
     if not Path(store_path).exists():

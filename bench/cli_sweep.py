@@ -12,7 +12,7 @@ import importlib.util
 import sys
 from typing import Any, Iterator
 
-from bench.errors import InputError
+from bench.core.errors import InputError
 
 DEFAULT_STORE = "goniobench-runs.sqlite"
 

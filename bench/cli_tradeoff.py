@@ -73,7 +73,7 @@ def _table(header: list[str], rows: list[list[Any]]) -> str:
 
 
 def cmd_tradeoff(args: argparse.Namespace) -> int:
-    from bench.errors import InputError
+    from bench.core.errors import InputError
     from virtual.scene import effect_costs, load_scene
     from virtual import tradeoff
 
@@ -158,7 +158,7 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
         factor's is ``v / (cone PSA / pi)``).
     rays_per_second, max_seconds
         When eq. 3.5's ray count would take longer than ``max_seconds`` at ``rays_per_second``
-        (e.g. ``v = 1e-6``), nothing runs: :class:`~bench.errors.BudgetError` reports the ray
+        (e.g. ``v = 1e-6``), nothing runs: :class:`~bench.core.errors.BudgetError` reports the ray
         count and the estimated time.
 
     Returns
@@ -170,7 +170,7 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
     """
     import numpy as np
 
-    from bench.errors import BudgetError
+    from bench.core.errors import BudgetError
     from dataclasses import replace
 
     from virtual.bounds import adaptive_plan, budget_report, hoeffding_rays, run_adaptive
@@ -190,7 +190,7 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
     per_wl: list[int] = []
     if gonio:
         theta_i, phi_i = float(measure_kw.get("theta_i", 30.0)), float(measure_kw.get("phi_i", 0.0))
-        from bench.geometry import Geometry
+        from bench.core.geometry import Geometry
 
         instrument.check(Geometry(theta_i, phi_i % 360.0, 0.0, 0.0))  # refuse before any ray is cast
         wls = instrument.wavelengths if measure_kw.get("wavelengths") is None else parse_wavelengths(
@@ -199,7 +199,7 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
         cargs = instrument.collector.kernel_args()
         fast = instrument.uses_fast_path()
     else:
-        from bench.geometry import cie_geometry
+        from bench.core.geometry import cie_geometry
 
         geometry = cie_geometry(measure_kw.get("geometry", "8/d"))
         measured = geometry.reciprocal_directional

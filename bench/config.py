@@ -34,9 +34,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from bench.calibrate import WhiteStandard
-from bench.errors import BenchError, ConfigError
-from bench.instruments import Goniometer, LightSource, Reading, Spectrometer
+from bench.core.calibration import WhiteStandard
+from bench.core.errors import BenchError, ConfigError
+from bench.core.parsing import read_toml
+from bench.core.roles import Goniometer, LightSource, Reading, Spectrometer
 from bench.plans import MotionProfile
 
 __all__ = ["Bench", "load_bench", "read_toml", "BUILDERS"]
@@ -98,21 +99,6 @@ class Bench:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def read_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file; a missing or malformed file is a :class:`ConfigError` naming it."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib  # type: ignore[no-redef]
-    p = Path(path)
-    try:
-        return tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"config file {p} does not exist") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"config file {p}: {exc}") from None
 
 
 def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None) -> Bench:

@@ -62,7 +62,7 @@ ROUGHER = "plastic:alpha=0.3,eta=1.5,kd=0.5"
 
 def _gonio_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
     """In-plane and hemispherical BRDF of a glossy specimen on the virtual goniophotometer."""
-    from bench.geometry import Geometry
+    from bench.core.geometry import Geometry
     from bench.plotting import plot_bsdf_polar, plot_in_plane
     from virtual.goniophotometer import VirtualGoniophotometer
 

@@ -39,10 +39,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from bench.bands import SpectralBands
-from bench.calibrate import WhiteStandard
+from bench.core.calibration import WhiteStandard
 from bench.config import Bench
-from bench.errors import CalibrationError, ConfigError
-from bench.instruments import InstrumentBase, InstrumentInfo, Reading
+from bench.core.errors import CalibrationError, ConfigError
+from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
 from bench.plans import MotionProfile
 
 log = logging.getLogger(__name__)

@@ -60,9 +60,9 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from bench.errors import InputError
-from bench.instruments import Spectrum
-from bench.records import BSDFRecord, json_default
+from bench.core.errors import InputError
+from bench.core.roles import Spectrum
+from bench.core.records import BSDFRecord, json_default
 
 __all__ = [
     "spectrum_table", "spectrum_to_csv", "atomic_write", "json_default",

@@ -1,5 +1,5 @@
 """Importers: files written by :mod:`bench.export` (and by other tools in the same layouts)
-back into :class:`bench.records.BSDFRecord` (angles in degrees inside).
+back into :class:`bench.core.records.BSDFRecord` (angles in degrees inside).
 
 * :func:`read_tidy_csv` — our tidy CSV, metadata from the ``# meta:`` header or ``<file>.json``.
 * :func:`read_parquet` — our Parquet, metadata from the schema's ``goniobench.meta`` key.
@@ -8,7 +8,7 @@ back into :class:`bench.records.BSDFRecord` (angles in degrees inside).
   direction converted back from the specular-centred angles (:func:`bench.export.from_specular`).
 * :func:`read_record` — any of these by file name.
 
-A malformed file raises :class:`bench.errors.InputError` naming the file, the line and what
+A malformed file raises :class:`bench.core.errors.InputError` naming the file, the line and what
 was expected there.
 """
 
@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import InputError
+from bench.core.errors import InputError
 from bench.export import CSV_MAGIC, PARQUET_META_KEY, from_specular
-from bench.records import BSDF_COLUMNS, BSDFRecord
+from bench.core.records import BSDF_COLUMNS, BSDFRecord
 
 __all__ = ["read_tidy_csv", "read_parquet", "read_astm", "read_zemax", "read_record"]
 

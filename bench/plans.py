@@ -29,8 +29,9 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from bench.errors import ConfigError, GeometryError, PlanError
-from bench.geometry import Geometry, cie_geometry
+from bench.core.errors import ConfigError, GeometryError, PlanError
+from bench.core.geometry import Geometry, cie_geometry
+from bench.core.parsing import parse_range, read_toml
 
 __all__ = [
     "Plan",
@@ -74,23 +75,7 @@ class Plan:
 
 
 def _range(value: Any, where: str) -> list[float]:
-    if isinstance(value, (int, float)):
-        return [float(value)]
-    if isinstance(value, Mapping):
-        try:
-            start, stop, step = (float(value[k]) for k in ("start", "stop", "step"))
-        except KeyError as exc:
-            raise ConfigError(f"{where}: a range table needs start, stop and step (missing {exc})") from None
-        if step <= 0 or stop < start:
-            raise ConfigError(f"{where}: need start <= stop and step > 0, got {dict(value)}")
-        n = int(math.floor((stop - start) / step + 1e-9)) + 1
-        return [round(start + i * step, 10) for i in range(n)]
-    if isinstance(value, Sequence) and not isinstance(value, str):
-        try:
-            return [float(v) for v in value]
-        except (TypeError, ValueError):
-            raise ConfigError(f"{where}: expected numbers, got {list(value)!r}") from None
-    raise ConfigError(f"{where}: expected a number, a list or a {{start, stop, step}} table, got {value!r}")
+    return parse_range(value, where)
 
 
 def half_vector_to_geometry(theta_h: float, phi_h: float, theta_d: float, phi_d: float) -> Geometry:
@@ -194,16 +179,7 @@ def plan_from_dict(d: Mapping[str, Any], name: str = "plan") -> Plan:
 def load_plan(path: str | Path) -> Plan:
     """Read a plan TOML file."""
     p = Path(path)
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib  # type: ignore[no-redef]
-    try:
-        d = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"plan file {p} does not exist") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"plan file {p}: {exc}") from None
+    d = read_toml(p, "plan file")
     return plan_from_dict(d, name=p.stem)
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bench.instruments import Spectrum
+from bench.core.roles import Spectrum
 
 __all__ = ["plot_spectrum", "plot_bsdf_polar", "plot_in_plane", "pyplot"]
 

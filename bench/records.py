@@ -1,62 +1,8 @@
-"""Records: the tidy data every device, store, export and comparison shares.
+"""Deprecated: moved to :mod:`bench.core.records` (the contract layer); this re-export goes after one release."""
 
-A :class:`BSDFRecord` is a ``pandas.DataFrame`` with one row per (wavelength, incidence,
-viewing patch or direction) and a metadata dict. Columns (angles in degrees):
+import warnings as _warnings
 
-=================  ============================================================================
-wavelength_nm      wavelength
-theta_i, phi_i     incidence (toward the source)
-theta_r, phi_r     viewing direction (patch centre for a virtual collector)
-hemisphere         ``"R"`` (reflection side) or ``"T"`` (transmission side)
-value              BRDF or BTDF (1/sr)
-std                standard uncertainty of ``value`` (1/sr)
-ci_lo, ci_hi       interval at confidence ``1 - meta["delta"]`` (1/sr)
-theta_min ...      patch bounds ``theta_min, theta_max, phi_min, phi_max`` (virtual collectors;
-                   a physical detector gives its aperture instead)
-psa                projected solid angle of the patch or aperture (sr)
-count, N           rays in the patch and rays that reached the specimen (virtual)
-=================  ============================================================================
-"""
+from bench.core.records import *  # noqa: F401,F403
+from bench.core.records import __all__ as _all  # noqa: F401
 
-from __future__ import annotations
-
-from dataclasses import dataclass, field
-from typing import Any
-
-__all__ = ["BSDFRecord", "BSDF_COLUMNS", "json_default"]
-
-BSDF_COLUMNS = ["wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "hemisphere", "value", "std",
-                "ci_lo", "ci_hi", "theta_min", "theta_max", "phi_min", "phi_max", "psa", "count", "N"]
-
-
-def json_default(o: Any) -> Any:
-    """``json.dumps`` fallback for record metadata: numpy scalars and arrays, sets and tuples,
-    objects with ``as_dict``; anything else as its string."""
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (set, frozenset, tuple)):
-        return list(o)
-    if hasattr(o, "as_dict"):
-        return o.as_dict()
-    return str(o)
-
-
-@dataclass
-class BSDFRecord:
-    """A goniophotometric record: ``table`` (pandas DataFrame, :data:`BSDF_COLUMNS`) and ``meta``."""
-
-    table: Any
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    def reflection(self) -> "BSDFRecord":
-        return BSDFRecord(self.table[self.table.hemisphere == "R"].reset_index(drop=True), dict(self.meta))
-
-    def transmission(self) -> "BSDFRecord":
-        return BSDFRecord(self.table[self.table.hemisphere == "T"].reset_index(drop=True), dict(self.meta))
-
-    def __len__(self) -> int:
-        return len(self.table)
+_warnings.warn("bench.records is deprecated; import bench.core.records", DeprecationWarning, stacklevel=2)

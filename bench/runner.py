@@ -4,7 +4,7 @@
 * Each point is committed to the store in one transaction; a killed process loses nothing
   committed, and :func:`resume` finishes a run with exactly the missing points.
 * Ctrl-C or a device fault ends the run cleanly: it is stored as ``interrupted`` with the
-  reason, and :class:`bench.errors.RunInterrupted` is raised.
+  reason, and :class:`bench.core.errors.RunInterrupted` is raised.
 * The white reference is measured once, before the run is created, and stored with it; a
   resumed run reuses it, so its values are those an uninterrupted run would have recorded.
 """
@@ -18,11 +18,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from bench.calibrate import Calibration
+from bench.core.calibration import Calibration
 from bench.config import Bench
-from bench.errors import BenchError, DeviceError, RunInterrupted, StoreError
-from bench.geometry import Geometry
-from bench.instruments import Reading
+from bench.core.errors import BenchError, DeviceError, RunInterrupted, StoreError
+from bench.core.geometry import Geometry
+from bench.core.roles import Reading
 from bench.plans import Plan, order_for_travel, plan_from_dict, validate
 
 log = logging.getLogger(__name__)

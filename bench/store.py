@@ -34,9 +34,9 @@ timestamps as UTC ISO text and epoch seconds, plan / bench / versions / calibrat
 text, seed, n_planned); ``run_events`` (status history); ``points`` (run_id, idx, geometry,
 t_start, t_end, status, n_readings; ``UNIQUE(run_id, idx)``); ``readings`` (run_id, idx,
 wavelength_nm, optional per-row viewing direction, signal, dark, white, value, std, ci_lo, ci_hi,
-saturated, the virtual-patch columns of :data:`bench.records.BSDF_COLUMNS` and a JSON ``extra``).
+saturated, the virtual-patch columns of :data:`bench.core.records.BSDF_COLUMNS` and a JSON ``extra``).
 Opening a file whose schema version is unknown (newer, or not a goniobench store) raises
-:class:`bench.errors.StoreError` rather than guessing.
+:class:`bench.core.errors.StoreError` rather than guessing.
 
 Note: SQLite stores a float NaN as NULL; NaN values come back as NaN in :meth:`RunStore.readings`.
 """
@@ -57,8 +57,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bench.errors import InputError, StoreError
-from bench.records import BSDF_COLUMNS, BSDFRecord, json_default
+from bench.core.errors import InputError, StoreError
+from bench.core.records import BSDF_COLUMNS, BSDFRecord, json_default
 
 __all__ = ["RunStore", "SCHEMA_VERSION", "RUN_KINDS", "RUN_STATUSES", "READING_COLUMNS",
            "package_versions", "new_run_id"]
@@ -230,7 +230,7 @@ class RunStore:
         The database file; created (with parent folders) unless ``create`` is false.
     timeout : float
         Seconds any connection waits for a lock (``busy_timeout``) before raising
-        :class:`bench.errors.StoreError`; readers beside a running scan never see
+        :class:`bench.core.errors.StoreError`; readers beside a running scan never see
         "database is locked".
     synchronous : {"NORMAL", "FULL"}
         ``NORMAL`` (default): durable against process crashes (SIGKILL), not against power

@@ -65,7 +65,7 @@ from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 
-from bench.errors import BenchError, ConfigError, InputError, RunInterrupted, SimulationError, StoreError
+from bench.core.errors import BenchError, ConfigError, InputError, RunInterrupted, SimulationError, StoreError
 
 log = logging.getLogger(__name__)
 
@@ -338,7 +338,7 @@ def _series(instrument: str, e: Mapping[str, Any], where: str, parse_wavelengths
             checked: dict) -> tuple[dict[str, Any], np.ndarray]:
     """Validate one series (building its instrument once per distinct specimen/collector) and
     return its canonical parameters and wavelengths."""
-    from bench.geometry import cie_geometry
+    from bench.core.geometry import cie_geometry
     from virtual.bounds import hoeffding_rays
     from virtual.collector import parse_collector
     from virtual.specimens import parse_specimen
@@ -509,7 +509,7 @@ def _spectro_rows(task: SweepTask) -> Any:
     (45/0, 0/45; ``quantity`` in :func:`sweep_readings`); its ``std`` is scaled like its value."""
     import pandas as pd
 
-    from bench.geometry import cie_geometry
+    from bench.core.geometry import cie_geometry
     from virtual.spectrophotometer import VirtualSpectrophotometer
 
     sp = VirtualSpectrophotometer(task.specimen, rays=task.rays, beam=task.beam, seed=task.seed,
@@ -693,7 +693,7 @@ def _progress(total: int, initial: int, enabled: bool, desc: str) -> Any:
 def task_table(spec: SweepSpec) -> dict[str, list[Any]]:
     """The per-task metadata fixed by the spec, column-wise (lists aligned with the task index):
     :data:`TASK_COLUMNS`. Stored in the run's meta as ``tasks``; :func:`sweep_readings` joins it."""
-    from bench.geometry import cie_geometry
+    from bench.core.geometry import cie_geometry
 
     def quantity(t: SweepTask) -> str | None:
         if t.geometry is None:

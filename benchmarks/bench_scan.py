@@ -31,7 +31,7 @@ def _plan(n: int):
 
 def _parts(bench, n: int = 100) -> dict[str, float]:
     """Mean seconds of the pieces of one point, measured apart."""
-    from bench.geometry import Geometry
+    from bench.core.geometry import Geometry
 
     g = Geometry(30.0, 0.0, 20.0, 180.0)
     bench.goniometer.move_to(g)

@@ -8,7 +8,7 @@ Entry points (imported lazily, so ``import compare`` stays cheap for the CLI):
 * :func:`compare.align.align` -- point-by-point matching -> :class:`compare.align.Aligned`;
 * :func:`compare.checks.run_checks` -- reciprocity, energy conservation, isotropy of a BSDF record.
 
-``compare`` reads records only (:mod:`bench.records`, :mod:`bench.instruments`); it never
+``compare`` reads records only (:mod:`bench.core.records`, :mod:`bench.core.roles`); it never
 imports ``virtual`` or ``drivers``.
 """
 

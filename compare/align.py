@@ -1,6 +1,6 @@
 """Alignment of an actual record with a candidate (virtual) record, point by point.
 
-Records are :class:`bench.records.BSDFRecord` or :class:`bench.instruments.Spectrum` objects;
+Records are :class:`bench.core.records.BSDFRecord` or :class:`bench.core.roles.Spectrum` objects;
 this module reads their tables and metadata only (it never imports ``virtual`` or ``drivers``).
 
 Matching rules
@@ -33,9 +33,9 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from bench.errors import InputError
-from bench.instruments import Spectrum
-from bench.records import BSDFRecord
+from bench.core.errors import InputError
+from bench.core.roles import Spectrum
+from bench.core.records import BSDFRecord
 
 __all__ = [
     "AlignmentError", "QuantityMismatchError", "NoOverlapError", "Aligned", "align", "as_record",

@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bench.errors import InputError
-from bench.records import BSDFRecord
+from bench.core.errors import InputError
+from bench.core.records import BSDFRecord
 
 from compare.align import _bsdf_long, _locate_patch, angular_distance_deg, as_record, is_virtual
 from compare.stats import GONIO_UNCERTAINTY

@@ -32,10 +32,10 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from bench.errors import InputError
-from bench.instruments import Spectrum
+from bench.core.errors import InputError
+from bench.core.roles import Spectrum
 from bench.plotting import plot_bsdf_polar, plot_in_plane, pyplot
-from bench.records import BSDFRecord
+from bench.core.records import BSDFRecord
 
 from compare.align import AlignmentError, as_record, record_kind, record_quantity
 from compare.stats import (DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, Comparison, compare, nominal_fraction,

@@ -42,7 +42,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from bench.errors import InputError
+from bench.core.errors import InputError
 
 from compare.align import Aligned, align
 

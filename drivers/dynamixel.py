@@ -78,7 +78,7 @@ from dynamixel_sdk import (
     PacketHandler,
 )
 
-from bench.errors import (
+from bench.core.errors import (
     BenchError,
     ChecksumError,
     CommunicationError,
@@ -91,8 +91,8 @@ from bench.errors import (
     PortGoneError,
     ProtocolError,
 )
-from bench.geometry import Geometry
-from bench.instruments import InstrumentBase, InstrumentInfo
+from bench.core.geometry import Geometry
+from bench.core.roles import InstrumentBase, InstrumentInfo
 from drivers import kinematics as kin
 from drivers.kinematics import JOINTS, Joints, KinematicsConfig
 from drivers.transport import SerialTransport, Transport, TransportPortHandler

@@ -25,7 +25,7 @@ limits, nearest to a given current position if any), and back: ``theta_i = s``,
 Degenerate poles. At ``theta_i = 0`` the source is on the normal and the turntable is a free
 degree of freedom; at ``theta_r = 0`` the detector azimuth is free. The canonical form of a
 geometry (:func:`canonical`) therefore sets ``phi_i = 0`` when ``theta_i = 0`` and ``phi_r = 0``
-when ``theta_r = 0`` (the convention of :func:`bench.geometry.spherical`), and
+when ``theta_r = 0`` (the convention of :func:`bench.core.geometry.spherical`), and
 :func:`joints_to_geometry` returns canonical geometries; round trips compare canonical forms.
 ``geometry_to_joints`` resolves the free joints so: at ``theta_i = 0`` (and ``theta_r > 0``)
 the turntable is set to ``phi_r - 180`` so that the detector sits opposite the source arm
@@ -62,8 +62,8 @@ from typing import Any, Mapping, NamedTuple
 
 import numpy as np
 
-from bench.errors import ConfigError, GeometryError
-from bench.geometry import Geometry, direction
+from bench.core.errors import ConfigError, GeometryError
+from bench.core.geometry import Geometry, direction
 
 __all__ = [
     "JOINTS",

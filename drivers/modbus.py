@@ -47,7 +47,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from pymodbus.framer import FramerType
 
-from bench.errors import (
+from bench.core.errors import (
     ChecksumError,
     ConfigError,
     DeviceError,
@@ -59,7 +59,7 @@ from bench.errors import (
     PortGoneError,
     ProtocolError,
 )
-from bench.instruments import InstrumentInfo
+from bench.core.roles import InstrumentInfo
 from drivers.registers import RegisterMap, load_register_map
 
 __all__ = ["StageAxis", "AxisConfig", "ModbusStageAxis", "TransportModbusClient",
@@ -82,7 +82,7 @@ class StageAxis(Protocol):
 
     ``move_to_deg`` blocks until in position and returns the position read back;
     ``check_deg`` raises :class:`GeometryError` for a target it would refuse, before any motion.
-    (A candidate for ``bench.instruments``; defined here until its owner adopts it.)
+    (A candidate for ``bench.core.roles``; defined here until its owner adopts it.)
     """
 
     def check_deg(self, angle: float) -> None: ...

@@ -30,7 +30,7 @@ Calibration slots (``?x<n>``; the usual Ocean EEPROM layout)
     c3 p^3); 5 stray light; 6..13 non-linearity coefficients k0..k7; 14 non-linearity order.
 
 The driver fills the ``Spectrometer`` role: :meth:`OceanSpectrometer.acquire` returns a
-:class:`bench.instruments.Reading` per pixel (mean over ``averages`` scans, per-scan counts when
+:class:`bench.core.roles.Reading` per pixel (mean over ``averages`` scans, per-scan counts when
 scans are accumulated on the device), flags pixels that saturated in any scan (65535, or
 65535 x scans for an accumulated frame), optionally subtracts the electrical dark of the masked
 pixels and optionally applies the non-linearity correction (refused with
@@ -51,7 +51,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from bench.errors import (
+from bench.core.errors import (
     CalibrationError,
     ChecksumError,
     CommunicationError,
@@ -61,7 +61,7 @@ from bench.errors import (
     PortGoneError,
     ProtocolError,
 )
-from bench.instruments import InstrumentInfo, Reading
+from bench.core.roles import InstrumentInfo, Reading
 
 __all__ = ["OceanConfig", "OceanSpectrometer", "MODELS", "decode_compressed",
            "nonlinearity_factor", "validate_nonlinearity", "wavelength_polynomial"]

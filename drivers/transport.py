@@ -5,10 +5,10 @@ A :class:`Transport` moves bytes and nothing else; protocol code sits above it. 
 ``SerialTransport``
     Any pyserial URL (``/dev/ttyUSB0``, a pty slave path, ``loop://``, ``socket://host:port``)
     with exact-length reads against a deadline. A vanished port (``OSError``, ``termios.error``,
-    ``serial.SerialException``) becomes :class:`bench.errors.PortGoneError`.
+    ``serial.SerialException``) becomes :class:`bench.core.errors.PortGoneError`.
 ``ScriptedTransport``
     Replays recorded ``(sent, reply)`` pairs (the PyMeasure ``expected_protocol`` idea): every
-    written byte must equal the recording, else :class:`bench.errors.TransportMismatchError`
+    written byte must equal the recording, else :class:`bench.core.errors.TransportMismatchError`
     names the pair, the first differing byte and both byte strings in hex; bytes left unsent or
     unread at :meth:`ScriptedTransport.close` are a mismatch too. It never waits: a reply shorter
     than asked for behaves as a timeout at once, so scripted tests are fast and deterministic.
@@ -43,7 +43,7 @@ from typing import Callable, Iterable, Protocol, Sequence, runtime_checkable
 
 import serial
 
-from bench.errors import ConfigError, DeviceError, PortGoneError, TransportMismatchError
+from bench.core.errors import ConfigError, DeviceError, PortGoneError, TransportMismatchError
 
 try:  # the SDK is a declared dependency, but keep the plain transports importable without it
     from dynamixel_sdk import PortHandler as _SdkPortHandler

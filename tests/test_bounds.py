@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from scipy import signal, stats
 
-from bench.errors import BudgetError, InputError
+from bench.core.errors import BudgetError, InputError
 from virtual.bounds import (
     AdaptivePlan,
     _certify,

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from bench.calibrate import Calibration, WhiteStandard
-from bench.errors import CalibrationError
-from bench.geometry import Geometry
-from bench.instruments import Reading
+from bench.core.calibration import Calibration, WhiteStandard
+from bench.core.errors import CalibrationError
+from bench.core.geometry import Geometry
+from bench.core.roles import Reading
 
 WL = np.array([450.0, 550.0, 650.0])
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numba import njit
 
-from bench.errors import InputError
+from bench.core.errors import InputError
 from virtual.collector import ATAN_MAX_ERROR, SCHEMES, Collector, _approx_phi, guess_bin, parse_collector, patch_of
 
 

@@ -18,9 +18,9 @@ import pandas as pd
 import pytest
 from scipy import stats as sps
 
-from bench.errors import InputError
-from bench.instruments import Spectrum
-from bench.records import BSDF_COLUMNS, BSDFRecord
+from bench.core.errors import InputError
+from bench.core.roles import Spectrum
+from bench.core.records import BSDF_COLUMNS, BSDFRecord
 from compare.align import NoOverlapError, QuantityMismatchError, align
 from compare.checks import energy_conservation, isotropy, reciprocity
 from compare.stats import (UncertaintyError, bland_altman, compare, delta_e2000, fraction_band, nominal_fraction,

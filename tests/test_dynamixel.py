@@ -16,7 +16,7 @@ from dynamixel_sdk import COMM_SUCCESS, GroupBulkRead, GroupSyncRead, PacketHand
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.errors import (
+from bench.core.errors import (
     ChecksumError,
     ConfigError,
     DeviceTimeoutError,
@@ -26,8 +26,8 @@ from bench.errors import (
     PortGoneError,
     ProtocolError,
 )
-from bench.geometry import Geometry
-from bench.testing import angular_distance_deg, check_conformance
+from bench.core.geometry import Geometry
+from bench.core.conformance import angular_distance_deg, check_conformance
 from drivers.dynamixel import ArmConfig, AxisConfig, DynamixelArm, decode_hardware_error
 from drivers.kinematics import JOINTS
 from drivers.transport import (

@@ -10,7 +10,7 @@ from scipy import stats
 from bench.config import load_bench
 from bench.emulated import DEFAULT_EMULATED_CONFIG
 from bench.config import read_toml
-from bench.errors import PlanError, RunInterrupted
+from bench.core.errors import PlanError, RunInterrupted
 from bench.plans import load_plan, plan_from_dict
 from bench.runner import resume_scan, run_scan
 from bench.store import RunStore

@@ -6,7 +6,7 @@ import numba
 import numpy as np
 import pytest
 
-from bench.errors import GeometryError, InputError
+from bench.core.errors import GeometryError, InputError
 from virtual.beam import Beam, rotation_to
 from virtual.engine import chunking, measurement_seed, spectro_counts
 from virtual.specimens import Lambertian

@@ -12,12 +12,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.errors import InputError
+from bench.core.errors import InputError
 from bench.export import (atomic_write, export_record, export_run, from_specular, record_to_astm,
                           record_to_csv, record_to_parquet, record_to_zemax, specular_frame,
                           spectrum_to_csv, to_specular, zemax_grid)
 from bench.importers import read_astm, read_parquet, read_record, read_tidy_csv, read_zemax
-from bench.records import BSDF_COLUMNS, BSDFRecord
+from bench.core.records import BSDF_COLUMNS, BSDFRecord
 from bench.store import RunStore
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from hypothesis import given, strategies as st
 
-from bench.errors import GeometryError
-from bench.geometry import CIE_GEOMETRIES, Geometry, cie_geometry, direction, spherical
+from bench.core.errors import GeometryError
+from bench.core.geometry import CIE_GEOMETRIES, Geometry, cie_geometry, direction, spherical
 
 
 def test_in_plane_signs_follow_the_specular_side():

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from bench.errors import GeometryError, InputError
-from bench.geometry import Geometry
-from bench.testing import check_conformance
+from bench.core.errors import GeometryError, InputError
+from bench.core.geometry import Geometry
+from bench.core.conformance import check_conformance
 from virtual.beam import Beam
 from virtual.goniophotometer import VirtualGoniophotometer
 

@@ -15,9 +15,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from bench.calibrate import Calibration, WhiteStandard
-from bench.errors import BudgetError, GeometryError
-from bench.geometry import Geometry, spherical
+from bench.core.calibration import Calibration, WhiteStandard
+from bench.core.errors import BudgetError, GeometryError
+from bench.core.geometry import Geometry, spherical
 from virtual.beam import Beam, check_incidence, rotation_to
 from virtual.bounds import adaptive_plan, binomial_ci, budget_report, hoeffding_rays
 from virtual.collector import Collector
@@ -278,7 +278,7 @@ def test_calibration_with_a_reference_at_or_below_dark_on_a_virtual_bench():
     assert c.masked.all() and set(c.mask_reason) == {"white reference at or below dark"}
     assert not np.isinf(c.brdf).any() and not (c.brdf < 0).any()
     # 2. a reference whose middle pixel lies below its dark: only that one is masked
-    from bench.instruments import Reading
+    from bench.core.roles import Reading
 
     wd = Reading(wavelengths=white.wavelengths, signal=np.array([0.0, white.signal[1] * 1.01, 0.0]),
                  saturated=np.zeros(3, bool), integration_s=0.1, averages=1, dark=True, std=np.zeros(3))

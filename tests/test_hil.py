@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from bench.geometry import Geometry
+from bench.core.geometry import Geometry
 from bench.plans import plan_from_dict
 from bench.runner import run_scan
 from bench.store import RunStore
-from bench.testing import check_goniometer, check_instrument, check_spectrometer
+from bench.core.conformance import check_goniometer, check_instrument, check_spectrometer
 
 pytestmark = pytest.mark.hil
 

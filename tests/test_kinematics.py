@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.errors import ConfigError, GeometryError
-from bench.geometry import Geometry
+from bench.core.errors import ConfigError, GeometryError
+from bench.core.geometry import Geometry
 from drivers.kinematics import (
     Joints,
     KinematicsConfig,

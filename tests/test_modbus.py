@@ -26,7 +26,7 @@ from pymodbus.pdu.register_message import (  # noqa: E402
     WriteMultipleRegistersRequest,
 )
 
-from bench.errors import (  # noqa: E402
+from bench.core.errors import (  # noqa: E402
     ChecksumError,
     ConfigError,
     DeviceTimeoutError,
@@ -37,7 +37,7 @@ from bench.errors import (  # noqa: E402
     ProtocolError,
     TransportMismatchError,
 )
-from bench.testing import check_conformance  # noqa: E402
+from bench.core.conformance import check_conformance  # noqa: E402
 from drivers.modbus import (  # noqa: E402
     AxisConfig,
     ModbusStageAxis,

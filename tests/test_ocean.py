@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # for `python tests/test_ocean.py --record`
     sys.path.insert(0, str(ROOT))
 
-from bench.errors import (  # noqa: E402
+from bench.core.errors import (  # noqa: E402
     CalibrationError,
     ChecksumError,
     ConfigError,
@@ -31,8 +31,8 @@ from bench.errors import (  # noqa: E402
     ProtocolError,
     TransportMismatchError,
 )
-from bench.instruments import Reading, Spectrometer  # noqa: E402
-from bench.testing import check_conformance  # noqa: E402
+from bench.core.roles import Reading, Spectrometer  # noqa: E402
+from bench.core.conformance import check_conformance  # noqa: E402
 from drivers.ocean import (  # noqa: E402
     OceanSpectrometer,
     decode_compressed,

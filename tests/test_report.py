@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.records import BSDFRecord
+from bench.core.records import BSDFRecord
 from compare.align import QuantityMismatchError
 from compare.report import compare_records, figure_ids, load_record, slug
 from compare.stats import SUMMARY_KEYS
@@ -138,7 +138,7 @@ def test_load_record_reads_a_tidy_csv(tmp_path):
 
 def test_measured_record_without_patches_gets_point_maps_and_the_gonio_uncertainty(tmp_path):
     """A physical in-plane record: points, no patch bounds, no std of its own."""
-    from bench.records import BSDF_COLUMNS
+    from bench.core.records import BSDF_COLUMNS
     from virtual.goniophotometer import VirtualGoniophotometer
 
     rng = np.random.default_rng(3)

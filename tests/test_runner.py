@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bench.config import load_bench
-from bench.errors import DeviceTimeoutError, PlanError, RunInterrupted
+from bench.core.errors import DeviceTimeoutError, PlanError, RunInterrupted
 from bench.plans import load_plan, plan_from_dict
 from bench.runner import resume_scan, run_scan
 from bench.store import RunStore

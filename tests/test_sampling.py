@@ -23,7 +23,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from bench.errors import InputError
+from bench.core.errors import InputError
 from virtual.sampling import (
     DISK_STRATEGIES,
     sample_disk,

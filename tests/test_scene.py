@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.errors import ConfigError, GeometryError
+from bench.core.errors import ConfigError, GeometryError
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import gonio_counts, measurement_seed, spectro_counts

@@ -16,8 +16,8 @@ import pytest
 from numba import njit
 from scipy.stats import chi2 as chi2_dist
 
-from bench.errors import SpecimenError
-from bench.geometry import direction
+from bench.core.errors import SpecimenError
+from bench.core.geometry import direction
 from virtual.collector import Collector, patch_of
 from virtual.quadrature import integrate_patches, patch_integrals
 from virtual.rng import stream_states

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from bench.errors import GeometryError, InputError, SpecimenError
-from bench.testing import check_conformance
+from bench.core.errors import GeometryError, InputError, SpecimenError
+from bench.core.conformance import check_conformance
 from virtual.bounds import hoeffding_rays
 from virtual.spectrophotometer import VirtualSpectrophotometer, parse_wavelengths
 

@@ -20,9 +20,9 @@ import pandas as pd
 import pytest
 
 import bench.store as store_mod
-from bench.errors import InputError, StoreError
-from bench.geometry import Geometry
-from bench.records import BSDF_COLUMNS
+from bench.core.errors import InputError, StoreError
+from bench.core.geometry import Geometry
+from bench.core.records import BSDF_COLUMNS
 from bench.store import SCHEMA_VERSION, RunStore
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from bench.cli import main
-from bench.errors import ConfigError, RunInterrupted, StoreError
+from bench.core.errors import ConfigError, RunInterrupted, StoreError
 from bench.store import RunStore
 from store_probe import committed_points
 from bench.sweep import (TASK_COLUMNS, TaskResult, _Sink, load_sweep, resume_sweep, run_sweep, run_task, series_seed,

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler
 
-from bench.errors import ConfigError, PortGoneError, TransportMismatchError
+from bench.core.errors import ConfigError, PortGoneError, TransportMismatchError
 from drivers.transport import (
     RecordingTransport,
     ScriptedTransport,

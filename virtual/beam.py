@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from bench.errors import GeometryError, InputError
+from bench.core.errors import GeometryError, InputError
 from virtual.rng import next_double
 from virtual.sampling import warp_polar, warp_square
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from bench.calibrate import WhiteStandard
+from bench.core.calibration import WhiteStandard
 from bench.config import Bench
-from bench.errors import ConfigError
-from bench.instruments import Reading
+from bench.core.errors import ConfigError
+from bench.core.roles import Reading
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.specimens import Lambertian
 

@@ -39,7 +39,7 @@ from typing import Callable
 import numpy as np
 from scipy import special, stats
 
-from bench.errors import BudgetError
+from bench.core.errors import BudgetError
 
 __all__ = [
     "hoeffding_rays",

@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 from numba import int64, njit
 
-from bench.errors import InputError
+from bench.core.errors import InputError
 
 __all__ = [
     "SCHEMES",

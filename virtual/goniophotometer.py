@@ -27,10 +27,10 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from bench.errors import GeometryError, InputError
-from bench.geometry import Geometry
-from bench.instruments import InstrumentBase, InstrumentInfo, Reading
-from bench.records import BSDF_COLUMNS, BSDFRecord
+from bench.core.errors import GeometryError, InputError
+from bench.core.geometry import Geometry
+from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
+from bench.core.records import BSDF_COLUMNS, BSDFRecord
 from virtual.beam import Beam, check_incidence
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.collector import Collector, parse_collector
@@ -235,7 +235,7 @@ class VirtualGoniophotometer(InstrumentBase):
 
     def measure_bsdf(self, theta_i: float, phi_i: float = 0.0,
                      wavelengths: Iterable[float] | None = None) -> BSDFRecord:
-        """The whole sphere for one incidence: a tidy BRDF/BTDF record (see :mod:`bench.records`)."""
+        """The whole sphere for one incidence: a tidy BRDF/BTDF record (see :mod:`bench.core.records`)."""
         import pandas as pd
 
         check_incidence(theta_i)

@@ -41,7 +41,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from bench.errors import SpecimenError
+from bench.core.errors import SpecimenError
 from virtual.specimens import MODEL_PYTHON, Specimen
 
 __all__ = ["MitsubaSpecimen", "parse_mitsuba", "SPECTRAL_RANGE_NM"]

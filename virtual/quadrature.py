@@ -26,7 +26,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from bench.errors import InputError, SimulationError
+from bench.core.errors import InputError, SimulationError
 from virtual.collector import Collector
 from virtual.specimens import Specimen
 

@@ -21,7 +21,7 @@ from typing import Literal
 import numpy as np
 from numba import int64, njit
 
-from bench.errors import InputError
+from bench.core.errors import InputError
 from virtual.rng import next_double
 
 __all__ = [

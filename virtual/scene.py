@@ -55,7 +55,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from bench.errors import ConfigError, InputError
+from bench.core.errors import ConfigError, InputError
 from virtual.beam import Beam, check_incidence
 from virtual.collector import Collector, parse_collector
 from virtual.engine import single_chunk_threads
@@ -118,7 +118,7 @@ class Aperture:
         return self.distance_mm is not None
 
     def axes(self) -> np.ndarray:
-        from bench.geometry import direction
+        from bench.core.geometry import direction
 
         return np.array([direction(t, p) for t, p in self.views])
 
@@ -463,7 +463,7 @@ class Scene:
 
     @property
     def wi(self) -> np.ndarray:
-        from bench.geometry import direction
+        from bench.core.geometry import direction
 
         return direction(*self.incidence)
 
@@ -777,7 +777,7 @@ def scene_from_dict(d: Mapping[str, Any], name: str = "scene") -> Scene:
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Read a scene TOML file (a :class:`~bench.errors.ConfigError` names what is wrong)."""
+    """Read a scene TOML file (a :class:`~bench.core.errors.ConfigError` names what is wrong)."""
     from bench.config import read_toml
 
     p = Path(path)

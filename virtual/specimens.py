@@ -49,7 +49,7 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 from numba import njit
 
-from bench.errors import SpecimenError
+from bench.core.errors import SpecimenError
 from virtual.rng import next_double
 from virtual.sampling import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
 

@@ -1,6 +1,6 @@
 """The virtual spectrophotometer (seed section 3.1): count rays, R = n_r / N, T = n_t / N.
 
-It fills the :class:`bench.instruments.Spectrophotometer` role. Geometries:
+It fills the :class:`bench.core.roles.Spectrophotometer` role. Geometries:
 
 * hemispherical collection (``8/d``, ``0/d``, ``8/de``): reflectance and transmittance are the
   fractions of rays leaving to the source's and to the other hemisphere; ``8/de`` excludes the
@@ -22,9 +22,10 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from bench.errors import InputError
-from bench.geometry import CIEGeometry, cie_geometry, direction
-from bench.instruments import InstrumentBase, InstrumentInfo, Spectrum
+from bench.core.errors import InputError
+from bench.core.parsing import parse_wavelengths
+from bench.core.geometry import CIEGeometry, cie_geometry, direction
+from bench.core.roles import InstrumentBase, InstrumentInfo, Spectrum
 from virtual.beam import Beam
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.engine import NO_CONE, SpectroTally, measurement_seed, spectro_counts
@@ -36,31 +37,6 @@ __all__ = ["VirtualSpectrophotometer", "parse_wavelengths", "fresh_seed"]
 def fresh_seed() -> int:
     """A new root seed from the OS entropy pool, small enough to print and type back."""
     return int(np.random.SeedSequence().entropy % (1 << 63))
-
-
-def parse_wavelengths(text: Any) -> np.ndarray:
-    """``START:STOP:STEP`` (inclusive of STOP when on the grid), ``a,b,c`` or a number (nm)."""
-    if isinstance(text, (list, tuple, np.ndarray)):
-        wl = np.asarray(text, dtype=float)
-    else:
-        s = str(text).strip()
-        try:
-            if ":" in s:
-                parts = [float(p) for p in s.split(":")]
-                if len(parts) != 3:
-                    raise ValueError
-                start, stop, step = parts
-                if step <= 0 or stop < start:
-                    raise InputError(f"wavelengths {s!r}: need START <= STOP and STEP > 0")
-                n = int(math.floor((stop - start) / step + 1e-9)) + 1
-                wl = start + step * np.arange(n)
-            else:
-                wl = np.array([float(p) for p in s.split(",") if p.strip()])
-        except ValueError:
-            raise InputError(f"wavelengths {s!r}: expected START:STOP:STEP, a list a,b,c or one number (nm)") from None
-    if wl.ndim != 1 or wl.size == 0 or not np.all(np.isfinite(wl)) or np.any(wl <= 0):
-        raise InputError(f"wavelengths must be a non-empty list of positive numbers (nm), got {text!r}")
-    return wl
 
 
 class VirtualSpectrophotometer(InstrumentBase):

@@ -36,7 +36,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from bench.errors import InputError
+from bench.core.errors import InputError
 from virtual.collector import parse_collector
 from virtual.scene import Scene
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from bench.errors import ConfigError
+from bench.core.errors import ConfigError
 
 __all__ = [
     "RegisterMap",

@@ -1,0 +1,183 @@
+"""Calibration: dark subtraction, a white reference of known reflectance factor, BRDF.
+
+Signal model of a detector of fixed aperture looking at a specimen of BRDF ``f`` lit by a beam
+of constant power (the same on real, emulated and virtual benches)::
+
+    S = G t f cos(theta_r) + D
+
+with gain ``G``, integration ``t`` and dark ``D``. A white standard of reflectance factor
+``R_w`` (Lambertian, so ``f_w = R_w / pi``; e.g. Spectralon) measured at the reference geometry
+with viewing angle ``theta_w`` gives ``S_w``. Hence, per wavelength::
+
+    f  = [(S - D) / t] / [(S_w - D_w) / t_w] * (R_w / pi) * cos(theta_w) / cos(theta_r)   (BRDF, 1/sr)
+    RF = pi f                              (reflectance factor, the Lambertian comparison)
+    DSF = f cos(theta_r)                   (the cosine-corrected "differential scattering function")
+
+Uncertainties add in quadrature in relative terms (signal, dark, reference, reference dark,
+and the standard's own ``u(R_w)``). Pixels where the reference is saturated, or at or below its
+dark, are *masked and reported*: they are never divided by, and their value is NaN with the
+reason in ``mask_reason`` (not a silent NaN).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from bench.core.errors import CalibrationError, ConfigError
+from bench.core.geometry import Geometry
+from bench.core.roles import Reading
+
+__all__ = ["WhiteStandard", "Calibration", "Calibrated"]
+
+
+@dataclass(frozen=True)
+class WhiteStandard:
+    """A reflectance standard: reflectance factor (scalar or per wavelength), its standard
+    uncertainty, and the geometry it is measured at (default 0/45, the usual Spectralon one)."""
+
+    reflectance_factor: Any = 0.99
+    uncertainty: float = 0.005
+    geometry: Geometry = field(default_factory=lambda: Geometry(0.0, 0.0, 45.0, 180.0))
+    name: str = "Spectralon-like 99%"
+
+    def rf(self, wavelengths: np.ndarray) -> np.ndarray:
+        r = self.reflectance_factor
+        if isinstance(r, (int, float)):
+            return np.full(wavelengths.shape, float(r))
+        wl, val = (np.asarray(a, dtype=float) for a in r)
+        if wavelengths.min() < wl.min() or wavelengths.max() > wl.max():
+            raise CalibrationError(f"white standard {self.name!r} has data for {wl.min():g}..{wl.max():g} nm, "
+                                   f"not {wavelengths.min():g}..{wavelengths.max():g} nm")
+        return np.interp(wavelengths, wl, val)
+
+    def as_dict(self) -> dict[str, Any]:
+        r = self.reflectance_factor
+        return {"name": self.name, "reflectance_factor": r if isinstance(r, (int, float)) else [list(r[0]), list(r[1])],
+                "uncertainty": self.uncertainty, "geometry": self.geometry.as_dict()}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "WhiteStandard":
+        r = d.get("reflectance_factor", 0.99)
+        if not isinstance(r, (int, float)):
+            r = (tuple(r[0]), tuple(r[1]))
+        g = d.get("geometry", {"theta_i": 0.0, "phi_i": 0.0, "theta_r": 45.0, "phi_r": 180.0})
+        if isinstance(g, Mapping):
+            geometry = Geometry(**g)
+        elif isinstance(g, (list, tuple)) and len(g) == 4:
+            geometry = Geometry(*(float(x) for x in g))
+        else:
+            raise ConfigError(f"white standard geometry must be [theta_i, phi_i, theta_r, phi_r], got {g!r}")
+        return cls(r, float(d.get("uncertainty", 0.005)), geometry, str(d.get("name", "white standard")))
+
+
+@dataclass(frozen=True)
+class Calibrated:
+    """Calibrated values per wavelength; masked pixels have NaN values and a reason."""
+
+    wavelengths: np.ndarray
+    brdf: np.ndarray
+    std: np.ndarray
+    reflectance_factor: np.ndarray
+    signal: np.ndarray
+    dark: np.ndarray
+    mask_reason: list[str]
+
+    @property
+    def masked(self) -> np.ndarray:
+        return np.array([bool(r) for r in self.mask_reason])
+
+
+def _std(r: Reading) -> np.ndarray:
+    if r.std is not None:
+        return np.asarray(r.std, dtype=float)
+    # shot-noise-like fallback: counts are Poisson-ish, averaged over `averages` scans
+    return np.sqrt(np.maximum(np.abs(r.signal), 1.0) / max(r.averages, 1))
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A white reference (with its dark) that turns readings into BRDF."""
+
+    standard: WhiteStandard
+    white: Reading
+    white_dark: Reading | None = None
+
+    def __post_init__(self) -> None:
+        if self.white_dark is not None and self.white_dark.signal.shape != self.white.signal.shape:
+            raise CalibrationError("white reference and its dark have different pixel counts")
+
+    def reference_rate(self) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """Dark-corrected reference counts per second, their std, and per-pixel mask reasons."""
+        w = self.white
+        d = self.white_dark.signal if self.white_dark is not None else np.zeros_like(w.signal)
+        ud = _std(self.white_dark) if self.white_dark is not None else np.zeros_like(w.signal)
+        net = (w.signal - d) / w.integration_s
+        u = np.sqrt(_std(w) ** 2 + ud**2) / w.integration_s
+        reasons = []
+        for i in range(net.size):
+            if w.saturated[i]:
+                reasons.append("white reference saturated")
+            elif not net[i] > 0:
+                reasons.append("white reference at or below dark")
+            else:
+                reasons.append("")
+        return net, u, reasons
+
+    def apply(self, reading: Reading, geometry: Geometry, dark: Reading | None = None) -> Calibrated:
+        """Calibrate one reading taken at ``geometry`` (dark subtracted when given)."""
+        if reading.signal.shape != self.white.signal.shape:
+            raise CalibrationError(f"reading has {reading.signal.size} pixels, the white reference "
+                                   f"{self.white.signal.size}")
+        cos_r = abs(math.cos(math.radians(geometry.theta_r)))
+        if cos_r < 1e-12:
+            raise CalibrationError(f"{geometry}: viewing at the horizon, BRDF is undefined (cos theta_r = 0)")
+        ref, u_ref, reasons = self.reference_rate()
+        d = dark.signal if dark is not None else np.zeros_like(reading.signal)
+        ud = _std(dark) if dark is not None else np.zeros_like(reading.signal)
+        net = (reading.signal - d) / reading.integration_s
+        u_net = np.sqrt(_std(reading) ** 2 + ud**2) / reading.integration_s
+        rf_w = self.standard.rf(np.asarray(reading.wavelengths, dtype=float))
+        cos_w = abs(math.cos(math.radians(self.standard.geometry.theta_r)))
+        ok = np.array([not r for r in reasons])
+        for i, sat in enumerate(reading.saturated):
+            if sat and ok[i]:
+                reasons[i] = "signal saturated"
+                ok[i] = False
+        brdf = np.full(net.shape, np.nan)
+        std = np.full(net.shape, np.nan)
+        scale = rf_w / math.pi * cos_w / cos_r
+        brdf[ok] = net[ok] / ref[ok] * scale[ok]
+        rel2 = np.zeros(net.shape)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel2[ok] = ((u_ref[ok] / ref[ok]) ** 2 + (self.standard.uncertainty / rf_w[ok]) ** 2)
+            signal_term = np.where(ok, u_net * ref**-1 * scale, 0.0)
+        std[ok] = np.sqrt(signal_term[ok] ** 2 + brdf[ok] ** 2 * rel2[ok])
+        return Calibrated(wavelengths=np.asarray(reading.wavelengths, dtype=float), brdf=brdf, std=std,
+                          reflectance_factor=brdf * math.pi, signal=reading.signal, dark=d, mask_reason=reasons)
+
+    def as_dict(self) -> dict[str, Any]:
+        def r(x: Reading | None) -> Any:
+            if x is None:
+                return None
+            return {"wavelengths": x.wavelengths.tolist(), "signal": x.signal.tolist(),
+                    "saturated": x.saturated.tolist(), "integration_s": x.integration_s,
+                    "averages": x.averages, "std": None if x.std is None else np.asarray(x.std).tolist(),
+                    "timestamp": x.timestamp}
+        return {"standard": self.standard.as_dict(), "white": r(self.white), "white_dark": r(self.white_dark)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "Calibration":
+        def r(x: Any) -> Reading | None:
+            if x is None:
+                return None
+            return Reading(wavelengths=np.asarray(x["wavelengths"], float), signal=np.asarray(x["signal"], float),
+                           saturated=np.asarray(x["saturated"], bool), integration_s=float(x["integration_s"]),
+                           averages=int(x["averages"]), timestamp=float(x.get("timestamp", 0.0)),
+                           std=None if x.get("std") is None else np.asarray(x["std"], float))
+        white = r(d["white"])
+        assert white is not None
+        return cls(WhiteStandard.from_dict(d["standard"]), white, r(d.get("white_dark")))

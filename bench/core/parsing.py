@@ -1,0 +1,129 @@
+"""Parsing of user inputs shared by every layer: TOML files, ranges, wavelength lists.
+
+One place for each: :func:`read_toml` (every file the user gives goes through it, so an
+unreadable, non-UTF-8 or malformed file is one :class:`ConfigError` naming it),
+:func:`parse_range` (a number, a list or a ``{start, stop, step}`` table) and
+:func:`parse_wavelengths` (``START:STOP:STEP``, ``a,b,c`` or one number, in nm). Sizes are
+bounded (:data:`MAX_RANGE_POINTS`) so a typo cannot ask for an unbounded amount of work.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from bench.core.errors import ConfigError, InputError
+
+__all__ = ["read_toml", "read_text", "parse_range", "parse_wavelengths", "MAX_RANGE_POINTS",
+           "MAX_WAVELENGTHS"]
+
+#: the most values one range may expand to (a plan axis, a wavelength grid)
+MAX_RANGE_POINTS = 100_000
+#: the most wavelengths one measurement may ask for
+MAX_WAVELENGTHS = 10_000
+
+
+def read_text(path: str | Path, what: str = "file") -> str:
+    """The text of a user-given file; every way of failing to read it is one :class:`InputError`
+    naming the file (missing, a directory, no permission, a symlink loop, not UTF-8)."""
+    p = Path(path)
+    try:
+        return p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{what} {p} does not exist") from None
+    except IsADirectoryError:
+        raise InputError(f"{what} {p} is a directory, not a file") from None
+    except PermissionError:
+        raise InputError(f"{what} {p}: permission denied") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{what} {p} is not UTF-8 text (byte {exc.start}: {exc.object[exc.start]:#04x})") from None
+    except OSError as exc:
+        raise InputError(f"{what} {p}: {exc.strerror or exc}") from None
+
+
+def read_toml(path: str | Path, what: str = "config file") -> dict[str, Any]:
+    """Read a TOML file; a missing, unreadable or malformed file is a :class:`ConfigError` naming it."""
+    p = Path(path)
+    try:
+        text = read_text(p, what)
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{what} {p}: {exc}") from None
+
+
+def _finite(x: Any, where: str) -> float:
+    try:
+        v = float(x)
+    except (TypeError, ValueError, OverflowError):
+        raise ConfigError(f"{where}: expected a number, got {x!r}") from None
+    if isinstance(x, bool) or not math.isfinite(v):
+        raise ConfigError(f"{where}: expected a finite number, got {x!r}")
+    return v
+
+
+def _grid(start: float, stop: float, step: float, where: str, limit: int) -> np.ndarray:
+    if step <= 0 or stop < start:
+        raise ConfigError(f"{where}: need start <= stop and step > 0, got start={start:g}, stop={stop:g}, step={step:g}")
+    n = int(math.floor((stop - start) / step + 1e-9)) + 1
+    if n > limit:
+        raise ConfigError(f"{where}: start={start:g}, stop={stop:g}, step={step:g} gives {n:,} values, "
+                          f"more than the limit of {limit:,}")
+    return start + step * np.arange(n)
+
+
+def parse_range(value: Any, where: str, limit: int = MAX_RANGE_POINTS) -> list[float]:
+    """A number, a list of numbers or a ``{start, stop, step}`` table (stop included when on the
+    grid) as a list of floats; anything else is a :class:`ConfigError` naming ``where``."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return [_finite(value, where)]
+    if isinstance(value, Mapping):
+        missing = [k for k in ("start", "stop", "step") if k not in value]
+        if missing:
+            raise ConfigError(f"{where}: a range table needs start, stop and step (missing {', '.join(missing)})")
+        extra = sorted(set(value) - {"start", "stop", "step"})
+        if extra:
+            raise ConfigError(f"{where}: unknown key {extra[0]!r} in a range table (accepted: start, stop, step)")
+        start, stop, step = (_finite(value[k], f"{where}.{k}") for k in ("start", "stop", "step"))
+        return [round(float(v), 10) for v in _grid(start, stop, step, where, limit)]
+    if isinstance(value, Sequence) and not isinstance(value, str):
+        if len(value) == 0:
+            raise ConfigError(f"{where}: an empty list gives no values")
+        if len(value) > limit:
+            raise ConfigError(f"{where}: {len(value):,} values, more than the limit of {limit:,}")
+        return [_finite(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    raise ConfigError(f"{where}: expected a number, a list or a {{start, stop, step}} table, got {value!r}")
+
+
+def parse_wavelengths(text: Any, limit: int = MAX_WAVELENGTHS) -> np.ndarray:
+    """``START:STOP:STEP`` (inclusive of STOP when on the grid), ``a,b,c``, one number or a list (nm)."""
+    where = f"wavelengths {text!r}"
+    try:
+        if isinstance(text, (list, tuple, np.ndarray)):
+            wl = np.asarray([_finite(v, where) for v in np.ravel(np.asarray(text, dtype=object))], dtype=float)
+            if wl.size > limit:
+                raise ConfigError(f"{where}: {wl.size:,} wavelengths, more than the limit of {limit:,}")
+        else:
+            s = str(text).strip()
+            if ":" in s:
+                parts = s.split(":")
+                if len(parts) != 3:
+                    raise ConfigError(f"{where}: expected START:STOP:STEP, a list a,b,c or one number (nm)")
+                start, stop, step = (_finite(p, where) for p in parts)
+                wl = _grid(start, stop, step, where, limit)
+            else:
+                items = [p for p in s.split(",") if p.strip()]
+                if len(items) > limit:
+                    raise ConfigError(f"{where}: {len(items):,} wavelengths, more than the limit of {limit:,}")
+                wl = np.array([_finite(p, where) for p in items], dtype=float)
+    except ConfigError as exc:
+        raise InputError(str(exc)) from None
+    if wl.ndim != 1 or wl.size == 0 or np.any(wl <= 0):
+        raise InputError(f"wavelengths must be a non-empty list of positive numbers (nm), got {text!r}")
+    return wl
