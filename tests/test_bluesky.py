@@ -1,7 +1,6 @@
-"""Every bench as Bluesky / ophyd-async devices (issue 17): protocols, standard plans, our plans,
-documents into our store, equivalence with ``bench scan``, refusals, faults, pause and abort.
-
-The emulated bench (three emulator processes) is started once for the module.
+"""Every bench as Bluesky / ophyd-async devices (issue 17), on the virtual bench: protocols,
+standard plans, our plans, documents into our store, equivalence with ``bench scan``, refusals
+and faults. The emulated bench's tests are in test_bluesky_emulated.py.
 """
 
 from __future__ import annotations
@@ -10,19 +9,15 @@ import asyncio
 import json
 import math
 import threading
-from pathlib import Path
-from typing import Any
 
 import bluesky.plan_stubs as bps
 import bluesky.plans as bp
-import bluesky.preprocessors as bpp
 import numpy as np
 import pytest
-from bluesky import RunEngine, protocols
-from bluesky.utils import FailedStatus, RunEngineInterrupted
-from event_model import DocumentNames, schema_validators
+from bluesky import RunEngine
+from bluesky.utils import FailedStatus
 
-from bench.bluesky import StoreWriter, connect, plan_from_toml
+from bench.bluesky import connect, plan_from_toml
 from bench.bluesky.goniometer import AXES
 from bench.cli import main as bench_cli
 from bench.core.errors import DeviceTimeoutError, GeometryError, PlanError
@@ -30,39 +25,7 @@ from bench.core.geometry import Geometry
 from bench.plans import load_plan, order_for_travel
 from bench.runner import run_scan
 from bench.store import RunStore
-
-ROOT = Path(__file__).parent.parent
-BENCHES = ROOT / "fixtures" / "benches"
-IN_PLANE = ROOT / "fixtures" / "plans" / "in-plane.toml"
-
-#: the protocols each device must satisfy (issue 17's acceptance list)
-PROTOCOLS = {
-    "goniometer": (protocols.HasName, protocols.Readable, protocols.Movable, protocols.Locatable,
-                   protocols.Stoppable),
-    "axis": (protocols.HasName, protocols.Readable, protocols.Movable, protocols.Locatable, protocols.Stoppable,
-             protocols.Checkable),
-    "spectrometer": (protocols.HasName, protocols.Readable, protocols.Triggerable, protocols.Configurable),
-    "reflectance": (protocols.HasName, protocols.Readable, protocols.Triggerable, protocols.Configurable,
-                    protocols.Stageable),
-    "light": (protocols.HasName, protocols.Readable, protocols.Movable),
-}
-
-
-class Docs:
-    """A RunEngine subscriber keeping every document, each validated against event-model's schema."""
-
-    def __init__(self) -> None:
-        self.docs: list[tuple[str, dict[str, Any]]] = []
-
-    def __call__(self, name: str, doc: dict[str, Any]) -> None:
-        schema_validators[DocumentNames[name]].validate(doc)
-        self.docs.append((name, doc))
-
-    def of(self, name: str) -> list[dict[str, Any]]:
-        return [d for n, d in self.docs if n == name]
-
-    def clear(self) -> None:
-        self.docs.clear()
+from bluesky_support import BENCHES, IN_PLANE, STANDARD, check_protocols, reset_reflectance, run, spy
 
 
 @pytest.fixture(scope="module")
@@ -75,71 +38,6 @@ def virtual(RE):
     devs = connect(BENCHES / "virtual.toml", run_engine=RE, seed=3)
     yield devs
     devs.close()
-
-
-@pytest.fixture(scope="module")
-def emulated(RE):
-    devs = connect(BENCHES / "emulated.toml", run_engine=RE)
-    yield devs
-    devs.close()
-
-
-def run(RE: RunEngine, devs: Any, plan: Any, store: Path | None = None) -> tuple[Docs, StoreWriter | None]:
-    """Run ``plan`` with a validating collector (and a StoreWriter); ``RE.md`` names ``devs``' bench."""
-    RE.md["goniobench"] = devs.metadata
-    docs = Docs()
-    writer = StoreWriter(store) if store is not None else None
-    tokens = [RE.subscribe(docs)] + ([RE.subscribe(writer)] if writer is not None else [])
-    try:
-        RE(plan)
-    finally:
-        for t in tokens:
-            RE.unsubscribe(t)
-    return docs, writer
-
-
-def reset_reflectance(RE: RunEngine, devs: Any, integration_s: float = 0.02, averages: int = 1,
-                      dark: str = "once", white: str = "once") -> None:
-    r = devs.reflectance
-    RE(bps.mv(r.integration_s, integration_s, r.averages, averages, r.dark_mode, dark, r.white_mode, white))
-
-
-class Calls(list):
-    """The calls a :func:`spy` saw: ``(args, thread)``; ``restore()`` removes the spy."""
-
-    def __init__(self, obj: Any, method: str) -> None:
-        super().__init__()
-        self.obj, self.method = obj, method
-
-    def restore(self) -> None:
-        delattr(self.obj, self.method)
-
-
-def spy(obj: Any, method: str) -> Calls:
-    """Record (args, thread) of every call of ``obj.method`` (an instance attribute wrapper)."""
-    calls = Calls(obj, method)
-    original = getattr(obj, method)
-
-    def wrapper(*args: Any) -> Any:
-        calls.append((args, threading.current_thread()))
-        return original(*args)
-
-    setattr(obj, method, wrapper)
-    return calls
-
-
-def check_protocols(devs: Any) -> None:
-    targets = {"goniometer": [devs.goniometer], "axis": list(devs.goniometer.axes.values()),
-               "spectrometer": [devs.spectrometer], "reflectance": [devs.reflectance], "light": [devs.light]}
-    for kind, devices in targets.items():
-        for dev in devices:
-            for proto in PROTOCOLS[kind]:
-                assert isinstance(dev, proto), f"{dev.name} is not {proto.__name__}"
-    assert [a.name for a in devs.goniometer.axes.values()] == [f"goniometer-{a}" for a in AXES]
-    assert not isinstance(devs.spectrometer, protocols.Movable)  # the checks can fail
-
-
-# --- the virtual bench ------------------------------------------------------------------------------
 
 
 def test_every_virtual_device_satisfies_the_bluesky_protocols(virtual):
@@ -172,17 +70,6 @@ def test_spectrometer_describes_one_array_with_its_wavelength_axis(RE, virtual):
     RE(bps.mv(virtual.light, "on"))
     ev = docs.of("event")[0]["data"]
     assert ev["spectrometer-dark"] is True and not np.any(ev["spectrometer-spectrum"])
-
-
-STANDARD = {
-    "count": lambda d: (bp.count([d.reflectance], num=2), 2, 0),
-    "scan": lambda d: (bp.scan([d.reflectance], d.goniometer.theta_r, -60, 60, 5), 5, 5),
-    "rel_scan": lambda d: (bp.rel_scan([d.spectrometer], d.goniometer.theta_r, -10, 10, 3), 3, 4),
-    "list_scan": lambda d: (bp.list_scan([d.reflectance, d.spectrometer], d.goniometer.theta_i, [20, 40],
-                                         d.goniometer.theta_r, [30, 50]), 2, 2),
-    "grid_scan": lambda d: (bp.grid_scan([d.reflectance], d.goniometer.theta_i, 20, 40, 2,
-                                         d.goniometer.theta_r, 10, 50, 3), 6, 6),
-}
 
 
 @pytest.mark.parametrize("name", list(STANDARD))
@@ -377,130 +264,3 @@ def test_a_faulting_goniometer_fails_the_run_with_its_message_and_is_stopped(RE,
     assert stop["exit_status"] == "fail" and "did not settle within 10 s" in stop["reason"]
 
 
-# --- the emulated bench (real drivers over wire-level emulators) ------------------------------------------
-
-
-def test_every_emulated_device_satisfies_the_bluesky_protocols(emulated):
-    check_protocols(emulated)
-
-
-@pytest.mark.parametrize("name", list(STANDARD))
-def test_standard_plans_succeed_on_the_emulated_bench(RE, emulated, tmp_path, name):
-    reset_reflectance(RE, emulated)
-    RE(bps.mv(emulated.goniometer, Geometry(30, 0, 20, 180)))
-    plan, n_events, _ = STANDARD[name](emulated)
-    if name == "scan":  # the back-scatter side stops at -20 deg on this bench (arm collision)
-        plan = bp.scan([emulated.reflectance], emulated.goniometer.theta_r, 60, -10, 5)
-    docs, writer = run(RE, emulated, plan, tmp_path / "s.sqlite")
-    assert docs.of("stop")[0]["exit_status"] == "success" and len(docs.of("event")) == n_events
-    with RunStore(tmp_path / "s.sqlite") as store:
-        (info,) = store.runs()
-        assert info["status"] == "completed" and info["points_done"] == n_events
-        assert store.run(info["run_id"])["bench"]["kind"] == "emulated"
-
-
-def test_a_refused_geometry_on_the_emulated_bench_sends_no_byte(RE, emulated):
-    RE(bps.mv(emulated.goniometer, Geometry(30, 0, 20, 180)))
-    arm = emulated.bench.parts["arm"]
-
-    async def attempt() -> BaseException | None:
-        try:  # -30 across the normal: the detector in the beam
-            await emulated.goniometer.theta_r.set(-30)
-        except GeometryError as exc:
-            return exc
-        return None
-
-    writes = spy(arm.transport, "write")
-    try:
-        refused = asyncio.run_coroutine_threadsafe(attempt(), RE.loop).result(10)
-    finally:
-        writes.restore()
-    assert writes == []  # the status failed before anything was queued for the wire
-    assert str(refused).startswith("beam_block:") and "blocks the beam" in str(refused)
-    with pytest.raises(FailedStatus):  # and through the RunEngine (which then holds the arm)
-        RE(bps.mv(emulated.goniometer.theta_r, -30))
-    assert emulated.goniometer.mover.target["theta_r"] == 20.0
-
-
-def _bus_still(devs: Any) -> bool:
-    from virtual.wire.dynamixel_bus import BusControl
-
-    with BusControl(devs.bench.parts["emulators"].bus.control) as ctl:
-        return all(s["moving"] == 0 for s in ctl.state()["servos"].values())
-
-
-def test_pause_resume_and_abort_leave_the_emulated_goniometer_stopped(RE, emulated, tmp_path):
-    reset_reflectance(RE, emulated)
-    RE(bps.mv(emulated.goniometer, Geometry(30, 0, 20, 180)))
-    g = emulated.goniometer
-
-    def paused_scan():
-        @bpp.stage_decorator([emulated.reflectance])
-        @bpp.run_decorator()
-        def inner():
-            for tr in (20, 40, 60):
-                yield from bps.checkpoint()
-                yield from bps.mv(g.theta_r, tr)
-                if tr == 40:
-                    yield from bps.pause()
-                yield from bps.trigger_and_read([g, emulated.reflectance])
-        return (yield from inner())
-
-    stops = spy(emulated.bench.goniometer, "stop")
-    db = tmp_path / "s.sqlite"
-    writer = StoreWriter(db)
-    token = RE.subscribe(writer)
-    try:
-        with pytest.raises(RunEngineInterrupted):
-            RE(paused_scan())
-        assert RE.state == "paused" and len(stops) >= 1 and _bus_still(emulated)
-        RE.resume()
-        n = len(stops)
-        with pytest.raises(RunEngineInterrupted):
-            RE(paused_scan())
-        assert RE.state == "paused" and len(stops) > n and _bus_still(emulated)
-        RE.abort("operator aborted")
-    finally:
-        RE.unsubscribe(token)
-        stops.restore()
-    assert _bus_still(emulated)
-    with RunStore(db) as store:
-        first, second = store.runs()
-        assert first["status"] == "completed" and first["points_done"] == 3
-        # bluesky 1.15 leaves the stop document's reason empty on RE.abort(reason); the store says why
-        assert second["status"] == "interrupted" and "exit_status 'abort'" in second["reason"]
-
-
-def test_a_servo_fault_mid_plan_fails_the_run_with_the_fault_and_nothing_moves(RE, emulated, tmp_path):
-    from virtual.wire.dynamixel_bus import BusControl
-
-    reset_reflectance(RE, emulated)
-    RE(bps.mv(emulated.goniometer, Geometry(30, 0, 20, 180)))
-    arm = emulated.bench.parts["arm"]
-    docs = Docs()
-
-    def overload_after_first_point(name: str, doc: dict[str, Any]) -> None:
-        if name == "event" and doc["seq_num"] == 1:  # the detector servo overloads as it next starts
-            with BusControl(emulated.bench.parts["emulators"].bus.control) as ctl:
-                ctl.hardware_error(3, 1 << 5, on_goal=True)
-
-    tokens = [RE.subscribe(docs), RE.subscribe(overload_after_first_point)]
-    try:
-        with pytest.raises(FailedStatus):
-            run(RE, emulated, bp.scan([emulated.reflectance], emulated.goniometer.theta_r, 30, 50, 3),
-                tmp_path / "s.sqlite")
-        with BusControl(emulated.bench.parts["emulators"].bus.control) as ctl:
-            servos = ctl.state()["servos"]
-        assert all(s["moving"] == 0 for s in servos.values())
-        assert all(s["torque"] == 0 for s in servos.values())  # torque off after a hardware error
-    finally:
-        for t in tokens:
-            RE.unsubscribe(t)
-        emulated.worker.call(arm.reset)  # leave the shared bench usable
-    stop = docs.of("stop")[0]
-    assert stop["exit_status"] == "fail" and "hardware error" in stop["reason"] and "overload" in stop["reason"]
-    with RunStore(tmp_path / "s.sqlite") as store:
-        (info,) = store.runs()
-        assert info["status"] == "failed" and info["points_done"] == 1 and "overload" in info["reason"]
-    RE(bps.mv(emulated.goniometer, Geometry(30, 0, 25, 180)))  # the bench works again after reset()
-    assert abs(emulated.goniometer.mover.reached.theta_r - 25) < 0.2

@@ -77,7 +77,7 @@ class Devices:
     def close(self) -> None:
         """Stop the goniometer, end the worker thread, close the bench. Idempotent."""
         try:
-            if not self.worker._closed:
+            if not self.worker.closed:
                 try:
                     self.worker.call(self.bench.goniometer.stop)
                 except (BenchError, OSError):

@@ -170,8 +170,9 @@ class _AxisLogic(MovableLogic[float]):
 
     async def move(self, new_position: float, timeout: Any) -> None:
         assert self.mover is not None
-        try:
-            await self.mover.move(**{self.axis: new_position})
+        seconds = timeout()  # set(value, timeout=...): the status fails with TimeoutError when late;
+        try:                 # the move itself ends in the worker, bounded by the driver's settle timeout
+            await asyncio.wait_for(self.mover.move(**{self.axis: new_position}), seconds)
         finally:  # the setpoint is the accepted request (a refused one leaves the last)
             await self.setpoint.set(float(self.mover.target[self.axis]))
 
@@ -234,11 +235,11 @@ class GoniometerDevice(StandardReadable):
         return Geometry(*vals)
 
     @AsyncStatus.wrap
-    async def set(self, value: Geometry | Sequence[float]) -> None:
+    async def set(self, value: Geometry | Sequence[float], timeout: float | None = None) -> None:
         g = self._geometry(value)
         changes = g.as_dict()
         try:
-            await self.mover.move(**changes)
+            await asyncio.wait_for(self.mover.move(**changes), timeout)
         finally:
             await asyncio.gather(*(ax.setpoint.set(float(self.mover.target[a])) for a, ax in self.axes.items()))
 

@@ -55,6 +55,8 @@ class _Stream:
     spectrometer: str | None = None
     goniometer: dict[str, str] = field(default_factory=dict)  # axis -> data key
     config: dict[str, dict[str, Any]] = field(default_factory=dict)  # object -> its configuration data
+    calibration: Calibration | None = None  # the reflectance detector's, decoded once
+    white_net: np.ndarray | None = None
 
 
 class StoreWriter(DocumentRouter):
@@ -112,9 +114,11 @@ class StoreWriter(DocumentRouter):
         s.config = {obj: dict(c.get("data", {})) for obj, c in (doc.get("configuration") or {}).items()}
         self._streams[doc["uid"]] = s
         if s.reflectance is not None:
-            cal = s.config.get(s.reflectance, {}).get(f"{s.reflectance}-calibration")
-            if cal is not None and json.loads(cal) is not None:
-                self._store.set_calibration(self._run, json.loads(cal))
+            cal = json.loads(s.config.get(s.reflectance, {}).get(f"{s.reflectance}-calibration") or "null")
+            if cal is not None:
+                s.calibration = Calibration.from_dict(cal)
+                s.white_net = s.calibration.reference_rate()[0]
+                self._store.set_calibration(self._run, cal)
 
     def event_page(self, doc: dict[str, Any]) -> None:
         for event in unpack_event_page(doc):
@@ -173,11 +177,8 @@ class StoreWriter(DocumentRouter):
             cfg = s.config[obj]
             reading = self._reading(data, cfg, obj, "signal", "signal_std", "saturated")
             dark = self._reading(data, cfg, obj, "dark", "dark_std", None) if data[f"{obj}-has_dark"] else None
-            cal_d = json.loads(cfg[f"{obj}-calibration"])
-            cal = Calibration.from_dict(cal_d) if cal_d is not None else None
-            white_net = cal.reference_rate()[0] if cal is not None else None
-            return point_rows(reading, cal, geometry if geometry is not None else Geometry(0, 0, 0, 0), dark,
-                              white_net)
+            return point_rows(reading, s.calibration, geometry if geometry is not None else Geometry(0, 0, 0, 0),
+                              dark, s.white_net)
         if s.spectrometer is not None:
             obj = s.spectrometer
             reading = self._reading(data, s.config[obj], obj, "spectrum", "spectrum_std", "saturated")

@@ -56,6 +56,10 @@ class BenchWorker:
         return fn(*args, **kwargs)
 
     @property
+    def closed(self) -> bool:
+        return self._closed
+
+    @property
     def thread(self) -> threading.Thread | None:
         """The worker thread (``None`` before the first call)."""
         return self._thread
