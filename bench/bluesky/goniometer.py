@@ -17,8 +17,9 @@ rule, before any byte is sent, and the requested geometry stays the last accepte
 ``move_to`` checks again (drivers do).
 
 ``theta_r`` is signed in the detector plane set by ``phi_r``: ``theta_r = -40`` views at 40 deg
-on the other side of the normal (``phi_r + 180``), as ``Geometry.in_plane`` does, so an in-plane
-record is one ``scan`` of ``theta_r`` from -60 to 60.
+on the other side of the normal (``phi_r + 180``), so an in-plane record is one ``scan`` of
+``theta_r`` from -60 to 60. With ``phi_r = phi_i + 180`` the sign is ``Geometry.in_plane``'s
+(> 0 on the specular side).
 """
 
 from __future__ import annotations
