@@ -264,3 +264,32 @@ def test_a_faulting_goniometer_fails_the_run_with_its_message_and_is_stopped(RE,
     assert stop["exit_status"] == "fail" and "did not settle within 10 s" in stop["reason"]
 
 
+
+
+def test_a_slow_driver_never_blocks_the_run_engines_loop(RE, virtual):
+    """A move that takes 0.3 s runs in the worker: the loop keeps answering within 0.1 s."""
+    import time
+
+    gonio = virtual.bench.goniometer
+    original = gonio.move_to
+    gonio.move_to = lambda g: (time.sleep(0.3), original(g))[1]
+    lags: list[float] = []
+    done = threading.Event()
+
+    async def probe() -> None:
+        while not done.is_set():
+            t0 = time.perf_counter()
+            await asyncio.sleep(0.005)
+            lags.append(time.perf_counter() - t0 - 0.005)
+
+    task = asyncio.run_coroutine_threadsafe(probe(), RE.loop)
+    try:
+        t0 = time.perf_counter()
+        RE(bp.list_scan([virtual.spectrometer], virtual.goniometer.theta_r, [10, 20, 30]))
+        elapsed = time.perf_counter() - t0
+    finally:
+        done.set()
+        task.result(5)
+        del gonio.move_to
+    assert elapsed > 0.9 and len(lags) > 50  # the moves did take their time, the probe kept running
+    assert max(lags) < 0.1
