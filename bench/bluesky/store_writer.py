@@ -13,7 +13,9 @@ One Bluesky run becomes one run of kind ``bluesky`` in the same tables as ``benc
   raw signal, dark and geometry: the very function ``bench scan`` stores with, so the values are
   the same (a spectrometer-only run stores signals, values masked "no white reference");
 * stop: ``success`` -> ``completed``, ``abort`` -> ``interrupted``, ``fail`` -> ``failed``, with
-  the stop document's reason.
+  the stop document's reason; a failed status's repr (``<AsyncStatus, device: X, ...,
+  errored: HardwareError('...')>``) is stored as ``HardwareError: ... (device X)`` as ``bench
+  scan`` words a fault (the stop document itself is kept verbatim in ``meta["bluesky_stop"]``).
 
 The store is opened at the start document in the thread that delivers the documents and closed at
 the stop document (:class:`~bench.store.RunStore` connections belong to one thread).
@@ -21,8 +23,10 @@ the stop document (:class:`~bench.store.RunStore` connections belong to one thre
 
 from __future__ import annotations
 
+import ast
 import json
 import logging
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,10 +45,24 @@ from bench.store import RunStore
 
 log = logging.getLogger(__name__)
 
-__all__ = ["StoreWriter", "EXIT_STATUS"]
+__all__ = ["StoreWriter", "EXIT_STATUS", "fault_reason"]
 
 #: Bluesky exit_status -> our run status
 EXIT_STATUS = {"success": "completed", "abort": "interrupted", "fail": "failed"}
+_FAILED_STATUS = re.compile(r"device: (?P<device>[^,]+),.*errored: (?P<type>\w+)\((?P<msg>'.*'|\".*\")\)>\s*$",
+                            re.DOTALL)
+
+
+def fault_reason(reason: str) -> str:
+    """``Type: message (device X)`` from a failed status's repr, else ``reason`` unchanged."""
+    m = _FAILED_STATUS.search(reason)
+    if m is None:
+        return reason
+    try:
+        msg = ast.literal_eval(m["msg"])
+    except (ValueError, SyntaxError):
+        return reason
+    return f"{m['type']}: {msg} (device {m['device']})"
 
 
 @dataclass
@@ -143,7 +161,7 @@ class StoreWriter(DocumentRouter):
             return
         try:
             status = EXIT_STATUS.get(doc.get("exit_status", ""), "failed")
-            reason = doc.get("reason") or None
+            reason = fault_reason(doc["reason"]) if doc.get("reason") else None
             if status != "completed" and not reason:
                 reason = f"bluesky run ended with exit_status {doc.get('exit_status')!r}"
             self._store.update_meta(self._run, bluesky_stop=jsonable(doc))
