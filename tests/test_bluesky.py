@@ -152,9 +152,11 @@ def test_list_scan_of_the_in_plane_plan_equals_bench_scan_and_compares_as_identi
     reset_reflectance(RE, virtual, plan.integration_s, plan.averages, plan.dark, plan.white)
     cols = {a: [getattr(g, a) for g in plan.points] for a in AXES}
     axes = virtual.goniometer.axes
+    moves0 = virtual.goniometer.mover.moves
     docs, writer = run(RE, virtual, bp.list_scan([virtual.reflectance], *[x for a in AXES for x in (axes[a], cols[a])]),
                        db)
     assert docs.of("stop")[0]["exit_status"] == "success" and len(docs.of("event")) == len(plan)
+    assert virtual.goniometer.mover.moves - moves0 == len(plan)  # four axes set per point, one move each
     (bs_id,) = writer.run_ids
     with RunStore(db) as store:
         key = ["theta_i", "phi_i", "theta_r", "phi_r", "wavelength_nm"]
