@@ -252,8 +252,9 @@ def test_a_faulting_goniometer_fails_the_run_with_its_message_and_is_stopped(RE,
     gonio.move_to = faulty
     stops = spy(gonio, "stop")
     try:
-        with pytest.raises(FailedStatus):
+        with pytest.raises(FailedStatus) as ei:
             run(RE, virtual, bp.scan([virtual.reflectance], virtual.goniometer.theta_r, 10, 50, 5), tmp_path / "s.db")
+        assert isinstance(ei.value.__cause__, DeviceTimeoutError)  # the status failed with our typed error
     finally:
         stops.restore()
         del gonio.move_to
