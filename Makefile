@@ -12,7 +12,7 @@ $(BIN)/python:
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[test,scale,parquet,mitsuba]"
+	$(BIN)/python -m pip install --quiet -e ".[test,scale,parquet,mitsuba,bluesky]"
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -64,7 +64,7 @@ __all__ = ["RunStore", "SCHEMA_VERSION", "RUN_KINDS", "RUN_STATUSES", "READING_C
            "package_versions", "new_run_id"]
 
 SCHEMA_VERSION = 1
-RUN_KINDS = ("scan", "sweep", "calibration", "import", "virtual")
+RUN_KINDS = ("scan", "sweep", "calibration", "import", "virtual", "bluesky")
 RUN_STATUSES = ("running", "completed", "interrupted", "failed")
 #: allowed status changes (same status again is a no-op that may update the reason)
 _TRANSITIONS = {

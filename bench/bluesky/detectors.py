@@ -1,0 +1,242 @@
+"""The detectors and the light as ophyd-async devices.
+
+``SpectrometerDevice``  Triggerable, Readable, Configurable: ``trigger()`` acquires with the
+                        configured ``integration_s`` and ``averages``; ``read()`` gives the
+                        spectrum (one array DataKey, units ``counts``, ``dims`` =
+                        ``["wavelength_nm"]``, the axis itself in the configuration), its
+                        standard deviation, the saturation mask and the dark flag.
+``ReflectanceDevice``   Triggerable, Readable, Configurable, Stageable: BRDF (sr^-1) and
+                        reflectance factor per wavelength with standard uncertainty. ``stage()``
+                        measures the white (and dark) reference exactly as ``bench scan`` does
+                        (:mod:`bench.runner`); ``trigger()`` takes darks as ``dark_mode`` says
+                        and calibrates with :class:`bench.core.calibration.Calibration`.
+``LightDevice``         Movable (``set(True|False|"on"|"off")``) and Readable.
+
+Every driver call goes through the bench's :class:`~bench.bluesky.worker.BenchWorker`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+from event_model.documents.event_descriptor import DataKey
+from ophyd_async.core import (
+    Array1D,
+    AsyncStatus,
+    SignalR,
+    StandardReadable,
+    soft_signal_r_and_setter,
+    soft_signal_rw,
+)
+from ophyd_async.core import StandardReadableFormat as Format
+
+from bench.bluesky.goniometer import Mover
+from bench.bluesky.worker import BenchWorker
+from bench.config import Bench
+from bench.core.calibration import Calibration
+from bench.core.errors import ConfigError
+from bench.core.records import json_default
+from bench.core.roles import Reading
+from bench.plans import DARK_MODES, WHITE_MODES, Plan
+from bench.runner import _acquire_dark, _measure_calibration
+
+__all__ = ["SpectrometerDevice", "ReflectanceDevice", "LightDevice", "WAVELENGTH_DIM"]
+
+WAVELENGTH_DIM = "wavelength_nm"
+F64 = Array1D[np.float64]
+
+
+def _array(n: int, units: str | None = None, dtype: Any = np.float64) -> tuple[SignalR, Any]:
+    return soft_signal_r_and_setter(Array1D[dtype], np.zeros(n, dtype=dtype), units=units)
+
+
+class _SpectralReadable(StandardReadable):
+    """A StandardReadable whose array data keys carry ``dims = ["wavelength_nm"]``."""
+
+    _n: int = 0
+
+    async def describe(self) -> dict[str, DataKey]:
+        keys = await super().describe()
+        for key in keys.values():
+            if list(key.get("shape", [])) == [self._n]:
+                key["dims"] = [WAVELENGTH_DIM]
+        return keys
+
+
+def _check_reading_settings(integration_s: float, averages: int) -> None:
+    if not (math.isfinite(integration_s) and integration_s > 0):
+        raise ConfigError(f"integration_s must be finite and > 0, got {integration_s!r}")
+    if int(averages) != averages or averages < 1:
+        raise ConfigError(f"averages must be an integer >= 1, got {averages!r}")
+
+
+class SpectrometerDevice(_SpectralReadable):
+    """The bench's spectrometer (raw counts per wavelength)."""
+
+    def __init__(self, bench: Bench, worker: BenchWorker, name: str = "") -> None:
+        self._bench, self._worker = bench, worker
+        wl = np.asarray(bench.spectrometer.wavelengths, dtype=float)
+        self._n = wl.size
+        with self.add_children_as_readables(Format.UNCACHED_SIGNAL):
+            self.spectrum, self._set_spectrum = _array(self._n, "counts")
+            self.spectrum_std, self._set_std = _array(self._n, "counts")
+            self.saturated, self._set_saturated = _array(self._n, None, np.bool_)
+            self.dark, self._set_dark = soft_signal_r_and_setter(bool, False)
+        with self.add_children_as_readables(Format.CONFIG_SIGNAL):
+            self.integration_s = soft_signal_rw(float, 0.1, units="s")
+            self.averages = soft_signal_rw(int, 1)
+            self.wavelength_nm, set_wl = _array(self._n, "nm")
+        set_wl(wl)
+        super().__init__(name=name)
+
+    @AsyncStatus.wrap
+    async def trigger(self) -> None:
+        t, n = await self.integration_s.get_value(), await self.averages.get_value()
+        _check_reading_settings(t, n)
+        r: Reading = await self._worker.run(self._bench.spectrometer.acquire, float(t), int(n))
+        self._set_spectrum(np.asarray(r.signal, dtype=float))
+        self._set_std(np.full(self._n, np.nan) if r.std is None else np.asarray(r.std, dtype=float))
+        self._set_saturated(np.asarray(r.saturated, dtype=bool))
+        self._set_dark(bool(r.dark))
+
+
+class ReflectanceDevice(_SpectralReadable):
+    """Calibrated BRDF and reflectance factor per wavelength, as ``bench scan`` computes them.
+
+    Readings: ``brdf`` (sr^-1), ``brdf_std``, ``reflectance_factor``, ``masked`` (pixels not
+    calibrated: reference saturated or at dark, signal saturated), the raw ``signal`` /
+    ``signal_std`` / ``dark`` / ``dark_std`` / ``saturated`` it was computed from, and the
+    geometry reached (``theta_i`` ... ``phi_r``, unsigned, degrees). Configuration:
+    ``integration_s``, ``averages``, ``dark_mode`` (none, once, per-incidence, per-point),
+    ``white_mode`` (none, once), the wavelength axis and the ``calibration`` (JSON of
+    :meth:`Calibration.as_dict`, measured at ``stage()``).
+    """
+
+    def __init__(self, bench: Bench, worker: BenchWorker, mover: Mover, name: str = "") -> None:
+        self._bench, self._worker, self._mover = bench, worker, mover
+        wl = np.asarray(bench.spectrometer.wavelengths, dtype=float)
+        self._n = wl.size
+        self._cal: Calibration | None = None
+        self._dark: Reading | None = None
+        self._last_incidence: tuple[float, float] | None = None
+        self._staged = False
+        with self.add_children_as_readables(Format.UNCACHED_SIGNAL):
+            self.brdf, self._set_brdf = _array(self._n, "1/sr")
+            self.brdf_std, self._set_brdf_std = _array(self._n, "1/sr")
+            self.reflectance_factor, self._set_rf = _array(self._n, None)
+            self.masked, self._set_masked = _array(self._n, None, np.bool_)
+            self.signal, self._set_signal = _array(self._n, "counts")
+            self.signal_std, self._set_signal_std = _array(self._n, "counts")
+            self.dark, self._set_dark = _array(self._n, "counts")
+            self.dark_std, self._set_dark_std = _array(self._n, "counts")
+            self.has_dark, self._set_has_dark = soft_signal_r_and_setter(bool, False)
+            self.saturated, self._set_saturated = _array(self._n, None, np.bool_)
+            self._geometry_setters = {}
+            for axis in ("theta_i", "phi_i", "theta_r", "phi_r"):
+                sig, setter = soft_signal_r_and_setter(float, 0.0, units="deg")
+                setattr(self, axis, sig)
+                self._geometry_setters[axis] = setter
+        with self.add_children_as_readables(Format.CONFIG_SIGNAL):
+            self.integration_s = soft_signal_rw(float, 0.1, units="s")
+            self.averages = soft_signal_rw(int, 1)
+            self.dark_mode = soft_signal_rw(str, "once")
+            self.white_mode = soft_signal_rw(str, "once")
+            self.wavelength_nm, set_wl = _array(self._n, "nm")
+            self.calibration, self._set_calibration = soft_signal_r_and_setter(str, "null")
+        set_wl(wl)
+        super().__init__(name=name)
+
+    async def _settings(self) -> Plan:
+        """The reading settings as the runner's :class:`Plan` (no points) and checked."""
+        t, n = float(await self.integration_s.get_value()), int(await self.averages.get_value())
+        dark, white = await self.dark_mode.get_value(), await self.white_mode.get_value()
+        _check_reading_settings(t, n)
+        if dark not in DARK_MODES:
+            raise ConfigError(f"{self.name} dark_mode must be one of {', '.join(DARK_MODES)}, got {dark!r}")
+        if white not in WHITE_MODES:
+            raise ConfigError(f"{self.name} white_mode must be one of {', '.join(WHITE_MODES)}, got {white!r}")
+        return Plan(name=self.name, kind="list", points=(), integration_s=t, averages=n, dark=dark, white=white)
+
+    @AsyncStatus.wrap
+    async def stage(self) -> None:
+        """Measure the white reference (and its dark), then the run's dark when ``once``."""
+        plan = await self._settings()
+        try:
+            self._cal = await self._worker.run(_measure_calibration, self._bench, plan)
+            self._dark = await self._worker.run(_acquire_dark, self._bench, plan) if plan.dark == "once" else None
+        finally:
+            await self._mover.refresh()  # measuring the white may have moved the arm
+        self._last_incidence = None
+        self._set_calibration(json.dumps(None if self._cal is None else self._cal.as_dict(), default=json_default))
+        self._staged = True
+
+    @AsyncStatus.wrap
+    async def unstage(self) -> None:
+        self._staged = False
+
+    @AsyncStatus.wrap
+    async def trigger(self) -> None:
+        if not self._staged:  # a bare trigger (no stage): calibrate first, as a plan would
+            await self.stage()
+        plan = await self._settings()
+        target = self._mover.geometry_of(self._mover.target)
+        incidence = (target.theta_i, target.phi_i)
+        if plan.dark == "per-point" or (plan.dark == "per-incidence" and incidence != self._last_incidence):
+            self._dark = await self._worker.run(_acquire_dark, self._bench, plan)
+        self._last_incidence = incidence
+        reading: Reading = await self._worker.run(self._bench.spectrometer.acquire, plan.integration_s,
+                                                  plan.averages)
+        g = self._mover.reached
+        nan = np.full(self._n, np.nan)
+        if self._cal is not None:
+            c = self._cal.apply(reading, g, self._dark)
+            self._set_brdf(c.brdf)
+            self._set_brdf_std(c.std)
+            self._set_rf(c.reflectance_factor)
+            self._set_masked(c.masked.astype(bool))
+        else:
+            self._set_brdf(nan)
+            self._set_brdf_std(nan)
+            self._set_rf(nan)
+            self._set_masked(np.ones(self._n, dtype=bool))
+        self._set_signal(np.asarray(reading.signal, dtype=float))
+        self._set_signal_std(nan if reading.std is None else np.asarray(reading.std, dtype=float))
+        d = self._dark
+        self._set_has_dark(d is not None)
+        self._set_dark(np.zeros(self._n) if d is None else np.asarray(d.signal, dtype=float))
+        self._set_dark_std(nan if d is None or d.std is None else np.asarray(d.std, dtype=float))
+        self._set_saturated(np.asarray(reading.saturated, dtype=bool))
+        for axis, value in g.as_dict().items():
+            self._geometry_setters[axis](float(value))
+
+
+def _on_off(value: Any) -> bool:
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    text = str(getattr(value, "value", value)).strip().lower()
+    if text in ("on", "1", "true", "open"):
+        return True
+    if text in ("off", "0", "false", "closed"):
+        return False
+    raise ConfigError(f"a light is set to on/off (True/False, 'on'/'off'), got {value!r}")
+
+
+class LightDevice(StandardReadable):
+    """The bench's light source: ``set(True)`` / ``set("off")``; reads ``on``."""
+
+    def __init__(self, bench: Bench, worker: BenchWorker, name: str = "") -> None:
+        if bench.light is None:
+            raise ConfigError(f"bench {bench.name!r} has no light source")
+        self._light, self._worker = bench.light, worker
+        with self.add_children_as_readables(Format.HINTED_SIGNAL):
+            self.on, self._set_on = soft_signal_r_and_setter(bool, True)
+        super().__init__(name=name)
+
+    @AsyncStatus.wrap
+    async def set(self, value: Any) -> None:
+        on = _on_off(value)
+        await self._worker.run(self._light.on if on else self._light.off)
+        self._set_on(on)
