@@ -1,44 +1,6 @@
-"""An Ocean-Optics-style RS-232 spectrometer (USB2000+/USB4000/Flame-S family) through a Transport.
-
-Protocol as implemented here (facts: ``/work/shared/reference/ocean-rs232.md``; the parts the
-manual leaves open are pinned down below and marked *choice*):
-
-Binary mode (power-up default)
-    One ASCII letter per command; a data word follows as 16 bits, most significant byte first.
-    ``A`` scans to add (1..5000), ``B`` boxcar, ``G`` compression (0/1), ``I`` integration time
-    in ms (1..65000), ``J`` lamp, ``K`` baud code, ``M`` storage mode, ``T`` trigger mode (0..4),
-    ``k`` checksum mode (0/1): letter + word. ``P`` pixel mode: letter + mode word + its
-    parameter words (1: n; 3: x, y, n; 4: count + pixels; 5: count + (x, y) pairs). ``W``
-    register + value. ``Q``, ``L``, ``S``, ``v``: letter alone. Each is answered ACK 0x06 or
-    NAK 0x15; ``v`` answers ACK + version word. Queries ``?A ?B ?I ?K ?T ?J`` answer ACK + word,
-    ``?i``/``?j`` ACK + 32-bit word (10 us / 1 us units); ``?x`` + slot word answers ACK + the
-    slot's ASCII text + CR (*choice*: CR-terminated text in both modes).
-ASCII mode (``aA``; back with ``bB``)
-    Commands are text lines: letter, decimal argument(s) separated by spaces, CR. The device
-    echoes every byte, then ACK/NAK; query values follow as decimal text + CR.
-S reply
-    ETX 0x03 = insufficient memory; NAK = refused; else STX 0x02 then the frame: ``0xFFFF``,
-    data-size flag (0 words, 1 dwords; dwords when scans to add > 1), scans accumulated,
-    integration time (ms), FPGA baseline MSW, LSW, pixel mode (+ its parameters), the pixel
-    data, ``0xFFFD``, and with checksum mode on a 16-bit checksum = the sum of the pixel values
-    modulo 65536 (*choice*). In ASCII mode every item (header, pixels, trailer, checksum) is a
-    decimal number + CR (*choice*; compression does not apply). Compression applies to word
-    frames only: each pixel is a signed 8-bit difference from the previous one (the first from
-    0) when |d| <= 127, else 0x80 followed by the 16-bit value.
-Calibration slots (``?x<n>``; the usual Ocean EEPROM layout)
-    0 serial number; 1..4 wavelength coefficients c0..c3 (lambda(p) = c0 + c1 p + c2 p^2 +
-    c3 p^3); 5 stray light; 6..13 non-linearity coefficients k0..k7; 14 non-linearity order.
-
-The driver fills the ``Spectrometer`` role: :meth:`OceanSpectrometer.acquire` returns a
-:class:`bench.core.roles.Reading` per pixel (mean over ``averages`` scans, per-scan counts when
-scans are accumulated on the device), flags pixels that saturated in any scan (65535, or
-65535 x scans for an accumulated frame), optionally subtracts the electrical dark of the masked
-pixels and optionally applies the non-linearity correction (refused with
-:class:`CalibrationError` when the stored coefficients are nonsense).
-
-Every read has a deadline; timeouts and corrupt frames are retried a bounded number of times
-(then :class:`DeviceTimeoutError` / :class:`ChecksumError`); NAK and ETX are
-:class:`ProtocolError` naming the command; a vanished port is :class:`PortGoneError`.
+"""The Ocean spectrometer driver: :class:`OceanSpectrometer`, the ``Spectrometer`` role over a
+byte transport (open, mode switching, settings, calibration, acquisition, describe). The
+protocol as implemented is described in :mod:`drivers.ocean`.
 """
 
 from __future__ import annotations
@@ -46,7 +8,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import fields
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -62,216 +24,13 @@ from bench.core.errors import (
     ProtocolError,
 )
 from bench.core.roles import InstrumentInfo, Reading
-
-__all__ = ["OceanConfig", "OceanSpectrometer", "MODELS", "decode_compressed",
-           "nonlinearity_factor", "validate_nonlinearity", "wavelength_polynomial"]
+from drivers.ocean.codec import (
+    ACK, CR, ETX, FULL_SCALE, NAK, STX, _Frame, decode_compressed, nonlinearity_factor,
+    validate_nonlinearity, wavelength_polynomial,
+)
+from drivers.ocean.config import OceanConfig
 
 log = logging.getLogger(__name__)
-
-ACK, NAK, STX, ETX, CR = 0x06, 0x15, 0x02, 0x03, 0x0D
-FULL_SCALE = 65535
-
-#: Per-model defaults: pixel count and the half-open index range of optically masked pixels
-#: (electrical dark). Values as python-seabreeze uses them; confirm against the unit in hand.
-MODELS: dict[str, dict[str, Any]] = {
-    "USB2000+": {"pixels": 2048, "dark_pixels": (6, 21)},
-    "FLAME-S": {"pixels": 2048, "dark_pixels": (6, 21)},
-    "USB4000": {"pixels": 3648, "dark_pixels": (5, 16)},
-    "EMU2000+": {"pixels": 2048, "dark_pixels": (6, 21)},
-}
-
-
-@dataclass(frozen=True)
-class OceanConfig:
-    """Settings of one spectrometer (keys of a bench-config table; all optional).
-
-    Attributes
-    ----------
-    model : str
-        Key of :data:`MODELS` (sets ``pixels`` and ``dark_pixels`` unless given).
-    pixels : int or None
-        Number of detector pixels.
-    dark_pixels : (int, int) or None
-        Half-open index range of the optically masked pixels.
-    mode : str
-        ``"binary"`` (default) or ``"ascii"``.
-    checksum : bool
-        Turn checksum mode on (k1) and verify every frame.
-    compression : bool
-        Turn data compression on (G1).
-    trigger_mode : int
-        0 free running (default), 1 software, 2 external level, 3 external sync, 4 external edge.
-    accumulate_on_device : bool
-        Average by the device's scans-to-add (one frame of dwords, no ``std``) instead of
-        ``averages`` separate frames.
-    subtract_electrical_dark : bool
-        Subtract the per-scan mean of the masked pixels.
-    nonlinearity : bool
-        Apply the non-linearity correction from the calibration slots (opt-in).
-    nonlinearity_bounds : (float, float)
-        Allowed range of the correction polynomial over 0..65535 counts.
-    wavelength_limits_nm : (float, float)
-        Plausible wavelength span; a calibration outside it is refused.
-    timeout_s : float
-        Reply deadline of a command (the acquisition time and the line time are added for S).
-    retries : int
-        Extra attempts after a timeout or a corrupt reply (NAK/ETX never retry).
-    baudrate : int
-        Line rate (used for the transfer-time part of deadlines; a pty ignores it).
-    """
-
-    model: str = "USB2000+"
-    pixels: int | None = None
-    dark_pixels: tuple[int, int] | None = None
-    mode: str = "binary"
-    checksum: bool = True
-    compression: bool = False
-    trigger_mode: int = 0
-    accumulate_on_device: bool = False
-    subtract_electrical_dark: bool = False
-    nonlinearity: bool = False
-    nonlinearity_bounds: tuple[float, float] = (0.5, 2.0)
-    wavelength_limits_nm: tuple[float, float] = (150.0, 1200.0)
-    timeout_s: float = 1.0
-    retries: int = 2
-    baudrate: int = 115200
-
-    def resolved(self) -> "OceanConfig":
-        spec = MODELS.get(self.model.upper(), {})
-        pixels = self.pixels if self.pixels is not None else spec.get("pixels")
-        dark = self.dark_pixels if self.dark_pixels is not None else spec.get("dark_pixels")
-        if pixels is None:
-            raise ConfigError(f"unknown spectrometer model {self.model!r} (known: "
-                              f"{', '.join(MODELS)}); give pixels= and dark_pixels=")
-        cfg = replace(self, pixels=int(pixels),
-                      dark_pixels=tuple(dark) if dark is not None else (0, 0))
-        cfg.validate()
-        return cfg
-
-    def validate(self) -> None:
-        def bad(msg: str) -> None:
-            raise ConfigError(f"spectrometer config: {msg}")
-
-        if self.mode not in ("binary", "ascii"):
-            bad(f"mode must be 'binary' or 'ascii', got {self.mode!r}")
-        if not (isinstance(self.pixels, int) and self.pixels > 0):
-            bad(f"pixels must be a positive integer, got {self.pixels!r}")
-        lo, hi = self.dark_pixels or (0, 0)
-        if not 0 <= lo <= hi <= (self.pixels or 0):
-            bad(f"dark_pixels {self.dark_pixels} is not a range inside 0..{self.pixels}")
-        if self.subtract_electrical_dark and hi <= lo:
-            bad("subtract_electrical_dark needs a non-empty dark_pixels range")
-        if self.trigger_mode not in (0, 1, 2, 3, 4):
-            bad(f"trigger_mode must be 0..4, got {self.trigger_mode!r}")
-        if not (self.timeout_s > 0 and math.isfinite(self.timeout_s)):
-            bad("timeout_s must be > 0")
-        if self.retries < 0:
-            bad("retries must be >= 0")
-        b0, b1 = self.nonlinearity_bounds
-        if not 0 < b0 < 1 < b1:
-            bad(f"nonlinearity_bounds must satisfy 0 < lo < 1 < hi, got {self.nonlinearity_bounds}")
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "OceanConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"spectrometer config: unknown key(s) {', '.join(unknown)}; "
-                              f"known: {', '.join(sorted(known))}")
-        kw = dict(d)
-        for k in ("dark_pixels", "nonlinearity_bounds", "wavelength_limits_nm"):
-            if k in kw and kw[k] is not None:
-                kw[k] = tuple(kw[k])
-        return cls(**kw)
-
-
-# --- pure helpers ------------------------------------------------------------------------------
-
-
-def wavelength_polynomial(coeffs: Sequence[float], pixels: int) -> np.ndarray:
-    """lambda(p) = c0 + c1 p + c2 p^2 + c3 p^3 for p = 0..pixels-1."""
-    c = list(coeffs) + [0.0] * (4 - len(coeffs))
-    p = np.arange(pixels, dtype=float)
-    return c[0] + c[1] * p + c[2] * p**2 + c[3] * p**3
-
-
-def nonlinearity_factor(coeffs: Sequence[float], counts: np.ndarray) -> np.ndarray:
-    """sum_i k_i counts^i (Horner)."""
-    x = np.asarray(counts, dtype=float)
-    acc = np.zeros_like(x)
-    for k in reversed(list(coeffs)):
-        acc = acc * x + k
-    return acc
-
-
-def validate_nonlinearity(coeffs: Sequence[float],
-                          bounds: tuple[float, float] = (0.5, 2.0)) -> np.ndarray:
-    """Return the coefficients as an array, or raise :class:`CalibrationError`.
-
-    Refused: no coefficients, a non-finite one, k0 == 0 (the stored "empty EEPROM" case that
-    makes the correction infinite), or a polynomial that is <= 0 or leaves ``bounds`` anywhere
-    on 0..65535 counts.
-    """
-    k = np.asarray(list(coeffs), dtype=float)
-    if k.size == 0:
-        raise CalibrationError("non-linearity correction: no coefficients stored")
-    if not np.all(np.isfinite(k)):
-        raise CalibrationError(f"non-linearity correction: non-finite coefficient(s) {k.tolist()}")
-    if k[0] == 0.0:
-        raise CalibrationError("non-linearity correction: k0 = 0 (empty or erased calibration); "
-                               "the correction would divide by ~0")
-    grid = np.linspace(0.0, FULL_SCALE, 4097)
-    f = nonlinearity_factor(k, grid)
-    if not np.all(np.isfinite(f)) or np.any(f <= 0):
-        bad = grid[np.argmax(~np.isfinite(f) | (f <= 0))]
-        raise CalibrationError(f"non-linearity correction: polynomial {k.tolist()} is <= 0 or "
-                               f"not finite at {bad:.0f} counts")
-    lo, hi = float(f.min()), float(f.max())
-    if lo < bounds[0] or hi > bounds[1]:
-        raise CalibrationError(f"non-linearity correction: polynomial {k.tolist()} ranges "
-                               f"{lo:.4g}..{hi:.4g} over 0..65535 counts, outside the plausible "
-                               f"{bounds[0]}..{bounds[1]}; refusing to apply it")
-    return k
-
-
-def decode_compressed(data: bytes | bytearray, n: int, start: int = 0) -> tuple[np.ndarray, int]:
-    """Decode ``n`` compressed pixel values from ``data[start:]``; return (values, end index).
-
-    Raises
-    ------
-    ChecksumError
-        If the data end before ``n`` values or a value leaves 0..65535.
-    """
-    out = np.empty(n, dtype=np.int64)
-    i, prev = start, 0
-    L = len(data)
-    for j in range(n):
-        if i >= L:
-            raise ChecksumError(f"compressed pixel data ended after {j} of {n} pixels")
-        b = data[i]
-        if b == 0x80:
-            if i + 2 >= L:
-                raise ChecksumError(f"compressed pixel data ended inside the escape of pixel {j}")
-            prev = data[i + 1] << 8 | data[i + 2]
-            i += 3
-        else:
-            prev += b - 256 if b > 127 else b
-            i += 1
-            if not 0 <= prev <= FULL_SCALE:
-                raise ChecksumError(f"compressed pixel data out of range at pixel {j}: {prev}")
-        out[j] = prev
-    return out, i
-
-
-@dataclass
-class _Frame:
-    dwords: bool
-    scans: int
-    integration_ms: int
-    baseline: int
-    pixel_mode: int
-    values: np.ndarray
-    raw: bytes = field(repr=False, default=b"")
 
 
 class _Retry(Exception):
