@@ -1,35 +1,43 @@
 """A four-axis goniometer on Dynamixel X-series servos (Protocol 2.0) through dynamixel-sdk.
 
-:class:`DynamixelArm` fills the ``Goniometer`` role. Bytes go through dynamixel-sdk's
-``PacketHandler(2.0)``, ``GroupSyncWrite`` (Goal Position of all axes in one packet) and
-``GroupSyncRead`` (Moving .. Present Position of all axes in one transaction) on a
-:class:`~drivers.transport.TransportPortHandler`, so the same driver runs on a real port, on an
+:class:`DynamixelArm` fills the ``Goniometer`` role. Packets are built, stuffed, checksummed and
+framed by dynamixel-sdk's ``PacketHandler(2.0)`` (SYNC_WRITE of Goal Position of all axes in one
+packet, SYNC_READ of Goal .. Present Position of all axes in one transaction) on a
+:class:`~drivers.transport.TransportPortHandler`; :mod:`drivers.dynamixel.link` matches replies
+to requests. So the same driver runs on a real port, on an
 emulator's pty, or against a :class:`~drivers.transport.ScriptedTransport` fixture.
 
 Behaviour
 ---------
 - ``check(g)`` runs the kinematics rules (:mod:`drivers.kinematics`) and the tick ranges; it is
   pure and sends nothing. ``move_to`` calls it before any byte is written.
-- ``move_to`` writes all Goal Positions in one sync write, then polls one sync read of
-  addresses 122..135 (Moving, Moving Status, ..., Present Position) every ``poll_interval_s``
-  until every axis has Moving = 0 and Present Position within ``tolerance_deg`` of its goal, or
-  ``settle_timeout_s`` passes (:class:`DeviceTimeoutError`). It returns the geometry computed
-  from the Present Positions read back.
-- Communication: each transaction is retried ``retries`` times on COMM_RX_TIMEOUT (-3001),
-  COMM_RX_CORRUPT (-3002) and TX failures, then raises :class:`DeviceTimeoutError` /
-  :class:`ChecksumError` / :class:`CommunicationError`. A vanished port is
-  :class:`PortGoneError` (from the transport), never a hang: every read has a deadline.
-- A status packet with the alert bit (0x80) makes the driver read Hardware Error Status
-  (addr 70) of that servo, switch torque off on every axis, and raise :class:`HardwareError`
-  whose ``flags`` name the bits (``overload`` ...) and ``code`` is the raw byte. A status
-  error code 1..7 raises :class:`ProtocolError`.
+- ``move_to`` writes all Goal Positions in one sync write (a broadcast: no status), then polls
+  one sync read of addresses 116..135 (Goal Position .. Present Position) every
+  ``poll_interval_s``. Verified motion: a goal that did not land (read back differs) is re-sent
+  once, a second loss is a :class:`CommunicationError`; an axis that has to move but shows
+  neither Moving = 1 nor a position change within ``start_timeout_s`` (0.1 s) is a
+  :class:`DeviceTimeoutError` at once; otherwise the poll ends when every axis has Moving = 0
+  and Present Position within ``tolerance_deg`` of its goal, or ``settle_timeout_s`` passes
+  (:class:`DeviceTimeoutError`). It returns the geometry computed from the Present Positions.
+- Request/reply discipline (:mod:`drivers.dynamixel.link`): every status is checked against its
+  request (id, instruction 0x55, parameter length, each id of a sync read once and in order);
+  a mismatch is never data. After a timeout, a corrupt reply or a mismatch the driver waits
+  until the bus is quiet (``return_delay_s`` + the outstanding statuses' transmit time at the
+  baud rate + ``latency_s``) and flushes before retrying; ``retries`` bounds the attempts, then
+  :class:`DeviceTimeoutError` / :class:`ChecksumError` / :class:`ProtocolError`. A vanished
+  port is :class:`PortGoneError` (from the transport), never a hang.
+- A status with the alert bit (0x80) makes the driver read Hardware Error Status (addr 70) of
+  that servo twice; only when both clean reads are non-zero does it switch torque off on every
+  axis and raise :class:`HardwareError` (``flags`` name the bits, ``code`` the raw byte). The
+  same confirmation guards REBOOT in :meth:`DynamixelArm.reset`. A status error code 1..7
+  raises :class:`ProtocolError`.
 - Any device fault latches: ``move_to`` and ``stop`` then raise :class:`FaultLatchedError`
   (``stop`` is a silent no-op) without writing a byte, until :meth:`DynamixelArm.reset`
   (reboots servos with hardware errors, re-applies the settings, torque on).
 - ``stop()`` writes Goal Position = Present Position for every axis (torque stays on, the arm
   holds where it is). Torque is switched off only on hardware errors, or at ``close()`` when
   ``torque_off_on_close`` is set (arms may sag without torque, so the default keeps it on).
-- At connect every axis is pinged (model number checked), its Hardware Error Status read,
+- At connect every axis is pinged (model number checked), its Hardware Error Status read (twice),
   Operating Mode and (mode 3) position limits compared with the config and written only if
   different and only with torque off; then profile acceleration/velocity are written and
   torque enabled.
@@ -44,6 +52,9 @@ Config dict (TOML-friendly)
     settle_timeout_s = 10.0
     poll_interval_s = 0.01
     retries = 3
+    start_timeout_s = 0.1          # an axis that must move shows motion within this
+    return_delay_s = 0.0005        # the servos' Return Delay Time (quiet-bus wait)
+    latency_s = 0.016              # USB adapter latency timer (quiet-bus wait)
     model_number = 1020            # expected ping answer (omit/None to accept any)
     torque_off_on_close = false
     [kinematics]                   # see drivers.kinematics.KinematicsConfig

@@ -1,27 +1,18 @@
 """The Dynamixel arm driver: :class:`DynamixelArm`, the ``Goniometer`` role on four servos
 (connect/reset, move_to with verified motion, position, stop, hardware-fault latching).
-The module docstring of :mod:`drivers.dynamixel` describes the behaviour.
+The module docstring of :mod:`drivers.dynamixel` describes the behaviour; the request/reply
+discipline is :mod:`drivers.dynamixel.link`.
 """
 
 from __future__ import annotations
-
 
 import logging
 import math
 import time
 from typing import Any, Callable, Mapping, Sequence
 
-from dynamixel_sdk import (
-    COMM_RX_CORRUPT,
-    COMM_RX_TIMEOUT,
-    COMM_SUCCESS,
-    GroupSyncRead,
-    GroupSyncWrite,
-    PacketHandler,
-)
 from bench.core.errors import (
     BenchError,
-    ChecksumError,
     CommunicationError,
     ConfigError,
     DeviceError,
@@ -36,14 +27,19 @@ from bench.core.geometry import Geometry
 from bench.core.roles import InstrumentBase, InstrumentInfo
 from drivers import kinematics as kin
 from drivers.dynamixel.config import (
-    ADDR, ERRBIT_ALERT, STATUS_ERRORS, TICKS_PER_REV, ArmConfig, _BLOCK_ADDR, _BLOCK_LEN, _le, _s32,
-    decode_hardware_error,
+    _BLOCK_ADDR, _BLOCK_LEN, _OFF_GOAL, _OFF_MOVING, _OFF_PRESENT, ADDR, ERRBIT_ALERT,
+    STATUS_ERRORS, TICKS_PER_REV, ArmConfig, _le, _s32, decode_hardware_error,
 )
+from drivers.dynamixel.link import DxlLink
 from drivers.kinematics import Joints
 from drivers.transport import SerialTransport, Transport, TransportPortHandler
 
 log = logging.getLogger(__name__)
 
+
+def _field(data: bytes, offset: int, size: int) -> int:
+    return _s32(int.from_bytes(data[offset:offset + size], "little")) if size == 4 else \
+        int.from_bytes(data[offset:offset + size], "little")
 
 
 class DynamixelArm(InstrumentBase):
@@ -83,7 +79,8 @@ class DynamixelArm(InstrumentBase):
         self.transport = transport
         self._port = TransportPortHandler(transport, baudrate=self.config.baudrate
                                           if self.config.baudrate in _SDK_BAUDS else 1_000_000)
-        self._ph = PacketHandler(2.0)
+        self._link = DxlLink(self._port, self.config.baudrate, self.config.retries,
+                             self.config.return_delay_s, self.config.latency_s, self.config.name)
         self._sleep = sleep
         self._axes = self.config.axis_list()
         self._ids = [a.id for a in self._axes]
@@ -121,35 +118,7 @@ class DynamixelArm(InstrumentBase):
                 f"{what} refused: a fault is latched ({type(self._fault).__name__}: {self._fault}); "
                 f"call reset() first")
 
-    # -- communication ----------------------------------------------------------------------
-    def _call(self, what: str, fn: Callable[..., Any], *args: Any) -> tuple[Any, int]:
-        """Run one SDK transaction with bounded retries; return ``(value, status_error)``."""
-        comm = COMM_SUCCESS
-        for attempt in range(self.config.retries + 1):
-            try:
-                res = fn(self._port, *args)
-            finally:
-                self._port.is_using = False  # an exception inside the SDK leaves it set
-            if len(res) == 3:
-                value, comm, err = res
-            else:
-                value, (comm, err) = None, res
-            if comm == COMM_SUCCESS:
-                return value, int(err)
-            log.debug("%s: %s attempt %d: %s", self.config.name, what, attempt + 1,
-                      self._ph.getTxRxResult(comm))
-        raise self._comm_error(what, comm)
-
-    def _comm_error(self, what: str, comm: int) -> CommunicationError:
-        n = self.config.retries + 1
-        if comm == COMM_RX_TIMEOUT:
-            return DeviceTimeoutError(f"{self.config.name}: no reply to {what} after {n} attempt(s)")
-        if comm == COMM_RX_CORRUPT:
-            return ChecksumError(f"{self.config.name}: corrupt reply (CRC/framing) to {what} "
-                                 f"after {n} attempt(s)")
-        return CommunicationError(f"{self.config.name}: {what} failed after {n} attempt(s): "
-                                  f"{self._ph.getTxRxResult(comm)} ({comm})")
-
+    # -- communication (every exchange goes through the link's request/reply discipline) ---
     def _status(self, what: str, dxl_id: int, err: int) -> None:
         """Turn a status error byte into the right exception (hardware path on the alert bit)."""
         if err & ERRBIT_ALERT:
@@ -163,77 +132,78 @@ class DynamixelArm(InstrumentBase):
         return next((a.joint for a in self._axes if a.id == dxl_id), "?")
 
     def _read(self, dxl_id: int, addr: int, size: int, what: str) -> int:
-        fn = {1: self._ph.read1ByteTxRx, 2: self._ph.read2ByteTxRx, 4: self._ph.read4ByteTxRx}[size]
-        value, err = self._call(f"{what} (read {addr}) on servo {dxl_id}", fn, dxl_id, addr)
+        data, err = self._link.read(dxl_id, addr, size, f"{what} (read {addr}) on servo {dxl_id}")
         self._status(what, dxl_id, err)
-        return int(value)
+        return _field(data, 0, size)
 
     def _write(self, dxl_id: int, addr: int, size: int, value: int, what: str) -> None:
-        fn = {1: self._ph.write1ByteTxRx, 2: self._ph.write2ByteTxRx, 4: self._ph.write4ByteTxRx}[size]
-        _, err = self._call(f"{what} (write {addr}) on servo {dxl_id}", fn, dxl_id, addr,
-                            value & ((1 << (8 * size)) - 1))
+        err = self._link.write(dxl_id, addr, bytes(_le(value, size)),
+                               f"{what} (write {addr}) on servo {dxl_id}")
         self._status(what, dxl_id, err)
 
     def _sync_read_block(self) -> dict[int, bytes]:
-        """One sync read of Moving..Present Position for every axis (bounded retries)."""
+        """One sync read of Goal Position .. Present Position for every axis."""
         what = f"sync read {_BLOCK_ADDR}+{_BLOCK_LEN}"
-        comm = COMM_SUCCESS
-        for attempt in range(self.config.retries + 1):
-            group = GroupSyncRead(self._port, self._ph, _BLOCK_ADDR, _BLOCK_LEN)
-            for i in self._ids:
-                group.addParam(i)
-            data: dict[int, bytes] = {}
-            errors: dict[int, int] = {}
+        replies = self._link.sync_read(_BLOCK_ADDR, _BLOCK_LEN, self._ids, what)
+        alerts = [i for i, (_, e) in replies.items() if e & ERRBIT_ALERT]
+        if alerts and not isinstance(self._fault, HardwareError):
+            self._hardware_fault(alerts, what)
+        for i, (_, e) in replies.items():  # already latched: reading stays possible
+            self._status(what, i, e & 0x7F)
+        return {i: d for i, (d, _) in replies.items()}
+
+    def _sync_write_goals(self, goals: Mapping[int, int], what: str) -> None:
+        self._link.sync_write(ADDR["goal_position"], 4,
+                              {i: bytes(_le(t, 4)) for i, t in goals.items()},
+                              f"{what}: sync write Goal Position")
+
+    def _hardware_error_confirmed(self, dxl_id: int) -> int | None:
+        """Hardware Error Status (70) of a servo, only if two clean reads both say non-zero.
+
+        Returns the code (non-zero) when confirmed, 0 when either read says 0, ``None`` when it
+        cannot be read (the bus keeps failing)."""
+        codes = []
+        for k in (1, 2):
             try:
-                comm = group.txPacket()
-                if comm == COMM_SUCCESS:
-                    for i in self._ids:  # own rx loop: GroupSyncRead drops the error byte
-                        d, comm, err = self._ph.readRx(self._port, i, _BLOCK_LEN)
-                        if comm != COMM_SUCCESS:
-                            break
-                        data[i], errors[i] = bytes(d), int(err)
-            finally:
-                self._port.is_using = False
-            if comm == COMM_SUCCESS:
-                alerts = [i for i, e in errors.items() if e & ERRBIT_ALERT]
-                if alerts and not isinstance(self._fault, HardwareError):
-                    self._hardware_fault(alerts, what)
-                for i, e in errors.items():  # already latched: reading stays possible
-                    self._status(what, i, e & 0x7F)
-                return data
-            log.debug("%s: %s attempt %d: %s", self.config.name, what, attempt + 1,
-                      self._ph.getTxRxResult(comm))
-        raise self._comm_error(what, comm)
+                data, _ = self._link.read(dxl_id, ADDR["hardware_error"], 1,
+                                          f"read Hardware Error Status of servo {dxl_id} ({k}/2)")
+            except CommunicationError:
+                return None
+            codes.append(data[0])
+            if not data[0]:
+                return 0
+        return codes[-1]
 
     def _hardware_fault(self, ids: Sequence[int], what: str) -> None:
-        """Read addr 70 of the alerting servos, torque off everywhere, latch, raise."""
-        codes: dict[int, int | None] = {}
-        for i in ids:
-            try:
-                v, _ = self._call(f"read Hardware Error Status of servo {i}",
-                                  self._ph.read1ByteTxRx, i, ADDR["hardware_error"])
-                codes[i] = int(v)
-            except DeviceError:
-                codes[i] = None
+        """Confirm Hardware Error Status of the alerting servos by two clean reads; if any is
+        confirmed: torque off everywhere, latch, raise :class:`HardwareError`."""
+        codes = {i: self._hardware_error_confirmed(i) for i in ids}
+        confirmed = {i: c for i, c in codes.items() if c}
+        if not confirmed:
+            if any(c is None for c in codes.values()):
+                unreadable = [i for i, c in codes.items() if c is None]
+                raise CommunicationError(f"{self.config.name}: alert bit during {what} but the "
+                                         f"Hardware Error Status of servo(s) {unreadable} could "
+                                         f"not be read")
+            log.warning("%s: alert bit during %s not confirmed by Hardware Error Status of "
+                        "servo(s) %s (both reads 0): ignored", self.config.name, what, list(ids))
+            return
         self._torque_off_best_effort()
         parts, flags = [], []
-        for i, c in codes.items():
-            f = decode_hardware_error(c) if c is not None else ["unreadable"]
+        for i, c in confirmed.items():
+            f = decode_hardware_error(c)
             flags += [x for x in f if x not in flags]
-            parts.append(f"servo {i} ({self._joint(i)}): "
-                         f"{', '.join(f) or 'alert without error bits'}"
-                         + (f" (0x{c:02X})" if c is not None else ""))
-        code = next((c for c in codes.values() if c is not None), None)
+            parts.append(f"servo {i} ({self._joint(i)}): {', '.join(f)} (0x{c:02X})")
         exc = HardwareError(f"{self.config.name}: hardware error during {what}: "
-                            f"{'; '.join(parts)}; torque switched off", code=code, flags=flags)
+                            f"{'; '.join(parts)}; torque switched off",
+                            code=next(iter(confirmed.values())), flags=flags)
         self._latch(exc)
         raise exc
 
     def _torque_off_best_effort(self) -> None:
         for i in self._ids:
             try:
-                self._call(f"torque off servo {i}", self._ph.write1ByteTxRx, i,
-                           ADDR["torque_enable"], 0)
+                self._link.write(i, ADDR["torque_enable"], b"\x00", f"torque off servo {i}")
             except DeviceError as exc:
                 log.warning("%s: torque off servo %d failed: %s", self.config.name, i, exc)
                 if isinstance(exc, PortGoneError):
@@ -256,13 +226,17 @@ class DynamixelArm(InstrumentBase):
 
     def _setup(self) -> None:
         for a in self._axes:
-            model, err = self._call(f"ping servo {a.id}", self._ph.ping, a.id)
-            self._status("ping", a.id, err)
+            model, err = self._link.ping(a.id, f"ping servo {a.id}")
             self._models[a.id] = int(model)
+            if err & 0x7F:
+                self._status("ping", a.id, err & 0x7F)
             if self.config.model_number is not None and model != self.config.model_number:
                 raise ProtocolError(f"{self.config.name}: servo {a.id} ({a.joint}) is model "
                                     f"{model}, expected {self.config.model_number}")
-            hw = self._read(a.id, ADDR["hardware_error"], 1, "read Hardware Error Status")
+            hw = self._hardware_error_confirmed(a.id)  # two clean reads, whatever the alert bit
+            if hw is None:
+                raise CommunicationError(f"{self.config.name}: Hardware Error Status of servo "
+                                         f"{a.id} ({a.joint}) could not be read")
             if hw:
                 self._torque_off_best_effort()
                 exc = HardwareError(f"{self.config.name}: servo {a.id} ({a.joint}) reports "
@@ -303,11 +277,14 @@ class DynamixelArm(InstrumentBase):
 
         def run() -> None:
             for a in self._axes:
-                hw = self._call(f"read Hardware Error Status of servo {a.id}",
-                                self._ph.read1ByteTxRx, a.id, ADDR["hardware_error"])[0]
+                hw = self._hardware_error_confirmed(a.id)  # REBOOT only on a confirmed error
+                if hw is None:
+                    raise CommunicationError(f"{self.config.name}: Hardware Error Status of "
+                                             f"servo {a.id} could not be read; not rebooting")
                 if hw:
-                    log.info("%s: rebooting servo %d (hardware error 0x%02X)", self.config.name, a.id, hw)
-                    self._call(f"reboot servo {a.id}", self._ph.reboot, a.id)
+                    log.info("%s: rebooting servo %d (hardware error 0x%02X, read twice)",
+                             self.config.name, a.id, hw)
+                    self._link.reboot(a.id, f"reboot servo {a.id}")
                     self._wait_ping(a.id)
             self._setup()
 
@@ -323,7 +300,7 @@ class DynamixelArm(InstrumentBase):
         deadline = time.monotonic() + timeout
         while True:
             try:
-                self._call(f"ping servo {dxl_id} after reboot", self._ph.ping, dxl_id)
+                self._link.ping(dxl_id, f"ping servo {dxl_id} after reboot")
                 return
             except DeviceTimeoutError:
                 if time.monotonic() > deadline:
@@ -334,7 +311,7 @@ class DynamixelArm(InstrumentBase):
     def _joints_from(self, block: Mapping[int, bytes]) -> Joints:
         vals = {}
         for a in self._axes:
-            ticks = _s32(int.from_bytes(block[a.id][_BLOCK_LEN - 4:], "little"))
+            ticks = _field(block[a.id], _OFF_PRESENT, 4)
             vals[a.joint] = a.to_degrees(ticks)
         for joint, axis in self._external.items():
             if joint not in self._external_deg:
@@ -390,32 +367,59 @@ class DynamixelArm(InstrumentBase):
         return self._guard("move_to", run)
 
     def _move(self, goals: Mapping[int, int], what: str) -> Geometry:
-        group = GroupSyncWrite(self._port, self._ph, ADDR["goal_position"], 4)
-        for i, t in goals.items():
-            group.addParam(i, _le(t, 4))
-        self._call(f"{what}: sync write Goal Position", lambda _port: (group.txPacket(), 0))
-        tol = {a.id: max(1, int(math.ceil(self.config.tolerance_deg * a.ticks_per_degree)))
+        """Sync-write the goals, confirm they landed (re-send once), confirm every axis that
+        has to move starts within ``start_timeout_s``, then wait until settled."""
+        cfg = self.config
+        tol = {a.id: max(1, int(math.ceil(cfg.tolerance_deg * a.ticks_per_degree)))
                for a in self._axes}
-        deadline = time.monotonic() + self.config.settle_timeout_s
+        self._sync_write_goals(goals, what)
+        sent = 1
+        t0 = time.monotonic()
+        deadline = t0 + cfg.settle_timeout_s
+        first: dict[int, int] | None = None   # present ticks at the first confirmed poll
+        started: set[int] = set()
         while True:
             block = self._sync_read_block()
+            lost = {i: _field(block[i], _OFF_GOAL, 4) for i, g in goals.items()
+                    if _field(block[i], _OFF_GOAL, 4) != g}
+            if lost:
+                if sent >= 2:
+                    raise CommunicationError(
+                        f"{cfg.name}: {what}: the sync write of Goal Position did not land on "
+                        f"servo(s) {sorted(lost)} after {sent} sends (read back {lost})")
+                log.warning("%s: %s: Goal Position not taken by servo(s) %s (read back %s); "
+                            "re-sending the sync write", cfg.name, what, sorted(lost), lost)
+                self._sync_write_goals(goals, what)
+                sent += 1
+                t0 = time.monotonic()
+                continue
+            present = {i: _field(block[i], _OFF_PRESENT, 4) for i in goals}
+            if first is None:
+                first = present
             settled = True
             for i, goal in goals.items():
-                d = block[i]
-                present = _s32(int.from_bytes(d[_BLOCK_LEN - 4:], "little"))
-                if d[0] or abs(present - goal) > tol[i]:
+                moving = block[i][_OFF_MOVING]
+                if moving or present[i] != first[i]:
+                    started.add(i)
+                if moving or abs(present[i] - goal) > tol[i]:
                     settled = False
-                    break
             if settled:
                 self._joints = self._joints_from(block)
                 return self._geometry(self._joints)
-            if time.monotonic() > deadline:
-                late = {self._joint(i): (goal, _s32(int.from_bytes(block[i][_BLOCK_LEN - 4:], "little")))
-                        for i, goal in goals.items()}
-                raise DeviceTimeoutError(f"{self.config.name}: {what} did not settle within "
-                                         f"{self.config.settle_timeout_s:g} s; (goal, present) "
+            now = time.monotonic()
+            idle = [i for i, goal in goals.items() if i not in started
+                    and abs(first[i] - goal) > tol[i]]
+            if idle and now - t0 > cfg.start_timeout_s:
+                raise DeviceTimeoutError(
+                    f"{cfg.name}: {what}: servo(s) {', '.join(f'{i} ({self._joint(i)})' for i in idle)} "
+                    f"did not start moving within {cfg.start_timeout_s:g} s (goal taken, Moving "
+                    f"never 1, position unchanged; torque off?)")
+            if now > deadline:
+                late = {self._joint(i): (goal, present[i]) for i, goal in goals.items()}
+                raise DeviceTimeoutError(f"{cfg.name}: {what} did not settle within "
+                                         f"{cfg.settle_timeout_s:g} s; (goal, present) "
                                          f"ticks: {late}")
-            self._sleep(self.config.poll_interval_s)
+            self._sleep(cfg.poll_interval_s)
 
     def position(self) -> Geometry:
         """The geometry read back from Present Position (a read; allowed while latched)."""
@@ -445,11 +449,14 @@ class DynamixelArm(InstrumentBase):
             for axis in self._external.values():
                 axis.stop()
             block = self._sync_read_block()
-            goals = {i: _s32(int.from_bytes(block[i][_BLOCK_LEN - 4:], "little")) for i in self._ids}
-            group = GroupSyncWrite(self._port, self._ph, ADDR["goal_position"], 4)
-            for i, t in goals.items():
-                group.addParam(i, _le(t, 4))
-            self._call("stop: sync write Goal Position", lambda _port: (group.txPacket(), 0))
+            goals = {i: _field(block[i], _OFF_PRESENT, 4) for i in self._ids}
+            for _ in range(2):  # a broadcast has no status: read back, re-send once
+                self._sync_write_goals(goals, "stop")
+                block = self._sync_read_block()
+                if all(_field(block[i], _OFF_GOAL, 4) == g for i, g in goals.items()):
+                    return
+            raise CommunicationError(f"{self.config.name}: stop: Goal Position did not land "
+                                     f"after 2 sync writes")
 
         self._guard("stop", run)
 

@@ -22,7 +22,13 @@ HW_ERROR_FLAGS = {0: "input_voltage", 1: "hall_sensor", 2: "overheating", 3: "mo
                   4: "electrical_shock", 5: "overload"}
 STATUS_ERRORS = {1: "result fail", 2: "instruction error", 3: "CRC error", 4: "data range error",
                  5: "data length error", 6: "data limit error", 7: "access error"}
-_BLOCK_ADDR, _BLOCK_LEN = 122, 14  # Moving(122) .. Present Position(132..135)
+# The poll block: Goal Position (116) .. Present Position (132..135) in one sync read, so that
+# every poll also shows whether the broadcast goals landed. Offsets inside the block:
+_BLOCK_ADDR = ADDR["goal_position"]
+_BLOCK_LEN = ADDR["present_position"] + 4 - _BLOCK_ADDR
+_OFF_GOAL = 0
+_OFF_MOVING = ADDR["moving"] - _BLOCK_ADDR
+_OFF_PRESENT = ADDR["present_position"] - _BLOCK_ADDR
 
 
 def decode_hardware_error(code: int) -> list[str]:
@@ -125,13 +131,18 @@ class ArmConfig:
     settle_timeout_s: float = 10.0
     poll_interval_s: float = 0.01
     retries: int = 3
+    start_timeout_s: float = 0.1
+    return_delay_s: float = 500e-6
+    latency_s: float = 0.016
     model_number: int | None = 1020
     torque_off_on_close: bool = False
     name: str = "dynamixel-arm"
     external: tuple[str, ...] = ()
 
     _KEYS = ("axes", "port", "baudrate", "kinematics", "tolerance_deg", "settle_timeout_s",
-             "poll_interval_s", "retries", "model_number", "torque_off_on_close", "name", "external")
+             "poll_interval_s", "retries", "start_timeout_s", "return_delay_s", "latency_s",
+             "model_number",
+             "torque_off_on_close", "name", "external")
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "external", tuple(self.external))
@@ -145,7 +156,8 @@ class ArmConfig:
         ids = [a.id for a in self.axes.values()]
         if len(set(ids)) != len(ids):
             raise ConfigError(f"axes: servo ids must be distinct, got {ids}")
-        for name in ("tolerance_deg", "settle_timeout_s", "poll_interval_s"):
+        for name in ("tolerance_deg", "settle_timeout_s", "poll_interval_s", "start_timeout_s",
+                     "return_delay_s", "latency_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name} must be a finite number >= 0, got {v!r}")

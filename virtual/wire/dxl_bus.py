@@ -29,8 +29,17 @@ class Faults:
     corrupt_rate: float = 0.0
     delay_s: float = 0.0
     hang: bool = False
+    #: after a corrupted status, the statuses that follow it in the same reply (the rest of a
+    #: SYNC_READ) reach the host this much later, as through a USB adapter's latency timer;
+    #: a host that re-sends at once then reads them as answers to its next request
+    late_s: float = 0.0
+    #: the next n broadcast SYNC_WRITE / BULK_WRITE packets are lost on the line (no servo
+    #: takes them; a broadcast has no status, so the host cannot see it)
+    drop_broadcast_next: int = 0
     dropped: int = 0
     corrupted: int = 0
+    late: int = 0
+    dropped_broadcasts: int = 0
 
 
 @dataclass
@@ -75,16 +84,18 @@ class DynamixelBus:
         self.rng = random.Random(seed)
         self.axes = {k: AxisMap(**dict(v)) for k, v in (axes or {}).items()}
         self.log: list[Packet] = []  # instructions received (bounded)
+        self.later: list[tuple[float, bytes]] = []  # (release time, bytes) held back by late_s
 
     # -- control ----------------------------------------------------------------------------
     def set_faults(self, **kw: Any) -> None:
         for k, v in kw.items():
-            if not hasattr(self.faults, k) or k in ("dropped", "corrupted"):
+            if not hasattr(self.faults, k) or k in ("dropped", "corrupted", "late", "dropped_broadcasts"):
                 raise KeyError(f"unknown fault {k!r}")
             setattr(self.faults, k, type(getattr(self.faults, k))(v))
 
     def clear_faults(self) -> None:
         self.faults = Faults()
+        self.later.clear()
 
     def hardware_error(self, dev_id: int, bits: int, on_goal: bool = False) -> None:
         s = self.servos[dev_id]
@@ -103,14 +114,42 @@ class DynamixelBus:
 
     # -- protocol ---------------------------------------------------------------------------
     def handle(self, data: bytes) -> bytes:
-        """Feed received bytes; return the reply bytes (possibly several status packets)."""
+        """Feed received bytes; return the reply bytes due now (possibly several status
+        packets). Replies held back by the ``late_s`` fault wait in :attr:`later` until
+        :meth:`take_due` releases them."""
         out = bytearray()
         for pkt in self.parser.feed(data):
             self.log.append(pkt)
             del self.log[:-1000]
+            if pkt.id == BROADCAST_ID and pkt.instruction in (INST["sync_write"], INST["bulk_write"]) \
+                    and self.faults.drop_broadcast_next > 0:
+                self.faults.drop_broadcast_next -= 1
+                self.faults.dropped_broadcasts += 1
+                continue
+            held = False
             for reply in self.execute(pkt):
-                out += self._inject(reply)
+                before = self.faults.corrupted
+                injected = self._inject(reply)
+                if held:
+                    self.later.append((time.monotonic() + self.faults.late_s, injected))
+                    self.faults.late += 1
+                elif self.later:  # the line still carries late statuses: these come after them
+                    self.later.append((max(t for t, _ in self.later), injected))
+                else:
+                    out += injected
+                held = held or (self.faults.late_s > 0 and self.faults.corrupted > before)
         return bytes(out)
+
+    def next_due(self) -> float | None:
+        """Monotonic time of the next held-back reply, or None."""
+        return min((t for t, _ in self.later), default=None)
+
+    def take_due(self, now: float | None = None) -> bytes:
+        """The held-back reply bytes whose time has come (in order)."""
+        now = time.monotonic() if now is None else now
+        due = [b for t, b in self.later if t <= now]
+        self.later = [(t, b) for t, b in self.later if t > now]
+        return b"".join(due)
 
     def _inject(self, reply: bytes) -> bytes:
         f = self.faults
@@ -206,9 +245,11 @@ class DynamixelBus:
 class BusTransport:
     """An in-process :class:`DynamixelBus` as a byte transport (``write``/``read``/...).
 
-    Replies are available as soon as the instruction is written; ``read`` never waits, so a
-    dropped reply is an instant timeout. For fast unit tests; timing-faithful tests use the
-    process emulator on a pty.
+    Replies are available as soon as the instruction is written; ``read`` waits only for
+    replies held back by the ``late_s`` fault (up to its timeout), so a dropped reply is an
+    instant timeout. ``reset_input`` drops only what has arrived: held-back replies still
+    arrive later, as on a real line. For fast unit tests; timing-faithful tests use the process
+    emulator on a pty.
     """
 
     def __init__(self, bus: DynamixelBus) -> None:
@@ -226,15 +267,24 @@ class BusTransport:
     def read(self, n: int, timeout: float = 0.0) -> bytes:
         if self.closed:
             raise OSError(5, "bus transport closed")
+        self._rx += self.bus.take_due()
+        if len(self._rx) < n and self.bus.later:
+            end = time.monotonic() + timeout
+            while len(self._rx) < n and self.bus.later and time.monotonic() < end:
+                nxt = self.bus.next_due() or end
+                time.sleep(max(0.0, min(nxt, end) - time.monotonic()))
+                self._rx += self.bus.take_due()
         out = bytes(self._rx[:n])
         del self._rx[:n]
         return out
 
     @property
     def in_waiting(self) -> int:
+        self._rx += self.bus.take_due()
         return len(self._rx)
 
     def reset_input(self) -> None:
+        self._rx += self.bus.take_due()
         self._rx.clear()
 
     def close(self) -> None:
@@ -265,8 +315,14 @@ class PtyBusThread:
     def _run(self) -> None:
         while not self._stop.is_set():
             try:
-                r, _, _ = select.select([self._master], [], [], 0.05)
+                due = self.bus.next_due()
+                wait = 0.05 if due is None else max(0.0, min(0.05, due - time.monotonic()))
+                r, _, _ = select.select([self._master], [], [], wait)
                 if not r:
+                    with self._lock:
+                        late = self.bus.take_due()
+                    if late:
+                        _write_all(self._master, late)
                     continue
                 data = os.read(self._master, 4096)
             except BlockingIOError:

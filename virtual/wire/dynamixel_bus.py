@@ -30,8 +30,10 @@ A TCP socket on 127.0.0.1 speaking JSON lines: send one object per line, get one
     driver's axis config): joint = (ticks - zero_offset) * direction * 360 / (4096 * gear_ratio).
     A spectrometer emulator polls this to know where the arms are.
 ``{"cmd": "faults", "drop_next": n, "corrupt_next": n, "drop_rate": p, "corrupt_rate": p,
-"delay_s": s, "hang": bool}``
-    Fault injection on status packets (only the keys given change).
+"delay_s": s, "hang": bool, "late_s": s, "drop_broadcast_next": n}``
+    Fault injection on status packets (only the keys given change). ``late_s``: after a
+    corrupted status the rest of the same reply (e.g. of a SYNC_READ) arrives that much later;
+    ``drop_broadcast_next``: the next n SYNC_WRITE/BULK_WRITE broadcasts are lost.
 ``{"cmd": "hardware_error", "id": 1, "bits": 32, "on_goal": false}``
     Set Hardware Error Status bits (5 = overload -> 32): torque off, every later status packet
     of that servo carries the alert bit 0x80. With ``on_goal`` true it fires at the next Goal
@@ -118,7 +120,12 @@ def serve(bus: DynamixelBus, master_fd: int, server: socket.socket,
         if parent_pid is not None and os.getppid() != parent_pid:
             os._exit(0)
         rlist = [master_fd, server, *clients]
-        r, _, _ = select.select(rlist, [], [], 0.5)
+        due = bus.next_due()
+        r, _, _ = select.select(rlist, [], [], 0.5 if due is None else
+                                max(0.0, min(0.5, due - time.monotonic())))
+        late = bus.take_due()
+        if late:
+            _write_all(master_fd, late)
         for s in r:
             if s == master_fd:
                 try:
