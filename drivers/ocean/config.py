@@ -57,6 +57,11 @@ class OceanConfig:
         Extra attempts after a timeout or a corrupt reply (NAK/ETX never retry).
     baudrate : int
         Line rate (used for the transfer-time part of deadlines; a pty ignores it).
+    dword_checksum : str
+        Checksum of frames of 32-bit pixel values (scans to add > 1), which the public manual
+        leaves open: ``"pixels"`` (sum of pixel values mod 65536), ``"words"`` (sum of all
+        16-bit data words) or ``"auto"`` (default: accept either, detect and remember it on the
+        first frame where they differ; ``describe()`` reports it).
     """
 
     model: str = "USB2000+"
@@ -74,6 +79,7 @@ class OceanConfig:
     timeout_s: float = 1.0
     retries: int = 2
     baudrate: int = 115200
+    dword_checksum: str = "auto"
 
     def resolved(self) -> "OceanConfig":
         spec = MODELS.get(self.model.upper(), {})
@@ -104,6 +110,8 @@ class OceanConfig:
             bad(f"trigger_mode must be 0..4, got {self.trigger_mode!r}")
         if not (self.timeout_s > 0 and math.isfinite(self.timeout_s)):
             bad("timeout_s must be > 0")
+        if self.dword_checksum not in ("auto", "pixels", "words"):
+            bad(f"dword_checksum must be 'auto', 'pixels' or 'words', got {self.dword_checksum!r}")
         if self.retries < 0:
             bad("retries must be >= 0")
         b0, b1 = self.nonlinearity_bounds

@@ -1,6 +1,7 @@
 """The Ocean spectrometer driver: :class:`OceanSpectrometer`, the ``Spectrometer`` role over a
-byte transport (open, mode switching, settings, calibration, acquisition, describe). The
-protocol as implemented is described in :mod:`drivers.ocean`.
+byte transport (open, settings, calibration, acquisition, describe). Byte-level I/O is
+:mod:`drivers.ocean.link`, frame decoding :mod:`drivers.ocean.codec`; the protocol as
+implemented is described in :mod:`drivers.ocean`.
 """
 
 from __future__ import annotations
@@ -9,36 +10,33 @@ import logging
 import math
 import time
 from dataclasses import fields
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Mapping
 
 import numpy as np
 
 from bench.core.errors import (
     CalibrationError,
     ChecksumError,
-    CommunicationError,
     ConfigError,
-    DeviceTimeoutError,
     InputError,
-    PortGoneError,
     ProtocolError,
 )
 from bench.core.roles import InstrumentInfo, Reading
+from drivers.ocean.calibration import nonlinearity_factor, validate_nonlinearity, wavelength_polynomial
 from drivers.ocean.codec import (
-    ACK, CR, ETX, FULL_SCALE, NAK, STX, _Frame, decode_compressed, nonlinearity_factor,
-    validate_nonlinearity, wavelength_polynomial,
+    ETX, FULL_SCALE, NAK, STX, Frame, FrameLayoutError, NeedMore, decode_version, encode_ascii,
+    encode_binary, parse_ascii_frame, parse_binary_frame,
 )
 from drivers.ocean.config import OceanConfig
+from drivers.ocean.link import Nak, OceanLink, Retry
 
 log = logging.getLogger(__name__)
 
-
-class _Retry(Exception):
-    """Internal: a recoverable communication failure (becomes the wrapped error at the end)."""
-
-    def __init__(self, error: CommunicationError) -> None:
-        super().__init__(str(error))
-        self.error = error
+#: Settings as the device has them after power-up (manual: free-running trigger, no
+#: compression, no checksum). Optional commands are sent only to change one of these.
+POWER_UP = {"T": 0, "G": 0, "k": 0}
+#: Commands a session can do without: a NAK to one is recorded as "not supported".
+OPTIONAL = {"G", "k"}
 
 
 class OceanSpectrometer:
@@ -78,16 +76,21 @@ class OceanSpectrometer:
         if isinstance(transport, str):
             from drivers.transport import SerialTransport
             self.port = transport
-            self.t: Any = SerialTransport(transport, baudrate=self.config.baudrate)
+            t: Any = SerialTransport(transport, baudrate=self.config.baudrate)
         else:
             self.port = repr(transport)
-            self.t = transport
+            t = transport
+        self.link = OceanLink(t, name, self.config.timeout_s, self.config.retries)
         self._closed = False
-        self._rx = bytearray()
-        self._mode = "binary"
-        self._state: dict[str, int] = {}
+        self._state: dict[str, int] = dict(POWER_UP)
+        self._sent: set[str] = set()          # letters actually sent this session
+        self._suspect_compression = False
+        self.unsupported: set[str] = set()
+        self.found_mode = "binary"
+        self.dword_checksum: str = self.config.dword_checksum  # "auto" until a frame proves it
         self.serial = ""
         self.firmware = ""
+        self.version_word = 0
         self.slots: dict[int, str] = {}
         self._nl: np.ndarray | None = None
         try:
@@ -100,6 +103,11 @@ class OceanSpectrometer:
                 pass
             raise
 
+    @property
+    def t(self) -> Any:
+        """The byte transport."""
+        return self.link.t
+
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any]) -> "OceanSpectrometer":
         """Build from a bench-config table: ``port`` (required), ``name`` and OceanConfig keys."""
@@ -110,155 +118,80 @@ class OceanSpectrometer:
         name = str(d.pop("name", "spectrometer"))
         return cls(port, name=name, **d)
 
-    # --- low-level I/O ------------------------------------------------------------------------
-    def _read_exact(self, n: int, deadline: float, what: str) -> bytes:
-        data = bytes(self._rx[:n])
-        del self._rx[:n]
-        if len(data) < n:
-            data += self.t.read(n - len(data), max(0.0, deadline - time.monotonic()))
-        if len(data) < n:
-            raise _Retry(DeviceTimeoutError(
-                f"{self.name}: {what}: got {len(data)} of {n} byte(s) before the deadline"
-                + (f" ({data.hex(' ')})" if data else "")))
-        return data
-
-    def _read_until_cr(self, deadline: float, what: str, limit: int = 4096) -> bytes:
-        while True:
-            i = self._rx.find(CR)
-            if 0 <= i <= limit:
-                line = bytes(self._rx[:i])
-                del self._rx[:i + 1]
-                return line
-            if len(self._rx) > limit:
-                raise _Retry(ChecksumError(f"{self.name}: {what}: no CR within {limit} bytes"))
-            # take what has already arrived (it belongs to this reply), at least one byte
-            avail = int(getattr(self.t, "in_waiting", 0) or 0)
-            chunk = self.t.read(max(1, avail), max(0.0, deadline - time.monotonic()))
-            if not chunk:
-                raise _Retry(DeviceTimeoutError(f"{self.name}: {what}: no CR-terminated reply "
-                                                f"before the deadline"))
-            self._rx += chunk
-
-    def _drain(self) -> None:
-        """Swallow whatever is still arriving (a late or partial reply) before a retry."""
-        end = time.monotonic() + 0.05
-        while time.monotonic() < end:
-            n = int(getattr(self.t, "in_waiting", 0) or 0)
-            if n:
-                self.t.read(n, 0)
-                end = time.monotonic() + 0.02
-            else:
-                time.sleep(0.002)
-        self._rx.clear()
-        self.t.reset_input()
-
-    def _encode(self, letter: str, args: Sequence[int]) -> bytes:
-        if self._mode == "ascii":
-            text = letter + (" ".join(str(int(a)) for a in args) if args else "")
-            return text.encode("ascii") + bytes([CR])
-        out = letter.encode("ascii")
-        for a in args:
-            out += int(a & 0xFFFF).to_bytes(2, "big")
-        return out
-
-    def _send(self, cmd: bytes, deadline: float, what: str) -> None:
-        stale = bytes(self._rx)
-        self._rx.clear()
-        n = int(getattr(self.t, "in_waiting", 0) or 0)
-        if n:
-            stale += self.t.read(n, 0)
-        if stale:  # a late reply to an earlier command must not be taken for this one's
-            log.warning("%s: discarding %d stale byte(s) before %s: %s", self.name, len(stale),
-                        what, stale[:32].hex(" "))
-        self.t.write(cmd)
-        if self._mode == "ascii":
-            echo = self._read_exact(len(cmd), deadline, f"{what} (echo)")
-            if echo != cmd:
-                raise _Retry(ChecksumError(f"{self.name}: {what}: echo {echo!r} differs from "
-                                           f"the command {cmd!r}"))
-
-    def _expect_ack(self, deadline: float, what: str) -> None:
-        b = self._read_exact(1, deadline, what)[0]
-        if b == NAK:
-            raise ProtocolError(f"{self.name}: NAK to {what}")
-        if b != ACK:
-            raise _Retry(ChecksumError(f"{self.name}: {what}: expected ACK/NAK, got 0x{b:02X}"))
-
-    def _retrying(self, what: str, fn: Callable[[], Any]) -> Any:
-        last: CommunicationError | None = None
-        for attempt in range(self.config.retries + 1):
-            if self._closed:
-                raise PortGoneError(f"{self.name}: closed")
-            try:
-                return fn()
-            except _Retry as r:
-                last = r.error
-                log.warning("%s: %s failed (attempt %d of %d): %s", self.name, what, attempt + 1,
-                            self.config.retries + 1, r.error)
-                self._drain()
-        assert last is not None
-        tries = self.config.retries + 1
-        raise type(last)(f"{last} [after {tries} attempt(s)]") from None
+    # --- commands -----------------------------------------------------------------------------
+    def _encode(self, letter: str, args: Any = ()) -> bytes:
+        return encode_ascii(letter, args) if self.link.mode == "ascii" else encode_binary(letter, args)
 
     def command(self, letter: str, *args: int) -> None:
         """Send a set command (``I``, ``A``, ``T``, ``k``, ...) and require ACK."""
         what = f"command {letter!r}" + (f" {list(args)}" if args else "")
 
         def once() -> None:
-            deadline = time.monotonic() + self.config.timeout_s
-            self._send(self._encode(letter, args), deadline, what)
-            self._expect_ack(deadline, what)
-        self._retrying(what, once)
+            deadline = self.link.deadline()
+            self.link.send(self._encode(letter, args), deadline, what)
+            self.link.expect_ack(deadline, what)
+        self.link.retrying(what, once)
+
+    def _ack_then(self, cmd: str, args: Any, what: str, read: Any) -> Any:
+        def once() -> Any:
+            deadline = self.link.deadline()
+            self.link.send(self._encode(cmd, args), deadline, what)
+            self.link.expect_ack(deadline, what)
+            return read(deadline)
+        return self.link.retrying(what, once)
+
+    def _number(self, deadline: float, what: str, nbytes: int) -> int:
+        if self.link.mode == "ascii":
+            text = self.link.read_line(deadline, what, 32)
+            try:
+                return int(text)
+            except ValueError:
+                raise Retry(ChecksumError(f"{self.name}: {what}: not a number: {text!r}")) from None
+        return int.from_bytes(self.link.read_exact(nbytes, deadline, what), "big")
 
     def query(self, letter: str) -> int:
         """``?<letter>``: a setting as an integer (``i``/``j`` are 32-bit)."""
         what = f"query '?{letter}'"
-        wide = letter in ("i", "j")
-
-        def once() -> int:
-            deadline = time.monotonic() + self.config.timeout_s
-            self._send(self._encode("?" + letter, []), deadline, what)
-            self._expect_ack(deadline, what)
-            if self._mode == "ascii":
-                text = self._read_until_cr(deadline, what, 32)
-                try:
-                    return int(text)
-                except ValueError:
-                    raise _Retry(ChecksumError(f"{self.name}: {what}: not a number: {text!r}"))
-            return int.from_bytes(self._read_exact(4 if wide else 2, deadline, what), "big")
-        return self._retrying(what, once)
+        n = 4 if letter in ("i", "j") else 2
+        return self._ack_then("?" + letter, (), what, lambda d: self._number(d, what, n))
 
     def read_slot(self, n: int) -> str:
-        """``?x<n>``: the calibration slot's text."""
+        """``?x<n>``: the calibration slot's text (a line ending CR LF)."""
         what = f"query '?x{n}'"
-
-        def once() -> str:
-            deadline = time.monotonic() + self.config.timeout_s
-            self._send(self._encode("?x", [n]) if self._mode == "binary"
-                       else f"?x{n}".encode() + bytes([CR]), deadline, what)
-            self._expect_ack(deadline, what)
-            return self._read_until_cr(deadline, what, 64).decode("ascii", "replace").strip()
-        text = self._retrying(what, once)
+        text = self._ack_then("?x", (n,), what, lambda d: self.link.read_line(d, what, 64))
+        text = text.decode("ascii", "replace").strip()
         self.slots[n] = text
         return text
 
     def version(self) -> int:
-        """``v``: the firmware version word."""
+        """``v``: the firmware version word (its decimal digits are the version)."""
         what = "command 'v'"
-
-        def once() -> int:
-            deadline = time.monotonic() + self.config.timeout_s
-            self._send(self._encode("v", []), deadline, what)
-            self._expect_ack(deadline, what)
-            if self._mode == "ascii":
-                return int(self._read_until_cr(deadline, what, 32))
-            return int.from_bytes(self._read_exact(2, deadline, what), "big")
-        return self._retrying(what, once)
+        return self._ack_then("v", (), what, lambda d: self._number(d, what, 2))
 
     def _set(self, letter: str, value: int) -> None:
-        if self._state.get(letter) != value:
+        """Send ``letter value`` only when it changes the device's setting. A NAK to an optional
+        command (:data:`OPTIONAL`) is recorded in :attr:`unsupported`, not raised."""
+        if self._state.get(letter) == value or letter in self.unsupported:
+            return
+        try:
             self.command(letter, value)
-            self._state[letter] = value
+            self._sent.add(letter)
+        except Nak:
+            if letter not in OPTIONAL:
+                raise
+            self.unsupported.add(letter)
+            log.warning("%s: %r is not supported by this unit (NAK); continuing without it",
+                        self.name, letter)
+            return
+        self._state[letter] = value
+
+    @property
+    def checksum_on(self) -> bool:
+        return bool(self._state.get("k"))
+
+    @property
+    def compression_on(self) -> bool:
+        return bool(self._state.get("G"))
 
     def set_trigger_mode(self, mode: int) -> None:
         """``T``: 0 free running, 1 software, 2 external level, 3 external sync, 4 external edge.
@@ -277,7 +210,10 @@ class OceanSpectrometer:
     def reset_defaults(self) -> None:
         """``Q``: reset the device to its defaults (mode unchanged), then re-apply the config."""
         self.command("Q")
-        self._state.clear()
+        self._state = dict(POWER_UP)
+        self._apply_settings()
+
+    def _apply_settings(self) -> None:
         cfg = self.config
         self._set("k", int(cfg.checksum))
         self._set("G", int(cfg.compression))
@@ -286,11 +222,11 @@ class OceanSpectrometer:
     # --- open ---------------------------------------------------------------------------------
     def _open(self) -> None:
         cfg = self.config
-        self._sync_binary()
+        self.found_mode = self.link.sync_binary()
         if cfg.mode == "ascii":
             self.command_mode("ascii")
-        v = self.version()
-        self.firmware = f"{v >> 12}.{v >> 8 & 0xF}.{v & 0xFF}"
+        self.version_word = self.version()
+        self.firmware = decode_version(self.version_word)
         self.serial = self.read_slot(0)
         coeffs = []
         for n in (1, 2, 3, 4):
@@ -314,51 +250,20 @@ class OceanSpectrometer:
         self._wavelengths.setflags(write=False)
         if cfg.nonlinearity:
             self.enable_nonlinearity()
-        self._set("k", int(cfg.checksum))
-        self._set("G", int(cfg.compression))
-        self._set("T", cfg.trigger_mode)
+        self._apply_settings()
         log.info("%s: %s serial %s firmware %s, %d pixels %.1f..%.1f nm", self.name, cfg.model,
                  self.serial, self.firmware, cfg.pixels, wl[0], wl[-1])
 
-    def _sync_binary(self) -> None:
-        """Bring the device into binary mode whatever mode it was left in."""
-        what = "mode switch 'bB'"
-
-        def once() -> None:
-            deadline = time.monotonic() + self.config.timeout_s
-            self.t.write(b"bB")
-            first = self._read_exact(1, deadline, what)[0]
-            if first == ord("b"):  # ASCII mode: it echoes and waits for CR
-                self._read_exact(1, deadline, what)
-                self.t.write(bytes([CR]))
-                self._read_exact(1, deadline, what)
-                first = self._read_exact(1, deadline, what)[0]
-            if first == NAK:
-                raise ProtocolError(f"{self.name}: NAK to {what}")
-            if first != ACK:
-                raise _Retry(ChecksumError(f"{self.name}: {what}: got 0x{first:02X}"))
-        self._retrying(what, once)
-        self._mode = "binary"
-
     def command_mode(self, mode: str) -> None:
-        """Switch the device between ``"binary"`` and ``"ascii"`` mode."""
+        """Switch the device between ``"binary"`` and ``"ascii"`` mode (bare ``aA`` / ``bB``)."""
         if mode not in ("binary", "ascii"):
             raise InputError(f"mode must be 'binary' or 'ascii', got {mode!r}")
-        if mode == self._mode:
+        if mode == self.link.mode:
             return
-        cmd = b"aA" if mode == "ascii" else b"bB" + bytes([CR])
-        what = f"mode switch {cmd[:2].decode()!r}"
-
-        def once() -> None:
-            deadline = time.monotonic() + self.config.timeout_s
-            self.t.write(cmd)
-            if self._mode == "ascii":
-                echo = self._read_exact(len(cmd), deadline, what)
-                if echo != cmd:
-                    raise _Retry(ChecksumError(f"{self.name}: {what}: bad echo {echo!r}"))
-            self._expect_ack(deadline, what)
-        self._retrying(what, once)
-        self._mode = mode
+        if mode == "ascii":
+            self.link.to_ascii()
+        else:
+            self.link.to_binary()
 
     # --- calibration --------------------------------------------------------------------------
     def enable_nonlinearity(self) -> None:
@@ -396,104 +301,64 @@ class OceanSpectrometer:
     # --- acquisition --------------------------------------------------------------------------
     def _frame_deadline(self, integration_ms: int, scans: int) -> float:
         npix = self.config.pixels or 0
-        per_value = 12 if self._mode == "ascii" else (4 if scans > 1 else 2)
+        per_value = 12 if self.link.mode == "ascii" else (4 if scans > 1 else 2)
         line_s = (npix * per_value + 64) * 10.0 / self.config.baudrate
         # free-running: the scan in progress is discarded, so allow one extra integration
         acq_s = integration_ms / 1000.0 * (scans + 1)
-        return time.monotonic() + self.config.timeout_s + acq_s + line_s
+        return self.link.deadline(acq_s + line_s)
 
-    def _read_frame(self, integration_ms: int, scans: int) -> _Frame:
+    def _read_frame(self, integration_ms: int, scans: int) -> Frame:
         what = "command 'S'"
         deadline = self._frame_deadline(integration_ms, scans)
-        self._send(self._encode("S", []), deadline, what)
-        first = self._read_exact(1, deadline, what)[0]
+        self.link.send(self._encode("S"), deadline, what)
+        first = self.link.read_exact(1, deadline, what)[0]
         if first == ETX:
             raise ProtocolError(f"{self.name}: 'S' answered ETX: insufficient memory for "
                                 f"{self.config.pixels} pixels x {scans} scans")
         if first == NAK:
-            raise ProtocolError(f"{self.name}: NAK to {what}")
+            raise Nak(f"{self.name}: NAK to {what}")
         if first != STX:
-            raise _Retry(ChecksumError(f"{self.name}: {what}: expected STX, got 0x{first:02X}"))
-        if self._mode == "ascii":
-            return self._read_frame_ascii(deadline, what)
-        return self._read_frame_binary(deadline, what)
-
-    def _read_frame_binary(self, deadline: float, what: str) -> _Frame:
+            raise Retry(ChecksumError(f"{self.name}: {what}: expected STX, got 0x{first:02X}"))
         npix = self.config.pixels or 0
-        head = self._read_exact(14, deadline, what)
-        w = [int.from_bytes(head[i:i + 2], "big") for i in range(0, 14, 2)]
-        if w[0] != 0xFFFF or w[1] not in (0, 1):
-            raise _Retry(ChecksumError(f"{self.name}: frame header {head.hex(' ')} is not "
-                                       f"0xFFFF + a data-size flag"))
-        dwords, scans, integ = bool(w[1]), w[2], w[3]
-        baseline, pmode = w[4] << 16 | w[5], w[6]
-        if pmode != 0:
-            raise _Retry(ChecksumError(f"{self.name}: frame pixel mode {pmode}, expected 0 "
-                                       f"(this driver runs the device in pixel mode 0)"))
-        raw = bytearray(head)
-        if dwords:
-            data = self._read_exact(4 * npix, deadline, what)
-            values = np.frombuffer(data, dtype=">u4").astype(np.int64)
-        elif self._state.get("G"):
-            # every pixel takes at least one byte and the trailer follows: read that lower
-            # bound, then whatever the escapes (3 bytes each) still need
-            buf = bytearray(self._read_exact(npix, deadline, what))
-            while (missing := self._compressed_missing(buf, npix)) > 0:
-                buf += self._read_exact(missing, deadline, what)
-            try:
-                values, end = decode_compressed(buf, npix)
-            except ChecksumError as exc:
-                raise _Retry(ChecksumError(f"{self.name}: {what}: {exc}")) from None
-            data, extra = bytes(buf[:end]), bytes(buf[end:])
-        else:
-            data = self._read_exact(2 * npix, deadline, what)
-            values = np.frombuffer(data, dtype=">u2").astype(np.int64)
-        raw += data
-        tail = extra if (not dwords and self._state.get("G")) else b""
-        need_tail = 2 + (2 if self._state.get("k") else 0)
-        if len(tail) < need_tail:
-            tail += self._read_exact(need_tail - len(tail), deadline, what)
-        if tail[:2] != b"\xff\xfd":
-            raise _Retry(ChecksumError(f"{self.name}: frame trailer {tail[:2].hex(' ')} is not "
-                                       f"FF FD (wrong pixel count or a corrupted frame)"))
-        if self._state.get("k"):
-            got = int.from_bytes(tail[2:4], "big")
-            want = int(values.sum()) & 0xFFFF
-            if got != want:
-                raise _Retry(ChecksumError(f"{self.name}: frame checksum 0x{got:04X} != "
-                                           f"0x{want:04X} computed over the pixel data"))
-        return _Frame(dwords, scans, integ, baseline, pmode, values, bytes(raw))
-
-    @staticmethod
-    def _compressed_missing(data: bytes | bytearray, npix: int) -> int:
-        """Lower bound of the bytes still missing to hold ``npix`` compressed values."""
-        i = j = 0
-        L = len(data)
-        while j < npix and i < L:
-            i += 3 if data[i] == 0x80 else 1
-            j += 1
-        return max(i - L, 0) + (npix - j)
-
-    def _read_frame_ascii(self, deadline: float, what: str) -> _Frame:
-        npix = self.config.pixels or 0
-
-        def num() -> int:
-            text = self._read_until_cr(deadline, what, 16)
-            try:
-                return int(text)
-            except ValueError:
-                raise _Retry(ChecksumError(f"{self.name}: {what}: {text!r} is not a number"))
-        w = [num() for _ in range(7)]
-        if w[0] != 0xFFFF or w[1] not in (0, 1) or w[6] != 0:
-            raise _Retry(ChecksumError(f"{self.name}: ASCII frame header {w} is malformed"))
-        values = np.array([num() for _ in range(npix)], dtype=np.int64)
-        if num() != 0xFFFD:
-            raise _Retry(ChecksumError(f"{self.name}: ASCII frame trailer is not 65533"))
-        if self._state.get("k"):
-            got = num()
-            if got != int(values.sum()) & 0xFFFF:
-                raise _Retry(ChecksumError(f"{self.name}: ASCII frame checksum {got} is wrong"))
-        return _Frame(bool(w[1]), w[2], w[3], w[4] << 16 | w[5], w[6], values)
+        kw = dict(checksum=self.checksum_on, convention=self.dword_checksum,
+                  expect_scans=scans, expect_integration_ms=integration_ms)
+        try:
+            if self.link.mode == "ascii":
+                n = 7 + npix + 1 + (1 if self.checksum_on else 0)
+                nums = []
+                for _ in range(n):
+                    text = self.link.read_line(deadline, what, 16)
+                    try:
+                        nums.append(int(text))
+                    except ValueError:
+                        raise Retry(ChecksumError(f"{self.name}: {what}: {text!r} is not a "
+                                                  f"number")) from None
+                fr = parse_ascii_frame(nums, npix, **kw)
+            else:
+                buf = bytearray()
+                need = 14
+                try:
+                    while True:
+                        buf += self.link.read_exact(need, deadline, what)
+                        try:
+                            fr, _ = parse_binary_frame(buf, npix, compressed=self.compression_on,
+                                                       **kw)
+                            break
+                        except NeedMore as more:
+                            need = more.n
+                except (Retry, FrameLayoutError):
+                    # a good header, then data that do not fit an uncompressed frame: the unit
+                    # may have been left compressing (G 1) by an earlier session
+                    if len(buf) >= 14 and not self.compression_on and "G" not in self._sent:
+                        self._suspect_compression = True
+                    raise
+        except (ChecksumError, ProtocolError) as exc:
+            raise Retry(ChecksumError(f"{self.name}: {what}: {exc}")) from None
+        if fr.checksum_convention and self.dword_checksum == "auto":
+            self.dword_checksum = fr.checksum_convention
+            log.info("%s: DWORD frame checksum convention detected: sum of %s", self.name,
+                     "pixel values" if fr.checksum_convention == "pixels" else "16-bit data words")
+        return fr
 
     def acquire_frame(self, integration_ms: int, scans: int) -> np.ndarray:
         """One S acquisition: the raw (accumulated) counts of every pixel, after the retries."""
@@ -502,14 +367,12 @@ class OceanSpectrometer:
         self._set("P", 0)
 
         def once() -> np.ndarray:
-            fr = self._read_frame(integration_ms, scans)
-            if fr.scans != scans or fr.integration_ms != integration_ms or \
-                    fr.dwords != (scans > 1):
-                raise _Retry(ChecksumError(
-                    f"{self.name}: frame says {fr.scans} scans of {fr.integration_ms} ms "
-                    f"(dwords={fr.dwords}), expected {scans} of {integration_ms} ms"))
-            return fr.values
-        return self._retrying("command 'S'", once)
+            if self._suspect_compression and "G" not in self.unsupported:
+                self._suspect_compression = False
+                self._state.pop("G", None)  # unknown now: G 0 changes something
+                self._set("G", 0)
+            return self._read_frame(integration_ms, scans).values
+        return self.link.retrying("command 'S'", once)
 
     def acquire(self, integration_s: float, averages: int = 1) -> Reading:
         """Acquire ``averages`` scans of ``integration_s`` seconds and return their mean.
@@ -572,7 +435,10 @@ class OceanSpectrometer:
                     "integration_s": (0.001, 65.0), "counts": (0.0, float(FULL_SCALE))},
             extra={"name": self.name, "port": self.port, "pixels": cfg.pixels,
                    "dark_pixels": list(cfg.dark_pixels or ()), "mode": cfg.mode,
-                   "checksum": cfg.checksum, "compression": cfg.compression,
+                   "checksum": self.checksum_on, "compression": self.compression_on,
+                   "dword_checksum": self.dword_checksum if self.dword_checksum != "auto"
+                   else "undetermined", "unsupported": sorted(self.unsupported),
+                   "found_in_mode": self.found_mode,
                    "trigger_mode": cfg.trigger_mode,
                    "wavelength_coeffs": list(self.wavelength_coeffs),
                    "nonlinearity": None if self._nl is None else self._nl.tolist(),
@@ -581,6 +447,7 @@ class OceanSpectrometer:
     def close(self) -> None:
         if not self._closed:
             self._closed = True
+            self.link.closed = True
             self.t.close()
 
     def __enter__(self) -> "OceanSpectrometer":

@@ -32,7 +32,17 @@ def compress(values: np.ndarray) -> bytes:
     return bytes(out)
 
 
-def encode_frame(values: np.ndarray, s: Settings, baseline: int = 0) -> bytes:
+def frame_checksum(values: np.ndarray, dwords: bool, convention: str = "pixels") -> int:
+    """The frame checksum as this unit computes it: the sum of the pixel values mod 65536, or
+    (``convention = "words"``, DWORD frames only) the sum of all 16-bit data words."""
+    v = np.asarray(values, dtype=np.int64)
+    if dwords and convention == "words":
+        return int((v >> 16).sum() + (v & 0xFFFF).sum()) & 0xFFFF
+    return int(v.sum()) & 0xFFFF
+
+
+def encode_frame(values: np.ndarray, s: Settings, baseline: int = 0,
+                 convention: str = "pixels") -> bytes:
     """The binary S reply after STX (header ... 0xFFFD [checksum])."""
     dwords = s.scans > 1
     head = [0xFFFF, 1 if dwords else 0, s.scans, s.integration_ms,
@@ -46,15 +56,17 @@ def encode_frame(values: np.ndarray, s: Settings, baseline: int = 0) -> bytes:
         out += _words(values.tolist())
     out += _words([0xFFFD])
     if s.checksum:
-        out += _words([int(values.sum()) & 0xFFFF])
+        out += _words([frame_checksum(values, dwords, convention)])
     return bytes(out)
 
 
-def encode_frame_ascii(values: np.ndarray, s: Settings, baseline: int = 0) -> bytes:
+def encode_frame_ascii(values: np.ndarray, s: Settings, baseline: int = 0,
+                       convention: str = "pixels") -> bytes:
+    """The ASCII-mode S reply after STX: every item in decimal ending CR LF."""
     dwords = s.scans > 1
     items = [0xFFFF, 1 if dwords else 0, s.scans, s.integration_ms,
              (baseline >> 16) & 0xFFFF, baseline & 0xFFFF, s.pixel_mode] + list(s.pixel_params)
     items += values.tolist() + [0xFFFD]
     if s.checksum:
-        items.append(int(values.sum()) & 0xFFFF)
-    return b"".join(f"{int(v)}\r".encode() for v in items)
+        items.append(frame_checksum(values, dwords, convention))
+    return b"".join(f"{int(v)}\r\n".encode() for v in items)

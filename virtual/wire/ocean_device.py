@@ -80,6 +80,9 @@ class _Device:
     def _binary_step(self) -> int:
         b = self.buf
         c = b[0]
+        if chr(c) in self.model.cfg.unsupported:
+            self._reply_nak(c)  # a unit without this command: the letter alone is refused
+            return 1
 
         def word(i: int) -> int:
             return b[i] << 8 | b[i + 1]
@@ -136,39 +139,83 @@ class _Device:
         self._reply_nak(c)
         return 1
 
-    # -- ascii --------------------------------------------------------------------------------
-    def _ascii_step(self) -> int:
-        try:
-            end = self.buf.index(CR)
-        except ValueError:
-            return 0
-        line = bytes(self.buf[:end]).decode("ascii", "replace").strip()
-        used = end + 1
-        if not line:
-            return used
-        c = ord(line[0])
-        rest = line[1:].strip()
-        if line in ("aA", "bB"):
-            self._command(c, [])
-            return used
-        if c == ord("?"):
-            if not rest:
-                self._reply_nak(c)
-                return used
-            q = ord(rest[0])
-            arg = rest[1:].strip()
+    # -- ascii (per the manual: letter; each data value in decimal ending CR; aA/bB bare) --------
+    def _ascii_values(self, start: int, count: int) -> tuple[list[int], int] | None | str:
+        """``count`` CR-terminated decimal values from ``buf[start:]``: (values, end), None when
+        incomplete, ``"bad"`` when a value is not a number."""
+        vals, i = [], start
+        for _ in range(count):
             try:
-                self._query(q, int(arg) if q == ord("x") else None)
+                end = self.buf.index(CR, i)
             except ValueError:
-                self._reply_nak(c)
-            return used
-        try:
-            args = [int(x) for x in rest.replace(",", " ").split()]
-        except ValueError:
+                return None
+            text = bytes(self.buf[i:end]).decode("ascii", "replace").strip()
+            if not text.lstrip("-").isdigit():
+                return "bad"
+            vals.append(int(text))
+            i = end + 1
+        return vals, i
+
+    def _ascii_step(self) -> int:
+        b = self.buf
+        c = b[0]
+        if chr(c) in self.model.cfg.unsupported:
             self._reply_nak(c)
+            return 1
+        if c in _NO_DATA:
+            self._command(c, [])
+            return 1
+        if c in (ord("a"), ord("b")):
+            if len(b) < 2:
+                return 0
+            if b[1] == c - 32:
+                self._command(c, [])
+                return 2
+            self._reply_nak(c)
+            return 1
+        if c == ord("?"):
+            if len(b) < 2:
+                return 0
+            q = b[1]
+            if q != ord("x"):
+                self._query(q, None)
+                return 2
+            got = self._ascii_values(2, 1)
+            if got is None:
+                return 0
+            if got == "bad":
+                self._reply_nak(c)
+                return len(b)
+            vals, used = got
+            self._query(q, vals[0])
             return used
-        self._command(c, args)
+        if c in _ONE_WORD or c == ord("W"):
+            got = self._ascii_values(1, 2 if c == ord("W") else 1)
+        elif c == ord("P"):
+            got = self._ascii_values(1, 1)
+            if isinstance(got, tuple):
+                mode = got[0][0]
+                need = {0: 0, 1: 1, 3: 3}.get(mode, 0)
+                if mode in (4, 5):
+                    cnt = self._ascii_values(got[1], 1)
+                    if not isinstance(cnt, tuple):
+                        return 0 if cnt is None else self._nak_all(c)
+                    need = 1 + cnt[0][0] * (1 if mode == 4 else 2)
+                got = self._ascii_values(1, 1 + need)
+        else:
+            self._reply_nak(c)  # unknown letter (or a stray CR / LF)
+            return 1
+        if got is None:
+            return 0
+        if got == "bad":
+            return self._nak_all(c)
+        vals, used = got
+        self._command(c, vals)
         return used
+
+    def _nak_all(self, c: int) -> int:
+        self._reply_nak(c)
+        return len(self.buf)
 
     # -- semantics ----------------------------------------------------------------------------
     def _reply_nak(self, c: int) -> None:
@@ -249,12 +296,12 @@ class _Device:
         self.write(bytes([ACK if ok else NAK]))
 
     def _version_word(self) -> int:
-        parts = (self.model.cfg.firmware.split(".") + ["0", "0", "0"])[:3]
-        return int(parts[0]) << 12 | int(parts[1]) << 8 | int(parts[2])
+        """The manual's reading: the version's decimal digits as one word ("1.00.0" -> 1000)."""
+        return int("".join(ch for ch in self.model.cfg.firmware if ch.isdigit()))
 
     def _value(self, v: int, dword: bool = False) -> bytes:
         if self.s.mode == "ascii":
-            return f"{v}\r".encode()
+            return f"{v}\r\n".encode()
         return int(v).to_bytes(4 if dword else 2, "big")
 
     def _pixel_mode(self, args: list[int]) -> bool:
@@ -292,7 +339,7 @@ class _Device:
             if text is None:
                 self._reply_nak(q)
                 return
-            self.write(bytes([ACK]) + text.encode("ascii") + bytes([CR]))
+            self.write(bytes([ACK]) + text.encode("ascii") + bytes([CR, LF]))
             return
         table = {"A": s.scans, "B": s.boxcar, "I": s.integration_ms, "K": s.baud_code,
                  "T": s.trigger, "J": int(s.lamp)}
@@ -317,9 +364,9 @@ class _Device:
             values = self.model.acquire()
             self.acquisitions += 1
             if s.mode == "ascii":
-                body = encode_frame_ascii(values, s)
+                body = encode_frame_ascii(values, s, convention=cfg.dword_checksum)
             else:
-                body = bytearray(encode_frame(values, s))
+                body = bytearray(encode_frame(values, s, convention=cfg.dword_checksum))
                 if f.corrupt > 0:
                     f.corrupt -= 1
                     i = 14 + len(s.pixel_params) * 2 + min(40, npix)  # inside the pixel data
@@ -351,3 +398,51 @@ class _Device:
             build, self.waiting_trigger = self.waiting_trigger, None
             self.write(build())
             self.process()
+
+
+class DeviceTransport:
+    """An in-process emulated unit as a byte transport (``write``/``read``/``reset_input``/...).
+
+    Replies are produced as the bytes are written; an acquisition is released by ``read`` once
+    its time has come (waiting up to the read's timeout). For fast tests; the process emulator
+    on a pty is the timing-faithful one.
+    """
+
+    def __init__(self, model: SpectrometerModel) -> None:
+        self._rx = bytearray()
+        self.device = _Device(model, self._rx.extend)
+        self.written: list[bytes] = []
+        self.closed = False
+
+    def write(self, data: bytes) -> None:
+        if self.closed:
+            raise OSError(5, "device transport closed")
+        self.written.append(bytes(data))
+        self.device.feed(bytes(data))
+
+    def read(self, n: int, timeout: float = 0.0) -> bytes:
+        if self.closed:
+            raise OSError(5, "device transport closed")
+        end = time.monotonic() + timeout
+        while len(self._rx) < n:
+            left = self.device.tick()
+            if left is None and self.device.pending is None:
+                break
+            now = time.monotonic()
+            if now >= end:
+                break
+            time.sleep(min(left or 0.0, end - now))
+        out = bytes(self._rx[:n])
+        del self._rx[:n]
+        return out
+
+    @property
+    def in_waiting(self) -> int:
+        self.device.tick()
+        return len(self._rx)
+
+    def reset_input(self) -> None:
+        self._rx.clear()
+
+    def close(self) -> None:
+        self.closed = True

@@ -71,7 +71,7 @@ class SpectrometerConfig:
 
     model: str = "EMU2000+"
     serial: str = "EMU00001"
-    firmware: str = "3.0.1"
+    firmware: str = "3.00.1"
     pixels: int = 2048
     dark_pixels: tuple[int, int] = (6, 21)
     wavelength_coeffs: tuple[float, ...] = (339.0, 0.38, -1.5e-5, -1.0e-9)
@@ -88,6 +88,13 @@ class SpectrometerConfig:
     seed: int | None = 12345
     time_scale: float = 1.0
     memory_pixels: int = 2048 * 5000
+    #: command letters this unit does not have (NAKed; their data bytes are then taken as
+    #: commands, as a real unit would), e.g. "G"
+    unsupported: str = ""
+    #: the mode the unit is in when the emulator starts (a unit left in ASCII mode: "ascii")
+    start_mode: str = "binary"
+    #: how this unit sums a DWORD frame's checksum: "pixels" or "words" (16-bit halves)
+    dword_checksum: str = "pixels"
 
     def slot(self, n: int) -> str | None:
         if n in self.extra_slots:
@@ -141,7 +148,7 @@ class SpectrometerModel:
         qe = np.exp(-0.5 * ((self.wavelengths - 600.0) / 220.0) ** 2)
         lamp = planck * qe
         self.lamp = lamp / lamp.max()
-        self.settings = Settings()
+        self.settings = Settings(mode=cfg.start_mode)
         self.last_geometry: Any = None
         k = np.asarray(cfg.nonlinearity_coeffs[: cfg.nonlinearity_order + 1], dtype=float)
         grid = np.linspace(0.0, 65535.0, 257)
