@@ -15,12 +15,25 @@ pyserial URL) or ``"tcp://host:port"`` for Modbus TCP. Alternatively pass ``tran
 session, or a ``RecordingTransport``): Modbus RTU frames are then built and parsed by
 pymodbus's own framer and moved by that transport.
 
+Homing
+------
+:meth:`ModbusStageAxis.home` sends a rising edge of ZHOME (bit 4 of the input command
+0x007C/0x007D; written 0, ZHOME, 0) and polls the output status until HOME-END (output bit 4)
+with neither BUSY nor MOVE, within ``home_timeout_s``; it returns the position read back. An
+alarm is :class:`HardwareError`, no HOME-END in time a STOP and :class:`DeviceTimeoutError`
+(both latch).
+
 Faults
 ------
 * A Modbus exception response -> :class:`ProtocolError` naming the function, address and
   exception code (no retry: the drive answered).
 * No reply / a garbled reply -> retried ``retries`` times, then :class:`DeviceTimeoutError`
-  (or :class:`ChecksumError` when bytes came back but never a valid frame).
+  (or :class:`ChecksumError` when bytes came back but never a valid frame). A valid reply that
+  does not answer this request (another device, function code, register count or echoed
+  address: pymodbus itself checks only the device id) is dropped with the input buffer and
+  the request retried; it is never used as data (:func:`drivers.modbus.client.check_reply`).
+* A serial port that will not open: the message names the cause (a pseudo-terminal refusing
+  even parity with EINVAL, or the adapter refusing the settings, or a port held elsewhere).
 * The connection cannot be made or is lost -> retried, then :class:`PortGoneError`.
 * ALM on the drive -> :class:`HardwareError` with the alarm code (``err.code``).
 * Any fault during a move (alarm, timeout, lost connection, not in position in time) latches:

@@ -75,6 +75,8 @@ class AxisConfig:
         Time allowed for one move; None = travel time at ``speed`` x 1.5 + ``settle_s`` + 1 s.
     settle_s : float
         Extra time allowed after the travel time.
+    home_timeout_s : float
+        Time allowed for a return-to-home (ZHOME until HOME-END).
     poll_interval_s : float
         Status polling period while moving.
     timeout_s : float
@@ -104,6 +106,7 @@ class AxisConfig:
     tolerance: float = 0.05
     move_timeout_s: float | None = None
     settle_s: float = 0.5
+    home_timeout_s: float = 60.0
     poll_interval_s: float = 0.01
     timeout_s: float = 0.5
     retries: int = 2
@@ -122,7 +125,7 @@ class AxisConfig:
         if not (isinstance(self.steps_per_rev, int) and self.steps_per_rev > 0):
             bad(f"steps_per_rev must be a positive integer, got {self.steps_per_rev!r}")
         for name in ("gear_ratio", "units_per_rev", "speed", "tolerance", "timeout_s",
-                     "poll_interval_s"):
+                     "poll_interval_s", "home_timeout_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 bad(f"{name} must be a finite number > 0, got {v!r}")

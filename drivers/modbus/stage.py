@@ -29,7 +29,9 @@ from bench.core.errors import (
 )
 from bench.core.roles import InstrumentInfo
 from drivers.registers import RegisterMap, load_register_map
-from drivers.modbus.client import TransportModbusClient
+from drivers.modbus.client import (
+    TransportModbusClient, check_reply, port_open_hint, probe_serial_open,
+)
 from drivers.modbus.config import _FUNCTION_NAMES, MODBUS_EXCEPTIONS, AxisConfig
 
 log = logging.getLogger(__name__)
@@ -151,7 +153,7 @@ class ModbusStageAxis:
             self._rx_seen = True
         return data
 
-    def _execute(self, fc: int, address: int, call: Callable[[], Any]) -> Any:
+    def _execute(self, fc: int, address: int, call: Callable[[], Any], count: int = 0) -> Any:
         """Run one request with bounded retries; map every failure to a bench error."""
         if self._closed:
             raise PortGoneError(f"{self.name}: the axis is closed")
@@ -195,6 +197,14 @@ class ModbusStageAxis:
                 last, kind = exc, "gone"
                 self._safe_close_client()
                 continue
+            try:
+                check_reply(resp, fc, cfg.device_id, address, count)
+            except ProtocolError as exc:  # a late answer to another request: never used
+                last, kind, garbled = exc, "timeout", True
+                log.warning("%s: %s: reply does not match the request (attempt %d): %s",
+                            self.name, what, attempt + 1, exc)
+                self._flush_input()
+                continue
             if resp.isError():
                 code = getattr(resp, "exception_code", None)
                 ename = MODBUS_EXCEPTIONS.get(code, "unknown") if code is not None else "?"
@@ -204,15 +214,36 @@ class ModbusStageAxis:
             return resp
         tries = cfg.retries + 1
         if kind == "gone":
-            hint = (" (is the port open elsewhere? axes on one RS-485 line must share one "
-                    "client: ModbusStageAxis(client=...))") if self.link == "rtu" else ""
+            hint = ""
+            if self.link == "rtu":
+                cause = last
+                if self._transport is None and self._owns_client and not self._answered:
+                    # pymodbus only logs why the port would not open: ask the port ourselves
+                    cause = probe_serial_open(self.port, cfg.baudrate, cfg.parity, cfg.bytesize,
+                                              cfg.stopbits) or last
+                hint = port_open_hint(self.port, cfg.parity, cause)
+                if cause is not last:
+                    hint = f" [{cause}]" + hint
             raise PortGoneError(f"{self.name}: {what}: cannot reach {self.port} after {tries} "
                                 f"attempt(s): {last}{hint}")
         if garbled:
             raise ChecksumError(f"{self.name}: {what}: replies from device {cfg.device_id} "
-                                f"failed the CRC/framing check {tries} time(s)")
+                                f"failed the CRC/framing check or did not match the request "
+                                f"{tries} time(s){f': {last}' if last else ''}")
         raise DeviceTimeoutError(f"{self.name}: {what}: no reply from device {cfg.device_id} "
                                  f"within {cfg.timeout_s} s after {tries} attempt(s)")
+
+    def _flush_input(self) -> None:
+        """Drop what has arrived (a late reply) before the next attempt."""
+        if self._transport is not None:
+            self._transport.reset_input()
+            return
+        sock = getattr(self._client, "socket", None)
+        try:
+            if hasattr(sock, "reset_input_buffer"):
+                sock.reset_input_buffer()
+        except Exception:  # pragma: no cover - a dying port; the next attempt reports it
+            pass
 
     def _safe_close_client(self) -> None:
         if not self._owns_client:
@@ -224,7 +255,7 @@ class ModbusStageAxis:
 
     def _read(self, address: int, count: int) -> list[int]:
         resp = self._execute(3, address, lambda: self._client.read_holding_registers(
-            address, count=count, device_id=self.config.device_id))
+            address, count=count, device_id=self.config.device_id), count)
         regs = list(resp.registers)
         if len(regs) != count:
             raise ProtocolError(f"{self.name}: read of {count} registers at 0x{address:04X} "
@@ -233,7 +264,7 @@ class ModbusStageAxis:
 
     def _write(self, address: int, values: list[int]) -> None:
         self._execute(16, address, lambda: self._client.write_registers(
-            address, values, device_id=self.config.device_id))
+            address, values, device_id=self.config.device_id), len(values))
 
     def read_int32(self, key: str) -> int:
         """Read the 32-bit register pair ``key`` of the register map (signed)."""
@@ -366,6 +397,66 @@ class ModbusStageAxis:
                     pass
                 msg = (f"{self.name}: not in position at {self.to_units(target):.4g} {cfg.unit} "
                        f"within {limit:.3g} s (at {where}, status {'|'.join(st['flags'])})")
+                self._fault = _Fault("timeout", msg)
+                raise DeviceTimeoutError(msg)
+            time.sleep(cfg.poll_interval_s)
+
+    def home(self, timeout_s: float | None = None) -> float:
+        """Return to home: a rising edge of ZHOME, then wait for HOME-END; return the position.
+
+        Blocks at most ``timeout_s`` (default ``home_timeout_s``) polling the output status.
+
+        Raises
+        ------
+        FaultLatchedError
+            A fault is latched (nothing is sent).
+        HardwareError
+            The drive is in alarm before or during homing (fault latched).
+        DeviceTimeoutError
+            HOME-END did not come in time (a STOP is sent, fault latched).
+        ProtocolError
+            The register map has no ZHOME input or HOME-END output.
+        """
+        self._check_latch()
+        cfg = self.config
+        if "ZHOME" not in self.rmap.input_bits or "HOME-END" not in self.rmap.status_bits:
+            raise ProtocolError(f"{self.name}: register map {self.rmap.name} has no ZHOME input "
+                                f"bit or HOME-END output bit: homing is not available")
+        limit = cfg.home_timeout_s if timeout_s is None else float(timeout_s)
+        try:
+            st = self.status()
+            if "ALM" in st["flags"]:
+                self._raise_alarm(st, "before homing")
+            bit = 1 << self.rmap.input_bits["ZHOME"]
+            self.write_int32("input_command", 0)     # make sure the next write is a rising edge
+            self.write_int32("input_command", bit)
+            self.write_int32("input_command", 0)
+            return self._wait_home_end(limit)
+        except HardwareError:
+            raise
+        except (DeviceTimeoutError, ChecksumError, PortGoneError, ProtocolError) as exc:
+            if self._fault is None:
+                self._fault = _Fault("communication", f"{type(exc).__name__} during homing: {exc}")
+            raise
+
+    def _wait_home_end(self, limit: float) -> float:
+        cfg = self.config
+        deadline = time.monotonic() + limit
+        busy = {"BUSY", "MOVE"}
+        while True:
+            st = self.status()
+            flags = set(st["flags"])
+            if "ALM" in flags:
+                self._raise_alarm(st, "while homing")
+            if "HOME-END" in flags and not busy & flags:
+                return self.position_deg()
+            if time.monotonic() >= deadline:
+                try:
+                    self.stop()
+                except DeviceError:
+                    pass
+                msg = (f"{self.name}: return to home not finished (no HOME-END) within "
+                       f"{limit:.3g} s; status {'|'.join(st['flags'])}")
                 self._fault = _Fault("timeout", msg)
                 raise DeviceTimeoutError(msg)
             time.sleep(cfg.poll_interval_s)

@@ -40,6 +40,8 @@ class StageConfig:
     time_scale: float = 1.0
     baudrate: int = 115200
     parity: str = "N"  # Linux ptys refuse PARENB (tcsetattr EINVAL); real AZ drives default to "E"
+    home_speed_hz: float = 2000.0
+    homing: bool = True  # False: a drive whose return-to-home never finishes (no HOME-END)
 
 
 AZ_LAYOUT: dict[str, Any] = {
@@ -49,7 +51,7 @@ AZ_LAYOUT: dict[str, Any] = {
                   "output_status": 0x7E, "present_alarm": 0x80, "feedback_position": 0x120,
                   "command_position": 0x122},
     "input_bits": {"START": 3, "ZHOME": 4, "STOP": 5, "FREE": 6, "ALM-RST": 7},
-    "status_bits": {"READY": 5, "ALM": 7, "BUSY": 8, "MOVE": 13, "IN-POS": 14},
+    "status_bits": {"HOME-END": 4, "READY": 5, "ALM": 7, "BUSY": 8, "MOVE": 13, "IN-POS": 14},
     "values": {"type_absolute": 1, "trigger_all": 1, "current_max": 1000, "home_position": 0},
     "alarms": {"overload": 0x30, "software_overtravel": 0x67},
     "word_order": "big",
@@ -117,6 +119,9 @@ class StageModel:
     rejected_triggers: int = 0
     stops: int = 0
     alarm_resets: int = 0
+    homing: bool = False
+    home_end: bool = False
+    homings: int = 0
     _t: float = field(default=0.0, repr=False)
 
     def __post_init__(self) -> None:
@@ -127,18 +132,23 @@ class StageModel:
         now = self.clock()
         dt = (now - self._t) * self.cfg.time_scale
         self._t = now
-        if self.moving and not self.alarm:
+        if self.moving and not self.alarm and self.speed > 0:
             step = self.speed * dt
             remaining = self.target - self.position
             if abs(remaining) <= step:
                 self.position = self.target
                 self.moving = False
+                if self.homing:
+                    self.homing = False
+                    self.home_end = True
             else:
                 self.position += step if remaining > 0 else -step
 
     def status(self) -> int:
         b = self.rmap.status_bits
         s = 0
+        if self.home_end:
+            s |= 1 << b["HOME-END"]
         if self.alarm:
             s |= 1 << b["ALM"]
         else:
@@ -168,6 +178,7 @@ class StageModel:
         self.target = float(position)
         self.speed = float(min(max(speed, 1), self.cfg.max_speed_hz))
         self.moving = self.position != self.target
+        self.homing = self.home_end = False
 
     def input_command(self, value: int) -> None:
         self.update()
@@ -176,8 +187,20 @@ class StageModel:
         self.last_input = value
         if rising >> bits["STOP"] & 1:
             self.stops += 1
-            self.moving = False
+            self.moving = self.homing = False
             self.target = self.position
+        if rising >> bits["ZHOME"] & 1 and not self.alarm:
+            self.homings += 1
+            self.home_end = False
+            if self.cfg.homing:  # return to home at the homing speed; HOME-END when there
+                self.homing = True
+                self.target = float(self.rmap.value("home_position", 0))
+                self.speed = float(self.cfg.home_speed_hz)
+                self.moving = self.position != self.target
+                if not self.moving:
+                    self.homing, self.home_end = False, True
+            else:               # a drive that starts homing and never finishes
+                self.homing, self.moving, self.speed = True, True, 0.0
         if rising >> bits["ALM-RST"] & 1 and self.alarm:
             self.alarm_resets += 1
             self.alarm = 0
@@ -195,7 +218,8 @@ class StageModel:
         return {"position": self.position, "target": self.target, "moving": self.moving,
                 "alarm": self.alarm, "status": self.status(), "triggers": self.triggers,
                 "rejected_triggers": self.rejected_triggers, "stops": self.stops,
-                "alarm_resets": self.alarm_resets}
+                "alarm_resets": self.alarm_resets, "homings": self.homings,
+                "home_end": self.home_end}
 
 
 def read_feedback_steps(client: Any, device_id: int = 1, register_map: str = "oriental_az") -> int:
