@@ -218,7 +218,10 @@ def parse_ascii_frame(numbers: Sequence[int], npix: int, *, checksum: bool,
     n = HEADER_WORDS + npix + 1 + (1 if checksum else 0)
     if len(numbers) != n:
         raise ChecksumError(f"ASCII frame has {len(numbers)} values, expected {n}")
-    w = list(numbers[:HEADER_WORDS])
+    numbers = [int(x) for x in numbers]
+    w = numbers[:HEADER_WORDS]
+    if any(not 0 <= x <= 0xFFFF for x in w):
+        raise ChecksumError(f"ASCII frame header {w} has a value outside 0..65535")
     if w[0] != 0xFFFF or w[1] not in (0, 1):
         raise ChecksumError(f"ASCII frame header {w} is malformed")
     if w[6] != 0:
