@@ -32,6 +32,7 @@ from drivers.registers import RegisterMap, load_register_map
 from drivers.modbus.client import (
     TransportModbusClient, check_reply, port_open_hint, probe_serial_open,
 )
+from drivers.modbus.homing import HomingMixin
 from drivers.modbus.config import _FUNCTION_NAMES, MODBUS_EXCEPTIONS, AxisConfig
 
 log = logging.getLogger(__name__)
@@ -45,7 +46,7 @@ class _Fault:
     flags: list[str] = field(default_factory=list)
 
 
-class ModbusStageAxis:
+class ModbusStageAxis(HomingMixin):
     """A single stage axis (rotary or linear) on a Modbus drive in direct data operation.
 
     Deliberately *not* a ``Goniometer`` (no ``check``/``move_to``/``position`` taking a
@@ -290,6 +291,9 @@ class ModbusStageAxis:
         log.error(msg)
         raise HardwareError(msg, code=code, flags=st["flags"])
 
+    def _set_fault(self, kind: str, message: str) -> None:
+        self._fault = _Fault(kind, message)
+
     @property
     def fault(self) -> str | None:
         """The latched fault message, or None."""
@@ -397,66 +401,6 @@ class ModbusStageAxis:
                     pass
                 msg = (f"{self.name}: not in position at {self.to_units(target):.4g} {cfg.unit} "
                        f"within {limit:.3g} s (at {where}, status {'|'.join(st['flags'])})")
-                self._fault = _Fault("timeout", msg)
-                raise DeviceTimeoutError(msg)
-            time.sleep(cfg.poll_interval_s)
-
-    def home(self, timeout_s: float | None = None) -> float:
-        """Return to home: a rising edge of ZHOME, then wait for HOME-END; return the position.
-
-        Blocks at most ``timeout_s`` (default ``home_timeout_s``) polling the output status.
-
-        Raises
-        ------
-        FaultLatchedError
-            A fault is latched (nothing is sent).
-        HardwareError
-            The drive is in alarm before or during homing (fault latched).
-        DeviceTimeoutError
-            HOME-END did not come in time (a STOP is sent, fault latched).
-        ProtocolError
-            The register map has no ZHOME input or HOME-END output.
-        """
-        self._check_latch()
-        cfg = self.config
-        if "ZHOME" not in self.rmap.input_bits or "HOME-END" not in self.rmap.status_bits:
-            raise ProtocolError(f"{self.name}: register map {self.rmap.name} has no ZHOME input "
-                                f"bit or HOME-END output bit: homing is not available")
-        limit = cfg.home_timeout_s if timeout_s is None else float(timeout_s)
-        try:
-            st = self.status()
-            if "ALM" in st["flags"]:
-                self._raise_alarm(st, "before homing")
-            bit = 1 << self.rmap.input_bits["ZHOME"]
-            self.write_int32("input_command", 0)     # make sure the next write is a rising edge
-            self.write_int32("input_command", bit)
-            self.write_int32("input_command", 0)
-            return self._wait_home_end(limit)
-        except HardwareError:
-            raise
-        except (DeviceTimeoutError, ChecksumError, PortGoneError, ProtocolError) as exc:
-            if self._fault is None:
-                self._fault = _Fault("communication", f"{type(exc).__name__} during homing: {exc}")
-            raise
-
-    def _wait_home_end(self, limit: float) -> float:
-        cfg = self.config
-        deadline = time.monotonic() + limit
-        busy = {"BUSY", "MOVE"}
-        while True:
-            st = self.status()
-            flags = set(st["flags"])
-            if "ALM" in flags:
-                self._raise_alarm(st, "while homing")
-            if "HOME-END" in flags and not busy & flags:
-                return self.position_deg()
-            if time.monotonic() >= deadline:
-                try:
-                    self.stop()
-                except DeviceError:
-                    pass
-                msg = (f"{self.name}: return to home not finished (no HOME-END) within "
-                       f"{limit:.3g} s; status {'|'.join(st['flags'])}")
                 self._fault = _Fault("timeout", msg)
                 raise DeviceTimeoutError(msg)
             time.sleep(cfg.poll_interval_s)

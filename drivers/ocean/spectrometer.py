@@ -29,6 +29,7 @@ from drivers.ocean.codec import (
 )
 from drivers.ocean.config import OceanConfig
 from drivers.ocean.link import Nak, OceanLink, Retry
+from drivers.transport import SerialTransport
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +75,6 @@ class OceanSpectrometer:
         self.config: OceanConfig = base.resolved()
         self.name = name
         if isinstance(transport, str):
-            from drivers.transport import SerialTransport
             self.port = transport
             t: Any = SerialTransport(transport, baudrate=self.config.baudrate)
         else:

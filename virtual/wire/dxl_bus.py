@@ -16,6 +16,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from virtual.wire.dxl_codec import BROADCAST_ID, ERR, INST, Packet, PacketParser, encode_status
 from virtual.wire.dxl_servo import TICKS_PER_REV, Servo
+from virtual.wire.pty import open_pty
 
 
 
@@ -302,8 +303,6 @@ class PtyBusThread:
 
     def __init__(self, bus: DynamixelBus) -> None:
         import threading
-
-        from virtual.wire.pty import open_pty
 
         self.bus = bus
         self._master, self._slave, self.port = open_pty()

@@ -69,6 +69,7 @@ from virtual.wire.dxl_codec import (
     decode_packet, encode_instruction, encode_status, stuff, unstuff,
 )
 from virtual.wire.dxl_servo import ADDR, Servo
+from virtual.wire.pty import EmulatorProcess, open_pty
 
 
 __all__ = [
@@ -233,8 +234,6 @@ def start_bus(ids: Sequence[int] = (1, 2, 3, 4), *, positions: Mapping[int, int]
 
     Close it (or use it as a context manager) to stop the process.
     """
-    from virtual.wire.pty import EmulatorProcess
-
     args = ["--ids", ",".join(str(i) for i in ids), "--seed", str(seed), "--time-scale", str(time_scale)]
     if positions:
         args += ["--positions", ",".join(f"{k}:{v}" for k, v in positions.items())]
@@ -259,8 +258,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="keep running when the starting process dies (default: exit)")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
-    from virtual.wire.pty import open_pty
-
     parent = None if a.no_orphan else os.getppid()
     ids = [int(x) for x in a.ids.split(",") if x.strip()]
     positions = {int(k): int(v) for k, v in (kv.split(":") for kv in a.positions.split(",") if kv)}
