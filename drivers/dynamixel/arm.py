@@ -341,6 +341,8 @@ class DynamixelArm(InstrumentBase):
             extra={"uncertainty_unit": "deg (joint quantisation, 1 tick / sqrt(12))",
                    "ids": {a.joint: a.id for a in self._axes},
                    "models": dict(self._models), "resolution_deg": res,
+                   "bus_recoveries": self._link.recoveries,
+                   "late_bytes_discarded": self._link.discarded,
                    "kinematics": self.config.kinematics.as_dict()})
 
     def check(self, geometry: Geometry) -> None:
