@@ -68,13 +68,15 @@ def w(*values: int) -> bytes:
 
 def open_pairs(slots: dict[int, str] | None = None, checksum: bool = True,
                compression: bool = False, trigger: int = 0) -> list[tuple[bytes, bytes]]:
-    """The exact exchange of OceanSpectrometer's open in binary mode."""
+    """The exact exchange of OceanSpectrometer's open in binary mode: settings are sent only
+    when they change the power-up state (free running, no compression, no checksum)."""
     s = {0: "SN0001", 1: "400.0", 2: "10.0", 3: "0", 4: "0"}
     s.update(slots or {})
-    pairs = [(b"bB", ACK), (b"v", ACK + w(0x3001))]
-    pairs += [(b"?x" + w(n), ACK + s[n].encode() + b"\r") for n in range(5)]
-    pairs += [(b"k" + w(int(checksum)), ACK), (b"G" + w(int(compression)), ACK),
-              (b"T" + w(trigger), ACK)]
+    pairs = [(b"bB", ACK), (b"v", ACK + w(3001))]
+    pairs += [(b"?x" + w(n), ACK + s[n].encode() + b"\r\n") for n in range(5)]
+    pairs += [(b"k" + w(1), ACK)] if checksum else []
+    pairs += [(b"G" + w(1), ACK)] if compression else []
+    pairs += [(b"T" + w(trigger), ACK)] if trigger else []
     return pairs
 
 
@@ -107,7 +109,7 @@ VALS = [1000, 1002, 5000, 5100, 65535, 4000, 3999, 120]
 def test_open_and_acquire_byte_exact() -> None:
     script = ScriptedTransport(open_pairs() + acquire_pairs([VALS, [v - 10 for v in VALS]]))
     spec = OceanSpectrometer(script, **SMALL)
-    assert spec.serial == "SN0001" and spec.firmware == "3.0.1"
+    assert spec.serial == "SN0001" and spec.firmware == "3.00.1"
     np.testing.assert_allclose(spec.wavelengths, 400.0 + 10.0 * np.arange(8))
     r = spec.acquire(0.01, 2)
     assert isinstance(r, Reading) and r.averages == 2 and r.integration_s == pytest.approx(0.01)
@@ -193,8 +195,11 @@ def test_missing_reply_is_a_timeout_without_waiting() -> None:
 
 
 def test_device_left_in_ascii_mode_is_brought_back() -> None:
-    pairs = [(b"bB", b"bB"), (b"\r", b"\r" + ACK)] + open_pairs()[1:]
+    """Issue 14 cause 4: a bare ``bB``; in ASCII mode each byte is echoed, then ACK (binary).
+    No CR follows (a stray CR would be NAKed by the then binary device)."""
+    pairs = [(b"b", b"b"), (b"B", b"B" + ACK)] + open_pairs()[1:]
     spec = OceanSpectrometer(ScriptedTransport(pairs), **SMALL)
+    assert spec.found_mode == "ascii" and spec.describe().extra["found_in_mode"] == "ascii"
     spec.close()
 
 
@@ -237,8 +242,8 @@ def test_nonlinearity_validation() -> None:
 
 
 def nl_pairs(ks: list[str], order: str) -> list[tuple[bytes, bytes]]:
-    pairs = [(b"?x" + w(14), ACK + order.encode() + b"\r")]
-    pairs += [(b"?x" + w(6 + i), ACK + k.encode() + b"\r") for i, k in enumerate(ks)]
+    pairs = [(b"?x" + w(14), ACK + order.encode() + b"\r\n")]
+    pairs += [(b"?x" + w(6 + i), ACK + k.encode() + b"\r\n") for i, k in enumerate(ks)]
     return pairs
 
 
@@ -298,9 +303,10 @@ def test_replay_recorded_ascii_session() -> None:
     spec = OceanSpectrometer(ScriptedTransport(pairs), **FIXCFG, mode="ascii")
     r = spec.acquire(0.01, 1)
     spec.close()
-    s_reply = [rep for sent, rep in pairs if sent == b"S\r"][0]
-    assert s_reply.startswith(b"S\r" + STX)  # echo, then the frame as decimal lines
-    nums = [int(x) for x in s_reply[3:].split(b"\r") if x]
+    s_reply = [rep for sent, rep in pairs if sent == b"S"][0]
+    assert s_reply.startswith(b"S" + STX)  # echo (no CR: S has no data), then decimal lines
+    assert s_reply.endswith(b"\r\n")
+    nums = [int(x) for x in s_reply[2:].split(b"\r\n") if x]
     assert nums[0] == 65535 and nums[7 + 512] == 65533
     np.testing.assert_allclose(r.signal, nums[7:7 + 512])
 

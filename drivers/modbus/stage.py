@@ -1,38 +1,6 @@
-"""One stage axis on an Oriental-Motor-AZ-style drive, through pymodbus (RTU or TCP).
-
-The drive is operated in "direct data operation": the whole block operation No./type/
-position/speed/acceleration/deceleration/current/trigger is written with one function-16
-request and the trigger starts the move; the driver then polls the output status (READY,
-IN-POS, ALM, BUSY, MOVE) and the feedback position until the axis is in position. Every
-address, bit and code comes from a :class:`drivers.registers.RegisterMap` (TOML data), so a
-different drive is a different map.
-
-Connection
-----------
-``port`` is either a serial port for Modbus RTU (a device path, a pty slave path or any
-pyserial URL) or ``"tcp://host:port"`` for Modbus TCP. Alternatively pass ``transport=``, any
-:class:`drivers.transport.Transport` (e.g. a ``ScriptedTransport`` replaying a recorded
-session, or a ``RecordingTransport``): Modbus RTU frames are then built and parsed by
-pymodbus's own framer and moved by that transport.
-
-Faults
-------
-* A Modbus exception response -> :class:`ProtocolError` naming the function, address and
-  exception code (no retry: the drive answered).
-* No reply / a garbled reply -> retried ``retries`` times, then :class:`DeviceTimeoutError`
-  (or :class:`ChecksumError` when bytes came back but never a valid frame).
-* The connection cannot be made or is lost -> retried, then :class:`PortGoneError`.
-* ALM on the drive -> :class:`HardwareError` with the alarm code (``err.code``).
-* Any fault during a move (alarm, timeout, lost connection, not in position in time) latches:
-  no motion command is sent until :meth:`ModbusStageAxis.reset_alarm` succeeds; meanwhile
-  :meth:`ModbusStageAxis.move_to_deg` raises :class:`FaultLatchedError` without bus traffic.
-  :meth:`ModbusStageAxis.stop` is always allowed.
-
-Example
--------
->>> with ModbusStageAxis("tcp://127.0.0.1:5020", steps_per_rev=1000, gear_ratio=18,
-...                      limits_deg=(-170, 170), speed_deg_s=20) as axis:   # doctest: +SKIP
-...     reached = axis.move_to_deg(45.0)
+"""The AZ stage driver: :class:`ModbusStageAxis` (connect, bounded retries, typed errors,
+direct-data moves, in-position wait, homing, alarms and fault latching). Behaviour is described
+in :mod:`drivers.modbus`.
 """
 
 from __future__ import annotations
@@ -41,7 +9,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field, fields
-from typing import Any, Callable, Mapping, Protocol, runtime_checkable
+from typing import Any, Callable, Mapping
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -61,213 +29,13 @@ from bench.core.errors import (
 )
 from bench.core.roles import InstrumentInfo
 from drivers.registers import RegisterMap, load_register_map
-
-__all__ = ["StageAxis", "AxisConfig", "ModbusStageAxis", "TransportModbusClient",
-           "MODBUS_EXCEPTIONS"]
+from drivers.modbus.client import (
+    TransportModbusClient, check_reply, port_open_hint, probe_serial_open,
+)
+from drivers.modbus.homing import HomingMixin
+from drivers.modbus.config import _FUNCTION_NAMES, MODBUS_EXCEPTIONS, AxisConfig
 
 log = logging.getLogger(__name__)
-
-MODBUS_EXCEPTIONS = {
-    1: "ILLEGAL FUNCTION", 2: "ILLEGAL DATA ADDRESS", 3: "ILLEGAL DATA VALUE",
-    4: "SLAVE DEVICE FAILURE", 5: "ACKNOWLEDGE", 6: "SLAVE DEVICE BUSY",
-    8: "MEMORY PARITY ERROR", 10: "GATEWAY PATH UNAVAILABLE",
-    11: "GATEWAY TARGET DEVICE FAILED TO RESPOND",
-}
-_FUNCTION_NAMES = {3: "read holding registers", 16: "write multiple registers"}
-
-
-@runtime_checkable
-class StageAxis(Protocol):
-    """What a goniometer needs from one motorised axis (degrees for a rotary axis).
-
-    ``move_to_deg`` blocks until in position and returns the position read back;
-    ``check_deg`` raises :class:`GeometryError` for a target it would refuse, before any motion.
-    (A candidate for ``bench.core.roles``; defined here until its owner adopts it.)
-    """
-
-    def check_deg(self, angle: float) -> None: ...
-
-    def move_to_deg(self, angle: float) -> float: ...
-
-    def position_deg(self) -> float: ...
-
-    def stop(self) -> None: ...
-
-    def reset_alarm(self) -> None: ...
-
-    def describe(self) -> InstrumentInfo: ...
-
-    def close(self) -> None: ...
-
-
-@dataclass(frozen=True)
-class AxisConfig:
-    """Mechanics, motion and communication settings of one axis (all keys optional).
-
-    Attributes
-    ----------
-    steps_per_rev : int
-        Motor steps per motor revolution (AZ default 1000 = 0.36 deg/step).
-    gear_ratio : float
-        Motor revolutions per output revolution (e.g. 18 for an 18:1 rotary actuator).
-    units_per_rev : float
-        Output units per output revolution: 360 for a rotary axis in degrees, the screw lead
-        in mm for a linear axis. The API says ``_deg``; for a linear axis read "unit".
-    unit : str
-        ``"deg"`` or ``"mm"`` (metadata only).
-    zero_offset : float
-        Output position (units) at step 0.
-    limits : (float, float)
-        Software travel limits in units; targets outside raise :class:`GeometryError`.
-    speed : float
-        Operating speed, units/s.
-    accel, decel : int
-        Raw acceleration/deceleration written to the drive (drive units, AZ: kHz/s).
-    current : int
-        Operating current in 0.1 % (1000 = 100 %).
-    tolerance : float
-        Largest |feedback - target| (units) accepted as "reached".
-    move_timeout_s : float or None
-        Time allowed for one move; None = travel time at ``speed`` x 1.5 + ``settle_s`` + 1 s.
-    settle_s : float
-        Extra time allowed after the travel time.
-    poll_interval_s : float
-        Status polling period while moving.
-    timeout_s : float
-        Reply timeout for one Modbus request.
-    retries : int
-        Extra attempts after a timeout / lost connection (exception responses never retry).
-    retry_delay_s : float
-        Pause between attempts.
-    device_id : int
-        Modbus unit id (1..247).
-    baudrate, parity, stopbits, bytesize
-        Serial settings (AZ default 115200 8E1; a pty needs parity "N").
-    register_map : str
-        Name in ``drivers/registers`` or a TOML path.
-    """
-
-    steps_per_rev: int = 1000
-    gear_ratio: float = 1.0
-    units_per_rev: float = 360.0
-    unit: str = "deg"
-    zero_offset: float = 0.0
-    limits: tuple[float, float] = (-180.0, 180.0)
-    speed: float = 30.0
-    accel: int = 1000
-    decel: int = 1000
-    current: int = 1000
-    tolerance: float = 0.05
-    move_timeout_s: float | None = None
-    settle_s: float = 0.5
-    poll_interval_s: float = 0.01
-    timeout_s: float = 0.5
-    retries: int = 2
-    retry_delay_s: float = 0.05
-    device_id: int = 1
-    baudrate: int = 115200
-    parity: str = "E"
-    stopbits: int = 1
-    bytesize: int = 8
-    register_map: str = "oriental_az"
-
-    def __post_init__(self) -> None:
-        def bad(msg: str) -> None:
-            raise ConfigError(f"stage axis config: {msg}")
-
-        if not (isinstance(self.steps_per_rev, int) and self.steps_per_rev > 0):
-            bad(f"steps_per_rev must be a positive integer, got {self.steps_per_rev!r}")
-        for name in ("gear_ratio", "units_per_rev", "speed", "tolerance", "timeout_s",
-                     "poll_interval_s"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                bad(f"{name} must be a finite number > 0, got {v!r}")
-        lo, hi = self.limits
-        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            bad(f"limits must be finite (lo, hi) with lo < hi, got {self.limits!r}")
-        if not 1 <= self.device_id <= 247:
-            bad(f"device_id must be 1..247, got {self.device_id}")
-        if self.retries < 0:
-            bad("retries must be >= 0")
-        if not 0 <= self.current <= 1000:
-            bad(f"current must be 0..1000 (0.1 % units), got {self.current}")
-        if self.parity not in ("N", "E", "O"):
-            bad(f"parity must be N, E or O, got {self.parity!r}")
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "AxisConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"stage axis config: unknown key(s) {', '.join(unknown)}; "
-                              f"known: {', '.join(sorted(known))}")
-        kw = dict(d)
-        if "limits" in kw:
-            kw["limits"] = tuple(float(x) for x in kw["limits"])
-        return cls(**kw)
-
-    @property
-    def steps_per_unit(self) -> float:
-        return self.steps_per_rev * self.gear_ratio / self.units_per_rev
-
-
-class TransportModbusClient(ModbusSerialClient):
-    """A pymodbus RTU client whose bytes go through a :class:`drivers.transport.Transport`.
-
-    pymodbus builds and parses the frames (CRC included); the transport only moves bytes, so
-    a ``ScriptedTransport`` pins the exact bytes on the wire and a ``RecordingTransport``
-    records them.
-    """
-
-    def __init__(self, transport: Any, *, timeout: float = 0.5, retries: int = 0,
-                 trace_packet: Callable[[bool, bytes], bytes] | None = None) -> None:
-        super().__init__("transport://", framer=FramerType.RTU, timeout=timeout,
-                         retries=retries, trace_packet=trace_packet)
-        self._transport = transport
-        self.socket = None
-
-    def connect(self) -> bool:
-        self.socket = self._transport  # type: ignore[assignment]
-        return True
-
-    def close(self) -> None:
-        # pymodbus calls this after errors; the transport stays open (its owner closes it)
-        self.socket = None
-
-    def is_socket_open(self) -> bool:
-        return self.socket is not None
-
-    def _in_waiting(self) -> int:
-        return int(getattr(self._transport, "in_waiting", 0))
-
-    def send(self, request: bytes, addr: tuple | None = None) -> int:
-        if not request:
-            return 0
-        if self._in_waiting():
-            self._transport.reset_input()
-        self._transport.write(request)
-        return len(request)
-
-    def recv(self, size: int | None) -> bytes:
-        timeout = self.comm_params.timeout_connect or 0.5
-        if size is not None:
-            return self._transport.read(size, timeout)
-        first = self._transport.read(1, timeout)
-        if not first:
-            return b""
-        # the rest of a frame follows within a few character times; take what is there
-        rest = b""
-        deadline = time.monotonic() + 0.02
-        while True:
-            n = self._in_waiting()
-            if n:
-                rest += self._transport.read(n, 0)
-                deadline = time.monotonic() + 0.005
-            elif time.monotonic() >= deadline:
-                break
-            else:
-                time.sleep(0.0005)
-        return first + rest
 
 
 @dataclass
@@ -278,7 +46,7 @@ class _Fault:
     flags: list[str] = field(default_factory=list)
 
 
-class ModbusStageAxis:
+class ModbusStageAxis(HomingMixin):
     """A single stage axis (rotary or linear) on a Modbus drive in direct data operation.
 
     Deliberately *not* a ``Goniometer`` (no ``check``/``move_to``/``position`` taking a
@@ -386,7 +154,7 @@ class ModbusStageAxis:
             self._rx_seen = True
         return data
 
-    def _execute(self, fc: int, address: int, call: Callable[[], Any]) -> Any:
+    def _execute(self, fc: int, address: int, call: Callable[[], Any], count: int = 0) -> Any:
         """Run one request with bounded retries; map every failure to a bench error."""
         if self._closed:
             raise PortGoneError(f"{self.name}: the axis is closed")
@@ -430,6 +198,14 @@ class ModbusStageAxis:
                 last, kind = exc, "gone"
                 self._safe_close_client()
                 continue
+            try:
+                check_reply(resp, fc, cfg.device_id, address, count)
+            except ProtocolError as exc:  # a late answer to another request: never used
+                last, kind, garbled = exc, "timeout", True
+                log.warning("%s: %s: reply does not match the request (attempt %d): %s",
+                            self.name, what, attempt + 1, exc)
+                self._flush_input()
+                continue
             if resp.isError():
                 code = getattr(resp, "exception_code", None)
                 ename = MODBUS_EXCEPTIONS.get(code, "unknown") if code is not None else "?"
@@ -439,15 +215,36 @@ class ModbusStageAxis:
             return resp
         tries = cfg.retries + 1
         if kind == "gone":
-            hint = (" (is the port open elsewhere? axes on one RS-485 line must share one "
-                    "client: ModbusStageAxis(client=...))") if self.link == "rtu" else ""
+            hint = ""
+            if self.link == "rtu":
+                cause = last
+                if self._transport is None and self._owns_client and not self._answered:
+                    # pymodbus only logs why the port would not open: ask the port ourselves
+                    cause = probe_serial_open(self.port, cfg.baudrate, cfg.parity, cfg.bytesize,
+                                              cfg.stopbits) or last
+                hint = port_open_hint(self.port, cfg.parity, cause)
+                if cause is not last:
+                    hint = f" [{cause}]" + hint
             raise PortGoneError(f"{self.name}: {what}: cannot reach {self.port} after {tries} "
                                 f"attempt(s): {last}{hint}")
         if garbled:
             raise ChecksumError(f"{self.name}: {what}: replies from device {cfg.device_id} "
-                                f"failed the CRC/framing check {tries} time(s)")
+                                f"failed the CRC/framing check or did not match the request "
+                                f"{tries} time(s){f': {last}' if last else ''}")
         raise DeviceTimeoutError(f"{self.name}: {what}: no reply from device {cfg.device_id} "
                                  f"within {cfg.timeout_s} s after {tries} attempt(s)")
+
+    def _flush_input(self) -> None:
+        """Drop what has arrived (a late reply) before the next attempt."""
+        if self._transport is not None:
+            self._transport.reset_input()
+            return
+        sock = getattr(self._client, "socket", None)
+        try:
+            if hasattr(sock, "reset_input_buffer"):
+                sock.reset_input_buffer()
+        except Exception:  # pragma: no cover - a dying port; the next attempt reports it
+            pass
 
     def _safe_close_client(self) -> None:
         if not self._owns_client:
@@ -459,7 +256,7 @@ class ModbusStageAxis:
 
     def _read(self, address: int, count: int) -> list[int]:
         resp = self._execute(3, address, lambda: self._client.read_holding_registers(
-            address, count=count, device_id=self.config.device_id))
+            address, count=count, device_id=self.config.device_id), count)
         regs = list(resp.registers)
         if len(regs) != count:
             raise ProtocolError(f"{self.name}: read of {count} registers at 0x{address:04X} "
@@ -468,7 +265,7 @@ class ModbusStageAxis:
 
     def _write(self, address: int, values: list[int]) -> None:
         self._execute(16, address, lambda: self._client.write_registers(
-            address, values, device_id=self.config.device_id))
+            address, values, device_id=self.config.device_id), len(values))
 
     def read_int32(self, key: str) -> int:
         """Read the 32-bit register pair ``key`` of the register map (signed)."""
@@ -493,6 +290,9 @@ class ModbusStageAxis:
         self._fault = _Fault("alarm", msg, code, list(st["flags"]))
         log.error(msg)
         raise HardwareError(msg, code=code, flags=st["flags"])
+
+    def _set_fault(self, kind: str, message: str) -> None:
+        self._fault = _Fault(kind, message)
 
     @property
     def fault(self) -> str | None:

@@ -1,0 +1,205 @@
+"""Configuration of the Dynamixel arm: the driver's control-table addresses and error names
+(from the X-series e-manual), :class:`AxisConfig` (one joint on one servo, degrees <-> ticks)
+and :class:`ArmConfig` (four axes, port, kinematics, timing), validated from TOML dicts.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from bench.core.errors import ConfigError
+from drivers.kinematics import JOINTS, KinematicsConfig
+
+ADDR = {"model_number": 0, "operating_mode": 11, "max_position": 48, "min_position": 52,
+        "torque_enable": 64, "hardware_error": 70, "profile_acceleration": 108,
+        "profile_velocity": 112, "goal_position": 116, "moving": 122, "moving_status": 123,
+        "present_position": 132}
+TICKS_PER_REV = 4096
+ERRBIT_ALERT = 0x80
+HW_ERROR_FLAGS = {0: "input_voltage", 1: "hall_sensor", 2: "overheating", 3: "motor_encoder",
+                  4: "electrical_shock", 5: "overload"}
+STATUS_ERRORS = {1: "result fail", 2: "instruction error", 3: "CRC error", 4: "data range error",
+                 5: "data length error", 6: "data limit error", 7: "access error"}
+# The poll block: Goal Position (116) .. Present Position (132..135) in one sync read, so that
+# every poll also shows whether the broadcast goals landed. Offsets inside the block:
+_BLOCK_ADDR = ADDR["goal_position"]
+_BLOCK_LEN = ADDR["present_position"] + 4 - _BLOCK_ADDR
+_OFF_GOAL = 0
+_OFF_MOVING = ADDR["moving"] - _BLOCK_ADDR
+_OFF_PRESENT = ADDR["present_position"] - _BLOCK_ADDR
+
+
+def decode_hardware_error(code: int) -> list[str]:
+    """Names of the set bits of Hardware Error Status (addr 70); unknown bits as ``bit<n>``."""
+    return [HW_ERROR_FLAGS.get(b, f"bit{b}") for b in range(8) if code >> b & 1]
+
+
+def _s32(v: int) -> int:
+    v &= 0xFFFFFFFF
+    return v - (1 << 32) if v & 0x80000000 else v
+
+
+def _le(value: int, size: int) -> list[int]:
+    return list((value & ((1 << (8 * size)) - 1)).to_bytes(size, "little"))
+
+
+# --- configuration -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    """One joint on one servo.
+
+    ``ticks = zero_offset + direction * round(joint_deg * gear_ratio * 4096 / 360)``.
+    """
+
+    joint: str
+    id: int
+    zero_offset: int = 2048
+    direction: int = 1
+    gear_ratio: float = 1.0
+    operating_mode: int = 3
+    limits: tuple[float, float] | None = None
+    profile_velocity: int = 0
+    profile_acceleration: int = 0
+
+    _KEYS = ("id", "zero_offset", "direction", "gear_ratio", "operating_mode", "limits",
+             "profile_velocity", "profile_acceleration")
+
+    def __post_init__(self) -> None:
+        where = f"axes.{self.joint}"
+        if self.joint not in JOINTS:
+            raise ConfigError(f"{where}: unknown joint; joints are {', '.join(JOINTS)}")
+        if not isinstance(self.id, int) or not 0 <= self.id <= 252:
+            raise ConfigError(f"{where}.id must be an integer 0..252, got {self.id!r}")
+        if self.direction not in (1, -1):
+            raise ConfigError(f"{where}.direction must be 1 or -1, got {self.direction!r}")
+        if not (isinstance(self.gear_ratio, (int, float)) and math.isfinite(self.gear_ratio)
+                and self.gear_ratio > 0):
+            raise ConfigError(f"{where}.gear_ratio must be > 0, got {self.gear_ratio!r}")
+        if self.operating_mode not in (3, 4):
+            raise ConfigError(f"{where}.operating_mode must be 3 (position) or 4 (extended "
+                              f"position), got {self.operating_mode!r}")
+        for k in ("zero_offset", "profile_velocity", "profile_acceleration"):
+            if not isinstance(getattr(self, k), int):
+                raise ConfigError(f"{where}.{k} must be an integer, got {getattr(self, k)!r}")
+        if self.profile_velocity < 0 or self.profile_acceleration < 0:
+            raise ConfigError(f"{where}: profile velocity/acceleration must be >= 0")
+        if self.limits is not None:
+            try:
+                lo, hi = (float(x) for x in self.limits)
+            except (TypeError, ValueError):
+                raise ConfigError(f"{where}.limits must be [lo, hi] degrees, got {self.limits!r}") from None
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+                raise ConfigError(f"{where}.limits = {self.limits!r} is not [lo, hi] with lo <= hi")
+            object.__setattr__(self, "limits", (lo, hi))
+
+    @classmethod
+    def from_dict(cls, joint: str, d: Mapping[str, Any]) -> "AxisConfig":
+        extra = set(d) - set(cls._KEYS)
+        if extra:
+            raise ConfigError(f"axes.{joint}: unknown key(s) {sorted(extra)}; known: {list(cls._KEYS)}")
+        if "id" not in d:
+            raise ConfigError(f"axes.{joint}: needs an id")
+        kw = dict(d)
+        if "limits" in kw and kw["limits"] is not None:
+            kw["limits"] = tuple(kw["limits"])
+        return cls(joint=joint, **kw)
+
+    @property
+    def ticks_per_degree(self) -> float:
+        return TICKS_PER_REV * self.gear_ratio / 360.0
+
+    def to_ticks(self, degrees: float) -> int:
+        return self.zero_offset + self.direction * int(round(degrees * self.ticks_per_degree))
+
+    def to_degrees(self, ticks: int) -> float:
+        return (ticks - self.zero_offset) * self.direction / self.ticks_per_degree
+
+
+@dataclass(frozen=True)
+class ArmConfig:
+    """The whole arm: four axes, port, kinematics and timing. See the module docstring."""
+
+    axes: Mapping[str, AxisConfig]
+    port: str = ""
+    baudrate: int = 1_000_000
+    kinematics: KinematicsConfig = field(default_factory=KinematicsConfig)
+    tolerance_deg: float = 0.2
+    settle_timeout_s: float = 10.0
+    poll_interval_s: float = 0.01
+    retries: int = 3
+    start_timeout_s: float = 0.1
+    return_delay_s: float = 500e-6
+    latency_s: float = 0.016
+    model_number: int | None = 1020
+    torque_off_on_close: bool = False
+    name: str = "dynamixel-arm"
+    external: tuple[str, ...] = ()
+
+    _KEYS = ("axes", "port", "baudrate", "kinematics", "tolerance_deg", "settle_timeout_s",
+             "poll_interval_s", "retries", "start_timeout_s", "return_delay_s", "latency_s",
+             "model_number",
+             "torque_off_on_close", "name", "external")
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "external", tuple(self.external))
+        for j in self.external:
+            if j not in JOINTS or j in self.axes:
+                raise ConfigError(f"external joint {j!r} must be one of {list(JOINTS)} and not also a servo axis")
+        missing = [j for j in JOINTS if j not in self.axes and j not in self.external]
+        if missing:
+            raise ConfigError(f"axes: missing joint(s) {missing}; need {list(JOINTS)} "
+                              f"(or name them in external = [...] and drive them with another axis)")
+        ids = [a.id for a in self.axes.values()]
+        if len(set(ids)) != len(ids):
+            raise ConfigError(f"axes: servo ids must be distinct, got {ids}")
+        for name in ("tolerance_deg", "settle_timeout_s", "poll_interval_s", "start_timeout_s",
+                     "return_delay_s", "latency_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ConfigError(f"{name} must be a finite number >= 0, got {v!r}")
+        if not isinstance(self.retries, int) or self.retries < 0:
+            raise ConfigError(f"retries must be an integer >= 0, got {self.retries!r}")
+        # The joint limits actually used: the axis limits where given, else the kinematics
+        # limits; in position mode 3 the latter are narrowed to what ticks 0..4095 reach.
+        lim: dict[str, tuple[float, float]] = {}
+        for a in self.axes.values():
+            if a.limits is not None:
+                lim[a.joint] = a.limits
+                if a.operating_mode == 3:
+                    for deg in a.limits:
+                        t = a.to_ticks(deg)
+                        if not 0 <= t <= TICKS_PER_REV - 1:
+                            raise ConfigError(
+                                f"axes.{a.joint}: limit {deg:g} deg is tick {t}, outside 0..4095 of "
+                                f"position mode 3 (use operating_mode = 4, or change zero_offset/limits)")
+            elif a.operating_mode == 3:
+                lo, hi = self.kinematics.limits[a.joint]
+                r = sorted((a.to_degrees(0), a.to_degrees(TICKS_PER_REV - 1)))
+                lo2, hi2 = max(lo, r[0]), min(hi, r[1])
+                if lo2 > hi2:
+                    raise ConfigError(f"axes.{a.joint}: joint limits [{lo:g}, {hi:g}] deg and the "
+                                      f"mode 3 tick range [{r[0]:g}, {r[1]:g}] deg do not overlap")
+                lim[a.joint] = (lo2, hi2)
+        object.__setattr__(self, "kinematics", self.kinematics.with_limits(**lim))
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "ArmConfig":
+        """Build from a dict (TOML table); unknown keys raise :class:`ConfigError`."""
+        d = dict(d)
+        extra = set(d) - set(cls._KEYS)
+        if extra:
+            raise ConfigError(f"unknown arm key(s) {sorted(extra)}; known: {list(cls._KEYS)}")
+        axes_d = d.pop("axes", None)
+        if not isinstance(axes_d, Mapping):
+            raise ConfigError("arm config needs an [axes] table with one table per joint")
+        axes = {j: AxisConfig.from_dict(j, a) for j, a in axes_d.items()}
+        kc = KinematicsConfig.from_dict(d.pop("kinematics", None))
+        return cls(axes=axes, kinematics=kc, **d)
+
+    def axis_list(self) -> list[AxisConfig]:
+        """Servo axes in :data:`drivers.kinematics.JOINTS` order (external joints left out)."""
+        return [self.axes[j] for j in JOINTS if j in self.axes]
