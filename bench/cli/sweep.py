@@ -12,9 +12,8 @@ import importlib.util
 import sys
 from typing import Any, Iterator
 
+from bench.cli.common import DEFAULT_STORE
 from bench.core.errors import InputError
-
-DEFAULT_STORE = "goniobench-runs.sqlite"
 
 
 def _workers(text: str) -> int:
