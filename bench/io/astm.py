@@ -70,8 +70,9 @@ def record_to_astm(record: BSDFRecord, path: str | Path, *, sample_name: str | N
         r = table[dup].iloc[0]
         raise InputError(f"record has two values for geometry ({r.theta_i:g}, {r.phi_i:g}, {r.theta_r:g}, "
                          f"{r.phi_r:g}) at {r.wavelength_nm:g} nm; the ASTM layout holds one")
-    wide = table.pivot_table(index=geo, columns="wavelength_nm", values="value", aggfunc="first",
-                             dropna=False).sort_index()
+    # only the geometries the record holds (a pivot table would fill every combination of angles
+    # with all-NaN rows); a geometry missing a wavelength keeps NaN in that channel
+    wide = table.set_index(geo + ["wavelength_nm"])["value"].unstack("wavelength_nm").sort_index()
     wls = [float(w) for w in wide.columns]
     meta = record.meta
     name = sample_name or meta.get("sample_name") or meta.get("specimen") or "unnamed"
