@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 from bench.plans import MotionProfile, estimate, order_for_travel, plan_from_dict
+from compare.figures import pyplot
 
 __all__ = ["physical_sweep", "plot_physical"]
 
@@ -44,11 +45,7 @@ def physical_sweep(scene: Any) -> list[dict[str, Any]]:
 
 def plot_physical(rows: Sequence[dict[str, Any]], path: str, title: str = "") -> str:
     """Scan duration against angular step, one line per number of averages (log-log)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 5))
     for avg in sorted({r["averages"] for r in rows}):
         rs = sorted((r for r in rows if r["averages"] == avg), key=lambda r: r["step_deg"])

@@ -66,7 +66,6 @@ def plot_bsdf_polar(record, path: str | Path, wavelength_nm: float | None = None
     when the values span more than two decades (or the given matplotlib ``norm``, so several
     maps can share one scale); the incidence is marked.
     """
-    import numpy as np
     from matplotlib.colors import LogNorm, Normalize
 
     plt = pyplot()

@@ -32,9 +32,11 @@ import numpy as np
 import pandas as pd
 
 from bench.core.errors import InputError
+from bench.core.records import json_default
 from bench.core.roles import Spectrum
 
 from compare.align import AlignmentError, as_record, record_kind, record_quantity
+from compare.checks import run_checks
 from compare.figures import figure_ids, report_figures, slug
 from compare.stats import (DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, Comparison, compare, nominal_fraction,
                            rank)
@@ -42,22 +44,17 @@ from compare.stats import (DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, Comparison, com
 __all__ = ["compare_records", "figure_ids", "slug"]
 
 def _json_safe(o: Any) -> Any:
+    """Strict JSON values for ``summary.json``: non-finite floats become null; numpy values and
+    anything else go through the project's one encoder, :func:`bench.core.records.json_default`."""
     if isinstance(o, dict):
         return {str(k): _json_safe(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
         return [_json_safe(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return [_json_safe(v) for v in o.tolist()]
-    if isinstance(o, (np.bool_, bool)):
-        return bool(o)
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (float, np.floating)):
-        f = float(o)
-        return f if math.isfinite(f) else None
-    if o is None or isinstance(o, (int, str)):
+    if isinstance(o, float):
+        return o if math.isfinite(o) else None
+    if o is None or isinstance(o, (bool, int, str)):
         return o
-    return str(o)
+    return _json_safe(json_default(o))
 
 
 def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str | Path, *,
@@ -131,8 +128,6 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     ranking = rank(summaries, primary_metric)
     check_results: dict[str, Any] = {}
     if checks and kind == "bsdf":
-        from compare.checks import run_checks
-
         check_results["actual"] = {n: r.as_dict() for n, r in run_checks(act).items()}
         for n, rec in recs.items():
             check_results[n] = {c: r.as_dict() for c, r in run_checks(rec).items()}

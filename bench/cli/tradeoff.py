@@ -13,8 +13,10 @@ draws the error-versus-time Pareto plot.
 from __future__ import annotations
 
 import argparse
-import json
 from typing import Any
+
+from bench.cli.common import emit_json
+from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_tradeoff"]
 
@@ -30,12 +32,6 @@ def register(subparsers: Any) -> None:
     t.add_argument("--seed", type=int)
     t.add_argument("--no-costs", action="store_true", help="skip measuring each declared effect's cost")
     t.set_defaults(func=cmd_tradeoff)
-
-
-def _json(obj: Any) -> str:
-    from bench.core.records import json_default
-
-    return json.dumps(obj, default=json_default)
 
 
 def _fmt(v: Any) -> str:
@@ -59,7 +55,6 @@ def _table(header: list[str], rows: list[list[Any]]) -> str:
 
 
 def cmd_tradeoff(args: argparse.Namespace) -> int:
-    from bench.core.errors import InputError
     from virtual.scene import effect_costs, load_scene
     from virtual import tradeoff
 
@@ -77,7 +72,7 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
         if args.plot:
             plot_physical(rows, args.plot, title=f"{scene.name}: scan duration")
         if args.json:
-            print(_json({"scene": scene.name, "instrument": "physical", "rows": rows}))
+            emit_json({"scene": scene.name, "instrument": "physical", "rows": rows})
             return 0
         print(f"scene {scene.name} (physical bench): scan duration against angular step and averaging")
         print(_table(["step_deg", "averages", "points", "seconds", "motion_s", "acquisition_s", "rel. uncertainty"],
@@ -92,8 +87,8 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
     if args.plot:
         tradeoff.plot_tradeoff(rows, args.plot, title=f"{scene.name}: accuracy versus time")
     if args.json:
-        print(_json({"scene": scene.name, "instrument": scene.instrument, "effects": scene.effects.declared(),
-                     "positions_sampled": scene.needs_positions, "rows": rows, "effect_costs": costs}))
+        emit_json({"scene": scene.name, "instrument": scene.instrument, "effects": scene.effects.declared(),
+                   "positions_sampled": scene.needs_positions, "rows": rows, "effect_costs": costs})
         return 0
     print(f"scene {scene.name}: {scene.instrument}, specimen {scene.specimen.label}, beam {scene.beam.kind}, "
           f"incidence {scene.incidence[0]:g} deg, effects: {', '.join(scene.effects.declared()) or 'none'}"

@@ -18,10 +18,11 @@ import numpy as np
 
 from bench.core.errors import ConfigError, InputError
 from bench.core.geometry import cie_geometry
-from bench.core.parsing import read_toml
+from bench.core.parsing import parse_wavelengths, read_toml
 from virtual.bounds import hoeffding_rays
 from virtual.collector import parse_collector
 from virtual.specimens import parse_specimen
+from virtual.spectrophotometer import fresh_seed
 
 __all__ = ["SweepSpec", "SweepTask", "load_sweep", "sweep_from_dict", "task_key", "series_seed", "task_table",
            "INSTRUMENTS", "TASK_COLUMNS", "RUN_COLUMNS"]
@@ -170,8 +171,6 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep") -> SweepS
     ConfigError
         Unknown keys, bad values, specimens that lack a wavelength, duplicate series.
     """
-    from virtual.spectrophotometer import fresh_seed, parse_wavelengths
-
     if not isinstance(d, Mapping) or not isinstance(d.get("sweep"), Mapping):
         raise ConfigError("a sweep needs a [sweep] table")
     top_unknown = set(d) - {"sweep", "task"}
