@@ -75,12 +75,13 @@ def test_console_script_runs_and_starts_without_heavy_imports():
         assert r.returncode == 0 and r.stdout == "105967\n"
 
 
-def _small_run(tmp_path, capsys):
-    """A one-wavelength virtual in-plane run in a fresh store: (store path, run id)."""
+def _small_run(tmp_path, capsys, wavelengths="550"):
+    """A small virtual in-plane run (one wavelength by default) in a fresh store: (store, run id)."""
     bench = tmp_path / "bench.toml"
     bench.write_text('name = "v"\nkind = "virtual"\n[specimen]\nspec = "lambert:albedo=0.6"\n'
                      '[white]\nreflectance_factor = 0.99\nuncertainty = 0.005\ngeometry = [0, 0, 45, 180]\n'
-                     '[virtual]\ncollector = "equal-psa:9x36"\nrays = 2000000\nwavelengths = "550"\n')
+                     '[virtual]\ncollector = "equal-psa:9x36"\nrays = 2000000\n'
+                     f'wavelengths = "{wavelengths}"\n')
     plan = tmp_path / "plan.toml"
     plan.write_text('name = "p"\nkind = "in-plane"\nintegration_s = 0.01\naverages = 1\ndark = "once"\n'
                     'white = "once"\n[in_plane]\ntheta_i = [30]\ntheta_r = { start = -60, stop = 60, step = 20 }\n'
@@ -120,3 +121,17 @@ def test_bench_compare_reads_a_spectro_csv(tmp_path, capsys):
     assert code == 0, err
     d = json.loads(out)
     assert d["kind"] == "spectrum" and d["candidates"]["again"]["n_points"] == 7
+
+
+def test_export_zemax_one_file_per_wavelength_or_the_one_asked_for(tmp_path, capsys):
+    store, run_id = _small_run(tmp_path, capsys, wavelengths="450,550")
+    code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", "zemax",
+                         "--out", str(tmp_path / "z.bsdf"))
+    assert code == 0, err
+    assert [Path(p).name for p in out.split()] == ["z-450nm.bsdf", "z-550nm.bsdf"]
+    code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", "zemax", "--wavelength", "550",
+                         "--out", str(tmp_path / "one.bsdf"))
+    assert code == 0 and out.split() == [str(tmp_path / "one.bsdf")]
+    assert "# wavelength_nm 550" in (tmp_path / "one.bsdf").read_text()
+    code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", "csv", "--wavelength", "550")
+    assert code == 2 and "--wavelength" in err and err.count("\n") == 1

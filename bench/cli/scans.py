@@ -11,7 +11,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.cli.common import DEFAULT_STORE, emit_json, hms, open_store, report_run
+from bench.cli.common import DEFAULT_STORE, emit_json, hms, number, open_store, report_run
+from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_plan", "cmd_scan", "cmd_resume", "cmd_runs", "cmd_show", "cmd_export"]
 
@@ -115,13 +116,20 @@ def cmd_show(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from bench.io import default_suffix, export_record
+    from bench.io import default_suffix, export_record, record_to_zemax_files
 
+    if args.wavelength is not None and args.format != "zemax":
+        raise InputError(f"--wavelength selects the wavelength of a Zemax file; --format {args.format} "
+                         f"holds every wavelength")
     with open_store(args.store, create=False) as store:
         record = store.to_record(args.run)
     out = Path(args.out or f"{args.run}{default_suffix(args.format)}")
-    path = export_record(record, out, args.format)
-    print(path)
+    if args.format == "zemax":  # one wavelength per file: --wavelength, or one file per wavelength
+        paths = record_to_zemax_files(record, out, wavelength_nm=args.wavelength)
+    else:
+        paths = [export_record(record, out, args.format)]
+    for path in paths:
+        print(path)
     return 0
 
 
@@ -166,4 +174,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     ex.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
     ex.add_argument("--format", choices=("csv", "parquet", "astm", "zemax"), default="csv")
     ex.add_argument("--out", metavar="FILE")
+    ex.add_argument("--wavelength", type=number, metavar="NM",
+                    help="zemax: the wavelength to write (default: one file per wavelength, FILE-<w>nm.bsdf)")
     ex.set_defaults(func=cmd_export)

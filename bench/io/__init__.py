@@ -23,14 +23,14 @@ from bench.io.registry import (FORMATS, FileFormat, default_suffix, export_recor
 from bench.io.specular import from_specular, specular_frame, to_specular
 from bench.io.tidy import (CSV_MAGIC, PARQUET_META_KEY, read_parquet, read_spectrum_csv, read_tidy_csv,
                            record_to_csv, record_to_parquet, spectrum_table, spectrum_to_csv)
-from bench.io.zemax import ZemaxGrid, read_zemax, record_to_zemax, zemax_grid
+from bench.io.zemax import ZemaxGrid, read_zemax, record_to_zemax, record_to_zemax_files, zemax_grid
 from bench.store import RunStore
 
 __all__ = ["read_record", "export_record", "export_run", "FORMATS", "FileFormat", "register_format", "formats",
            "infer_format", "default_suffix", "atomic_write", "write_csv", "CSV_MAGIC", "PARQUET_META_KEY",
            "record_to_csv", "record_to_parquet", "record_to_astm", "record_to_zemax", "read_tidy_csv",
            "read_parquet", "read_astm", "read_zemax", "read_spectrum_csv", "spectrum_table", "spectrum_to_csv",
-           "ZemaxGrid", "zemax_grid", "specular_frame", "to_specular", "from_specular"]
+           "ZemaxGrid", "zemax_grid", "record_to_zemax_files", "specular_frame", "to_specular", "from_specular"]
 
 
 def export_run(store: RunStore | str | Path, run_id: str, path: str | Path, fmt: str | None = None,

@@ -22,14 +22,16 @@ __all__ = ["atomic_write", "write_text", "write_csv", "meta_json", "check_record
 
 def atomic_write(path: str | Path, write: Callable[[Path], Any]) -> Path:
     """Call ``write(tmp_path)`` on a temporary file beside ``path``, fsync it, then
-    ``os.replace`` it onto ``path`` (parent folders created). On any error the temporary file is
-    removed and ``path`` is left as it was. Returns ``path``."""
+    ``os.replace`` it onto ``path`` (parent folders created). The file gets the mode a plain
+    ``open`` would give (``0666`` less the umask: 0644 usually), not ``mkstemp``'s 0600. On any
+    error the temporary file is removed and ``path`` is left as it was. Returns ``path``."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     try:
+        os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp makes 0600; a file people share reads as any other
         write(tmp_path)
         with open(tmp_path, "rb+") as f:
             os.fsync(f.fileno())
@@ -41,6 +43,13 @@ def atomic_write(path: str | Path, write: Callable[[Path], Any]) -> Path:
             pass
         raise
     return p
+
+
+def _umask() -> int:
+    """The process umask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_text(path: str | Path, text: str) -> Path:

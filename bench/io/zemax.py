@@ -25,7 +25,7 @@ from bench.io.files import check_record, write_text
 from bench.io.reading import bad, complete, is_float, read_lines
 from bench.io.specular import directions, from_specular
 
-__all__ = ["ZemaxGrid", "zemax_grid", "record_to_zemax", "read_zemax"]
+__all__ = ["ZemaxGrid", "zemax_grid", "record_to_zemax", "record_to_zemax_files", "wavelengths_of", "read_zemax"]
 
 
 @dataclass
@@ -122,7 +122,6 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
     max_distance_deg : float, optional
         Farthest a node may be from the sample it takes (point samples only; default: no limit).
     """
-    import pandas as pd
 
     table = check_record(record)
     st = str(scatter_type).upper()
@@ -211,6 +210,7 @@ def record_to_zemax(record: BSDFRecord | ZemaxGrid, path: str | Path, *, digits:
              "# SampleRotation = incidence azimuth phi_i (deg); AngleOfIncidence = theta_i (deg)",
              "# ScatterRadial/ScatterAzimuth about the specular direction; azimuth 0 = plane of incidence,"
              " toward the normal; 90 = +y at phi_i = 0 (libbsdf's specular frame)",
+             *_resampling_lines(meta.get("zemax_resampling")),
              "Source  Measured", f"Symmetry  {g.symmetry}", "SpectralContent  Monochrome",
              f"ScatterType  {g.scatter_type}",
              f"SampleRotation  {len(g.rotations)}", _fmt_list(g.rotations),
@@ -227,6 +227,36 @@ def record_to_zemax(record: BSDFRecord | ZemaxGrid, path: str | Path, *, digits:
     return write_text(path, "\n".join(lines) + "\n")
 
 
+def _resampling_lines(r: dict[str, Any] | None) -> list[str]:
+    """Header comments saying how the record was resampled onto the grid (and how far)."""
+    if not r:
+        return []
+    limit = r.get("max_distance_deg")
+    return [f"# resampling {r['method']}: each node takes the value of the "
+            + ("collector patch containing its direction" if r["method"] == "containing patch"
+               else "angularly nearest measured direction"),
+            f"# resampling farthest node from its sample {float(r['max_nearest_distance_deg']):.6g} deg; "
+            f"nodes left at 0 (beyond max_distance_deg {'none' if limit is None else f'{float(limit):g}'}): "
+            f"{int(r['nodes_unfilled'])}"]
+
+
+def wavelengths_of(record: BSDFRecord) -> list[float]:
+    """The distinct wavelengths (nm) of a record, ascending."""
+    return [float(w) for w in np.unique(check_record(record, ("wavelength_nm",))["wavelength_nm"].to_numpy(float))]
+
+
+def record_to_zemax_files(record: BSDFRecord, path: str | Path, *, wavelength_nm: float | None = None,
+                          **options: Any) -> list[Path]:
+    """Zemax files of a record: one file at ``wavelength_nm`` when given (or when the record has
+    one wavelength) at ``path``; else one file per wavelength, ``<stem>-<w>nm<suffix>`` beside
+    ``path`` (a Zemax tabular BSDF holds one wavelength). ``options`` go to :func:`record_to_zemax`."""
+    p = Path(path)
+    wls = wavelengths_of(record)
+    if wavelength_nm is not None or len(wls) == 1:
+        return [record_to_zemax(record, p, wavelength_nm=wavelength_nm, **options)]
+    name = p.name[:-len(p.suffix)] if p.suffix else p.name
+    return [record_to_zemax(record, p.with_name(f"{name}-{w:g}nm{p.suffix or '.bsdf'}"), wavelength_nm=w, **options)
+            for w in wls]
 
 
 # --- Zemax ---------------------------------------------------------------------------------
