@@ -479,10 +479,15 @@ def umask_022():
 
 
 def test_every_export_is_readable_by_an_independent_parser_and_by_others(tmp_path, lambert, umask_022):
-    # tidy CSV as its description says: pandas.read_csv(path, comment="#") skips the header
+    # tidy CSV as described: "#" header lines, then a plain CSV whose floats are shortest
+    # round-trip reprs (Python's csv module and float() read them back exactly)
+    import csv as csv_module
+
     csv = record_to_csv(lambert, tmp_path / "r.csv")
-    df = pd.read_csv(csv, comment="#")
-    assert len(df) == len(lambert.table) and np.allclose(df.value, lambert.table.value, rtol=0, atol=0)
+    body = [l for l in csv.read_text().splitlines() if not l.startswith("#")]
+    table = list(csv_module.DictReader(body))
+    assert len(table) == len(lambert.table)
+    assert [float(r["value"]) for r in table] == lambert.table.value.tolist()
     # Parquet through pyarrow itself, metadata under goniobench.meta
     import pyarrow.parquet as pq
 
@@ -531,3 +536,21 @@ def test_zemax_writes_one_file_per_wavelength_or_the_one_asked_for(tmp_path, lam
         assert (back.table.wavelength_nm == w).all() and "# resampling containing patch" in p.read_text()
     only = record_to_zemax_files(lambert, tmp_path / "one.bsdf", wavelength_nm=550)
     assert [p.name for p in only] == ["one.bsdf"] and (read_zemax(only[0]).table.wavelength_nm == 550).all()
+
+
+def test_read_record_tells_the_format_from_the_first_line(tmp_path, lambert):
+    """The one loader registry: content first (our CSV header, ASTM keywords, Zemax keywords, a
+    spectrum table), then the suffix; a file it cannot place is one clear InputError."""
+    from bench.io import infer_format
+
+    astm = record_to_astm(lambert, tmp_path / "a.astm")
+    misnamed = tmp_path / "astm-data.csv"
+    misnamed.write_text(astm.read_text())
+    assert infer_format(misnamed, reading=True) == "astm" and len(read_record(misnamed)) == len(lambert.table)
+    z = tmp_path / "z.txt"
+    z.write_text(ZEMAX_OK)
+    assert infer_format(z, reading=True) == "zemax" and len(read_record(z)) > 0
+    tidy = record_to_csv(lambert, tmp_path / "t.data")
+    assert infer_format(tidy, reading=True) == "csv"
+    with pytest.raises(InputError, match="cannot tell the import format"):
+        read_record(tmp_path / "nothing.xyz")

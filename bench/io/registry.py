@@ -9,6 +9,7 @@ or ``SOURCE ...`` for ASTM), else by its suffix. A lab adds a format with
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -69,9 +70,9 @@ register_format(FileFormat("csv", (".csv",), read_tidy_csv, record_to_csv, lambd
 register_format(FileFormat("parquet", (".parquet", ".pq"), read_parquet, record_to_parquet,
                            lambda l: l.startswith("PAR1")))
 register_format(FileFormat("astm", (".astm.csv", ".astm"), read_astm, record_to_astm,
-                           lambda l: l.startswith("SOURCE ")))
+                           lambda l: re.match(r"^(VARS|[A-Z][A-Z0-9_]*) \S", l) is not None))  # KEYWORD value
 register_format(FileFormat("zemax", (".bsdf",), read_zemax, record_to_zemax,
-                           lambda l: l.startswith("# goniobench Zemax")))
+                           lambda l: l.startswith(("# goniobench Zemax", "Source ", "Source\t"))))
 register_format(FileFormat("spectrum-csv", (".spectrum.csv",), read_spectrum_csv, None, _spectrum_header))
 
 #: the formats ``bench export`` writes (a record of a run)

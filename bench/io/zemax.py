@@ -270,7 +270,7 @@ def read_zemax(path: str | Path, *, keep_beyond_horizon: bool = False) -> BSDFRe
 
     Every grid node (rotation, incidence, azimuth, radial) becomes one row: ``phi_i`` = sample
     rotation, ``theta_i`` = angle of incidence, ``(theta_r, phi_r)`` from
-    :func:`bench.export.from_specular` (BTDF: mirrored to the transmission side), ``value``;
+    :func:`bench.io.specular.from_specular` (BTDF: mirrored to the transmission side), ``value``;
     ``radial_deg`` and ``azimuth_deg`` keep the file's angles. Nodes beyond the hemisphere are
     dropped unless ``keep_beyond_horizon``. ``wavelength_nm`` comes from a ``# wavelength_nm``
     comment when present (else NaN). ``meta["tis"]`` lists the TIS per (rotation, incidence).
