@@ -68,8 +68,14 @@ def write_csv(table: Any, path: str | Path, *, header_lines: Sequence[str] = (),
     ``float_format=None`` writes floats as Python's shortest round-trip repr (values read back
     exactly); ``"%.8g"`` is what the human-facing ``--csv`` options use.
     """
-    body = table.to_csv(index=False, lineterminator="\n", float_format=float_format)
+    # pandas formats floats through numpy's str(), which numpy's print options change (colour-science
+    # sets legacy="1.13": 12 significant digits), so the round-trip repr is asked for explicitly
+    body = table.to_csv(index=False, lineterminator="\n", float_format=float_format or _repr)
     return write_text(path, "".join(f"{h}\n" for h in header_lines) + body)
+
+
+def _repr(x: float) -> str:
+    return repr(float(x))
 
 
 def meta_json(meta: dict[str, Any]) -> str:
