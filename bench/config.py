@@ -21,7 +21,7 @@ Switching a scan script from virtual to emulated to real hardware is a config ch
 
 Emulated and real benches add ``[arm]`` (drivers.dynamixel), ``[turntable]`` (drivers.modbus)
 and ``[spectrometer]`` (drivers.ocean) tables; the emulated builder starts the wire emulators
-itself and points the real drivers at them (see :mod:`bench.emulated`).
+itself and points the real drivers at them (see :mod:`bench.builders`).
 
 Builders are looked up by ``kind`` and imported lazily, so ``bench`` (the interface) does not
 depend on ``virtual`` or ``drivers`` at import time.
@@ -44,9 +44,9 @@ __all__ = ["Bench", "load_bench", "read_toml", "BUILDERS"]
 
 #: kind -> "module:function" building a Bench from (config dict, seed)
 BUILDERS: dict[str, str] = {
-    "virtual": "virtual.bench:build_virtual_bench",
-    "emulated": "bench.emulated:build_emulated_bench",
-    "real": "bench.emulated:build_real_bench",
+    "virtual": "bench.builders.virtual:build_virtual_bench",
+    "emulated": "bench.builders.emulated:build_emulated_bench",
+    "real": "bench.builders.real:build_real_bench",
 }
 
 

@@ -1,4 +1,9 @@
-"""The end-to-end demo on the embedded default (virtual) bench, run by ``make demo``."""
+"""The end-to-end demo (``bench demo``, ``make demo``): a virtual spectrophotometer and
+goniophotometer, one plan scanned on the emulated and the virtual bench, and the comparison of
+the emulated run with two virtual candidate models.
+
+Imported lazily by the CLI (it loads numba kernels, colour-science and matplotlib).
+"""
 
 from __future__ import annotations
 
@@ -6,15 +11,26 @@ import time
 from pathlib import Path
 from typing import Any
 
+import colour
 import numpy as np
+
+from bench.config import load_bench
+from bench.core.geometry import Geometry
+from bench.core.parsing import read_toml
+from bench.io import spectrum_to_csv
+from bench.plans import load_plan
+from bench.runner import run_scan
+from bench.store import RunStore
+from compare.figures import plot_bsdf_polar, plot_in_plane, plot_spectrum
+from compare.report import compare_records
+from virtual.goniophotometer import VirtualGoniophotometer
+from virtual.spectrophotometer import VirtualSpectrophotometer
 
 __all__ = ["run_demo", "lab_of"]
 
 
 def lab_of(wavelengths: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
     """CIELAB (D65, CIE 1931 2 deg) of a reflectance spectrum, through colour-science."""
-    import colour
-
     sd = colour.SpectralDistribution(dict(zip(wavelengths.tolist(), reflectance.tolist())))
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     illuminant = colour.SDS_ILLUMINANTS["D65"]
@@ -24,12 +40,6 @@ def lab_of(wavelengths: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
 
 
 def _spectro_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
-    import colour
-
-    from bench.export import spectrum_to_csv
-    from bench.plotting import plot_spectrum
-    from virtual.spectrophotometer import VirtualSpectrophotometer
-
     patch = "dark skin"
     sp = VirtualSpectrophotometer(f"colorchecker:{patch}", beam="conical", uncertainty=0.005, delta=0.01, seed=seed)
     wl = np.arange(380.0, 731.0, 10.0)  # BabelColor data: 380..730 nm
@@ -62,10 +72,6 @@ ROUGHER = "plastic:alpha=0.3,eta=1.5,kd=0.5"
 
 def _gonio_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
     """In-plane and hemispherical BRDF of a glossy specimen on the virtual goniophotometer."""
-    from bench.core.geometry import Geometry
-    from bench.plotting import plot_bsdf_polar, plot_in_plane
-    from virtual.goniophotometer import VirtualGoniophotometer
-
     t0 = time.perf_counter()
     g = VirtualGoniophotometer(GLOSSY, collector="equal-psa:45x180", rays=100_000_000, seed=seed)
     curves = []
@@ -94,11 +100,6 @@ def _gonio_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
 def _scan_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
     """The in-plane plan on the emulated bench (real drivers over emulators) and on the virtual
     bench, both stored in one run store."""
-    from bench.config import load_bench, read_toml
-    from bench.plans import load_plan
-    from bench.runner import run_scan
-    from bench.store import RunStore
-
     fixtures = Path(__file__).resolve().parent.parent / "fixtures"
     plan = load_plan(fixtures / "plans" / "in-plane.toml")
     store_path = out / "runs.sqlite"
@@ -121,9 +122,6 @@ def _scan_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
 
 def _compare_demo(out: Path, runs: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
     """The emulated-hardware run against two virtual candidate models: which goes into the renderer?"""
-    from bench.store import RunStore
-    from compare.report import compare_records
-
     with RunStore(runs["store"]) as store:
         actual = store.to_record(runs["runs"]["emulated"]["run_id"])
         candidates = {f"model A ({GLOSSY})": store.to_record(runs["runs"]["virtual"]["run_id"]),

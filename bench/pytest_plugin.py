@@ -33,8 +33,8 @@ def pytest_configure(config: Any) -> None:
 @pytest.fixture(scope="session")
 def bench_config(request: Any) -> dict[str, Any]:
     """The bench config dict in use (from ``--bench-config`` or the embedded emulated bench)."""
-    from bench.config import read_toml
-    from bench.emulated import DEFAULT_EMULATED_CONFIG
+    from bench.builders.emulated import DEFAULT_EMULATED_CONFIG
+    from bench.core.parsing import read_toml
 
     path = request.config.getoption("--bench-config")
     return read_toml(path) if path else dict(DEFAULT_EMULATED_CONFIG)

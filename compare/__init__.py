@@ -6,10 +6,11 @@ Entry points (imported lazily, so ``import compare`` stays cheap for the CLI):
   and a summary dict with stable keys (what ``bench compare`` calls);
 * :func:`compare.stats.compare` -- one candidate -> :class:`compare.stats.Comparison`;
 * :func:`compare.align.align` -- point-by-point matching -> :class:`compare.align.Aligned`;
-* :func:`compare.checks.run_checks` -- reciprocity, energy conservation, isotropy of a BSDF record.
+* :func:`compare.checks.run_checks` -- reciprocity, energy conservation, isotropy of a BSDF record;
+* :mod:`compare.figures` -- every figure (spectra, polar maps, in-plane curves, report figures).
 
-``compare`` reads records only (:mod:`bench.core.records`, :mod:`bench.core.roles`); it never
-imports ``virtual`` or ``drivers``.
+``compare`` takes records only (:mod:`bench.core.records`, :mod:`bench.core.roles`): it reads no
+file (the application's :mod:`bench.io` does) and imports nothing but ``bench.core``.
 """
 
 from __future__ import annotations
@@ -17,10 +18,10 @@ from __future__ import annotations
 from importlib import import_module
 from typing import Any
 
-__all__ = ["compare_records", "load_record", "register_loader", "compare", "rank", "align", "run_checks",
+__all__ = ["compare_records", "compare", "rank", "align", "run_checks",
            "reciprocity", "energy_conservation", "isotropy"]
 
-_WHERE = {"compare_records": "compare.report", "load_record": "compare.report", "register_loader": "compare.report",
+_WHERE = {"compare_records": "compare.report",
           "compare": "compare.stats", "rank": "compare.stats", "align": "compare.align",
           "run_checks": "compare.checks", "reciprocity": "compare.checks",
           "energy_conservation": "compare.checks", "isotropy": "compare.checks"}

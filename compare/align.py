@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import PurePath
 from typing import Any, Sequence
 
 import numpy as np
@@ -109,7 +110,8 @@ def as_record(obj: Any) -> BSDFRecord | Spectrum:
         if missing:
             raise InputError(f"a BSDF table needs columns {sorted(missing)}")
         return BSDFRecord(obj.reset_index(drop=True), {})
-    raise InputError(f"expected a BSDFRecord or Spectrum, got {type(obj).__name__}")
+    hint = " (read files with bench.io.read_record)" if isinstance(obj, (str, PurePath)) else ""
+    raise InputError(f"expected a BSDFRecord or Spectrum, got {type(obj).__name__}{hint}")
 
 
 def record_kind(rec: BSDFRecord | Spectrum) -> str:

@@ -24,91 +24,37 @@ import base64
 import html
 import json
 import math
-import re
 import time
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
 from bench.core.errors import InputError
+from bench.core.records import json_default
 from bench.core.roles import Spectrum
-from bench.plotting import plot_bsdf_polar, plot_in_plane, pyplot
-from bench.core.records import BSDFRecord
 
 from compare.align import AlignmentError, as_record, record_kind, record_quantity
+from compare.checks import run_checks
+from compare.figures import figure_ids, report_figures, slug
 from compare.stats import (DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, Comparison, compare, nominal_fraction,
                            rank)
 
-__all__ = ["compare_records", "figure_ids", "slug", "load_record", "register_loader"]
-
-#: loaders for ``compare_records`` inputs given as paths: suffix -> callable(path) -> record
-_LOADERS: dict[str, Callable[[Path], BSDFRecord | Spectrum]] = {}
-
-
-def register_loader(suffix: str, loader: Callable[[Path], BSDFRecord | Spectrum]) -> None:
-    """Teach :func:`load_record` (and so :func:`compare_records`) a file format, e.g.
-    ``register_loader(".json", my_store_reader)``; the loader returns a BSDFRecord or Spectrum."""
-    _LOADERS[suffix.lower()] = loader
-
-
-def load_record(obj: Any) -> BSDFRecord | Spectrum:
-    """A record from a :class:`BSDFRecord`, :class:`Spectrum`, a BSDF ``DataFrame`` or a path
-    (``.csv`` with the BSDF columns -- a tidy ``bench gonio --csv`` export -- or any suffix
-    registered with :func:`register_loader`)."""
-    if isinstance(obj, (str, Path)):
-        p = Path(obj)
-        if not p.exists():
-            raise InputError(f"record file {p} does not exist")
-        loader = _LOADERS.get(p.suffix.lower())
-        if loader is not None:
-            return as_record(loader(p))
-        if p.suffix.lower() == ".csv":
-            t = pd.read_csv(p)
-            if "hemisphere" in t:
-                t["hemisphere"] = t["hemisphere"].astype(str)
-            return BSDFRecord(t, {"file": str(p)})
-        raise InputError(f"no loader for {p.suffix or 'files without a suffix'} ({p}); "
-                         f"register one with compare.report.register_loader")
-    return as_record(obj)
-
-
-def slug(name: str) -> str:
-    """The id-safe form of a candidate name (``"GGX a=0.2"`` -> ``"ggx-a-0-2"``)."""
-    s = re.sub(r"[^a-z0-9]+", "-", str(name).lower()).strip("-")
-    return s or "candidate"
-
-
-def figure_ids(kind: str, names: Sequence[str]) -> list[str]:
-    """The ids of the figures a report of ``kind`` (``"spectrum"``/``"bsdf"``) with candidates
-    ``names`` contains."""
-    if kind == "spectrum":
-        ids = ["fig-spectral-overlay", "fig-spectral-z"]
-    else:
-        ids = ["fig-in-plane", "fig-polar-actual"]
-        for n in names:
-            ids += [f"fig-polar-{slug(n)}", f"fig-sigma-{slug(n)}"]
-    return ids + ["fig-bland-altman"]
-
+__all__ = ["compare_records", "figure_ids", "slug"]
 
 def _json_safe(o: Any) -> Any:
+    """Strict JSON values for ``summary.json``: non-finite floats become null; numpy values and
+    anything else go through the project's one encoder, :func:`bench.core.records.json_default`."""
     if isinstance(o, dict):
         return {str(k): _json_safe(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
         return [_json_safe(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return [_json_safe(v) for v in o.tolist()]
-    if isinstance(o, (np.bool_, bool)):
-        return bool(o)
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (float, np.floating)):
-        f = float(o)
-        return f if math.isfinite(f) else None
-    if o is None or isinstance(o, (int, str)):
+    if isinstance(o, float):
+        return o if math.isfinite(o) else None
+    if o is None or isinstance(o, (bool, int, str)):
         return o
-    return str(o)
+    return _json_safe(json_default(o))
 
 
 def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str | Path, *,
@@ -122,7 +68,8 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
 
     Parameters
     ----------
-    actual : BSDFRecord, Spectrum, BSDF DataFrame or path (see :func:`load_record`)
+    actual : BSDFRecord, Spectrum or BSDF DataFrame (files are read by the application, e.g.
+        :func:`bench.io.read_record`; compare never reads files)
     candidates : mapping name -> record (same types); names label tables, figures and the ranking
     report_dir : folder for ``report.html``, ``report.md``, ``summary.json`` and ``figures/``
     primary_metric : ranking metric, one of :data:`compare.stats.RANK_METRICS` (lower is better)
@@ -155,7 +102,7 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
         raise InputError(f"on_error must be 'raise' or 'skip', got {on_error!r}")
     if not candidates:
         raise InputError("no candidates to compare with the actual record")
-    act = load_record(actual)
+    act = as_record(actual)
     slugs = [slug(n) for n in candidates]
     if len(set(slugs)) != len(slugs):
         raise InputError(f"candidate names must stay distinct as ids: {list(candidates)} -> {slugs}")
@@ -164,7 +111,7 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     recs: dict[str, Any] = {}
     for name, cand in candidates.items():
         try:
-            rec = load_record(cand)
+            rec = as_record(cand)
             comps[name] = compare(act, rec, name=name, k=k, instrument_uncertainty=instrument_uncertainty,
                                   instrument_uncertainty_kind=instrument_uncertainty_kind,
                                   allow_missing_uncertainty=allow_missing_uncertainty, illuminant=illuminant,
@@ -181,15 +128,13 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     ranking = rank(summaries, primary_metric)
     check_results: dict[str, Any] = {}
     if checks and kind == "bsdf":
-        from compare.checks import run_checks
-
         check_results["actual"] = {n: r.as_dict() for n, r in run_checks(act).items()}
         for n, rec in recs.items():
             check_results[n] = {c: r.as_dict() for c, r in run_checks(rec).items()}
     out = Path(report_dir)
     figdir = out / "figures"
     figdir.mkdir(parents=True, exist_ok=True)
-    figures = _figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence)
+    figures = report_figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence)
     warnings = sorted({w for c in comps.values() for w in c.summary["warnings"]})
     summary: dict[str, Any] = {
         "kind": kind, "quantity": record_quantity(act), "actual": _describe(act), "primary_metric": primary_metric,
@@ -227,272 +172,6 @@ def _describe(rec: Any) -> dict[str, Any]:
                   "wavelengths_nm": sorted(set(map(float, t.wavelength_nm)))})
     return d
 
-
-# --- figures ------------------------------------------------------------------------------
-
-_COLOURS = ["tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan"]
-
-
-def _save(fig: Any, path: Path) -> Path:
-    plt = pyplot()
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
-
-
-def _fig(fid: str, path: Path, alt: str, caption: str, group: str | None = None) -> dict[str, Any]:
-    return {"id": fid, "path": path, "alt": alt, "caption": caption, "group": group or fid}
-
-
-def _figures(act: Any, comps: dict[str, Comparison], recs: dict[str, Any], figdir: Path, k: float,
-             map_wl: float | None, map_inc: tuple[float, float] | None) -> list[dict[str, Any]]:
-    figs: list[dict[str, Any]] = []
-    if record_kind(act) == "spectrum":
-        figs += _spectral_figures(comps, figdir, k)
-    else:
-        figs += _bsdf_figures(act, comps, recs, figdir, k, map_wl, map_inc)
-    figs.append(_bland_altman_figure(comps, figdir))
-    return figs
-
-
-def _spectral_figures(comps: dict[str, Comparison], figdir: Path, k: float) -> list[dict[str, Any]]:
-    plt = pyplot()
-    first = next(iter(comps.values()))
-    chans = list(dict.fromkeys(first.points.channel))
-    fig, axes = plt.subplots(len(chans), 1, figsize=(8, 3.6 * len(chans)), dpi=110, squeeze=False)
-    for ax, ch in zip(axes[:, 0], chans):
-        p = first.points[first.points.channel == ch].sort_values("wavelength_nm")
-        ua = np.sqrt(p.u_instrument ** 2 + np.nan_to_num(p.actual_std) ** 2)
-        ax.plot(p.wavelength_nm, p.actual_value, color="tab:blue", lw=1.8, label="actual")
-        ax.fill_between(p.wavelength_nm, p.actual_value - k * ua, p.actual_value + k * ua, color="tab:blue",
-                        alpha=0.2, label=f"actual +- {k:g} u (instrument + own std)")
-        for (name, c), colour in zip(comps.items(), _COLOURS):
-            q = c.points[c.points.channel == ch].sort_values("wavelength_nm")
-            sv = np.nan_to_num(q.virtual_std)
-            ax.plot(q.wavelength_nm, q.virtual_value, color=colour, lw=1.4, label=name)
-            ax.fill_between(q.wavelength_nm, q.virtual_value - k * sv, q.virtual_value + k * sv, color=colour,
-                            alpha=0.25)
-        ax.set_xlabel("wavelength (nm)")
-        ax.set_ylabel(ch)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
-        ax.set_title(f"{ch}: actual and candidates with {k:g}-sigma bands", fontsize=10)
-    f1 = _fig("fig-spectral-overlay", _save(fig, figdir / "fig-spectral-overlay.png"),
-              "Spectral overlay of the actual record and every candidate with uncertainty bands",
-              f"Spectra with {k:g}-sigma bands (actual: instrument and own std; candidates: Monte Carlo std).")
-    fig, ax = plt.subplots(figsize=(8, 3.6), dpi=110)
-    for (name, c), colour in zip(comps.items(), _COLOURS):
-        for ch, q in c.points.groupby("channel", sort=False):
-            q = q.sort_values("wavelength_nm")
-            ax.plot(q.wavelength_nm, q.z, marker="o", ms=3, lw=1, color=colour,
-                    ls="-" if ch == chans[0] else "--", label=f"{name} ({ch})")
-    ax.axhspan(-k, k, color="grey", alpha=0.15, label=f"|z| <= {k:g}")
-    ax.axhline(0, color="black", lw=0.8)
-    ax.set_xlabel("wavelength (nm)")
-    ax.set_ylabel("z = (virtual - actual) / u_c")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("Discrepancy in units of the combined standard uncertainty", fontsize=10)
-    f2 = _fig("fig-spectral-z", _save(fig, figdir / "fig-spectral-z.png"),
-              "Discrepancy in sigma units against wavelength for every candidate",
-              "z-scores per wavelength; the grey band is the coverage interval.")
-    return [f1, f2]
-
-
-def _select(rec: BSDFRecord, wl: float, inc: tuple[float, float]) -> BSDFRecord:
-    t = rec.table
-    sel = t[(t.wavelength_nm == wl) & (t.theta_i == inc[0]) & (t.phi_i == inc[1])]
-    return BSDFRecord(sel, dict(rec.meta))  # row labels kept: pairs refer to them
-
-
-def _has_bounds(t: pd.DataFrame) -> bool:
-    cols = ["theta_min", "theta_max", "phi_min", "phi_max"]
-    return len(t) > 0 and set(cols) <= set(t.columns) and bool(np.all(np.isfinite(t[cols].to_numpy(float))))
-
-
-def _polar_scatter(t: pd.DataFrame, values: np.ndarray, path: Path, title: str, label: str, cmap: str = "viridis",
-                   norm: Any = None) -> Path:
-    """A hemispherical map of a record without patch bounds: one dot per direction."""
-    plt = pyplot()
-    from matplotlib.colors import Normalize
-
-    fig, ax = plt.subplots(subplot_kw={"projection": "polar"}, figsize=(5.6, 4.8), dpi=110)
-    r = np.where(t.theta_r.to_numpy(float) > 90, 180 - t.theta_r.to_numpy(float), t.theta_r.to_numpy(float))
-    norm = norm or Normalize(vmin=0.0, vmax=max(float(np.nanmax(values)) if len(values) else 1.0, 1e-12))
-    sc = ax.scatter(np.radians(t.phi_r.to_numpy(float)), r, c=values, cmap=cmap, norm=norm, s=22)
-    if len(t):
-        ax.plot([np.radians(float(t.phi_i.iloc[0]))], [float(t.theta_i.iloc[0])], marker="*", color="red", ms=12,
-                ls="none", label="incidence")
-        ax.legend(loc="lower left", fontsize=7, bbox_to_anchor=(-0.15, -0.12))
-    ax.set_ylim(0, 90)
-    fig.colorbar(sc, ax=ax, shrink=0.75, pad=0.1, label=label)
-    ax.set_title(title, fontsize=10)
-    return _save(fig, path)
-
-
-def _sigma_map(c: Comparison, act_sel: pd.DataFrame, wl: float, inc: tuple[float, float], path: Path,
-               k: float) -> Path:
-    """z = (virtual - actual) / u_c on the actual's geometry: patches when the actual has bounds."""
-    plt = pyplot()
-    from matplotlib.colors import Normalize
-
-    p = c.points
-    p = p[(p.wavelength_nm == wl) & (p.theta_i == inc[0]) & (p.phi_i == inc[1])]
-    z = p.z.to_numpy(float)
-    lim = float(min(10.0, max(3.0, np.nanmax(np.abs(z)) if np.isfinite(z).any() else 3.0)))
-    norm = Normalize(vmin=-lim, vmax=lim)
-    title = f"{c.name}: (virtual - actual) / u_c, theta_i = {inc[0]:g} deg, {wl:g} nm"
-    panels = [h for h in ("R", "T") if (p.channel == h).any()] or ["R"]
-    if not _has_bounds(act_sel):
-        return _polar_scatter(p, np.nan_to_num(z), path, title, "z (sigma)", "RdBu_r", norm)
-    bounds = act_sel.loc[p.actual_index.to_numpy()] if len(p) else act_sel.iloc[0:0]
-    fig, axes = plt.subplots(1, len(panels), subplot_kw={"projection": "polar"}, figsize=(5.4 * len(panels), 4.8),
-                             dpi=110, squeeze=False)
-    cmap = plt.get_cmap("RdBu_r")
-    for ax, h in zip(axes[0], panels):
-        m = (p.channel == h).to_numpy()
-        b = bounds[m]
-        tmin = b.theta_min.to_numpy(float) if h == "R" else 180.0 - b.theta_max.to_numpy(float)
-        tmax = b.theta_max.to_numpy(float) if h == "R" else 180.0 - b.theta_min.to_numpy(float)
-        pmin, pmax = np.radians(b.phi_min.to_numpy(float)), np.radians(b.phi_max.to_numpy(float))
-        zz = z[m]
-        colours = np.where(np.isfinite(zz)[:, None], cmap(norm(np.nan_to_num(zz))), (0.85, 0.85, 0.85, 1.0))
-        ax.bar(x=0.5 * (pmin + pmax), height=tmax - tmin, width=pmax - pmin, bottom=tmin, color=colours,
-               edgecolor="none", align="center")  # one call for every patch
-        ax.plot([np.radians(inc[1])], [inc[0]], marker="*", color="black", ms=11, ls="none")
-        ax.set_ylim(0, 90)
-        ax.set_yticks([30, 60, 90])
-        ax.set_title(f"{'reflection' if h == 'R' else 'transmission'} (grey: no z)", fontsize=9)
-        fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.75, pad=0.1,
-                     label=f"z (sigma); |z| <= {k:g} expected for {nominal_fraction(k):.1%}")
-    fig.suptitle(title, fontsize=10)
-    return _save(fig, path)
-
-
-def _bsdf_figures(act: BSDFRecord, comps: dict[str, Comparison], recs: dict[str, Any], figdir: Path, k: float,
-                  map_wl: float | None, map_inc: tuple[float, float] | None) -> list[dict[str, Any]]:
-    t = act.table
-    wl = float(t.wavelength_nm.iloc[0]) if map_wl is None else float(map_wl)
-    inc = (float(t.theta_i.iloc[0]), float(t.phi_i.iloc[0])) if map_inc is None else tuple(map(float, map_inc))
-    figs: list[dict[str, Any]] = []
-    # in-plane curves
-    first = next(iter(comps.values()))
-    p0 = first.points
-    p0 = p0[(p0.wavelength_nm == wl) & (p0.theta_i == inc[0]) & (p0.phi_i == inc[1]) & (p0.channel == "R")]
-    act_sel = _select(act, wl, inc)
-    sel, signed = _in_plane(p0, act_sel.table, inc, first.aligned.meta.get("angle_tol_deg", 1.0))
-    curves = []
-    tiny = 1e-12
-    if sel.any():
-        q = p0[sel].assign(x=signed[sel]).sort_values("x")
-        ua = np.sqrt(q.u_instrument ** 2 + np.nan_to_num(q.actual_std) ** 2)
-        curves.append(("actual", q.x.to_numpy(), np.maximum(q.actual_value.to_numpy(), tiny),
-                       np.maximum((q.actual_value - k * ua).to_numpy(), tiny),
-                       np.maximum((q.actual_value + k * ua).to_numpy(), tiny)))
-        for name, c in comps.items():
-            pc = c.points
-            pc = pc[(pc.wavelength_nm == wl) & (pc.theta_i == inc[0]) & (pc.phi_i == inc[1]) & (pc.channel == "R")]
-            s2, x2 = _in_plane(pc, act_sel.table, inc, c.aligned.meta.get("angle_tol_deg", 1.0))
-            qc = pc[s2].assign(x=x2[s2]).sort_values("x")
-            sv = np.nan_to_num(qc.virtual_std)
-            curves.append((name, qc.x.to_numpy(), np.maximum(qc.virtual_value.to_numpy(), tiny),
-                           np.maximum((qc.virtual_value - k * sv).to_numpy(), tiny),
-                           np.maximum((qc.virtual_value + k * sv).to_numpy(), tiny)))
-    path = figdir / "fig-in-plane.png"
-    if curves:
-        plot_in_plane(curves, path, title=f"In-plane BRDF, theta_i = {inc[0]:g} deg, phi_i = {inc[1]:g} deg, "
-                                          f"{wl:g} nm ({k:g}-sigma bands)")
-        caption = (f"Points with phi_r at phi_i or phi_i + 180 deg (patches containing the plane of incidence); "
-                   f"{k:g}-sigma bands.")
-    else:
-        plt = pyplot()
-        fig, ax = plt.subplots(figsize=(7, 2.5), dpi=110)
-        ax.text(0.5, 0.5, "no compared point lies in the plane of incidence", ha="center", va="center")
-        ax.set_axis_off()
-        _save(fig, path)
-        caption = "No compared point lies in the plane of incidence."
-    figs.append(_fig("fig-in-plane", path, "In-plane BRDF curves of the actual record and every candidate", caption))
-    # hemispherical maps
-    figs.append(_fig("fig-polar-actual", _map(act_sel, figdir / "fig-polar-actual.png", f"actual: {wl:g} nm, "
-                                              f"theta_i = {inc[0]:g} deg"),
-                     "Hemispherical map of the actual record",
-                     f"Actual record at theta_i = {inc[0]:g} deg, {wl:g} nm (each map has its own colour scale)."))
-    for name, c in comps.items():
-        s = slug(name)
-        rec = recs[name]
-        # the candidate's incidence/wavelength nearest to the one shown (what the alignment used)
-        pc = c.points[(c.points.wavelength_nm == wl) & (c.points.theta_i == inc[0]) & (c.points.phi_i == inc[1])]
-        if len(pc):
-            vwl = pc.virtual_wavelength_nm.dropna()
-            cwl = float(vwl.iloc[0]) if len(vwl) else wl
-            cinc = (float(pc.virtual_theta_i.iloc[0]), float(pc.virtual_phi_i.iloc[0]))
-        else:
-            cwl, cinc = wl, inc
-        csel = _select(rec, cwl, cinc)
-        figs.append(_fig(f"fig-polar-{s}", _map(csel, figdir / f"fig-polar-{s}.png", f"{name}: {cwl:g} nm, "
-                                                f"theta_i = {cinc[0]:g} deg"),
-                         f"Hemispherical map of candidate {name}",
-                         f"Candidate {name} (each map has its own colour scale).", group=f"candidate-{s}"))
-        figs.append(_fig(f"fig-sigma-{s}", _sigma_map(c, act_sel.table, wl, inc, figdir / f"fig-sigma-{s}.png", k),
-                         f"Discrepancy map of candidate {name} in sigma units",
-                         f"(virtual - actual) / u_c for {name}; blue: candidate low, red: candidate high.",
-                         group=f"candidate-{s}"))
-    return figs
-
-
-def _in_plane(p: pd.DataFrame, act_sel: pd.DataFrame, inc: tuple[float, float], tol: float
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """Which points lie in the plane of incidence (their patch contains phi_i or phi_i + 180, or,
-    without patch bounds, their azimuth is within ``tol``) and their signed viewing angle
-    (> 0 on the specular side)."""
-    phi = p.phi_r.to_numpy(float)
-    th = p.theta_r.to_numpy(float)
-    if _has_bounds(act_sel) and len(p):
-        b = act_sel.loc[p.actual_index.to_numpy()]
-        pmin, width = b.phi_min.to_numpy(float), (b.phi_max - b.phi_min).to_numpy(float)
-        src = np.mod(inc[1] - pmin, 360.0) < width
-        spec = np.mod(inc[1] + 180.0 - pmin, 360.0) < width
-    else:
-        d_src = np.abs((phi - inc[1] + 180.0) % 360.0 - 180.0)
-        d_spec = np.abs((phi - inc[1]) % 360.0 - 180.0)
-        src, spec = d_src <= tol, d_spec <= tol
-    sel = src | spec
-    signed = np.where(spec, th, -th)
-    return sel, signed
-
-
-def _map(sel: BSDFRecord, path: Path, title: str) -> Path:
-    if _has_bounds(sel.table):
-        return plot_bsdf_polar(sel, path, title=title)
-    t = sel.table
-    return _polar_scatter(t, t.value.to_numpy(float), path, title, "BSDF (1/sr)")
-
-
-def _bland_altman_figure(comps: dict[str, Comparison], figdir: Path) -> dict[str, Any]:
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.2), dpi=110)
-    for (name, c), colour in zip(comps.items(), _COLOURS):
-        p = c.points
-        ax.scatter(0.5 * (p.actual_value + p.virtual_value), p["diff"], s=10, alpha=0.6, color=colour, label=name)
-        ba = c.summary["bland_altman"]
-        if ba["bias"] is not None:
-            ax.axhline(ba["bias"], color=colour, lw=1.4)
-        for key in ("lower", "upper"):
-            if ba[key] is not None:
-                ax.axhline(ba[key], color=colour, lw=1, ls="--")
-    ax.axhline(0, color="black", lw=0.8)
-    ax.set_xlabel("mean of actual and virtual")
-    ax.set_ylabel("virtual - actual")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("Bland-Altman: bias (solid) and 95 % limits of agreement (dashed)", fontsize=10)
-    return _fig("fig-bland-altman", _save(fig, figdir / "fig-bland-altman.png"),
-                "Bland-Altman plot of every candidate against the actual record",
-                "Differences against means; bias +- 1.96 sd of the differences.")
-
-
-# --- documents ----------------------------------------------------------------------------
 
 _METRIC_ROWS = [("n_points", "points compared"), ("mean_abs_discrepancy_pct", "mean |discrepancy| (%)"),
                 ("rmse", "RMSE"), ("bias", "bias (virtual - actual)"), ("max_abs", "max |difference|"),

@@ -73,3 +73,65 @@ def test_console_script_runs_and_starts_without_heavy_imports():
     if exe.exists():
         r = subprocess.run([str(exe), "rays", "-u", "0.005", "-d", "0.01"], capture_output=True, text=True)
         assert r.returncode == 0 and r.stdout == "105967\n"
+
+
+def _small_run(tmp_path, capsys, wavelengths="550"):
+    """A small virtual in-plane run (one wavelength by default) in a fresh store: (store, run id)."""
+    bench = tmp_path / "bench.toml"
+    bench.write_text('name = "v"\nkind = "virtual"\n[specimen]\nspec = "lambert:albedo=0.6"\n'
+                     '[white]\nreflectance_factor = 0.99\nuncertainty = 0.005\ngeometry = [0, 0, 45, 180]\n'
+                     '[virtual]\ncollector = "equal-psa:9x36"\nrays = 2000000\n'
+                     f'wavelengths = "{wavelengths}"\n')
+    plan = tmp_path / "plan.toml"
+    plan.write_text('name = "p"\nkind = "in-plane"\nintegration_s = 0.01\naverages = 1\ndark = "once"\n'
+                    'white = "once"\n[in_plane]\ntheta_i = [30]\ntheta_r = { start = -60, stop = 60, step = 20 }\n'
+                    'phi_i = 0\n')
+    store = tmp_path / "runs.sqlite"
+    code, out, err = run(capsys, "scan", str(plan), "--bench", str(bench), "--store", str(store), "--seed", "5", "-q")
+    assert code == 0, err
+    return store, out.strip()
+
+
+def test_bench_compare_reads_every_export_format_of_a_run(tmp_path, capsys):
+    """Each file `bench export` writes is read back by `bench compare` (through bench.io's one
+    loader registry) and compares with the run it came from: same points, no discrepancy for the
+    lossless formats; the Zemax grid (resampled) compares with itself."""
+    store, run_id = _small_run(tmp_path, capsys)
+    for fmt in ("csv", "parquet", "astm", "zemax"):
+        code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", fmt,
+                             "--out", str(tmp_path / f"r.{fmt}.out"))
+        assert code == 0, err
+        path = out.strip()
+        other = f"same={path}" if fmt == "zemax" else f"run={run_id}"
+        code, out, err = run(capsys, "compare", f"file={path}", other, "--store", str(store), "--json",
+                             "--report", str(tmp_path / f"report-{fmt}"))
+        assert code == 0, (fmt, err)
+        s = json.loads(out)["candidates"]["same" if fmt == "zemax" else "run"]
+        assert s["n_points"] > 0, fmt
+        if fmt != "zemax":
+            assert s["n_points"] == 7 and s["max_abs"] < 1e-9, (fmt, s)
+
+
+def test_bench_compare_reads_a_spectro_csv(tmp_path, capsys):
+    csv = tmp_path / "s.csv"
+    code, _, err = run(capsys, "spectro", "--specimen", "lambert:reflectance=0.5", "--wavelengths", "400:700:50",
+                       "--rays", "20000", "--seed", "2", "--csv", str(csv))
+    assert code == 0, err
+    code, out, err = run(capsys, "compare", str(csv), f"again={csv}", "--json", "--report", str(tmp_path / "rep"))
+    assert code == 0, err
+    d = json.loads(out)
+    assert d["kind"] == "spectrum" and d["candidates"]["again"]["n_points"] == 7
+
+
+def test_export_zemax_one_file_per_wavelength_or_the_one_asked_for(tmp_path, capsys):
+    store, run_id = _small_run(tmp_path, capsys, wavelengths="450,550")
+    code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", "zemax",
+                         "--out", str(tmp_path / "z.bsdf"))
+    assert code == 0, err
+    assert [Path(p).name for p in out.split()] == ["z-450nm.bsdf", "z-550nm.bsdf"]
+    code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", "zemax", "--wavelength", "550",
+                         "--out", str(tmp_path / "one.bsdf"))
+    assert code == 0 and out.split() == [str(tmp_path / "one.bsdf")]
+    assert "# wavelength_nm 550" in (tmp_path / "one.bsdf").read_text()
+    code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", "csv", "--wavelength", "550")
+    assert code == 2 and "--wavelength" in err and err.count("\n") == 1

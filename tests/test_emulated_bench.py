@@ -8,8 +8,8 @@ import pytest
 from scipy import stats
 
 from bench.config import load_bench
-from bench.emulated import DEFAULT_EMULATED_CONFIG
-from bench.config import read_toml
+from bench.builders.emulated import DEFAULT_EMULATED_CONFIG
+from bench.core.parsing import read_toml
 from bench.core.errors import PlanError, RunInterrupted
 from bench.plans import load_plan, plan_from_dict
 from bench.runner import resume_scan, run_scan

@@ -16,7 +16,7 @@ import pytest
 
 from bench.core.records import BSDFRecord
 from compare.align import QuantityMismatchError
-from compare.report import compare_records, figure_ids, load_record, slug
+from compare.report import compare_records, figure_ids, slug
 from compare.stats import SUMMARY_KEYS
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -126,14 +126,22 @@ def test_bad_candidates_raise_or_are_listed(spectrum_report, tmp_path):
     assert "not compared" in _html(tmp_path / "b")
 
 
-def test_load_record_reads_a_tidy_csv(tmp_path):
+def test_compare_takes_records_and_files_are_read_by_bench_io(tmp_path):
+    """compare reads no file (the application's loader registry does): a path is refused with a
+    hint, and the same file read through bench.io compares with the record it came from."""
+    from bench.core.errors import InputError
+    from bench.io import read_record
     from virtual.goniophotometer import VirtualGoniophotometer
 
     rec = VirtualGoniophotometer("lambert:albedo=0.5", rays=20_000, seed=3, method="rays").measure_bsdf(30.0)
     p = tmp_path / "r.csv"
     rec.table.to_csv(p, index=False)
-    back = load_record(p)
+    with pytest.raises(InputError, match="bench.io.read_record"):
+        compare_records(p, {"same": rec}, tmp_path / "rep")
+    back = read_record(p)
     assert len(back) == len(rec) and np.allclose(back.table.value, rec.table.value)
+    s = compare_records(back, {"same": rec}, tmp_path / "rep", checks=False)
+    assert s["candidates"]["same"]["n_points"] > 0 and s["candidates"]["same"]["max_abs"] < 1e-9
 
 
 def test_measured_record_without_patches_gets_point_maps_and_the_gonio_uncertainty(tmp_path):

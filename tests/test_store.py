@@ -20,6 +20,7 @@ import pandas as pd
 import pytest
 
 import bench.store as store_mod
+import bench.store.runstore as runstore_mod
 from bench.core.errors import InputError, StoreError
 from bench.core.geometry import Geometry
 from bench.core.records import BSDF_COLUMNS
@@ -144,7 +145,7 @@ def test_a_failure_inside_the_transaction_leaves_no_trace(store, monkeypatch):
         t = good(run_id, idx, rows)
         return t[:-1] + [t[-1][:-1]]
 
-    monkeypatch.setattr(store_mod, "_reading_tuples", broken)
+    monkeypatch.setattr(runstore_mod, "_reading_tuples", broken)  # where add_point looks it up
     with pytest.raises(sqlite3.ProgrammingError):
         store.add_point(rid, 1, GEO, _rows(1))
     monkeypatch.undo()

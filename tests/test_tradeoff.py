@@ -15,7 +15,8 @@ from bench.cli import main
 from virtual.collector import Collector
 from virtual.scene import Scene, load_scene
 from virtual.specimens import GGX
-from virtual.tradeoff import ROW_KEYS, pareto_front, physical_sweep, sweep
+from bench.tradeoff_physical import physical_sweep
+from virtual.tradeoff import ROW_KEYS, pareto_front, sweep
 
 SCENES = Path(__file__).resolve().parent.parent / "fixtures" / "scenes"
 REQUIRED = {"strategy", "collector", "budget", "N", "seconds", "max_abs_error", "rms_error", "predicted_bound"}

@@ -23,8 +23,8 @@ declared instrument noise), which ``max_abs_error`` exceeds with probability ``<
 variance-aware (normal) value of the max error, ``max_j z_{delta/(2m)} sqrt(p_j (1 - p_j) / N)``
 (Hoeffding's bound is loose for small patch probabilities; this one is what to expect).
 
-For a ``physical`` scene, :func:`physical_sweep` gives the scan duration of an in-plane record
-against the angular step and the number of averaged readings (:func:`bench.plans.estimate`).
+A ``physical`` scene is not simulated: its scan duration against angular step and averaging
+is the application's (:mod:`bench.tradeoff_physical`, which needs plans).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from bench.core.errors import InputError
 from virtual.collector import parse_collector
 from virtual.scene import Scene
 
-__all__ = ["sweep", "pareto_front", "physical_sweep", "plot_tradeoff", "plot_physical", "ROW_KEYS",
+__all__ = ["sweep", "pareto_front", "plot_tradeoff", "ROW_KEYS",
            "DEFAULT_RAYS", "STRATEGIES", "BUDGETS"]
 
 ROW_KEYS = ("config", "strategy", "collector", "budget", "method", "N", "seconds", "max_abs_error", "rms_error",
@@ -221,11 +221,11 @@ def sweep(scene: Scene, rays: Sequence[int] | None = None, strategies: Sequence[
     Raises
     ------
     InputError
-        For a physical scene (use :func:`physical_sweep`), an unknown strategy or budget, or a
+        For a physical scene (use :func:`bench.tradeoff_physical.physical_sweep`), an unknown strategy or budget, or a
         scene without a reference.
     """
     if scene.instrument == "physical":
-        raise InputError("a physical scene has no simulation to sweep: use physical_sweep")
+        raise InputError("a physical scene has no simulation to sweep: use bench.tradeoff_physical.physical_sweep")
     t = scene.tradeoff
     rays = [int(float(x)) for x in (rays if rays is not None else t.get("rays", DEFAULT_RAYS))]
     budgets = list(budgets if budgets is not None else t.get("budgets", BUDGETS))
@@ -355,39 +355,6 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> np.ndarray:
     return keep
 
 
-# --- physical benches ---------------------------------------------------------------------------
-
-
-def physical_sweep(scene: Scene) -> list[dict[str, Any]]:
-    """Scan duration of an in-plane record against angular step and averaging (physical scene).
-
-    ``[physical]`` keys: ``theta_i`` (list), ``theta_r = [start, stop]``, ``steps_deg``,
-    ``averages``, ``integration_s``, ``velocity_deg_s``, ``acceleration_deg_s2``, ``settle_s``,
-    ``relative_noise_per_reading``.
-    """
-    from bench.plans import MotionProfile, estimate, order_for_travel, plan_from_dict
-
-    p = scene.physical
-    th_i = p.get("theta_i", [30.0])
-    th_i = [th_i] if isinstance(th_i, (int, float)) else list(th_i)
-    lo, hi = (float(x) for x in p.get("theta_r", [-75.0, 75.0]))
-    profile = MotionProfile({}, {}, float(p.get("settle_s", 0.2)), 0.005, float(p.get("velocity_deg_s", 30.0)),
-                            float(p.get("acceleration_deg_s2", 60.0)))
-    noise = float(p.get("relative_noise_per_reading", 0.01))
-    rows = []
-    for step in p.get("steps_deg", [1, 2, 5, 10]):
-        for avg in p.get("averages", [1, 4, 16]):
-            plan = plan_from_dict({"kind": "in-plane", "integration_s": float(p.get("integration_s", 0.05)),
-                                   "averages": int(avg), "dark": "once", "white": "once",
-                                   "in_plane": {"theta_i": th_i, "theta_r": {"start": lo, "stop": hi, "step": float(step)},
-                                                "phi_i": 0}}, name=scene.name)
-            est = estimate(plan, profile, order_for_travel(plan.points), relative_noise_per_reading=noise)
-            rows.append({"step_deg": float(step), "averages": int(avg), "points": est["points"],
-                         "seconds": est["seconds"], "motion_s": est["motion_s"],
-                         "acquisition_s": est["acquisition_s"], "relative_uncertainty": est["relative_uncertainty"]})
-    return rows
-
-
 # --- plots --------------------------------------------------------------------------------------
 
 
@@ -426,29 +393,6 @@ def plot_tradeoff(rows: Sequence[dict[str, Any]], path: str, title: str = "") ->
     ax.set_title(title or "accuracy versus time")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
-
-
-def plot_physical(rows: Sequence[dict[str, Any]], path: str, title: str = "") -> str:
-    """Scan duration against angular step, one line per number of averages (log-log)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 5))
-    for avg in sorted({r["averages"] for r in rows}):
-        rs = sorted((r for r in rows if r["averages"] == avg), key=lambda r: r["step_deg"])
-        ax.loglog([r["step_deg"] for r in rs], [r["seconds"] for r in rs], marker="o",
-                  label=f"{avg} averages (u = {rs[0]['relative_uncertainty']:.2%})")
-    ax.set_xlabel("angular step (deg)")
-    ax.set_ylabel("scan duration (s)")
-    ax.set_title(title or "scan duration")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -1,11 +1,12 @@
-"""The virtual bench: a virtual goniophotometer in every role, and a virtual white standard."""
+"""The virtual bench (``kind = "virtual"``): a virtual goniophotometer in every role, and a virtual
+white standard measured by a second one."""
 
 from __future__ import annotations
 
 from typing import Any, Mapping
 
-from bench.core.calibration import WhiteStandard
 from bench.config import Bench
+from bench.core.calibration import WhiteStandard
 from bench.core.errors import ConfigError
 from bench.core.roles import Reading
 from virtual.goniophotometer import VirtualGoniophotometer

@@ -1,7 +1,9 @@
 """``bench compare ACTUAL CANDIDATE [CANDIDATE ...]``: discrepancy statistics and a report.
 
-Each record is a run id in ``--store`` or a file (tidy CSV, Parquet, ASTM CSV, Zemax ``.bsdf``);
-``NAME=RUN`` labels a record. The summary keys of ``--json`` are stable.
+Each record is a run id in ``--store`` or a file in any format of the :mod:`bench.io` registry
+(tidy CSV, Parquet, ASTM CSV, Zemax ``.bsdf``, spectrum CSV); ``NAME=RUN`` labels a record. The
+files are read here, through :func:`bench.io.read_record`: :mod:`compare` takes records only.
+The summary keys of ``--json`` are stable.
 """
 
 from __future__ import annotations
@@ -10,6 +12,9 @@ import argparse
 import json
 from pathlib import Path
 from typing import Any
+
+from bench.cli.common import DEFAULT_STORE
+from bench.core.errors import InputError
 
 HEADLINE = ("n_points", "mean_abs_discrepancy_pct", "rmse", "bias", "max_abs", "chi2", "p_value",
             "fraction_within_uncertainty", "delta_e2000_mean")
@@ -20,10 +25,9 @@ def _load(ref: str, store_path: str) -> tuple[str, Any]:
     name, _, what = ref.rpartition("=") if "=" in ref and not Path(ref).exists() else ("", "", ref)
     path = Path(what)
     if path.exists():
-        from bench.importers import read_record
+        from bench.io import read_record
 
         return name or path.stem, read_record(path)
-    from bench.core.errors import InputError
     from bench.store import RunStore
 
     if not Path(store_path).exists():
@@ -64,7 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compare", help="compare candidate records (virtual models) with an actual one")
     p.add_argument("actual", metavar="ACTUAL", help="[NAME=]RUN or FILE")
     p.add_argument("candidates", metavar="CANDIDATE", nargs="+", help="[NAME=]RUN or FILE")
-    p.add_argument("--store", default="goniobench-runs.sqlite", metavar="FILE.sqlite")
+    p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
     p.add_argument("--report", metavar="DIR", help="report folder (default ./compare-report)")
     p.add_argument("--metric", default="chi2_per_dof",
                    choices=("chi2_per_dof", "mean_abs_discrepancy_pct", "rmse", "abs_bias", "max_abs",

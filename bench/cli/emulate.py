@@ -10,8 +10,8 @@ import time
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
-    from bench.config import read_toml
-    from bench.emulated import Emulators
+    from bench.builders.emulated import Emulators
+    from bench.core.parsing import read_toml
 
     emu = Emulators(read_toml(args.bench), seed=args.seed)
     try:

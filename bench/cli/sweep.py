@@ -9,12 +9,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib.util
+import json
+import logging
 import sys
 from typing import Any, Iterator
 
+from bench.cli.common import DEFAULT_STORE
 from bench.core.errors import InputError
-
-DEFAULT_STORE = "goniobench-runs.sqlite"
 
 
 def _workers(text: str) -> int:
@@ -53,8 +54,6 @@ def _client(args: argparse.Namespace) -> Iterator[Any]:
     if args.scheduler is None and args.workers is None:
         yield None
         return
-    import logging
-
     from bench.sweep import dask_client
 
     if not logging.getLogger("bench").isEnabledFor(logging.INFO):  # no -v: Dask's INFO chatter off
@@ -95,8 +94,6 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         else:
             result = resume_sweep(store, args.resume, client=client, progress=progress)
     if args.json:
-        import json
-
         print(json.dumps({"run_id": result.run_id, "status": result.status, "tasks_done": result.tasks_done,
                           "tasks_planned": result.tasks_planned, "tasks_run": result.tasks_run,
                           "duplicates_skipped": result.duplicates_skipped, "seconds": result.seconds,

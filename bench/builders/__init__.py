@@ -1,0 +1,10 @@
+"""Bench builders: one module per bench ``kind``, each with ``build_<kind>_bench(config, seed)``.
+
+* :mod:`bench.builders.virtual` -- a virtual goniophotometer in every role;
+* :mod:`bench.builders.emulated` -- the real drivers talking to the wire-level emulators of
+  ``virtual/wire`` (and :class:`~bench.builders.emulated.Emulators` for ``bench emulate``);
+* :mod:`bench.builders.real` -- the real drivers on real ports.
+
+:data:`bench.config.BUILDERS` maps each kind to its builder and :func:`bench.config.load_bench`
+imports only the one a config asks for (a virtual bench never loads the drivers).
+"""

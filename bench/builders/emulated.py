@@ -1,0 +1,306 @@
+"""The emulated bench: the real drivers talking to wire-level emulators (``kind = "emulated"``).
+
+``kind = "emulated"`` starts three emulator processes -- a Dynamixel bus on a pseudo-terminal
+(source arm, detector azimuth, detector elevation), an AZ stage on Modbus TCP at 127.0.0.1 (the
+specimen turntable) and an RS-232 spectrometer on a pseudo-terminal -- and connects the real
+drivers (dynamixel-sdk, pymodbus, pyserial) to them. The spectrometer emulator's physics comes
+from the virtual specimen: at each acquisition it asks the bus and the stage where the arms are
+(over their wire protocols), and its counts follow the specimen's BSDF averaged over the
+detector aperture, times ``cos(theta_r)``, times the lamp spectrum, plus dark and noise.
+
+The white standard is "mounted" by writing a small mount file the emulator reads; a real bench
+asks the operator instead (:mod:`bench.builders.real`). This module is application glue: it
+imports both ``drivers`` and ``virtual``, which never import each other.
+
+Config (beside ``[specimen]`` and ``[white]``, see :mod:`bench.config`)::
+
+    [emulated]
+    time_scale = 20          # emulated motion runs 20x faster than the real drives would
+    bands = "450:650:100"    # band centres (nm) reported per point
+    bandwidth_nm = 10
+    aperture_deg = 1.0       # detector half-angle
+    seed = 7                 # emulator noise
+    [arm]                    # drivers.dynamixel ArmConfig keys (optional overrides)
+    [turntable]              # drivers.modbus AxisConfig keys
+    [spectrometer]           # drivers.ocean OceanConfig keys
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import logging
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from pymodbus.client import ModbusTcpClient
+
+from bench.bands import SpectralBands
+from bench.config import Bench
+from bench.core.calibration import WhiteStandard
+from bench.core.errors import ConfigError
+from bench.core.parsing import parse_wavelengths
+from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
+from bench.plans import MotionProfile
+from drivers.dynamixel import DynamixelArm
+from drivers.kinematics import Joints, geometry_to_joints, joints_to_geometry
+from drivers.modbus import ModbusStageAxis
+from drivers.ocean import OceanSpectrometer
+from drivers.registers import load_register_map
+from virtual.specimens import Lambertian, parse_specimen
+from virtual.wire.dynamixel_bus import BusControl, start_bus
+from virtual.wire.modbus_stage import StageEmulator
+from virtual.wire.ocean_spectrometer import SpectrometerEmulator
+
+log = logging.getLogger(__name__)
+
+__all__ = ["build_emulated_bench", "Emulators", "DEFAULT_EMULATED_CONFIG", "emulated_geometry",
+           "emulated_response", "LampLine", "ARM_IDS"]
+
+#: servo ids of the arm joints on the emulated bus (the turntable is on the Modbus stage)
+ARM_IDS = {"source": 1, "detector_azimuth": 2, "detector_elevation": 3}
+#: detector counts per unit of (BSDF x cos theta_r): a 0.99 white at 45 deg gives ~45 % of full scale
+RESPONSE_GAIN = 2.0
+STEPS_PER_REV = 1000
+TURNTABLE_GEAR = 18.0
+
+
+#: The embedded emulated bench (fixtures/benches/emulated.toml says the same; a test checks it).
+DEFAULT_EMULATED_CONFIG: dict[str, Any] = {
+    "name": "emulated", "kind": "emulated",
+    "specimen": {"spec": "lambert:albedo=0.8"},
+    "white": {"reflectance_factor": 0.99, "uncertainty": 0.005, "geometry": [0, 0, 45, 180]},
+    "emulated": {"time_scale": 50, "bands": "450:650:100", "bandwidth_nm": 10, "aperture_deg": 1.0, "seed": 7},
+}
+
+
+class LampLine(InstrumentBase):
+    """The LightSource role through the spectrometer's lamp-enable line (command ``J``)."""
+
+    def __init__(self, spectrometer: Any) -> None:
+        self.spectrometer = spectrometer
+
+    def describe(self) -> InstrumentInfo:
+        return InstrumentInfo(kind="light source", model="lamp on the spectrometer's lamp-enable line")
+
+    def on(self) -> None:
+        self.spectrometer.command("J", 1)
+
+    def off(self) -> None:
+        self.spectrometer.command("J", 0)
+
+
+# --- physics inside the spectrometer emulator process ------------------------------------------------
+
+_PROCESS_CACHE: dict[str, Any] = {}
+
+
+def emulated_geometry(bus_control: str, stage_url: str, steps_per_deg: float,
+                      register_map: str = "oriental_az") -> Any:
+    """Where the emulated arms are, asked over the wire: joint angles from the bus emulator's
+    control channel, the turntable from the stage's ``feedback_position`` register (Modbus TCP),
+    whose address and word order come from the driver's register map ``register_map``
+    (:mod:`drivers.registers`). Runs inside the spectrometer emulator process."""
+    rmap = _PROCESS_CACHE.get(f"rmap:{register_map}")
+    if rmap is None:
+        rmap = _PROCESS_CACHE[f"rmap:{register_map}"] = load_register_map(register_map)
+    bus = _PROCESS_CACHE.get("bus")
+    if bus is None:
+        bus = _PROCESS_CACHE["bus"] = BusControl(bus_control)
+    client = _PROCESS_CACHE.get("stage")
+    if client is None:
+        host, port = stage_url.removeprefix("tcp://").rsplit(":", 1)
+        client = _PROCESS_CACHE["stage"] = ModbusTcpClient(host, port=int(port), timeout=1.0)
+        client.connect()
+    j = bus.joints()
+    rr = client.read_holding_registers(rmap.addr("feedback_position"), count=2, device_id=1)
+    steps = rmap.from_words(list(rr.registers))
+    turntable = steps / steps_per_deg
+    clamp = lambda v: min(180.0, max(0.0, v))  # noqa: E731 - read-back noise at the poles
+    return joints_to_geometry(Joints(turntable, clamp(j["source"]), j["detector_azimuth"],
+                                     clamp(j["detector_elevation"])))
+
+
+def _aperture_directions(view: np.ndarray, half_angle_deg: float) -> np.ndarray:
+    """Seven directions averaging a cone of the given half-angle: its axis and a ring at the
+    radius that splits the cap's area in half (a 2-point radial rule, 6 azimuths)."""
+    a = math.radians(half_angle_deg)
+    if a == 0:
+        return view[None, :]
+    t = view
+    u = np.cross(t, [0.0, 0.0, 1.0] if abs(t[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(t, u)
+    r = math.acos(1 - (1 - math.cos(a)) / 2)  # half of the cap's solid angle inside
+    dirs = [t]
+    for k in range(6):
+        phi = 2 * math.pi * k / 6
+        dirs.append(math.cos(r) * t + math.sin(r) * (math.cos(phi) * u + math.sin(phi) * v))
+    return np.array(dirs)
+
+
+def emulated_response(geometry: Any, wavelengths_nm: np.ndarray, specimen: str, white_rf: float,
+                      mount_file: str, aperture_deg: float) -> np.ndarray:
+    """Reflected fraction the emulated detector sees: ``GAIN * mean_aperture(f) * cos(theta_r)``
+    for the mounted specimen (the virtual specimen, or a Lambertian white standard)."""
+    if geometry is None:
+        return np.zeros(np.shape(wavelengths_nm))
+    try:
+        mounted = json.loads(Path(mount_file).read_text()).get("mounted", "specimen")
+    except (OSError, ValueError):
+        mounted = "specimen"
+    key = f"specimen:{mounted}"
+    spec = _PROCESS_CACHE.get(key)
+    if spec is None:
+        spec = _PROCESS_CACHE[key] = Lambertian(white_rf) if mounted == "white" else parse_specimen(specimen)
+    g = geometry
+    wi, wo = g.incident, g.view
+    dirs = _aperture_directions(wo, aperture_deg)
+    wl = np.asarray(wavelengths_nm, dtype=float)
+    rng = spec.wavelength_range()
+    cos_r = max(math.cos(math.radians(g.theta_r)), 0.0)
+    if rng is None:  # not spectral: one evaluation serves every pixel
+        return np.full(wl.shape, RESPONSE_GAIN * float(np.mean(spec.bsdf(wi, dirs, float(wl[0])))) * cos_r)
+    grid = np.linspace(max(wl.min(), rng[0]), min(wl.max(), rng[1]), 41)
+    f = np.array([float(np.mean(spec.bsdf(wi, dirs, float(w)))) for w in grid])
+    return RESPONSE_GAIN * np.interp(wl, grid, f) * cos_r
+
+
+def _write_mount(path: Path, mounted: str) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps({"mounted": mounted}))
+    os.replace(tmp, path)
+
+
+# --- builders ----------------------------------------------------------------------------------------
+
+
+def _arm_config(d: Mapping[str, Any], port: str) -> dict[str, Any]:
+    arm = {"port": port, "name": "emulated-arm", "external": ["turntable"], "tolerance_deg": 0.2,
+           "settle_timeout_s": 10.0, "poll_interval_s": 0.002,
+           "axes": {j: {"id": i, "operating_mode": 4, "profile_velocity": 60} for j, i in ARM_IDS.items()}}
+    arm.update({k: v for k, v in d.get("arm", {}).items() if k != "port"})
+    return arm
+
+
+def _motion(arm: Mapping[str, Any], turntable: Mapping[str, Any], time_scale: float) -> MotionProfile:
+    # Profile Velocity unit 0.229 rpm = 1.374 deg/s; the emulator moves at constant speed
+    vel = {j: a.get("profile_velocity", 60) * 0.229 * 6.0 * time_scale for j, a in arm["axes"].items()}
+    vel["turntable"] = float(turntable.get("speed", 30.0)) * time_scale
+    acc = {j: math.inf for j in vel}
+    return MotionProfile(vel, acc, settle_s=0.01, overhead_s=0.002)
+
+
+class Emulators:
+    """The three emulator processes of an emulated bench, and what the drivers need to reach them."""
+
+    def __init__(self, d: Mapping[str, Any], seed: int | None = None) -> None:
+        spec = d.get("specimen", {}).get("spec")
+        if not spec:
+            raise ConfigError("emulated bench: [specimen] spec = \"...\" is required")
+        parse_specimen(spec)  # a bad specimen fails here, before any process starts
+        e = dict(d.get("emulated", {}))
+        self.options = e
+        self.time_scale = float(e.get("time_scale", 20.0))
+        emu_seed = int(e.get("seed", seed if seed is not None else 7))
+        self.white = WhiteStandard.from_dict(d.get("white", {}))
+        if not isinstance(self.white.reflectance_factor, (int, float)):
+            raise ConfigError("emulated bench: [white] reflectance_factor must be a number")
+        self.workdir = Path(tempfile.mkdtemp(prefix="goniobench-emulated-"))
+        self.mount = self.workdir / "mount.json"
+        _write_mount(self.mount, "specimen")
+        self._closers: list[Any] = []
+        try:
+            axes_map = {j: {"id": i, "zero_offset": 2048, "direction": 1, "gear_ratio": 1.0}
+                        for j, i in ARM_IDS.items()}
+            self.bus = start_bus(ids=tuple(ARM_IDS.values()), axes=axes_map, time_scale=self.time_scale,
+                                 seed=emu_seed)
+            self._closers.append(self.bus.close)
+            self.stage = StageEmulator.start("tcp", time_scale=self.time_scale)
+            self._closers.append(self.stage.stop)
+            self.turntable_config = {"gear_ratio": TURNTABLE_GEAR, "steps_per_rev": STEPS_PER_REV, "speed": 30.0,
+                                     "tolerance": 0.05, "settle_s": 0.2, "poll_interval_s": 0.002,
+                                     **d.get("turntable", {})}
+            steps_per_deg = self.turntable_config["steps_per_rev"] * self.turntable_config["gear_ratio"] / 360.0
+            self.spectrometer = SpectrometerEmulator.start(
+                geometry_source=functools.partial(emulated_geometry, f"{self.bus.control[0]}:{self.bus.control[1]}",
+                                                  self.stage.url, steps_per_deg,
+                                                  str(self.turntable_config.get("register_map", "oriental_az"))),
+                response=functools.partial(emulated_response, specimen=spec,
+                                           white_rf=float(self.white.reflectance_factor), mount_file=str(self.mount),
+                                           aperture_deg=float(e.get("aperture_deg", 1.0))),
+                seed=emu_seed, time_scale=max(1.0, self.time_scale))
+            self._closers.append(self.spectrometer.stop)
+        except BaseException:
+            self.close()
+            raise
+        self.arm_config = _arm_config(d, self.bus.port)
+
+    def mount_white(self, white: bool) -> None:
+        """Put the white standard (or the specimen) on the emulated turntable."""
+        _write_mount(self.mount, "white" if white else "specimen")
+
+    def ports(self) -> dict[str, Any]:
+        return {"dynamixel_bus": self.bus.port, "dynamixel_control": f"{self.bus.control[0]}:{self.bus.control[1]}",
+                "modbus_stage": self.stage.url, "spectrometer": self.spectrometer.port,
+                "mount_file": str(self.mount)}
+
+    def real_bench_config(self) -> dict[str, Any]:
+        """A ``kind = "real"`` bench config whose ports are these emulators."""
+        arm = {k: v for k, v in self.arm_config.items()}
+        return {"name": "emulators", "kind": "real", "arm": arm,
+                "turntable": {"port": self.stage.url, **self.turntable_config},
+                "spectrometer": {"port": self.spectrometer.port},
+                "bands": {"centres": self.options.get("bands", "450:650:100"),
+                          "bandwidth_nm": self.options.get("bandwidth_nm", 10.0)},
+                "white": self.white.as_dict()}
+
+    def close(self) -> None:
+        for c in reversed(self._closers):
+            try:
+                c()
+            except Exception as exc:  # keep stopping the others
+                log.warning("stopping an emulator: %s", exc)
+        self._closers.clear()
+
+
+def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
+    """Start the emulators and connect the real drivers to them (see the module docstring)."""
+    emu = Emulators(d, seed)
+    closers: list[Any] = [emu.close]
+    try:
+        turntable = ModbusStageAxis(emu.stage.url, config=emu.turntable_config, name="turntable")
+        closers.append(turntable.close)
+        arm = DynamixelArm(emu.arm_config, external_axes={"turntable": turntable})
+        closers.append(arm.close)
+        ocean = OceanSpectrometer(emu.spectrometer.port, config=d.get("spectrometer", {}), name="spectrometer")
+        closers.append(ocean.close)
+        lamp = LampLine(ocean)
+        lamp.on()
+        bands = SpectralBands(ocean, parse_wavelengths(emu.options.get("bands", "450:650:100")),
+                              float(emu.options.get("bandwidth_nm", 10.0)))
+    except BaseException:
+        for c in reversed(closers):
+            c()
+        raise
+    white = emu.white
+
+    def measure_white(integration_s: float, averages: int) -> Reading:
+        emu.mount_white(True)
+        try:
+            arm.move_to(white.geometry)
+            return bands.acquire(integration_s, averages)
+        finally:
+            emu.mount_white(False)
+
+    kin = arm.config.kinematics
+    return Bench(name=str(d.get("name", "emulated")), kind="emulated", goniometer=arm, spectrometer=bands,
+                 white=white, measure_white=measure_white, light=lamp,
+                 motion=_motion(emu.arm_config, emu.turntable_config, emu.time_scale),
+                 joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers,
+                 parts={"emulators": emu, "arm": arm, "turntable": turntable, "spectrometer": ocean})

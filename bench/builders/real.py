@@ -1,0 +1,76 @@
+"""The real bench (``kind = "real"``): the drivers of :mod:`drivers` on the ports a config names.
+
+Config::
+
+    [arm]            # drivers.dynamixel ArmConfig keys, with port = "/dev/ttyUSB0"
+    [turntable]      # optional: drivers.modbus AxisConfig keys, port = "/dev/ttyUSB1" or "tcp://host:port"
+    [spectrometer]   # drivers.ocean OceanConfig keys, with port
+    [bands]          # optional: centres = "450:650:100", bandwidth_nm = 10
+    [white]          # the standard the operator mounts when a run asks for it
+
+``bench emulate`` prints such a config for a bench's emulators.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any, Mapping
+
+from bench.bands import SpectralBands
+from bench.config import Bench
+from bench.core.calibration import WhiteStandard
+from bench.core.errors import CalibrationError, ConfigError
+from bench.core.parsing import parse_wavelengths
+from bench.core.roles import Reading
+from drivers.dynamixel import DynamixelArm
+from drivers.kinematics import geometry_to_joints
+from drivers.modbus import ModbusStageAxis
+from drivers.ocean import OceanSpectrometer
+
+__all__ = ["build_real_bench"]
+
+
+def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
+    """Real hardware: ``[arm]`` (with ``port``), optional ``[turntable]`` (``port`` or
+    ``tcp://host:port``; the arm then lists ``external = ["turntable"]``), ``[spectrometer]``
+    (``port``), ``[bands]`` (``centres``, ``bandwidth_nm``). The white standard is mounted by the
+    operator when the run asks for it (interactive runs only)."""
+    for table in ("arm", "spectrometer"):
+        if "port" not in d.get(table, {}):
+            raise ConfigError(f"real bench: [{table}] port = \"...\" is required")
+    closers: list[Any] = []
+    try:
+        external = {}
+        if "turntable" in d:
+            t = dict(d["turntable"])
+            external["turntable"] = ModbusStageAxis(str(t.pop("port")), config=t, name="turntable")
+            closers.append(external["turntable"].close)
+        arm = DynamixelArm(dict(d["arm"]), external_axes=external)
+        closers.append(arm.close)
+        ocean = OceanSpectrometer.from_config(d["spectrometer"])
+        closers.append(ocean.close)
+        b = d.get("bands")
+        spectrometer = SpectralBands(ocean, parse_wavelengths(b["centres"]), float(b.get("bandwidth_nm", 10))) \
+            if b else ocean
+    except BaseException:
+        for c in reversed(closers):
+            c()
+        raise
+    white = WhiteStandard.from_dict(d.get("white", {}))
+
+    def measure_white(integration_s: float, averages: int) -> Reading:
+        if not sys.stdin.isatty():
+            raise CalibrationError("mount the white standard: this run needs an operator at the bench "
+                                   "(run interactively, or use white = \"none\" in the plan)")
+        arm.move_to(white.geometry)
+        input(f"Mount the white standard ({white.name}) and press Enter... ")
+        try:
+            return spectrometer.acquire(integration_s, averages)
+        finally:
+            input("Mount the specimen again and press Enter... ")
+
+    kin = arm.config.kinematics
+    return Bench(name=str(d.get("name", "real")), kind="real", goniometer=arm, spectrometer=spectrometer,
+                 white=white, measure_white=measure_white, light=None,
+                 joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers)
+

@@ -1,0 +1,179 @@
+"""Scans on a bench and the runs they leave: ``bench plan``, ``scan``, ``resume``, ``runs``,
+``show`` and ``export``.
+
+Plans and bench configs load through :mod:`bench.plans` and :mod:`bench.config`; runs are read
+from the store (:mod:`bench.store`); exports are written through :mod:`bench.io`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bench.cli.common import DEFAULT_STORE, emit_json, hms, number, open_store, report_run
+from bench.core.errors import InputError
+
+__all__ = ["register", "cmd_plan", "cmd_scan", "cmd_resume", "cmd_runs", "cmd_show", "cmd_export"]
+
+
+def _plan_and_bench(args: argparse.Namespace):
+    from bench.config import load_bench
+    from bench.plans import load_plan
+
+    plan = load_plan(args.plan)
+    bench = load_bench(args.bench, seed=getattr(args, "seed", None))
+    return plan, bench
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from bench.plans import MotionProfile, estimate, order_for_travel, validate
+
+    plan, bench = _plan_and_bench(args)
+    with bench:
+        validate(plan, bench.goniometer.check)
+        profile = bench.motion or MotionProfile.instantaneous()
+        kw = {"joints": bench.joints} if bench.joints is not None else {}
+        order = order_for_travel(plan.points) if plan.order == "travel" else None
+        est = estimate(plan, profile, order, **kw)
+        given = estimate(plan, profile, None, **kw)
+    out = {"plan": plan.name, "kind": plan.kind, "bench": bench.name, "bench_kind": bench.kind, **est,
+           "seconds_in_given_order": given["seconds"], "integration_s": plan.integration_s,
+           "averages": plan.averages}
+    if args.json:
+        emit_json(out)
+        return 0
+    print(f"plan {plan.name} ({plan.kind}) on bench {bench.name} ({bench.kind}): all {est['points']} points "
+          f"reachable, {est['incidences']} incidences")
+    print(f"  estimated duration {hms(est['seconds'])}: motion {hms(est['motion_s'])}, acquisition "
+          f"{hms(est['acquisition_s'])}, references {hms(est['references_s'])}"
+          f"  (in the order given: {hms(given['seconds'])})")
+    print(f"  expected relative uncertainty per point {est['relative_uncertainty']:.2%} "
+          f"({plan.averages} averages x {plan.integration_s:g} s)")
+    return 0
+
+
+def cmd_scan(args: argparse.Namespace) -> int:
+    from bench.runner import run_scan
+
+    plan, bench = _plan_and_bench(args)
+    with bench, open_store(args.store) as store:
+        result = run_scan(bench, plan, store, seed=getattr(bench.goniometer, "seed", args.seed),
+                          progress=not args.quiet and sys.stderr.isatty())
+    return report_run(result, args.json)
+
+
+def cmd_resume(args: argparse.Namespace) -> int:
+    from bench.config import load_bench
+    from bench.runner import resume_scan
+
+    with open_store(args.store, create=False) as store:
+        kind = store.run(args.run)["kind"]
+    if kind == "sweep":
+        from bench.cli.sweep import resume_run
+
+        return resume_run(args.run, args.store, quiet=args.quiet, json=args.json)
+    with open_store(args.store, create=False) as store:
+        info = store.run(args.run)
+        config = args.bench if args.bench else info["bench"]
+        bench = load_bench(config, seed=info.get("seed"))
+        with bench:
+            result = resume_scan(bench, store, args.run, progress=not args.quiet and sys.stderr.isatty())
+    return report_run(result, args.json)
+
+
+def cmd_runs(args: argparse.Namespace) -> int:
+    with open_store(args.store, create=False) as store:
+        runs = store.runs()
+    if args.json:
+        emit_json(runs)
+        return 0
+    print(f"{'run':<24} {'kind':<6} {'status':<12} {'points':>11}  created (UTC)")
+    for r in runs:
+        pts = f"{r['points_done']}/{r['n_planned'] if r['n_planned'] is not None else '?'}"
+        print(f"{r['run_id']:<24} {r['kind']:<6} {r['status']:<12} {pts:>11}  {r['created_utc']}"
+              + (f"  ({r['reason']})" if r["reason"] else ""))
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    with open_store(args.store, create=False) as store:
+        s = store.summary(args.run)
+    if args.json:
+        emit_json(s)
+        return 0
+    print(f"run {s['run_id']} ({s['kind']}): {s['status']}" + (f" - {s['reason']}" if s["reason"] else ""))
+    print(f"  points {s['points_done']}/{s['points_planned']}, readings {s['readings']}, "
+          f"wavelengths {s['wavelengths']['n']} ({s['wavelengths']['min']}..{s['wavelengths']['max']} nm)")
+    for k, (lo, hi) in s["geometry"].items():
+        print(f"  {k:8s} {lo} .. {hi} deg")
+    v = s["value"]
+    print(f"  value {v['min']} .. {v['max']} ({v['n']} values, {v['n_missing']} masked), saturated {s['saturated']}")
+    t = s["timing"]
+    print(f"  created {t['created_utc']}, finished {t['finished_utc']}, elapsed {t['elapsed_s']} s, "
+          f"mean per point {t['mean_point_s']} s")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from bench.io import default_suffix, export_record, record_to_zemax_files
+
+    if args.wavelength is not None and args.format != "zemax":
+        raise InputError(f"--wavelength selects the wavelength of a Zemax file; --format {args.format} "
+                         f"holds every wavelength")
+    with open_store(args.store, create=False) as store:
+        record = store.to_record(args.run)
+    out = Path(args.out or f"{args.run}{default_suffix(args.format)}")
+    if args.format == "zemax":  # one wavelength per file: --wavelength, or one file per wavelength
+        paths = record_to_zemax_files(record, out, wavelength_nm=args.wavelength)
+    else:
+        paths = [export_record(record, out, args.format)]
+    for path in paths:
+        print(path)
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``plan``, ``scan``, ``resume``, ``runs``, ``show`` and ``export`` to the subcommands."""
+    pl = sub.add_parser("plan", help="check a plan on a bench and estimate its duration")
+    pl.add_argument("plan", metavar="PLAN.toml")
+    pl.add_argument("--bench", required=True, metavar="BENCH.toml")
+    pl.add_argument("--json", action="store_true")
+    pl.set_defaults(func=cmd_plan)
+
+    sc = sub.add_parser("scan", help="run a plan on a bench; prints the run id")
+    sc.add_argument("plan", metavar="PLAN.toml")
+    sc.add_argument("--bench", required=True, metavar="BENCH.toml")
+    sc.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    sc.add_argument("--seed", type=int, help="root seed of virtual devices")
+    sc.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    sc.add_argument("--json", action="store_true")
+    sc.set_defaults(func=cmd_scan)
+
+    rs = sub.add_parser("resume", help="finish an interrupted run")
+    rs.add_argument("run", metavar="RUN")
+    rs.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    rs.add_argument("--bench", metavar="BENCH.toml", help="bench config (default: the one stored with the run)")
+    rs.add_argument("--quiet", "-q", action="store_true")
+    rs.add_argument("--json", action="store_true")
+    rs.set_defaults(func=cmd_resume)
+
+    ru = sub.add_parser("runs", help="list the runs in a store")
+    ru.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    ru.add_argument("--json", action="store_true")
+    ru.set_defaults(func=cmd_runs)
+
+    sh = sub.add_parser("show", help="summarize one run")
+    sh.add_argument("run", metavar="RUN")
+    sh.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    sh.add_argument("--json", action="store_true")
+    sh.set_defaults(func=cmd_show)
+
+    ex = sub.add_parser("export", help="export a run: csv, parquet, astm, zemax")
+    ex.add_argument("run", metavar="RUN")
+    ex.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    ex.add_argument("--format", choices=("csv", "parquet", "astm", "zemax"), default="csv")
+    ex.add_argument("--out", metavar="FILE")
+    ex.add_argument("--wavelength", type=number, metavar="NM",
+                    help="zemax: the wavelength to write (default: one file per wavelength, FILE-<w>nm.bsdf)")
+    ex.set_defaults(func=cmd_export)

@@ -1,0 +1,112 @@
+"""``bench tradeoff``: the accuracy-versus-time table and plot of a scene.
+
+Registered through :data:`bench.cli.COMMAND_MODULES`; imports nothing heavy at module level.
+
+``bench tradeoff SCENE.toml [--json] [--plot FILE.png]`` prints the accuracy-versus-time table
+of a scene (:func:`virtual.tradeoff.sweep`) -- or, for a ``physical`` scene, scan duration
+against angular step and averaging -- plus the measured cost of each declared effect, and
+draws the error-versus-time Pareto plot.
+(:mod:`bench.tradeoff_physical`). The adaptive budget of ``spectro``/``gonio`` is
+:mod:`bench.adaptive`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from bench.cli.common import emit_json
+from bench.core.errors import InputError
+
+__all__ = ["register", "cmd_tradeoff"]
+
+
+def register(subparsers: Any) -> None:
+    """Add ``tradeoff`` to the ``bench`` subcommands."""
+    t = subparsers.add_parser("tradeoff", help="accuracy versus time of a scene: table and Pareto plot")
+    t.add_argument("scene", metavar="SCENE.toml")
+    t.add_argument("--json", action="store_true", help="one JSON object: rows (one per configuration), effects")
+    t.add_argument("--plot", metavar="FILE.png", help="error-vs-time (log-log) Pareto plot")
+    t.add_argument("--rays", help="comma-separated ray counts (default: the scene's [tradeoff].rays)")
+    t.add_argument("--repeats", type=int, help="seeded runs per configuration (default 1)")
+    t.add_argument("--seed", type=int)
+    t.add_argument("--no-costs", action="store_true", help="skip measuring each declared effect's cost")
+    t.set_defaults(func=cmd_tradeoff)
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        if v == 0 or 1e-3 <= abs(v) < 1e6:
+            return f"{v:.4g}"
+        return f"{v:.3e}"
+    if isinstance(v, int):
+        return f"{v:,}"
+    return str(v)
+
+
+def _table(header: list[str], rows: list[list[Any]]) -> str:
+    cells = [[_fmt(c) for c in r] for r in rows]
+    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(header)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)), "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in cells]
+    return "\n".join(lines)
+
+
+def cmd_tradeoff(args: argparse.Namespace) -> int:
+    from virtual.scene import effect_costs, load_scene
+    from virtual import tradeoff
+
+    scene = load_scene(args.scene)
+    rays = None
+    if args.rays:
+        try:
+            rays = [int(float(x)) for x in args.rays.split(",") if x.strip()]
+        except ValueError:
+            raise InputError(f"--rays {args.rays!r}: expected comma-separated integers") from None
+    if scene.instrument == "physical":
+        from bench.tradeoff_physical import physical_sweep, plot_physical
+
+        rows = physical_sweep(scene)
+        if args.plot:
+            plot_physical(rows, args.plot, title=f"{scene.name}: scan duration")
+        if args.json:
+            emit_json({"scene": scene.name, "instrument": "physical", "rows": rows})
+            return 0
+        print(f"scene {scene.name} (physical bench): scan duration against angular step and averaging")
+        print(_table(["step_deg", "averages", "points", "seconds", "motion_s", "acquisition_s", "rel. uncertainty"],
+                     [[r["step_deg"], r["averages"], r["points"], r["seconds"], r["motion_s"], r["acquisition_s"],
+                       r["relative_uncertainty"]] for r in rows]))
+        if args.plot:
+            print(f"plot: {args.plot}")
+        return 0
+    rows = tradeoff.sweep(scene, rays=rays, repeats=args.repeats, seed=args.seed)
+    costs = [] if args.no_costs or not scene.effects.declared() else effect_costs(
+        scene, rays=min(scene.n_rays, 1_000_000), repeat=3)
+    if args.plot:
+        tradeoff.plot_tradeoff(rows, args.plot, title=f"{scene.name}: accuracy versus time")
+    if args.json:
+        emit_json({"scene": scene.name, "instrument": scene.instrument, "effects": scene.effects.declared(),
+                   "positions_sampled": scene.needs_positions, "rows": rows, "effect_costs": costs})
+        return 0
+    print(f"scene {scene.name}: {scene.instrument}, specimen {scene.specimen.label}, beam {scene.beam.kind}, "
+          f"incidence {scene.incidence[0]:g} deg, effects: {', '.join(scene.effects.declared()) or 'none'}"
+          f"{' (positions sampled)' if scene.needs_positions else ''}")
+    print(_table(["strategy", "collector", "budget", "method", "N", "seconds", "max_abs_error", "rms_error",
+                  "predicted_bound", "predicted_max", "predicted_rms", "within", "pareto"],
+                 [[r["strategy"], r["collector"], r["budget"], r["method"], r["N"], r["seconds"], r["max_abs_error"],
+                   r["rms_error"], r["predicted_bound"], r["predicted_max"], r["predicted_rms"], r["within_bound"],
+                   "*" if r["pareto"] else ""] for r in rows]))
+    for r in rows:
+        if r["budget"] == "adaptive":
+            print(f"adaptive ({r['collector']}): {r['N']:,} rays against eq. 3.5/3.12's {r['hoeffding_N']:,} "
+                  f"({r['saved_fraction']:.0%} saved)")
+    if costs:
+        print("cost of each declared effect (best of 3, same run):")
+        print(_table(["effects", "seconds", "x bare", "rays/s", "path", "positions"],
+                     [[c["effects"], c["seconds"], c["ratio_to_bare"], c["rays_per_second"], c["method"],
+                       c["positions_sampled"]] for c in costs]))
+    if args.plot:
+        print(f"plot: {args.plot}")
+    return 0

@@ -1,0 +1,42 @@
+"""Record files in and out: the one format registry (:mod:`bench.io.registry`) and its formats.
+
+* :func:`read_record` / :func:`export_record` -- any registered format, by name or inferred from
+  the file (first line, then suffix); :func:`export_run` -- a stored run.
+* formats: tidy CSV and Parquet (:mod:`bench.io.tidy`), "ASTM" CSV (:mod:`bench.io.astm`), Zemax
+  tabular BSDF (:mod:`bench.io.zemax`, angles of :mod:`bench.io.specular`), the spectrum CSV of
+  ``bench spectro --csv``.
+* :func:`atomic_write` and the one CSV writer :func:`write_csv` (:mod:`bench.io.files`).
+
+The CLI (``bench export``, ``bench compare``) and the Python API read and write through here;
+:mod:`compare` takes records and never reads files itself.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from bench.io.astm import read_astm, record_to_astm
+from bench.io.files import atomic_write, write_csv
+from bench.io.registry import (FORMATS, FileFormat, default_suffix, export_record, formats, infer_format,
+                               read_record, register_format)
+from bench.io.specular import from_specular, specular_frame, to_specular
+from bench.io.tidy import (CSV_MAGIC, PARQUET_META_KEY, read_parquet, read_spectrum_csv, read_tidy_csv,
+                           record_to_csv, record_to_parquet, spectrum_table, spectrum_to_csv)
+from bench.io.zemax import ZemaxGrid, read_zemax, record_to_zemax, record_to_zemax_files, zemax_grid
+from bench.store import RunStore
+
+__all__ = ["read_record", "export_record", "export_run", "FORMATS", "FileFormat", "register_format", "formats",
+           "infer_format", "default_suffix", "atomic_write", "write_csv", "CSV_MAGIC", "PARQUET_META_KEY",
+           "record_to_csv", "record_to_parquet", "record_to_astm", "record_to_zemax", "read_tidy_csv",
+           "read_parquet", "read_astm", "read_zemax", "read_spectrum_csv", "spectrum_table", "spectrum_to_csv",
+           "ZemaxGrid", "zemax_grid", "record_to_zemax_files", "specular_frame", "to_specular", "from_specular"]
+
+
+def export_run(store: RunStore | str | Path, run_id: str, path: str | Path, fmt: str | None = None,
+               **options: Any) -> Path:
+    """Export a stored run (``store`` is a :class:`bench.store.RunStore` or a path to one)."""
+    if isinstance(store, RunStore):
+        return export_record(store.to_record(run_id), path, fmt, **options)
+    with RunStore(store, create=False) as s:
+        return export_record(s.to_record(run_id), path, fmt, **options)

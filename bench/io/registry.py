@@ -1,0 +1,153 @@
+"""The one registry of record file formats: name -> (reader, writer, suffixes, magic).
+
+Everything that reads or writes a record file -- ``bench export``, ``bench compare``, the Python
+API -- goes through :func:`read_record` / :func:`export_record`, which look the format up here:
+by the name given, else by the file's first line (its *magic*, e.g. ``# goniobench-record 1``
+or ``SOURCE ...`` for ASTM), else by its suffix. A lab adds a format with
+:func:`register_format`.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from bench.core.errors import InputError
+from bench.core.records import BSDFRecord
+from bench.core.roles import Spectrum
+from bench.io.astm import read_astm, record_to_astm
+from bench.io.tidy import (CSV_MAGIC, SPECTRUM_COLUMNS, read_parquet, read_spectrum_csv, read_tidy_csv,
+                           record_to_csv, record_to_parquet)
+from bench.io.zemax import read_zemax, record_to_zemax
+
+__all__ = ["FileFormat", "FORMATS", "register_format", "formats", "infer_format", "read_record",
+           "export_record", "default_suffix"]
+
+
+@dataclass(frozen=True)
+class FileFormat:
+    """One record file format.
+
+    Attributes
+    ----------
+    name : what ``--format`` / ``fmt=`` call it
+    suffixes : file-name endings that select it (longest match wins), first = default suffix
+    reader : ``reader(path, **options) -> BSDFRecord | Spectrum`` (None: write-only)
+    writer : ``writer(record, path, **options) -> Path`` (None: read-only)
+    magic : ``magic(first_line) -> bool``, recognising the format from the file's first line
+    """
+
+    name: str
+    suffixes: tuple[str, ...]
+    reader: Callable[..., BSDFRecord | Spectrum] | None
+    writer: Callable[..., Path] | None
+    magic: Callable[[str], bool] | None = None
+
+
+_REGISTRY: dict[str, FileFormat] = {}
+
+
+def register_format(fmt: FileFormat) -> None:
+    """Add (or replace) a format; its name and suffixes become known to every reader and writer."""
+    _REGISTRY[fmt.name] = fmt
+
+
+def formats(*, readable: bool | None = None, writable: bool | None = None) -> tuple[str, ...]:
+    """Names of the registered formats (optionally only those with a reader / a writer)."""
+    return tuple(n for n, f in _REGISTRY.items()
+                 if (readable is None or (f.reader is not None) == readable)
+                 and (writable is None or (f.writer is not None) == writable))
+
+
+def _spectrum_header(line: str) -> bool:
+    cols = [c.strip() for c in line.split(",")]
+    return cols[:len(SPECTRUM_COLUMNS)] == list(SPECTRUM_COLUMNS)
+
+
+register_format(FileFormat("csv", (".csv",), read_tidy_csv, record_to_csv, lambda l: l.startswith(CSV_MAGIC)))
+register_format(FileFormat("parquet", (".parquet", ".pq"), read_parquet, record_to_parquet,
+                           lambda l: l.startswith("PAR1")))
+register_format(FileFormat("astm", (".astm.csv", ".astm"), read_astm, record_to_astm,
+                           lambda l: re.match(r"^(VARS|[A-Z][A-Z0-9_]*) \S", l) is not None))  # KEYWORD value
+register_format(FileFormat("zemax", (".bsdf",), read_zemax, record_to_zemax,
+                           lambda l: l.startswith(("# goniobench Zemax", "Source ", "Source\t"))))
+register_format(FileFormat("spectrum-csv", (".spectrum.csv",), read_spectrum_csv, None, _spectrum_header))
+
+#: the formats ``bench export`` writes (a record of a run)
+FORMATS = ("csv", "parquet", "astm", "zemax")
+
+
+def default_suffix(fmt: str) -> str:
+    """The suffix a file of ``fmt`` gets when the user names none (``astm`` -> ``.astm.csv``)."""
+    if fmt not in _REGISTRY:
+        raise InputError(f"unknown format {fmt!r}; known: {', '.join(_REGISTRY)}")
+    return _REGISTRY[fmt].suffixes[0]
+
+
+def _by_suffix(path: Path) -> str | None:
+    name = path.name.lower()
+    best: tuple[int, str] | None = None
+    for f in _REGISTRY.values():
+        for suf in f.suffixes:
+            if name.endswith(suf) and (best is None or len(suf) > best[0]):
+                best = (len(suf), f.name)
+    return best[1] if best else None
+
+
+def _first_line(path: Path) -> str | None:
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.readline(4096)
+    except OSError:
+        return None
+    return raw.decode("utf-8", errors="replace").rstrip("\r\n")
+
+
+def infer_format(path: str | Path, *, reading: bool = False) -> str:
+    """The format of ``path``: from its first line when ``reading`` an existing file (a magic
+    line wins over the suffix: a ``.csv`` may hold our tidy record, an ASTM table or a
+    spectrum), else from its suffix.
+
+    Raises
+    ------
+    InputError
+        When neither tells.
+    """
+    p = Path(path)
+    if reading and p.is_file():
+        line = _first_line(p)
+        if line is not None:
+            for f in _REGISTRY.values():
+                if f.reader is not None and f.magic is not None and f.magic(line):
+                    return f.name
+    fmt = _by_suffix(p)
+    if fmt is None:
+        known = ", ".join(s for f in _REGISTRY.values() for s in f.suffixes)
+        raise InputError(f"cannot tell the {'import' if reading else 'export'} format from {p.name!r}; pass fmt= "
+                         f"one of {', '.join(_REGISTRY)} ({known})")
+    return fmt
+
+
+def _lookup(fmt: str, *, reading: bool) -> FileFormat:
+    f = _REGISTRY.get(fmt)
+    if f is None or (f.reader if reading else f.writer) is None:
+        known = formats(readable=True) if reading else formats(writable=True)
+        raise InputError(f"unknown {'import' if reading else 'export'} format {fmt!r}; known: {', '.join(known)}")
+    return f
+
+
+def read_record(path: str | Path, fmt: str | None = None, **options: Any) -> BSDFRecord | Spectrum:
+    """Read a record file in ``fmt`` (default: inferred, see :func:`infer_format`)."""
+    p = Path(path)
+    f = _lookup(infer_format(p, reading=True) if fmt is None else fmt, reading=True)
+    return f.reader(p, **options)  # type: ignore[misc]
+
+
+def export_record(record: BSDFRecord, path: str | Path, fmt: str | None = None, **options: Any) -> Path:
+    """Write a record in ``fmt`` (``csv``, ``parquet``, ``astm``, ``zemax``; default from the
+    file name) with the format's ``options``; return the path."""
+    p = Path(path)
+    f = _lookup(infer_format(p) if fmt is None else fmt, reading=False)
+    return f.writer(record, p, **options)  # type: ignore[misc]

@@ -1,0 +1,184 @@
+"""The project's own tables: tidy CSV (records and spectra) and Parquet, writers and readers.
+
+tidy CSV (:func:`record_to_csv`)
+    One row per record row, every column of the table. Floats are written with Python's
+    shortest round-trip repr, so values read back exactly. Metadata: by default a commented
+    header — first line ``# goniobench-record 1``, then one line ``# meta: <JSON>`` — which
+    ``pandas.read_csv(path, comment="#")`` skips; or (``meta="sidecar"``) a JSON file next to
+    the CSV named ``<file>.json``; or none.
+Parquet (:func:`record_to_parquet`)
+    The table via pyarrow; the metadata as JSON under the key ``goniobench.meta`` of the
+    schema's key-value metadata (next to pandas' own ``pandas`` key).
+spectrum CSV (:func:`spectrum_to_csv`)
+    One row per wavelength (``bench spectro --csv``), 8 significant digits.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from bench.core.errors import InputError
+from bench.core.records import BSDF_COLUMNS, BSDFRecord, json_default
+from bench.core.roles import Spectrum
+from bench.io.files import atomic_write, check_record, meta_json, write_csv, write_text
+from bench.io.reading import bad, complete, read_lines
+
+__all__ = ["CSV_MAGIC", "PARQUET_META_KEY", "spectrum_table", "spectrum_to_csv", "record_to_csv",
+           "record_to_parquet", "read_tidy_csv", "read_parquet", "SPECTRUM_COLUMNS", "read_spectrum_csv"]
+
+PARQUET_META_KEY = b"goniobench.meta"
+CSV_MAGIC = "# goniobench-record 1"
+
+
+def spectrum_table(s: Spectrum) -> Any:
+    """A tidy ``pandas.DataFrame``: one row per wavelength, intervals as lo/hi columns."""
+    import pandas as pd
+
+    return pd.DataFrame({
+        "wavelength_nm": s.wavelengths,
+        "reflectance": s.reflectance,
+        "reflectance_lo": s.reflectance_ci[:, 0],
+        "reflectance_hi": s.reflectance_ci[:, 1],
+        "transmittance": s.transmittance,
+        "transmittance_lo": s.transmittance_ci[:, 0],
+        "transmittance_hi": s.transmittance_ci[:, 1],
+        "N": s.N,
+        "geometry": s.geometry,
+        "seed": s.seed,
+        "confidence": 1.0 - s.delta,
+    })
+
+
+
+#: the leading columns of a spectrum CSV (what :func:`read_spectrum_csv` recognises)
+SPECTRUM_COLUMNS = ("wavelength_nm", "reflectance", "reflectance_lo", "reflectance_hi", "transmittance",
+                    "transmittance_lo", "transmittance_hi", "N")
+
+
+def spectrum_to_csv(s: Spectrum, path: str | Path) -> Path:
+    """Write :func:`spectrum_table` as CSV (parent folders created, atomic); return the path."""
+    return write_csv(spectrum_table(s), path, float_format="%.8g")
+
+
+def record_to_csv(record: BSDFRecord, path: str | Path, *, meta: str = "header") -> Path:
+    """Write a record as tidy CSV (every column; floats as shortest round-trip repr).
+
+    Parameters
+    ----------
+    meta : {"header", "sidecar", "none"}
+        ``header``: ``# goniobench-record 1`` and ``# meta: <JSON>`` lines before the column
+        names; ``sidecar``: ``<path>.json`` beside the file (written atomically too).
+    """
+    table = check_record(record, ("wavelength_nm",))
+    if meta not in ("header", "sidecar", "none"):
+        raise InputError(f"meta must be 'header', 'sidecar' or 'none', got {meta!r}")
+    header = [CSV_MAGIC, f"# meta: {meta_json(record.meta)}"] if meta == "header" else []
+    out = write_csv(table, path, header_lines=header)
+    if meta == "sidecar":
+        write_text(Path(str(out) + ".json"), json.dumps(record.meta, default=json_default, indent=1) + "\n")
+    return out
+
+
+def record_to_parquet(record: BSDFRecord, path: str | Path) -> Path:
+    """Write a record as Parquet; ``meta`` as JSON under :data:`PARQUET_META_KEY` in the
+    schema's key-value metadata. Needs pyarrow (``pip install goniobench[parquet]``)."""
+    table = check_record(record, ("wavelength_nm",))
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError as e:  # pragma: no cover - pyarrow is installed here
+        raise InputError("Parquet export needs pyarrow: pip install 'goniobench[parquet]'") from e
+    t = pa.Table.from_pandas(table, preserve_index=False)
+    md = dict(t.schema.metadata or {})
+    md[PARQUET_META_KEY] = meta_json(record.meta).encode()
+    t = t.replace_schema_metadata(md)
+    return atomic_write(path, lambda tmp: pq.write_table(t, tmp))
+
+
+def read_tidy_csv(path: str | Path) -> BSDFRecord:
+    """Read a tidy CSV written by :func:`bench.io.record_to_csv` (or any CSV with a
+    ``wavelength_nm`` column). Metadata from the ``# meta:`` header line, else from a sidecar
+    ``<file>.json``, else empty."""
+    import pandas as pd
+
+    p, lines = read_lines(path)
+    meta: dict[str, Any] = {}
+    skip = 0
+    while skip < len(lines) and lines[skip].startswith("#"):
+        line = lines[skip]
+        if line.startswith("# meta:"):
+            try:
+                meta = json.loads(line[len("# meta:"):])
+            except json.JSONDecodeError as e:
+                raise bad(p, skip + 1, f"expected JSON after '# meta:' ({e})") from None
+        skip += 1
+    if skip == 0 or not lines or not lines[0].startswith(CSV_MAGIC):
+        side = Path(str(p) + ".json")
+        if side.exists():
+            try:
+                meta = json.loads(side.read_text(encoding="utf-8"))
+            except json.JSONDecodeError as e:
+                raise InputError(f"{side}: not valid JSON ({e})") from None
+    if skip >= len(lines):
+        raise bad(p, skip + 1, "expected a header line of column names, found the end of the file")
+    try:
+        df = pd.read_csv(p, skiprows=skip, keep_default_na=True)
+    except (pd.errors.ParserError, ValueError) as e:
+        raise bad(p, None, f"malformed CSV ({e})") from None
+    if "wavelength_nm" not in df.columns:
+        raise bad(p, skip + 1, f"expected a column wavelength_nm in the header, got {', '.join(map(str, df.columns))}")
+    for c in ("count", "N"):
+        if c in df.columns and df[c].notna().all() and len(df):
+            df[c] = df[c].astype("int64")
+    return BSDFRecord(complete(df) if set(BSDF_COLUMNS) - set(df.columns) else df, meta)
+
+
+def read_parquet(path: str | Path) -> BSDFRecord:
+    """Read a Parquet file written by :func:`bench.io.record_to_parquet`."""
+    try:
+        import pyarrow.parquet as pq
+    except ImportError as e:  # pragma: no cover
+        raise InputError("Parquet import needs pyarrow: pip install 'goniobench[parquet]'") from e
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: no such file")
+    try:
+        t = pq.read_table(p)
+    except Exception as e:  # pyarrow raises several types for a bad file
+        raise InputError(f"{p}: not a readable Parquet file ({e})") from None
+    raw = (t.schema.metadata or {}).get(PARQUET_META_KEY)
+    meta = json.loads(raw.decode()) if raw else {}
+    return BSDFRecord(t.to_pandas(), meta)
+
+
+
+def read_spectrum_csv(path: str | Path) -> Spectrum:
+    """Read a spectrum CSV written by :func:`spectrum_to_csv` (``bench spectro --csv``) back into
+    a :class:`~bench.core.roles.Spectrum` (geometry, seed and confidence from its columns)."""
+    import numpy as np
+    import pandas as pd
+
+    p, lines = read_lines(path)
+    try:
+        df = pd.read_csv(p)
+    except (pd.errors.ParserError, ValueError) as e:
+        raise bad(p, None, f"malformed CSV ({e})") from None
+    missing = [c for c in SPECTRUM_COLUMNS if c not in df.columns]
+    if missing or df.empty:
+        raise bad(p, 1, f"expected a spectrum table with columns {', '.join(SPECTRUM_COLUMNS)}"
+                        + (f"; missing {', '.join(missing)}" if missing else "; it has no rows"))
+
+    def first(col: str, default: Any) -> Any:
+        return df[col].iloc[0] if col in df.columns and df[col].notna().any() else default
+
+    seed = first("seed", None)
+    conf = float(first("confidence", float("nan")))
+    return Spectrum(geometry=str(first("geometry", "")), wavelengths=df.wavelength_nm.to_numpy(float),
+                    reflectance=df.reflectance.to_numpy(float), transmittance=df.transmittance.to_numpy(float),
+                    reflectance_ci=df[["reflectance_lo", "reflectance_hi"]].to_numpy(float),
+                    transmittance_ci=df[["transmittance_lo", "transmittance_hi"]].to_numpy(float),
+                    N=df.N.to_numpy(np.int64), seed=None if seed is None else int(seed),
+                    delta=1.0 - conf if np.isfinite(conf) else float("nan"),
+                    meta={"format": "spectrum-csv", "source_file": str(p)})
