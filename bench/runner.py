@@ -27,7 +27,7 @@ from bench.plans import Plan, order_for_travel, plan_from_dict, validate
 
 log = logging.getLogger(__name__)
 
-__all__ = ["run_scan", "resume_scan", "ScanResult", "point_rows"]
+__all__ = ["run_scan", "resume_scan", "ScanResult", "point_rows", "acquire_dark", "measure_calibration"]
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ def point_rows(reading: Reading, cal: Calibration | None, geometry: Geometry, da
     return rows
 
 
-def _acquire_dark(bench: Bench, plan: Plan) -> Reading | None:
+def acquire_dark(bench: Bench, plan: Plan) -> Reading | None:
     if bench.light is None:
         return None
     bench.light.off()
@@ -76,10 +76,10 @@ def _acquire_dark(bench: Bench, plan: Plan) -> Reading | None:
         bench.light.on()
 
 
-def _measure_calibration(bench: Bench, plan: Plan) -> Calibration | None:
+def measure_calibration(bench: Bench, plan: Plan) -> Calibration | None:
     if plan.white == "none":
         return None
-    dark = _acquire_dark(bench, plan) if plan.dark != "none" else None
+    dark = acquire_dark(bench, plan) if plan.dark != "none" else None
     white = bench.measure_white(plan.integration_s, plan.averages)
     return Calibration(bench.white, white, dark)
 
@@ -100,7 +100,7 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     """
     validate(plan, bench.goniometer.check)  # refuse the whole plan before any motion
     order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))
-    cal = _measure_calibration(bench, plan)
+    cal = measure_calibration(bench, plan)
     meta = {"order": order, "bench_description": bench.describe(), "bench_kind": bench.kind,
             "source": "virtual" if bench.kind == "virtual" else "measured",
             "specimen": (bench.config.get("specimen") or {}).get("spec"), "plan_name": plan.name}
@@ -131,7 +131,7 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
     white_net = cal.reference_rate()[0] if cal is not None else None
     dark: Reading | None = None
     if plan.dark == "once":
-        dark = _acquire_dark(bench, plan)
+        dark = acquire_dark(bench, plan)
     last_incidence: tuple[float, float] | None = None
     bar = _progress(len(order), len(done), progress, f"run {run_id}")
     k = len(done)
@@ -144,7 +144,7 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
             reached = bench.goniometer.move_to(g)
             incidence = (g.theta_i, g.phi_i)
             if plan.dark == "per-point" or (plan.dark == "per-incidence" and incidence != last_incidence):
-                dark = _acquire_dark(bench, plan)
+                dark = acquire_dark(bench, plan)
             last_incidence = incidence
             reading = bench.spectrometer.acquire(plan.integration_s, plan.averages)
             rows = point_rows(reading, cal, reached, dark, white_net)

@@ -41,7 +41,7 @@ from bench.core.errors import ConfigError
 from bench.core.records import json_default
 from bench.core.roles import Reading
 from bench.plans import DARK_MODES, WHITE_MODES, Plan
-from bench.runner import _acquire_dark, _measure_calibration
+from bench.runner import acquire_dark, measure_calibration
 
 __all__ = ["SpectrometerDevice", "ReflectanceDevice", "LightDevice", "WAVELENGTH_DIM"]
 
@@ -165,8 +165,8 @@ class ReflectanceDevice(_SpectralReadable):
         """Measure the white reference (and its dark), then the run's dark when ``once``."""
         plan = await self._settings()
         try:
-            self._cal = await self._worker.run(_measure_calibration, self._bench, plan)
-            self._dark = await self._worker.run(_acquire_dark, self._bench, plan) if plan.dark == "once" else None
+            self._cal = await self._worker.run(measure_calibration, self._bench, plan)
+            self._dark = await self._worker.run(acquire_dark, self._bench, plan) if plan.dark == "once" else None
         finally:
             await self._mover.refresh()  # measuring the white may have moved the arm
         self._last_incidence = None
@@ -185,7 +185,7 @@ class ReflectanceDevice(_SpectralReadable):
         target = self._mover.geometry_of(self._mover.target)
         incidence = (target.theta_i, target.phi_i)
         if plan.dark == "per-point" or (plan.dark == "per-incidence" and incidence != self._last_incidence):
-            self._dark = await self._worker.run(_acquire_dark, self._bench, plan)
+            self._dark = await self._worker.run(acquire_dark, self._bench, plan)
         self._last_incidence = incidence
         reading: Reading = await self._worker.run(self._bench.spectrometer.acquire, plan.integration_s,
                                                   plan.averages)
