@@ -13,7 +13,7 @@ import zlib
 
 import numpy as np
 import pytest
-from numba import njit
+from virtual.kernels import jit
 from scipy.stats import chi2 as chi2_dist
 
 from bench.core.errors import SpecimenError
@@ -51,7 +51,7 @@ SPECS = {
 }
 
 
-@njit(cache=True)
+@jit
 def _histogram(model, p, wx, wy, wz, n, s, sc, nt, nph, s2e, pcs):
     """Counts per collector bin, then absorbed rays in the last cell; also the worst |o| - 1."""
     h = np.zeros(2 * nt * nph + 1, dtype=np.int64)
