@@ -2,8 +2,8 @@
 
 Two layers, one formula each:
 
-* scalar warps (``@njit``) that turn uniforms in [0, 1) into points; the ray kernels call them
-  inline, and
+* scalar warps (kernels of :mod:`virtual.kernels.sampling`, re-exported here) that turn uniforms
+  in [0, 1) into points; the ray kernels call them inline, and
 * array samplers for analysis, plotting and tests, which draw the uniforms by a *strategy*
   (independent random, jittered/stratified, scrambled Sobol) and apply the same warps.
 
