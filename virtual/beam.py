@@ -1,4 +1,4 @@
-"""Incidence: collimated or conical beams, and the one njit function that emits a ray.
+"""Incidence: collimated or conical beams (the kernel that emits a ray is :mod:`virtual.kernels.beam`).
 
 Collimated (directional-hemispherical): every ray arrives from the same direction; positions on
 the specimen are irrelevant to a far-field count, so none are sampled.

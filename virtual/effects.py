@@ -166,8 +166,9 @@ def spectro_point_counts(model: int, params: np.ndarray, beam_args: np.ndarray, 
     whose rays join given emitter points ``points[:, :2]`` (on the emitter disk, before the
     rotation to the incidence) to specimen points ``points[:, 2:]``: the jittered and Sobol
     strategies of the accuracy-versus-time study. Memory O(N) (the points); scattering draws
-    from per-chunk xoshiro streams as in the bare kernel. The direction is the formula of
-    :func:`virtual.beam.emit` applied to the given points (emit draws its own).
+    from per-chunk xoshiro streams as in the bare kernel. The direction is
+    :func:`virtual.kernels.beam.toward_source`, the formula :func:`~virtual.kernels.beam.emit` uses
+    (emit draws its own points).
     """
     pts = np.ascontiguousarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 4:
