@@ -110,8 +110,9 @@ class OrenNayar(DeclaredSpecimen):
 class Phong(DeclaredSpecimen):
     """Energy-normalized modified Phong (Lafortune & Willems 1994), opaque, two-sided.
 
-    f = kd/pi + ks (n+2)/(2 pi) max(0, r . wo)^n with r the mirror direction of wi. Its albedo
-    is <= kd + ks (equality at normal incidence when the lobe fits above the horizon).
+    f = kd/pi + ks (n+2)/(2 pi) cos^n(alpha) where cos(alpha) = r . wo > 0 (r the mirror direction
+    of wi), and kd/pi alone where r . wo <= 0 -- also for n = 0, where the lobe is the hemisphere
+    around r, not everything (0^0 is not read as 1 behind the lobe). Its albedo is <= kd + ks (equality at normal incidence when the lobe fits above the horizon).
 
     Sampling is exact: with probability kd a cosine-weighted direction; with probability
     ks (n+2)/(n+1) a direction from the lobe (n+1)/(2 pi) cos^n(alpha) around r, kept with
@@ -144,8 +145,11 @@ class Phong(DeclaredSpecimen):
     def bsdf(self, wi: np.ndarray, wo: np.ndarray, wavelength_nm: float) -> np.ndarray:
         kd, ks, n, _ = self.params(wavelength_nm)
         wi, wo, _ = local(wi, wo)
-        ca = np.maximum(-wi[0] * wo[:, 0] - wi[1] * wo[:, 1] + wi[2] * wo[:, 2], 0.0)
-        f = kd / math.pi + ks * (n + 2.0) / (2.0 * math.pi) * ca ** n
+        ca = -wi[0] * wo[:, 0] - wi[1] * wo[:, 1] + wi[2] * wo[:, 2]
+        # the lobe lives where cos(alpha) > 0, the only place the sampler sends rays: at n = 0,
+        # max(0, ca)**0 would read 0**0 = 1 behind it
+        lobe = np.where(ca > 0.0, np.maximum(ca, 0.0) ** n, 0.0)
+        f = kd / math.pi + ks * (n + 2.0) / (2.0 * math.pi) * lobe
         return np.where((wo[:, 2] > 0.0) & (wi[2] > 0.0), f, 0.0)
 
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
