@@ -1,4 +1,5 @@
-"""Incidence: collimated or conical beams (the kernel that emits a ray is :mod:`virtual.kernels.beam`).
+"""Incidence: collimated or conical beams (the kernel that emits a ray is :mod:`virtual.kernels.beam`;
+``emit``, ``emit_given`` and the ``BEAM_*``/``DISK_*`` codes are re-exported here for older callers).
 
 Collimated (directional-hemispherical): every ray arrives from the same direction; positions on
 the specimen are irrelevant to a far-field count, so none are sampled.

@@ -40,6 +40,8 @@ Lookup rules (exact, never NaN, never out of range):
   (``(inf, 1, 1)`` is the direction (1, 0, 0)).
 
 Kernels use :func:`patch_of` inline; :meth:`Collector.kernel_args` gives its trailing arguments.
+The lookup kernels live in :mod:`virtual.kernels.collector` (``patch_of``, ``guess_bin``,
+``ATAN_MAX_ERROR`` and the ``SCHEME_*`` codes are re-exported here for older callers).
 Note: a caller compiled with ``fastmath=True`` lets LLVM assume there are no NaNs, which may drop
 the NaN rule above (the other rules do not depend on it).
 """

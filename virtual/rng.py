@@ -6,6 +6,10 @@ stream independence, the kernel only advances four 64-bit words. numba's own ``n
 is MT19937 behind a call per number (about 9x slower here, see benchmarks/) and cannot be
 split per chunk, and numpy's bit generators cannot be inlined into a kernel. A result thus
 depends on the seed and the chunking, never on the thread count.
+
+This module owns the seeding (:func:`stream_states`, :func:`lane_states`); the kernels that
+advance the states are :mod:`virtual.kernels.rng` (``next_double``, ``next_uint64``,
+``fill_uniforms``, ``LANES`` are re-exported here for older callers; new code imports them there).
 """
 
 from __future__ import annotations
