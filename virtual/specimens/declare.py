@@ -120,7 +120,7 @@ class Param:
         v = float(v)
         if not (math.isfinite(v) and self.lo <= v <= self.hi):
             u = f" {self.unit}" if self.unit else ""
-            raise SpecimenError(f"{self.name} must lie in [{self.lo:g}, {self.hi:g}]{u}, got {v:g}")
+            raise SpecimenError(f"{self.name} must lie in [{self.lo:.10g}, {self.hi:.10g}]{u}, got {v:g}")
         return v
 
     def describe(self) -> str:
@@ -128,7 +128,7 @@ class Param:
         al = f" (alias {', '.join(self.aliases)})" if self.aliases else ""
         u = f" {self.unit}" if self.unit else ""
         doc = f": {self.doc}" if self.doc else ""
-        return f"{self.name}{al}{doc}, in [{self.lo:g}, {self.hi:g}]{u}, default {self.default:g}"
+        return f"{self.name}{al}{doc}, in [{self.lo:.10g}, {self.hi:.10g}]{u}, default {self.default:g}"
 
 
 # --- the specimen face the devices see -------------------------------------------------------
@@ -337,6 +337,6 @@ def specimen_table_markdown() -> str:
         for i, p in enumerate(fam["parameters"]):
             key = p["name"] + (f" ({', '.join(p['aliases'])})" if p["aliases"] else "")
             lo, hi = p["range"]
-            rows.append(f"| {fam['name'] if i == 0 else ''} | `{key}` | {lo:g} .. {hi:g} | {p['unit'] or '-'} "
+            rows.append(f"| {fam['name'] if i == 0 else ''} | `{key}` | {lo:.10g} .. {hi:.10g} | {p['unit'] or '-'} "
                         f"| {p['default']:g} | {p['doc']} |")
     return "\n".join(rows) + "\n"

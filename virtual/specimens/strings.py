@@ -69,6 +69,10 @@ def parse_specimen(spec: str | Specimen) -> Specimen:
     family = SPECIMENS.get(name)
     if family is None:
         raise SpecimenError(f"unknown specimen {name!r}; known: {', '.join(known_specimen_names())}")
-    specimen = family.from_keywords(_kwargs(rest, text), text)
+    try:
+        specimen = family.from_keywords(_kwargs(rest, text), text)
+    except SpecimenError as exc:  # name the string the value came from
+        msg = str(exc)
+        raise SpecimenError(msg if msg.startswith("specimen ") else f"specimen {text!r}: {msg}") from None
     object.__setattr__(specimen, "label", specimen.label or text)
     return specimen
