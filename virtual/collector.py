@@ -57,7 +57,7 @@ import numpy as np
 
 from bench.core.errors import InputError
 from virtual.kernels.collector import (ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA,  # noqa: F401
-                                       SCHEME_EQUAL_SOLID_ANGLE, _approx_phi, _index_many, guess_bin, patch_of)
+                                       SCHEME_EQUAL_SOLID_ANGLE, _approx_phi, index_many, guess_bin, patch_of)
 
 __all__ = [
     "SCHEMES",
@@ -288,7 +288,7 @@ class Collector:
         if d.ndim != 2 or d.shape[1] != 3:
             raise InputError(f"directions must have shape (n, 3), got {np.shape(dirs)}")
         out = np.empty(d.shape[0], dtype=np.int64)
-        _index_many(d, *self.kernel_args(), out)
+        index_many(d, *self.kernel_args(), out)
         return out
 
     def ring_sector(self, bins: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

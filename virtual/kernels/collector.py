@@ -199,7 +199,7 @@ def guess_bin(x, y, z, scheme_code, n_theta, n_phi, ring_margin, sector_margin):
 
 
 @jit
-def _index_many(dirs, scheme_code, n_theta, n_phi, sin2_edges, phi_cs, out):
+def index_many(dirs, scheme_code, n_theta, n_phi, sin2_edges, phi_cs, out):
     for i in range(dirs.shape[0]):
         out[i] = patch_of(dirs[i, 0], dirs[i, 1], dirs[i, 2], scheme_code, n_theta, n_phi, sin2_edges,
                           phi_cs)
