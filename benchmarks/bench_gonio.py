@@ -24,13 +24,14 @@ import time
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from benchmarks.common import best_of, numpy_uniform_rate, table
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import gonio_counts, measurement_seed
 from virtual.goniophotometer import VirtualGoniophotometer
+from virtual.kernels import jit
 from virtual.rng import LANES, fill_uniforms, lane_states, next_double, stream_states
 from virtual.specimens import parse_specimen
 
@@ -39,7 +40,7 @@ COLLECTOR = Collector("equal-psa", 30, 30)
 BEAM = Beam("conical")
 
 
-@njit(parallel=True, cache=True)
+@jit(parallel=True)
 def _xoshiro_rate_kernel(states, n_per):
     acc = np.zeros(states.shape[0])
     for c in prange(states.shape[0]):
@@ -51,7 +52,7 @@ def _xoshiro_rate_kernel(states, n_per):
     return acc.sum()
 
 
-@njit(cache=True)
+@jit
 def _lane_fill(lane, rows, reps):
     out = np.empty((rows, lane.shape[1]))
     acc = 0.0
@@ -61,7 +62,7 @@ def _lane_fill(lane, rows, reps):
     return acc
 
 
-@njit(parallel=True, cache=True)
+@jit(parallel=True)
 def _lane_rate_kernel(lanes, rows, reps):
     acc = np.zeros(lanes.shape[0])
     for c in prange(lanes.shape[0]):

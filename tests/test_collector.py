@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from numba import njit
+from virtual.kernels import jit
 
 from bench.core.errors import InputError
 from virtual.collector import ATAN_MAX_ERROR, SCHEMES, Collector, _approx_phi, guess_bin, parse_collector, patch_of
@@ -233,7 +233,7 @@ def test_lookup_many_random_directions_matches_reference():
             assert chi2_dist.sf(chi2, c.n_bins - 1) > 1e-4
 
 
-@njit(cache=True)
+@jit
 def _kernel_use(dirs, scheme_code, n_theta, n_phi, sin2_edges, phi_cs):
     out = np.zeros(2 * n_theta * n_phi, dtype=np.int64)
     for i in range(dirs.shape[0]):
@@ -251,7 +251,7 @@ def test_patch_of_inlines_into_other_kernels():
 # --- the branch-free guess of the block kernel -----------------------------------------------------
 
 
-@njit(cache=True, fastmath=True, error_model="numpy")  # as compiled in the block kernel
+@jit(fastmath=True, error_model="numpy")  # as compiled in the block kernel
 def _guesses(dirs, scheme_code, n_theta, n_phi, ring_margin, sector_margin):
     out = np.empty(dirs.shape[0], dtype=np.int64)
     for i in range(dirs.shape[0]):
@@ -299,7 +299,7 @@ def test_guess_bin_is_patch_of_whenever_it_is_sure(scheme, n_theta, n_phi):
 
 
 def test_polynomial_atan_is_within_its_stated_error():
-    @njit(cache=True)
+    @jit
     def phis(x, y):
         out = np.empty(x.shape[0])
         for i in range(x.shape[0]):

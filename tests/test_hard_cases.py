@@ -25,7 +25,7 @@ from virtual.effects import F32_MISASSIGNMENT_PER_RAY, gonio_counts_f32
 from virtual.engine import chunking, gonio_counts, measurement_seed, multinomial_counts, spectro_counts
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.scene import Scene
-from virtual.specimens import GGX, Lambertian
+from virtual.specimens import GGX, Lambertian, Phong
 from virtual.spectrophotometer import VirtualSpectrophotometer
 
 LAMBERT = Lambertian(0.6, 0.0)
@@ -315,6 +315,47 @@ def test_float32_and_float64_kernels_agree_within_the_stated_error():
     table = table[:, table.sum(axis=0) >= 10]
     chi2, p, _, _ = stats.chi2_contingency(table)
     assert p > 1e-3
+
+
+# --- Phong with exponent 0 (issue 16, item 2) ------------------------------------------------------
+
+
+class _NaivePhong(Phong):
+    """Phong's density as first written: ks (n+2)/(2 pi) max(0, r . wo)^n, with 0**0 = 1."""
+
+    def bsdf(self, wi, wo, wavelength_nm):
+        kd, ks, n, _ = self.params(wavelength_nm)
+        wi = np.asarray(wi, dtype=float)
+        wo = np.atleast_2d(wo)
+        ca = np.maximum(-wi[0] * wo[:, 0] - wi[1] * wo[:, 1] + wi[2] * wo[:, 2], 0.0)
+        return np.where(wo[:, 2] > 0.0, kd / math.pi + ks * (n + 2.0) / (2.0 * math.pi) * ca ** n, 0.0)
+
+
+@pytest.mark.parametrize("theta", [60.0, 89.9])
+def test_phong_exponent_zero_density_agrees_with_its_sampler(theta):
+    """Catches the naive density that evaluates max(0, r . wo)^0 = 0**0 = 1 behind the mirror
+    lobe, where the sampler never sends a ray: it reads ks/pi over the whole hemisphere, so the
+    fast path gave R = ks = 0.5 at every incidence while the rays give 0.375 at 60 deg (issue
+    16: z = -353). The exact R of the lobe (a hemisphere around the mirror direction, density
+    ks/pi) is 0.375 at 60 deg and 0.25 at grazing."""
+    sp, naive, n, m = Phong(exponent=0.0, ks=0.5, kd=0.0), _NaivePhong(exponent=0.0, ks=0.5, kd=0.0), 400_000, 9 * 36
+    counts = VirtualGoniophotometer(sp, rays=n, seed=5, method="rays").simulate(theta, 0.0, 550.0)
+    k_r = int(counts[:m].sum())
+    fast = VirtualGoniophotometer(sp, rays=n, seed=5, method="fast").bin_probabilities(theta, 0.0, 550.0)
+    assert _cp_contains(k_r, n, float(fast[:m].sum()))  # 99.99 % interval: false alarm 1e-4
+    assert fast[:m].sum() == pytest.approx({60.0: 0.375, 89.9: 0.25025}[theta], abs=2e-4)
+    # patch by patch: chi-square of the counts against the fast path's probabilities (patches
+    # expecting >= 20 rays, the rest pooled), false-alarm rate 1e-4
+    p = fast[:m]
+    big = p * n >= 20
+    obs = np.append(counts[:m][big], counts[:m][~big].sum() + (n - k_r))
+    exp = np.append(p[big] * n, p[~big].sum() * n + (1.0 - p.sum()) * n)
+    chi2 = float(((obs - exp) ** 2 / exp).sum())
+    assert chi2 < stats.chi2.ppf(1 - 1e-4, obs.size - 1)
+    # the naive density, checked the same way, is refused
+    bad = VirtualGoniophotometer(naive, rays=n, seed=5, method="fast").bin_probabilities(theta, 0.0, 550.0)
+    assert bad[:m].sum() == pytest.approx(0.5, abs=1e-3)
+    assert not _cp_contains(k_r, n, float(bad[:m].sum()))
 
 
 # --- property tests (Hypothesis) ------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """The xoshiro256+ streams: reference values, independence of chunks, uniformity."""
 
 import numpy as np
-from numba import njit
+from virtual.kernels import jit
 from scipy import stats
 
 from virtual.rng import LANES, fill_uniforms, lane_states, next_double, next_uint64, stream_states
@@ -22,7 +22,7 @@ def _reference_xoshiro256plus(state, n):
     return out
 
 
-@njit
+@jit
 def _draw_u64(state, n):
     s = state.copy()
     out = np.empty(n, dtype=np.uint64)
@@ -31,7 +31,7 @@ def _draw_u64(state, n):
     return out
 
 
-@njit
+@jit
 def _draw_double(state, n):
     s = state.copy()
     out = np.empty(n)
@@ -63,7 +63,7 @@ def test_doubles_are_uniform_in_unit_interval():
 # --- lanes: the block kernel's vectorized generator -------------------------------------------------
 
 
-@njit
+@jit
 def _fill(lanes, rows):
     out = np.empty((rows, lanes.shape[1]))
     fill_uniforms(lanes, out)

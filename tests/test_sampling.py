@@ -322,9 +322,9 @@ def test_triangle_points_always_inside(corners, n, strategy, seed):
 
 def test_sincos_2pi_is_accurate_to_two_ulp_and_exact_at_quarter_turns():
     # Reference in 80-bit long double (x86-64), whose own error (~1e-19) is far below the bound.
-    from numba import njit
+    from virtual.kernels import jit
 
-    @njit
+    @jit
     def both(u):
         c = np.empty_like(u)
         s = np.empty_like(u)

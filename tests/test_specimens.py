@@ -13,12 +13,12 @@ import zlib
 
 import numpy as np
 import pytest
-from numba import njit
 from scipy.stats import chi2 as chi2_dist
 
 from bench.core.errors import SpecimenError
 from bench.core.geometry import direction
 from virtual.collector import Collector, patch_of
+from virtual.kernels import jit
 from virtual.quadrature import integrate_patches, patch_integrals
 from virtual.rng import stream_states
 from virtual.specimens import (
@@ -51,7 +51,7 @@ SPECS = {
 }
 
 
-@njit(cache=True)
+@jit
 def _histogram(model, p, wx, wy, wz, n, s, sc, nt, nph, s2e, pcs):
     """Counts per collector bin, then absorbed rays in the last cell; also the worst |o| - 1."""
     h = np.zeros(2 * nt * nph + 1, dtype=np.int64)
@@ -308,3 +308,119 @@ def test_exact_grazing_incidence_is_absorbed_not_nan():
         s = parse_specimen(spec)
         h, worst = shoot(s, np.array([1.0, 0.0, 0.0]), 1000, seed=3)
         assert worst < 1e-9 and h.sum() == 1000
+
+
+# --- declarations: one place per parameter, an open registry -------------------------------------
+
+from virtual.spectrophotometer import VirtualSpectrophotometer  # noqa: E402
+from virtual.specimens import (MODEL_PYTHON, SPECIMENS, DeclaredSpecimen, Param,  # noqa: E402
+                               register_specimen, specimen_families, specimen_table_markdown)
+
+
+@pytest.mark.parametrize("spec,message", [
+    ("lambert:reflectance=0.5,foo=1", "unknown parameter 'foo' for lambert; accepted: reflectance, transmittance"),
+    ("aniso-ggx:alpha=0.9", "unknown parameter 'alpha' for aniso-ggx; accepted: alpha_x, alpha_y, eta, k"),
+    ("ggx:alpha_x=0.1", "unknown parameter 'alpha_x' for ggx; accepted: alpha, eta, k"),
+    ("oren-nayar:albedo=0.5,R=0.5", "parameter albedo given twice"),
+    ("phong:ks=0.1,ks=0.2", "ks given twice"),
+])
+def test_unknown_or_repeated_parameters_are_refused_naming_the_accepted_ones(spec, message):
+    with pytest.raises(SpecimenError) as err:
+        parse_specimen(spec)
+    assert message in str(err.value)
+
+
+def test_constructors_refuse_what_they_would_ignore():
+    with pytest.raises(SpecimenError, match="unknown parameter 'alpha' for aniso-ggx; accepted: alpha_x, alpha_y"):
+        AnisoGGX(alpha=0.9)  # was accepted and silently ignored
+    with pytest.raises(SpecimenError, match="accepted: reflectance, transmittance"):
+        Lambertian(albedo=0.5)  # aliases are for specimen strings; the constructor takes the names
+    with pytest.raises(SpecimenError, match="at most 2 parameters"):
+        Lambertian(0.2, 0.3, 0.4)
+    assert Lambertian(0.6, 0.1).params(WL).tolist() == [0.6, 0.1]  # positions in the declared order
+
+
+def test_aliases_and_keyword_defaults_keep_the_old_strings():
+    assert parse_specimen("lambert:albedo=0.3").params(WL).tolist() == [0.3, 0.0]
+    assert parse_specimen("lambert:R=0.3,T=0.2").params(WL).tolist() == [0.3, 0.2]
+    assert parse_specimen("lambert:transmittance=0.7").params(WL).tolist() == [0.0, 0.7]  # a pure transmitter
+    assert parse_specimen("phong:n=5,ks=0.1,kd=0.1").params(WL)[2] == 5.0
+    assert parse_specimen("oren-nayar:reflectance=0.5").params(WL)[0] == 0.5
+
+
+def test_every_family_is_listed_with_its_declared_parameters():
+    fams = {f["name"]: f for f in specimen_families()}
+    assert {"lambert", "oren-nayar", "phong", "ggx", "aniso-ggx", "plastic", "dielectric"} <= set(fams)
+    assert [p["name"] for p in fams["phong"]["parameters"]] == ["exponent", "ks", "kd"]
+    sigma = fams["oren-nayar"]["parameters"][0]
+    assert (sigma["range"], sigma["unit"], sigma["default"]) == ([0.0, 90.0], "degrees", 20.0)
+    table = specimen_table_markdown()
+    assert table.startswith("| specimen | parameter | range | unit | default | meaning |")
+    rows = [r for r in table.splitlines()[2:]]
+    assert len(rows) == sum(len(f["parameters"]) for f in fams.values())
+    assert "| oren-nayar | `sigma` | 0 .. 90 | degrees | 20 |" in table
+    # defaults declared are the defaults used
+    for name, cls in SPECIMENS.items():
+        s = cls()
+        for p in cls.parameters:
+            assert getattr(s, p.name)(WL) == p.default, (name, p.name)
+
+
+class _Velvet(DeclaredSpecimen):
+    """A lab's own model, defined outside the package: a retro-reflector with a diffuse floor."""
+
+    name = "test-velvet"
+    model = MODEL_PYTHON
+    parameters = (Param("retro", 0.5, 0.0, 1.0, doc="probability of going back to the source"),
+                  Param("albedo", 0.8, 0.0, 1.0, doc="survival probability"))
+
+    def kernel_params(self, v):
+        return np.array([v["retro"], v["albedo"]])
+
+    def sample(self, wi, n, wavelength_nm, rng):
+        retro, albedo = self.params(wavelength_nm)
+        wi = np.broadcast_to(np.asarray(wi, dtype=float), (n, 3))
+        phi = 2 * np.pi * rng.random(n)
+        r = np.sqrt(rng.random(n))
+        diffuse = np.column_stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1 - r * r)])
+        back = rng.random(n) < retro
+        dirs = np.where(back[:, None], wi, diffuse * np.sign(wi[:, 2:3]))
+        return dirs, rng.random(n) < albedo
+
+
+def test_a_lab_registers_its_own_model_without_editing_ours():
+    velvet = register_specimen(_Velvet)
+    try:
+        s = parse_specimen("test-velvet:retro=0.25,albedo=0.6")
+        assert isinstance(s, velvet) and s.params(WL).tolist() == [0.25, 0.6]
+        assert "test-velvet" in {f["name"] for f in specimen_families()}
+        with pytest.raises(SpecimenError, match="unknown parameter 'sheen' for test-velvet; accepted: retro, albedo"):
+            parse_specimen("test-velvet:sheen=1")
+        with pytest.raises(SpecimenError, match="retro must lie in"):
+            parse_specimen("test-velvet:retro=2")
+        with pytest.raises(SpecimenError, match="already taken"):
+            register_specimen(type("Other", (DeclaredSpecimen,), {"name": "test-velvet", "model": MODEL_PYTHON}))
+        # it measures: everything that survives is reflected (the source is above), at albedo 0.6
+        n = 40_000
+        sp = VirtualSpectrophotometer("test-velvet:retro=0.25,albedo=0.6", rays=n, seed=11)
+        got = float(sp.measure("8/d", [550.0]).reflectance[0])
+        assert abs(got - 0.6) < 5 * math.sqrt(0.6 * 0.4 / n)  # 5 se: false alarm < 1e-6
+        assert abs(got - 0.8) > 5 * math.sqrt(0.8 * 0.2 / n)  # the declared default would be told apart
+    finally:
+        from virtual.specimens import declare
+
+        declare._REGISTRY.pop("test-velvet", None)
+
+
+def test_a_declaration_is_checked_when_registered():
+    bad_default = type("Bad", (DeclaredSpecimen,), {"name": "test-bad", "model": MODEL_PYTHON,
+                                                   "parameters": (Param("x", 2.0, 0.0, 1.0),)})
+    with pytest.raises(SpecimenError, match="x must lie in"):
+        register_specimen(bad_default)
+    twice = type("Twice", (DeclaredSpecimen,), {"name": "test-twice", "model": MODEL_PYTHON,
+                                               "parameters": (Param("x", 0.5, 0.0, 1.0, aliases=("y",)),
+                                                              Param("y", 0.5, 0.0, 1.0))})
+    with pytest.raises(SpecimenError, match="declared twice"):
+        register_specimen(twice)
+    with pytest.raises(SpecimenError, match="already taken"):
+        register_specimen(type("Cc", (DeclaredSpecimen,), {"name": "colorchecker", "model": MODEL_PYTHON}))

@@ -1,4 +1,5 @@
-"""Incidence: collimated or conical beams, and the one njit function that emits a ray.
+"""Incidence: collimated or conical beams (the kernel that emits a ray is :mod:`virtual.kernels.beam`;
+``emit``, ``emit_given`` and the ``BEAM_*``/``DISK_*`` codes are re-exported here for older callers).
 
 Collimated (directional-hemispherical): every ray arrives from the same direction; positions on
 the specimen are irrelevant to a far-field count, so none are sampled.
@@ -17,20 +18,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from bench.core.errors import GeometryError, InputError
-from virtual.rng import next_double
-from virtual.sampling import warp_polar, warp_square
+from virtual.kernels.beam import (BEAM_COLLIMATED, BEAM_CONICAL, DISK_AUTO, DISK_POLAR, DISK_REJECTION, emit,  # noqa: F401
+                                  emit_given)
 
 __all__ = ["Beam", "BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "emit",
            "emit_given", "rotation_to"]
 
-BEAM_COLLIMATED = 0
-BEAM_CONICAL = 1
-DISK_POLAR = 0
-DISK_REJECTION = 1
-DISK_AUTO = 2
 DISK_CODES = {"polar": DISK_POLAR, "rejection": DISK_REJECTION, "auto": DISK_AUTO}
 
 
@@ -115,50 +110,3 @@ def check_incidence(theta_i: float) -> None:
         raise GeometryError("incidence theta_i = 90 deg is exactly grazing: no flux reaches the specimen")
 
 
-@njit(inline="always", cache=True)
-def _disk(u1, u2, r, code, s):
-    if code != DISK_POLAR:  # rejection, also for "auto" in this ray-by-ray form
-        while True:  # eq. 3.3 with rejection; acceptance pi/4, so the loop ends fast
-            x, y = warp_square(u1, u2, r)
-            if x * x + y * y < r * r:
-                return x, y
-            u1 = next_double(s)
-            u2 = next_double(s)
-    return warp_polar(u1, u2, r)
-
-
-@njit(inline="always", cache=True)
-def emit(kind, disk, b, s):
-    """One incident ray: the unit vector toward its source, and whether it hits the front face.
-
-    ``b`` is :meth:`Beam.kernel_args`. Returns ``(wx, wy, wz, hit)``.
-    """
-    if kind == BEAM_COLLIMATED:
-        return b[12], b[13], b[14], True
-    x1, y1 = _disk(next_double(s), next_double(s), b[9], disk, s)
-    x2, y2 = _disk(next_double(s), next_double(s), b[10], disk, s)
-    return _toward_source(b, x1, y1, x2, y2)
-
-
-@njit(inline="always", cache=True)
-def _toward_source(b, x1, y1, x2, y2):
-    """Unit vector from the target (x2, y2, 0) to the emitter point R (x1, y1, D), and whether
-    it arrives on the front face (the side the beam axis comes from)."""
-    d = b[11]
-    ox = b[0] * x1 + b[1] * y1 + b[2] * d - x2
-    oy = b[3] * x1 + b[4] * y1 + b[5] * d - y2
-    oz = b[6] * x1 + b[7] * y1 + b[8] * d
-    inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
-    wx, wy, wz = ox * inv, oy * inv, oz * inv
-    return wx, wy, wz, wz * b[14] > 0.0
-
-
-@njit(inline="always", cache=True)
-def emit_given(kind, b, u1, u2, u3, u4):
-    """:func:`emit` with both disks drawn by the polar warp from the given uniforms (none are
-    read for a collimated beam): branch-free, for the vectorized block kernel."""
-    x1, y1 = warp_polar(u1, u2, b[9])
-    x2, y2 = warp_polar(u3, u4, b[10])
-    wx, wy, wz, hit = _toward_source(b, x1, y1, x2, y2)
-    col = kind == BEAM_COLLIMATED
-    return (b[12] if col else wx), (b[13] if col else wy), (b[14] if col else wz), (True if col else hit)

@@ -1,4 +1,4 @@
-"""Effect kernels: the ray kernels of :mod:`virtual.engine` with a scene's declared effects.
+"""Effects: counting with a scene's declared effects (the kernels are :mod:`virtual.kernels.effects`).
 
 A scene (:mod:`virtual.scene`) that declares no per-ray effect never comes here: it runs the
 bare kernels of :mod:`virtual.engine` at their full speed. A scene that declares some runs
@@ -47,14 +47,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
 
-from virtual.beam import BEAM_COLLIMATED, emit
-from virtual.collector import patch_of
 from virtual.engine import chunking
-from virtual.rng import next_double, stream_states
-from virtual.sampling import sample_cosine_hemisphere, warp_square
-from virtual.specimens import scatter
+from virtual.kernels.effects import (FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE,
+                                     FX_STRAY, gonio_fx_kernel, gonio_kernel_f32, spectro_fx_kernel,
+                                     spectro_points_kernel)
+from virtual.rng import stream_states
 
 __all__ = [
     "FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN", "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS",
@@ -62,14 +60,6 @@ __all__ = [
     "gonio_counts_f32", "F32_MISASSIGNMENT_PER_RAY", "spectro_point_counts", "pinpoint_beam_args",
 ]
 
-FX_STRAY = 1
-FX_BANDPASS = 2
-FX_SPHERE = 4
-FX_PATTERN = 8
-FX_DETECTORS = 16
-FX_NEAR = 32
-#: effects that need the point where a ray meets the specimen
-FX_POSITIONS = FX_PATTERN | FX_NEAR
 #: length of the effect parameter vector ``e``
 N_EFFECT_ARGS = 10
 SPECTRO_FX_COLUMNS = ("reflected", "transmitted", "absorbed", "missed", "cone", "detected", "stray")
@@ -77,7 +67,6 @@ SPECTRO_FX_COLUMNS = ("reflected", "transmitted", "absorbed", "missed", "cone", 
 #: Stated error of :func:`gonio_counts_f32`: the fraction of rays whose patch differs from the
 #: float64 kernel's is at most this (per ray, for collectors up to ~100 rings x 360 sectors).
 F32_MISASSIGNMENT_PER_RAY = 1e-5
-_TWO_PI = 2.0 * math.pi
 
 
 def pinpoint_beam_args(beam_args: np.ndarray) -> np.ndarray:
@@ -86,119 +75,6 @@ def pinpoint_beam_args(beam_args: np.ndarray) -> np.ndarray:
     b = np.array(beam_args, dtype=np.float64, copy=True)
     b[10] = 1e-150
     return b
-
-
-@njit(inline="always", cache=True)
-def _spot(r, s):
-    """A uniform point of the disk of radius r (eq. 3.3 with rejection)."""
-    while True:
-        x, y = warp_square(next_double(s), next_double(s), r)
-        if x * x + y * y < r * r:
-            return x, y
-
-
-@njit(inline="always", cache=True)
-def _emit_at(kind, disk, b, bp, spot_r, s):
-    """emit() plus the point (x, y) where the ray meets the specimen plane."""
-    if kind == BEAM_COLLIMATED:
-        wx, wy, wz, hit = emit(kind, disk, b, s)
-        x, y = _spot(spot_r, s)
-        return wx, wy, wz, hit, x, y
-    x, y = _spot(b[10], s)
-    ux, uy, uz, _ = emit(kind, disk, bp, s)  # toward the emitter point seen from the centre
-    # the emitter point O satisfies O . axis = D, so O = u D / (u . axis)
-    t = bp[11] / (ux * b[12] + uy * b[13] + uz * b[14])
-    ox = ux * t - x
-    oy = uy * t - y
-    oz = uz * t
-    inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
-    wx, wy, wz = ox * inv, oy * inv, oz * inv
-    return wx, wy, wz, wz * b[14] > 0.0, x, y
-
-
-@njit(inline="always", cache=True)
-def _pick(cdf, s):
-    u = next_double(s)
-    k = 0
-    n = cdf.shape[0]
-    while k < n - 1 and u >= cdf[k]:
-        k += 1
-    return k
-
-
-@njit(parallel=True, cache=True, fastmath=True)
-def _spectro_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cone, flags, e, sizes, states):
-    n_chunks = sizes.shape[0]
-    out = np.zeros((n_chunks, 7), dtype=np.int64)
-    positions = (flags & FX_POSITIONS) != 0
-    for c in prange(n_chunks):
-        s = states[c].copy()
-        refl = np.int64(0)
-        trans = np.int64(0)
-        absorbed = np.int64(0)
-        missed = np.int64(0)
-        in_cone = np.int64(0)
-        detected = np.int64(0)
-        stray = np.int64(0)
-        for _ in range(sizes[c]):
-            if (flags & FX_STRAY) != 0 and next_double(s) < e[0]:
-                stray += 1
-                continue
-            if positions:
-                wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[7], s)
-            else:
-                wx, wy, wz, hit = emit(beam_kind, disk, b, s)
-                px = 0.0
-            if not hit:
-                missed += 1
-                continue
-            if (flags & FX_PATTERN) != 0:
-                m = 1.0 - e[6] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[5]))
-                if next_double(s) >= m:
-                    absorbed += 1
-                    continue
-            k = _pick(cdf, s) if (flags & FX_BANDPASS) != 0 else 0
-            p = ptab[k]
-            ox, oy, oz, alive = scatter(model, p, wx, wy, wz, s)
-            if not alive:
-                absorbed += 1
-                continue
-            up = oz * wz > 0.0
-            if up:
-                refl += 1
-            else:
-                trans += 1
-            if ox * cone[0] + oy * cone[1] + oz * cone[2] >= cone[3]:
-                in_cone += 1
-            if (flags & FX_SPHERE) != 0 and up:
-                side = 1.0 if wz > 0.0 else -1.0
-                while True:  # strikes on the sphere surface; ends w.p. 1 (wall reflectance < 1)
-                    u = next_double(s)
-                    if u < e[2]:
-                        detected += 1
-                        break
-                    u -= e[2]
-                    if u < e[3]:  # back on the specimen: diffuse illumination from the sphere
-                        dx, dy, dz = sample_cosine_hemisphere(s)
-                        dz = dz * side
-                        qx, qy, qz, ok = scatter(model, p, dx, dy, dz, s)
-                        if not ok or qz * dz <= 0.0:
-                            break
-                        continue
-                    u -= e[3]
-                    if u < e[4] - e[2] - e[3]:  # another port: lost
-                        break
-                    u -= e[4] - e[2] - e[3]
-                    if u >= (1.0 - e[4]) * e[1]:  # absorbed by the wall
-                        break
-        out[c, 0] = refl
-        out[c, 1] = trans
-        out[c, 2] = absorbed
-        out[c, 3] = missed
-        out[c, 4] = in_cone
-        out[c, 5] = detected
-        out[c, 6] = stray
-    return out
 
 
 def _ptab(ptab: np.ndarray, cdf: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -233,62 +109,10 @@ def spectro_effect_counts(model: int, ptab: np.ndarray, cdf: np.ndarray | None, 
     states = stream_states(seq, sizes.shape[0])
     t, c = _ptab(ptab, cdf)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
-    out = _spectro_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b,
+    out = spectro_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b,
                              pinpoint_beam_args(b), np.ascontiguousarray(cone, dtype=np.float64),
                              np.int64(flags), _effect_vector(e, flags), sizes, states)
     return out.sum(axis=0)
-
-
-@njit(parallel=True, cache=True, fastmath=True)
-def _gonio_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cargs, n_bins, flags, e, det, sizes, states):
-    n_chunks = sizes.shape[0]
-    n_det = det.shape[0]
-    width = n_bins + 2 + n_det
-    out = np.zeros((n_chunks, width), dtype=np.int64)
-    positions = (flags & FX_POSITIONS) != 0
-    near = (flags & FX_NEAR) != 0
-    for c in prange(n_chunks):
-        s = states[c].copy()
-        hist = np.zeros(width, dtype=np.int64)
-        for _ in range(sizes[c]):
-            px = 0.0
-            py = 0.0
-            if (flags & FX_STRAY) != 0 and next_double(s) < e[0]:
-                ox, oy, oz = sample_cosine_hemisphere(s)
-            else:
-                if positions:
-                    wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[7], s)
-                else:
-                    wx, wy, wz, hit = emit(beam_kind, disk, b, s)
-                if not hit:
-                    hist[n_bins + 1] += 1
-                    continue
-                if (flags & FX_PATTERN) != 0:
-                    m = 1.0 - e[6] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[5]))
-                    if next_double(s) >= m:
-                        hist[n_bins] += 1
-                        continue
-                k = _pick(cdf, s) if (flags & FX_BANDPASS) != 0 else 0
-                ox, oy, oz, alive = scatter(model, ptab[k], wx, wy, wz, s)
-                if not alive:
-                    hist[n_bins] += 1
-                    continue
-            hist[patch_of(ox, oy, oz, cargs[0], cargs[1], cargs[2], cargs[3], cargs[4])] += 1
-            if (flags & FX_DETECTORS) != 0:
-                for j in range(n_det):
-                    cv = ox * det[j, 0] + oy * det[j, 1] + oz * det[j, 2]
-                    if near:
-                        if cv > 0.0:
-                            t = (e[8] - (px * det[j, 0] + py * det[j, 1])) / cv
-                            hx = px + t * ox - e[8] * det[j, 0]
-                            hy = py + t * oy - e[8] * det[j, 1]
-                            hz = t * oz - e[8] * det[j, 2]
-                            if hx * hx + hy * hy + hz * hz <= e[9] * e[9]:
-                                hist[n_bins + 2 + j] += 1
-                    elif cv >= det[j, 3]:
-                        hist[n_bins + 2 + j] += 1
-        out[c] = hist
-    return out
 
 
 def gonio_effect_counts(model: int, ptab: np.ndarray, cdf: np.ndarray | None, beam_kind: int, disk: int,
@@ -302,36 +126,13 @@ def gonio_effect_counts(model: int, ptab: np.ndarray, cdf: np.ndarray | None, be
     states = stream_states(seq, sizes.shape[0])
     t, c = _ptab(ptab, cdf)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
-    out = _gonio_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b, pinpoint_beam_args(b),
+    out = gonio_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b, pinpoint_beam_args(b),
                            tuple(collector_args), np.int64(n_bins), np.int64(flags), _effect_vector(e, flags), det,
                            sizes, states)
     return out.sum(axis=0)
 
 
 # --- float32 patch lookup -----------------------------------------------------------------------
-
-@njit(parallel=True, cache=True, fastmath=True)
-def _gonio_kernel_f32(model, params, beam_kind, disk, b, scheme, n_theta, n_phi, sin2_32, phi_cs32, n_bins,
-                      sizes, states):
-    n_chunks = sizes.shape[0]
-    out = np.zeros((n_chunks, n_bins + 2), dtype=np.int64)
-    for c in prange(n_chunks):
-        s = states[c].copy()
-        hist = np.zeros(n_bins + 2, dtype=np.int64)
-        for _ in range(sizes[c]):
-            wx, wy, wz, hit = emit(beam_kind, disk, b, s)
-            if not hit:
-                hist[n_bins + 1] += 1
-                continue
-            ox, oy, oz, alive = scatter(model, params, wx, wy, wz, s)
-            if not alive:
-                hist[n_bins] += 1
-                continue
-            hist[patch_of(np.float32(ox), np.float32(oy), np.float32(oz), scheme, n_theta, n_phi,
-                          sin2_32, phi_cs32)] += 1
-        out[c] = hist
-    return out
-
 
 def gonio_counts_f32(model: int, params: np.ndarray, beam_kind: int, disk: int, beam_args: np.ndarray,
                      collector_args: tuple, n_rays: int, seq: np.random.SeedSequence) -> np.ndarray:
@@ -350,7 +151,7 @@ def gonio_counts_f32(model: int, params: np.ndarray, beam_kind: int, disk: int, 
     n_bins = 2 * int(n_theta) * int(n_phi)
     sizes = chunking(n_rays)
     states = stream_states(seq, sizes.shape[0])
-    out = _gonio_kernel_f32(np.int64(model), np.ascontiguousarray(params, dtype=np.float64), np.int64(beam_kind),
+    out = gonio_kernel_f32(np.int64(model), np.ascontiguousarray(params, dtype=np.float64), np.int64(beam_kind),
                             np.int64(disk), np.ascontiguousarray(beam_args, dtype=np.float64), np.int64(scheme),
                             np.int64(n_theta), np.int64(n_phi), np.ascontiguousarray(sin2, dtype=np.float32),
                             np.ascontiguousarray(phi_cs, dtype=np.float32), np.int64(n_bins), sizes, states)
@@ -359,53 +160,15 @@ def gonio_counts_f32(model: int, params: np.ndarray, beam_kind: int, disk: int, 
 
 # --- spectrophotometer fed with precomputed disk points ------------------------------------------
 
-@njit(parallel=True, cache=True, fastmath=True)
-def _spectro_points_kernel(model, params, b, pts, starts, states):
-    n_chunks = starts.shape[0] - 1
-    out = np.zeros((n_chunks, 5), dtype=np.int64)
-    for c in prange(n_chunks):
-        s = states[c].copy()
-        refl = np.int64(0)
-        trans = np.int64(0)
-        absorbed = np.int64(0)
-        missed = np.int64(0)
-        for i in range(starts[c], starts[c + 1]):
-            x1 = pts[i, 0]
-            y1 = pts[i, 1]
-            x2 = pts[i, 2]
-            y2 = pts[i, 3]
-            d = b[11]
-            ox = b[0] * x1 + b[1] * y1 + b[2] * d - x2
-            oy = b[3] * x1 + b[4] * y1 + b[5] * d - y2
-            oz = b[6] * x1 + b[7] * y1 + b[8] * d
-            inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
-            wx, wy, wz = ox * inv, oy * inv, oz * inv
-            if not (wz * b[14] > 0.0):
-                missed += 1
-                continue
-            qx, qy, qz, alive = scatter(model, params, wx, wy, wz, s)
-            if not alive:
-                absorbed += 1
-                continue
-            if qz * wz > 0.0:
-                refl += 1
-            else:
-                trans += 1
-        out[c, 0] = refl
-        out[c, 1] = trans
-        out[c, 2] = absorbed
-        out[c, 3] = missed
-    return out
-
-
 def spectro_point_counts(model: int, params: np.ndarray, beam_args: np.ndarray, points: np.ndarray,
                          seq: np.random.SeedSequence) -> np.ndarray:
     """Spectrophotometer counts (reflected, transmitted, absorbed, missed, 0) for a conical beam
     whose rays join given emitter points ``points[:, :2]`` (on the emitter disk, before the
     rotation to the incidence) to specimen points ``points[:, 2:]``: the jittered and Sobol
     strategies of the accuracy-versus-time study. Memory O(N) (the points); scattering draws
-    from per-chunk xoshiro streams as in the bare kernel. The direction is the formula of
-    :func:`virtual.beam.emit` applied to the given points (emit draws its own).
+    from per-chunk xoshiro streams as in the bare kernel. The direction is
+    :func:`virtual.kernels.beam.toward_source`, the formula :func:`~virtual.kernels.beam.emit` uses
+    (emit draws its own points).
     """
     pts = np.ascontiguousarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 4:
@@ -413,7 +176,7 @@ def spectro_point_counts(model: int, params: np.ndarray, beam_args: np.ndarray, 
     sizes = chunking(len(pts))
     starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     states = stream_states(seq, sizes.shape[0])
-    out = _spectro_points_kernel(np.int64(model), np.ascontiguousarray(params, dtype=np.float64),
+    out = spectro_points_kernel(np.int64(model), np.ascontiguousarray(params, dtype=np.float64),
                                  np.ascontiguousarray(beam_args, dtype=np.float64), pts, starts, states)
     tot = out.sum(axis=0)
     tot[4] = 0

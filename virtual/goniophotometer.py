@@ -29,14 +29,17 @@ import numpy as np
 
 from bench.core.errors import GeometryError, InputError
 from bench.core.geometry import Geometry
+from bench.core.parsing import parse_wavelengths
 from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
 from bench.core.records import BSDF_COLUMNS, BSDFRecord
 from virtual.beam import Beam, check_incidence
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.collector import Collector, parse_collector
 from virtual.engine import gonio_counts, gonio_kernel_for, measurement_seed, multinomial_counts
+from virtual.python_engine import gonio_counts_python
+from virtual.quadrature import patch_integrals
 from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
-from virtual.spectrophotometer import fresh_seed, parse_wavelengths
+from virtual.spectrophotometer import fresh_seed
 
 __all__ = ["VirtualGoniophotometer", "METHODS"]
 
@@ -207,8 +210,6 @@ class VirtualGoniophotometer(InstrumentBase):
         if self.uses_fast_path():
             counts = multinomial_counts(self.bin_probabilities(theta_i, phi_i, wavelength_nm), self.rays, seq)
         elif self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
-            from virtual.python_engine import gonio_counts_python
-
             counts = gonio_counts_python(self.specimen, wavelength_nm, self.beam, theta_i, phi_i, self.collector,
                                          self.rays, seq)
         else:
@@ -221,8 +222,6 @@ class VirtualGoniophotometer(InstrumentBase):
     def bin_probabilities(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.ndarray:
         """Probabilities of every bin (R patches, T patches, absorbed, missed = 0) for a
         collimated beam, by quadrature of the specimen's density over each patch."""
-        from virtual.quadrature import patch_integrals
-
         key = (round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))
         if key in self._probabilities:  # a new seed or N redraws from the same integrals
             return self._probabilities[key]

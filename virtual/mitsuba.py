@@ -42,7 +42,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bench.core.errors import SpecimenError
-from virtual.specimens import MODEL_PYTHON, Specimen
+from virtual.kernels.scatter import MODEL_PYTHON
+from virtual.specimens.declare import Specimen
 
 __all__ = ["MitsubaSpecimen", "parse_mitsuba", "SPECTRAL_RANGE_NM"]
 

@@ -2,8 +2,8 @@
 
 Two layers, one formula each:
 
-* scalar warps (``@njit``) that turn uniforms in [0, 1) into points; the ray kernels call them
-  inline, and
+* scalar warps (kernels of :mod:`virtual.kernels.sampling`, re-exported here) that turn uniforms
+  in [0, 1) into points; the ray kernels call them inline, and
 * array samplers for analysis, plotting and tests, which draw the uniforms by a *strategy*
   (independent random, jittered/stratified, scrambled Sobol) and apply the same warps.
 
@@ -19,10 +19,10 @@ import math
 from typing import Literal
 
 import numpy as np
-from numba import int64, njit
 
 from bench.core.errors import InputError
-from virtual.rng import next_double
+from virtual.kernels.sampling import (_warp_polar_array, _warp_triangle_array, sample_cosine_hemisphere,  # noqa: F401
+                                      sincos_2pi, warp_cosine_hemisphere, warp_polar, warp_square, warp_triangle)
 
 __all__ = [
     "DISK_STRATEGIES",
@@ -44,65 +44,6 @@ UNIFORM_STRATEGIES: tuple[str, ...] = ("random", "jittered", "sobol")
 
 _TWO_PI = 2.0 * math.pi
 _HALF_PI = 0.5 * math.pi
-
-
-@njit(inline="always", cache=True)
-def warp_square(u1, u2, r):
-    """Eq. 3.3: a point in the square [-r, r]^2 (to be rejected outside the disk)."""
-    return r * (2.0 * u1 - 1.0), r * (2.0 * u2 - 1.0)
-
-
-@njit(inline="always", cache=True)
-def sincos_2pi(u):
-    """``(cos 2 pi u, sin 2 pi u)`` for u in [0, 1), to within 2 ulp, branch-free.
-
-    The angle is reduced exactly to the nearest quarter turn q (4u - q in [-1/2, 1/2] is exact),
-    the remainder x = (4u - q) pi / 2 in [-pi/4, pi/4] goes through the Taylor polynomials of
-    sin and cos (truncation below 5e-17), and q rotates the result by selects. Unlike libm's
-    sin/cos, LLVM vectorizes it, which is what makes the polar warp cheap in the block kernels.
-    """
-    t = 4.0 * u
-    q = math.floor(t + 0.5)
-    x = (t - q) * _HALF_PI
-    x2 = x * x
-    s = x * (1.0 + x2 * (-1.0 / 6.0 + x2 * (1.0 / 120.0 + x2 * (-1.0 / 5040.0 + x2 * (
-        1.0 / 362880.0 + x2 * (-1.0 / 39916800.0 + x2 * (1.0 / 6227020800.0 + x2 * (-1.0 / 1307674368000.0))))))))
-    c = 1.0 + x2 * (-0.5 + x2 * (1.0 / 24.0 + x2 * (-1.0 / 720.0 + x2 * (1.0 / 40320.0 + x2 * (
-        -1.0 / 3628800.0 + x2 * (1.0 / 479001600.0 + x2 * (-1.0 / 87178291200.0 + x2 * (1.0 / 20922789888000.0))))))))
-    quarter = int64(q) & 3  # angle = quarter * pi/2 + x
-    odd = (quarter & 1) == 1
-    cq = s if odd else c
-    sq = c if odd else s
-    cq = -cq if (quarter == 1 or quarter == 2) else cq
-    sq = -sq if quarter >= 2 else sq
-    return cq, sq
-
-
-@njit(inline="always", cache=True)
-def warp_polar(u1, u2, r):
-    """Eq. 3.4 done right: (phi, rho) = (2 pi u1, r sqrt(u2)) -> (rho cos phi, rho sin phi)."""
-    c, s = sincos_2pi(u1)
-    rho = r * math.sqrt(u2)
-    return rho * c, rho * s
-
-
-@njit(inline="always", cache=True)
-def warp_triangle(u3, u4):
-    """Eq. 3.11 (Shirley): barycentric (x', y') uniform on the triangle for uniforms u3, u4."""
-    xp = 1.0 - math.sqrt(1.0 - u3)
-    return xp, (1.0 - xp) * u4
-
-
-@njit(cache=True)
-def _warp_polar_array(u, r, out):
-    for i in range(u.shape[0]):
-        out[i, 0], out[i, 1] = warp_polar(u[i, 0], u[i, 1], r)
-
-
-@njit(cache=True)
-def _warp_triangle_array(u, out):
-    for i in range(u.shape[0]):
-        out[i, 0], out[i, 1] = warp_triangle(u[i, 0], u[i, 1])
 
 
 def _rng(seed: int | np.random.Generator | None) -> np.random.Generator:
@@ -193,27 +134,3 @@ def sample_quad(n: int, half_width: float, seed: int | np.random.Generator | Non
     return out
 
 
-@njit(inline="always", cache=True)
-def warp_cosine_hemisphere(u1, u2):
-    """Malley's method: the polar warp lifted to the unit hemisphere, pdf cos(theta)/pi.
-
-    z = sqrt(1 - rho^2) = sqrt(1 - u2) is computed from u2 directly, never from rho, so it
-    cannot round below 0 or above 1.
-    """
-    x, y = warp_polar(u1, u2, 1.0)
-    return x, y, math.sqrt(1.0 - u2)
-
-
-@njit(inline="always", cache=True)
-def sample_cosine_hemisphere(s):
-    """Malley's method on a rejection-sampled unit disk (eq. 3.3): pdf cos(theta)/pi.
-
-    Same distribution as :func:`warp_cosine_hemisphere` without the sine and cosine (about
-    twice as fast in the kernels). ``rho^2 < 1`` strictly, so z > 0 and never NaN.
-    """
-    while True:
-        x = 2.0 * next_double(s) - 1.0
-        y = 2.0 * next_double(s) - 1.0
-        r2 = x * x + y * y
-        if r2 < 1.0:
-            return x, y, math.sqrt(1.0 - r2)

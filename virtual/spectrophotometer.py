@@ -29,6 +29,7 @@ from bench.core.roles import InstrumentBase, InstrumentInfo, Spectrum
 from virtual.beam import Beam
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.engine import NO_CONE, SpectroTally, measurement_seed, spectro_counts
+from virtual.python_engine import spectro_counts_python
 from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
 
 __all__ = ["VirtualSpectrophotometer", "parse_wavelengths", "fresh_seed"]
@@ -103,8 +104,6 @@ class VirtualSpectrophotometer(InstrumentBase):
         for w in wl:
             seq = measurement_seed(self.seed, int(round(w * 1000)), int(round(theta_i * 1000)))
             if self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
-                from virtual.python_engine import spectro_counts_python
-
                 tallies.append(spectro_counts_python(self.specimen, float(w), self.beam, theta_i, 0.0,
                                                      self.rays, seq, cone))
                 continue

@@ -1,59 +1,23 @@
-"""Ray budgets: the Hoeffding bound of seed eqs. 3.5/3.12, binomial confidence intervals and a
-variance-adaptive sequential stopping rule that reaches the same (v, delta) with fewer rays.
-
-A ray count ``n_d`` out of ``N`` rays is Binomial(N, p) (a patch of a collector sphere, or the
-upper/lower hemisphere of a spectrophotometer). Three tools live here:
-
-* :func:`hoeffding_rays` -- eq. 3.5 ``N = ceil(ln(2/delta) / (2 v^2))`` and eq. 3.12 (``patches``
-  times that), computed with exact decimal arithmetic so the ceiling is never off by one and
-  huge budgets (``v = 1e-6`` gives ~2.6e12 rays) are plain Python ints.
-* :func:`binomial_ci` -- the one binomial interval every device uses (Clopper-Pearson or Wilson),
-  vectorized over numpy arrays.
-* :func:`adaptive_plan` / :func:`run_adaptive` -- a group-sequential rule: at geometrically spaced
-  checkpoints it stops as soon as every patch's Clopper-Pearson interval lies within
-  ``p_hat +- v``; it never goes past a cap of eq. 3.5 rays (eq. 3.5 at ``delta/m`` per patch
-  for ``m`` patches, which is at most eq. 3.12). A Bernoulli with ``p`` far from 1/2 has a
-  small variance ``p(1 - p)`` and stops early; at ``p = 1/2`` the rule runs to the cap.
-
-Guarantee of the adaptive rule
-------------------------------
-For every vector of true patch probabilities ``p_j`` (counts per patch marginally
-Binomial(n, p_j), e.g. multinomial patch counts), with ``p_hat_j = counts_j / N`` at the ray
-count ``N`` where the rule stops::
-
-    P( exists j : |p_hat_j - p_j| > v ) <= delta.
-
-See :func:`adaptive_plan` for how each of the two modes proves it.
-"""
+"""The variance-adaptive sequential stopping rule: plans (checkpoints, thresholds, their
+certification) and :func:`run_adaptive`; its guarantee is stated in :mod:`virtual.bounds`."""
 
 from __future__ import annotations
 
 import functools
 import math
-import numbers
-import operator
 from dataclasses import dataclass, field
-from decimal import ROUND_CEILING, Decimal, localcontext
 from typing import Callable
 
 import numpy as np
 from scipy import special, stats
 
 from bench.core.errors import BudgetError
+from virtual.bounds.checks import check_delta, check_patches, check_uncertainty
+from virtual.bounds.hoeffding import hoeffding_per_patch
+from virtual.bounds.intervals import binomial_ci
 
-__all__ = [
-    "hoeffding_rays",
-    "binomial_ci",
-    "AdaptivePlan",
-    "AdaptiveResult",
-    "adaptive_plan",
-    "run_adaptive",
-    "estimate_time",
-    "budget_report",
-    "CI_METHODS",
-]
+__all__ = ["AdaptivePlan", "AdaptiveResult", "adaptive_plan", "run_adaptive", "CHECKPOINT_RATIO"]
 
-CI_METHODS: tuple[str, ...] = ("clopper-pearson", "wilson")
 
 #: geometric ratio between consecutive checkpoints of the adaptive rule
 CHECKPOINT_RATIO = 1.2
@@ -66,171 +30,6 @@ _CERTIFY_MAX_WORK = 700_000
 _CERTIFY_MARGIN = 0.999
 #: binomial tails whose Chernoff bound is below this are not evaluated exactly
 _NEGLIGIBLE = 1e-20
-
-
-# --- validation --------------------------------------------------------------------------------
-
-
-def _real(value: object, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise BudgetError(f"{name} must be a real number, got {value!r}")
-    return float(value)
-
-
-def _check_uncertainty(uncertainty: object) -> float:
-    v = _real(uncertainty, "uncertainty v")
-    if not (math.isfinite(v) and 0.0 < v <= 1.0):
-        raise BudgetError(f"uncertainty v must be finite and in (0, 1], got {uncertainty!r}")
-    return v
-
-
-def _check_delta(delta: object, name: str = "delta") -> float:
-    d = _real(delta, name)
-    if not (math.isfinite(d) and 0.0 < d < 1.0):
-        raise BudgetError(f"{name} (the confidence of eq. 3.5) must be in (0, 1), got {delta!r}")
-    return d
-
-
-def _check_patches(patches: object) -> int:
-    if isinstance(patches, bool):
-        raise BudgetError(f"patches must be an integer >= 1, got {patches!r}")
-    try:
-        m = operator.index(patches)  # type: ignore[arg-type]
-    except TypeError:
-        raise BudgetError(f"patches must be an integer >= 1, got {patches!r}") from None
-    if m < 1:
-        raise BudgetError(f"patches must be an integer >= 1, got {patches!r}")
-    return m
-
-
-# --- eq. 3.5 / 3.12 ----------------------------------------------------------------------------
-
-
-def _hoeffding_per_patch(v: float, delta: float) -> int:
-    """``ceil(ln(2/delta) / (2 v^2))`` decided exactly.
-
-    ``v`` and ``delta`` are binary floats, i.e. exact rationals, which :class:`~decimal.Decimal`
-    represents exactly. ``ln(2/delta)`` is irrational (Lindemann: the log of a rational other
-    than 1 is transcendental), so the quotient is never an integer; computing it to 60
-    significant digits and checking it is not within 1e-40 (relative) of an integer makes the
-    ceiling exact. Should that check ever fail, the precision is raised (up to 1000 digits).
-    """
-    prec = 60
-    while True:
-        with localcontext() as ctx:
-            ctx.prec = prec
-            q = (Decimal(2) / Decimal(delta)).ln() / (2 * Decimal(v) * Decimal(v))
-            n = q.to_integral_value(rounding=ROUND_CEILING)
-            gap = min(n - q, q - (n - 1))
-            if gap > q * Decimal(10) ** (20 - prec) or prec >= 1000:
-                return max(1, int(n))
-        prec *= 2
-
-
-def hoeffding_rays(uncertainty: float, delta: float, patches: int = 1) -> int:
-    """Rays needed by the Hoeffding bound: seed eq. 3.5 (``patches=1``) and eq. 3.12.
-
-    ``N = patches * ceil(ln(2/delta) / (2 v^2))``, so that one count's estimate ``n/N`` is within
-    ``v`` of its probability with probability at least ``1 - delta``.
-
-    Parameters
-    ----------
-    uncertainty
-        ``v``, the uncertainty of the instrument to compare with; finite, in (0, 1].
-    delta
-        The confidence of the seed (a failure probability), in (0, 1).
-    patches
-        ``m``, the number of collector patches of eq. 3.12; an integer >= 1.
-
-    Returns
-    -------
-    int
-        A Python int (never overflows): 105967 for ``v=0.005, delta=0.01`` and 95370300 with
-        ``patches=900``. The ceiling is decided with exact decimal arithmetic.
-
-    Raises
-    ------
-    BudgetError
-        Naming the bad value.
-    """
-    v = _check_uncertainty(uncertainty)
-    d = _check_delta(delta)
-    m = _check_patches(patches)
-    return m * _hoeffding_per_patch(v, d)
-
-
-# --- binomial intervals ------------------------------------------------------------------------
-
-
-def binomial_ci(k, n, delta: float, method: str = "clopper-pearson") -> tuple[np.ndarray, np.ndarray]:
-    """Two-sided ``1 - delta`` confidence interval for a binomial proportion, vectorized.
-
-    Parameters
-    ----------
-    k, n
-        Success counts and trial counts: integers (Python, numpy int64 or arrays, broadcast
-        against each other), ``0 <= k <= n``.
-    delta
-        Total miss probability in (0, 1): ``delta/2`` in each tail.
-    method
-        ``"clopper-pearson"`` (exact: coverage >= 1 - delta for every p; the default) or
-        ``"wilson"`` (score interval: shorter, coverage ~1 - delta, not guaranteed).
-
-    Returns
-    -------
-    (lo, hi)
-        float64 arrays of the broadcast shape (0-d arrays for scalar input). Always finite with
-        ``0 <= lo <= k/n <= hi <= 1``; ``lo == 0`` exactly at ``k == 0`` and ``hi == 1``
-        exactly at ``k == n``. For ``n == 0`` (no rays: no information) the interval is
-        ``(0, 1)``, the limit of both methods, so arrays with empty entries still work.
-
-    Raises
-    ------
-    BudgetError
-        For ``delta`` outside (0, 1), an unknown method, non-integer, negative or ``k > n``
-        counts.
-    """
-    d = _check_delta(delta)
-    if method not in CI_METHODS:
-        raise BudgetError(f"unknown binomial interval method {method!r}; known: {', '.join(CI_METHODS)}")
-    k_arr, n_arr = np.asarray(k), np.asarray(n)
-    for name, arr in (("k", k_arr), ("n", n_arr)):
-        if arr.dtype.kind not in "iu":
-            if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
-                continue  # integral floats (e.g. from a float expected count) are accepted
-            raise BudgetError(f"binomial counts {name} must be integers, got dtype {arr.dtype}")
-    kf, nf = np.broadcast_arrays(k_arr.astype(np.float64), n_arr.astype(np.float64))
-    if np.any(nf < 0) or np.any(kf < 0) or np.any(kf > nf):
-        bad = np.argwhere((nf < 0) | (kf < 0) | (kf > nf))[0]
-        raise BudgetError(
-            f"binomial counts need 0 <= k <= n, got k={kf[tuple(bad)]:.0f}, n={nf[tuple(bad)]:.0f}"
-        )
-    empty = nf == 0
-    nn = np.where(empty, 1.0, nf)
-    kk = np.where(empty, 0.0, kf)
-    if method == "clopper-pearson":
-        # lo = Beta^-1(delta/2; k, n-k+1), hi = Beta^-1(1-delta/2; k+1, n-k); edges set exactly.
-        with np.errstate(all="ignore"):
-            lo = special.betaincinv(np.maximum(kk, 1.0), nn - kk + 1.0, d / 2.0)
-            hi = special.betaincinv(kk + 1.0, np.maximum(nn - kk, 1.0), 1.0 - d / 2.0)
-        lo = np.where(kk == 0, 0.0, lo)
-        hi = np.where(kk == nn, 1.0, hi)
-    else:
-        z = float(stats.norm.isf(d / 2.0))
-        z2 = z * z
-        centre = (kk + z2 / 2.0) / (nn + z2)
-        half = z / (nn + z2) * np.sqrt(kk * (nn - kk) / nn + z2 / 4.0)
-        lo = np.where(kk == 0, 0.0, np.clip(centre - half, 0.0, 1.0))
-        hi = np.where(kk == nn, 1.0, np.clip(centre + half, 0.0, 1.0))
-    p_hat = kk / nn
-    lo = np.minimum(lo, p_hat)  # guard the last ulp so that lo <= p_hat <= hi always holds
-    hi = np.maximum(hi, p_hat)
-    lo = np.where(empty, 0.0, lo)
-    hi = np.where(empty, 1.0, hi)
-    return lo, hi
-
-
-# --- the adaptive rule -------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -438,8 +237,8 @@ def _first_checkpoint(alpha: float, v: float) -> int:
 @functools.lru_cache(maxsize=64)
 def _plan(v: float, delta: float, m: int) -> AdaptivePlan:
     dp = delta / m
-    hoeffding_n = m * _hoeffding_per_patch(v, delta)
-    cap = _hoeffding_per_patch(v, dp)
+    hoeffding_n = m * hoeffding_per_patch(v, delta)
+    cap = hoeffding_per_patch(v, dp)
     cells = math.ceil(0.5 / (v * _CELL_FRACTION))
     n_ck = len(_geometric_grid(_first_checkpoint(dp, v), cap, CHECKPOINT_RATIO))
     if cells * (n_ck + 1) <= _CERTIFY_MAX_WORK:
@@ -463,7 +262,7 @@ def _plan(v: float, delta: float, m: int) -> AdaptivePlan:
         # (not reached in practice: with no checkpoints the cap alone certifies, eq. 3.5)
     # Union mode: half of delta/m over the checkpoints (Clopper-Pearson at each fixed n),
     # half to the cap (Hoeffding).
-    cap = _hoeffding_per_patch(v, dp / 2.0)
+    cap = hoeffding_per_patch(v, dp / 2.0)
     ns_list = _geometric_grid(_first_checkpoint(dp / 2.0, v), cap, CHECKPOINT_RATIO)
     alpha = dp / 2.0 / max(1, len(ns_list))
     return AdaptivePlan(
@@ -511,7 +310,7 @@ def adaptive_plan(uncertainty: float, delta: float, patches: int = 1) -> Adaptiv
     BudgetError
         For a bad ``uncertainty``, ``delta`` or ``patches`` (naming the value).
     """
-    return _plan(_check_uncertainty(uncertainty), _check_delta(delta), _check_patches(patches))
+    return _plan(check_uncertainty(uncertainty), check_delta(delta), check_patches(patches))
 
 
 @dataclass
@@ -594,7 +393,7 @@ def run_adaptive(draw: Callable[[int], object], uncertainty: float, delta: float
     if plan is None:
         plan = adaptive_plan(uncertainty, delta, patches)
     else:
-        v, d, m = _check_uncertainty(uncertainty), _check_delta(delta), _check_patches(patches)
+        v, d, m = check_uncertainty(uncertainty), check_delta(delta), check_patches(patches)
         if (plan.uncertainty, plan.delta, plan.patches) != (v, d, m):
             raise BudgetError(
                 f"plan is for (v={plan.uncertainty}, delta={plan.delta}, patches={plan.patches}), "
@@ -617,52 +416,3 @@ def run_adaptive(draw: Callable[[int], object], uncertainty: float, delta: float
     )
 
 
-# --- time --------------------------------------------------------------------------------------
-
-
-def estimate_time(n_rays: int, rays_per_second: float) -> float:
-    """Seconds to cast ``n_rays`` at ``rays_per_second`` (no simulation is run).
-
-    ``inf`` when the time does not fit a float (ray counts beyond ~1e308).
-
-    Raises
-    ------
-    BudgetError
-        For a negative or non-integer ray count, or a rate that is not finite and > 0.
-    """
-    if isinstance(n_rays, bool):
-        raise BudgetError(f"n_rays must be an integer >= 0, got {n_rays!r}")
-    try:
-        n = operator.index(n_rays)  # type: ignore[arg-type]
-    except TypeError:
-        raise BudgetError(f"n_rays must be an integer >= 0, got {n_rays!r}") from None
-    if n < 0:
-        raise BudgetError(f"n_rays must be an integer >= 0, got {n_rays!r}")
-    rate = _real(rays_per_second, "rays_per_second")
-    if not (math.isfinite(rate) and rate > 0.0):
-        raise BudgetError(f"rays_per_second must be finite and > 0, got {rays_per_second!r}")
-    try:
-        return n / rate
-    except OverflowError:
-        return math.inf
-
-
-def budget_report(uncertainty: float, delta: float, patches: int = 1,
-                  rays_per_second: float = 1e7) -> dict[str, float | int]:
-    """Ray count of eq. 3.5/3.12 and the time it would take, computed instantly.
-
-    Returns
-    -------
-    dict
-        ``{"N": int, "seconds": float, "uncertainty": v, "delta": delta, "patches": m,
-        "rays_per_second": rate}``; ``N`` is exact (a Python int, e.g. ~2.6e12 at ``v=1e-6``).
-    """
-    n = hoeffding_rays(uncertainty, delta, patches)
-    return {
-        "N": n,
-        "seconds": estimate_time(n, rays_per_second),
-        "uncertainty": float(uncertainty),
-        "delta": float(delta),
-        "patches": int(patches),
-        "rays_per_second": float(rays_per_second),
-    }

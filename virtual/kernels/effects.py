@@ -1,0 +1,261 @@
+"""The counting kernels with a scene's per-ray effects (bit flags, see :mod:`virtual.effects` for
+what each effect does), the float32-lookup goniophotometer kernel and the spectrophotometer fed
+with given disk points. They reuse :func:`~virtual.kernels.beam.emit`,
+:func:`~virtual.kernels.scatter.scatter` and :func:`~virtual.kernels.collector.patch_of`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import prange
+
+from virtual.kernels import jit
+from virtual.kernels.beam import BEAM_COLLIMATED, emit, toward_source
+from virtual.kernels.collector import patch_of
+from virtual.kernels.rng import next_double
+from virtual.kernels.sampling import sample_cosine_hemisphere, warp_square
+from virtual.kernels.scatter import scatter
+
+__all__ = ["FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN", "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS",
+           "spectro_fx_kernel", "gonio_fx_kernel", "gonio_kernel_f32", "spectro_points_kernel"]
+
+FX_STRAY = 1
+FX_BANDPASS = 2
+FX_SPHERE = 4
+FX_PATTERN = 8
+FX_DETECTORS = 16
+FX_NEAR = 32
+#: effects that need the point where a ray meets the specimen
+FX_POSITIONS = FX_PATTERN | FX_NEAR
+
+_TWO_PI = 2.0 * math.pi
+
+
+@jit(inline="always")
+def _spot(r, s):
+    """A uniform point of the disk of radius r (eq. 3.3 with rejection)."""
+    while True:
+        x, y = warp_square(next_double(s), next_double(s), r)
+        if x * x + y * y < r * r:
+            return x, y
+
+
+
+@jit(inline="always")
+def _emit_at(kind, disk, b, bp, spot_r, s):
+    """emit() plus the point (x, y) where the ray meets the specimen plane."""
+    if kind == BEAM_COLLIMATED:
+        wx, wy, wz, hit = emit(kind, disk, b, s)
+        x, y = _spot(spot_r, s)
+        return wx, wy, wz, hit, x, y
+    x, y = _spot(b[10], s)
+    ux, uy, uz, _ = emit(kind, disk, bp, s)  # toward the emitter point seen from the centre
+    # the emitter point O satisfies O . axis = D, so O = u D / (u . axis)
+    t = bp[11] / (ux * b[12] + uy * b[13] + uz * b[14])
+    ox = ux * t - x
+    oy = uy * t - y
+    oz = uz * t
+    inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
+    wx, wy, wz = ox * inv, oy * inv, oz * inv
+    return wx, wy, wz, wz * b[14] > 0.0, x, y
+
+
+
+@jit(inline="always")
+def _pick(cdf, s):
+    u = next_double(s)
+    k = 0
+    n = cdf.shape[0]
+    while k < n - 1 and u >= cdf[k]:
+        k += 1
+    return k
+
+
+
+@jit(parallel=True, fastmath=True)
+def spectro_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cone, flags, e, sizes, states):
+    n_chunks = sizes.shape[0]
+    out = np.zeros((n_chunks, 7), dtype=np.int64)
+    positions = (flags & FX_POSITIONS) != 0
+    for c in prange(n_chunks):
+        s = states[c].copy()
+        refl = np.int64(0)
+        trans = np.int64(0)
+        absorbed = np.int64(0)
+        missed = np.int64(0)
+        in_cone = np.int64(0)
+        detected = np.int64(0)
+        stray = np.int64(0)
+        for _ in range(sizes[c]):
+            if (flags & FX_STRAY) != 0 and next_double(s) < e[0]:
+                stray += 1
+                continue
+            if positions:
+                wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[7], s)
+            else:
+                wx, wy, wz, hit = emit(beam_kind, disk, b, s)
+                px = 0.0
+            if not hit:
+                missed += 1
+                continue
+            if (flags & FX_PATTERN) != 0:
+                m = 1.0 - e[6] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[5]))
+                if next_double(s) >= m:
+                    absorbed += 1
+                    continue
+            k = _pick(cdf, s) if (flags & FX_BANDPASS) != 0 else 0
+            p = ptab[k]
+            ox, oy, oz, alive = scatter(model, p, wx, wy, wz, s)
+            if not alive:
+                absorbed += 1
+                continue
+            up = oz * wz > 0.0
+            if up:
+                refl += 1
+            else:
+                trans += 1
+            if ox * cone[0] + oy * cone[1] + oz * cone[2] >= cone[3]:
+                in_cone += 1
+            if (flags & FX_SPHERE) != 0 and up:
+                side = 1.0 if wz > 0.0 else -1.0
+                while True:  # strikes on the sphere surface; ends w.p. 1 (wall reflectance < 1)
+                    u = next_double(s)
+                    if u < e[2]:
+                        detected += 1
+                        break
+                    u -= e[2]
+                    if u < e[3]:  # back on the specimen: diffuse illumination from the sphere
+                        dx, dy, dz = sample_cosine_hemisphere(s)
+                        dz = dz * side
+                        qx, qy, qz, ok = scatter(model, p, dx, dy, dz, s)
+                        if not ok or qz * dz <= 0.0:
+                            break
+                        continue
+                    u -= e[3]
+                    if u < e[4] - e[2] - e[3]:  # another port: lost
+                        break
+                    u -= e[4] - e[2] - e[3]
+                    if u >= (1.0 - e[4]) * e[1]:  # absorbed by the wall
+                        break
+        out[c, 0] = refl
+        out[c, 1] = trans
+        out[c, 2] = absorbed
+        out[c, 3] = missed
+        out[c, 4] = in_cone
+        out[c, 5] = detected
+        out[c, 6] = stray
+    return out
+
+
+
+@jit(parallel=True, fastmath=True)
+def gonio_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cargs, n_bins, flags, e, det, sizes, states):
+    n_chunks = sizes.shape[0]
+    n_det = det.shape[0]
+    width = n_bins + 2 + n_det
+    out = np.zeros((n_chunks, width), dtype=np.int64)
+    positions = (flags & FX_POSITIONS) != 0
+    near = (flags & FX_NEAR) != 0
+    for c in prange(n_chunks):
+        s = states[c].copy()
+        hist = np.zeros(width, dtype=np.int64)
+        for _ in range(sizes[c]):
+            px = 0.0
+            py = 0.0
+            if (flags & FX_STRAY) != 0 and next_double(s) < e[0]:
+                ox, oy, oz = sample_cosine_hemisphere(s)
+            else:
+                if positions:
+                    wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[7], s)
+                else:
+                    wx, wy, wz, hit = emit(beam_kind, disk, b, s)
+                if not hit:
+                    hist[n_bins + 1] += 1
+                    continue
+                if (flags & FX_PATTERN) != 0:
+                    m = 1.0 - e[6] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[5]))
+                    if next_double(s) >= m:
+                        hist[n_bins] += 1
+                        continue
+                k = _pick(cdf, s) if (flags & FX_BANDPASS) != 0 else 0
+                ox, oy, oz, alive = scatter(model, ptab[k], wx, wy, wz, s)
+                if not alive:
+                    hist[n_bins] += 1
+                    continue
+            hist[patch_of(ox, oy, oz, cargs[0], cargs[1], cargs[2], cargs[3], cargs[4])] += 1
+            if (flags & FX_DETECTORS) != 0:
+                for j in range(n_det):
+                    cv = ox * det[j, 0] + oy * det[j, 1] + oz * det[j, 2]
+                    if near:
+                        if cv > 0.0:
+                            t = (e[8] - (px * det[j, 0] + py * det[j, 1])) / cv
+                            hx = px + t * ox - e[8] * det[j, 0]
+                            hy = py + t * oy - e[8] * det[j, 1]
+                            hz = t * oz - e[8] * det[j, 2]
+                            if hx * hx + hy * hy + hz * hz <= e[9] * e[9]:
+                                hist[n_bins + 2 + j] += 1
+                    elif cv >= det[j, 3]:
+                        hist[n_bins + 2 + j] += 1
+        out[c] = hist
+    return out
+
+
+
+@jit(parallel=True, fastmath=True)
+def gonio_kernel_f32(model, params, beam_kind, disk, b, scheme, n_theta, n_phi, sin2_32, phi_cs32, n_bins,
+                      sizes, states):
+    n_chunks = sizes.shape[0]
+    out = np.zeros((n_chunks, n_bins + 2), dtype=np.int64)
+    for c in prange(n_chunks):
+        s = states[c].copy()
+        hist = np.zeros(n_bins + 2, dtype=np.int64)
+        for _ in range(sizes[c]):
+            wx, wy, wz, hit = emit(beam_kind, disk, b, s)
+            if not hit:
+                hist[n_bins + 1] += 1
+                continue
+            ox, oy, oz, alive = scatter(model, params, wx, wy, wz, s)
+            if not alive:
+                hist[n_bins] += 1
+                continue
+            hist[patch_of(np.float32(ox), np.float32(oy), np.float32(oz), scheme, n_theta, n_phi,
+                          sin2_32, phi_cs32)] += 1
+        out[c] = hist
+    return out
+
+
+
+@jit(parallel=True, fastmath=True)
+def spectro_points_kernel(model, params, b, pts, starts, states):
+    n_chunks = starts.shape[0] - 1
+    out = np.zeros((n_chunks, 5), dtype=np.int64)
+    for c in prange(n_chunks):
+        s = states[c].copy()
+        refl = np.int64(0)
+        trans = np.int64(0)
+        absorbed = np.int64(0)
+        missed = np.int64(0)
+        for i in range(starts[c], starts[c + 1]):
+            x1 = pts[i, 0]
+            y1 = pts[i, 1]
+            x2 = pts[i, 2]
+            y2 = pts[i, 3]
+            wx, wy, wz, hit = toward_source(b, x1, y1, x2, y2)  # the beam's one direction formula
+            if not hit:
+                missed += 1
+                continue
+            qx, qy, qz, alive = scatter(model, params, wx, wy, wz, s)
+            if not alive:
+                absorbed += 1
+                continue
+            if qz * wz > 0.0:
+                refl += 1
+            else:
+                trans += 1
+        out[c, 0] = refl
+        out[c, 1] = trans
+        out[c, 2] = absorbed
+        out[c, 3] = missed
+    return out

@@ -1,0 +1,145 @@
+"""Microfacet building blocks of the specimen kernels: unit-disk points, Fresnel factors, GGX
+visible normals, the Smith masking ratio G2/G1 and orthonormal frames.
+
+Conventions (shared with the numpy densities of :mod:`virtual.specimens.physics`): GGX uses
+Smith's height-correlated masking-shadowing G2 = 1 / (1 + L(wi) + L(wo)), G1(w) = 1 / (1 + L(w)),
+L(w) = (sqrt(1 + (ax^2 wx^2 + ay^2 wy^2) / wz^2) - 1) / 2; with n(w) = sqrt(ax^2 wx^2 + ay^2 wy^2 +
+wz^2), G2 / G1(wi) = (zi + n_i) zo / (n_i zo + n_o zi): no division by a grazing cosine anywhere.
+"""
+
+from __future__ import annotations
+
+import math
+
+from virtual.kernels import jit
+from virtual.kernels.rng import next_double
+
+__all__ = ["unit_disk", "disk_direction", "fresnel_conductor_ratio", "fresnel_dielectric", "ggx_n",
+           "ggx_vndf_given", "ggx_vndf", "g2_over_g1_ratio", "g2_over_g1", "frame"]
+
+
+@jit(inline="always")
+def unit_disk(s):
+    """A uniform point (a, b) of the open unit disk minus its centre, and r2 = a^2 + b^2.
+
+    r2 is uniform in (0, 1) and independent of the direction (a, b) / sqrt(r2)."""
+    while True:
+        a = 2.0 * next_double(s) - 1.0
+        b = 2.0 * next_double(s) - 1.0
+        r2 = a * a + b * b
+        if r2 < 1.0 and r2 > 0.0:
+            return a, b, r2
+
+
+
+@jit(inline="always")
+def fresnel_conductor_ratio(c, eta, k):
+    """Scalar twin of :func:`_np_fresnel_conductor` (c in [0, 1]) as ``(num, den)``, F = num / den,
+    den >= 0: F = (Rs + Rp) / 2 with Rp = Rs (t3 - t4) / (t3 + t4) is Rs t3 / (t3 + t4), and Rs
+    = (t1 - t2) / (t1 + t2); callers compare against F without dividing. With k = 0 it is the
+    dielectric's F, total internal reflection (eta < 1) included."""
+    c2 = c * c
+    s2 = 1.0 - c2
+    e2 = eta * eta
+    k2 = k * k
+    t0 = e2 - k2 - s2
+    a2b2 = math.sqrt(t0 * t0 + 4.0 * e2 * k2)
+    t1 = a2b2 + c2
+    a = math.sqrt(max(0.5 * (a2b2 + t0), 0.0))
+    t2 = 2.0 * c * a
+    t3 = c2 * a2b2 + s2 * s2
+    t4 = t2 * s2
+    return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)
+
+
+
+@jit(inline="always")
+def fresnel_dielectric(c, eta):
+    """(F, cos_t) for incident cosine c in [0, 1] and eta = n_t / n_i; F = 1, cos_t = 0 on TIR."""
+    st2 = (1.0 - c * c) / (eta * eta)
+    if st2 >= 1.0:
+        return 1.0, 0.0
+    ct = math.sqrt(1.0 - st2)
+    rs = (c - eta * ct) / max(c + eta * ct, 1e-300)
+    rp = (eta * c - ct) / max(eta * c + ct, 1e-300)
+    return 0.5 * (rs * rs + rp * rp), ct
+
+
+
+@jit(inline="always")
+def ggx_vndf_given(wx, wy, wz, ax, ay, inv_ni, ca, sa, r2):
+    """A microfacet normal from GGX's distribution of visible normals for w (wz > 0), given
+    ``inv_ni`` = 1 / |(ax wx, ay wy, wz)| (:func:`ggx_n`, which G1 needs too) and a uniform
+    point of the unit disk as its direction (ca, sa) (unit) and squared radius r2. Branch-free.
+
+    Dupuy & Benyoub (2023) "spherical caps" form of Heitz (2018): in the stretched frame the
+    visible normal is h = c + v with c uniform on the cap z > -v_z of the unit sphere. The cap
+    point from the disk point: z = 1 - q r2 with q = 1 + v_z and sin(theta) (cos, sin)(phi) =
+    (ca, sa) sqrt(r2 q (2 - q r2)) -- no trigonometric call.
+    """
+    vx = ax * wx * inv_ni
+    vy = ay * wy * inv_ni
+    vz = wz * inv_ni
+    q = 1.0 + vz
+    z = 1.0 - q * r2
+    sc = math.sqrt(max(r2 * q * (2.0 - q * r2), 0.0))
+    hx = ca * sc + vx
+    hy = sa * sc + vy
+    hz = max(z + vz, 0.0)
+    mx = ax * hx
+    my = ay * hy
+    n2 = mx * mx + my * my + hz * hz
+    good = n2 > 0.0
+    inv = 1.0 / math.sqrt(n2 if good else 1.0)
+    return (mx * inv if good else 0.0), (my * inv if good else 0.0), (hz * inv if good else 1.0)
+
+
+
+@jit(inline="always")
+def disk_direction(s):
+    """A uniform point of the unit disk drawn by rejection from ``s``: its direction (unit) and
+    its squared radius, uniform in (0, 1)."""
+    a, b, r2 = unit_disk(s)
+    inv = 1.0 / math.sqrt(r2)
+    return a * inv, b * inv, r2
+
+
+
+@jit(inline="always")
+def ggx_vndf(wx, wy, wz, ax, ay, s):
+    """:func:`ggx_vndf_given` with the disk point drawn by rejection from the stream ``s``."""
+    ca, sa, r2 = disk_direction(s)
+    return ggx_vndf_given(wx, wy, wz, ax, ay, 1.0 / ggx_n(wx, wy, wz, ax, ay), ca, sa, r2)
+
+
+
+@jit(inline="always")
+def ggx_n(wx, wy, wz, ax, ay):
+    return math.sqrt(ax * ax * wx * wx + ay * ay * wy * wy + wz * wz)
+
+
+
+@jit(inline="always")
+def g2_over_g1_ratio(wz, ni, oz, no):
+    """G2(wi, wo) / G1(wi) as ``(num, den)`` from the cosines and :func:`ggx_n` of both
+    directions; den > 0 for wz, oz > 0."""
+    return (wz + ni) * oz, ni * oz + no * wz
+
+
+
+@jit(inline="always")
+def g2_over_g1(wx, wy, wz, ox, oy, oz, ax, ay):
+    """G2(wi, wo) / G1(wi) for wz, oz > 0 (<= 1)."""
+    num, den = g2_over_g1_ratio(wz, ggx_n(wx, wy, wz, ax, ay), oz, ggx_n(ox, oy, oz, ax, ay))
+    return num / den
+
+
+
+@jit(inline="always")
+def frame(nx, ny, nz):
+    """An orthonormal basis (t, b) around the unit vector n (Duff et al. 2017, branchless)."""
+    sign = math.copysign(1.0, nz)
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return (1.0 + sign * nx * nx * a, sign * b, -sign * nx,
+            b, sign + ny * ny * a, -ny)

@@ -1,0 +1,141 @@
+"""Numpy face of the specimen physics: Fresnel factors, GGX densities and visible-normal means.
+
+The densities (:meth:`virtual.specimens.Specimen.bsdf`) of the analytic models are built from
+these; their kernel twins are :mod:`virtual.kernels.microfacet`.
+
+Conventions. Every analytic model is written in the *local frame of the lit side*: when the
+source is below the specimen (w_z < 0) an opaque model is mirrored in the specimen plane
+(two-sided), and the dielectric interface swaps the media (eta -> 1/eta). Fresnel factors are
+unpolarized. GGX uses Smith's height-correlated masking-shadowing
+    G2 = 1 / (1 + L(wi) + L(wo)),  G1(w) = 1 / (1 + L(w)),
+    L(w) = (sqrt(1 + (ax^2 wx^2 + ay^2 wy^2) / wz^2) - 1) / 2,
+and D(m) = 1 / (pi ax ay (mx^2/ax^2 + my^2/ay^2 + mz^2)^2). With n(w) = sqrt(ax^2 wx^2 +
+ay^2 wy^2 + wz^2) one has G2 / (4 zi zo) = 1 / (2 (n_i zo + n_o zi)) and
+G2 / G1(wi) = (zi + n_i) zo / (n_i zo + n_o zi): no division by a grazing cosine anywhere.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+__all__ = ["np_fresnel_conductor", "np_fresnel_dielectric", "np_ggx_d", "np_ggx_n", "np_ggx_reflection",
+           "local", "mirror", "fresnel_hemispherical_average", "vndf_mean"]
+
+
+
+def np_fresnel_conductor(c: np.ndarray, eta: float, k: float) -> np.ndarray:
+    """Exact unpolarized Fresnel reflectance of a conductor (eta + i k) for cosines ``c`` in [0, 1].
+
+    With ``k = 0`` it is the dielectric reflectance (total internal reflection included).
+    """
+    c = np.clip(c, 0.0, 1.0)
+    c2 = c * c
+    s2 = 1.0 - c2
+    e2, k2 = eta * eta, k * k
+    t0 = e2 - k2 - s2
+    a2b2 = np.sqrt(t0 * t0 + 4.0 * e2 * k2)
+    t1 = a2b2 + c2
+    a = np.sqrt(np.maximum(0.5 * (a2b2 + t0), 0.0))
+    t2 = 2.0 * c * a
+    rs = (t1 - t2) / np.maximum(t1 + t2, 1e-300)
+    t3 = c2 * a2b2 + s2 * s2
+    t4 = t2 * s2
+    rp = rs * (t3 - t4) / np.maximum(t3 + t4, 1e-300)
+    return 0.5 * (rp + rs)
+
+
+def np_fresnel_dielectric(c: np.ndarray, eta: float) -> np.ndarray:
+    """Unpolarized dielectric reflectance for cosines ``c`` >= 0 on the incident side, eta = n_t/n_i."""
+    c = np.clip(c, 0.0, 1.0)
+    st2 = (1.0 - c * c) / (eta * eta)
+    ct = np.sqrt(np.maximum(1.0 - st2, 0.0))
+    rs = (c - eta * ct) / np.maximum(c + eta * ct, 1e-300)
+    rp = (eta * c - ct) / np.maximum(eta * c + ct, 1e-300)
+    return np.where(st2 >= 1.0, 1.0, 0.5 * (rs * rs + rp * rp))
+
+
+def np_ggx_d(hx, hy, hz, ax: float, ay: float) -> np.ndarray:
+    q = hx * hx / (ax * ax) + hy * hy / (ay * ay) + hz * hz
+    return 1.0 / (math.pi * ax * ay * q * q)
+
+
+def np_ggx_n(wx, wy, wz, ax: float, ay: float) -> np.ndarray:
+    """n(w) = sqrt(ax^2 wx^2 + ay^2 wy^2 + wz^2) (see the conventions above)."""
+    return np.sqrt(ax * ax * wx * wx + ay * ay * wy * wy + wz * wz)
+
+
+def np_ggx_reflection(wi: np.ndarray, wo: np.ndarray, ax: float, ay: float, fresnel) -> np.ndarray:
+    """F D G2 / (4 zi zo) for wi (3,) with zi > 0 and wo (n, 3); 0 where zo <= 0."""
+    zi = wi[2]
+    zo = wo[:, 2]
+    hx, hy, hz = wi[0] + wo[:, 0], wi[1] + wo[:, 1], zi + zo
+    inv = 1.0 / np.maximum(np.sqrt(hx * hx + hy * hy + hz * hz), 1e-300)
+    hx, hy, hz = hx * inv, hy * inv, hz * inv
+    c = wi[0] * hx + wi[1] * hy + zi * hz
+    ni = np_ggx_n(wi[0], wi[1], zi, ax, ay)
+    no = np_ggx_n(wo[:, 0], wo[:, 1], np.maximum(zo, 0.0), ax, ay)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        f = fresnel(c) * np_ggx_d(hx, hy, hz, ax, ay) / (2.0 * (ni * zo + no * zi))
+    return np.where(zo > 0.0, np.nan_to_num(f, nan=0.0, posinf=0.0), 0.0)
+
+
+def local(wi: np.ndarray, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Mirror (wi, wo) so that wi is on the +z side; returns (wi, wo (n,3), flipped)."""
+    wi = np.asarray(wi, dtype=np.float64).reshape(3)
+    wo = np.atleast_2d(np.asarray(wo, dtype=np.float64))
+    if wi[2] < 0.0:
+        m = np.array([1.0, 1.0, -1.0])
+        return wi * m, wo * m, True
+    return wi, wo, False
+
+
+
+def mirror(wi: np.ndarray) -> np.ndarray:
+    w = np.asarray(wi, dtype=float).reshape(3)
+    return np.array([-w[0], -w[1], w[2]]) / np.linalg.norm(w)
+
+
+
+@lru_cache(maxsize=256)
+def fresnel_hemispherical_average(eta: float) -> float:
+    """F_avg = 2 int_0^1 F(mu) mu dmu for the dielectric of relative index eta (Gauss-Legendre)."""
+    x, w = np.polynomial.legendre.leggauss(256)
+    mu = 0.5 * (x + 1.0)
+    return float(np.sum(w * 0.5 * 2.0 * mu * np_fresnel_dielectric(mu, eta)))
+
+
+_VNDF_NODES = 48
+
+
+@lru_cache(maxsize=1)
+def _vndf_rule() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    x, w = np.polynomial.legendre.leggauss(_VNDF_NODES)
+    u = 0.5 * (x + 1.0)
+    uu, vv = np.meshgrid(u, u, indexing="ij")
+    ww = np.outer(w, w) * 0.25
+    return uu.ravel(), vv.ravel(), ww.ravel()
+
+
+def vndf_mean(wi: np.ndarray, ax: float, ay: float, func) -> float:
+    """Mean of ``func(wi . m)`` over the visible normals m of wi (wi_z > 0): Gauss-Legendre on the
+    unit square mapped through the same spherical-cap construction as the sampler (phi = 2 pi u,
+    r2 = v), whose Jacobian is constant -- so the integrand is smooth."""
+    u, v, w = _vndf_rule()
+    vx, vy, vz = ax * wi[0], ay * wi[1], wi[2]
+    n = math.sqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx / n, vy / n, vz / n
+    q = 1.0 + vz
+    z = 1.0 - q * v
+    sc = np.sqrt(np.maximum(q * (2.0 - q * v), 0.0)) * np.sqrt(v)
+    phi = 2.0 * math.pi * u
+    hx = sc * np.cos(phi) + vx
+    hy = sc * np.sin(phi) + vy
+    hz = np.maximum(z + vz, 0.0)
+    mx, my = ax * hx, ay * hy
+    nn = np.maximum(np.sqrt(mx * mx + my * my + hz * hz), 1e-300)
+    c = (wi[0] * mx + wi[1] * my + wi[2] * hz) / nn
+    return float(np.sum(w * func(np.clip(c, 0.0, 1.0))))
+
