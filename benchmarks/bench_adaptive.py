@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from benchmarks.common import table
-from bench.cli_tradeoff import adaptive_measure
+from bench.adaptive import adaptive_measure
 from virtual.bounds import hoeffding_rays
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.spectrophotometer import VirtualSpectrophotometer

@@ -197,7 +197,7 @@ def test_counts_beyond_two_to_the_31_do_not_overflow():
 def test_tiny_uncertainty_reports_rays_and_time_instead_of_hanging():
     """Catches the naive budget that simply starts casting eq. 3.5's 2.6e12 rays (hours), or
     computes it in floating point (ceil off by one) / as a C long (overflow at m * 2.6e12)."""
-    from bench.cli_tradeoff import adaptive_measure
+    from bench.adaptive import adaptive_measure
 
     t0 = time.perf_counter()
     rep = budget_report(1e-6, 0.01, rays_per_second=1e7)

@@ -120,7 +120,7 @@ def test_adaptive_cli_measurements_cover_at_least_one_minus_delta():
     1,000 seeded measurements of R = 0.3, T = 0.2 at v = 0.02, delta = 0.1, the fraction whose
     R or T misses by more than v is at most delta (+3 binomial sigma of 1,000 runs: 0.128);
     and no run went past the cap (eq. 3.5 at delta/2, R and T being guaranteed jointly)."""
-    from bench.cli_tradeoff import adaptive_measure
+    from bench.adaptive import adaptive_measure
     from virtual.spectrophotometer import VirtualSpectrophotometer
 
     v, delta, runs = 0.02, 0.1, 1000
@@ -139,7 +139,7 @@ def test_adaptive_cli_measurements_cover_at_least_one_minus_delta():
 
 
 def test_adaptive_saves_three_quarters_at_r_005():
-    from bench.cli_tradeoff import adaptive_measure
+    from bench.adaptive import adaptive_measure
     from virtual.spectrophotometer import VirtualSpectrophotometer
 
     sp = VirtualSpectrophotometer("lambert:reflectance=0.05", rays=10, seed=1)

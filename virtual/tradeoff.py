@@ -39,6 +39,10 @@ import numpy as np
 from bench.core.errors import InputError
 from virtual.collector import parse_collector
 from virtual.scene import Scene
+from virtual.bounds import adaptive_plan, hoeffding_rays, run_adaptive
+from virtual.effects import spectro_point_counts
+from virtual.engine import measurement_seed
+from virtual.sampling import sample_disk
 
 __all__ = ["sweep", "pareto_front", "plot_tradeoff", "ROW_KEYS",
            "DEFAULT_RAYS", "STRATEGIES", "BUDGETS"]
@@ -114,7 +118,6 @@ def _predicted(scene: Scene, ref: np.ndarray, n: int) -> tuple[float, float]:
 
 def _disk_points(n: int, strategy: str, r1: float, r2: float, seed: int) -> np.ndarray:
     """(n, 4): emitter point (x1, y1) and specimen point (x2, y2) by ``strategy``."""
-    from virtual.sampling import sample_disk
 
     rng = np.random.default_rng(seed)
     if strategy == "sobol":
@@ -133,8 +136,6 @@ def _disk_points(n: int, strategy: str, r1: float, r2: float, seed: int) -> np.n
 
 def _run_points(scene: Scene, n: int, strategy: str, seed: int) -> np.ndarray:
     """Readings of a spectrophotometer scene whose conical beam uses precomputed disk points."""
-    from virtual.effects import spectro_point_counts
-    from virtual.engine import measurement_seed
 
     b = scene.beam
     args = b.kernel_args(*scene.incidence)
@@ -174,7 +175,6 @@ def _spectro_count(scene: Scene, c: np.ndarray) -> int:
 
 def _adaptive(scene: Scene, seed: int) -> tuple[int, np.ndarray, Any]:
     """Run the adaptive rule on the scene (first wavelength); returns (N, values, result)."""
-    from virtual.bounds import run_adaptive
 
     sc = replace(scene, wavelengths=scene.wavelengths[:1])
     cols = _tracked(sc)
@@ -255,7 +255,6 @@ def sweep(scene: Scene, rays: Sequence[int] | None = None, strategies: Sequence[
         if s in ("jittered", "sobol"):
             _run_points(scene, 1024, s, seed)
     if "adaptive" in budgets:  # the plan is pure and cached: certify it outside the timings
-        from virtual.bounds import adaptive_plan
 
         adaptive_plan(scene.uncertainty, scene.delta, len(_tracked(scene)))
     for col_spec in cols:
@@ -274,7 +273,6 @@ def sweep(scene: Scene, rays: Sequence[int] | None = None, strategies: Sequence[
                     rows.append(_row(st, ref, n, strat, col_name, "fixed", "rays", repeats, seed,
                                      lambda s, _st=st, _n=n, _strat=strat: _one(_st, _n, _strat, s)))
             if "eq3.5" in budgets:
-                from virtual.bounds import hoeffding_rays
 
                 m = sc.collector.n_patches if sc.instrument == "goniophotometer" else 1
                 n = hoeffding_rays(sc.uncertainty, sc.delta, m)
