@@ -91,4 +91,7 @@ def motion_profile(arm: Mapping[str, Any] | None, turntable: Mapping[str, Any] |
         ramp = min(_number(t, "accel", 1000, where), _number(t, "decel", 1000, where))
         acc["turntable"] = (ramp * AZ_ACCEL_STEPS_S2 / steps_per_deg * time_scale**2
                             if (ramps and ramp > 0 and steps_per_deg > 0) else math.inf)
-    return MotionProfile(vel, acc, settle_s=settle_s, overhead_s=overhead_s)
+    base = MotionProfile({}, {})  # its defaults stand for joints whose speed the config does not give
+    return MotionProfile(vel, acc, settle_s=settle_s, overhead_s=overhead_s,
+                         default_velocity=base.default_velocity * time_scale,
+                         default_acceleration=base.default_acceleration * time_scale**2 if ramps else math.inf)
