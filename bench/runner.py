@@ -11,7 +11,7 @@
   from that stored reading instead: no operator is needed (the run records the file, its date
   and the operator's note).
 * A plan with ``home = true`` returns the turntable to home after validation, before any
-  other motion (:mod:`bench.homing`); a bench without one (virtual) skips it.
+  other motion (:mod:`bench.builders.homing`); a bench without one (virtual) skips it.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from bench.config import Bench
 from bench.core.errors import BenchError, DeviceError, RunInterrupted, StoreError
 from bench.core.geometry import Geometry
 from bench.core.roles import Reading
-from bench.homing import HOME_AXIS, home_axis, homeable_axes
+from bench.builders.homing import HOME_AXIS, home_axis, homeable_axes
 from bench.io.white import WhiteReference, read_white_reference
 from bench.plans import Plan, order_for_travel, plan_from_dict, validate
 

@@ -23,7 +23,7 @@ from bench.core.geometry import Geometry
 from bench.core.parsing import read_toml
 from bench.core.roles import Reading
 from bench.core.schemas import BenchFile, PlanFile, validate_document
-from bench.homing import home_axis, homeable_axes
+from bench.builders.homing import home_axis, homeable_axes
 from bench.io.white import WhiteReference, read_white_reference, write_white_reference
 from bench.plans import estimate, plan_from_dict
 from bench.runner import measure_calibration, run_scan

@@ -1,8 +1,8 @@
 """``bench home``: return a bench axis (the turntable) to its home position.
 
 Builds the bench through its builder (:func:`bench.config.load_bench`), homes the axis
-(:func:`bench.homing.home_axis`) and prints the position read back. A virtual bench has nothing
-to home: exit 2 before anything is built. Device faults (alarm, no HOME-END in time, lost port)
+(:func:`bench.builders.homing.home_axis`) and prints the position read back. A virtual bench
+has nothing to home: exit 2 before anything is built. Device faults (alarm, no HOME-END in time, lost port)
 are typed errors: exit 1 (``bench.cli.main``).
 """
 
@@ -19,7 +19,7 @@ __all__ = ["register", "cmd_home"]
 def cmd_home(args: argparse.Namespace) -> int:
     from bench.config import load_bench
     from bench.core.parsing import read_toml
-    from bench.homing import home_axis
+    from bench.builders.homing import home_axis
 
     config = read_toml(args.bench, "bench config")
     kind = str(config.get("kind", "virtual"))
