@@ -12,7 +12,8 @@ A plan is a TOML file (or a dict, or built in Python) with a ``kind`` and its ta
 
 Common keys: ``name``, ``integration_s``, ``averages``, ``dark`` (``"none"``, ``"once"``,
 ``"per-incidence"``, ``"per-point"``), ``white`` (``"none"``, ``"once"``), ``order``
-(``"travel"`` to cut motion time, or ``"as-given"``). Ranges are lists or
+(``"travel"`` to cut motion time, or ``"as-given"``), ``home`` (``true``: return the turntable
+to home after validation, before any other motion; a bench without one skips it). Ranges are lists or
 ``{start, stop, step}`` tables (stop included when on the grid).
 
 :func:`validate` checks every point against the bench *before any motion* and refuses the plan
@@ -61,6 +62,7 @@ class Plan:
     dark: str = "once"
     white: str = "once"
     order: str = "travel"
+    home: bool = False
     source: Mapping[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
@@ -171,9 +173,12 @@ def plan_from_dict(d: Mapping[str, Any], name: str = "plan") -> Plan:
         raise ConfigError(f"plan white must be one of {', '.join(WHITE_MODES)}, got {white!r}")
     if order not in ("travel", "as-given"):
         raise ConfigError(f"plan order must be 'travel' or 'as-given', got {order!r}")
+    home = d.get("home", False)
+    if not isinstance(home, bool):
+        raise ConfigError(f"plan home must be true or false, got {home!r}")
     pts = _points(kind, table)
     return Plan(name=str(d.get("name", name)), kind=kind, points=tuple(pts), integration_s=integration,
-                averages=averages, dark=dark, white=white, order=order, source=d)
+                averages=averages, dark=dark, white=white, order=order, home=home, source=d)
 
 
 def load_plan(path: str | Path) -> Plan:

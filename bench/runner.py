@@ -7,6 +7,11 @@
   reason, and :class:`bench.core.errors.RunInterrupted` is raised.
 * The white reference is measured once, before the run is created, and stored with it; a
   resumed run reuses it, so its values are those an uninterrupted run would have recorded.
+  A bench whose ``[white]`` names a ``reference_file`` (:mod:`bench.io.white`) is calibrated
+  from that stored reading instead: no operator is needed (the run records the file, its date
+  and the operator's note).
+* A plan with ``home = true`` returns the turntable to home after validation, before any
+  other motion (:mod:`bench.builders.homing`); a bench without one (virtual) skips it.
 """
 
 from __future__ import annotations
@@ -23,11 +28,14 @@ from bench.config import Bench
 from bench.core.errors import BenchError, DeviceError, RunInterrupted, StoreError
 from bench.core.geometry import Geometry
 from bench.core.roles import Reading
+from bench.builders.homing import HOME_AXIS, home_axis, homeable_axes
+from bench.io.white import WhiteReference, read_white_reference
 from bench.plans import Plan, order_for_travel, plan_from_dict, validate
 
 log = logging.getLogger(__name__)
 
-__all__ = ["run_scan", "resume_scan", "ScanResult", "point_rows", "acquire_dark", "measure_calibration"]
+__all__ = ["run_scan", "resume_scan", "ScanResult", "point_rows", "acquire_dark", "measure_calibration",
+           "stored_white"]
 
 
 @dataclass(frozen=True)
@@ -76,9 +84,22 @@ def acquire_dark(bench: Bench, plan: Plan) -> Reading | None:
         bench.light.on()
 
 
-def measure_calibration(bench: Bench, plan: Plan) -> Calibration | None:
+def stored_white(bench: Bench) -> WhiteReference | None:
+    """The white reference file the bench's ``[white] reference_file`` names (a relative path is
+    taken from the current directory), or None."""
+    path = (bench.config.get("white") or {}).get("reference_file")
+    return read_white_reference(path) if path else None
+
+
+def measure_calibration(bench: Bench, plan: Plan, use_reference_file: bool = True) -> Calibration | None:
+    """The plan's calibration: None for ``white = "none"``; the bench's stored white reference
+    file when it names one (and ``use_reference_file``); else a dark (light off, when the
+    plan takes darks) and the white standard measured now."""
     if plan.white == "none":
         return None
+    ref = stored_white(bench) if use_reference_file else None
+    if ref is not None:
+        return ref.calibration(bench.white)
     dark = acquire_dark(bench, plan) if plan.dark != "none" else None
     white = bench.measure_white(plan.integration_s, plan.averages)
     return Calibration(bench.white, white, dark)
@@ -100,8 +121,12 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     """
     validate(plan, bench.goniometer.check)  # refuse the whole plan before any motion
     order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))
-    cal = measure_calibration(bench, plan)
+    ref = stored_white(bench) if plan.white != "none" else None  # a bad file fails before any motion
+    stored_cal = ref.calibration(bench.white) if ref is not None else None
+    homed = _home(bench, plan)
+    cal = stored_cal if stored_cal is not None else measure_calibration(bench, plan, use_reference_file=False)
     meta = {"order": order, "bench_description": bench.describe(), "bench_kind": bench.kind,
+            "homed": homed, "white_reference": None if ref is None else ref.provenance(),
             "source": "virtual" if bench.kind == "virtual" else "measured",
             "specimen": (bench.config.get("specimen") or {}).get("spec"), "plan_name": plan.name}
     run_id = store.create_run(kind="scan", plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
@@ -120,9 +145,21 @@ def resume_scan(bench: Bench, store: Any, run_id: str, progress: bool = False,
     order = [int(i) for i in meta.get("order", range(len(plan.points)))]
     cal = Calibration.from_dict(info["calibration"]) if info.get("calibration") else None
     validate(plan, bench.goniometer.check)
+    _home(bench, plan)
     done = set(store.done_indices(run_id))
     store.set_status(run_id, "running", None)
     return _execute(bench, plan, store, run_id, order, cal, done, progress, on_point)
+
+
+def _home(bench: Bench, plan: Plan) -> dict[str, float] | None:
+    """Home the turntable when the plan asks and the bench has one; the position read back."""
+    if not plan.home:
+        return None
+    if HOME_AXIS not in homeable_axes(bench):
+        log.info("plan %s asks to home; bench %s has no %s with a return-to-home: skipped",
+                 plan.name, bench.name, HOME_AXIS)
+        return None
+    return {HOME_AXIS: home_axis(bench, HOME_AXIS)}
 
 
 def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int], cal: Calibration | None,

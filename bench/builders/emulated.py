@@ -46,7 +46,7 @@ from bench.core.calibration import WhiteStandard
 from bench.core.errors import ConfigError
 from bench.core.parsing import parse_wavelengths
 from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
-from bench.plans import MotionProfile
+from bench.builders.motion import motion_profile
 from drivers.dynamixel import DynamixelArm
 from drivers.kinematics import Joints, geometry_to_joints, joints_to_geometry
 from drivers.modbus import ModbusStageAxis
@@ -188,14 +188,6 @@ def _arm_config(d: Mapping[str, Any], port: str) -> dict[str, Any]:
     return arm
 
 
-def _motion(arm: Mapping[str, Any], turntable: Mapping[str, Any], time_scale: float) -> MotionProfile:
-    # Profile Velocity unit 0.229 rpm = 1.374 deg/s; the emulator moves at constant speed
-    vel = {j: a.get("profile_velocity", 60) * 0.229 * 6.0 * time_scale for j, a in arm["axes"].items()}
-    vel["turntable"] = float(turntable.get("speed", 30.0)) * time_scale
-    acc = {j: math.inf for j in vel}
-    return MotionProfile(vel, acc, settle_s=0.01, overhead_s=0.002)
-
-
 class Emulators:
     """The three emulator processes of an emulated bench, and what the drivers need to reach them."""
 
@@ -301,6 +293,7 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
     kin = arm.config.kinematics
     return Bench(name=str(d.get("name", "emulated")), kind="emulated", goniometer=arm, spectrometer=bands,
                  white=white, measure_white=measure_white, light=lamp,
-                 motion=_motion(emu.arm_config, emu.turntable_config, emu.time_scale),
+                 motion=motion_profile(emu.arm_config, emu.turntable_config, emu.time_scale, ramps=False,
+                                       settle_s=0.01, overhead_s=0.002),
                  joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers,
                  parts={"emulators": emu, "arm": arm, "turntable": turntable, "spectrometer": ocean})

@@ -6,7 +6,8 @@ Config::
     [turntable]      # optional: drivers.modbus AxisConfig keys, port = "/dev/ttyUSB1" or "tcp://host:port"
     [spectrometer]   # drivers.ocean OceanConfig keys, with port
     [bands]          # optional: centres = "450:650:100", bandwidth_nm = 10
-    [white]          # the standard the operator mounts when a run asks for it
+    [white]          # the standard the operator mounts when a run asks for it, or
+                     #   reference_file = "white-2026-11-30.csv" (bench white): no operator needed
 
 ``bench emulate`` prints such a config for a bench's emulators.
 """
@@ -17,6 +18,7 @@ import sys
 from typing import Any, Mapping
 
 from bench.bands import SpectralBands
+from bench.builders.motion import motion_profile
 from bench.config import Bench
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import CalibrationError, ConfigError
@@ -38,6 +40,7 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     for table in ("arm", "spectrometer"):
         if "port" not in d.get(table, {}):
             raise ConfigError(f"real bench: [{table}] port = \"...\" is required")
+    motion = motion_profile(d.get("arm"), d.get("turntable"))  # from the config, before any port opens
     closers: list[Any] = []
     try:
         external = {}
@@ -61,7 +64,8 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     def measure_white(integration_s: float, averages: int) -> Reading:
         if not sys.stdin.isatty():
             raise CalibrationError("mount the white standard: this run needs an operator at the bench "
-                                   "(run interactively, or use white = \"none\" in the plan)")
+                                   "(run interactively, name a stored reading in [white] reference_file "
+                                   "(bench white --bench B --out FILE), or use white = \"none\" in the plan)")
         arm.move_to(white.geometry)
         input(f"Mount the white standard ({white.name}) and press Enter... ")
         try:
@@ -72,5 +76,7 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     kin = arm.config.kinematics
     return Bench(name=str(d.get("name", "real")), kind="real", goniometer=arm, spectrometer=spectrometer,
                  white=white, measure_white=measure_white, light=None,
-                 joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers)
+                 motion=motion,
+                 joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers,
+                 parts={"arm": arm, "spectrometer": ocean, **external})
 

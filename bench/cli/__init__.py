@@ -8,7 +8,9 @@ One module per command group, each with ``register(subparsers)``:
 * :mod:`bench.cli.compare` -- ``compare``;
 * :mod:`bench.cli.tradeoff` -- ``tradeoff``;
 * :mod:`bench.cli.sweep` -- ``sweep``;
-* :mod:`bench.cli.emulate` -- ``emulate``.
+* :mod:`bench.cli.emulate` -- ``emulate``;
+* :mod:`bench.cli.home` -- ``home`` (return the turntable to home);
+* :mod:`bench.cli.white` -- ``white`` (save a white reference file).
 
 Starts fast: heavy modules (numba kernels, colour-science, matplotlib, pandas) are imported
 inside the commands that use them. Exit status: 0 ok, 2 bad input, 1 a failed run. Every
@@ -33,7 +35,8 @@ log = logging.getLogger("bench")
 #: Modules that add subcommands, in ``bench --help`` order: each has ``register(subparsers)`` and
 #: imports nothing heavy at module level (the CLI must start fast).
 COMMAND_MODULES = ["bench.cli.measure", "bench.cli.scans", "bench.cli.demo", "bench.cli.compare",
-                   "bench.cli.tradeoff", "bench.cli.sweep", "bench.cli.emulate"]
+                   "bench.cli.tradeoff", "bench.cli.sweep", "bench.cli.emulate",
+                   "bench.cli.home", "bench.cli.white"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -109,6 +109,7 @@ class PlanFile(_Strict):
     dark: Literal["none", "once", "per-incidence", "per-point"] = "once"
     white: Literal["none", "once"] = "once"
     order: Literal["travel", "as-given"] = "travel"
+    home: StrictBool = False  # return the turntable to home before the first point
     description: str = ""
     spectral: SpectralTable | None = None
     in_plane: InPlaneTable | None = None

@@ -1,0 +1,73 @@
+"""``bench white``: save a white reference file (:mod:`bench.io.white`).
+
+Either measure the white standard now (``--bench B``: on a real bench the operator mounts it,
+at a terminal; a dark is taken with it when the bench can switch its light off), or take the
+white reference a completed run was calibrated with (``--from-run RUN --store S``). A bench
+config then names the file (``[white] reference_file = "..."``) and its runs need no operator.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from bench.cli.common import DEFAULT_STORE, emit_json, number, open_store, positive_int
+from bench.core.errors import InputError
+
+__all__ = ["register", "cmd_white"]
+
+
+def _measure(args: argparse.Namespace) -> tuple[object, str]:
+    from bench.config import load_bench
+    from bench.plans import Plan
+    from bench.runner import measure_calibration
+
+    if not args.integration_s > 0:
+        raise InputError(f"--integration-s must be > 0 s, got {args.integration_s:g}")
+    plan = Plan(name="white", kind="list", points=(), integration_s=args.integration_s, averages=args.averages,
+                dark="once", white="once")
+    with load_bench(args.bench) as bench:
+        cal = measure_calibration(bench, plan, use_reference_file=False)
+        return cal, bench.name
+
+
+def _from_run(args: argparse.Namespace) -> tuple[object, str]:
+    from bench.core.calibration import Calibration
+
+    with open_store(args.store, create=False) as store:
+        info = store.run(args.from_run)
+    if info["status"] != "completed":
+        raise InputError(f"run {args.from_run} is {info['status']}: take the white reference of a completed run")
+    if not info.get("calibration"):
+        raise InputError(f"run {args.from_run} has no white reference (its plan had white = \"none\")")
+    return Calibration.from_dict(info["calibration"]), str((info.get("bench") or {}).get("name", ""))
+
+
+def cmd_white(args: argparse.Namespace) -> int:
+    from bench.io.white import WhiteReference, write_white_reference
+
+    if (args.bench is None) == (args.from_run is None):
+        raise InputError("give either --bench BENCH.toml (measure now) or --from-run RUN (a completed run's)")
+    cal, bench_name = _measure(args) if args.bench is not None else _from_run(args)
+    ref = WhiteReference.from_calibration(cal, operator_note=args.note, bench=bench_name)
+    path = write_white_reference(args.out, ref)
+    if args.json:
+        emit_json({"file": str(path), "date": ref.date, "operator_note": ref.operator_note, "bench": bench_name,
+                   "wavelengths": int(ref.white.signal.size), "dark": ref.dark is not None,
+                   "integration_s": ref.white.integration_s, "averages": ref.white.averages})
+    else:
+        print(path)
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``white`` to the subcommands."""
+    w = sub.add_parser("white", help="save a white reference file (measured now or from a completed run)")
+    w.add_argument("--bench", metavar="BENCH.toml", help="measure the white standard on this bench now")
+    w.add_argument("--from-run", metavar="RUN", help="take the white reference of this completed run")
+    w.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    w.add_argument("--out", required=True, metavar="FILE.csv")
+    w.add_argument("--note", default="", help="the operator's note (standard, cleaning, lamp warm-up...)")
+    w.add_argument("--integration-s", type=number, default=0.1, metavar="S")
+    w.add_argument("--averages", type=positive_int, default=1)
+    w.add_argument("--json", action="store_true")
+    w.set_defaults(func=cmd_white)
