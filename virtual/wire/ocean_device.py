@@ -17,8 +17,21 @@ from virtual.wire.ocean_model import Settings, SpectrometerModel
 log = logging.getLogger(__name__)
 
 #: commands followed by one 16-bit word in binary mode
-_ONE_WORD = set(b"ABGIJKMTk")
 _NO_DATA = set(b"SQLv")
+#: one-word settings the unit accepts: letter -> (state attribute, lowest, highest, type)
+_SETTINGS: dict[str, tuple[str, int, int, type]] = {
+    "A": ("scans", 1, 5000, int),
+    "B": ("boxcar", 0, 15, int),
+    "G": ("compression", 0, 1, bool),
+    "I": ("integration_ms", 1, 65000, int),
+    "J": ("lamp", 0, 1, bool),
+    "K": ("baud_code", 0, 7, int),
+    "M": ("storage", 0, 1, int),
+    "T": ("trigger", 0, 4, int),
+    "k": ("checksum", 0, 1, bool),
+}
+#: commands followed by one data word
+_ONE_WORD = {ord(letter) for letter in _SETTINGS}
 
 class _Faults:
     def __init__(self) -> None:
@@ -238,44 +251,11 @@ class _Device:
         if letter == "S":
             self._acquire()
             return
-        if letter in "ABGIJKMTk" and a0 is None:
-            ok = False
-        elif letter == "A":
-            ok = 1 <= a0 <= 5000
+        if letter in _SETTINGS:
+            attr, lo, hi, kind = _SETTINGS[letter]
+            ok = a0 is not None and lo <= a0 <= hi
             if ok:
-                s.scans = a0
-        elif letter == "B":
-            ok = 0 <= a0 <= 15
-            if ok:
-                s.boxcar = a0
-        elif letter == "G":
-            ok = a0 in (0, 1)
-            if ok:
-                s.compression = bool(a0)
-        elif letter == "I":
-            ok = 1 <= a0 <= 65000
-            if ok:
-                s.integration_ms = a0
-        elif letter == "J":
-            ok = a0 in (0, 1)
-            if ok:
-                s.lamp = bool(a0)
-        elif letter == "K":
-            ok = 0 <= a0 <= 7
-            if ok:
-                s.baud_code = a0
-        elif letter == "M":
-            ok = a0 in (0, 1)
-            if ok:
-                s.storage = a0
-        elif letter == "T":
-            ok = 0 <= a0 <= 4
-            if ok:
-                s.trigger = a0
-        elif letter == "k":
-            ok = a0 in (0, 1)
-            if ok:
-                s.checksum = bool(a0)
+                setattr(s, attr, kind(a0))
         elif letter == "P":
             ok = self._pixel_mode(args)
         elif letter == "Q":
