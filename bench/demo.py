@@ -26,7 +26,9 @@ from compare.report import compare_records
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.spectrophotometer import VirtualSpectrophotometer
 
-__all__ = ["run_demo", "lab_of"]
+__all__ = ["run_demo", "lab_of", "leaf_angle_figures"]
+
+FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 
 
 def lab_of(wavelengths: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
@@ -100,7 +102,7 @@ def _gonio_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
 def _scan_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
     """The in-plane plan on the emulated bench (real drivers over emulators) and on the virtual
     bench, both stored in one run store."""
-    fixtures = Path(__file__).resolve().parent.parent / "fixtures"
+    fixtures = FIXTURES
     plan = load_plan(fixtures / "plans" / "in-plane.toml")
     store_path = out / "runs.sqlite"
     runs = {}
@@ -140,14 +142,118 @@ def _compare_demo(out: Path, runs: dict[str, Any]) -> tuple[dict[str, Any], list
                            for n in summary["candidates"]}}, lines
 
 
+# --- leaves (issue 19) ----------------------------------------------------------------------
+
+LEAF = "leaf:healthy"
+
+
+def leaf_angle_figures(readings: Any, out: Path, theta_i: float = 40.0, wavelength_nm: float = 550.0,
+                       name: str = "leaf") -> dict[str, Path]:
+    """Figures of a leaf's angular sweep (the tidy readings of ``fixtures/sweeps/leaf-angles.toml``,
+    :func:`bench.sweep.sweep_readings`): the BRDF and BTDF side by side in polar maps at one
+    incidence and wavelength, and the directional-hemispherical R and T against incidence, per
+    wavelength, counted (sum of count / N over each hemisphere) with the model's own R(theta),
+    T(theta) (quadrature of :meth:`virtual.specimens.Leaf.directional_rt`) as lines."""
+    import pandas as pd
+
+    from bench.core.records import BSDF_COLUMNS, BSDFRecord
+    from compare.figures import pyplot
+    from virtual.specimens import parse_specimen
+
+    df = pd.DataFrame(readings)
+    incidences = np.sort(df.theta_i.unique())
+    ti = float(incidences[np.argmin(np.abs(incidences - theta_i))])
+    wls = np.sort(df.wavelength_nm.unique())
+    wl = float(wls[np.argmin(np.abs(wls - wavelength_nm))])
+    sel = df[(df.theta_i == ti) & (df.wavelength_nm == wl)]
+    spec = str(sel.specimen.iloc[0]) if "specimen" in sel else LEAF
+    polar = plot_bsdf_polar(BSDFRecord(sel[BSDF_COLUMNS].reset_index(drop=True), {"specimen": spec}),
+                            out / f"{name}-polar-{ti:g}deg-{wl:g}nm.png",
+                            title=f"{spec}: BRDF | BTDF at theta_i = {ti:g} deg, {wl:g} nm")
+    tot = (df.assign(p=df["count"] / df["N"]).groupby(["wavelength_nm", "theta_i", "hemisphere"])["p"].sum()
+           .unstack("hemisphere"))
+    specimen = parse_specimen(spec)
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.2), dpi=120)
+    grid = np.linspace(0.0, float(incidences.max()), 33)
+    for i, w in enumerate(wls):
+        c = f"C{i}"
+        t = tot.loc[w]
+        ax.plot(t.index, t["R"], "o", color=c, ms=4, label=f"{w:g} nm R (rays)")
+        ax.plot(t.index, t["T"], "s", color=c, ms=4, mfc="none", label=f"{w:g} nm T (rays)")
+        model = np.array([specimen.directional_rt(g, float(w)) for g in grid])
+        ax.plot(grid, model[:, 0], "-", color=c, lw=1)
+        ax.plot(grid, model[:, 1], "--", color=c, lw=1)
+    ax.axvline(8.0, color="grey", lw=0.8, ls=":")
+    ax.set_xlabel("incidence theta_i (deg)")
+    ax.set_ylabel("directional-hemispherical fraction")
+    ax.set_title(f"{spec}: R (-) and T (--) against incidence; dotted: 8 deg (= PROSPECT-D)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6, ncol=2, loc="best")
+    fig.tight_layout()
+    rt = out / f"{name}-rt-vs-incidence.png"
+    fig.savefig(rt)
+    plt.close(fig)
+    return {"polar": polar, "rt_vs_incidence": rt}
+
+
+def _leaf_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
+    """A leaf at 8/d against PROSPECT-D (spectrum with R and T), and its angular sweep (polar
+    BRDF | BTDF, R and T against incidence) from ``fixtures/sweeps/leaf-angles.toml``."""
+    from bench.sweep import load_sweep, run_sweep, sweep_readings
+
+    t0 = time.perf_counter()
+    sp = VirtualSpectrophotometer(LEAF, beam="conical", uncertainty=0.005, delta=0.01, seed=seed)
+    s = sp.measure("8/d", "400:2500:5")
+    csv = spectrum_to_csv(s, out / "leaf-spectrum.csv")
+    png = plot_spectrum(s, out / "leaf-spectrum.png",
+                        title=f"{LEAF} at 8/d, conical beam, N = {int(s.N[0]):,} rays/wavelength (PROSPECT-D at 8 deg)")
+    wl, rp, tp = sp.specimen.prospect()
+    idx = np.searchsorted(wl, s.wavelengths)
+    err = float(max(np.abs(s.reflectance - rp[idx]).max(), np.abs(s.transmittance - tp[idx]).max()))
+    lab = lab_of(s.wavelengths[s.wavelengths <= 780], s.reflectance[s.wavelengths <= 780])
+    spec = load_sweep(FIXTURES / "sweeps" / "leaf-angles.toml")
+    with RunStore(out / "leaf-sweep.sqlite") as store:
+        res = run_sweep(spec, store)
+        readings = sweep_readings(store, res.run_id)
+    figs = leaf_angle_figures(readings, out)
+    seconds = time.perf_counter() - t0
+    summary = {"specimen": LEAF, "N": int(s.N[0]), "max_abs_error_vs_prospect": err, "lab": lab.tolist(),
+               "csv": str(csv), "spectrum_plot": str(png), "sweep_run": res.run_id,
+               "plots": [str(figs["polar"]), str(figs["rt_vs_incidence"])], "seconds": seconds}
+    lines = [f"leaf: {LEAF} at 8/d (conical beam), 400-2500 nm every 5 nm, {int(s.N[0]):,} rays/wavelength",
+             f"  max |R - R_PROSPECT|, |T - T_PROSPECT| = {err:.4f} (eq. 3.5 bound 0.005 at 99 %); "
+             f"L*a*b* (D65) = {lab[0]:.1f}, {lab[1]:.1f}, {lab[2]:.1f}",
+             f"  angular sweep {res.run_id}: incidences 0-80 deg, BRDF and BTDF, {seconds:.1f} s",
+             f"  wrote {png}, {figs['polar']} and {figs['rt_vs_incidence']}"]
+    return summary, lines
+
+
 def run_demo(out: Path, seed: int = 20261122) -> dict[str, Any]:
     """Run every demo stage, write files into ``out``, return a summary (with printable lines)."""
     out.mkdir(parents=True, exist_ok=True)
     summary: dict[str, Any] = {"out": str(out), "lines": []}
-    for name, stage in (("spectro", _spectro_demo), ("gonio", _gonio_demo), ("scan", _scan_demo)):
+    for name, stage in (("spectro", _spectro_demo), ("gonio", _gonio_demo), ("leaf", _leaf_demo),
+                        ("scan", _scan_demo)):
         part, lines = stage(out, seed)
         summary[name] = part
         summary["lines"] += lines
     summary["compare"], lines = _compare_demo(out, summary["scan"])
     summary["lines"] += lines
     return summary
+
+
+if __name__ == "__main__":  # python -m bench.demo leaf-figures STORE RUN_ID OUT_DIR [THETA_I WAVELENGTH]
+    import sys
+
+    from bench.sweep import sweep_readings as _readings
+
+    if len(sys.argv) not in (5, 7) or sys.argv[1] != "leaf-figures":
+        sys.exit("usage: python -m bench.demo leaf-figures STORE RUN_ID OUT_DIR [THETA_I WAVELENGTH_NM]")
+    _out = Path(sys.argv[4])
+    _out.mkdir(parents=True, exist_ok=True)
+    with RunStore(sys.argv[2], create=False) as _store:
+        _df = _readings(_store, sys.argv[3])
+    _extra = {"theta_i": float(sys.argv[5]), "wavelength_nm": float(sys.argv[6])} if len(sys.argv) == 7 else {}
+    for _k, _p in leaf_angle_figures(_df, _out, **_extra).items():
+        print(f"{_k}: {_p}")

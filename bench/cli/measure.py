@@ -13,7 +13,7 @@ from typing import Any
 from bench.cli.common import emit_json, number, positive_int
 from bench.core.errors import InputError
 
-__all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json"]
+__all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "spectrum_colour"]
 
 
 def cmd_rays(args: argparse.Namespace) -> int:
@@ -38,6 +38,30 @@ def _spectrum_json(s: Any) -> dict[str, Any]:
         "quantity": s.meta.get("quantity"), "measured_as": s.meta.get("measured_as"),
         "specimen": s.meta.get("specimen"), "beam": s.meta.get("beam"),
     }
+
+
+def spectrum_colour(s: Any) -> dict[str, Any] | None:
+    """CIE colour (D65, CIE 1931 2 deg) of the reflectance and transmittance when the wavelengths
+    cover 400-700 nm: CIELAB as :func:`compare.stats.spectrum_lab` computes it (colour-science),
+    and the XYZ and sRGB of that Lab under the D65 white (Y of the perfect diffuser = 1)."""
+    import numpy as np
+
+    wl = np.asarray(s.wavelengths, float)
+    if wl.size < 3 or wl.min() > 400.0 or wl.max() < 700.0:
+        return None
+    import colour
+
+    from compare.stats import DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, spectrum_lab
+
+    white = colour.CCS_ILLUMINANTS[DEFAULT_OBSERVER][DEFAULT_ILLUMINANT]
+    out: dict[str, Any] = {"illuminant": DEFAULT_ILLUMINANT, "observer": DEFAULT_OBSERVER}
+    for name, values in (("reflectance", s.reflectance), ("transmittance", s.transmittance)):
+        lab, _ = spectrum_lab(wl, np.asarray(values, float), DEFAULT_ILLUMINANT, DEFAULT_OBSERVER)
+        xyz = colour.Lab_to_XYZ(lab, white)
+        rgb = np.clip(colour.XYZ_to_sRGB(xyz), 0.0, 1.0)
+        out[name] = {"XYZ": xyz.tolist(), "Lab": lab.tolist(), "sRGB": rgb.tolist(),
+                     "hex": "#" + "".join(f"{int(round(255 * c)):02x}" for c in rgb)}
+    return out
 
 
 def _spectro_instrument(args: argparse.Namespace):
@@ -75,6 +99,7 @@ def cmd_spectro(args: argparse.Namespace) -> int:
         plot_spectrum(s, args.plot)
     if args.json:
         out = _spectrum_json(s)
+        out["colour"] = spectrum_colour(s)
         if adaptive:
             out["budget"] = _budget(adaptive)
         emit_json(out)
@@ -88,6 +113,11 @@ def cmd_spectro(args: argparse.Namespace) -> int:
     for i, w in enumerate(s.wavelengths):
         print(f"{w:7.1f} {s.reflectance[i]:8.5f} [{s.reflectance_ci[i, 0]:.5f}, {s.reflectance_ci[i, 1]:.5f}] "
               f"{s.transmittance[i]:8.5f} [{s.transmittance_ci[i, 0]:.5f}, {s.transmittance_ci[i, 1]:.5f}]")
+    col = spectrum_colour(s)
+    if col:
+        print(f"colour ({col['illuminant']}, 2 deg): " + "; ".join(
+            f"{k[0].upper()} XYZ {' '.join(f'{x:.4f}' for x in col[k]['XYZ'])} Lab {' '.join(f'{x:.2f}' for x in col[k]['Lab'])} "
+            f"sRGB {col[k]['hex']}" for k in ("reflectance", "transmittance")))
     return 0
 
 

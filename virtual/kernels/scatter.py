@@ -28,7 +28,7 @@ from virtual.kernels.rng import next_double
 from virtual.kernels.sampling import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
 
 __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX",
-           "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
+           "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
            "scatter", "scatter_given"]
 
 # Model ids: one branch each in `scatter`. Keep them stable (records and caches name them).
@@ -39,6 +39,7 @@ MODEL_GGX = 3
 MODEL_ANISO_GGX = 4
 MODEL_PLASTIC = 5
 MODEL_DIELECTRIC = 6
+MODEL_LEAF = 7  # virtual.specimens.leaf: PROSPECT-D body under a GGX cuticle
 #: Specimens without a kernel (e.g. :class:`virtual.mitsuba.MitsubaSpecimen`, or a lab's own
 #: model registered with :func:`virtual.specimens.register_specimen`): the devices count their
 #: rays with :mod:`virtual.python_engine`, which calls the specimen's ``sample`` method.
@@ -240,6 +241,56 @@ def _lambert(p, wz, s):
 
 
 
+@jit(inline="always")
+def _leaf_specular(wx, wy, wz, a, eta, ks, s):
+    """The leaf cuticle's specular event for light from w (wz > 0): ``(ox, oy, oz, kept)``, kept
+    with probability ks E_s(w) (a visible normal, Fresnel reflection, above the horizon, ks G2/G1)."""
+    mx, my, mz = ggx_vndf(wx, wy, wz, a, a, s)
+    c = max(wx * mx + wy * my + wz * mz, 0.0)
+    f, _ = fresnel_dielectric(c, eta)
+    if next_double(s) < f:
+        ox = 2.0 * c * mx - wx
+        oy = 2.0 * c * my - wy
+        oz = 2.0 * c * mz - wz
+        if oz > 0.0 and next_double(s) < ks * g2_over_g1(wx, wy, wz, ox, oy, oz, a, a):
+            return ox, oy, oz, True
+    return 0.0, 0.0, 0.0, False
+
+
+
+@jit(inline="always")
+def _leaf(p, wx, wy, wz, s):
+    """Leaf (:class:`virtual.specimens.leaf.Leaf`), params ``[alpha, eta, ks, r_b, t_b]``: the
+    cuticle's specular lobe (kept w.p. ks E_s(wi)); else the body reflects (r_b), transmits
+    (t_b) or absorbs; the body's ray leaves along a cosine direction wo accepted unless light
+    from wo would have been kept by the lobe (probability 1 - ks E_s(wo)): f symmetric."""
+    flip = wz < 0.0
+    if flip:
+        wz = -wz
+    if not (wz > 0.0):
+        return _DEAD
+    a = p[0]
+    eta = p[1]
+    ks = p[2]
+    ox, oy, oz, kept = _leaf_specular(wx, wy, wz, a, eta, ks, s)
+    if kept:
+        return ox, oy, (-oz if flip else oz), True
+    u = next_double(s)
+    if u >= p[3] + p[4]:
+        return _DEAD
+    up = u < p[3]
+    while True:  # cosine lobe thinned by 1 - ks E_s(wo); ends w.p. 1 (E_s < 1)
+        ox, oy, r2 = unit_disk(s)
+        oz = math.sqrt(1.0 - r2)
+        _, _, _, back = _leaf_specular(ox, oy, oz, a, eta, ks, s)
+        if not back:
+            break
+    if up == flip:
+        oz = -oz
+    return ox, oy, oz, True
+
+
+
 @jit
 def _scatter_general(model, p, wx, wy, wz, s):
     """Every model but the Lambertian (called, not inlined: inlining them all into each kernel
@@ -256,6 +307,8 @@ def _scatter_general(model, p, wx, wy, wz, s):
         return _plastic(p, wx, wy, wz, s)
     if model == MODEL_DIELECTRIC:
         return _dielectric(p, wx, wy, wz, s)
+    if model == MODEL_LEAF:
+        return _leaf(p, wx, wy, wz, s)
     return 0.0, 0.0, 0.0, False
 
 

@@ -12,6 +12,7 @@ wavelength and gets back an outgoing direction, or absorption. Two faces of the 
 Modules: :mod:`~virtual.specimens.declare` (parameters declared once, the open registry,
 :func:`register_specimen`, the README table), :mod:`~virtual.specimens.diffuse` (lambert,
 oren-nayar, phong), :mod:`~virtual.specimens.microfacet` (ggx, aniso-ggx, plastic, dielectric),
+:mod:`~virtual.specimens.leaf` (leaf: PROSPECT-D under a wax cuticle),
 :mod:`~virtual.specimens.physics` (numpy Fresnel and GGX densities),
 :mod:`~virtual.specimens.strings` (``name:key=value,...``). The class docs state each model's
 formula, its sampling argument and its parameter vector; :func:`specimen_table_markdown`
@@ -26,20 +27,21 @@ without a kernel declares ``model = MODEL_PYTHON`` and a ``sample`` method.
 from __future__ import annotations
 
 from virtual.kernels.scatter import (GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX,
-                                     MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON,
+                                     MODEL_LAMBERT, MODEL_LEAF, MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON,
                                      scatter, scatter_given)
 from virtual.specimens.declare import (SPECIMENS, DeclaredSpecimen, Param, Specimen, Spectral, register_specimen,
                                        specimen_families, specimen_family, specimen_table_markdown)
 from virtual.specimens.diffuse import Lambertian, OrenNayar, Phong
+from virtual.specimens.leaf import Leaf
 from virtual.specimens.microfacet import ALPHA_MAX, ALPHA_MIN, GGX, AnisoGGX, RoughDielectric, RoughPlastic
 from virtual.specimens.strings import known_specimen_names, parse_specimen
 
 __all__ = [
     "Spectral", "Param", "Specimen", "DeclaredSpecimen", "register_specimen", "specimen_family",
     "specimen_families", "specimen_table_markdown", "known_specimen_names", "parse_specimen", "SPECIMENS",
-    "Lambertian", "OrenNayar", "Phong", "GGX", "AnisoGGX", "RoughPlastic", "RoughDielectric",
+    "Lambertian", "OrenNayar", "Phong", "GGX", "AnisoGGX", "RoughPlastic", "RoughDielectric", "Leaf",
     "ALPHA_MIN", "ALPHA_MAX",
     # kernel face, re-exported for the callers of the old single module
     "scatter", "scatter_given", "GIVEN_MODELS", "GIVEN_UNIFORMS", "MODEL_LAMBERT", "MODEL_OREN_NAYAR",
-    "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX", "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_PYTHON",
+    "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX", "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_PYTHON",
 ]

@@ -4,6 +4,8 @@
 (:mod:`virtual.specimens.declare`); ``colorchecker:dark skin`` (optionally ``chart/patch``) is a
 Lambertian with a measured reflectance spectrum (colour-science); ``mitsuba:{json}`` a Mitsuba 3
 BSDF (optional extra). Errors list the known names, or the parameters a family accepts.
+A family with named presets (a ``preset(name) -> {key: value}`` classmethod, e.g. the leaf
+library) also takes ``name:PRESET[,key=value,...]``: the preset, then the overrides.
 """
 
 from __future__ import annotations
@@ -69,8 +71,13 @@ def parse_specimen(spec: str | Specimen) -> Specimen:
     family = SPECIMENS.get(name)
     if family is None:
         raise SpecimenError(f"unknown specimen {name!r}; known: {', '.join(known_specimen_names())}")
+    first, _, more = rest.partition(",")
+    preset = getattr(family, "preset", None)
     try:
-        specimen = family.from_keywords(_kwargs(rest, text), text)
+        if preset is not None and first.strip() and "=" not in first:
+            specimen = family.from_keywords({**preset(first.strip()), **_kwargs(more, text)}, text)
+        else:
+            specimen = family.from_keywords(_kwargs(rest, text), text)
     except SpecimenError as exc:  # name the string the value came from
         msg = str(exc)
         raise SpecimenError(msg if msg.startswith("specimen ") else f"specimen {text!r}: {msg}") from None
