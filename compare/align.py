@@ -59,7 +59,8 @@ MATCH_KEYS = ("specimen", "collector", "geometry", "quantity")
 PAIR_COLUMNS = ["specimen", "collector", "geometry", "quantity", "channel", "wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "actual_value", "actual_std",
                 "virtual_value", "virtual_std", "psa", "virtual_wavelength_nm", "virtual_theta_i", "virtual_phi_i",
                 "virtual_theta_r", "virtual_phi_r", "angle_distance_deg", "wavelength_method", "match_method",
-                "virtual_index", "actual_index", "actual_std_source", "virtual_std_source"]
+                "virtual_index", "actual_index", "actual_std_source", "virtual_std_source", "actual_sample",
+                "virtual_sample"]
 UNMATCHED_COLUMNS = ["side", "specimen", "collector", "geometry", "channel", "wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "reason"]
 
 
@@ -247,6 +248,7 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
         reasons = unmatched[unmatched.side == "actual"].reason.value_counts().head(3)
         detail = "; ".join(f"{n} x {r}" for r, n in reasons.items()) or "the actual record is empty"
         raise NoOverlapError(f"no actual point has a counterpart in the candidate record: {detail}")
+    pairs = _drop_repeats(pairs, warnings)
     if (pairs.wavelength_method == "linear").any():
         warnings.append(f"{int((pairs.wavelength_method == 'linear').sum())} candidate values interpolated "
                         f"linearly in wavelength onto the actual grid")
@@ -259,6 +261,25 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
     if n_unmatched:
         warnings.append(f"{n_unmatched} actual points could not be matched (see the unmatched report)")
     return Aligned(pairs=pairs, unmatched=unmatched, kind=kind, quantity=quantity, meta=meta, warnings=warnings)
+
+
+def _drop_repeats(pairs: pd.DataFrame, warnings: list[str]) -> pd.DataFrame:
+    """One observation per repeated sample: a resampled record (a Zemax grid, whose nodes take
+    the value of the patch containing them) says which measured sample each row repeats (its
+    ``sample`` column); pairs of the same actual sample and the same candidate sample (or row)
+    at one incidence and wavelength are one observation, kept once."""
+    if pairs.empty or not pairs.actual_sample.notna().any():
+        return pairs
+    cand = pairs.virtual_sample.where(pairs.virtual_sample.notna(), pairs.virtual_index.astype(float))
+    key = pd.DataFrame({"c": pairs.channel, "w": pairs.wavelength_nm, "t": pairs.theta_i, "p": pairs.phi_i,
+                        "a": pairs.actual_sample.where(pairs.actual_sample.notna(), -1.0 - np.arange(len(pairs))),
+                        "v": cand})
+    dup = key.duplicated().to_numpy()
+    if dup.any():
+        warnings.append(f"{int(dup.sum())} pairs repeat a sample already compared (a resampled record, e.g. "
+                        f"Zemax nodes inside one patch): counted once")
+        pairs = pairs[~dup].reset_index(drop=True)
+    return pairs
 
 
 def _key_values(df: pd.DataFrame, k: str) -> list[Any]:
@@ -371,6 +392,7 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                 first_idx = np.full(len(gw), -1)
                 reasons = np.full(len(gw), "", dtype=object)
                 srcs = np.full(len(gw), "", dtype=object)
+                vsample = np.full(len(gw), np.nan)
                 for wc, wt in weights:
                     cw = cch[cch.wavelength_nm == wc]
                     used_groups.add((cti, cpi, wc))
@@ -398,6 +420,8 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                     value += wt * cv
                     var += (wt * cs) ** 2
                     srcs = np.where(srcs == "", cw.std_source.to_numpy()[safe], srcs)
+                    if wc == weights[0][0]:
+                        vsample = cw["sample"].to_numpy(float)[safe]
                     if wt == weights[0][1] and wc == weights[0][0]:
                         first_idx = np.where(idx >= 0, cw.index.to_numpy()[safe], -1)
                         vt = cw.theta_r.to_numpy(float)[safe]
@@ -428,7 +452,8 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                     "angle_distance_deg": dist, "wavelength_method": wmethod, "match_method": how,
                     "virtual_index": first_idx[ok], "actual_index": g.index.to_numpy(),
                     "actual_std_source": g.std_source.to_numpy(),
-                    "virtual_std_source": srcs[ok],
+                    "virtual_std_source": srcs[ok], "actual_sample": g["sample"].to_numpy(float),
+                    "virtual_sample": vsample[ok],
                 }))
     # candidate groups no actual point used
     cand_groups = c.groupby(["theta_i", "phi_i", "wavelength_nm"], dropna=False, sort=True).size()

@@ -135,7 +135,7 @@ def _spectrum_long(s: Spectrum, channels: Sequence[str]) -> pd.DataFrame:
             source[rest] = "interval"
         frames.append(pd.DataFrame({"channel": ch, "wavelength_nm": wl, "theta_i": np.nan, "phi_i": np.nan,
                                     "theta_r": np.nan, "phi_r": np.nan, "value": v, "std": std,
-                                    "std_source": source, "psa": np.nan}))
+                                    "std_source": source, "psa": np.nan, "sample": np.nan}))
     return pd.concat(frames, ignore_index=True)
 
 
@@ -162,7 +162,7 @@ def _bsdf_long(r: BSDFRecord) -> pd.DataFrame:
         source[fix] = "interval"
     out["std"] = std
     out["std_source"] = source
-    for c in ("theta_min", "theta_max", "phi_min", "phi_max", "psa"):
+    for c in ("theta_min", "theta_max", "phi_min", "phi_max", "psa", "sample"):
         out[c] = t[c].astype(float) if c in t else np.nan
     return out
 

@@ -144,7 +144,8 @@ def point_table(aligned: Aligned, model: UncertaintyModel, k: float = 2.0) -> pd
     ``reference_zero``, ``u_instrument``, ``u_combined``, ``z``, ``z_note`` and ``within``.
 
     ``rel_pct`` is NaN exactly where ``reference_zero`` is True; ``z`` is NaN exactly where
-    ``z_note`` says why (``"both zero"``, ``"no uncertainty"``).
+    ``z_note`` says why (``"both zero"``, ``"identical"`` -- equal values and no uncertainty,
+    ``"no uncertainty"``).
     """
     p = aligned.pairs.copy()
     a = p.actual_value.to_numpy(float)
@@ -165,8 +166,9 @@ def point_table(aligned: Aligned, model: UncertaintyModel, k: float = 2.0) -> pd
     uc = np.sqrt(u_inst ** 2 + np.nan_to_num(sa, nan=0.0) ** 2 + np.nan_to_num(sv, nan=0.0) ** 2)
     p["u_combined"] = uc
     both0 = (a == 0) & (v == 0)
-    nou = ~both0 & ~(uc > 0)
-    note = np.where(both0, "both zero", np.where(nou, "no uncertainty", ""))
+    same = ~both0 & (d == 0) & ~(uc > 0)  # equal values without uncertainty: no information either
+    nou = ~both0 & ~same & ~(uc > 0)
+    note = np.where(both0, "both zero", np.where(same, "identical", np.where(nou, "no uncertainty", "")))
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(note == "", d / np.where(uc > 0, uc, 1.0), np.nan)
     p["z"] = z
@@ -241,6 +243,8 @@ def summarize(points: pd.DataFrame, k: float = 2.0, *, allow_missing_uncertainty
                f"(give the instrument uncertainty or records with std)")
         if out["n_both_zero"] == n:
             w.append(f"chi-square undefined{where}: every point is zero in both records")
+        elif int(np.isin(note, ["both zero", "identical"]).sum()) == n:
+            w.append(f"chi-square undefined{where}: the records hold identical values without uncertainty")
         elif not allow_missing_uncertainty:
             raise UncertaintyError(msg)
         else:

@@ -120,6 +120,9 @@ def _test(p: pd.DataFrame, crit: Criterion, kind: str, alpha: float) -> dict[str
     out: dict[str, Any] = {"n_points": int(len(p)), "dof": int(z.size), "chi2": None, "p_value": None,
                            "alpha_group": alpha, "median_rel_uncertainty": med_rel,
                            "fraction_within": float(np.mean(np.abs(z) <= crit.k)) if z.size else None}
+    if len(p) and bool((p["diff"].to_numpy(float) == 0).all()):
+        out.update(verdict="accept", reason="identical values")
+        return out
     if z.size < crit.min_points:
         out.update(verdict="inconclusive", reason=f"{z.size} points with an uncertainty (< {crit.min_points})")
         return out

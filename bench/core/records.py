@@ -94,6 +94,9 @@ def with_keys(record: "BSDFRecord") -> "BSDFRecord":
             t[k] = ident[k]
     if "geometry" not in t.columns:
         t["geometry"] = record.meta.get("geometry") if isinstance(record.meta.get("geometry"), str) else None
+    for k in ("specimen", "collector", "quantity", "geometry"):  # text keys; an absent value is None
+        col = t[k].astype(object)
+        t[k] = col.where(col.notna(), None)
     return BSDFRecord(t, dict(record.meta))
 
 
