@@ -50,6 +50,7 @@ __all__ = [
     "run_adaptive",
     "estimate_time",
     "budget_report",
+    "relative_patch_rays",
     "CI_METHODS",
 ]
 
@@ -666,3 +667,35 @@ def budget_report(uncertainty: float, delta: float, patches: int = 1,
         "patches": int(patches),
         "rays_per_second": float(rays_per_second),
     }
+
+
+def relative_patch_rays(p: np.ndarray, uncertainty: float, delta: float, max_rays: int | None = None
+                        ) -> dict[str, object]:
+    """Rays for a *relative* uncertainty of every patch's BSDF (``bench gonio --uncertainty``).
+
+    A patch's BSDF is ``k / (N psa)`` with ``k ~ Binomial(N, p)``, so its relative standard error
+    is ``sqrt((1 - p) / (N p))``: the least-populated patch decides. With ``p`` the estimated
+    probabilities of the patches of interest (e.g. from a pilot run) and
+    ``z = Phi^-1(1 - delta / 2)`` (the two-sided ``1 - delta`` interval every patch of a record
+    carries), ``N = ceil(z^2 (1 - p_min) / (v^2 p_min))`` makes each patch's interval
+    half-width at most about ``v`` times its value (normal approximation). With ``max_rays``, patches that would need more are
+    listed as ``unreachable`` (their indices into ``p``) and N is capped.
+
+    Returns
+    -------
+    dict
+        ``N``, ``z``, ``p_min``, ``needed`` (rays the dimmest patch needs), ``unreachable``
+        (indices), ``capped`` (bool).
+    """
+    v = _check_uncertainty(uncertainty)
+    d = _check_delta(delta)
+    p = np.asarray(p, dtype=float)
+    if p.size == 0 or not np.all(p > 0):
+        raise BudgetError("relative_patch_rays needs patch probabilities > 0 (patches that received rays)")
+    z = float(stats.norm.isf(d / 2.0))
+    need = np.ceil(z * z * (1.0 - p) / (v * v * p))
+    n = int(need.max())
+    unreachable = np.flatnonzero(need > max_rays) if max_rays is not None else np.array([], dtype=int)
+    capped = max_rays is not None and n > max_rays
+    return {"N": int(min(n, max_rays)) if capped else n, "z": z, "p_min": float(p.min()), "needed": n,
+            "unreachable": unreachable.tolist(), "capped": bool(capped)}
