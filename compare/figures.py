@@ -49,7 +49,11 @@ def plot_spectrum(s: Spectrum, path: str | Path, title: str | None = None) -> Pa
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=8)
-    ax.set_title(title or f"{s.meta.get('specimen', '')} at {s.geometry}, N = {int(s.N[0]):,} rays/wavelength",
+    n = np.broadcast_to(np.asarray(s.N), np.asarray(s.wavelengths).shape)
+    n_text = f"{int(n.min()):,}" if n.min() == n.max() else f"{int(n.min()):,}-{int(n.max()):,}"
+    measured = s.meta.get("measured_as")
+    as_text = f" (measured as {measured})" if measured and str(measured) != str(s.geometry) else ""
+    ax.set_title(title or f"{s.meta.get('specimen', '')} at {s.geometry}{as_text}, N = {n_text} rays/wavelength",
                  fontsize=10)
     fig.tight_layout()
     p = Path(path)

@@ -24,7 +24,8 @@ import numpy as np
 from bench.cli.common import emit_json, number, positive_int
 from bench.core.errors import InputError
 
-__all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "INTEREST_FRACTION",
+__all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "n_label", "reciprocity_note",
+           "INTEREST_FRACTION",
            "PILOT_RAYS", "RAYS_PER_SECOND"]
 
 #: a patch is "of interest" to ``--uncertainty`` when its pilot probability is at least this
@@ -51,7 +52,8 @@ def cmd_rays(args: argparse.Namespace) -> int:
 
 def _spectrum_json(s: Any) -> dict[str, Any]:
     return {
-        "N": int(s.N[0]), "seed": s.seed, "geometry": s.geometry, "delta": s.delta,
+        "N": int(s.N[0]), "N_per_wavelength": [int(n) for n in np.broadcast_to(s.N, s.wavelengths.shape)],
+        "seed": s.seed, "geometry": s.geometry, "delta": s.delta,
         "wavelength_nm": s.wavelengths.tolist(), "reflectance": s.reflectance.tolist(),
         "transmittance": s.transmittance.tolist(), "reflectance_ci": s.reflectance_ci.tolist(),
         "transmittance_ci": s.transmittance_ci.tolist(), "absorptance": s.absorptance.tolist(),
@@ -99,16 +101,38 @@ def cmd_spectro(args: argparse.Namespace) -> int:
             out["budget"] = _budget(adaptive)
         emit_json(out)
         return 0
+    n = np.broadcast_to(np.asarray(s.N), s.wavelengths.shape)
     print(f"specimen {s.meta['specimen']}  geometry {s.geometry}  beam {sp.beam.kind}  "
-          f"N = {int(s.N[0])} rays/wavelength  seed {s.seed}  confidence {1 - s.delta:g}")
+          f"N = {n_label(n)} rays/wavelength{'' if n.min() == n.max() else ' (per wavelength in the table)'}  "
+          f"seed {s.seed}  confidence {1 - s.delta:g}")
+    note = reciprocity_note(s)
+    if note:
+        print(note)
     if adaptive:
         print(adaptive["message"])
     q = "RF" if s.meta.get("quantity") == "reflectance factor" else "R"
-    print(f"{'nm':>7} {q:>8} {'[lo, hi]':>20} {'T':>8} {'[lo, hi]':>20}")
+    print(f"{'nm':>7} {q:>8} {'[lo, hi]':>20} {'T':>8} {'[lo, hi]':>20} {'N':>9}")
     for i, w in enumerate(s.wavelengths):
         print(f"{w:7.1f} {s.reflectance[i]:8.5f} [{s.reflectance_ci[i, 0]:.5f}, {s.reflectance_ci[i, 1]:.5f}] "
-              f"{s.transmittance[i]:8.5f} [{s.transmittance_ci[i, 0]:.5f}, {s.transmittance_ci[i, 1]:.5f}]")
+              f"{s.transmittance[i]:8.5f} [{s.transmittance_ci[i, 0]:.5f}, {s.transmittance_ci[i, 1]:.5f}] "
+              f"{int(n[i]):9d}")
     return 0
+
+
+def n_label(n: Any) -> str:
+    """``"85,505"`` when every wavelength had the same ray count, else ``"23,861-59,378"``."""
+    n = np.asarray(n)
+    lo, hi = int(n.min()), int(n.max())
+    return f"{lo:,}" if lo == hi else f"{lo:,}-{hi:,}"
+
+
+def reciprocity_note(s: Any) -> str:
+    """One line when the geometry was measured as its reciprocal (d/0 as 0/d, d/8 as 8/d)."""
+    measured = s.meta.get("measured_as")
+    if not measured or str(measured) == str(s.geometry):
+        return ""
+    return (f"measured as {measured} (Helmholtz reciprocity: {s.geometry} and {measured} give the same "
+            f"reflectance; the instrument traces rays from the directional side)")
 
 
 def _incidence(text: str) -> tuple[float, float]:
