@@ -19,15 +19,13 @@ import re
 import subprocess
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 
-from bench.core.errors import InputError
 from bench.core.records import BSDFRecord
 from bench.io import export_record, load_run, read_record
 from bench.store import RunStore
-from bench.sweep import load_sweep, run_sweep, sweep_from_dict
+from bench.sweep import run_sweep, sweep_from_dict
 from compare.align import NoOverlapError, align
 from compare.report import compare_records
 from compare.verdict import Criterion

@@ -3,11 +3,10 @@ the run store.
 
 :func:`load_run` turns a run id into the record a comparison needs:
 
-* a goniophotometric **sweep** -> a :class:`BSDFRecord` whose rows carry the task's keys
-  (``specimen``, ``collector``, ``quantity``; incidence from the point) joined from the run's task
-  table, so two specimens at the same incidence are never paired with each other;
-* a spectrophotometric **sweep** -> a tuple of :class:`Spectrum`, one per (specimen, CIE
-  geometry), ``meta["specimen"]`` and ``meta["quantity"]`` set, std per wavelength kept;
+* a **sweep** -> :func:`bench.sweep.records.sweep_record`: a goniophotometric sweep as a
+  :class:`BSDFRecord` whose rows carry the task's keys (``specimen``, ``collector``,
+  ``quantity``), so two specimens at the same incidence are never paired with each other; a
+  spectrophotometric sweep as a tuple of :class:`Spectrum`, one per (specimen, CIE geometry);
 * a **spectral scan** (plan kind ``spectral``: CIE geometries measured on the goniometer) -> a
   tuple of :class:`Spectrum` per geometry, reflectance factor ``R = pi * BRDF``;
 * any other run -> :meth:`RunStore.to_record` with the identity keys added
@@ -20,13 +19,12 @@ import math
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from bench.core.errors import InputError
 from bench.core.geometry import cie_geometry
 from bench.core.records import BSDFRecord, with_keys
 from bench.core.roles import Spectrum
-from bench.sweep.executor import sweep_readings
+from bench.sweep.records import sweep_record
 
 __all__ = ["load_run", "sweep_record", "spectral_scan_spectra"]
 
@@ -35,44 +33,6 @@ def _z(delta: float) -> float:
     from scipy.stats import norm
 
     return float(norm.ppf(1.0 - delta / 2.0))
-
-
-def sweep_record(store: Any, run_id: str) -> BSDFRecord | tuple[Spectrum, ...]:
-    """A sweep run as a keyed record (see the module docstring)."""
-    info = store.run(run_id)
-    meta = info.get("meta") or {}
-    plan = (info.get("plan") or {}).get("sweep", {})
-    delta = float(plan.get("delta", 0.01))
-    df = sweep_readings(store, run_id)
-    base = {"run_id": run_id, "kind": "sweep", "source": "virtual", "seed": info.get("seed"), "delta": delta,
-            "sweep": meta.get("sweep"), "instrument": meta.get("instrument")}
-    if meta.get("instrument") == "spectro":
-        return _sweep_spectra(df, base, delta)
-    rec = store.to_record(run_id)
-    t = rec.table
-    for k in ("specimen", "collector"):
-        t[k] = df[k].to_numpy() if k in df.columns else None
-    t["geometry"] = None
-    t["quantity"] = "BSDF"
-    return BSDFRecord(t, {**rec.meta, **base})
-
-
-def _sweep_spectra(df: pd.DataFrame, base: dict[str, Any], delta: float) -> tuple[Spectrum, ...]:
-    out = []
-    for (spec, geo), g in df.groupby(["specimen", "geometry"], sort=False):
-        r = g[g.hemisphere == "R"].sort_values("wavelength_nm")
-        t = g[g.hemisphere == "T"].set_index("wavelength_nm").reindex(r.wavelength_nm)
-        q = str(r["quantity"].iloc[0]) if "quantity" in r.columns else "reflectance"
-        out.append(Spectrum(
-            geometry=str(geo), wavelengths=r.wavelength_nm.to_numpy(float), reflectance=r.value.to_numpy(float),
-            transmittance=t.value.to_numpy(float), reflectance_ci=r[["ci_lo", "ci_hi"]].to_numpy(float),
-            transmittance_ci=t[["ci_lo", "ci_hi"]].to_numpy(float), N=r.N.to_numpy(np.int64),
-            seed=int(r.series_seed.iloc[0]) if "series_seed" in r.columns else None, delta=delta,
-            meta={**base, "specimen": str(spec), "quantity": q, "reflectance_std": r["std"].to_numpy(float),
-                  "transmittance_std": t["std"].to_numpy(float)}))
-    if not out:
-        raise InputError(f"sweep run {base['run_id']} has no spectra")
-    return tuple(out)
 
 
 def spectral_scan_spectra(record: BSDFRecord) -> tuple[Spectrum, ...]:
