@@ -45,7 +45,7 @@ def plot_spectrum(s: Spectrum, path: str | Path, title: str | None = None) -> Pa
             ax.fill_between(s.wavelengths, ci[:, 0], ci[:, 1], color=colour, alpha=0.25,
                             label=f"{1 - s.delta:.0%} interval")
     ax.set_xlabel("wavelength (nm)")
-    ax.set_ylabel("fraction")
+    ax.set_ylabel("fraction (1)")
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=8)
@@ -107,6 +107,7 @@ def plot_bsdf_polar(record, path: str | Path, wavelength_nm: float | None = None
                     label="specular")
         ax.set_ylim(0, 90)
         ax.set_yticks([30, 60, 90])
+        ax.set_yticklabels(["30°", "60°", "90°"])  # radius: theta_r in degrees
         ax.set_title(("BRDF (reflection)" if h == "R" else "BTDF (transmission)") + " [1/sr]", fontsize=10)
         fig.colorbar(plt.cm.ScalarMappable(norm=panel_norm, cmap=cmap), ax=ax, shrink=0.75, pad=0.1)
         ax.legend(loc="lower left", fontsize=7, bbox_to_anchor=(-0.15, -0.12))
@@ -289,7 +290,7 @@ def _sigma_map(c: Comparison, act_sel: pd.DataFrame, wl: float, inc: tuple[float
     z = p.z.to_numpy(float)
     lim = float(min(10.0, max(3.0, np.nanmax(np.abs(z)) if np.isfinite(z).any() else 3.0)))
     norm = Normalize(vmin=-lim, vmax=lim)
-    title = f"{c.name}: (virtual - actual) / u_c, theta_i = {inc[0]:g} deg, {wl:g} nm"
+    title = f"{c.name}:\n(virtual - actual) / u_c, theta_i = {inc[0]:g} deg, {wl:g} nm"
     panels = [h for h in ("R", "T") if (p.channel == h).any()] or ["R"]
     if not _has_bounds(act_sel):
         return _polar_scatter(p, np.nan_to_num(z), path, title, "z (sigma)", "RdBu_r", norm)
@@ -310,6 +311,7 @@ def _sigma_map(c: Comparison, act_sel: pd.DataFrame, wl: float, inc: tuple[float
         ax.plot([np.radians(inc[1])], [inc[0]], marker="*", color="black", ms=11, ls="none")
         ax.set_ylim(0, 90)
         ax.set_yticks([30, 60, 90])
+        ax.set_yticklabels(["30°", "60°", "90°"])  # radius: theta_r in degrees
         ax.set_title(f"{'reflection' if h == 'R' else 'transmission'} (grey: no z)", fontsize=9)
         fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.75, pad=0.1,
                      label=f"z (sigma); |z| <= {k:g} expected for {nominal_fraction(k):.1%}")

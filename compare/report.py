@@ -325,7 +325,7 @@ h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;padding-botto
 table{border-collapse:collapse;margin:8px 0;font-size:0.85em}
 th,td{border:1px solid #ccc;padding:3px 8px;text-align:right;vertical-align:top}
 th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
-td.msg{text-align:left}
+td.msg{text-align:left}table.verdicts td:nth-child(4),table.groups td:nth-child(3){text-align:left}
 .row{display:flex;flex-wrap:wrap;gap:12px;align-items:flex-start}.scroll{overflow-x:auto;max-width:100%}
 figure{margin:16px 0;flex:0 1 auto;max-width:100%}figure img{max-width:100%;border:1px solid #eee}
 figcaption{font-size:0.85em;color:#555;max-width:900px}

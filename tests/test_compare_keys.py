@@ -280,3 +280,21 @@ def test_rendered_report_has_verdict_rows_and_figure_ids(glossy_report, tmp_path
     assert any(r[0] == "twice rougher" and r[2] == "reject" for r in rows)
     for fid in s["figures"]:
         assert re.search(rf'<img id="{re.escape(fid)}"[^>]*src="data:image/png;base64,', dom), fid
+
+
+def test_criterion_from_a_config_file_and_flags(tmp_path, virtual_pair):
+    a, b = virtual_pair
+    export_record(a, tmp_path / "a.csv")
+    export_record(b, tmp_path / "b.csv")
+    cfg = tmp_path / "compare.toml"
+    cfg.write_text("[criterion]\nalpha = 0.05\ntolerance = 0.03\n[compare]\nmetric = \"rmse\"\n")
+    r = _bench("compare", "a.csv", "b.csv", "--config", str(cfg), "--k", "3", "--json", "--report", "r", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    js = json.loads(r.stdout)
+    assert js["criterion"]["alpha"] == 0.05 and js["criterion"]["tolerance"] == 0.03 and js["criterion"]["k"] == 3
+    assert js["primary_metric"] == "rmse" and "alpha = 0.05" in js["criterion"]["statement"]
+    cfg.write_text("[criterion]\nalfa = 0.05\n")
+    r = _bench("compare", "a.csv", "b.csv", "--config", str(cfg), cwd=tmp_path)
+    assert r.returncode == 2 and "unknown criterion key(s) ['alfa']" in r.stderr
+    r = _bench("compare", "a.csv", "b.csv", "--alpha", "1.5", cwd=tmp_path)
+    assert r.returncode == 2 and "alpha must be in (0, 1)" in r.stderr
