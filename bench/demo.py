@@ -13,16 +13,19 @@ from typing import Any
 
 import colour
 import numpy as np
+import pandas as pd
 
 from bench.config import load_bench
 from bench.core.geometry import Geometry
 from bench.core.parsing import read_toml
-from bench.io import spectrum_to_csv
+from bench.core.records import BSDFRecord
+from bench.io import load_run, spectrum_to_csv
 from bench.plans import load_plan
 from bench.runner import run_scan
 from bench.store import RunStore
 from compare.figures import plot_bsdf_polar, plot_in_plane, plot_spectrum
 from compare.report import compare_records
+from compare.verdict import Criterion
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.spectrophotometer import VirtualSpectrophotometer
 
@@ -67,6 +70,10 @@ def _spectro_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
     return summary, lines
 
 
+#: the model tolerance of the demo's acceptance criterion (relative standard uncertainty)
+DEMO_TOLERANCE = 0.02
+#: the demo's scan plan: in-plane, incidences facing each other so reciprocity can be tested
+DEMO_PLAN = "demo-reciprocal.toml"
 GLOSSY = "plastic:alpha=0.15,eta=1.5,kd=0.5"
 #: the second candidate model of the comparison: the same material, a lobe twice as rough
 ROUGHER = "plastic:alpha=0.3,eta=1.5,kd=0.5"
@@ -103,7 +110,7 @@ def _scan_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
     """The in-plane plan on the emulated bench (real drivers over emulators) and on the virtual
     bench, both stored in one run store."""
     fixtures = FIXTURES
-    plan = load_plan(fixtures / "plans" / "in-plane.toml")
+    plan = load_plan(fixtures / "plans" / DEMO_PLAN)
     store_path = out / "runs.sqlite"
     runs = {}
     lines = [f"scan: plan '{plan.name}' ({len(plan)} points) on two benches, store {store_path}"]
@@ -122,21 +129,46 @@ def _scan_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
     return {"store": str(store_path), "runs": runs}, lines
 
 
-def _compare_demo(out: Path, runs: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+def _model_spheres(wavelengths: list[float], seed: int) -> dict[str, Any]:
+    """Each candidate model measured over the whole sphere (patch records at the plan's
+    incidences): what the energy-conservation and reciprocity checks of the models run on."""
+    out = {}
+    for label, spec in (("A", GLOSSY), ("B", ROUGHER)):
+        g = VirtualGoniophotometer(spec, collector="equal-psa:18x72", rays=2_000_000, seed=seed, method="rays")
+        frames = [g.measure_bsdf(ti, pi_, wavelengths) for ti, pi_ in ((30.0, 0.0), (45.0, 180.0), (60.0, 0.0))]
+        out[f"model {label} whole sphere"] = BSDFRecord(pd.concat([f.table for f in frames], ignore_index=True),
+                                                        dict(frames[0].meta))
+    return out
+
+
+def _compare_demo(out: Path, runs: dict[str, Any], seed: int = 20261122) -> tuple[dict[str, Any], list[str]]:
     """The emulated-hardware run against two virtual candidate models: which goes into the renderer?"""
     with RunStore(runs["store"]) as store:
-        actual = store.to_record(runs["runs"]["emulated"]["run_id"])
-        candidates = {f"model A ({GLOSSY})": store.to_record(runs["runs"]["virtual"]["run_id"]),
-                      f"model B ({ROUGHER})": store.to_record(runs["runs"]["virtual-rougher"]["run_id"])}
-    summary = compare_records(actual, candidates, out / "compare",
+        actual = load_run(store, runs["runs"]["emulated"]["run_id"])
+        candidates = {f"model A ({GLOSSY})": load_run(store, runs["runs"]["virtual"]["run_id"]),
+                      f"model B ({ROUGHER})": load_run(store, runs["runs"]["virtual-rougher"]["run_id"])}
+    wls = sorted(set(map(float, actual.table.wavelength_nm)))
+    spheres = _model_spheres(wls[:: max(1, len(wls) // 3)][:3], seed)
+    # the criterion, stated before looking: a model within 2 % (standard uncertainty) of the
+    # material is good enough for the renderer; family-wise alpha 1 %
+    summary = compare_records(actual, candidates, out / "compare", check_records=spheres,
+                              criterion=Criterion(alpha=0.01, k=2.0, tolerance=DEMO_TOLERANCE),
                               title="Emulated gonioreflectometer vs two virtual models")
-    lines = ["compare: emulated-hardware run against two virtual candidate models"]
+    lines = ["compare: emulated-hardware run against two virtual candidate models",
+             f"  criterion: {summary['criterion']['statement']}"]
     for i, entry in enumerate(summary["ranking"], 1):
         s = summary["candidates"][entry["name"]]
-        lines.append(f"  #{i} {entry['name']}: mean |discrepancy| {s['mean_abs_discrepancy_pct']:.2f} %, "
-                     f"chi2/dof {s['chi2_per_dof']:.2f}, within uncertainty {s['fraction_within_uncertainty']:.0%}")
+        v = summary["verdicts"][entry["name"]]
+        lines.append(f"  #{i} {entry['name']}: {v['verdict'].upper()} ({v['reason']}); mean |discrepancy| "
+                     f"{s['mean_abs_discrepancy_pct']:.2f} %, chi2/dof {s['chi2_per_dof']:.2f}, within uncertainty "
+                     f"{s['fraction_within_uncertainty']:.0%}")
+    tested = [f"{rec}: {name} {'passed' if r['passed'] else 'FAILED'}" for rec, res in summary["checks"].items()
+              for name, r in res.items() if r["tested"]]
+    lines.append(f"  physical checks run: {len(tested)} ({'; '.join(tested)})")
     lines.append(f"  report: {summary['report_html']}")
     return {"ranking": [e["name"] for e in summary["ranking"]], "report": summary["report_html"],
+            "verdicts": {n: {k: v[k] for k in ("verdict", "reason")} for n, v in summary["verdicts"].items()},
+            "checks_tested": tested,
             "candidates": {n: {k: summary["candidates"][n][k] for k in ("mean_abs_discrepancy_pct", "chi2_per_dof",
                                                                         "fraction_within_uncertainty", "p_value")}
                            for n in summary["candidates"]}}, lines
@@ -238,7 +270,7 @@ def run_demo(out: Path, seed: int = 20261122) -> dict[str, Any]:
         part, lines = stage(out, seed)
         summary[name] = part
         summary["lines"] += lines
-    summary["compare"], lines = _compare_demo(out, summary["scan"])
+    summary["compare"], lines = _compare_demo(out, summary["scan"], seed)
     summary["lines"] += lines
     return summary
 

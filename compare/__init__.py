@@ -7,7 +7,11 @@ Entry points (imported lazily, so ``import compare`` stays cheap for the CLI):
 * :func:`compare.stats.compare` -- one candidate -> :class:`compare.stats.Comparison`;
 * :func:`compare.align.align` -- point-by-point matching -> :class:`compare.align.Aligned`;
 * :func:`compare.checks.run_checks` -- reciprocity, energy conservation, isotropy of a BSDF record;
-* :mod:`compare.figures` -- every figure (spectra, polar maps, in-plane curves, report figures).
+* :class:`compare.verdict.Criterion` -- the acceptance criterion; :mod:`compare.verdict` gives a
+  verdict per model and per incidence/wavelength (or spectrum) group;
+* :mod:`compare.records` -- what a record is (BSDF table, spectrum, set of spectra) and its keys;
+* :mod:`compare.figures`, :mod:`compare.grid` -- every figure (spectra, polar maps, in-plane
+  curves, report figures, small multiples of every incidence).
 
 ``compare`` takes records only (:mod:`bench.core.records`, :mod:`bench.core.roles`): it reads no
 file (the application's :mod:`bench.io` does) and imports nothing but ``bench.core``.
@@ -19,12 +23,12 @@ from importlib import import_module
 from typing import Any
 
 __all__ = ["compare_records", "compare", "rank", "align", "run_checks",
-           "reciprocity", "energy_conservation", "isotropy"]
+           "reciprocity", "energy_conservation", "isotropy", "Criterion"]
 
 _WHERE = {"compare_records": "compare.report",
           "compare": "compare.stats", "rank": "compare.stats", "align": "compare.align",
           "run_checks": "compare.checks", "reciprocity": "compare.checks",
-          "energy_conservation": "compare.checks", "isotropy": "compare.checks"}
+          "energy_conservation": "compare.checks", "isotropy": "compare.checks", "Criterion": "compare.verdict"}
 
 
 def __getattr__(name: str) -> Any:

@@ -19,6 +19,15 @@ Matching rules
   included, so a direction falls in exactly one patch); ``"nearest"`` takes the nearest
   candidate direction within ``angle_tol_deg``; ``"auto"`` uses ``"patch"`` when the candidate
   has finite patch bounds.
+* Identity keys (``specimen``, ``collector``, ``geometry``, ``quantity``; see
+  :data:`bench.core.records.IDENTITY_KEYS`): a key on which either record has more than one
+  value (a multi-specimen sweep, a spectro sweep over geometries) is matched exactly -- each
+  actual row is compared only with candidate rows of the same specimen, collector, CIE geometry
+  and quantity. A record with a single value of a key is one measurement *of* something (a model
+  of the measured specimen need not share its name), so single-valued keys are not matched,
+  except ``geometry`` and ``quantity`` which must agree. Actual key values the candidate lacks
+  are unmatched rows naming them; when none of the actual's key values is in the candidate,
+  :class:`NoOverlapError` names the missing keys.
 * Quantities must agree (meta ``"quantity"``: BSDF vs reflectance factor vs reflectance, and
   ``"unit"``/``"units"`` when both give one); otherwise :class:`QuantityMismatchError`. No
   overlap at all raises :class:`NoOverlapError`, naming what is missing.
@@ -28,30 +37,31 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import PurePath
 from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
 
 from bench.core.errors import InputError
-from bench.core.roles import Spectrum
-from bench.core.records import BSDFRecord
+from compare.records import (_bsdf_long, _spectra_long, _unit, angular_distance_deg, as_record, is_virtual, record_kind, record_meta, record_quantity)
 
 __all__ = [
     "AlignmentError", "QuantityMismatchError", "NoOverlapError", "Aligned", "align", "as_record",
-    "record_kind", "record_quantity", "is_virtual", "PAIR_COLUMNS", "UNMATCHED_COLUMNS",
+    "record_kind", "record_quantity", "record_meta", "is_virtual", "MATCH_KEYS", "PAIR_COLUMNS", "UNMATCHED_COLUMNS",
     "DEFAULT_ANGLE_TOL_DEG", "DEFAULT_WAVELENGTH_TOL_NM",
 ]
 
 DEFAULT_ANGLE_TOL_DEG = 1.0
 DEFAULT_WAVELENGTH_TOL_NM = 0.5
 
-PAIR_COLUMNS = ["channel", "wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "actual_value", "actual_std",
+MATCH_KEYS = ("specimen", "collector", "geometry", "quantity")
+
+PAIR_COLUMNS = ["specimen", "collector", "geometry", "quantity", "channel", "wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "actual_value", "actual_std",
                 "virtual_value", "virtual_std", "psa", "virtual_wavelength_nm", "virtual_theta_i", "virtual_phi_i",
                 "virtual_theta_r", "virtual_phi_r", "angle_distance_deg", "wavelength_method", "match_method",
-                "virtual_index", "actual_index", "actual_std_source", "virtual_std_source"]
-UNMATCHED_COLUMNS = ["side", "channel", "wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "reason"]
+                "virtual_index", "actual_index", "actual_std_source", "virtual_std_source", "actual_sample",
+                "virtual_sample"]
+UNMATCHED_COLUMNS = ["side", "specimen", "collector", "geometry", "channel", "wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "reason"]
 
 
 class AlignmentError(InputError):
@@ -97,131 +107,6 @@ class Aligned:
         return len(self.pairs)
 
 
-# --- record introspection ----------------------------------------------------------------
-
-
-def as_record(obj: Any) -> BSDFRecord | Spectrum:
-    """Accept a :class:`BSDFRecord`, a :class:`Spectrum`, or a ``pandas.DataFrame`` with the BSDF
-    columns (wrapped as a record with empty metadata); anything else is an :class:`InputError`."""
-    if isinstance(obj, (BSDFRecord, Spectrum)):
-        return obj
-    if isinstance(obj, pd.DataFrame):
-        missing = {"wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "value"} - set(obj.columns)
-        if missing:
-            raise InputError(f"a BSDF table needs columns {sorted(missing)}")
-        return BSDFRecord(obj.reset_index(drop=True), {})
-    hint = " (read files with bench.io.read_record)" if isinstance(obj, (str, PurePath)) else ""
-    raise InputError(f"expected a BSDFRecord or Spectrum, got {type(obj).__name__}{hint}")
-
-
-def record_kind(rec: BSDFRecord | Spectrum) -> str:
-    """``"spectrum"`` or ``"bsdf"``."""
-    return "spectrum" if isinstance(rec, Spectrum) else "bsdf"
-
-
-_BSDF_ALIASES = {"bsdf": "BSDF", "brdf": "BSDF", "btdf": "BSDF", "1/sr": "BSDF"}
-
-
-def record_quantity(rec: BSDFRecord | Spectrum) -> str:
-    """The measured quantity, normalized: ``"reflectance"``, ``"reflectance factor"`` (spectra),
-    ``"BSDF"`` (BRDF/BTDF in 1/sr), or whatever else ``meta["quantity"]`` says (e.g. ``"DSF"``)."""
-    if isinstance(rec, Spectrum):
-        return str(rec.meta.get("quantity", "reflectance")).strip().lower()
-    q = str(rec.meta.get("quantity", "BSDF")).strip()
-    return _BSDF_ALIASES.get(q.lower(), q)
-
-
-def _unit(rec: BSDFRecord | Spectrum) -> str | None:
-    u = rec.meta.get("unit", rec.meta.get("units"))
-    return None if u is None else str(u).strip()
-
-
-def is_virtual(rec: BSDFRecord | Spectrum) -> bool:
-    """True for a Monte Carlo record (``meta["source"] == "virtual"`` or, for a spectrum, ``N > 0``)."""
-    src = rec.meta.get("source")
-    if src is not None:
-        return str(src) == "virtual"
-    if isinstance(rec, Spectrum):
-        return bool(np.any(np.asarray(rec.N) > 0))
-    t = rec.table
-    return "N" in t and bool((pd.to_numeric(t["N"], errors="coerce").fillna(0) > 0).any())
-
-
-def _z_two_sided(delta: float) -> float:
-    from scipy.stats import norm
-
-    return float(norm.ppf(1.0 - delta / 2.0))
-
-
-def _std_from_ci(lo: np.ndarray, hi: np.ndarray, delta: float) -> np.ndarray:
-    return (np.asarray(hi, float) - np.asarray(lo, float)) / (2.0 * _z_two_sided(delta))
-
-
-def _spectrum_long(s: Spectrum, channels: Sequence[str]) -> pd.DataFrame:
-    """One row per (channel, wavelength); ``std`` from ``meta["<channel>_std"]`` when given, else
-    the binomial standard error sqrt(p(1-p)/N) (hemispherical quantities, 0 < p < 1), else the
-    interval half-width / z_(1-delta/2); ``std_source`` says which."""
-    wl = np.asarray(s.wavelengths, float)
-    frames = []
-    for ch in channels:
-        v = np.asarray(getattr(s, ch), float)
-        ci = np.asarray(getattr(s, f"{ch}_ci"), float)
-        std = np.full(v.shape, np.nan)
-        source = np.full(v.shape, "none", dtype=object)
-        given = s.meta.get(f"{ch}_std")
-        if given is not None:
-            std = np.asarray(given, float) * np.ones_like(v)
-            source[:] = "given"
-        elif np.any(np.asarray(s.N) > 0):
-            n = np.asarray(s.N, float) * np.ones_like(v)
-            ok = (v > 0) & (v < 1) & (n > 0) & (record_quantity(s) == "reflectance" or ch == "transmittance")
-            std[ok] = np.sqrt(v[ok] * (1 - v[ok]) / n[ok])
-            source[ok] = "binomial"
-            rest = ~ok & np.all(np.isfinite(ci), axis=1)
-            std[rest] = _std_from_ci(ci[rest, 0], ci[rest, 1], float(s.delta))
-            source[rest] = "interval"
-        frames.append(pd.DataFrame({"channel": ch, "wavelength_nm": wl, "theta_i": np.nan, "phi_i": np.nan,
-                                    "theta_r": np.nan, "phi_r": np.nan, "value": v, "std": std,
-                                    "std_source": source, "psa": np.nan}))
-    return pd.concat(frames, ignore_index=True)
-
-
-def _bsdf_long(r: BSDFRecord) -> pd.DataFrame:
-    t = r.table.reset_index(drop=True).copy()
-    out = pd.DataFrame({
-        "channel": t["hemisphere"].astype(str) if "hemisphere" in t else np.where(t.theta_r > 90, "T", "R"),
-        "wavelength_nm": t.wavelength_nm.astype(float), "theta_i": t.theta_i.astype(float),
-        "phi_i": t.phi_i.astype(float), "theta_r": t.theta_r.astype(float), "phi_r": t.phi_r.astype(float),
-        "value": t.value.astype(float),
-    })
-    std = t["std"].astype(float).to_numpy() if "std" in t else np.full(len(t), np.nan)
-    source = np.where(np.isfinite(std), "given", "none").astype(object)
-    # a zero-count patch has a zero binomial std but not zero uncertainty: use its interval
-    delta = float(r.meta.get("delta", 0.01))
-    if {"ci_lo", "ci_hi"} <= set(t.columns):
-        lo, hi = t.ci_lo.to_numpy(float), t.ci_hi.to_numpy(float)
-        fix = (~np.isfinite(std) | (std == 0)) & np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
-        std = std.copy()
-        std[fix] = _std_from_ci(lo[fix], hi[fix], delta)
-        source[fix] = "interval"
-    out["std"] = std
-    out["std_source"] = source
-    for c in ("theta_min", "theta_max", "phi_min", "phi_max", "psa"):
-        out[c] = t[c].astype(float) if c in t else np.nan
-    return out
-
-
-def _dirs(theta_deg: np.ndarray, phi_deg: np.ndarray) -> np.ndarray:
-    t, p = np.radians(np.asarray(theta_deg, float)), np.radians(np.asarray(phi_deg, float))
-    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
-
-
-def angular_distance_deg(t1: Any, p1: Any, t2: Any, p2: Any) -> np.ndarray:
-    """Angle (deg) between directions (t1, p1) and (t2, p2), broadcasting."""
-    d = np.sum(_dirs(t1, p1) * _dirs(t2, p2), axis=-1)
-    return np.degrees(np.arccos(np.clip(d, -1.0, 1.0)))
-
-
 def _wavelength_weights(w: float, grid: np.ndarray, tol: float) -> tuple[list[tuple[float, float]], str, str]:
     """``([(candidate wavelength, weight), ...], method, reason_if_empty)``."""
     if grid.size == 0:
@@ -260,6 +145,12 @@ def _check_compatible(actual: Any, cand: Any) -> tuple[str, str]:
         raise QuantityMismatchError(f"cannot compare a {ka} record with a {kc} record "
                                     f"(quantities {record_quantity(actual)!r} vs {record_quantity(cand)!r})")
     qa, qc = record_quantity(actual), record_quantity(cand)
+    if isinstance(actual, tuple) or isinstance(cand, tuple):
+        sa = {record_quantity(x) for x in (actual if isinstance(actual, tuple) else (actual,))}
+        sc = {record_quantity(x) for x in (cand if isinstance(cand, tuple) else (cand,))}
+        if not sa & sc:
+            raise QuantityMismatchError(f"quantity mismatch: actual is {sorted(sa)}, candidate is {sorted(sc)}")
+        return ka, qa
     if qa != qc:
         raise QuantityMismatchError(f"quantity mismatch: actual is {qa!r}, candidate is {qc!r} "
                                     f"(e.g. BRDF vs reflectance factor R = pi * BRDF); convert one first")
@@ -311,12 +202,13 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
     warnings: list[str] = []
     meta: dict[str, Any] = {"angle_tol_deg": float(angle_tol_deg), "wavelength_tol_nm": float(wavelength_tol_nm),
                             "wavelength_interpolation": "linear in wavelength (candidate onto the actual grid)",
-                            "actual_meta": dict(actual.meta), "virtual_meta": dict(candidate.meta),
+                            "actual_meta": record_meta(actual), "virtual_meta": record_meta(candidate),
                             "actual_is_virtual": is_virtual(actual), "virtual_is_virtual": is_virtual(candidate)}
     if kind == "spectrum":
         if channels == "auto":
             chans = ["reflectance"]
-            if np.any(np.asarray(actual.transmittance) != 0) or np.any(np.asarray(candidate.transmittance) != 0):
+            both = [x for r in (actual, candidate) for x in (r if isinstance(r, tuple) else (r,))]
+            if any(np.any(np.asarray(x.transmittance) != 0) for x in both):
                 chans.append("transmittance")
         else:
             chans = list(channels)
@@ -324,9 +216,10 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
             if bad:
                 raise InputError(f"spectrum channels are 'reflectance' and 'transmittance', got {sorted(bad)}")
         meta["channels"] = chans
-        meta["geometry"] = str(actual.geometry)
-        a, c = _spectrum_long(actual, chans), _spectrum_long(candidate, chans)
-        pairs, unmatched = _align_groups(a, c, angle_tol_deg, wavelength_tol_nm, "none", warnings)
+        meta["geometry"] = (", ".join(sorted({str(x.geometry) for x in actual})) if isinstance(actual, tuple)
+                            else str(actual.geometry))
+        a, c = _spectra_long(actual, chans), _spectra_long(candidate, chans)
+        pairs, unmatched = _align_keyed(a, c, angle_tol_deg, wavelength_tol_nm, "none", warnings, meta)
         meta["match_method"] = "wavelength only (same CIE geometry)"
     else:
         a, c = _bsdf_long(actual), _bsdf_long(candidate)
@@ -350,11 +243,12 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
         if how == "patch" and not has_bounds:
             raise InputError("match='patch' needs patch bounds (theta_min ... phi_max) in the candidate record")
         meta["match_method"] = how
-        pairs, unmatched = _align_groups(a, c, angle_tol_deg, wavelength_tol_nm, how, warnings)
+        pairs, unmatched = _align_keyed(a, c, angle_tol_deg, wavelength_tol_nm, how, warnings, meta)
     if pairs.empty:
         reasons = unmatched[unmatched.side == "actual"].reason.value_counts().head(3)
         detail = "; ".join(f"{n} x {r}" for r, n in reasons.items()) or "the actual record is empty"
         raise NoOverlapError(f"no actual point has a counterpart in the candidate record: {detail}")
+    pairs = _drop_repeats(pairs, warnings)
     if (pairs.wavelength_method == "linear").any():
         warnings.append(f"{int((pairs.wavelength_method == 'linear').sum())} candidate values interpolated "
                         f"linearly in wavelength onto the actual grid")
@@ -369,6 +263,85 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
     return Aligned(pairs=pairs, unmatched=unmatched, kind=kind, quantity=quantity, meta=meta, warnings=warnings)
 
 
+def _drop_repeats(pairs: pd.DataFrame, warnings: list[str]) -> pd.DataFrame:
+    """One observation per repeated sample: a resampled record (a Zemax grid, whose nodes take
+    the value of the patch containing them) says which measured sample each row repeats (its
+    ``sample`` column); pairs of the same actual sample and the same candidate sample (or row)
+    at one incidence and wavelength are one observation, kept once."""
+    if pairs.empty or not pairs.actual_sample.notna().any():
+        return pairs
+    cand = pairs.virtual_sample.where(pairs.virtual_sample.notna(), pairs.virtual_index.astype(float))
+    key = pd.DataFrame({"c": pairs.channel, "w": pairs.wavelength_nm, "t": pairs.theta_i, "p": pairs.phi_i,
+                        "a": pairs.actual_sample.where(pairs.actual_sample.notna(), -1.0 - np.arange(len(pairs))),
+                        "v": cand})
+    dup = key.duplicated().to_numpy()
+    if dup.any():
+        warnings.append(f"{int(dup.sum())} pairs repeat a sample already compared (a resampled record, e.g. "
+                        f"Zemax nodes inside one patch): counted once")
+        pairs = pairs[~dup].reset_index(drop=True)
+    return pairs
+
+
+def _key_values(df: pd.DataFrame, k: str) -> list[Any]:
+    return sorted({v for v in df[k] if v is not None and not (isinstance(v, float) and math.isnan(v))}, key=str)
+
+
+def _align_keyed(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: float, how: str,
+                 warnings: list[str], meta: dict[str, Any]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Split both long tables by the identity keys that distinguish rows (see the module
+    docstring), align each actual key group with the candidate rows of the same key values."""
+    keys = [k for k in MATCH_KEYS if len(_key_values(a, k)) > 1 or len(_key_values(c, k)) > 1]
+    meta["match_keys"] = keys
+    if not keys:
+        pairs, unmatched = _align_groups(a, c, angle_tol, wl_tol, how, warnings)
+        return pairs, unmatched
+    missing_in_c = [k for k in keys if not _key_values(c, k)]
+    if missing_in_c:
+        raise NoOverlapError(f"the candidate record has no {', '.join(missing_in_c)} column, but the actual record "
+                             f"holds several values of it ({', '.join(f'{k}: {_key_values(a, k)}' for k in missing_in_c)}); "
+                             f"cannot tell which candidate rows to compare")
+    fa, fc = a[keys].astype(str), c[keys].astype(str)
+    ca = fc.agg("\x1f".join, axis=1)
+    all_pairs, all_unmatched, absent = [], [], []
+    seen: set[str] = set()
+    for kv, ga in a.groupby(fa.agg("\x1f".join, axis=1), sort=True):
+        seen.add(kv)
+        cg = c[ca == kv]
+        label = ", ".join(f"{k}={v}" for k, v in zip(keys, kv.split("\x1f")))
+        if cg.empty:
+            absent.append(label)
+            all_unmatched.append(_miss_frame(ga, f"candidate has no rows with {label}"))
+            continue
+        p, u = _align_groups(ga, cg, angle_tol, wl_tol, how, warnings)
+        all_pairs.append(p)
+        all_unmatched.append(u)
+    for kv, gc in c.groupby(ca, sort=True):
+        if kv not in seen:
+            label = ", ".join(f"{k}={v}" for k, v in zip(keys, kv.split("\x1f")))
+            all_unmatched.append(pd.DataFrame([{"side": "candidate", "reason": f"no actual rows with {label} "
+                                                f"({len(gc)} values)", **dict(zip(keys, kv.split("\x1f")))}],
+                                              columns=UNMATCHED_COLUMNS))
+    pairs = [p for p in all_pairs if len(p)]
+    if not pairs:
+        raise NoOverlapError(f"the candidate matches no key of the actual record: missing {'; '.join(absent[:6])}"
+                             + (f" (and {len(absent) - 6} more)" if len(absent) > 6 else "")
+                             if absent else "no actual point has a counterpart in the candidate record")
+    if absent:
+        warnings.append(f"the candidate has no rows for {len(absent)} key group(s) of the actual record: "
+                        f"{'; '.join(absent[:4])}")
+    unm = [u for u in all_unmatched if len(u)]
+    return (pd.concat(pairs, ignore_index=True)[PAIR_COLUMNS],
+            pd.concat(unm, ignore_index=True)[UNMATCHED_COLUMNS] if unm else pd.DataFrame(columns=UNMATCHED_COLUMNS))
+
+
+def _miss_frame(sub: pd.DataFrame, reason: str) -> pd.DataFrame:
+    f = sub[["specimen", "collector", "geometry", "channel", "wavelength_nm", "theta_i", "phi_i", "theta_r",
+             "phi_r"]].copy()
+    f.insert(0, "side", "actual")
+    f["reason"] = reason
+    return f[UNMATCHED_COLUMNS].reset_index(drop=True)
+
+
 def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: float, how: str,
                   warnings: list[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
     rows: list[pd.DataFrame] = []
@@ -378,7 +351,8 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
 
     def miss(sub: pd.DataFrame, reason: str) -> None:
         for r in sub.itertuples(index=False):
-            unmatched.append({"side": "actual", "channel": r.channel, "wavelength_nm": r.wavelength_nm,
+            unmatched.append({"side": "actual", "specimen": r.specimen, "collector": r.collector,
+                              "geometry": r.geometry, "channel": r.channel, "wavelength_nm": r.wavelength_nm,
                               "theta_i": r.theta_i, "phi_i": r.phi_i, "theta_r": r.theta_r, "phi_r": r.phi_r,
                               "reason": reason})
 
@@ -418,6 +392,7 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                 first_idx = np.full(len(gw), -1)
                 reasons = np.full(len(gw), "", dtype=object)
                 srcs = np.full(len(gw), "", dtype=object)
+                vsample = np.full(len(gw), np.nan)
                 for wc, wt in weights:
                     cw = cch[cch.wavelength_nm == wc]
                     used_groups.add((cti, cpi, wc))
@@ -445,6 +420,8 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                     value += wt * cv
                     var += (wt * cs) ** 2
                     srcs = np.where(srcs == "", cw.std_source.to_numpy()[safe], srcs)
+                    if wc == weights[0][0]:
+                        vsample = cw["sample"].to_numpy(float)[safe]
                     if wt == weights[0][1] and wc == weights[0][0]:
                         first_idx = np.where(idx >= 0, cw.index.to_numpy()[safe], -1)
                         vt = cw.theta_r.to_numpy(float)[safe]
@@ -462,6 +439,8 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                 if not spectral:
                     psa = np.where(np.isfinite(psa), psa, cpsa[ok])
                 rows.append(pd.DataFrame({
+                    "specimen": g.specimen.to_numpy(), "collector": g.collector.to_numpy(),
+                    "geometry": g.geometry.to_numpy(), "quantity": g.quantity.to_numpy(),
                     "channel": g.channel.to_numpy(), "wavelength_nm": g.wavelength_nm.to_numpy(float),
                     "theta_i": g.theta_i.to_numpy(float), "phi_i": g.phi_i.to_numpy(float),
                     "theta_r": g.theta_r.to_numpy(float), "phi_r": g.phi_r.to_numpy(float),
@@ -473,7 +452,8 @@ def _align_groups(a: pd.DataFrame, c: pd.DataFrame, angle_tol: float, wl_tol: fl
                     "angle_distance_deg": dist, "wavelength_method": wmethod, "match_method": how,
                     "virtual_index": first_idx[ok], "actual_index": g.index.to_numpy(),
                     "actual_std_source": g.std_source.to_numpy(),
-                    "virtual_std_source": srcs[ok],
+                    "virtual_std_source": srcs[ok], "actual_sample": g["sample"].to_numpy(float),
+                    "virtual_sample": vsample[ok],
                 }))
     # candidate groups no actual point used
     cand_groups = c.groupby(["theta_i", "phi_i", "wavelength_nm"], dropna=False, sort=True).size()

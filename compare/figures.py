@@ -16,7 +16,8 @@ import pandas as pd
 
 from bench.core.records import BSDFRecord
 from bench.core.roles import Spectrum
-from compare.align import record_kind
+from compare.align import record_kind, record_quantity
+from compare.grid import bland_altman_grid, incidence_order, sigma_grid, spectra_grid, unit_of, value_grid
 from compare.stats import Comparison, nominal_fraction
 
 __all__ = ["plot_spectrum", "plot_bsdf_polar", "plot_in_plane", "pyplot", "slug", "figure_ids", "report_figures"]
@@ -44,11 +45,15 @@ def plot_spectrum(s: Spectrum, path: str | Path, title: str | None = None) -> Pa
             ax.fill_between(s.wavelengths, ci[:, 0], ci[:, 1], color=colour, alpha=0.25,
                             label=f"{1 - s.delta:.0%} interval")
     ax.set_xlabel("wavelength (nm)")
-    ax.set_ylabel("fraction")
+    ax.set_ylabel("fraction (1)")
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=8)
-    ax.set_title(title or f"{s.meta.get('specimen', '')} at {s.geometry}, N = {int(s.N[0]):,} rays/wavelength",
+    n = np.broadcast_to(np.asarray(s.N), np.asarray(s.wavelengths).shape)
+    n_text = f"{int(n.min()):,}" if n.min() == n.max() else f"{int(n.min()):,}-{int(n.max()):,}"
+    measured = s.meta.get("measured_as")
+    as_text = f" (measured as {measured})" if measured and str(measured) != str(s.geometry) else ""
+    ax.set_title(title or f"{s.meta.get('specimen', '')} at {s.geometry}{as_text}, N = {n_text} rays/wavelength",
                  fontsize=10)
     fig.tight_layout()
     p = Path(path)
@@ -102,6 +107,7 @@ def plot_bsdf_polar(record, path: str | Path, wavelength_nm: float | None = None
                     label="specular")
         ax.set_ylim(0, 90)
         ax.set_yticks([30, 60, 90])
+        ax.set_yticklabels(["30°", "60°", "90°"])  # radius: theta_r in degrees
         ax.set_title(("BRDF (reflection)" if h == "R" else "BTDF (transmission)") + " [1/sr]", fontsize=10)
         fig.colorbar(plt.cm.ScalarMappable(norm=panel_norm, cmap=cmap), ax=ax, shrink=0.75, pad=0.1)
         ax.legend(loc="lower left", fontsize=7, bbox_to_anchor=(-0.15, -0.12))
@@ -154,7 +160,7 @@ def figure_ids(kind: str, names: Sequence[str]) -> list[str]:
     if kind == "spectrum":
         ids = ["fig-spectral-overlay", "fig-spectral-z"]
     else:
-        ids = ["fig-in-plane", "fig-polar-actual"]
+        ids = ["fig-value-grid"] + [f"fig-sigma-grid-{slug(n)}" for n in names] + ["fig-in-plane", "fig-polar-actual"]
         for n in names:
             ids += [f"fig-polar-{slug(n)}", f"fig-sigma-{slug(n)}"]
     return ids + ["fig-bland-altman"]
@@ -176,51 +182,63 @@ def _fig(fid: str, path: Path, alt: str, caption: str, group: str | None = None)
 
 
 def report_figures(act: Any, comps: dict[str, Comparison], recs: dict[str, Any], figdir: Path, k: float,
-             map_wl: float | None, map_inc: tuple[float, float] | None) -> list[dict[str, Any]]:
+                   map_wl: float | None, map_inc: tuple[float, float] | None,
+                   groups: dict[str, pd.DataFrame] | None = None) -> list[dict[str, Any]]:
+    """Every figure of a report (ids: :func:`figure_ids`). BSDF: small multiples of every
+    incidence first (worst first, one colour scale per quantity across models), then the
+    single-incidence maps at ``map_wl``/``map_inc`` (default: the worst incidence)."""
     figs: list[dict[str, Any]] = []
-    if record_kind(act) == "spectrum":
-        figs += _spectral_figures(comps, figdir, k)
+    kind = record_kind(act)
+    unit = unit_of(kind, record_quantity(act))
+    if kind == "spectrum":
+        figs += _spectral_figures(comps, figdir, k, unit)
     else:
+        first = next(iter(comps.values()))
+        order = incidence_order(groups or {}, first.points)
+        if map_inc is None and order:
+            map_inc, map_wl = (order[0][0], order[0][1]), (order[0][2] if map_wl is None else map_wl)
+        n_inc = len(order)
+        left = f" ({n_inc - 24} more in the group tables)" if n_inc > 24 else ""
+        figs.append(_fig("fig-value-grid", value_grid(comps, order, figdir / "fig-value-grid.png", unit),
+                         "BSDF of the actual record and every model at every incidence, one colour scale",
+                         f"Rows: actual and models; columns: incidences worst first (up to 8 of {n_inc}); "
+                         f"one logarithmic colour scale for all panels.", group="grids"))
+        zs = np.concatenate([np.abs(c.points.z.to_numpy(float)) for c in comps.values()])
+        zs = zs[np.isfinite(zs)]
+        zlim = float(min(10.0, max(3.0, np.percentile(zs, 99) if zs.size else 3.0)))
+        for name, c in comps.items():
+            s = slug(name)
+            figs.append(_fig(f"fig-sigma-grid-{s}", sigma_grid(c, order, figdir / f"fig-sigma-grid-{s}.png", k, zlim),
+                             f"Discrepancy of {name} in sigma units at every incidence",
+                             f"{name}: one panel per incidence ({n_inc}), worst first{left}; colour scale "
+                             f"+-{zlim:.3g} sigma shared by every model.", group="grids"))
         figs += _bsdf_figures(act, comps, recs, figdir, k, map_wl, map_inc)
-    figs.append(_bland_altman_figure(comps, figdir))
+    figs.append(_fig("fig-bland-altman", bland_altman_grid(comps, figdir / "fig-bland-altman.png", unit),
+                     "Bland-Altman plot of every candidate against the actual record, one panel per model",
+                     f"Differences against means in {unit}; bias +- 1.96 sd of the differences; colour = incidence."))
     return figs
 
 
-def _spectral_figures(comps: dict[str, Comparison], figdir: Path, k: float) -> list[dict[str, Any]]:
+def _spectral_figures(comps: dict[str, Comparison], figdir: Path, k: float, unit: str) -> list[dict[str, Any]]:
     plt = pyplot()
     first = next(iter(comps.values()))
     chans = list(dict.fromkeys(first.points.channel))
-    fig, axes = plt.subplots(len(chans), 1, figsize=(8, 3.6 * len(chans)), dpi=110, squeeze=False)
-    for ax, ch in zip(axes[:, 0], chans):
-        p = first.points[first.points.channel == ch].sort_values("wavelength_nm")
-        ua = np.sqrt(p.u_instrument ** 2 + np.nan_to_num(p.actual_std) ** 2)
-        ax.plot(p.wavelength_nm, p.actual_value, color="tab:blue", lw=1.8, label="actual")
-        ax.fill_between(p.wavelength_nm, p.actual_value - k * ua, p.actual_value + k * ua, color="tab:blue",
-                        alpha=0.2, label=f"actual +- {k:g} u (instrument + own std)")
-        for (name, c), colour in zip(comps.items(), _COLOURS):
-            q = c.points[c.points.channel == ch].sort_values("wavelength_nm")
-            sv = np.nan_to_num(q.virtual_std)
-            ax.plot(q.wavelength_nm, q.virtual_value, color=colour, lw=1.4, label=name)
-            ax.fill_between(q.wavelength_nm, q.virtual_value - k * sv, q.virtual_value + k * sv, color=colour,
-                            alpha=0.25)
-        ax.set_xlabel("wavelength (nm)")
-        ax.set_ylabel(ch)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
-        ax.set_title(f"{ch}: actual and candidates with {k:g}-sigma bands", fontsize=10)
-    f1 = _fig("fig-spectral-overlay", _save(fig, figdir / "fig-spectral-overlay.png"),
-              "Spectral overlay of the actual record and every candidate with uncertainty bands",
-              f"Spectra with {k:g}-sigma bands (actual: instrument and own std; candidates: Monte Carlo std).")
+    path, n = spectra_grid(comps, figdir / "fig-spectral-overlay.png", k, unit)
+    f1 = _fig("fig-spectral-overlay", path,
+              "Spectral overlay of the actual record and every candidate with uncertainty bands, one panel per spectrum",
+              f"{n} spectra with {k:g}-sigma bands (actual: instrument and own std; candidates: Monte Carlo std).")
     fig, ax = plt.subplots(figsize=(8, 3.6), dpi=110)
     for (name, c), colour in zip(comps.items(), _COLOURS):
         for ch, q in c.points.groupby("channel", sort=False):
             q = q.sort_values("wavelength_nm")
-            ax.plot(q.wavelength_nm, q.z, marker="o", ms=3, lw=1, color=colour,
-                    ls="-" if ch == chans[0] else "--", label=f"{name} ({ch})")
+            for _, qq in q.groupby(["specimen", "geometry"], sort=False, dropna=False):
+                ax.plot(qq.wavelength_nm, qq.z, marker="o", ms=3, lw=1, color=colour,
+                        ls="-" if ch == chans[0] else "--")
+            ax.plot([], [], color=colour, ls="-" if ch == chans[0] else "--", label=f"{name} ({ch})")
     ax.axhspan(-k, k, color="grey", alpha=0.15, label=f"|z| <= {k:g}")
     ax.axhline(0, color="black", lw=0.8)
     ax.set_xlabel("wavelength (nm)")
-    ax.set_ylabel("z = (virtual - actual) / u_c")
+    ax.set_ylabel("z = (virtual - actual) / u_c (sigma)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title("Discrepancy in units of the combined standard uncertainty", fontsize=10)
@@ -272,7 +290,7 @@ def _sigma_map(c: Comparison, act_sel: pd.DataFrame, wl: float, inc: tuple[float
     z = p.z.to_numpy(float)
     lim = float(min(10.0, max(3.0, np.nanmax(np.abs(z)) if np.isfinite(z).any() else 3.0)))
     norm = Normalize(vmin=-lim, vmax=lim)
-    title = f"{c.name}: (virtual - actual) / u_c, theta_i = {inc[0]:g} deg, {wl:g} nm"
+    title = f"{c.name}:\n(virtual - actual) / u_c, theta_i = {inc[0]:g} deg, {wl:g} nm"
     panels = [h for h in ("R", "T") if (p.channel == h).any()] or ["R"]
     if not _has_bounds(act_sel):
         return _polar_scatter(p, np.nan_to_num(z), path, title, "z (sigma)", "RdBu_r", norm)
@@ -293,6 +311,7 @@ def _sigma_map(c: Comparison, act_sel: pd.DataFrame, wl: float, inc: tuple[float
         ax.plot([np.radians(inc[1])], [inc[0]], marker="*", color="black", ms=11, ls="none")
         ax.set_ylim(0, 90)
         ax.set_yticks([30, 60, 90])
+        ax.set_yticklabels(["30°", "60°", "90°"])  # radius: theta_r in degrees
         ax.set_title(f"{'reflection' if h == 'R' else 'transmission'} (grey: no z)", fontsize=9)
         fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.75, pad=0.1,
                      label=f"z (sigma); |z| <= {k:g} expected for {nominal_fraction(k):.1%}")
@@ -397,29 +416,6 @@ def _map(sel: BSDFRecord, path: Path, title: str) -> Path:
         return plot_bsdf_polar(sel, path, title=title)
     t = sel.table
     return _polar_scatter(t, t.value.to_numpy(float), path, title, "BSDF (1/sr)")
-
-
-def _bland_altman_figure(comps: dict[str, Comparison], figdir: Path) -> dict[str, Any]:
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.2), dpi=110)
-    for (name, c), colour in zip(comps.items(), _COLOURS):
-        p = c.points
-        ax.scatter(0.5 * (p.actual_value + p.virtual_value), p["diff"], s=10, alpha=0.6, color=colour, label=name)
-        ba = c.summary["bland_altman"]
-        if ba["bias"] is not None:
-            ax.axhline(ba["bias"], color=colour, lw=1.4)
-        for key in ("lower", "upper"):
-            if ba[key] is not None:
-                ax.axhline(ba[key], color=colour, lw=1, ls="--")
-    ax.axhline(0, color="black", lw=0.8)
-    ax.set_xlabel("mean of actual and virtual")
-    ax.set_ylabel("virtual - actual")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("Bland-Altman: bias (solid) and 95 % limits of agreement (dashed)", fontsize=10)
-    return _fig("fig-bland-altman", _save(fig, figdir / "fig-bland-altman.png"),
-                "Bland-Altman plot of every candidate against the actual record",
-                "Differences against means; bias +- 1.96 sd of the differences.")
 
 
 # --- documents ----------------------------------------------------------------------------

@@ -35,11 +35,12 @@ from bench.core.errors import InputError
 from bench.core.records import json_default
 from bench.core.roles import Spectrum
 
-from compare.align import AlignmentError, as_record, record_kind, record_quantity
+from compare.align import AlignmentError, as_record, record_kind, record_meta, record_quantity
 from compare.checks import run_checks
 from compare.figures import figure_ids, report_figures, slug
 from compare.stats import (DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, Comparison, compare, nominal_fraction,
-                           rank)
+                           group_keys, rank)
+from compare.verdict import Criterion, group_verdicts, model_verdict
 
 __all__ = ["compare_records", "figure_ids", "slug"]
 
@@ -63,6 +64,7 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
                     allow_missing_uncertainty: bool = False, illuminant: str = DEFAULT_ILLUMINANT,
                     observer: str = DEFAULT_OBSERVER, checks: bool = True, on_error: str = "raise",
                     map_wavelength_nm: float | None = None, map_incidence: tuple[float, float] | None = None,
+                    criterion: Criterion | None = None, check_records: Mapping[str, Any] | None = None,
                     **align_kwargs: Any) -> dict[str, Any]:
     """Compare candidates (models, virtual records) with one actual record and write the report.
 
@@ -79,8 +81,13 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     checks : run the physical checks on BSDF records (actual and candidates)
     on_error : ``"raise"`` (default) or ``"skip"``: a candidate that cannot be compared (bad
         quantity, no overlap, no uncertainty) is left out and its error listed in ``errors``
-    map_wavelength_nm, map_incidence : which (wavelength, (theta_i, phi_i)) the hemispherical
-        maps and the in-plane figure show (default: the actual record's first)
+    map_wavelength_nm, map_incidence : which (wavelength, (theta_i, phi_i)) the single-incidence
+        hemispherical maps and the in-plane figure show (default: the worst group of the
+        best-ranked model); the small multiples show every incidence
+    check_records : more records (name -> BSDFRecord) to run the physical checks on, e.g. each
+        model's whole-sphere patch record, on which energy conservation can be tested
+    criterion : the acceptance criterion (:class:`compare.verdict.Criterion`); its ``k`` and
+        instrument uncertainty win over the arguments of the same name
     **align_kwargs : ``angle_tol_deg``, ``wavelength_tol_nm``, ``match``, ``channels``
 
     Returns
@@ -103,6 +110,12 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     if not candidates:
         raise InputError("no candidates to compare with the actual record")
     act = as_record(actual)
+    if criterion is None:
+        criterion = Criterion(k=k, instrument_uncertainty=instrument_uncertainty,
+                              instrument_uncertainty_kind=instrument_uncertainty_kind)
+    k = criterion.k
+    instrument_uncertainty = criterion.instrument_uncertainty
+    instrument_uncertainty_kind = criterion.instrument_uncertainty_kind
     slugs = [slug(n) for n in candidates]
     if len(set(slugs)) != len(slugs):
         raise InputError(f"candidate names must stay distinct as ids: {list(candidates)} -> {slugs}")
@@ -129,16 +142,28 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     check_results: dict[str, Any] = {}
     if checks and kind == "bsdf":
         check_results["actual"] = {n: r.as_dict() for n, r in run_checks(act).items()}
-        for n, rec in recs.items():
-            check_results[n] = {c: r.as_dict() for c, r in run_checks(rec).items()}
+        for n, rec in {**recs, **dict(check_records or {})}.items():
+            check_results[n] = {c: r.as_dict() for c, r in run_checks(as_record(rec)).items()}
     out = Path(report_dir)
     figdir = out / "figures"
     figdir.mkdir(parents=True, exist_ok=True)
-    figures = report_figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence)
+    verdicts: dict[str, Any] = {}
+    group_tables: dict[str, pd.DataFrame] = {}
+    for n, c in comps.items():
+        g = group_verdicts(c.points, group_keys(c.points, c.aligned.kind), criterion, c.aligned.kind,
+                           c.summary.get("delta_e2000_groups"))
+        group_tables[n] = g
+        verdicts[n] = {**model_verdict(g, c.summary, criterion), "groups": g.to_dict(orient="records")}
+    figures = report_figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence, group_tables)
     warnings = sorted({w for c in comps.values() for w in c.summary["warnings"]})
+    for r in ranking:
+        v = verdicts.get(r["name"])
+        if v and v["verdict"] == "reject":
+            warnings.insert(0, f"{r['name']} (rank {r['rank']}) is rejected: {v['reason']}")
     summary: dict[str, Any] = {
         "kind": kind, "quantity": record_quantity(act), "actual": _describe(act), "primary_metric": primary_metric,
         "k": k, "nominal_fraction": nominal_fraction(k), "candidates": summaries, "ranking": ranking,
+        "criterion": {**criterion.as_dict(), "statement": criterion.describe(kind)}, "verdicts": verdicts,
         "checks": check_results, "unmatched": {n: int((c.aligned.unmatched.side == "actual").sum())
                                                for n, c in comps.items()},
         "errors": errors, "warnings": warnings, "figures": [f["id"] for f in figures],
@@ -159,7 +184,11 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
 
 
 def _describe(rec: Any) -> dict[str, Any]:
-    m = dict(rec.meta)
+    m = record_meta(rec)
+    if isinstance(rec, tuple):
+        return {"kind": "spectrum", "quantity": record_quantity(rec), "specimen": ", ".join(m["specimens"]),
+                "source": m.get("source"), "seed": m.get("seed"), "geometry": ", ".join(m["geometries"]),
+                "n_spectra": len(rec), "n_wavelengths": int(rec[0].wavelengths.size)}
     d = {"kind": record_kind(rec), "quantity": record_quantity(rec), "specimen": m.get("specimen"),
          "source": m.get("source", "virtual" if isinstance(rec, Spectrum) and np.any(rec.N > 0) else None),
          "seed": m.get("seed", getattr(rec, "seed", None))}
@@ -236,6 +265,26 @@ def _ranking_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]
     return head, rows
 
 
+def _criterion_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    c = summary["criterion"]
+    return ["setting", "value"], [[k_, _fmt(v)] for k_, v in c.items() if k_ != "statement"]
+
+
+def _verdict_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    rows = []
+    for r in summary["ranking"]:
+        v = summary["verdicts"][r["name"]]
+        rows.append([r["name"], _fmt(r["rank"]), v["verdict"], v["reason"]])
+    return ["model", "rank", "verdict", "reason"], rows
+
+
+def _group_rows(summary: Mapping[str, Any], name: str) -> tuple[list[str], list[list[str]]]:
+    gs = summary["verdicts"][name]["groups"]
+    return (["group", "verdict", "reason", "chi2", "dof", "p-value", "fraction within k u_c"],
+            [[g["group"], g["verdict"], g["reason"], _fmt(g["chi2"]), _fmt(g["dof"]), _fmt(g["p_value"]),
+              _fmt(g["fraction_within"])] for g in gs])
+
+
 def _check_rows(check_results: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
     head = ["record", "check", "result", "statistic", "p-value", "max z", "n", "offending", "message"]
     rows = []
@@ -276,7 +325,7 @@ h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;padding-botto
 table{border-collapse:collapse;margin:8px 0;font-size:0.85em}
 th,td{border:1px solid #ccc;padding:3px 8px;text-align:right;vertical-align:top}
 th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}
-td.msg{text-align:left}
+td.msg{text-align:left}table.verdicts td:nth-child(4),table.groups td:nth-child(3){text-align:left}
 .row{display:flex;flex-wrap:wrap;gap:12px;align-items:flex-start}.scroll{overflow-x:auto;max-width:100%}
 figure{margin:16px 0;flex:0 1 auto;max-width:100%}figure img{max-width:100%;border:1px solid #eee}
 figcaption{font-size:0.85em;color:#555;max-width:900px}
@@ -293,11 +342,23 @@ def _html(title: str, summary: Mapping[str, Any], comps: Mapping[str, Comparison
     e = html.escape
     parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{e(title)}</title>"
              f"<style>{_CSS}</style></head><body>", f"<h1>{e(title)}</h1>"]
-    a = summary["actual"]
-    parts.append(f"<p class=\"muted\">Generated {e(time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime()))}. "
-                 f"Actual record: {e(json.dumps(_json_safe(a)))}.<br>Quantity: {e(str(summary['quantity']))}; "
-                 f"coverage factor k = {summary['k']:g} (nominal fraction within {summary['nominal_fraction']:.2%})."
-                 f"</p>")
+    parts.append(f"<p class=\"muted\">Generated {e(time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime()))}; "
+                 f"quantity {e(str(summary['quantity']))}; coverage factor k = {summary['k']:g} (nominal fraction "
+                 f"within {summary['nominal_fraction']:.2%}).</p>")
+    parts.append("<h2 id=\"criterion\">Acceptance criterion</h2>")
+    parts.append(f"<p id=\"criterion-text\">{e(summary['criterion']['statement'])}</p>")
+    parts.append(_html_table(*_criterion_rows(summary)))
+    parts.append("<h2 id=\"verdicts\">Verdicts</h2>")
+    parts.append(_html_table(*_verdict_rows(summary), cls="verdicts"))
+    if summary["warnings"]:
+        parts.append("<div class=\"warn\" id=\"top-warnings\"><ul>" + "".join(
+            f"<li>{e(w)}</li>" for w in summary["warnings"] if " is rejected: " in w or "fail" in w) + "</ul></div>")
+    for name in comps:
+        parts.append(f"<h3>Groups: {e(name)}</h3>")
+        parts.append(_html_table(*_group_rows(summary, name), cls=f"groups groups-{e(slug(name))}"))
+    parts.append("<h2 id=\"actual\">Actual record</h2>")
+    parts.append(_html_table(["field", "value"], [[k_, _fmt(v)] for k_, v in summary["actual"].items()],
+                             cls="metadata"))
     parts.append("<h2 id=\"ranking\">Model ranking</h2>")
     parts.append(f"<p>Ranked by <b>{e(summary['primary_metric'])}</b> (lower is better).</p>")
     parts.append(_html_table(*_ranking_rows(summary)))
@@ -356,7 +417,8 @@ def _html(title: str, summary: Mapping[str, Any], comps: Mapping[str, Comparison
 def _markdown(title: str, summary: Mapping[str, Any], comps: Mapping[str, Comparison], figures: list[dict[str, Any]],
               check_results: Mapping[str, Any]) -> str:
     out = [f"# {title}", "", f"Quantity: {summary['quantity']}; k = {summary['k']:g} (nominal fraction within "
-           f"{summary['nominal_fraction']:.2%}).", "", "## Model ranking", "",
+           f"{summary['nominal_fraction']:.2%}).", "", "## Acceptance criterion", "", summary["criterion"]["statement"],
+           "", "## Verdicts", "", _md_table(*_verdict_rows(summary)), "", "## Model ranking", "",
            f"Ranked by **{summary['primary_metric']}** (lower is better).", "", _md_table(*_ranking_rows(summary)),
            "", "## Metrics", "", _md_table(*_metric_rows(summary)), "", "## Figures", ""]
     for f in figures:

@@ -144,7 +144,8 @@ def point_table(aligned: Aligned, model: UncertaintyModel, k: float = 2.0) -> pd
     ``reference_zero``, ``u_instrument``, ``u_combined``, ``z``, ``z_note`` and ``within``.
 
     ``rel_pct`` is NaN exactly where ``reference_zero`` is True; ``z`` is NaN exactly where
-    ``z_note`` says why (``"both zero"``, ``"no uncertainty"``).
+    ``z_note`` says why (``"both zero"``, ``"identical"`` -- equal values and no uncertainty,
+    ``"no uncertainty"``).
     """
     p = aligned.pairs.copy()
     a = p.actual_value.to_numpy(float)
@@ -165,8 +166,9 @@ def point_table(aligned: Aligned, model: UncertaintyModel, k: float = 2.0) -> pd
     uc = np.sqrt(u_inst ** 2 + np.nan_to_num(sa, nan=0.0) ** 2 + np.nan_to_num(sv, nan=0.0) ** 2)
     p["u_combined"] = uc
     both0 = (a == 0) & (v == 0)
-    nou = ~both0 & ~(uc > 0)
-    note = np.where(both0, "both zero", np.where(nou, "no uncertainty", ""))
+    same = ~both0 & (d == 0) & ~(uc > 0)  # equal values without uncertainty: no information either
+    nou = ~both0 & ~same & ~(uc > 0)
+    note = np.where(both0, "both zero", np.where(same, "identical", np.where(nou, "no uncertainty", "")))
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(note == "", d / np.where(uc > 0, uc, 1.0), np.nan)
     p["z"] = z
@@ -241,6 +243,8 @@ def summarize(points: pd.DataFrame, k: float = 2.0, *, allow_missing_uncertainty
                f"(give the instrument uncertainty or records with std)")
         if out["n_both_zero"] == n:
             w.append(f"chi-square undefined{where}: every point is zero in both records")
+        elif int(np.isin(note, ["both zero", "identical"]).sum()) == n:
+            w.append(f"chi-square undefined{where}: the records hold identical values without uncertainty")
         elif not allow_missing_uncertainty:
             raise UncertaintyError(msg)
         else:
@@ -350,6 +354,7 @@ class Comparison:
     by_incidence: pd.DataFrame
     uncertainty: UncertaintyModel
     colour: dict[str, Any] = field(default_factory=dict)
+    by_group: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
 def compare(actual: Any, candidate: Any, *, name: str = "candidate", k: float = 2.0,
@@ -402,25 +407,43 @@ def compare(actual: Any, candidate: Any, *, name: str = "candidate", k: float = 
     colour_info: dict[str, Any] = {}
     if al.kind == "spectrum":
         per: dict[str, float] = {}
-        for ch, g in pts.groupby("channel", sort=False):
+        per_group: list[dict[str, Any]] = []
+        keys = [c for c in ("specimen", "geometry") if pts[c].notna().any() and pts[c].nunique() > 1]
+        for key, g in pts.groupby(["specimen", "geometry", "channel"], sort=False, dropna=False):
+            label = " ".join(str(v) for c, v in zip(("specimen", "geometry", "channel"), key)
+                             if c == "channel" or c in keys)
             g = g.sort_values("wavelength_nm")
             try:
                 res = delta_e2000(g.wavelength_nm.to_numpy(), g.actual_value.to_numpy(), g.virtual_value.to_numpy(),
                                   illuminant, observer)
             except (InputError, KeyError, ValueError) as exc:
-                summary["warnings"].append(f"CIEDE2000 not computed for {ch}: {exc}")
+                summary["warnings"].append(f"CIEDE2000 not computed for {label}: {exc}")
                 continue
-            per[str(ch)] = res["delta_e2000"]
-            colour_info[str(ch)] = res
-            summary["warnings"].extend(f"CIEDE2000 ({ch}): {n}" for n in res["notes"])
+            per[label] = res["delta_e2000"]
+            per_group.append({"specimen": key[0], "geometry": key[1], "channel": key[2],
+                              "delta_e2000": res["delta_e2000"]})
+            colour_info[label] = res
+            summary["warnings"].extend(f"CIEDE2000 ({label}): {n}" for n in res["notes"])
         if per:
             summary["delta_e2000"] = per
             summary["delta_e2000_mean"] = float(np.mean(list(per.values())))
+            summary["delta_e2000_max"] = float(np.max(list(per.values())))
+            summary["delta_e2000_groups"] = per_group
             summary["colour"] = {"illuminant": illuminant, "observer": observer}
     by_wl = _grouped(pts, ["channel", "wavelength_nm"], k)
     by_inc = _grouped(pts, ["channel", "theta_i", "phi_i"], k) if al.kind == "bsdf" else pd.DataFrame()
+    by_group = _grouped(pts, group_keys(pts, al.kind), k)
     return Comparison(name=name, aligned=al, points=pts, summary=summary, by_wavelength=by_wl, by_incidence=by_inc,
-                      uncertainty=model, colour=colour_info)
+                      uncertainty=model, colour=colour_info, by_group=by_group)
+
+
+def group_keys(points: pd.DataFrame, kind: str) -> list[str]:
+    """The columns a verdict is given per: the identity keys that vary, then the incidence and
+    wavelength (BSDF) or the CIE geometry (spectra; one group per specimen and geometry)."""
+    ident = [c for c in ("specimen", "collector") if c in points and points[c].nunique(dropna=True) > 1]
+    if kind == "spectrum":
+        return ident + ["geometry", "channel"]
+    return ident + ["theta_i", "phi_i", "wavelength_nm"]
 
 
 def rank(summaries: Mapping[str, Mapping[str, Any]], primary: str = "chi2_per_dof") -> list[dict[str, Any]]:

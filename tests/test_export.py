@@ -17,7 +17,7 @@ from bench.core.errors import InputError
 from bench.io import (atomic_write, export_record, export_run, from_specular, read_astm, read_parquet, read_record,
                       read_tidy_csv, read_zemax, record_to_astm, record_to_csv, record_to_parquet, record_to_zemax,
                       record_to_zemax_files, specular_frame, spectrum_to_csv, to_specular, zemax_grid)
-from bench.core.records import BSDF_COLUMNS, BSDFRecord
+from bench.core.records import BSDF_COLUMNS, BSDFRecord, with_keys
 from bench.store import RunStore
 
 
@@ -60,12 +60,18 @@ def test_tidy_csv_round_trip_is_exact(tmp_path, lambert, meta_mode):
 
     path = record_to_csv(lambert, tmp_path / "r.csv", meta=meta_mode)
     back = read_tidy_csv(path)
-    pd.testing.assert_frame_equal(back.table, lambert.table, check_exact=True)
-    assert back.meta == _meta_norm(lambert.meta)
+    # the file carries the record's keys as columns (from its metadata: one specimen, one collector)
+    pd.testing.assert_frame_equal(back.table, with_keys(lambert).table, check_exact=True)
+    assert set(back.table.specimen) == {lambert.meta["specimen"]} and set(back.table.quantity) == {"BSDF"}
+    assert set(back.table.collector) == {"equal-psa:6x24"}
+    assert {k: v for k, v in back.meta.items() if k != "column_units"} == _meta_norm(lambert.meta)
     if meta_mode == "header":
         assert path.read_text().startswith("# goniobench-record 1\n# meta: {")
+        assert back.meta["column_units"]["value"] == "1/sr" and back.meta["column_units"]["theta_i"] == "deg"
+        assert back.meta["column_units"]["wavelength_nm"] == "nm" and back.meta["column_units"]["psa"] == "sr"
         plain = pd.read_csv(path, comment="#")  # what a user reading it with pandas gets
-        assert list(plain.columns) == BSDF_COLUMNS and len(plain) == len(lambert)
+        assert list(plain.columns) == BSDF_COLUMNS + ["specimen", "collector", "quantity", "geometry"]
+        assert len(plain) == len(lambert)
     else:
         assert json.loads(Path(str(path) + ".json").read_text()) == back.meta
 
@@ -74,10 +80,11 @@ def test_parquet_round_trip_keeps_types_and_meta(tmp_path, lambert):
     import pyarrow.parquet as pq  # installed by make test (the [parquet] extra): a hard requirement here
     path = record_to_parquet(lambert, tmp_path / "r.parquet")
     back = read_parquet(path)
-    pd.testing.assert_frame_equal(back.table, lambert.table, check_dtype=False)
+    pd.testing.assert_frame_equal(back.table, with_keys(lambert).table, check_dtype=False)
     assert back.table["count"].dtype == np.int64
-    assert back.meta == _meta_norm(lambert.meta)
-    assert b"goniobench.meta" in pq.read_schema(path).metadata
+    assert {k: v for k, v in back.meta.items() if k != "column_units"} == _meta_norm(lambert.meta)
+    md = pq.read_schema(path).metadata
+    assert b"goniobench.meta" in md and json.loads(md[b"goniobench.units"])["value"] == "1/sr"
 
 
 def test_export_run_from_the_store_and_dispatch_by_suffix(tmp_path, lambert):

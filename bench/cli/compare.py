@@ -4,6 +4,15 @@ Each record is a run id in ``--store`` or a file in any format of the :mod:`benc
 (tidy CSV, Parquet, ASTM CSV, Zemax ``.bsdf``, spectrum CSV); ``NAME=RUN`` labels a record. The
 files are read here, through :func:`bench.io.read_record`: :mod:`compare` takes records only.
 The summary keys of ``--json`` are stable.
+
+The acceptance criterion (:class:`compare.verdict.Criterion`) is stated up front: ``--alpha``,
+``--k``, ``--instrument-uncertainty`` (``--uncertainty-kind``), ``--tolerance``,
+``--delta-e-tolerance``, or a ``--config FILE.toml`` whose ``[criterion]`` table holds the same
+keys (``alpha``, ``k``, ``instrument_uncertainty``, ``instrument_uncertainty_kind``,
+``tolerance``, ``delta_e_tolerance``, ``min_points``, ``max_rel_uncertainty``) and whose
+``[compare]`` table may set ``metric``, ``title``, ``angle_tol_deg``, ``wavelength_tol_nm``.
+Flags win over the file. The text output prints the criterion, then one verdict per model
+(accept / reject / inconclusive with the reason) and the failing groups.
 """
 
 from __future__ import annotations
@@ -32,30 +41,67 @@ def _load(ref: str, store_path: str) -> tuple[str, Any]:
 
     if not Path(store_path).exists():
         raise InputError(f"{what!r} is neither a file nor a run (no store at {store_path})")
+    from bench.io import load_run
+
     with RunStore(store_path, create=False) as store:
-        record = store.to_record(what)
-    spec = (record.meta.get("bench") or {}).get("specimen", {}).get("spec")
+        record = load_run(store, what)
+    meta = record[0].meta if isinstance(record, tuple) else record.meta
+    spec = None if isinstance(record, tuple) else ((meta.get("bench") or {}).get("specimen") or {}).get("spec")
     return name or (f"{what} ({spec})" if spec else what), record
+
+
+_CRITERION_FLAGS = {"alpha": "alpha", "k": "k", "instrument_uncertainty": "instrument_uncertainty",
+                    "uncertainty_kind": "instrument_uncertainty_kind", "tolerance": "tolerance",
+                    "delta_e_tolerance": "delta_e_tolerance"}
+
+
+def _settings(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
+    """(criterion, compare options) from ``--config`` and the flags (flags win)."""
+    from bench.core.parsing import read_toml
+    from compare.verdict import Criterion
+
+    cfg = read_toml(args.config, "compare config") if args.config else {}
+    unknown = sorted(set(cfg) - {"criterion", "compare"})
+    if unknown:
+        raise InputError(f"compare config {args.config}: unknown table(s) {unknown}; known: criterion, compare")
+    crit = dict(cfg.get("criterion", {}))
+    for flag, key in _CRITERION_FLAGS.items():
+        if getattr(args, flag) is not None:
+            crit[key] = getattr(args, flag)
+    opts = dict(cfg.get("compare", {}))
+    bad = sorted(set(opts) - {"metric", "title", "angle_tol_deg", "wavelength_tol_nm"})
+    if bad:
+        raise InputError(f"compare config {args.config}: unknown [compare] key(s) {bad}")
+    if args.metric is not None:
+        opts["metric"] = args.metric
+    if args.title is not None:
+        opts["title"] = args.title
+    return Criterion.from_mapping(crit), opts
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from compare.report import compare_records
 
+    criterion, opts = _settings(args)
     actual_name, actual = _load(args.actual, args.store)
     candidates = dict(_load(c, args.store) for c in args.candidates)
     out = Path(args.report or "compare-report")
-    summary = compare_records(actual, candidates, out, primary_metric=args.metric,
-                              title=args.title or f"{', '.join(candidates)} against {actual_name}",
-                              on_error="skip" if args.skip_bad else "raise")
+    align_kw = {k: float(opts[k]) for k in ("angle_tol_deg", "wavelength_tol_nm") if k in opts}
+    summary = compare_records(actual, candidates, out, primary_metric=opts.get("metric", "chi2_per_dof"),
+                              title=opts.get("title") or f"{', '.join(candidates)} against {actual_name}",
+                              on_error="skip" if args.skip_bad else "raise", criterion=criterion, **align_kw)
     if args.json:
         print(json.dumps(summary))
         return 0
     print(f"actual: {actual_name}")
+    print(f"criterion: {summary['criterion']['statement']}")
     for rank, entry in enumerate(summary["ranking"], 1):
         name = entry["name"]
         s = summary["candidates"][name]
+        v = summary["verdicts"][name]
         parts = [f"{k} {s[k]:.4g}" for k in HEADLINE if isinstance(s.get(k), (int, float))]
-        print(f"  #{rank} {name}: " + ", ".join(parts))
+        print(f"  #{rank} {name}: {v['verdict'].upper()} ({v['reason']})")
+        print("      " + ", ".join(parts))
     for name, err in summary["errors"].items():
         print(f"  not compared: {name}: {err}")
     for w in summary["warnings"]:
@@ -70,7 +116,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("candidates", metavar="CANDIDATE", nargs="+", help="[NAME=]RUN or FILE")
     p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
     p.add_argument("--report", metavar="DIR", help="report folder (default ./compare-report)")
-    p.add_argument("--metric", default="chi2_per_dof",
+    p.add_argument("--config", metavar="FILE.toml", help="compare config: [criterion] and [compare] tables")
+    p.add_argument("--alpha", type=float, help="family-wise false-rejection rate of a right model (default 0.01)")
+    p.add_argument("--k", type=float, help="coverage factor of 'fraction within k u_c' (default 2)")
+    p.add_argument("--instrument-uncertainty", type=float, metavar="U",
+                   help="the actual instrument's standard uncertainty (default: the record's or the instrument "
+                        "default)")
+    p.add_argument("--uncertainty-kind", choices=("absolute", "relative"),
+                   help="kind of --instrument-uncertainty (default: relative for BSDF, absolute for spectra)")
+    p.add_argument("--tolerance", type=float,
+                   help="model tolerance: standard uncertainty a model may have (relative for BSDF, absolute "
+                        "for spectra), added in quadrature (default 0)")
+    p.add_argument("--delta-e-tolerance", type=float, metavar="DE",
+                   help="spectra: reject a model with a CIEDE2000 above DE for any spectrum")
+    p.add_argument("--metric", default=None,
                    choices=("chi2_per_dof", "mean_abs_discrepancy_pct", "rmse", "abs_bias", "max_abs",
                             "delta_e2000_mean"), help="ranking metric (lower is better)")
     p.add_argument("--title")

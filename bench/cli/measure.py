@@ -2,6 +2,15 @@
 
 ``--uncertainty/--delta`` measurements use the adaptive rule of :mod:`bench.adaptive`; ``--csv``
 goes through the one CSV writer of :mod:`bench.io`, ``--plot`` through :mod:`compare.figures`.
+
+``bench gonio --uncertainty V`` is a *relative* uncertainty of each patch's BSDF: a pilot run
+estimates the patch probabilities, and N is sized (:func:`virtual.bounds.relative_patch_rays`)
+so the least-populated patch of interest (pilot probability >= :data:`INTEREST_FRACTION` of the
+brightest patch's) has an interval of relative half-width about V; patches that would need more
+than ``--max-seconds`` allows are named. ``--patch-probability-uncertainty V`` keeps eq. 3.12's
+meaning (V bounds each patch's *probability*, an absolute quantity: a dim patch's BSDF may be
+far off). The output says which was used and prints the achieved relative half-width of the
+brightest and the dimmest patch of interest.
 """
 
 from __future__ import annotations
@@ -10,10 +19,21 @@ import argparse
 import sys
 from typing import Any
 
+import numpy as np
+
 from bench.cli.common import emit_json, number, positive_int
 from bench.core.errors import InputError
 
-__all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "spectrum_colour"]
+__all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "spectrum_colour", "n_label",
+           "reciprocity_note", "INTEREST_FRACTION", "PILOT_RAYS", "RAYS_PER_SECOND"]
+
+#: a patch is "of interest" to ``--uncertainty`` when its pilot probability is at least this
+#: fraction of the brightest patch's
+INTEREST_FRACTION = 0.01
+#: rays of the pilot run that estimates the patch probabilities
+PILOT_RAYS = 200_000
+#: rays per second assumed when ``--max-seconds`` caps a budget
+RAYS_PER_SECOND = 2e7
 
 
 def cmd_rays(args: argparse.Namespace) -> int:
@@ -31,7 +51,8 @@ def cmd_rays(args: argparse.Namespace) -> int:
 
 def _spectrum_json(s: Any) -> dict[str, Any]:
     return {
-        "N": int(s.N[0]), "seed": s.seed, "geometry": s.geometry, "delta": s.delta,
+        "N": int(s.N[0]), "N_per_wavelength": [int(n) for n in np.broadcast_to(s.N, s.wavelengths.shape)],
+        "seed": s.seed, "geometry": s.geometry, "delta": s.delta,
         "wavelength_nm": s.wavelengths.tolist(), "reflectance": s.reflectance.tolist(),
         "transmittance": s.transmittance.tolist(), "reflectance_ci": s.reflectance_ci.tolist(),
         "transmittance_ci": s.transmittance_ci.tolist(), "absorptance": s.absorptance.tolist(),
@@ -104,21 +125,43 @@ def cmd_spectro(args: argparse.Namespace) -> int:
             out["budget"] = _budget(adaptive)
         emit_json(out)
         return 0
+    n = np.broadcast_to(np.asarray(s.N), s.wavelengths.shape)
     print(f"specimen {s.meta['specimen']}  geometry {s.geometry}  beam {sp.beam.kind}  "
-          f"N = {int(s.N[0])} rays/wavelength  seed {s.seed}  confidence {1 - s.delta:g}")
+          f"N = {n_label(n)} rays/wavelength{'' if n.min() == n.max() else ' (per wavelength in the table)'}  "
+          f"seed {s.seed}  confidence {1 - s.delta:g}")
+    note = reciprocity_note(s)
+    if note:
+        print(note)
     if adaptive:
         print(adaptive["message"])
     q = "RF" if s.meta.get("quantity") == "reflectance factor" else "R"
-    print(f"{'nm':>7} {q:>8} {'[lo, hi]':>20} {'T':>8} {'[lo, hi]':>20}")
+    print(f"{'nm':>7} {q:>8} {'[lo, hi]':>20} {'T':>8} {'[lo, hi]':>20} {'N':>9}")
     for i, w in enumerate(s.wavelengths):
         print(f"{w:7.1f} {s.reflectance[i]:8.5f} [{s.reflectance_ci[i, 0]:.5f}, {s.reflectance_ci[i, 1]:.5f}] "
-              f"{s.transmittance[i]:8.5f} [{s.transmittance_ci[i, 0]:.5f}, {s.transmittance_ci[i, 1]:.5f}]")
+              f"{s.transmittance[i]:8.5f} [{s.transmittance_ci[i, 0]:.5f}, {s.transmittance_ci[i, 1]:.5f}] "
+              f"{int(n[i]):9d}")
     col = spectrum_colour(s)
     if col:
         print(f"colour ({col['illuminant']}, 2 deg): " + "; ".join(
             f"{k[0].upper()} XYZ {' '.join(f'{x:.4f}' for x in col[k]['XYZ'])} Lab {' '.join(f'{x:.2f}' for x in col[k]['Lab'])} "
             f"sRGB {col[k]['hex']}" for k in ("reflectance", "transmittance")))
     return 0
+
+
+def n_label(n: Any) -> str:
+    """``"85,505"`` when every wavelength had the same ray count, else ``"23,861-59,378"``."""
+    n = np.asarray(n)
+    lo, hi = int(n.min()), int(n.max())
+    return f"{lo:,}" if lo == hi else f"{lo:,}-{hi:,}"
+
+
+def reciprocity_note(s: Any) -> str:
+    """One line when the geometry was measured as its reciprocal (d/0 as 0/d, d/8 as 8/d)."""
+    measured = s.meta.get("measured_as")
+    if not measured or str(measured) == str(s.geometry):
+        return ""
+    return (f"measured as {measured} (Helmholtz reciprocity: {s.geometry} and {measured} give the same "
+            f"reflectance; the instrument traces rays from the directional side)")
 
 
 def _incidence(text: str) -> tuple[float, float]:
@@ -149,26 +192,71 @@ def gonio_json(record: Any) -> dict[str, Any]:
             "by_wavelength": m["totals"], "patches": patches}
 
 
+def _relative_widths(record: Any) -> dict[str, Any]:
+    """Relative half-width ``(ci_hi - ci_lo) / (2 value)`` of the brightest patch and of the
+    dimmest patch of interest (value >= INTEREST_FRACTION x brightest), first wavelength."""
+    t = record.table
+    t = t[(t.wavelength_nm == t.wavelength_nm.iloc[0]) & (t.value > 0)]
+    top = float(t.value.max())
+    sel = t[t.value >= INTEREST_FRACTION * top]
+    rel = (sel.ci_hi - sel.ci_lo) / (2.0 * sel.value)
+    b, d = sel.loc[sel.value.idxmax()], sel.loc[sel.value.idxmin()]
+    return {"brightest": {"theta": float(b.theta_r), "phi": float(b.phi_r), "value": float(b.value),
+                          "relative_half_width": float(rel[b.name])},
+            "dimmest_of_interest": {"theta": float(d.theta_r), "phi": float(d.phi_r), "value": float(d.value),
+                                    "relative_half_width": float(rel[d.name])},
+            "patches_of_interest": int(len(sel)), "max_relative_half_width": float(rel.max())}
+
+
+def _relative_rays(args: argparse.Namespace, theta_i: float, phi_i: float, kw: dict[str, Any]) -> dict[str, Any]:
+    """The ray count for a relative BSDF uncertainty (see the module docstring)."""
+    from virtual.bounds import relative_patch_rays
+    from virtual.goniophotometer import VirtualGoniophotometer
+
+    pilot_seed = None if args.seed is None else int(args.seed) + 1  # the pilot's rays are not reused
+    pilot = VirtualGoniophotometer(args.specimen, **{**kw, "rays": PILOT_RAYS, "seed": pilot_seed})
+    t = pilot.measure_bsdf(theta_i, phi_i).table
+    p = t["count"].to_numpy(float) / t["N"].to_numpy(float)
+    interest = p >= INTEREST_FRACTION * p.max()
+    cap = int(args.max_seconds * RAYS_PER_SECOND)
+    plan = relative_patch_rays(p[interest], args.uncertainty, args.delta, max_rays=cap)
+    idx = np.flatnonzero(interest)[plan["unreachable"]]
+    plan["unreachable_patches"] = [(float(t.theta_r.iloc[i]), float(t.phi_r.iloc[i])) for i in idx]
+    plan.update(patches_of_interest=int(interest.sum()), patches=int(len(p)), pilot_rays=PILOT_RAYS)
+    return plan
+
+
 def cmd_gonio(args: argparse.Namespace) -> int:
     from virtual.goniophotometer import VirtualGoniophotometer
 
     theta_i, phi_i = _incidence(args.incidence)
     kw: dict[str, Any] = {"collector": args.collector, "beam": args.beam, "seed": args.seed, "delta": args.delta,
                           "wavelengths": args.wavelengths, "method": args.method}
+    relative = None
     if args.rays is not None:
         kw["rays"] = args.rays
     elif args.uncertainty is not None:
-        kw["uncertainty"] = args.uncertainty
+        relative = _relative_rays(args, theta_i, phi_i, kw)
+        kw["rays"] = relative["N"]
+    elif args.patch_probability_uncertainty is not None:
+        kw["uncertainty"] = args.patch_probability_uncertainty
     g = VirtualGoniophotometer(args.specimen, **kw)
     adaptive = None
-    if args.uncertainty is not None and args.rays is None and not args.no_adaptive:
+    if args.patch_probability_uncertainty is not None and not args.no_adaptive:
         from bench.adaptive import adaptive_measure
 
-        adaptive = adaptive_measure(g, args.uncertainty, args.delta, theta_i=theta_i, phi_i=phi_i,
-                                    max_seconds=args.max_seconds)
+        adaptive = adaptive_measure(g, args.patch_probability_uncertainty, args.delta, theta_i=theta_i,
+                                    phi_i=phi_i, max_seconds=args.max_seconds)
         record = adaptive["result"]
     else:
         record = g.measure_bsdf(theta_i, phi_i)
+    widths = _relative_widths(record)
+    if relative is not None:
+        mode = {"mode": "relative BSDF", "v": args.uncertainty, "delta": args.delta, **relative}
+    elif args.patch_probability_uncertainty is not None:
+        mode = {"mode": "patch probability (eq. 3.12)", "v": args.patch_probability_uncertainty, "delta": args.delta}
+    else:
+        mode = {"mode": "fixed rays", "N": int(record.meta["rays"])}
     if args.csv:
         from bench.io import write_csv
 
@@ -181,13 +269,30 @@ def cmd_gonio(args: argparse.Namespace) -> int:
         out = gonio_json(record)
         if adaptive:
             out["budget"] = _budget(adaptive)
+        out["uncertainty"] = mode
+        out["achieved"] = widths
         emit_json(out)
         return 0
     m = record.meta
     print(f"specimen {m['specimen']}  incidence ({theta_i:g}, {phi_i:g}) deg  collector {g.collector}  "
           f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']} ({m.get('kernel')} kernel)  seed {g.seed}")
+    if relative is not None:
+        print(f"uncertainty: relative BSDF half-width {args.uncertainty:g} per patch of interest (pilot probability "
+              f">= {INTEREST_FRACTION:g} x the brightest: {relative['patches_of_interest']} of {relative['patches']} "
+              f"patches), each patch's {1 - args.delta:g} interval; N from a {PILOT_RAYS:,}-ray pilot")
+        if relative["capped"]:
+            names = ", ".join(f"({t:.1f}, {p:.1f})" for t, p in relative["unreachable_patches"][:8])
+            print(f"  cannot meet it for {len(relative['unreachable_patches'])} patches within --max-seconds "
+                  f"{args.max_seconds:g} ({relative['needed']:,} rays needed; capped at {relative['N']:,}): {names}")
+    elif args.patch_probability_uncertainty is not None:
+        print(f"uncertainty: patch probability (eq. 3.12) v = {args.patch_probability_uncertainty:g} -- an absolute "
+              f"bound on each patch's probability, not on its BSDF")
     if adaptive:
         print(adaptive["message"])
+    b, d = widths["brightest"], widths["dimmest_of_interest"]
+    print(f"  achieved relative half-width: brightest patch ({b['theta']:.1f}, {b['phi']:.1f}) "
+          f"{b['relative_half_width']:.3g}; dimmest patch of interest ({d['theta']:.1f}, {d['phi']:.1f}) "
+          f"{d['relative_half_width']:.3g}")
     for tot in m["totals"]:
         print(f"  {tot['wavelength_nm']:7.1f} nm  reflectance {tot['reflectance']:.5f}  "
               f"transmittance {tot['transmittance']:.5f}  absorbed {tot['absorbed']:,}")
@@ -238,14 +343,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--collector", default="equal-psa:9x36", help="SCHEME:NTHxNPHI, e.g. equal-psa:9x36")
     gb = g.add_mutually_exclusive_group()
     gb.add_argument("--rays", type=positive_int, help="rays per wavelength (default 1e7)")
-    gb.add_argument("--uncertainty", type=number, help="v for eq. 3.12 (patches = collector patches)")
+    gb.add_argument("--uncertainty", type=number,
+                    help="relative uncertainty of each patch's BSDF (interval half-width / value) for every patch of "
+                         "interest; N from a pilot run")
+    gb.add_argument("--patch-probability-uncertainty", type=number, metavar="V",
+                    help="v of eq. 3.12: an absolute bound on each patch's probability (the seed's meaning)")
     g.add_argument("--delta", type=number, default=0.01)
     g.add_argument("--wavelengths", default="550", help="START:STOP:STEP or a,b,c (nm)")
     g.add_argument("--beam", choices=("collimated", "conical"), default="collimated")
     g.add_argument("--method", choices=("auto", "rays", "fast"), default="auto",
                    help="rays: count rays; fast: one multinomial over integrated patch probabilities")
     g.add_argument("--no-adaptive", action="store_true",
-                   help="with --uncertainty: the fixed eq. 3.12 ray count instead of the adaptive rule")
+                   help="with --patch-probability-uncertainty: the fixed eq. 3.12 ray count instead of the "
+                        "adaptive rule")
     g.add_argument("--max-seconds", type=number, default=3600.0,
                    help="refuse budgets estimated to take longer (reports N and the time)")
     g.add_argument("--seed", type=int)

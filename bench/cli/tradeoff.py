@@ -5,8 +5,9 @@ Registered through :data:`bench.cli.COMMAND_MODULES`; imports nothing heavy at m
 ``bench tradeoff SCENE.toml [--json] [--plot FILE.png]`` prints the accuracy-versus-time table
 of a scene (:func:`virtual.tradeoff.sweep`) -- or, for a ``physical`` scene, scan duration
 against angular step and averaging -- plus the measured cost of each declared effect, and
-draws the error-versus-time Pareto plot.
-(:mod:`bench.tradeoff_physical`). The adaptive budget of ``spectro``/``gonio`` is
+draws the error-versus-time plot as small multiples (:mod:`bench.tradeoff_plot`: timings the
+median of at least 3 seeded sweeps with their spread, the Pareto front from the medians, every
+point labelled with its N). A physical scene's table comes from :mod:`bench.tradeoff_physical`. The adaptive budget of ``spectro``/``gonio`` is
 :mod:`bench.adaptive`.
 """
 
@@ -28,7 +29,8 @@ def register(subparsers: Any) -> None:
     t.add_argument("--json", action="store_true", help="one JSON object: rows (one per configuration), effects")
     t.add_argument("--plot", metavar="FILE.png", help="error-vs-time (log-log) Pareto plot")
     t.add_argument("--rays", help="comma-separated ray counts (default: the scene's [tradeoff].rays)")
-    t.add_argument("--repeats", type=int, help="seeded runs per configuration (default 1)")
+    t.add_argument("--repeats", type=int, help="seeded sweeps per configuration (default and minimum 3: timings are "
+                                               "their median, the plot shows their spread)")
     t.add_argument("--seed", type=int)
     t.add_argument("--no-costs", action="store_true", help="skip measuring each declared effect's cost")
     t.set_defaults(func=cmd_tradeoff)
@@ -56,7 +58,6 @@ def _table(header: list[str], rows: list[list[Any]]) -> str:
 
 def cmd_tradeoff(args: argparse.Namespace) -> int:
     from virtual.scene import effect_costs, load_scene
-    from virtual import tradeoff
 
     scene = load_scene(args.scene)
     rays = None
@@ -81,11 +82,14 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
         if args.plot:
             print(f"plot: {args.plot}")
         return 0
-    rows = tradeoff.sweep(scene, rays=rays, repeats=args.repeats, seed=args.seed)
+    from bench.tradeoff_plot import MIN_REPEATS, plot_small_multiples, repeated_sweep
+
+    rows = repeated_sweep(scene, rays=rays, repeats=args.repeats or MIN_REPEATS, seed=args.seed)
     costs = [] if args.no_costs or not scene.effects.declared() else effect_costs(
         scene, rays=min(scene.n_rays, 1_000_000), repeat=3)
+    unit = "1/sr" if scene.instrument == "goniophotometer" else "reflectance, 1"
     if args.plot:
-        tradeoff.plot_tradeoff(rows, args.plot, title=f"{scene.name}: accuracy versus time")
+        plot_small_multiples(rows, args.plot, title=f"{scene.name}: accuracy versus time", error_unit=unit)
     if args.json:
         emit_json({"scene": scene.name, "instrument": scene.instrument, "effects": scene.effects.declared(),
                    "positions_sampled": scene.needs_positions, "rows": rows, "effect_costs": costs})
@@ -93,9 +97,12 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
     print(f"scene {scene.name}: {scene.instrument}, specimen {scene.specimen.label}, beam {scene.beam.kind}, "
           f"incidence {scene.incidence[0]:g} deg, effects: {', '.join(scene.effects.declared()) or 'none'}"
           f"{' (positions sampled)' if scene.needs_positions else ''}")
-    print(_table(["strategy", "collector", "budget", "method", "N", "seconds", "max_abs_error", "rms_error",
-                  "predicted_bound", "predicted_max", "predicted_rms", "within", "pareto"],
-                 [[r["strategy"], r["collector"], r["budget"], r["method"], r["N"], r["seconds"], r["max_abs_error"],
+    print(f"errors in {unit} (max |error| and its bound alike); seconds: median of {rows[0]['repeats']} runs "
+          f"[fastest, slowest]")
+    print(_table(["strategy", "collector", "budget", "method", "N", "seconds", "[lo, hi]", "max_abs_error",
+                  "rms_error", "predicted_bound", "predicted_max", "predicted_rms", "within", "pareto"],
+                 [[r["strategy"], r["collector"], r["budget"], r["method"], r["N"], r["seconds"],
+                   f"[{r['seconds_lo']:.3g}, {r['seconds_hi']:.3g}]", r["max_abs_error"],
                    r["rms_error"], r["predicted_bound"], r["predicted_max"], r["predicted_rms"], r["within_bound"],
                    "*" if r["pareto"] else ""] for r in rows]))
     for r in rows:

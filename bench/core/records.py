@@ -20,6 +20,15 @@ theta_min ...      patch bounds ``theta_min, theta_max, phi_min, phi_max`` (virt
 psa                projected solid angle of the patch or aperture (sr)
 count, N           rays in the patch and rays that reached the specimen (virtual)
 =================  ============================================================================
+
+Keys. Besides the geometry and wavelength columns above, a record carries the *identity* key
+columns :data:`IDENTITY_KEYS` -- ``specimen``, ``collector`` (the patch scheme, e.g.
+``equal-psa:9x36``, or the physical detector), ``geometry`` (CIE geometry of a spectrum) -- and
+``quantity`` (``BSDF``, ``reflectance``, ``reflectance factor``, ``transmittance``).
+:func:`with_keys` adds the ones a table lacks from the record's metadata (one value for the
+whole record), so a single-specimen virtual record, a scan, a sweep (one value per row) and an
+imported file all carry the same columns. :data:`COLUMN_UNITS` is the unit of every column,
+written into file headers (CSV ``# units:`` line, Parquet metadata).
 """
 
 from __future__ import annotations
@@ -30,10 +39,65 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["Reading", "Spectrum", "BSDFRecord", "BSDF_COLUMNS", "json_default"]
+__all__ = ["Reading", "Spectrum", "BSDFRecord", "BSDF_COLUMNS", "json_default", "IDENTITY_KEYS", "KEY_COLUMNS",
+           "COLUMN_UNITS", "record_identity", "with_keys"]
 
 BSDF_COLUMNS = ["wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "hemisphere", "value", "std",
                 "ci_lo", "ci_hi", "theta_min", "theta_max", "phi_min", "phi_max", "psa", "count", "N"]
+
+#: what a record is *of*: rows that differ in one of these are different measurements
+IDENTITY_KEYS = ("specimen", "collector", "geometry")
+#: every key column of a tidy record (identity, incidence, viewing/patch, wavelength, quantity)
+KEY_COLUMNS = ("specimen", "collector", "geometry", "theta_i", "phi_i", "theta_r", "phi_r", "theta_min",
+               "theta_max", "phi_min", "phi_max", "hemisphere", "wavelength_nm", "quantity")
+#: units of the columns (``value``/``std``/``ci_*`` in 1/sr for a BSDF, 1 for reflectance)
+COLUMN_UNITS = {"wavelength_nm": "nm", "theta_i": "deg", "phi_i": "deg", "theta_r": "deg", "phi_r": "deg",
+                "theta_min": "deg", "theta_max": "deg", "phi_min": "deg", "phi_max": "deg", "psa": "sr",
+                "value": "1/sr", "std": "1/sr", "ci_lo": "1/sr", "ci_hi": "1/sr", "count": "rays", "N": "rays",
+                "hemisphere": "R|T", "specimen": "", "collector": "", "geometry": "", "quantity": ""}
+
+
+def _label(v: Any) -> str | None:
+    """A key value as text: a string as is, a mapping by its ``spec``/``label``/``scheme`` (with
+    the patch counts of a collector description), None when absent."""
+    if v is None:
+        return None
+    if isinstance(v, Mapping):
+        for k in ("spec", "label", "name"):
+            if v.get(k):
+                return str(v[k])
+        if v.get("scheme"):
+            nt, npf = v.get("n_theta"), v.get("n_phi")
+            return f"{v['scheme']}:{nt}x{npf}" if nt and npf else str(v["scheme"])
+        return None
+    return str(v)
+
+
+def record_identity(meta: Mapping[str, Any]) -> dict[str, str | None]:
+    """The identity keys a record's metadata states: ``specimen`` (``meta["specimen"]`` or the
+    bench's ``specimen.spec``), ``collector`` (``meta["collector"]`` or the bench's detector) and
+    ``quantity`` (``meta["quantity"]``, default ``BSDF``)."""
+    bench = meta.get("bench") if isinstance(meta.get("bench"), Mapping) else {}
+    specimen = _label(meta.get("specimen")) or _label((bench or {}).get("specimen"))
+    collector = _label(meta.get("collector")) or _label((bench or {}).get("collector"))
+    return {"specimen": specimen, "collector": collector, "quantity": str(meta.get("quantity") or "BSDF")}
+
+
+def with_keys(record: "BSDFRecord") -> "BSDFRecord":
+    """``record`` with every identity key column present: a column the table lacks (or leaves
+    empty) is filled from :func:`record_identity` of its metadata (None when the metadata does
+    not say either). Returns a new record; the input is not modified."""
+    t = record.table.copy()
+    ident = record_identity(record.meta)
+    for k in ("specimen", "collector", "quantity"):
+        if k not in t.columns or t[k].isna().all():
+            t[k] = ident[k]
+    if "geometry" not in t.columns:
+        t["geometry"] = record.meta.get("geometry") if isinstance(record.meta.get("geometry"), str) else None
+    for k in ("specimen", "collector", "quantity", "geometry"):  # text keys; an absent value is None
+        col = t[k].astype(object)
+        t[k] = col.where(col.notna(), None)
+    return BSDFRecord(t, dict(record.meta))
 
 
 def json_default(o: Any) -> Any:

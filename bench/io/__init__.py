@@ -5,6 +5,8 @@
 * formats: tidy CSV and Parquet (:mod:`bench.io.tidy`), "ASTM" CSV (:mod:`bench.io.astm`), Zemax
   tabular BSDF (:mod:`bench.io.zemax`, angles of :mod:`bench.io.specular`), the spectrum CSV of
   ``bench spectro --csv``.
+* :func:`load_run` -- a stored run as a keyed record (:mod:`bench.io.runs`: sweeps with their
+  specimen/collector columns, spectro sweeps and spectral scans as spectra).
 * :func:`atomic_write` and the one CSV writer :func:`write_csv` (:mod:`bench.io.files`).
 
 The CLI (``bench export``, ``bench compare``) and the Python API read and write through here;
@@ -20,13 +22,14 @@ from bench.io.astm import read_astm, record_to_astm
 from bench.io.files import atomic_write, write_csv
 from bench.io.registry import (FORMATS, FileFormat, default_suffix, export_record, formats, infer_format,
                                read_record, register_format)
+from bench.io.runs import load_run, spectral_scan_spectra, sweep_record
 from bench.io.specular import from_specular, specular_frame, to_specular
 from bench.io.tidy import (CSV_MAGIC, PARQUET_META_KEY, read_parquet, read_spectrum_csv, read_tidy_csv,
                            record_to_csv, record_to_parquet, spectrum_table, spectrum_to_csv)
 from bench.io.zemax import ZemaxGrid, read_zemax, record_to_zemax, record_to_zemax_files, zemax_grid
 from bench.store import RunStore
 
-__all__ = ["read_record", "export_record", "export_run", "FORMATS", "FileFormat", "register_format", "formats",
+__all__ = ["load_run", "sweep_record", "spectral_scan_spectra", "read_record", "export_record", "export_run", "FORMATS", "FileFormat", "register_format", "formats",
            "infer_format", "default_suffix", "atomic_write", "write_csv", "CSV_MAGIC", "PARQUET_META_KEY",
            "record_to_csv", "record_to_parquet", "record_to_astm", "record_to_zemax", "read_tidy_csv",
            "read_parquet", "read_astm", "read_zemax", "read_spectrum_csv", "spectrum_table", "spectrum_to_csv",
@@ -37,6 +40,13 @@ def export_run(store: RunStore | str | Path, run_id: str, path: str | Path, fmt:
                **options: Any) -> Path:
     """Export a stored run (``store`` is a :class:`bench.store.RunStore` or a path to one)."""
     if isinstance(store, RunStore):
-        return export_record(store.to_record(run_id), path, fmt, **options)
+        return export_record(_exportable(store, run_id), path, fmt, **options)
     with RunStore(store, create=False) as s:
-        return export_record(s.to_record(run_id), path, fmt, **options)
+        return export_record(_exportable(s, run_id), path, fmt, **options)
+
+
+def _exportable(store: RunStore, run_id: str) -> Any:
+    """The keyed record of a run when it is a table (a goniophotometric sweep gets its
+    specimen/collector columns), else the store's plain record (spectra export as rows)."""
+    rec = load_run(store, run_id)
+    return rec if not isinstance(rec, tuple) else store.to_record(run_id)

@@ -5,6 +5,11 @@ Header keyword lines (``SOURCE``, ``SAMPLE_NAME``, ``MEAS_DATE``, ``SCATTER_TYPE
 <channels>`` with one channel per wavelength (``550nm``), then one comma-separated row per
 geometry: angles in RADIANS (17 significant digits), BRDF/BTDF values (1/sr) with ``digits``
 significant digits. ``theta_s > pi/2`` is the transmission side.
+
+The standard uncertainty of every value (the record's ``std``), which the layout has no column
+for, travels in our own ``GONIOBENCH_META`` line as ``"value_std"`` (rows x channels, null for
+none): other readers ignore the line; :func:`read_astm` restores the ``std`` column, so a
+comparison of an imported file knows each value's uncertainty.
 """
 
 from __future__ import annotations
@@ -74,7 +79,11 @@ def record_to_astm(record: BSDFRecord, path: str | Path, *, sample_name: str | N
     # with all-NaN rows); a geometry missing a wavelength keeps NaN in that channel
     wide = table.set_index(geo + ["wavelength_nm"])["value"].unstack("wavelength_nm").sort_index()
     wls = [float(w) for w in wide.columns]
-    meta = record.meta
+    meta = dict(record.meta)
+    if "std" in table.columns and table["std"].notna().any():
+        sw = table.set_index(geo + ["wavelength_nm"])["std"].unstack("wavelength_nm").reindex(
+            index=wide.index, columns=wide.columns)
+        meta["value_std"] = [[None if not np.isfinite(x) else float(x) for x in row] for row in sw.to_numpy(float)]
     name = sample_name or meta.get("sample_name") or meta.get("specimen") or "unnamed"
     if meas_date is None:
         c = meta.get("created_utc")
@@ -176,6 +185,12 @@ def read_astm(path: str | Path) -> BSDFRecord:
             meta.update(json.loads(extra))
         except json.JSONDecodeError as e:
             raise bad(p, None, f"GONIOBENCH_META is not valid JSON ({e})") from None
+    std = meta.pop("value_std", None)
+    if std is not None:
+        sd = np.asarray([[np.nan if x is None else float(x) for x in row] for row in std], dtype=float)
+        if sd.shape != (n_rows, len(channels)):
+            raise bad(p, None, f"GONIOBENCH_META value_std has shape {sd.shape}, the table {(n_rows, len(channels))}")
+        df["std"] = sd.ravel()  # geometry-major, channel-minor like the rows above
     for k, v in keywords.items():
         meta[f"astm_{k.lower()}"] = v.strip('"')
     meta["format"] = "astm"

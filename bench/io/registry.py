@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bench.core.errors import InputError
-from bench.core.records import BSDFRecord
+from bench.core.records import BSDFRecord, with_keys
 from bench.core.roles import Spectrum
 from bench.io.astm import read_astm, record_to_astm
 from bench.io.tidy import (CSV_MAGIC, SPECTRUM_COLUMNS, read_parquet, read_spectrum_csv, read_tidy_csv,
@@ -139,10 +139,12 @@ def _lookup(fmt: str, *, reading: bool) -> FileFormat:
 
 
 def read_record(path: str | Path, fmt: str | None = None, **options: Any) -> BSDFRecord | Spectrum:
-    """Read a record file in ``fmt`` (default: inferred, see :func:`infer_format`)."""
+    """Read a record file in ``fmt`` (default: inferred, see :func:`infer_format`); a BSDF
+    record comes back with its identity key columns (:func:`bench.core.records.with_keys`)."""
     p = Path(path)
     f = _lookup(infer_format(p, reading=True) if fmt is None else fmt, reading=True)
-    return f.reader(p, **options)  # type: ignore[misc]
+    rec = f.reader(p, **options)  # type: ignore[misc]
+    return with_keys(rec) if isinstance(rec, BSDFRecord) else rec
 
 
 def export_record(record: BSDFRecord, path: str | Path, fmt: str | None = None, **options: Any) -> Path:

@@ -3,12 +3,18 @@
 tidy CSV (:func:`record_to_csv`)
     One row per record row, every column of the table. Floats are written with Python's
     shortest round-trip repr, so values read back exactly. Metadata: by default a commented
-    header — first line ``# goniobench-record 1``, then one line ``# meta: <JSON>`` — which
+    header — first line ``# goniobench-record 1``, then one line ``# meta: <JSON>`` and one line
+    ``# units: <JSON>`` (column -> unit, :func:`column_units`) — which
     ``pandas.read_csv(path, comment="#")`` skips; or (``meta="sidecar"``) a JSON file next to
     the CSV named ``<file>.json``; or none.
 Parquet (:func:`record_to_parquet`)
-    The table via pyarrow; the metadata as JSON under the key ``goniobench.meta`` of the
-    schema's key-value metadata (next to pandas' own ``pandas`` key).
+    The table via pyarrow; the metadata as JSON under the key ``goniobench.meta`` and the column
+    units under ``goniobench.units`` of the schema's key-value metadata (next to pandas' own
+    ``pandas`` key).
+
+Both carry the identity key columns (``specimen``, ``collector``, ``geometry``, ``quantity``;
+:func:`bench.core.records.with_keys`), written from the metadata when the table lacks them; a
+reader gets them back as columns and the units as ``meta["column_units"]``.
 spectrum CSV (:func:`spectrum_to_csv`)
     One row per wavelength (``bench spectro --csv``), 8 significant digits.
 """
@@ -20,16 +26,29 @@ from pathlib import Path
 from typing import Any
 
 from bench.core.errors import InputError
-from bench.core.records import BSDF_COLUMNS, BSDFRecord, json_default
+from bench.core.records import BSDF_COLUMNS, COLUMN_UNITS, BSDFRecord, json_default, with_keys
 from bench.core.roles import Spectrum
 from bench.io.files import atomic_write, check_record, meta_json, write_csv, write_text
 from bench.io.reading import bad, complete, read_lines
 
-__all__ = ["CSV_MAGIC", "PARQUET_META_KEY", "spectrum_table", "spectrum_to_csv", "record_to_csv",
+__all__ = ["CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
            "record_to_parquet", "read_tidy_csv", "read_parquet", "SPECTRUM_COLUMNS", "read_spectrum_csv"]
 
 PARQUET_META_KEY = b"goniobench.meta"
+PARQUET_UNITS_KEY = b"goniobench.units"
 CSV_MAGIC = "# goniobench-record 1"
+
+
+def column_units(record: BSDFRecord) -> dict[str, str]:
+    """Unit of every column of ``record`` that has one (:data:`COLUMN_UNITS`; values and their
+    uncertainties in 1/sr for a BSDF, ``1`` for a reflectance or transmittance)."""
+    q = str(record.meta.get("quantity") or "BSDF").lower()
+    value_unit = "1/sr" if q in ("bsdf", "brdf", "btdf", "1/sr") else "1"
+    out = {}
+    for c in record.table.columns:
+        if c in COLUMN_UNITS and COLUMN_UNITS[c]:
+            out[str(c)] = value_unit if c in ("value", "std", "ci_lo", "ci_hi") else COLUMN_UNITS[c]
+    return out
 
 
 def spectrum_table(s: Spectrum) -> Any:
@@ -71,10 +90,13 @@ def record_to_csv(record: BSDFRecord, path: str | Path, *, meta: str = "header")
         ``header``: ``# goniobench-record 1`` and ``# meta: <JSON>`` lines before the column
         names; ``sidecar``: ``<path>.json`` beside the file (written atomically too).
     """
-    table = check_record(record, ("wavelength_nm",))
+    check_record(record, ("wavelength_nm",))
+    record = with_keys(record)
+    table = record.table
     if meta not in ("header", "sidecar", "none"):
         raise InputError(f"meta must be 'header', 'sidecar' or 'none', got {meta!r}")
-    header = [CSV_MAGIC, f"# meta: {meta_json(record.meta)}"] if meta == "header" else []
+    header = ([CSV_MAGIC, f"# meta: {meta_json(record.meta)}", f"# units: {json.dumps(column_units(record))}"]
+              if meta == "header" else [])
     out = write_csv(table, path, header_lines=header)
     if meta == "sidecar":
         write_text(Path(str(out) + ".json"), json.dumps(record.meta, default=json_default, indent=1) + "\n")
@@ -84,7 +106,9 @@ def record_to_csv(record: BSDFRecord, path: str | Path, *, meta: str = "header")
 def record_to_parquet(record: BSDFRecord, path: str | Path) -> Path:
     """Write a record as Parquet; ``meta`` as JSON under :data:`PARQUET_META_KEY` in the
     schema's key-value metadata. Needs pyarrow (``pip install goniobench[parquet]``)."""
-    table = check_record(record, ("wavelength_nm",))
+    check_record(record, ("wavelength_nm",))
+    record = with_keys(record)
+    table = record.table
     try:
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -93,6 +117,7 @@ def record_to_parquet(record: BSDFRecord, path: str | Path) -> Path:
     t = pa.Table.from_pandas(table, preserve_index=False)
     md = dict(t.schema.metadata or {})
     md[PARQUET_META_KEY] = meta_json(record.meta).encode()
+    md[PARQUET_UNITS_KEY] = json.dumps(column_units(record)).encode()
     t = t.replace_schema_metadata(md)
     return atomic_write(path, lambda tmp: pq.write_table(t, tmp))
 
@@ -105,6 +130,7 @@ def read_tidy_csv(path: str | Path) -> BSDFRecord:
 
     p, lines = read_lines(path)
     meta: dict[str, Any] = {}
+    units: dict[str, str] | None = None
     skip = 0
     while skip < len(lines) and lines[skip].startswith("#"):
         line = lines[skip]
@@ -113,6 +139,11 @@ def read_tidy_csv(path: str | Path) -> BSDFRecord:
                 meta = json.loads(line[len("# meta:"):])
             except json.JSONDecodeError as e:
                 raise bad(p, skip + 1, f"expected JSON after '# meta:' ({e})") from None
+        elif line.startswith("# units:"):
+            try:
+                units = json.loads(line[len("# units:"):])
+            except json.JSONDecodeError as e:
+                raise bad(p, skip + 1, f"expected JSON after '# units:' ({e})") from None
         skip += 1
     if skip == 0 or not lines or not lines[0].startswith(CSV_MAGIC):
         side = Path(str(p) + ".json")
@@ -132,7 +163,9 @@ def read_tidy_csv(path: str | Path) -> BSDFRecord:
     for c in ("count", "N"):
         if c in df.columns and df[c].notna().all() and len(df):
             df[c] = df[c].astype("int64")
-    return BSDFRecord(complete(df) if set(BSDF_COLUMNS) - set(df.columns) else df, meta)
+    if units is not None:
+        meta["column_units"] = units
+    return with_keys(BSDFRecord(complete(df) if set(BSDF_COLUMNS) - set(df.columns) else df, meta))
 
 
 def read_parquet(path: str | Path) -> BSDFRecord:
@@ -150,7 +183,10 @@ def read_parquet(path: str | Path) -> BSDFRecord:
         raise InputError(f"{p}: not a readable Parquet file ({e})") from None
     raw = (t.schema.metadata or {}).get(PARQUET_META_KEY)
     meta = json.loads(raw.decode()) if raw else {}
-    return BSDFRecord(t.to_pandas(), meta)
+    units = (t.schema.metadata or {}).get(PARQUET_UNITS_KEY)
+    if units:
+        meta["column_units"] = json.loads(units.decode())
+    return with_keys(BSDFRecord(t.to_pandas(), meta))
 
 
 

@@ -8,6 +8,13 @@ writer and reader.
 azimuth-rows x radial-columns block, ``DataEnd``. One wavelength per file (``# wavelength_nm``
 comment records which). See :func:`zemax_grid` for the specular-centred angles
 (:mod:`bench.io.specular`) and the resampling.
+
+The standard uncertainty of every node (the ``std`` of the sample it takes) and which sample
+that is, which the format has no field for, are written as header comments ``# std K J A v v v
+...`` and ``# sample K J A i i i ...`` (rotation, incidence, azimuth indices, one entry per
+radial; the sample is the row of the record's (rotation, incidence) part, -1 for none); Zemax
+and other readers skip comments, :func:`read_zemax` restores the ``std`` and ``sample``
+columns -- many nodes take the same sample, and a comparison counts it once.
 """
 
 from __future__ import annotations
@@ -48,6 +55,8 @@ class ZemaxGrid:
     scatter_type: str = "BRDF"
     symmetry: str = "Asymmetrical"
     meta: dict[str, Any] = field(default_factory=dict)
+    std: np.ndarray | None = None
+    sample: np.ndarray | None = None
 
 
 def _lookup(part: Any, theta: np.ndarray, phi: np.ndarray,
@@ -155,6 +164,9 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
     rots = np.unique(sel["phi_i"].to_numpy(float))
     incs = np.unique(sel["theta_i"].to_numpy(float))
     values = np.zeros((len(rots), len(incs), len(az), len(rad)))
+    has_std = "std" in sel.columns and bool(sel["std"].notna().any())
+    stds = np.full(values.shape, np.nan) if has_std else None
+    samples = np.full(values.shape, -1, dtype=np.int64)
     tis = np.zeros((len(rots), len(incs)))
     A, R = np.meshgrid(az, rad, indexing="ij")
     groups = {k: g for k, g in sel.groupby(["phi_i", "theta_i"], sort=False)}
@@ -176,6 +188,16 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
                 unfilled += int(np.isnan(got).sum())
                 farthest = max(farthest, float(dist.max()))
                 v[inside] = np.nan_to_num(got, nan=0.0)
+                ig, _ = _lookup(part.assign(value=np.arange(len(part), dtype=float)), th[inside], ph[inside],
+                                max_distance_deg)
+                sm = np.full(th.shape, -1, dtype=np.int64)
+                sm[inside] = np.where(np.isfinite(ig), np.nan_to_num(ig, nan=-1), -1).astype(np.int64)
+                samples[k, j] = sm
+                if stds is not None:
+                    sg, _ = _lookup(part.assign(value=part["std"]), th[inside], ph[inside], max_distance_deg)
+                    sv = np.full(th.shape, np.nan)
+                    sv[inside] = sg
+                    stds[k, j] = sv
             values[k, j] = v
             if "psa" in part.columns and part["psa"].notna().all():
                 tis[k, j] = float(np.nansum(part["value"].to_numpy(float) * part["psa"].to_numpy(float)))
@@ -188,7 +210,7 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
     meta["zemax_resampling"] = {"method": "containing patch" if patches else "nearest sample",
                                 "max_nearest_distance_deg": farthest, "nodes_unfilled": unfilled,
                                 "max_distance_deg": max_distance_deg}
-    return ZemaxGrid(rots, incs, az, rad, values, tis, float(wavelength_nm), st, symmetry, meta)
+    return ZemaxGrid(rots, incs, az, rad, values, tis, float(wavelength_nm), st, symmetry, meta, stds, samples)
 
 
 def _fmt_list(values: np.ndarray) -> str:
@@ -211,6 +233,7 @@ def record_to_zemax(record: BSDFRecord | ZemaxGrid, path: str | Path, *, digits:
              "# ScatterRadial/ScatterAzimuth about the specular direction; azimuth 0 = plane of incidence,"
              " toward the normal; 90 = +y at phi_i = 0 (libbsdf's specular frame)",
              *_resampling_lines(meta.get("zemax_resampling")),
+             *_std_lines(g, digits),
              "Source  Measured", f"Symmetry  {g.symmetry}", "SpectralContent  Monochrome",
              f"ScatterType  {g.scatter_type}",
              f"SampleRotation  {len(g.rotations)}", _fmt_list(g.rotations),
@@ -225,6 +248,21 @@ def record_to_zemax(record: BSDFRecord | ZemaxGrid, path: str | Path, *, digits:
                 lines.append("\t".join(fmt % x for x in g.values[k, j, a]))
     lines.append("DataEnd")
     return write_text(path, "\n".join(lines) + "\n")
+
+
+def _std_lines(g: ZemaxGrid, digits: int) -> list[str]:
+    """``# std K J A ...`` comments: each node's standard uncertainty (``nan`` where unknown)."""
+    out = []
+    if g.sample is not None:
+        out.append("# sample K J A <per ScatterRadial: the record row (of this rotation and incidence) the node "
+                   "takes its value from, -1 none>")
+        for k, j, a in np.ndindex(*g.sample.shape[:3]):
+            out.append(f"# sample {k} {j} {a} " + " ".join(str(int(x)) for x in g.sample[k, j, a]))
+    if g.std is not None:
+        out.append("# std K J A <one standard uncertainty (1/sr) per ScatterRadial>: the std of each node's sample")
+        for k, j, a in np.ndindex(*g.std.shape[:3]):
+            out.append(f"# std {k} {j} {a} " + " ".join(f"{x:.{digits - 1}e}" for x in g.std[k, j, a]))
+    return out
 
 
 def _resampling_lines(r: dict[str, Any] | None) -> list[str]:
@@ -260,6 +298,24 @@ def record_to_zemax_files(record: BSDFRecord, path: str | Path, *, wavelength_nm
 
 
 # --- Zemax ---------------------------------------------------------------------------------
+
+
+def _read_std_lines(lines: list[str], shape: tuple[int, ...], tag: str = "std") -> np.ndarray:
+    """The ``# std K J A ...`` (or ``# sample ...``) comments as an array of ``shape`` (NaN where
+    absent or malformed)."""
+    out = np.full(shape, np.nan)
+    head = f"# {tag} "
+    for line in lines:
+        s = line.strip()
+        if not s.startswith(head):
+            continue
+        parts = s[len(head):].split()
+        if len(parts) != 3 + shape[3] or not all(x.isdigit() for x in parts[:3]):
+            continue
+        k, j, a = (int(x) for x in parts[:3])
+        if k < shape[0] and j < shape[1] and a < shape[2] and all(is_float(x) for x in parts[3:]):
+            out[k, j, a] = [float(x) for x in parts[3:]]
+    return out
 
 
 _ZEMAX_LISTS = ("SampleRotation", "AngleOfIncidence", "ScatterAzimuth", "ScatterRadial")
@@ -376,6 +432,9 @@ def read_zemax(path: str | Path, *, keep_beyond_horizon: bool = False) -> BSDFRe
     if i >= n_lines or lines[i].strip() != "DataEnd":
         raise bad(p, i + 1, "expected 'DataEnd' after the last block"
                    + ("" if i >= n_lines else f", got {lines[i].strip()[:60]!r}"))
+    stds = _read_std_lines(lines, values.shape)
+    samples = _read_std_lines(lines, values.shape, "sample")
+    samples[samples < 0] = np.nan
     A, R = np.meshgrid(az, rad, indexing="ij")
     frames = []
     trans = st == "BTDF"
@@ -387,7 +446,9 @@ def read_zemax(path: str | Path, *, keep_beyond_horizon: bool = False) -> BSDFRe
             frames.append(pd.DataFrame({
                 "wavelength_nm": wavelength, "theta_i": float(inc), "phi_i": float(rot) % 360.0,
                 "theta_r": th[keep], "phi_r": ph[keep], "hemisphere": "T" if trans else "R",
-                "value": values[k, j][keep], "radial_deg": R[keep], "azimuth_deg": A[keep]}))
+                "value": values[k, j][keep], "std": stds[k, j][keep], "sample": samples[k, j][keep],
+                "radial_deg": R[keep],
+                "azimuth_deg": A[keep]}))
     df = pd.concat(frames, ignore_index=True)
     meta = {"format": "zemax", "source_file": str(p), "scatter_type": st,
             "symmetry": header.get("Symmetry"), "source": header.get("Source"), "tis": tis,

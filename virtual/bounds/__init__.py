@@ -34,10 +34,11 @@ from __future__ import annotations
 from virtual.bounds.adaptive import (CHECKPOINT_RATIO, AdaptivePlan, AdaptiveResult, _certify, adaptive_plan,  # noqa: F401
                                      run_adaptive)
 from virtual.bounds.hoeffding import budget_report, estimate_time, hoeffding_rays
-from virtual.bounds.intervals import CI_METHODS, binomial_ci
+from virtual.bounds.intervals import CI_METHODS, binomial_ci, relative_patch_rays
 
 __all__ = [
     "hoeffding_rays",
+    "relative_patch_rays",
     "binomial_ci",
     "AdaptivePlan",
     "AdaptiveResult",

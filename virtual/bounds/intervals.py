@@ -6,7 +6,7 @@ import numpy as np
 from scipy import special, stats
 
 from bench.core.errors import BudgetError
-from virtual.bounds.checks import check_delta
+from virtual.bounds.checks import check_delta, check_uncertainty
 
 __all__ = ["binomial_ci", "CI_METHODS"]
 
@@ -81,3 +81,33 @@ def binomial_ci(k, n, delta: float, method: str = "clopper-pearson") -> tuple[np
     return lo, hi
 
 
+def relative_patch_rays(p: np.ndarray, uncertainty: float, delta: float, max_rays: int | None = None
+                        ) -> dict[str, object]:
+    """Rays for a *relative* uncertainty of every patch's BSDF (``bench gonio --uncertainty``).
+
+    A patch's BSDF is ``k / (N psa)`` with ``k ~ Binomial(N, p)``, so its relative standard error
+    is ``sqrt((1 - p) / (N p))``: the least-populated patch decides. With ``p`` the estimated
+    probabilities of the patches of interest (e.g. from a pilot run) and
+    ``z = Phi^-1(1 - delta / 2)`` (the two-sided ``1 - delta`` interval every patch of a record
+    carries), ``N = ceil(z^2 (1 - p_min) / (v^2 p_min))`` makes each patch's interval
+    half-width at most about ``v`` times its value (normal approximation). With ``max_rays``, patches that would need more are
+    listed as ``unreachable`` (their indices into ``p``) and N is capped.
+
+    Returns
+    -------
+    dict
+        ``N``, ``z``, ``p_min``, ``needed`` (rays the dimmest patch needs), ``unreachable``
+        (indices), ``capped`` (bool).
+    """
+    v = check_uncertainty(uncertainty)
+    d = check_delta(delta)
+    p = np.asarray(p, dtype=float)
+    if p.size == 0 or not np.all(p > 0):
+        raise BudgetError("relative_patch_rays needs patch probabilities > 0 (patches that received rays)")
+    z = float(stats.norm.isf(d / 2.0))
+    need = np.ceil(z * z * (1.0 - p) / (v * v * p))
+    n = int(need.max())
+    unreachable = np.flatnonzero(need > max_rays) if max_rays is not None else np.array([], dtype=int)
+    capped = max_rays is not None and n > max_rays
+    return {"N": int(min(n, max_rays)) if capped else n, "z": z, "p_min": float(p.min()), "needed": n,
+            "unreachable": unreachable.tolist(), "capped": bool(capped)}

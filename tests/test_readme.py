@@ -1,0 +1,169 @@
+"""The README's examples are run and their printed numbers compared with the README text.
+
+Every ``$ bench ...`` line of a README code block is an example; the lines after it (up to the
+next ``$`` line or the end of the block) are what it prints. Each example runs here, in README
+order, in one scratch folder where ``fixtures`` points at the repository's (stdout and stderr
+together, through a shell for ``; echo "exit $?"`` and ``&&``) and every expected
+line must match the printed line token for token: the text exactly, each number to 6 significant
+digits (the seeded examples are deterministic; the margin only absorbs last-digit differences of
+libm across machines). An example whose budget is too large for a test names a smaller one in a
+``# test: --rays N`` comment on its line (then only its first, header, line is compared).
+
+Examples that need a store, a run id or long-running emulators (``scan``, ``runs``, ``resume``,
+``show``, ``export``, ``emulate``) are listed in :data:`NOT_RUN` with the test that covers them.
+
+``python tests/test_readme.py --update`` rewrites the README's outputs from a fresh run (review
+the diff before committing).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+README = ROOT / "README.md"
+
+#: command words not run here, and the tests that cover them
+NOT_RUN = {"scan": "test_runner.py / test_cli.py", "runs": "test_store.py", "resume": "test_runner.py",
+           "show": "test_store.py", "export": "test_export.py", "emulate": "test_emulated_bench.py"}
+
+_NUMBER = re.compile(r"[-+]?(?:\d[\d,]*\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+
+
+@dataclass
+class Example:
+    line: int
+    command: str
+    expected: list[str]
+    small: str | None
+
+
+def examples() -> list[Example]:
+    """The README's ``$ bench`` examples with their expected output lines."""
+    out: list[Example] = []
+    in_block = False
+    current: Example | None = None
+    for n, raw in enumerate(README.read_text(encoding="utf-8").splitlines(), start=1):
+        if raw.startswith("```"):
+            if in_block and current:
+                out.append(current)
+            current = None
+            in_block = not in_block
+            continue
+        if not in_block:
+            continue
+        if raw.startswith("$ "):
+            if current:
+                out.append(current)
+            cmd, _, note = raw[2:].partition("# test:")
+            cmd = cmd.rstrip()
+            current = Example(n, cmd, [], note.strip() or None) if cmd.startswith("bench ") else None
+        elif current is not None and raw.strip():
+            current.expected.append(raw)
+    return out
+
+
+def _skipped(ex: Example) -> str | None:
+    word = ex.command.split()[1]
+    if word in NOT_RUN or " RUN " in f" {ex.command} " or "--store" in ex.command:
+        return f"needs a store or emulators (covered by {NOT_RUN.get(word, 'test_store.py')})"
+    return None
+
+
+def workdir(base: Path) -> Path:
+    """A scratch folder where the examples run, with ``fixtures`` linked to the repository's."""
+    base.mkdir(parents=True, exist_ok=True)
+    link = base / "fixtures"
+    if not link.exists():
+        link.symlink_to(ROOT / "fixtures", target_is_directory=True)
+    return base
+
+
+def run(ex: Example, cwd: Path) -> list[str]:
+    cmd = ex.command
+    if ex.small:
+        cmd = cmd + " " + ex.small  # argparse: the later value wins
+    shell = re.sub(r"(^|&& |; )bench ", lambda m: f"{m.group(1)}{sys.executable} -m bench.cli ", cmd)
+    r = subprocess.run(f"( {shell} ) 2>&1", shell=True, stdout=subprocess.PIPE, text=True, cwd=cwd, timeout=900,
+                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+    return [line for line in r.stdout.splitlines() if line.strip()]
+
+
+def _tokens(line: str) -> tuple[str, list[float]]:
+    nums = []
+
+    def keep(m: re.Match) -> str:
+        try:
+            nums.append(float(m.group(0).replace(",", "")))
+        except ValueError:
+            return m.group(0)
+        return "#"
+
+    return " ".join(_NUMBER.sub(keep, line).split()), nums
+
+
+def same(expected: str, got: str) -> bool:
+    te, ne = _tokens(expected)
+    tg, ng = _tokens(got)
+    return te == tg and len(ne) == len(ng) and all(
+        a == b or abs(a - b) <= 1e-6 * max(abs(a), abs(b)) for a, b in zip(ne, ng))
+
+
+EXAMPLES = examples()
+
+
+def test_readme_has_examples():
+    assert len(EXAMPLES) >= 8
+    assert any("bench compare" in e.command for e in EXAMPLES)
+
+
+@pytest.fixture(scope="module")
+def scratch(tmp_path_factory):
+    return workdir(tmp_path_factory.mktemp("readme"))
+
+
+@pytest.mark.parametrize("ex", EXAMPLES, ids=[f"L{e.line}:{e.command[:40]}" for e in EXAMPLES])
+def test_readme_example_prints_what_the_readme_says(ex, scratch):
+    why = _skipped(ex)
+    if why:
+        pytest.skip(why)
+    got = run(ex, scratch)
+    expected = ex.expected[:1] if ex.small else ex.expected
+    assert len(got) >= len(expected), f"README line {ex.line}: {ex.command}\nprinted:\n" + "\n".join(got)
+    for i, line in enumerate(expected):
+        if ex.small and i == 0:
+            continue  # a smaller budget changes N in the header; the header's shape is checked below
+        assert same(line, got[i]), f"README line {ex.line + 1 + i}: expected\n  {line}\nprinted\n  {got[i]}"
+    if ex.small:
+        assert _tokens(expected[0])[0] == _tokens(got[0])[0]
+
+
+def _update() -> None:
+    import tempfile
+
+    lines = README.read_text(encoding="utf-8").splitlines()
+    cwd = workdir(Path(tempfile.mkdtemp(prefix="readme-")))
+    outputs = {ex.line: run(ex, cwd) for ex in EXAMPLES if not (_skipped(ex) or ex.small)}
+    for ex in reversed(EXAMPLES):
+        if ex.line not in outputs:
+            continue
+        got = outputs[ex.line]
+        start = ex.line  # index of the first output line (0-based) = line number of the command
+        end = start
+        while end < len(lines) and not lines[end].startswith(("$ ", "```")):
+            end += 1
+        while end > start and not lines[end - 1].strip():  # keep the blank lines between examples
+            end -= 1
+        lines[start:end] = got
+    README.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+if __name__ == "__main__" and "--update" in sys.argv:
+    _update()
