@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from bench.cli.common import DEFAULT_STORE
+from bench.cli.common import DEFAULT_STORE, output_dir
 from bench.core.errors import InputError
 
 HEADLINE = ("n_points", "mean_abs_discrepancy_pct", "rmse", "bias", "max_abs", "chi2", "p_value",
@@ -32,7 +32,7 @@ def _load(ref: str, store_path: str) -> tuple[str, Any]:
 
     if not Path(store_path).exists():
         raise InputError(f"{what!r} is neither a file nor a run (no store at {store_path})")
-    with RunStore(store_path, create=False) as store:
+    with RunStore(store_path, create=False, readonly=True) as store:
         record = store.to_record(what)
     spec = (record.meta.get("bench") or {}).get("specimen", {}).get("spec")
     return name or (f"{what} ({spec})" if spec else what), record
@@ -68,12 +68,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compare", help="compare candidate records (virtual models) with an actual one")
     p.add_argument("actual", metavar="ACTUAL", help="[NAME=]RUN or FILE")
     p.add_argument("candidates", metavar="CANDIDATE", nargs="+", help="[NAME=]RUN or FILE")
-    p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
-    p.add_argument("--report", metavar="DIR", help="report folder (default ./compare-report)")
+    p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",
+                   help="the run store holding RUN ids, opened read-only (default %(default)s)")
+    p.add_argument("--report", type=output_dir, metavar="DIR", help="report folder (default ./compare-report)")
     p.add_argument("--metric", default="chi2_per_dof",
                    choices=("chi2_per_dof", "mean_abs_discrepancy_pct", "rmse", "abs_bias", "max_abs",
-                            "delta_e2000_mean"), help="ranking metric (lower is better)")
-    p.add_argument("--title")
+                            "delta_e2000_mean"), help="ranking metric, lower is better (default %(default)s)")
+    p.add_argument("--title", help="report title (default: the candidates against the actual)")
     p.add_argument("--skip-bad", action="store_true", help="leave out candidates that cannot be compared")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="the summary as one JSON object with stable keys")
     p.set_defaults(func=cmd_compare)

@@ -15,8 +15,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from bench.cli.common import emit_json
-from bench.core.errors import InputError
+from bench.cli.argtypes import count, int_list, seed
+from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
 
 __all__ = ["register", "cmd_tradeoff"]
 
@@ -24,12 +24,14 @@ __all__ = ["register", "cmd_tradeoff"]
 def register(subparsers: Any) -> None:
     """Add ``tradeoff`` to the ``bench`` subcommands."""
     t = subparsers.add_parser("tradeoff", help="accuracy versus time of a scene: table and Pareto plot")
-    t.add_argument("scene", metavar="SCENE.toml")
+    t.add_argument("scene", metavar="SCENE.toml", help="the scene file (see fixtures/scenes/)")
     t.add_argument("--json", action="store_true", help="one JSON object: rows (one per configuration), effects")
-    t.add_argument("--plot", metavar="FILE.png", help="error-vs-time (log-log) Pareto plot")
-    t.add_argument("--rays", help="comma-separated ray counts (default: the scene's [tradeoff].rays)")
-    t.add_argument("--repeats", type=int, help="seeded runs per configuration (default 1)")
-    t.add_argument("--seed", type=int)
+    t.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
+                   help="error-vs-time (log-log) Pareto plot (png, pdf, svg, ...; default: none)")
+    t.add_argument("--rays", type=int_list(1, 10**12, most=50),
+                   help="comma-separated ray counts, each 1..1e12 (default: the scene's [tradeoff].rays)")
+    t.add_argument("--repeats", type=count(1, 1000), help="seeded runs per configuration, 1..1000 (default 1)")
+    t.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: the scene's)")
     t.add_argument("--no-costs", action="store_true", help="skip measuring each declared effect's cost")
     t.set_defaults(func=cmd_tradeoff)
 
@@ -59,12 +61,8 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
     from virtual import tradeoff
 
     scene = load_scene(args.scene)
-    rays = None
-    if args.rays:
-        try:
-            rays = [int(float(x)) for x in args.rays.split(",") if x.strip()]
-        except ValueError:
-            raise InputError(f"--rays {args.rays!r}: expected comma-separated integers") from None
+    announce_compilation()
+    rays = args.rays  # a list of ints, checked by argparse
     if scene.instrument == "physical":
         from bench.tradeoff_physical import physical_sweep, plot_physical
 
