@@ -16,7 +16,7 @@ from typing import Callable, NoReturn
 from urllib.parse import urlsplit
 
 __all__ = ["BenchArgumentParser", "count", "real", "seed", "rays", "incidence", "wavelengths", "collector",
-           "int_list", "scheduler_address", "MAX_RAYS", "MAX_PATCHES", "MAX_SEED", "RAYS_PER_SECOND"]
+           "int_list", "scheduler_address", "run_id", "MAX_RAYS", "MAX_PATCHES", "MAX_SEED", "RAYS_PER_SECOND"]
 
 #: the most rays per wavelength a command accepts at all (the time bound, --max-seconds, comes first)
 MAX_RAYS = 10**15
@@ -171,6 +171,18 @@ def scheduler_address(text: str) -> str:
             re.search(r"\s", s):
         raise argparse.ArgumentTypeError(f"expected a scheduler address like tcp://127.0.0.1:8786, got {text!r}")
     return url
+
+
+_RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$")
+
+
+def run_id(text: str) -> str:
+    """A run id as ``bench runs`` prints it (letters, digits, ``-._:``; at most 128 characters)."""
+    if not _RUN_ID.match(str(text)):
+        shown = str(text).encode("utf-8", "backslashreplace").decode("ascii", "backslashreplace")[:60]
+        raise argparse.ArgumentTypeError(f"expected a run id such as 20261122-0930-1a2b (see `bench runs`), "
+                                         f"got {shown!r}")
+    return text
 
 
 def estimated_seconds(n_rays: int, n_wavelengths: int, rate: float = RAYS_PER_SECOND) -> float:

@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.cli.argtypes import real, seed
+from bench.cli.argtypes import real, run_id, seed
 from bench.cli.common import DEFAULT_STORE, check_output, emit_json, hms, open_store, report_run
 from bench.core.errors import InputError
 
@@ -157,7 +157,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sc.set_defaults(func=cmd_scan)
 
     rs = sub.add_parser("resume", help="finish an interrupted run (scan or sweep)")
-    rs.add_argument("run", metavar="RUN", help="the run id (see `bench runs`)")
+    rs.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
     rs.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     rs.add_argument("--bench", metavar="BENCH.toml", help="bench config (default: the one stored with the run)")
     rs.add_argument("--quiet", "-q", action="store_true", help="no progress bar (shown only on a terminal)")
@@ -170,13 +170,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     ru.set_defaults(func=cmd_runs)
 
     sh = sub.add_parser("show", help="summarize one run (read-only)")
-    sh.add_argument("run", metavar="RUN", help="the run id (see `bench runs`)")
+    sh.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
     sh.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     sh.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     sh.set_defaults(func=cmd_show)
 
     ex = sub.add_parser("export", help="export a run: csv, parquet, astm, zemax (read-only on the store)")
-    ex.add_argument("run", metavar="RUN", help="the run id (see `bench runs`)")
+    ex.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
     ex.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     ex.add_argument("--format", choices=("csv", "parquet", "astm", "zemax"), default="csv",
                     help="file format (default %(default)s)")

@@ -14,7 +14,7 @@ import logging
 import sys
 from typing import Any, Iterator
 
-from bench.cli.argtypes import count, scheduler_address
+from bench.cli.argtypes import count, run_id, scheduler_address
 from bench.cli.common import DEFAULT_STORE
 from bench.core.errors import InputError
 
@@ -40,7 +40,7 @@ def register(subparsers: Any) -> None:
                         "give 0.0.0.0:8787 to expose it)")
     p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",
                    help="the run store, an SQLite file (default %(default)s)")
-    p.add_argument("--resume", metavar="RUN", help="finish this interrupted sweep run instead of starting one")
+    p.add_argument("--resume", type=run_id, metavar="RUN", help="finish this interrupted sweep run instead of starting one (default: start a new run)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar (shown only on a terminal)")
     p.add_argument("--json", action="store_true", help="the run result as one JSON object")
     p.set_defaults(func=cmd_sweep)

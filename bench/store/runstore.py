@@ -5,6 +5,7 @@ Reading back is :class:`bench.store.reading.RunReader`.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import sqlite3
@@ -26,6 +27,30 @@ from bench.store.schema import (_GEOMETRY, _MIGRATIONS, _SCHEMA, _TRANSITIONS, R
 __all__ = ["RunStore"]
 
 
+def _typed_errors(cls: type) -> type:
+    """Wrap every public method so an SQLite failure that escapes it (a corrupted page, a dropped
+    table, an I/O error) is a :class:`StoreError` naming the file, never a raw ``sqlite3`` error."""
+
+    def wrap(fn: Any) -> Any:
+        @functools.wraps(fn)
+        def method(self: Any, *a: Any, **kw: Any) -> Any:
+            try:
+                return fn(self, *a, **kw)
+            except sqlite3.Error as e:
+                raise StoreError(f"run store {self.path}: {e}") from e
+            except UnicodeError as e:  # a run id that is not text (a non-UTF-8 argument)
+                raise InputError(f"run store {self.path}: not valid text: {e.reason}") from None
+
+        return method
+
+    for klass in reversed(cls.__mro__[:-1]):
+        for name, fn in list(vars(klass).items()):
+            if not name.startswith("_") and callable(fn) and not isinstance(fn, (staticmethod, classmethod, type)):
+                setattr(cls, name, wrap(fn))
+    return cls
+
+
+@_typed_errors
 class RunStore(RunReader):
     """A goniobench run store (one SQLite file in WAL mode).
 
