@@ -33,6 +33,13 @@ _Type = Callable[[str], object]
 class BenchArgumentParser(argparse.ArgumentParser):
     """An ArgumentParser whose usage errors are one line on stderr (exit 2), not usage + error."""
 
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> object:
+        # argparse strips a lone "--" from an option's value (``--seed=--``) and then hands the
+        # command an empty list instead of calling the type: refuse it as the value it is
+        if arg_strings == ["--"] and action.option_strings and action.nargs in (None, "?"):
+            raise argparse.ArgumentError(action, "expected a value, got '--'")
+        return super()._get_values(action, arg_strings)
+
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
