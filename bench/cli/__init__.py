@@ -8,7 +8,8 @@ One module per command group, each with ``register(subparsers)``:
 * :mod:`bench.cli.compare` -- ``compare``;
 * :mod:`bench.cli.tradeoff` -- ``tradeoff``;
 * :mod:`bench.cli.sweep` -- ``sweep``;
-* :mod:`bench.cli.emulate` -- ``emulate``.
+* :mod:`bench.cli.emulate` -- ``emulate``;
+* :mod:`bench.cli.specimens` -- ``specimens``.
 
 Starts fast: heavy modules (numba kernels, colour-science, matplotlib, pandas) are imported
 inside the commands that use them. Exit status (one policy, :data:`EXIT_STATUS_HELP`): 0 ok,
@@ -40,7 +41,7 @@ log = logging.getLogger("bench")
 #: Modules that add subcommands, in ``bench --help`` order: each has ``register(subparsers)`` and
 #: imports nothing heavy at module level (the CLI must start fast).
 COMMAND_MODULES = ["bench.cli.measure", "bench.cli.scans", "bench.cli.demo", "bench.cli.compare",
-                   "bench.cli.tradeoff", "bench.cli.sweep", "bench.cli.emulate"]
+                   "bench.cli.tradeoff", "bench.cli.sweep", "bench.cli.emulate", "bench.cli.specimens"]
 
 
 def _version() -> str:
