@@ -140,14 +140,24 @@ def _compare_demo(out: Path, runs: dict[str, Any]) -> tuple[dict[str, Any], list
                            for n in summary["candidates"]}}, lines
 
 
-def run_demo(out: Path, seed: int = 20261122) -> dict[str, Any]:
-    """Run every demo stage, write files into ``out``, return a summary (with printable lines)."""
+def run_demo(out: Path, seed: int = 20261122, progress: bool = False) -> dict[str, Any]:
+    """Run every demo stage, write files into ``out``, return a summary (with printable lines).
+
+    ``progress``: a bar over the four stages with an ETA, on stderr (the CLI asks for it on a terminal).
+    """
+    from tqdm import tqdm
+
     out.mkdir(parents=True, exist_ok=True)
     summary: dict[str, Any] = {"out": str(out), "lines": []}
-    for name, stage in (("spectro", _spectro_demo), ("gonio", _gonio_demo), ("scan", _scan_demo)):
-        part, lines = stage(out, seed)
-        summary[name] = part
+    with tqdm(total=4, disable=not progress, desc="demo", unit="stage", leave=False, dynamic_ncols=True) as bar:
+        for name, stage in (("spectro", _spectro_demo), ("gonio", _gonio_demo), ("scan", _scan_demo)):
+            bar.set_postfix_str(name)
+            part, lines = stage(out, seed)
+            summary[name] = part
+            summary["lines"] += lines
+            bar.update()
+        bar.set_postfix_str("compare")
+        summary["compare"], lines = _compare_demo(out, summary["scan"])
         summary["lines"] += lines
-    summary["compare"], lines = _compare_demo(out, summary["scan"])
-    summary["lines"] += lines
+        bar.update()
     return summary

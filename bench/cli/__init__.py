@@ -134,7 +134,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return _quiet_broken_pipe()
-    except sqlite3.Error as exc:  # a store error that escaped the store's own typing
+    except (sqlite3.OperationalError, sqlite3.IntegrityError, sqlite3.DataError, sqlite3.NotSupportedError) as exc:
+        # a store error that escaped the store's own typing (ProgrammingError is a bug: below)
         print(f"bench {command}: error: run store: {_one_line(exc)}", file=sys.stderr)
         return 2
     except (OSError, UnicodeError) as exc:  # a path the user gave that cannot be read or written

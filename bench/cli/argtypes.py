@@ -20,7 +20,7 @@ __all__ = ["BenchArgumentParser", "count", "real", "seed", "rays", "incidence", 
 
 #: the most rays per wavelength a command accepts at all (the time bound, --max-seconds, comes first)
 MAX_RAYS = 10**15
-#: the most patches one collector may have (rings x sectors, per hemisphere)
+#: the most patches one collector may have (rings x sectors, per hemisphere; bench.core.parsing's bound)
 MAX_PATCHES = 1_000_000
 #: seeds are 63-bit non-negative integers (numpy SeedSequence entropy; SQLite INTEGER)
 MAX_SEED = 2**63 - 1
@@ -131,19 +131,16 @@ def wavelengths(text: str) -> str:
     return text
 
 
-_COLLECTOR = re.compile(r"^\s*([A-Za-z][A-Za-z-]*)\s*:\s*(\d{1,9})\s*[xX*]\s*(\d{1,9})\s*$")
-
-
 def collector(text: str) -> str:
-    """``SCHEME:RINGSxSECTORS`` with at most :data:`MAX_PATCHES` patches (the scheme itself is
-    checked by the collector)."""
-    m = _COLLECTOR.match(str(text))
-    if not m:
-        raise argparse.ArgumentTypeError(f"expected SCHEME:RINGSxSECTORS such as equal-psa:9x36, got {text!r}")
-    rings, sectors = int(m.group(2)), int(m.group(3))
-    if rings < 1 or sectors < 1 or rings * sectors > MAX_PATCHES:
-        raise argparse.ArgumentTypeError(f"{text!r} has {rings:,} x {sectors:,} = {rings * sectors:,} patches; "
-                                         f"expected 1 to {MAX_PATCHES:,}")
+    """``SCHEME:RINGSxSECTORS`` with at most :data:`MAX_PATCHES` patches
+    (:func:`bench.core.parsing.check_collector_spec`; the scheme itself is checked by the collector)."""
+    from bench.core.errors import InputError
+    from bench.core.parsing import check_collector_spec
+
+    try:
+        check_collector_spec(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     return text
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.cli.argtypes import seed
+from bench.cli.argtypes import seed, stderr_is_terminal
 from bench.cli.common import announce_compilation, emit_json, output_dir
 
 __all__ = ["register", "cmd_demo"]
@@ -15,7 +15,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from bench.demo import run_demo
 
     announce_compilation()
-    summary = run_demo(Path(args.out), seed=args.seed)
+    summary = run_demo(Path(args.out), seed=args.seed, progress=stderr_is_terminal())
     if args.json:
         emit_json(summary)
     else:

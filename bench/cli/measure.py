@@ -11,7 +11,7 @@ import sys
 from typing import Any
 
 from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds,
-                                incidence, rays, real, seed, wavelengths)
+                                incidence, rays, real, seed, stderr_is_terminal, wavelengths)
 from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
 from bench.core.errors import InputError
 from bench.core.parsing import parse_wavelengths
@@ -67,7 +67,8 @@ def cmd_spectro(args: argparse.Namespace) -> int:
         from bench.adaptive import adaptive_measure
 
         adaptive = adaptive_measure(sp, args.uncertainty, args.delta, geometry=args.geometry,
-                                    wavelengths=args.wavelengths, max_seconds=args.max_seconds)
+                                    wavelengths=args.wavelengths, max_seconds=args.max_seconds,
+                                    progress=stderr_is_terminal())
         s = adaptive["result"]
     else:
         s = sp.measure(args.geometry, args.wavelengths)
@@ -145,7 +146,7 @@ def cmd_gonio(args: argparse.Namespace) -> int:
         from bench.adaptive import adaptive_measure
 
         adaptive = adaptive_measure(g, args.uncertainty, args.delta, theta_i=theta_i, phi_i=phi_i,
-                                    max_seconds=args.max_seconds)
+                                    max_seconds=args.max_seconds, progress=stderr_is_terminal())
         record = adaptive["result"]
     else:
         record = g.measure_bsdf(theta_i, phi_i)

@@ -60,6 +60,10 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
     from virtual.scene import effect_costs, load_scene
     from virtual import tradeoff
 
+    from bench.core.parsing import read_toml
+    from bench.core.schemas import SceneFile, validate_document
+
+    validate_document(SceneFile, read_toml(args.scene, "scene file"), f"scene file {args.scene}")
     scene = load_scene(args.scene)
     announce_compilation()
     rays = args.rays  # a list of ints, checked by argparse

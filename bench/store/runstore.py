@@ -36,6 +36,8 @@ def _typed_errors(cls: type) -> type:
         def method(self: Any, *a: Any, **kw: Any) -> Any:
             try:
                 return fn(self, *a, **kw)
+            except (sqlite3.ProgrammingError, sqlite3.InterfaceError):
+                raise  # a bug in the caller or in goniobench, not a problem of the file
             except sqlite3.Error as e:
                 raise StoreError(f"run store {self.path}: {e}") from e
             except UnicodeError as e:  # a run id that is not text (a non-UTF-8 argument)
