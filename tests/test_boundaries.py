@@ -360,3 +360,26 @@ def test_bench_specimens_lists_every_family_and_parameter(capsys):
     assert code == 0 and [f["name"] for f in json.loads(out)] == [f["name"] for f in fams]
     code, out, _ = run(capsys, "specimens", "--markdown")
     assert code == 0 and out.startswith("| specimen | parameter |")
+
+
+def test_ctrl_c_during_a_scan_exits_130_and_the_run_resumes(capsys, tmp_path, store, monkeypatch):
+    import bench.runner as runner
+
+    _, _, plan = store
+    db = tmp_path / "c.sqlite"
+    real_rows = runner.point_rows
+    calls = []
+
+    def rows_then_ctrl_c(*a, **kw):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real_rows(*a, **kw)
+
+    monkeypatch.setattr(runner, "point_rows", rows_then_ctrl_c)
+    code, _, err = run(capsys, "scan", plan, "--bench", VIRTUAL, "--store", db, "-q", "--seed", "2")
+    assert code == 130 and one_line(err) and "bench resume" in err
+    monkeypatch.undo()
+    rid = err.split("bench resume ")[1].split()[0]
+    code, out, err = run(capsys, "resume", rid, "--store", db, "-q")
+    assert code == 0, err

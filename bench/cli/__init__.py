@@ -127,6 +127,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"bench {command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except BenchError as exc:
+        if getattr(exc, "by_user", False):  # a run stopped by Ctrl-C, stored as interrupted
+            print(f"bench {command}: interrupted: {_one_line(exc)}", file=sys.stderr)
+            return 130
         print(f"bench {command}: failed: {_one_line(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
