@@ -14,6 +14,7 @@ import io
 import math
 import signal
 import sqlite3
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -229,8 +230,6 @@ BENCH = st.fixed_dictionaries(
               "whte": SCALARS})
 
 
-import tomllib  # noqa: E402
-
 _FIXTURE_BENCH = tomllib.loads((FIX / "benches" / "virtual.toml").read_text())
 _PATHS = [(t, k) for t, v in _FIXTURE_BENCH.items() if isinstance(v, dict) for k in v] + \
     [(None, k) for k in _FIXTURE_BENCH] + [("virtual", "raays"), ("white", "refletance"), (None, "whte")]
@@ -263,7 +262,7 @@ def test_fuzzed_bench_configs_are_accepted_or_refused_in_one_line(tmp_path, stor
 
 # --- 5. malformed sweeps (loaded as `bench sweep` loads them, before any work) --------------------------
 
-SWEEP = st.fixed_dictionaries(
+SWEEP_RANDOM = st.fixed_dictionaries(
     {"sweep": st.dictionaries(st.sampled_from(["name", "seed", "instrument", "specimens", "incidences", "collectors",
                                                "wavelengths", "rays", "method", "delta", "wavelengths_per_task",
                                                "uncertainty", "raays", "beam", "geometries"]),
@@ -272,6 +271,24 @@ SWEEP = st.fixed_dictionaries(
                               max_size=7)},
     optional={"task": st.lists(st.dictionaries(st.sampled_from(["specimen", "incidence", "collector", "rays", "x"]),
                                                SCALARS, max_size=3), max_size=3)})
+
+
+_FIXTURE_SWEEP = tomllib.loads((FIX / "sweeps" / "gonio-product.toml").read_text())
+
+
+def _mutated_sweep(key_value):
+    key, value = key_value
+    doc = {"sweep": {**_FIXTURE_SWEEP["sweep"], "rays": 1000}}
+    doc["sweep"][key] = value
+    return doc
+
+
+MUTATED_SWEEP = st.tuples(
+    st.sampled_from(sorted(_FIXTURE_SWEEP["sweep"]) + ["raays", "cone_deg", "uncertainty", "geometries"]),
+    st.one_of(SCALARS, RANGES, st.sampled_from(["equal-psa:100000x100000", ["equal-psa:9x36"], "450:650:1e-9",
+                                                [0, 30], "rays", "fast", 10**16, [[30, 90]], ["chalk"]]))
+).map(_mutated_sweep)
+SWEEP = st.one_of(SWEEP_RANDOM, MUTATED_SWEEP)
 
 
 @settings(FUZZ, max_examples=120)
@@ -296,7 +313,54 @@ def test_fuzzed_sweeps_are_accepted_or_refused_in_one_line(tmp_path, doc):
         signal.alarm(0)
 
 
-# --- 6. readers with fuzzed run ids and options never change the store ----------------------------------
+# --- 6. malformed scenes: refused by `bench tradeoff` in one line, or accepted by the scene too ------
+
+_FIXTURE_SCENE = tomllib.loads((FIX / "scenes" / "sphere-effects.toml").read_text())
+_SCENE_PATHS = [(None, k) for k in _FIXTURE_SCENE if not isinstance(_FIXTURE_SCENE[k], dict)] + \
+    [("beam", "kind"), ("effects", "sphere"), ("effects", "noise"), ("effects", "noyse"), ("tradeoff", "rays"),
+     ("tradeoff", "repeats"), (None, "collector"), (None, "physical"), (None, "instrument")]
+
+
+def _mutated_scene(path_value):
+    (table, key), value = path_value
+    doc = {k: (dict(v) if isinstance(v, dict) else v) for k, v in _FIXTURE_SCENE.items()}
+    (doc if table is None else doc.setdefault(table, {}))[key] = value
+    return doc
+
+
+SCENE = st.tuples(st.sampled_from(_SCENE_PATHS), st.one_of(
+    SCALARS, RANGES, st.sampled_from(["equal-psa:5000x5000", "gonio", "goniophotometer", [0], [10, 100], True,
+                                      {"wall_reflectance": 2}, {"steps_deg": [1e-9]}, "400:700:1e-9"]))
+).map(_mutated_scene)
+
+
+@settings(FUZZ, max_examples=100)
+@given(doc=SCENE)
+def test_fuzzed_scenes_are_refused_in_one_line_or_loadable(tmp_path, doc):
+    from bench.core.schemas import SceneFile, validate_document
+    from virtual.scene import scene_from_dict
+
+    path = tmp_path / "fuzz-scene.toml"
+    path.write_text(_toml(doc), encoding="utf-8")
+    try:
+        validate_document(SceneFile, tomllib.loads(path.read_text()), str(path))
+    except ConfigError:  # refused by the schema: the CLI says so in one line before any work
+        code, _, err = bench("tradeoff", path)
+        check_policy(code, err, (2,), "scene files")
+        return
+    except tomllib.TOMLDecodeError:
+        return
+    fam = TALLY.setdefault("scene files", {"cases": 0, "refused": 0, "accepted": 0})
+    fam["cases"] += 1
+    try:  # accepted by the schema: the scene builds, or refuses with a project error (never a raw one)
+        scene_from_dict(tomllib.loads(path.read_text()))
+        fam["accepted"] += 1
+    except InputError as exc:
+        fam["refused"] += 1
+        assert "\n" not in str(exc)
+
+
+# --- 7. readers with fuzzed run ids and options never change the store ----------------------------------
 
 @settings(FUZZ, max_examples=80)
 @given(cmd=st.sampled_from(["show", "export", "resume"]),
@@ -319,5 +383,5 @@ def test_zz_fuzz_tally(capsys):
         print(f"\nfuzz tally: {total} cases, all clean: "
               + "; ".join(f"{k} {v['cases']} ({v['refused']} refused, {v['accepted']} accepted)"
                           for k, v in sorted(TALLY.items())))
-    if len(TALLY) == 6:  # the whole file ran (not a -k selection)
+    if len(TALLY) == 7:  # the whole file ran (not a -k selection)
         assert total >= 500
