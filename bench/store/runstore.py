@@ -115,6 +115,9 @@ class RunStore(RunReader):
             self._db.execute(_OWNERS_TABLE)
         except sqlite3.DatabaseError as e:
             self._db.close()
+            if not self.readonly and not (os.access(self.path, os.W_OK) and os.access(self.path.parent, os.W_OK)):
+                raise StoreError(f"run store {self.path} cannot be written here (a read-only file, folder or "
+                                 f"file system); readers such as `bench runs` still work on it") from e
             raise StoreError(f"{self.path} is not a usable run store: {e}") from e
         except BaseException:
             self._db.close()
