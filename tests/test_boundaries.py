@@ -383,3 +383,27 @@ def test_ctrl_c_during_a_scan_exits_130_and_the_run_resumes(capsys, tmp_path, st
     rid = err.split("bench resume ")[1].split()[0]
     code, out, err = run(capsys, "resume", rid, "--store", db, "-q")
     assert code == 0, err
+
+
+def test_the_first_kernel_compilation_is_announced_once(capsys, monkeypatch):
+    import logging
+
+    import numba
+
+    import bench.cli.common as common
+
+    monkeypatch.setattr(common, "_ANNOUNCED", [])
+    monkeypatch.setattr(logging.getLogger("bench"), "level", logging.INFO)  # as with -v (or on a terminal)
+    common.announce_compilation()
+
+    @numba.njit(cache=False)
+    def twice(x):
+        return 2 * x
+
+    @numba.njit(cache=False)
+    def thrice(x):
+        return 3 * x
+
+    assert twice(2) == 4 and thrice(2) == 6  # two compilations, one announcement
+    err = capsys.readouterr().err
+    assert err.count("compiling kernels (first run only)...") == 1

@@ -149,6 +149,11 @@ def cmd_gonio(args: argparse.Namespace) -> int:
                                     max_seconds=args.max_seconds, progress=stderr_is_terminal())
         record = adaptive["result"]
     else:
+        if stderr_is_terminal() and not g.uses_fast_path():  # progress with an ETA, one step per wavelength:
+            from tqdm import tqdm  # the counts are cached per (incidence, wavelength), measure_bsdf reuses them
+
+            for w in tqdm(g.wavelengths, desc="gonio", unit="wl", leave=False, dynamic_ncols=True):
+                g.simulate(theta_i, phi_i, float(w))
         record = g.measure_bsdf(theta_i, phi_i)
     if args.csv:
         from bench.io import write_csv

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from bench.cli.argtypes import real, run_id, seed
-from bench.cli.common import DEFAULT_STORE, check_output, emit_json, hms, open_store, report_run
+from bench.cli.common import DEFAULT_STORE, announce_compilation, check_output, emit_json, hms, open_store, report_run
 from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_plan", "cmd_scan", "cmd_resume", "cmd_runs", "cmd_show", "cmd_export"]
@@ -58,6 +58,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
     from bench.runner import run_scan
 
     plan, bench = _plan_and_bench(args)
+    if bench.kind == "virtual":
+        announce_compilation()
     with bench, open_store(args.store) as store:
         result = run_scan(bench, plan, store, seed=getattr(bench.goniometer, "seed", args.seed),
                           progress=not args.quiet and sys.stderr.isatty())

@@ -15,7 +15,7 @@ import sys
 from typing import Any, Iterator
 
 from bench.cli.argtypes import count, run_id, scheduler_address
-from bench.cli.common import DEFAULT_STORE
+from bench.cli.common import DEFAULT_STORE, announce_compilation
 from bench.core.errors import InputError
 
 
@@ -85,6 +85,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise InputError("--resume takes the sweep stored with the run; do not also give SWEEP.toml")
     spec = load_sweep(args.sweep) if args.sweep is not None else None  # bad input: exit 2 before any work
     progress = not args.quiet and sys.stderr.isatty()
+    if args.scheduler is None and args.workers is None:
+        announce_compilation()  # in-process: the kernels compile here the first time
     with RunStore(args.store, create=args.resume is None) as store, _client(args) as client:
         if spec is not None:
             print(f"sweep {spec.name}: {len(spec)} tasks, seed {spec.seed}", file=sys.stderr)
