@@ -72,6 +72,9 @@ BAD_ARGS = {
     "plot with an unknown format": (GONIO + ["--plot", "x.nosuchformat"], "nosuchformat"),
     "rays -u nan": (["rays", "-u", "nan", "-d", "0.01"], "--uncertainty"),
     "unknown option": (GONIO + ["--raays", "5"], "--raays"),
+    "dashboard not an address": (["sweep", str(FIX / "sweeps" / "gonio-tasks.toml"), "--workers", "1",
+                                  "--dashboard", "everywhere"], "--dashboard"),
+    "lone -- as a value": (GONIO + ["--seed=--"], "--seed"),
 }
 
 
@@ -82,6 +85,13 @@ def test_bad_arguments_exit_2_naming_the_option(capsys, name):
     assert code == 2, err
     assert one_line(err) and needle in err, err
     assert out == ""
+
+
+def test_the_cli_collector_bound_is_the_core_one():
+    from bench.cli.argtypes import MAX_PATCHES
+    from bench.core.parsing import MAX_COLLECTOR_PATCHES
+
+    assert MAX_PATCHES == MAX_COLLECTOR_PATCHES
 
 
 def test_scan_with_a_refused_seed_leaves_no_run(capsys, tmp_path, store):

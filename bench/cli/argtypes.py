@@ -16,7 +16,7 @@ from typing import Callable, NoReturn
 from urllib.parse import urlsplit
 
 __all__ = ["BenchArgumentParser", "count", "real", "seed", "rays", "incidence", "wavelengths", "collector",
-           "int_list", "scheduler_address", "run_id", "MAX_RAYS", "MAX_PATCHES", "MAX_SEED", "RAYS_PER_SECOND"]
+           "int_list", "scheduler_address", "run_id", "listen_address", "MAX_RAYS", "MAX_PATCHES", "MAX_SEED", "RAYS_PER_SECOND"]
 
 #: the most rays per wavelength a command accepts at all (the time bound, --max-seconds, comes first)
 MAX_RAYS = 10**15
@@ -175,6 +175,14 @@ def scheduler_address(text: str) -> str:
             re.search(r"\s", s):
         raise argparse.ArgumentTypeError(f"expected a scheduler address like tcp://127.0.0.1:8786, got {text!r}")
     return url
+
+
+def listen_address(text: str) -> str:
+    """``HOST:PORT`` for a service to listen on (port 0..65535; 0 = any free port)."""
+    host, sep, port = str(text).strip().rpartition(":")
+    if not sep or not port.isdigit() or int(port) > 65535 or re.search(r"[\s/]", host):
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT such as 127.0.0.1:8787, got {text!r}")
+    return f"{host or '127.0.0.1'}:{int(port)}"
 
 
 _RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$")

@@ -14,7 +14,7 @@ import logging
 import sys
 from typing import Any, Iterator
 
-from bench.cli.argtypes import count, run_id, scheduler_address
+from bench.cli.argtypes import count, listen_address, run_id, scheduler_address
 from bench.cli.common import DEFAULT_STORE, announce_compilation
 from bench.core.errors import InputError
 
@@ -35,7 +35,7 @@ def register(subparsers: Any) -> None:
                        help="start a local Dask cluster of N processes, 1..1024 (default: run in-process)")
     p.add_argument("--threads-per-worker", type=count(1, 256), default=1, metavar="K",
                    help="threads of each local worker (default 1; every task runs numba single-threaded)")
-    p.add_argument("--dashboard", metavar="HOST:PORT", default="127.0.0.1:8787",
+    p.add_argument("--dashboard", type=listen_address, metavar="HOST:PORT", default="127.0.0.1:8787",
                    help="where a local cluster's dashboard listens (default %(default)s, loopback only; "
                         "give 0.0.0.0:8787 to expose it)")
     p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",
