@@ -31,7 +31,8 @@ class AdaptiveMeasurement(dict):
 
 
 def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_per_second: float = 2e7,
-                     max_seconds: float = DEFAULT_MAX_SECONDS, **measure_kw: Any) -> AdaptiveMeasurement:
+                     max_seconds: float = DEFAULT_MAX_SECONDS, progress: bool = False,
+                     **measure_kw: Any) -> AdaptiveMeasurement:
     """Measure with the adaptive stopping rule instead of eq. 3.5, and say what it saved.
 
     Parameters
@@ -92,7 +93,9 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
     sp.check_wavelengths(wls)
     tallies: list[Any] = []
     plan = None
-    for w in wls:
+    from tqdm import tqdm
+
+    for w in tqdm(wls, disable=not progress, desc="adaptive", unit="wl", leave=False, dynamic_ncols=True):
         params = sp.params(float(w))
         total = [None]
         calls = [0]

@@ -37,6 +37,7 @@ from typing import Any, Callable, Mapping
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import BenchError, ConfigError
 from bench.core.parsing import read_toml
+from bench.core.schemas import BenchFile, validate_document
 from bench.core.roles import Goniometer, LightSource, Reading, Spectrometer
 from bench.plans import MotionProfile
 
@@ -102,8 +103,17 @@ class Bench:
 
 
 def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None) -> Bench:
-    """Build the bench a config describes (a TOML path or its dict)."""
-    d = dict(config) if isinstance(config, Mapping) else read_toml(config)
+    """Build the bench a config describes (a TOML path or its dict).
+
+    The config goes through the declared schema (:class:`bench.core.schemas.BenchFile`) first,
+    so a typo, a wrong type or an out-of-range value is one :class:`ConfigError` naming the file
+    and key before any device is built or emulator started.
+    """
+    if isinstance(config, Mapping):
+        d, source = dict(config), "bench config"
+    else:
+        d, source = read_toml(config, "bench config"), f"bench config {config}"
+    validate_document(BenchFile, d, source)
     kind = str(d.get("kind", "virtual"))
     if kind not in BUILDERS:
         raise ConfigError(f"bench kind must be one of {', '.join(BUILDERS)}, got {kind!r}")

@@ -261,17 +261,28 @@ def _leaf_demo(out: Path, seed: int) -> tuple[dict[str, Any], list[str]]:
     return summary, lines
 
 
-def run_demo(out: Path, seed: int = 20261122) -> dict[str, Any]:
-    """Run every demo stage, write files into ``out``, return a summary (with printable lines)."""
+def run_demo(out: Path, seed: int = 20261122, progress: bool = False) -> dict[str, Any]:
+    """Run every demo stage, write files into ``out``, return a summary (with printable lines).
+
+    ``progress``: a bar over the stages with an ETA, on stderr (the CLI asks for it on a terminal).
+    """
+    from tqdm import tqdm
+
     out.mkdir(parents=True, exist_ok=True)
     summary: dict[str, Any] = {"out": str(out), "lines": []}
-    for name, stage in (("spectro", _spectro_demo), ("gonio", _gonio_demo), ("leaf", _leaf_demo),
-                        ("scan", _scan_demo)):
-        part, lines = stage(out, seed)
-        summary[name] = part
+    stages = (("spectro", _spectro_demo), ("gonio", _gonio_demo), ("leaf", _leaf_demo), ("scan", _scan_demo))
+    with tqdm(total=len(stages) + 1, disable=not progress, desc="demo", unit="stage", leave=False,
+              dynamic_ncols=True) as bar:
+        for name, stage in stages:
+            bar.set_postfix_str(name)
+            part, lines = stage(out, seed)
+            summary[name] = part
+            summary["lines"] += lines
+            bar.update()
+        bar.set_postfix_str("compare")
+        summary["compare"], lines = _compare_demo(out, summary["scan"], seed)
         summary["lines"] += lines
-    summary["compare"], lines = _compare_demo(out, summary["scan"], seed)
-    summary["lines"] += lines
+        bar.update()
     return summary
 
 

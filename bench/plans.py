@@ -33,6 +33,7 @@ import numpy as np
 from bench.core.errors import ConfigError, GeometryError, PlanError
 from bench.core.geometry import Geometry, cie_geometry
 from bench.core.parsing import parse_range, read_toml
+from bench.core.schemas import MAX_PLAN_POINTS, PlanFile, validate_document
 
 __all__ = [
     "Plan",
@@ -77,7 +78,15 @@ class Plan:
 
 
 def _range(value: Any, where: str) -> list[float]:
-    return parse_range(value, where)
+    return parse_range(value, where, limit=MAX_PLAN_POINTS)
+
+
+def _bounded(where: str, *axes: Sequence[float]) -> None:
+    """Refuse a grid whose product of axes exceeds :data:`MAX_PLAN_POINTS` before building it."""
+    n = math.prod(len(a) for a in axes)
+    if n > MAX_PLAN_POINTS:
+        raise ConfigError(f"{where}: {' x '.join(str(len(a)) for a in axes)} = {n:,} points, more than the "
+                          f"limit of {MAX_PLAN_POINTS:,} (a step too small?)")
 
 
 def half_vector_to_geometry(theta_h: float, phi_h: float, theta_d: float, phi_d: float) -> Geometry:
@@ -113,41 +122,54 @@ def _points(kind: str, t: Mapping[str, Any]) -> list[Geometry]:
         return out
     if kind == "in-plane":
         phi_i = float(t.get("phi_i", 0.0))
-        return [Geometry.in_plane(ti, tr, phi_i)
-                for ti in _range(t.get("theta_i", [30.0]), f"{where} theta_i")
-                for tr in _range(t.get("theta_r", {"start": -80, "stop": 80, "step": 10}), f"{where} theta_r")]
+        tis = _range(t.get("theta_i", [30.0]), f"{where} theta_i")
+        trs = _range(t.get("theta_r", {"start": -80, "stop": 80, "step": 10}), f"{where} theta_r")
+        _bounded(where, tis, trs)
+        return [Geometry.in_plane(ti, tr, phi_i) for ti in tis for tr in trs]
     if kind == "hemispherical":
         phis = _range(t.get("phi_r", {"start": 0, "stop": 345, "step": 15}), f"{where} phi_r")
+        tis = _range(t.get("theta_i", [30.0]), f"{where} theta_i")
+        trs = _range(t.get("theta_r", {"start": 0, "stop": 80, "step": 10}), f"{where} theta_r")
+        _bounded(where, tis, trs, phis)
         pts = []
-        for ti in _range(t.get("theta_i", [30.0]), f"{where} theta_i"):
-            for tr in _range(t.get("theta_r", {"start": 0, "stop": 80, "step": 10}), f"{where} theta_r"):
+        for ti in tis:
+            for tr in trs:
                 for pr in ([0.0] if tr == 0 else phis):
                     pts.append(Geometry(ti, float(t.get("phi_i", 0.0)), tr, pr))
         return pts
     if kind == "half-vector":
         phi_h = float(t.get("phi_h", 90.0))
-        return [half_vector_to_geometry(th, phi_h, td, pd)
-                for th in _range(t.get("theta_h", [0.0, 10.0, 20.0]), f"{where} theta_h")
-                for td in _range(t.get("theta_d", [10.0, 30.0]), f"{where} theta_d")
-                for pd in _range(t.get("phi_d", [90.0]), f"{where} phi_d")]
+        ths = _range(t.get("theta_h", [0.0, 10.0, 20.0]), f"{where} theta_h")
+        tds = _range(t.get("theta_d", [10.0, 30.0]), f"{where} theta_d")
+        pds = _range(t.get("phi_d", [90.0]), f"{where} phi_d")
+        _bounded(where, ths, tds, pds)
+        return [half_vector_to_geometry(th, phi_h, td, pd) for th in ths for td in tds for pd in pds]
     if kind == "list":
         rows = t.get("points")
-        if not isinstance(rows, Sequence) or not rows:
+        if not isinstance(rows, Sequence) or isinstance(rows, str) or not rows:
             raise ConfigError(f"{where}: points = [[theta_i, phi_i, theta_r, phi_r], ...] is required")
+        if len(rows) > MAX_PLAN_POINTS:
+            raise ConfigError(f"{where}: {len(rows):,} points, more than the limit of {MAX_PLAN_POINTS:,}")
         out = []
         for i, r in enumerate(rows):
-            if not isinstance(r, Sequence) or len(r) != 4:
+            if not isinstance(r, Sequence) or isinstance(r, str) or len(r) != 4:
                 raise ConfigError(f"{where}: point {i} must be [theta_i, phi_i, theta_r, phi_r], got {r!r}")
             try:
                 out.append(Geometry(*(float(v) for v in r)))
-            except (GeometryError, TypeError, ValueError) as exc:
+            except (GeometryError, TypeError, ValueError, OverflowError) as exc:
                 raise ConfigError(f"{where}: point {i} {r!r}: {exc}") from None
         return out
     raise ConfigError(f"unknown plan kind {kind!r}; known: {', '.join(KINDS)}")
 
 
-def plan_from_dict(d: Mapping[str, Any], name: str = "plan") -> Plan:
-    """Build a :class:`Plan` from its TOML table; errors name the key."""
+def plan_from_dict(d: Mapping[str, Any], name: str = "plan", source: str | None = None) -> Plan:
+    """Build a :class:`Plan` from its TOML table; errors name the key (and ``source``, the file).
+
+    The table goes through the declared schema (:class:`bench.core.schemas.PlanFile`) first:
+    unknown keys, wrong types, non-finite or out-of-range numbers and oversized ranges are one
+    :class:`ConfigError` line before anything is built.
+    """
+    validate_document(PlanFile, d, source or f"plan {name!r}")
     d = dict(d)
     kind = str(d.get("kind", "")).strip().lower()
     if kind not in KINDS:
@@ -185,7 +207,7 @@ def load_plan(path: str | Path) -> Plan:
     """Read a plan TOML file."""
     p = Path(path)
     d = read_toml(p, "plan file")
-    return plan_from_dict(d, name=p.stem)
+    return plan_from_dict(d, name=p.stem, source=f"plan file {p}")
 
 
 # --- validation ---------------------------------------------------------------------------------

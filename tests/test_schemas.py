@@ -93,3 +93,70 @@ def test_fuzzed_plan_documents_give_config_errors_only(doc):
         validate_document(PlanFile, doc, "fuzz.toml")
     except ConfigError as exc:
         assert "\n" not in str(exc)
+
+
+# --- sweeps and scenes -------------------------------------------------------------------------------
+
+from bench.core.schemas import SceneFile, SweepFile  # noqa: E402
+
+
+@pytest.mark.parametrize("path", sorted((FIXTURES / "sweeps").glob("*.toml")), ids=lambda p: p.name)
+def test_every_fixture_sweep_is_valid(path):
+    validate_document(SweepFile, read_toml(path), str(path))
+
+
+@pytest.mark.parametrize("path", sorted((FIXTURES / "scenes").glob("*.toml")), ids=lambda p: p.name)
+def test_every_fixture_scene_is_valid(path):
+    validate_document(SceneFile, read_toml(path), str(path))
+
+
+BAD_SWEEPS = {
+    "typo": ({"sweep": {"raays": 3}}, "unknown key 'sweep.raays'; did you mean 'rays'?"),
+    "delta text": ({"sweep": {"delta": "abc"}}, "key sweep.delta"),
+    "collector of 1e10 patches": ({"sweep": {"collectors": ["equal-psa:100000x100000"]}}, "patches"),
+    "cone text in a task": ({"sweep": {}, "task": [{"cone_deg": "x"}]}, "key task[0].cone_deg"),
+    "rays 1e16": ({"sweep": {"rays": 1e16}}, "key sweep.rays"),
+    "wavelength step 1e-9": ({"sweep": {"wavelengths": "400:700:1e-9"}}, "more than the limit"),
+    "seed -1": ({"sweep": {"seed": -1}}, "key sweep.seed"),
+    "no [sweep]": ({"task": [{"specimen": "x"}]}, "key sweep"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_SWEEPS))
+def test_bad_sweeps_are_refused_naming_key_and_value(name):
+    doc, expected = BAD_SWEEPS[name]
+    with pytest.raises(ConfigError) as info:
+        validate_document(SweepFile, doc, "s.toml")
+    assert expected in str(info.value) and str(info.value).startswith("s.toml: ")
+
+
+BAD_SCENES = {
+    "instrument": ({"instrument": "gonio"}, "key instrument"),
+    "wall reflectance 2": ({"effects": {"sphere": {"wall_reflectance": 2}}}, "key effects.sphere.wall_reflectance"),
+    "tradeoff rays 0": ({"tradeoff": {"rays": [0]}}, "key tradeoff.rays[0]"),
+    "effect typo": ({"effects": {"noyse": {}}}, "did you mean 'noise'?"),
+    "physical step 1e-9": ({"physical": {"steps_deg": [1e-9]}}, "key physical.steps_deg[0]"),
+    "incidence nan": ({"incidence": [math.nan, 0]}, "key incidence"),
+    "collector oversized": ({"collector": {"spec": "equal-psa:5000x5000"}}, "patches"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_SCENES))
+def test_bad_scenes_are_refused_naming_key_and_value(name):
+    doc, expected = BAD_SCENES[name]
+    with pytest.raises(ConfigError) as info:
+        validate_document(SceneFile, doc, "scene.toml")
+    assert expected in str(info.value), str(info.value)
+
+
+def test_the_sweep_loader_refuses_through_the_schema(tmp_path):
+    from bench.sweep import load_sweep
+
+    p = tmp_path / "s.toml"
+    p.write_text('[sweep]\nspecimens = ["lambert:albedo=0.5"]\ndelta = "abc"\n')
+    with pytest.raises(ConfigError, match=r"s.toml: key sweep.delta"):
+        load_sweep(p)
+    p.write_text('[sweep]\nspecimens = ["lambert:albedo=0.5"]\nincidences = ' + str(list(range(0, 80))) + "\n"
+                 'collectors = [' + ", ".join(f'"equal-psa:{i}x{j}"' for i in range(1, 41) for j in range(1, 41)) + "]\n")
+    with pytest.raises(ConfigError, match="series, more than the limit"):
+        load_sweep(p)

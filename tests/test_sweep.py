@@ -205,7 +205,8 @@ def test_cli_runs_a_sweep_and_resumes_by_run_id(tmp_path, capsys):
     assert code == 0
     d = json.loads(out)
     assert d["status"] == "completed" and d["tasks_done"] == d["tasks_planned"] == 5 and d["executor"] == "in-process"
-    assert main(["sweep", "--resume", d["run_id"], "--store", str(store)]) == 1  # completed: nothing to resume
+    # resuming a completed run is a mistake the user can fix: exit 2 (issue 13 policy)
+    assert main(["sweep", "--resume", d["run_id"], "--store", str(store)]) == 2
     assert main(["sweep", str(SWEEPS / "missing.toml"), "--store", str(store)]) == 2
     assert main(["sweep", "--store", str(store)]) == 2
     capsys.readouterr()
@@ -226,7 +227,7 @@ def cluster_client():
     import distributed  # noqa: F401 - the [scale] extra, installed by make test: a hard requirement
     from bench.sweep import dask_client
 
-    with dask_client(workers=2, dashboard_address=":0") as client:
+    with dask_client(workers=2, dashboard_address="127.0.0.1:0") as client:
         yield client
 
 

@@ -10,11 +10,14 @@ One module per command group, each with ``register(subparsers)``:
 * :mod:`bench.cli.sweep` -- ``sweep``;
 * :mod:`bench.cli.emulate` -- ``emulate``;
 * :mod:`bench.cli.home` -- ``home`` (return the turntable to home);
-* :mod:`bench.cli.white` -- ``white`` (save a white reference file).
+* :mod:`bench.cli.white` -- ``white`` (save a white reference file);
+* :mod:`bench.cli.specimens` -- ``specimens``.
 
 Starts fast: heavy modules (numba kernels, colour-science, matplotlib, pandas) are imported
-inside the commands that use them. Exit status: 0 ok, 2 bad input, 1 a failed run. Every
-command that reports numbers has ``--json`` with stable keys.
+inside the commands that use them. Exit status (one policy, :data:`EXIT_STATUS_HELP`): 0 ok,
+2 bad input the user can fix, 1 a run that failed on its own, 130 Ctrl-C, 70 an internal error
+(one line naming a saved traceback). Every command that reports numbers has ``--json`` with
+stable keys. Argument types are declared in :mod:`bench.cli.argtypes`.
 """
 
 from __future__ import annotations
@@ -22,11 +25,16 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
+import sqlite3
 import sys
+import tempfile
+import traceback
 from typing import Callable, Sequence
 
+from bench.cli.argtypes import BenchArgumentParser
 from bench.cli.common import DEFAULT_STORE
-from bench.core.errors import BenchError, InputError
+from bench.core.errors import BenchError, InputError, StoreError
 
 __all__ = ["main", "build_parser", "COMMAND_MODULES", "DEFAULT_STORE"]
 
@@ -36,14 +44,25 @@ log = logging.getLogger("bench")
 #: imports nothing heavy at module level (the CLI must start fast).
 COMMAND_MODULES = ["bench.cli.measure", "bench.cli.scans", "bench.cli.demo", "bench.cli.compare",
                    "bench.cli.tradeoff", "bench.cli.sweep", "bench.cli.emulate",
-                   "bench.cli.home", "bench.cli.white"]
+                   "bench.cli.home", "bench.cli.white", "bench.cli.specimens"]
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("goniobench")
+    except Exception:  # not installed (a source checkout on PYTHONPATH)
+        return "0.1.0 (source)"
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``bench`` parser with every command group's subcommands."""
-    p = argparse.ArgumentParser(prog="bench", description="goniobench: real, emulated and virtual "
-                                "goniophotometry and spectrophotometry behind one interface.")
-    p.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    p = BenchArgumentParser(prog="bench", description="goniobench: real, emulated and virtual "
+                            "goniophotometry and spectrophotometry behind one interface.",
+                            epilog=EXIT_STATUS_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr (default: warnings only)")
+    p.add_argument("--version", action="version", version=f"bench (goniobench) {_version()}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMAND_MODULES:
@@ -51,21 +70,87 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run one ``bench`` command; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
-    func: Callable[[argparse.Namespace], int] = args.func
+#: the exit-status policy, shown by ``bench --help`` (and tabled in README)
+EXIT_STATUS_HELP = """exit status:
+  0    success
+  1    a run failed on its own (device fault, communication lost, run interrupted)
+  2    bad input you can fix: an argument, a file, a missing/foreign/corrupt store, an unknown run
+  70   internal error (a bug): one line, and the traceback saved to a file named in it
+  130  interrupted by Ctrl-C"""
+
+
+def _save_traceback(command: str) -> str:
+    """Write the current exception's traceback to a file; return its path (or a reason)."""
     try:
-        return func(args)
-    except InputError as exc:
-        print(f"bench {args.command}: error: {exc}", file=sys.stderr)
+        fd, path = tempfile.mkstemp(prefix=f"bench-{command}-", suffix=".traceback.txt")
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(f"bench {command} {' '.join(sys.argv[1:])}\n")
+            traceback.print_exc(file=f)
+        return path
+    except OSError as exc:  # nowhere to write: say so, still one line
+        return f"(could not be saved: {exc.strerror or exc})"
+
+
+def _quiet_broken_pipe() -> int:
+    """The reader of our stdout went away (``bench runs | head``): stop quietly."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass
+    return 0
+
+
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split()) or "(no message)"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run one ``bench`` command; returns the exit status (see :data:`EXIT_STATUS_HELP`).
+
+    Every failure is one line on stderr: bad input (:class:`InputError`, :class:`StoreError`, an
+    unreadable path) exits 2, a run that failed on its own (any other :class:`BenchError`) exits 1,
+    Ctrl-C exits 130, and anything unexpected exits 70 naming a file that holds the traceback.
+    """
+    command = "?"
+    try:
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exc:  # --help, --version, or a usage error (already one line)
+            return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+        command = args.command
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                            format="%(levelname)s %(name)s: %(message)s")
+        func: Callable[[argparse.Namespace], int] = args.func
+        code = func(args)
+        sys.stdout.flush()  # a closed pipe shows here, inside the handlers, not at interpreter exit
+        return code
+    except (InputError, StoreError) as exc:
+        print(f"bench {command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except BenchError as exc:
-        print(f"bench {args.command}: failed: {exc}", file=sys.stderr)
+        if getattr(exc, "by_user", False):  # a run stopped by Ctrl-C, stored as interrupted
+            print(f"bench {command}: interrupted: {_one_line(exc)}", file=sys.stderr)
+            return 130
+        print(f"bench {command}: failed: {_one_line(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(f"bench {args.command}: interrupted", file=sys.stderr)
+        print(f"bench {command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        return _quiet_broken_pipe()
+    except (sqlite3.OperationalError, sqlite3.IntegrityError, sqlite3.DataError, sqlite3.NotSupportedError) as exc:
+        # a store error that escaped the store's own typing (ProgrammingError is a bug: below)
+        print(f"bench {command}: error: run store: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except (OSError, UnicodeError) as exc:  # a path the user gave that cannot be read or written
+        name = getattr(exc, "filename", None)
+        why = getattr(exc, "strerror", None) or _one_line(exc)
+        print(f"bench {command}: error: {name + ': ' if name else ''}{why}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # noqa: BLE001 - the last resort: never a raw traceback
+        path = _save_traceback(command)
+        print(f"bench {command}: internal error: {type(exc).__name__}: {_one_line(exc)[:300]} "
+              f"(traceback saved to {path}; please report it)", file=sys.stderr)
+        return 70

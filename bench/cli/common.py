@@ -8,9 +8,19 @@ from __future__ import annotations
 
 import argparse
 import json
-from typing import Any
+import os
+import sys
+from pathlib import Path
+from typing import Any, Callable, Sequence
 
-__all__ = ["DEFAULT_STORE", "emit_json", "positive_int", "number", "hms", "open_store", "report_run"]
+from bench.core.errors import InputError
+
+__all__ = ["DEFAULT_STORE", "emit_json", "positive_int", "number", "hms", "open_store", "report_run",
+           "output_file", "output_dir", "check_output", "PLOT_SUFFIXES", "announce_compilation"]
+
+#: image formats matplotlib writes (checked before any work, so a typo does not cost the run)
+PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".eps", ".ps", ".tif", ".tiff", ".webp",
+                 ".pgf", ".raw", ".rgba")
 
 #: the run store every command uses when ``--store`` is not given
 DEFAULT_STORE = "goniobench-runs.sqlite"
@@ -48,11 +58,96 @@ def hms(seconds: float) -> str:
     return f"{s // 3600:d}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
-def open_store(path: str, create: bool = True) -> Any:
-    """The :class:`bench.store.RunStore` at ``path``."""
+def open_store(path: str, create: bool = True, readonly: bool = False) -> Any:
+    """The :class:`bench.store.RunStore` at ``path`` (``readonly``: a reader that never changes the file)."""
     from bench.store import RunStore
 
-    return RunStore(path, create=create)
+    return RunStore(path, create=create, readonly=readonly)
+
+
+def check_output(path: str | Path, *, directory: bool = False, suffixes: Sequence[str] | None = None) -> Path:
+    """Refuse, before any work, an output path that cannot be written: under a file, a folder
+    where a file is expected (or the reverse), a read-only folder, an unknown image format."""
+    p = Path(path)
+    what = "output folder" if directory else "output file"
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise InputError(f"{what} {p}: unknown format {p.suffix or '(no suffix)'!r}; use one of "
+                         f"{', '.join(s.lstrip('.') for s in suffixes)}")
+    try:
+        if p.exists():
+            if directory and not p.is_dir():
+                raise InputError(f"{what} {p} is a file, not a folder")
+            if not directory and p.is_dir():
+                raise InputError(f"{what} {p} is a folder, not a file")
+            if not os.access(p, os.W_OK):
+                raise InputError(f"{what} {p}: permission denied")
+            return p
+        parent = p.parent
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        if not parent.is_dir():
+            raise InputError(f"{what} {p}: {parent} is a file, not a folder")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise InputError(f"{what} {p}: folder {parent} is not writable")
+    except OSError as exc:  # a symlink loop, a name too long ...
+        raise InputError(f"{what} {p}: {exc.strerror or exc}") from None
+    return p
+
+
+def output_file(suffixes: Sequence[str] | None = None) -> Callable[[str], str]:
+    """argparse type: a file path that can be written (see :func:`check_output`)."""
+
+    def parse(text: str) -> str:
+        try:
+            check_output(text, suffixes=suffixes)
+        except InputError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+        return text
+
+    parse.__name__ = "output file"
+    return parse
+
+
+def output_dir(text: str) -> str:
+    """argparse type: a folder that can be created or written (see :func:`check_output`)."""
+    try:
+        check_output(text, directory=True)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+_ANNOUNCED: list[bool] = []
+
+
+def announce_compilation() -> None:
+    """Say "compiling kernels (first run only)..." on stderr when numba starts its first compile
+    in this process (a terminal, or ``-v``), instead of a silent minute; the cache makes later runs quick."""
+    if _ANNOUNCED:
+        return
+    _ANNOUNCED.append(True)
+    try:
+        interactive = sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        interactive = False
+    import logging
+
+    if not (interactive or logging.getLogger("bench").isEnabledFor(logging.INFO)):
+        return
+    from numba.core import event
+
+    class _Announce(event.Listener):
+        said = False
+
+        def on_start(self, ev: Any) -> None:
+            if not self.said:
+                self.said = True
+                print("compiling kernels (first run only)...", file=sys.stderr, flush=True)
+
+        def on_end(self, ev: Any) -> None:
+            pass
+
+    event.register("numba:compile", _Announce())
 
 
 def report_run(result: Any, as_json: bool) -> int:

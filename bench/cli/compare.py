@@ -22,7 +22,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from bench.cli.common import DEFAULT_STORE
+from bench.cli.argtypes import real
+from bench.cli.common import DEFAULT_STORE, output_dir
 from bench.core.errors import InputError
 
 HEADLINE = ("n_points", "mean_abs_discrepancy_pct", "rmse", "bias", "max_abs", "chi2", "p_value",
@@ -43,7 +44,7 @@ def _load(ref: str, store_path: str) -> tuple[str, Any]:
         raise InputError(f"{what!r} is neither a file nor a run (no store at {store_path})")
     from bench.io import load_run
 
-    with RunStore(store_path, create=False) as store:
+    with RunStore(store_path, create=False, readonly=True) as store:
         record = load_run(store, what)
     meta = record[0].meta if isinstance(record, tuple) else record.meta
     spec = None if isinstance(record, tuple) else ((meta.get("bench") or {}).get("specimen") or {}).get("spec")
@@ -114,25 +115,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compare", help="compare candidate records (virtual models) with an actual one")
     p.add_argument("actual", metavar="ACTUAL", help="[NAME=]RUN or FILE")
     p.add_argument("candidates", metavar="CANDIDATE", nargs="+", help="[NAME=]RUN or FILE")
-    p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
-    p.add_argument("--report", metavar="DIR", help="report folder (default ./compare-report)")
-    p.add_argument("--config", metavar="FILE.toml", help="compare config: [criterion] and [compare] tables")
-    p.add_argument("--alpha", type=float, help="family-wise false-rejection rate of a right model (default 0.01)")
-    p.add_argument("--k", type=float, help="coverage factor of 'fraction within k u_c' (default 2)")
-    p.add_argument("--instrument-uncertainty", type=float, metavar="U",
+    p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",
+                   help="the run store holding RUN ids, opened read-only (default %(default)s)")
+    p.add_argument("--report", type=output_dir, metavar="DIR", help="report folder (default ./compare-report)")
+    p.add_argument("--config", metavar="FILE.toml",
+                   help="compare config: [criterion] and [compare] tables (default: none, the flags below)")
+    p.add_argument("--alpha", type=real(0, 1, lo_open=True, hi_open=True),
+                   help="family-wise false-rejection rate of a right model (default 0.01)")
+    p.add_argument("--k", type=real(0, 100, lo_open=True),
+                   help="coverage factor of 'fraction within k u_c' (default 2)")
+    p.add_argument("--instrument-uncertainty", type=real(0, 1e6), metavar="U",
                    help="the actual instrument's standard uncertainty (default: the record's or the instrument "
                         "default)")
     p.add_argument("--uncertainty-kind", choices=("absolute", "relative"),
                    help="kind of --instrument-uncertainty (default: relative for BSDF, absolute for spectra)")
-    p.add_argument("--tolerance", type=float,
+    p.add_argument("--tolerance", type=real(0, 1e6),
                    help="model tolerance: standard uncertainty a model may have (relative for BSDF, absolute "
                         "for spectra), added in quadrature (default 0)")
-    p.add_argument("--delta-e-tolerance", type=float, metavar="DE",
-                   help="spectra: reject a model with a CIEDE2000 above DE for any spectrum")
+    p.add_argument("--delta-e-tolerance", type=real(0, 1000), metavar="DE",
+                   help="spectra: reject a model with a CIEDE2000 above DE for any spectrum (default: none)")
     p.add_argument("--metric", default=None,
                    choices=("chi2_per_dof", "mean_abs_discrepancy_pct", "rmse", "abs_bias", "max_abs",
-                            "delta_e2000_mean"), help="ranking metric (lower is better)")
-    p.add_argument("--title")
+                            "delta_e2000_mean"), help="ranking metric, lower is better (default chi2_per_dof)")
+    p.add_argument("--title", help="report title (default: the candidates against the actual)")
     p.add_argument("--skip-bad", action="store_true", help="leave out candidates that cannot be compared")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="the summary as one JSON object with stable keys")
     p.set_defaults(func=cmd_compare)

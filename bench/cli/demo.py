@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.cli.common import emit_json
+from bench.cli.argtypes import seed, stderr_is_terminal
+from bench.cli.common import announce_compilation, emit_json, output_dir
 
 __all__ = ["register", "cmd_demo"]
 
@@ -13,7 +14,8 @@ __all__ = ["register", "cmd_demo"]
 def cmd_demo(args: argparse.Namespace) -> int:
     from bench.demo import run_demo
 
-    summary = run_demo(Path(args.out), seed=args.seed)
+    announce_compilation()
+    summary = run_demo(Path(args.out), seed=args.seed, progress=stderr_is_terminal())
     if args.json:
         emit_json(summary)
     else:
@@ -25,7 +27,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``demo`` to the ``bench`` subcommands."""
     d = sub.add_parser("demo", help="end-to-end demo on the embedded default bench")
-    d.add_argument("--out", default="demo-out", help="output folder (default ./demo-out)")
-    d.add_argument("--seed", type=int, default=20261122)
-    d.add_argument("--json", action="store_true")
+    d.add_argument("--out", type=output_dir, default="demo-out", help="output folder (default ./%(default)s)")
+    d.add_argument("--seed", type=seed, default=20261122, help="root seed, integer 0..2^63-1 (default %(default)s)")
+    d.add_argument("--json", action="store_true", help="the demo summary as one JSON object")
     d.set_defaults(func=cmd_demo)

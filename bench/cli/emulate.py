@@ -8,12 +8,17 @@ import signal
 import sys
 import time
 
+from bench.cli.argtypes import real, seed
+
 
 def cmd_emulate(args: argparse.Namespace) -> int:
     from bench.builders.emulated import Emulators
     from bench.core.parsing import read_toml
+    from bench.core.schemas import BenchFile, validate_document
 
-    emu = Emulators(read_toml(args.bench), seed=args.seed)
+    config = read_toml(args.bench, "bench config")
+    validate_document(BenchFile, config, f"bench config {args.bench}")
+    emu = Emulators(config, seed=args.seed)
     try:
         if args.json:
             print(json.dumps({"ports": emu.ports(), "real_bench": emu.real_bench_config()}), flush=True)
@@ -38,8 +43,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("emulate", help="start a bench's emulators and print their ports")
-    p.add_argument("bench", metavar="BENCH.toml")
-    p.add_argument("--seed", type=int)
-    p.add_argument("--seconds", type=float, help="stop after this many seconds (default: until Ctrl-C)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("bench", metavar="BENCH.toml", help="an emulated bench config (see fixtures/benches/)")
+    p.add_argument("--seed", type=seed, help="emulator seed, integer 0..2^63-1 (default: the config's, else 7)")
+    p.add_argument("--seconds", type=real(0.0, 1e7), help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--json", action="store_true", help="ports and a real-bench config as one JSON object")
     p.set_defaults(func=cmd_emulate)

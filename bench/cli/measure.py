@@ -21,8 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from bench.cli.common import emit_json, number, positive_int
+from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds,
+                                incidence, rays, real, seed, stderr_is_terminal, wavelengths)
+from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
 from bench.core.errors import InputError
+from bench.core.parsing import parse_wavelengths
 
 __all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "spectrum_colour", "n_label",
            "reciprocity_note", "INTEREST_FRACTION", "PILOT_RAYS", "RAYS_PER_SECOND"]
@@ -32,8 +35,6 @@ __all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "sp
 INTEREST_FRACTION = 0.01
 #: rays of the pilot run that estimates the patch probabilities
 PILOT_RAYS = 200_000
-#: rays per second assumed when ``--max-seconds`` caps a budget
-RAYS_PER_SECOND = 2e7
 
 
 def cmd_rays(args: argparse.Namespace) -> int:
@@ -100,13 +101,17 @@ def cmd_spectro(args: argparse.Namespace) -> int:
     from bench.core.geometry import cie_geometry
 
     cie_geometry(args.geometry)  # bad geometry: exit 2 before any work
+    announce_compilation()
     sp = _spectro_instrument(args)
+    if args.rays is not None or args.no_adaptive:
+        _refuse_long(sp, parse_wavelengths(args.wavelengths).size, args.max_seconds, "--rays" if args.rays is not None else "the ray budget")
     adaptive = None
     if args.rays is None and not args.no_adaptive:  # --uncertainty/--delta: the adaptive rule
         from bench.adaptive import adaptive_measure
 
         adaptive = adaptive_measure(sp, args.uncertainty, args.delta, geometry=args.geometry,
-                                    wavelengths=args.wavelengths, max_seconds=args.max_seconds)
+                                    wavelengths=args.wavelengths, max_seconds=args.max_seconds,
+                                    progress=stderr_is_terminal())
         s = adaptive["result"]
     else:
         s = sp.measure(args.geometry, args.wavelengths)
@@ -164,14 +169,15 @@ def reciprocity_note(s: Any) -> str:
             f"reflectance; the instrument traces rays from the directional side)")
 
 
-def _incidence(text: str) -> tuple[float, float]:
-    try:
-        parts = [float(p) for p in str(text).split(",")]
-    except ValueError:
-        raise InputError(f"--incidence {text!r}: expected THETA or THETA,PHI in degrees") from None
-    if len(parts) not in (1, 2):
-        raise InputError(f"--incidence {text!r}: expected THETA or THETA,PHI in degrees")
-    return parts[0], (parts[1] if len(parts) == 2 else 0.0)
+def _refuse_long(instrument: Any, n_wl: int, max_seconds: float, option: str) -> None:
+    """Refuse a fixed ray count whose estimated time exceeds ``--max-seconds`` (every method: the
+    exact fast path costs nothing per ray; counting rays runs at the stated rate)."""
+    fast = getattr(instrument, "uses_fast_path", lambda: False)()
+    n = int(getattr(instrument, "rays", 0) or 0)
+    seconds = 0.0 if fast else estimated_seconds(n, n_wl)
+    if seconds > max_seconds:
+        raise InputError(f"{option} {n:,} x {n_wl} wavelength(s) would take about {seconds:,.0f} s at "
+                         f"{RAYS_PER_SECOND:.0e} rays/s, more than --max-seconds {max_seconds:g}")
 
 
 def gonio_json(record: Any) -> dict[str, Any]:
@@ -229,7 +235,8 @@ def _relative_rays(args: argparse.Namespace, theta_i: float, phi_i: float, kw: d
 def cmd_gonio(args: argparse.Namespace) -> int:
     from virtual.goniophotometer import VirtualGoniophotometer
 
-    theta_i, phi_i = _incidence(args.incidence)
+    theta_i, phi_i = args.incidence
+    announce_compilation()
     kw: dict[str, Any] = {"collector": args.collector, "beam": args.beam, "seed": args.seed, "delta": args.delta,
                           "wavelengths": args.wavelengths, "method": args.method}
     relative = None
@@ -241,14 +248,22 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     elif args.patch_probability_uncertainty is not None:
         kw["uncertainty"] = args.patch_probability_uncertainty
     g = VirtualGoniophotometer(args.specimen, **kw)
+    adaptive_rule = args.patch_probability_uncertainty is not None and not args.no_adaptive
+    if relative is None and not adaptive_rule:  # the relative and adaptive budgets bound their own time
+        _refuse_long(g, len(g.wavelengths), args.max_seconds, "--rays" if args.rays is not None else "the ray budget")
     adaptive = None
-    if args.patch_probability_uncertainty is not None and not args.no_adaptive:
+    if adaptive_rule:
         from bench.adaptive import adaptive_measure
 
         adaptive = adaptive_measure(g, args.patch_probability_uncertainty, args.delta, theta_i=theta_i,
-                                    phi_i=phi_i, max_seconds=args.max_seconds)
+                                    phi_i=phi_i, max_seconds=args.max_seconds, progress=stderr_is_terminal())
         record = adaptive["result"]
     else:
+        if stderr_is_terminal() and not g.uses_fast_path():  # progress with an ETA, one step per wavelength:
+            from tqdm import tqdm  # the counts are cached per (incidence, wavelength), measure_bsdf reuses them
+
+            for w in tqdm(g.wavelengths, desc="gonio", unit="wl", leave=False, dynamic_ncols=True):
+                g.simulate(theta_i, phi_i, float(w))
         record = g.measure_bsdf(theta_i, phi_i)
     widths = _relative_widths(record)
     if relative is not None:
@@ -311,55 +326,73 @@ def _budget(adaptive: dict[str, Any]) -> dict[str, Any]:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``rays``, ``spectro`` and ``gonio`` to the ``bench`` subcommands."""
     r = sub.add_parser("rays", help="ray budget of eq. 3.5 (eq. 3.12 with --patches)")
-    r.add_argument("--uncertainty", "-u", type=number, required=True, help="uncertainty v of the real instrument")
-    r.add_argument("--delta", "-d", type=number, required=True, help="confidence delta, in (0, 1)")
-    r.add_argument("--patches", type=int, default=1, help="collector patches m (eq. 3.12)")
-    r.add_argument("--rate", type=number, default=5e7, help="rays/s for the time estimate in --json (default 5e7)")
-    r.add_argument("--json", action="store_true")
+    r.add_argument("--uncertainty", "-u", type=real(0.0, 1.0, lo_open=True, hi_open=True), required=True,
+                   help="uncertainty v of the real instrument (a fraction in (0, 1); required)")
+    r.add_argument("--delta", "-d", type=real(0.0, 1.0, lo_open=True, hi_open=True), required=True,
+                   help="confidence delta, in (0, 1) (required)")
+    r.add_argument("--patches", type=count(1, MAX_PATCHES), default=1,
+                   help="collector patches m for eq. 3.12 (count; default %(default)s)")
+    r.add_argument("--rate", type=real(0.0, 1e15, lo_open=True), default=5e7,
+                   help="rays/s for the time estimate in --json (default %(default)g)")
+    r.add_argument("--json", action="store_true", help="one JSON object instead of the ray count")
     r.set_defaults(func=cmd_rays)
 
-    s = sub.add_parser("spectro", help="virtual spectrophotometric measurement")
-    s.add_argument("--specimen", required=True, help="e.g. 'lambert:reflectance=0.375', 'colorchecker:dark skin'")
-    s.add_argument("--geometry", default="8/d", help="CIE geometry: 45/0, 0/45, d/0, 0/d, 8/d, 8/de")
-    s.add_argument("--wavelengths", default="400:700:10", help="START:STOP:STEP or a,b,c (nm)")
+    s = sub.add_parser("spectro", help="virtual spectrophotometric measurement (one spectrum)")
+    s.add_argument("--specimen", required=True, help="e.g. 'lambert:reflectance=0.375', 'colorchecker:dark skin' "
+                   "(required; `bench specimens` lists the families)")
+    s.add_argument("--geometry", default="8/d", help="CIE geometry: 45/0, 0/45, d/0, 0/d, 8/d, 8/de (default %(default)s)")
+    s.add_argument("--wavelengths", type=wavelengths, default="400:700:10",
+                   help="START:STOP:STEP or a,b,c in nm (default %(default)s)")
     g = s.add_mutually_exclusive_group()
-    g.add_argument("--rays", type=positive_int, help="rays per wavelength")
-    g.add_argument("--uncertainty", type=number, default=0.005, help="v for eq. 3.5 (default 0.005)")
-    s.add_argument("--delta", type=number, default=0.01, help="confidence delta (default 0.01)")
-    s.add_argument("--beam", choices=("collimated", "conical"), default="collimated")
+    g.add_argument("--rays", type=rays, help=f"rays per wavelength (count, 1 to {MAX_RAYS:.0e}; default: from --uncertainty)")
+    g.add_argument("--uncertainty", type=real(0.0, 1.0, lo_open=True, hi_open=True), default=0.005,
+                   help="v for eq. 3.5, a fraction in (0, 1) (default %(default)s)")
+    s.add_argument("--delta", type=real(0.0, 1.0, lo_open=True, hi_open=True), default=0.01,
+                   help="confidence delta in (0, 1) (default %(default)s)")
+    s.add_argument("--beam", choices=("collimated", "conical"), default="collimated", help="beam (default %(default)s)")
     s.add_argument("--no-adaptive", action="store_true",
                    help="with --uncertainty: the fixed eq. 3.5 ray count instead of the adaptive rule")
-    s.add_argument("--max-seconds", type=number, default=3600.0,
-                   help="refuse budgets estimated to take longer (reports N and the time)")
-    s.add_argument("--seed", type=int)
-    s.add_argument("--json", action="store_true")
-    s.add_argument("--plot", metavar="FILE.png")
-    s.add_argument("--csv", metavar="FILE")
+    s.add_argument("--max-seconds", type=real(0.0, 1e9, lo_open=True), default=3600.0,
+                   help=f"refuse work estimated to take longer, seconds (rays counted at {RAYS_PER_SECOND:.0e} "
+                        f"rays/s; default %(default)g)")
+    s.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: a fresh one, printed)")
+    s.add_argument("--json", action="store_true", help="one JSON object with stable keys")
+    s.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
+                   help="also draw the spectrum to this image (png, pdf, svg, ...; default: none)")
+    s.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the spectrum as CSV (default: none)")
     s.set_defaults(func=cmd_spectro)
 
     g = sub.add_parser("gonio", help="virtual goniophotometric measurement (whole collector sphere)")
-    g.add_argument("--specimen", required=True, help="e.g. 'lambert:albedo=0.5', 'ggx:alpha=0.2,eta=1.5,k=0'")
-    g.add_argument("--incidence", default="30", help="THETA[,PHI] in degrees (default 30)")
-    g.add_argument("--collector", default="equal-psa:9x36", help="SCHEME:NTHxNPHI, e.g. equal-psa:9x36")
+    g.add_argument("--specimen", required=True, help="e.g. 'lambert:albedo=0.5', 'ggx:alpha=0.2,eta=1.5,k=0' "
+                   "(required; `bench specimens` lists the families)")
+    g.add_argument("--incidence", type=incidence, default=(30.0, 0.0), metavar="THETA[,PHI]",
+                   help="incidence in degrees, THETA in [0, 90] (default 30,0)")
+    g.add_argument("--collector", type=collector, default="equal-psa:9x36",
+                   help=f"SCHEME:RINGSxSECTORS, at most {MAX_PATCHES:,} patches (default %(default)s)")
     gb = g.add_mutually_exclusive_group()
-    gb.add_argument("--rays", type=positive_int, help="rays per wavelength (default 1e7)")
-    gb.add_argument("--uncertainty", type=number,
-                    help="relative uncertainty of each patch's BSDF (interval half-width / value) for every patch of "
-                         "interest; N from a pilot run")
-    gb.add_argument("--patch-probability-uncertainty", type=number, metavar="V",
-                    help="v of eq. 3.12: an absolute bound on each patch's probability (the seed's meaning)")
-    g.add_argument("--delta", type=number, default=0.01)
-    g.add_argument("--wavelengths", default="550", help="START:STOP:STEP or a,b,c (nm)")
-    g.add_argument("--beam", choices=("collimated", "conical"), default="collimated")
+    gb.add_argument("--rays", type=rays, help="rays per wavelength (count; default 1e7)")
+    gb.add_argument("--uncertainty", type=real(0.0, 1.0, lo_open=True, hi_open=True),
+                    help="relative uncertainty of each patch's BSDF (interval half-width / value), a fraction in "
+                         "(0, 1), for every patch of interest; N from a pilot run (default: --rays)")
+    gb.add_argument("--patch-probability-uncertainty", type=real(0.0, 1.0, lo_open=True, hi_open=True), metavar="V",
+                    help="v of eq. 3.12: an absolute bound on each patch's probability, in (0, 1) (the seed's "
+                         "meaning; default: none)")
+    g.add_argument("--delta", type=real(0.0, 1.0, lo_open=True, hi_open=True), default=0.01,
+                   help="confidence delta in (0, 1) (default %(default)s)")
+    g.add_argument("--wavelengths", type=wavelengths, default="550", help="START:STOP:STEP or a,b,c in nm (default %(default)s)")
+    g.add_argument("--beam", choices=("collimated", "conical"), default="collimated", help="beam (default %(default)s)")
     g.add_argument("--method", choices=("auto", "rays", "fast"), default="auto",
-                   help="rays: count rays; fast: one multinomial over integrated patch probabilities")
+                   help="rays: count rays; fast: one multinomial over integrated patch probabilities; "
+                        "auto: fast when exact (default %(default)s)")
     g.add_argument("--no-adaptive", action="store_true",
                    help="with --patch-probability-uncertainty: the fixed eq. 3.12 ray count instead of the "
                         "adaptive rule")
-    g.add_argument("--max-seconds", type=number, default=3600.0,
-                   help="refuse budgets estimated to take longer (reports N and the time)")
-    g.add_argument("--seed", type=int)
-    g.add_argument("--json", action="store_true")
-    g.add_argument("--csv", metavar="FILE")
-    g.add_argument("--plot", metavar="FILE.png")
+    g.add_argument("--max-seconds", type=real(0.0, 1e9, lo_open=True), default=3600.0,
+                   help=f"refuse work estimated to take longer, seconds, for every method (rays counted at "
+                        f"{RAYS_PER_SECOND:.0e} rays/s; default %(default)g)")
+    g.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: a fresh one, printed)")
+    g.add_argument("--json", action="store_true", help="one JSON object with stable keys")
+    g.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the record as CSV (default: none)")
+    g.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
+                   help="also draw a polar plot to this image (png, pdf, svg, ...; default: none)")
     g.set_defaults(func=cmd_gonio)

@@ -11,7 +11,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.cli.common import DEFAULT_STORE, emit_json, hms, number, open_store, report_run
+from bench.cli.argtypes import real, run_id, seed
+from bench.cli.common import DEFAULT_STORE, announce_compilation, check_output, emit_json, hms, open_store, report_run
 from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_plan", "cmd_scan", "cmd_resume", "cmd_runs", "cmd_show", "cmd_export"]
@@ -57,6 +58,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
     from bench.runner import run_scan
 
     plan, bench = _plan_and_bench(args)
+    if bench.kind == "virtual":
+        announce_compilation()
     with bench, open_store(args.store) as store:
         result = run_scan(bench, plan, store, seed=getattr(bench.goniometer, "seed", args.seed),
                           progress=not args.quiet and sys.stderr.isatty())
@@ -67,7 +70,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
     from bench.config import load_bench
     from bench.runner import resume_scan
 
-    with open_store(args.store, create=False) as store:
+    with open_store(args.store, create=False, readonly=True) as store:
         kind = store.run(args.run)["kind"]
     if kind == "sweep":
         from bench.cli.sweep import resume_run
@@ -83,7 +86,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
 
 
 def cmd_runs(args: argparse.Namespace) -> int:
-    with open_store(args.store, create=False) as store:
+    with open_store(args.store, create=False, readonly=True) as store:
         runs = store.runs()
     if args.json:
         emit_json(runs)
@@ -91,13 +94,16 @@ def cmd_runs(args: argparse.Namespace) -> int:
     print(f"{'run':<24} {'kind':<6} {'status':<12} {'points':>11}  created (UTC)")
     for r in runs:
         pts = f"{r['points_done']}/{r['n_planned'] if r['n_planned'] is not None else '?'}"
-        print(f"{r['run_id']:<24} {r['kind']:<6} {r['status']:<12} {pts:>11}  {r['created_utc']}"
-              + (f"  ({r['reason']})" if r["reason"] else ""))
+        status, reason = r["status"], r["reason"]
+        if r.get("process_gone"):
+            status, reason = "interrupted", "process gone; `bench resume` finishes it"
+        print(f"{r['run_id']:<24} {r['kind']:<6} {status:<12} {pts:>11}  {r['created_utc']}"
+              + (f"  ({reason})" if reason else ""))
     return 0
 
 
 def cmd_show(args: argparse.Namespace) -> int:
-    with open_store(args.store, create=False) as store:
+    with open_store(args.store, create=False, readonly=True) as store:
         s = store.summary(args.run)
     if args.json:
         emit_json(s)
@@ -121,9 +127,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.wavelength is not None and args.format != "zemax":
         raise InputError(f"--wavelength selects the wavelength of a Zemax file; --format {args.format} "
                          f"holds every wavelength")
-    with open_store(args.store, create=False) as store:
+    out = check_output(args.out or f"{args.run}{default_suffix(args.format)}")  # before reading anything
+    with open_store(args.store, create=False, readonly=True) as store:
         record = store.to_record(args.run)
-    out = Path(args.out or f"{args.run}{default_suffix(args.format)}")
     if args.format == "zemax":  # one wavelength per file: --wavelength, or one file per wavelength
         paths = record_to_zemax_files(record, out, wavelength_nm=args.wavelength)
     else:
@@ -135,45 +141,48 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``plan``, ``scan``, ``resume``, ``runs``, ``show`` and ``export`` to the subcommands."""
+    store_help = "the run store, an SQLite file (default %(default)s)"
     pl = sub.add_parser("plan", help="check a plan on a bench and estimate its duration")
-    pl.add_argument("plan", metavar="PLAN.toml")
-    pl.add_argument("--bench", required=True, metavar="BENCH.toml")
-    pl.add_argument("--json", action="store_true")
+    pl.add_argument("plan", metavar="PLAN.toml", help="the plan file (see fixtures/plans/)")
+    pl.add_argument("--bench", required=True, metavar="BENCH.toml", help="the bench config (required)")
+    pl.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     pl.set_defaults(func=cmd_plan)
 
-    sc = sub.add_parser("scan", help="run a plan on a bench; prints the run id")
-    sc.add_argument("plan", metavar="PLAN.toml")
-    sc.add_argument("--bench", required=True, metavar="BENCH.toml")
-    sc.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
-    sc.add_argument("--seed", type=int, help="root seed of virtual devices")
-    sc.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
-    sc.add_argument("--json", action="store_true")
+    sc = sub.add_parser("scan", help="run a plan on a bench into the store; prints the run id")
+    sc.add_argument("plan", metavar="PLAN.toml", help="the plan file (see fixtures/plans/)")
+    sc.add_argument("--bench", required=True, metavar="BENCH.toml", help="the bench config (required)")
+    sc.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
+    sc.add_argument("--seed", type=seed, help="root seed of virtual devices, integer 0..2^63-1 (default: the "
+                    "bench's, else a fresh one)")
+    sc.add_argument("--quiet", "-q", action="store_true", help="no progress bar (shown only on a terminal)")
+    sc.add_argument("--json", action="store_true", help="the run result as one JSON object")
     sc.set_defaults(func=cmd_scan)
 
-    rs = sub.add_parser("resume", help="finish an interrupted run")
-    rs.add_argument("run", metavar="RUN")
-    rs.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
+    rs = sub.add_parser("resume", help="finish an interrupted run (scan or sweep)")
+    rs.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
+    rs.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     rs.add_argument("--bench", metavar="BENCH.toml", help="bench config (default: the one stored with the run)")
-    rs.add_argument("--quiet", "-q", action="store_true")
-    rs.add_argument("--json", action="store_true")
+    rs.add_argument("--quiet", "-q", action="store_true", help="no progress bar (shown only on a terminal)")
+    rs.add_argument("--json", action="store_true", help="the run result as one JSON object")
     rs.set_defaults(func=cmd_resume)
 
-    ru = sub.add_parser("runs", help="list the runs in a store")
-    ru.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
-    ru.add_argument("--json", action="store_true")
+    ru = sub.add_parser("runs", help="list the runs in a store (read-only)")
+    ru.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
+    ru.add_argument("--json", action="store_true", help="a JSON list of runs")
     ru.set_defaults(func=cmd_runs)
 
-    sh = sub.add_parser("show", help="summarize one run")
-    sh.add_argument("run", metavar="RUN")
-    sh.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
-    sh.add_argument("--json", action="store_true")
+    sh = sub.add_parser("show", help="summarize one run (read-only)")
+    sh.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
+    sh.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
+    sh.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     sh.set_defaults(func=cmd_show)
 
-    ex = sub.add_parser("export", help="export a run: csv, parquet, astm, zemax")
-    ex.add_argument("run", metavar="RUN")
-    ex.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
-    ex.add_argument("--format", choices=("csv", "parquet", "astm", "zemax"), default="csv")
-    ex.add_argument("--out", metavar="FILE")
-    ex.add_argument("--wavelength", type=number, metavar="NM",
-                    help="zemax: the wavelength to write (default: one file per wavelength, FILE-<w>nm.bsdf)")
+    ex = sub.add_parser("export", help="export a run: csv, parquet, astm, zemax (read-only on the store)")
+    ex.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
+    ex.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
+    ex.add_argument("--format", choices=("csv", "parquet", "astm", "zemax"), default="csv",
+                    help="file format (default %(default)s)")
+    ex.add_argument("--out", metavar="FILE", help="output file (default: RUN plus the format's suffix)")
+    ex.add_argument("--wavelength", type=real(0.0, 1e6, lo_open=True), metavar="NM",
+                    help="zemax: the wavelength to write, nm (default: one file per wavelength, FILE-<w>nm.bsdf)")
     ex.set_defaults(func=cmd_export)

@@ -14,18 +14,9 @@ import logging
 import sys
 from typing import Any, Iterator
 
-from bench.cli.common import DEFAULT_STORE
+from bench.cli.argtypes import count, listen_address, run_id, scheduler_address
+from bench.cli.common import DEFAULT_STORE, announce_compilation
 from bench.core.errors import InputError
-
-
-def _workers(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of workers >= 1, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a number of workers >= 1, got {text!r}")
-    return v
 
 
 def register(subparsers: Any) -> None:
@@ -38,14 +29,20 @@ def register(subparsers: Any) -> None:
                     "sweep (SWEEP.toml is then taken from the store).")
     p.add_argument("sweep", nargs="?", metavar="SWEEP.toml", help="the sweep (see fixtures/sweeps/)")
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="address of a running Dask scheduler")
-    where.add_argument("--workers", type=_workers, metavar="N", help="start a local Dask cluster of N processes")
-    p.add_argument("--threads-per-worker", type=_workers, default=1, metavar="K",
+    where.add_argument("--scheduler", type=scheduler_address, metavar="tcp://HOST:PORT",
+                       help="address of a running Dask scheduler (default: run in-process)")
+    where.add_argument("--workers", type=count(1, 1024), metavar="N",
+                       help="start a local Dask cluster of N processes, 1..1024 (default: run in-process)")
+    p.add_argument("--threads-per-worker", type=count(1, 256), default=1, metavar="K",
                    help="threads of each local worker (default 1; every task runs numba single-threaded)")
-    p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
-    p.add_argument("--resume", metavar="RUN", help="finish this interrupted sweep run instead of starting one")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--dashboard", type=listen_address, metavar="HOST:PORT", default="127.0.0.1:8787",
+                   help="where a local cluster's dashboard listens (default %(default)s, loopback only; "
+                        "give 0.0.0.0:8787 to expose it)")
+    p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",
+                   help="the run store, an SQLite file (default %(default)s)")
+    p.add_argument("--resume", type=run_id, metavar="RUN", help="finish this interrupted sweep run instead of starting one (default: start a new run)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar (shown only on a terminal)")
+    p.add_argument("--json", action="store_true", help="the run result as one JSON object")
     p.set_defaults(func=cmd_sweep)
 
 
@@ -65,6 +62,7 @@ def _client(args: argparse.Namespace) -> Iterator[Any]:
     kw: dict[str, Any] = {}
     if args.workers is not None:
         kw["threads_per_worker"] = args.threads_per_worker
+        kw["dashboard_address"] = getattr(args, "dashboard", None) or "127.0.0.1:8787"
     with dask_client(args.scheduler, args.workers, **kw) as client:
         info = client.scheduler_info()
         n = len(info.get("workers", {}))
@@ -87,6 +85,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise InputError("--resume takes the sweep stored with the run; do not also give SWEEP.toml")
     spec = load_sweep(args.sweep) if args.sweep is not None else None  # bad input: exit 2 before any work
     progress = not args.quiet and sys.stderr.isatty()
+    if args.scheduler is None and args.workers is None:
+        announce_compilation()  # in-process: the kernels compile here the first time
     with RunStore(args.store, create=args.resume is None) as store, _client(args) as client:
         if spec is not None:
             print(f"sweep {spec.name}: {len(spec)} tasks, seed {spec.seed}", file=sys.stderr)
@@ -106,5 +106,5 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 def resume_run(run_id: str, store: str, *, quiet: bool = False, json: bool = False) -> int:
     """``bench resume RUN`` for a sweep run (in-process): what ``bench sweep --resume RUN`` does."""
     args = argparse.Namespace(sweep=None, resume=run_id, store=store, scheduler=None, workers=None,
-                              threads_per_worker=1, quiet=quiet, json=json)
+                              threads_per_worker=1, dashboard=None, quiet=quiet, json=json)
     return cmd_sweep(args)

@@ -16,8 +16,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from bench.cli.common import emit_json
-from bench.core.errors import InputError
+from bench.cli.argtypes import count, int_list, seed
+from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
 
 __all__ = ["register", "cmd_tradeoff"]
 
@@ -25,13 +25,16 @@ __all__ = ["register", "cmd_tradeoff"]
 def register(subparsers: Any) -> None:
     """Add ``tradeoff`` to the ``bench`` subcommands."""
     t = subparsers.add_parser("tradeoff", help="accuracy versus time of a scene: table and Pareto plot")
-    t.add_argument("scene", metavar="SCENE.toml")
+    t.add_argument("scene", metavar="SCENE.toml", help="the scene file (see fixtures/scenes/)")
     t.add_argument("--json", action="store_true", help="one JSON object: rows (one per configuration), effects")
-    t.add_argument("--plot", metavar="FILE.png", help="error-vs-time (log-log) Pareto plot")
-    t.add_argument("--rays", help="comma-separated ray counts (default: the scene's [tradeoff].rays)")
-    t.add_argument("--repeats", type=int, help="seeded sweeps per configuration (default and minimum 3: timings are "
-                                               "their median, the plot shows their spread)")
-    t.add_argument("--seed", type=int)
+    t.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
+                   help="error-vs-time (log-log) Pareto plot (png, pdf, svg, ...; default: none)")
+    t.add_argument("--rays", type=int_list(1, 10**12, most=50),
+                   help="comma-separated ray counts, each 1..1e12 (default: the scene's [tradeoff].rays)")
+    t.add_argument("--repeats", type=count(3, 1000),
+                   help="seeded sweeps per configuration, 3..1000 (default 3: timings are their median, the plot "
+                        "shows their spread)")
+    t.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: the scene's)")
     t.add_argument("--no-costs", action="store_true", help="skip measuring each declared effect's cost")
     t.set_defaults(func=cmd_tradeoff)
 
@@ -59,13 +62,13 @@ def _table(header: list[str], rows: list[list[Any]]) -> str:
 def cmd_tradeoff(args: argparse.Namespace) -> int:
     from virtual.scene import effect_costs, load_scene
 
+    from bench.core.parsing import read_toml
+    from bench.core.schemas import SceneFile, validate_document
+
+    validate_document(SceneFile, read_toml(args.scene, "scene file"), f"scene file {args.scene}")
     scene = load_scene(args.scene)
-    rays = None
-    if args.rays:
-        try:
-            rays = [int(float(x)) for x in args.rays.split(",") if x.strip()]
-        except ValueError:
-            raise InputError(f"--rays {args.rays!r}: expected comma-separated integers") from None
+    announce_compilation()
+    rays = args.rays  # a list of ints, checked by argparse
     if scene.instrument == "physical":
         from bench.tradeoff_physical import physical_sweep, plot_physical
 

@@ -10,6 +10,7 @@ bounded (:data:`MAX_RANGE_POINTS`) so a typo cannot ask for an unbounded amount 
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -18,13 +19,17 @@ import numpy as np
 
 from bench.core.errors import ConfigError, InputError
 
-__all__ = ["read_toml", "read_text", "parse_range", "parse_wavelengths", "MAX_RANGE_POINTS",
-           "MAX_WAVELENGTHS"]
+__all__ = ["read_toml", "read_text", "parse_range", "parse_wavelengths", "check_collector_spec",
+           "MAX_RANGE_POINTS", "MAX_WAVELENGTHS", "MAX_COLLECTOR_PATCHES"]
 
 #: the most values one range may expand to (a plan axis, a wavelength grid)
 MAX_RANGE_POINTS = 100_000
 #: the most wavelengths one measurement may ask for
 MAX_WAVELENGTHS = 10_000
+#: the most patches one collector may have (rings x sectors per hemisphere)
+MAX_COLLECTOR_PATCHES = 1_000_000
+
+_COLLECTOR_SPEC = re.compile(r"^\s*([A-Za-z][A-Za-z-]*)\s*:\s*(\d{1,9})\s*[xX*]\s*(\d{1,9})\s*$")
 
 
 def read_text(path: str | Path, what: str = "file") -> str:
@@ -127,3 +132,16 @@ def parse_wavelengths(text: Any, limit: int = MAX_WAVELENGTHS) -> np.ndarray:
     if wl.ndim != 1 or wl.size == 0 or np.any(wl <= 0):
         raise InputError(f"wavelengths must be a non-empty list of positive numbers (nm), got {text!r}")
     return wl
+
+
+def check_collector_spec(text: Any) -> tuple[str, int, int]:
+    """``SCHEME:RINGSxSECTORS`` as ``(scheme, rings, sectors)``, with at most
+    :data:`MAX_COLLECTOR_PATCHES` patches (the scheme name itself is checked by the collector)."""
+    m = _COLLECTOR_SPEC.match(text) if isinstance(text, str) else None
+    if not m:
+        raise InputError(f"collector {text!r}: expected SCHEME:RINGSxSECTORS such as equal-psa:9x36")
+    rings, sectors = int(m.group(2)), int(m.group(3))
+    if rings < 1 or sectors < 1 or rings * sectors > MAX_COLLECTOR_PATCHES:
+        raise InputError(f"collector {text!r}: {rings:,} x {sectors:,} = {rings * sectors:,} patches; expected "
+                         f"1 to {MAX_COLLECTOR_PATCHES:,}")
+    return m.group(1), rings, sectors

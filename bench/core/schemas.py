@@ -1,4 +1,4 @@
-"""Declared schemas of the files a user gives: plans and bench configs (pydantic v2).
+"""Declared schemas of the files a user gives: plans, bench configs, sweeps, scenes (pydantic v2).
 
 Every file goes through :func:`validate_document` before anything uses it: unknown keys are
 refused (with a "did you mean" for near misses), and so are wrong types, non-finite numbers,
@@ -16,11 +16,11 @@ from typing import Annotated, Any, List, Literal, Mapping, Union
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, ValidationError,
                       field_validator)
 
-from bench.core.errors import ConfigError
-from bench.core.parsing import parse_range
+from bench.core.errors import ConfigError, InputError
+from bench.core.parsing import check_collector_spec, parse_range, parse_wavelengths
 
-__all__ = ["PlanFile", "BenchFile", "validate_document", "MAX_PLAN_POINTS", "MAX_INTEGRATION_S",
-           "MAX_AVERAGES"]
+__all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "MAX_PLAN_POINTS", "MAX_INTEGRATION_S",
+           "MAX_AVERAGES", "MAX_RAYS", "MAX_SWEEP_SERIES"]
 
 #: the most points one plan may expand to (a plan of more is almost surely a typo in a step)
 MAX_PLAN_POINTS = 200_000
@@ -28,6 +28,10 @@ MAX_PLAN_POINTS = 200_000
 MAX_INTEGRATION_S = 3600.0
 #: the most scans one reading may average
 MAX_AVERAGES = 100_000
+#: the most rays per wavelength a file may ask for (the CLI's --max-seconds bounds the time)
+MAX_RAYS = 10**15
+#: the most series (specimen x collector x incidence/geometry) one sweep may hold
+MAX_SWEEP_SERIES = 100_000
 
 
 def _finite_number(v: Any) -> Any:
@@ -67,6 +71,32 @@ def _range(v: Any) -> Any:
 
 #: a number, a non-empty list of numbers or a {start, stop, step} table
 Range = Annotated[Any, BeforeValidator(_range)]
+
+
+def _collector(v: Any) -> Any:
+    if not isinstance(v, str):
+        raise ValueError(f"expected a collector such as 'equal-psa:9x36', got {v!r}")
+    try:
+        check_collector_spec(v)
+    except InputError as exc:
+        raise ValueError(str(exc)) from None
+    return v
+
+
+def _wavelengths(v: Any) -> Any:
+    if isinstance(v, bool) or not isinstance(v, (str, int, float, list)):
+        raise ValueError(f"expected START:STOP:STEP, a list or a number (nm), got {v!r}")
+    try:
+        parse_wavelengths(v)
+    except InputError as exc:
+        raise ValueError(str(exc)) from None
+    return v
+
+
+#: ``SCHEME:RINGSxSECTORS`` with a bounded number of patches
+CollectorSpec = Annotated[str, BeforeValidator(_collector)]
+#: ``START:STOP:STEP``, ``a,b,c``, a number or a list (nm), positive, finite, bounded in count
+Wavelengths = Annotated[Any, BeforeValidator(_wavelengths)]
 
 
 class SpectralTable(_Strict):
@@ -144,12 +174,12 @@ class SpecimenTable(_Strict):
 class VirtualTable(_Strict):
     """``[virtual]``: the virtual goniophotometer's settings (virtual.goniophotometer)."""
 
-    collector: str = "equal-psa:9x36"
-    rays: Annotated[Whole, Field(ge=1, le=10**15)] | None = None
+    collector: CollectorSpec = "equal-psa:9x36"
+    rays: Annotated[Whole, Field(ge=1, le=MAX_RAYS)] | None = None
     uncertainty: Annotated[Finite, Field(gt=0, lt=1)] | None = None
     delta: Annotated[Finite, Field(gt=0, lt=1)] = 0.01
     beam: str = "collimated"
-    wavelengths: Union[str, Finite, list[Finite]] = 550.0
+    wavelengths: Wavelengths = 550.0
     method: Literal["auto", "fast", "rays", "python"] = "auto"
     gain: Annotated[Finite, Field(gt=0)] = 1.0e4
 
@@ -158,14 +188,14 @@ class EmulatedTable(_Strict):
     """``[emulated]``: how the wire emulators behave."""
 
     time_scale: Annotated[Finite, Field(gt=0, le=1e6)] = 20.0
-    bands: Union[str, Finite, list[Finite]] = "450:650:100"
+    bands: Wavelengths = "450:650:100"
     bandwidth_nm: Annotated[Finite, Field(gt=0, le=1000)] = 10.0
     aperture_deg: Annotated[Finite, Field(gt=0, le=90)] = 1.0
     seed: Annotated[Whole, Field(ge=0, lt=2**63)] | None = None
 
 
 class BandsTable(_Strict):
-    centres: Union[str, Finite, list[Finite]]
+    centres: Wavelengths
     bandwidth_nm: Annotated[Finite, Field(gt=0, le=1000)] = 10.0
 
 
@@ -197,11 +227,180 @@ class BenchFile(BaseModel):
         return v
 
 
+#: an incidence: THETA, [THETA, PHI] or "THETA,PHI" (degrees; the sweep checks the range)
+Incidence = Union[Finite, Annotated[list[Finite], Field(min_length=1, max_length=2)], str]
+
+
+class _SweepCommon(_Strict):
+    wavelengths: Wavelengths | None = None
+    rays: Annotated[Whole, Field(ge=1, le=MAX_RAYS)] | None = None
+    uncertainty: Annotated[Finite, Field(gt=0, lt=1)] | None = None
+    delta: Annotated[Finite, Field(gt=0, lt=1)] = 0.01
+    method: Literal["auto", "rays", "fast"] | None = None
+    beam: str = "collimated"
+    cone_deg: Annotated[Finite, Field(gt=0, lt=90)] | None = None
+
+
+def _one_or_many(item: Any) -> Any:
+    """A value or a non-empty list of values (at most MAX_SWEEP_SERIES)."""
+    return Union[item, Annotated[list[item], Field(min_length=1, max_length=MAX_SWEEP_SERIES)]]
+
+
+class SweepTable(_SweepCommon):
+    """``[sweep]``: the defaults and the product of specimens x collectors x incidences/geometries."""
+
+    name: str = "sweep"
+    seed: Annotated[Whole, Field(ge=0, lt=2**63)] | None = None
+    instrument: Literal["gonio", "spectro"] = "gonio"
+    specimens: _one_or_many(str) | None = None
+    incidences: _one_or_many(Incidence) | None = None
+    geometries: _one_or_many(str) | None = None
+    collectors: _one_or_many(CollectorSpec) | None = None
+    wavelengths_per_task: Annotated[Whole, Field(ge=0, le=10_000)] | None = None
+
+
+class TaskTable(_SweepCommon):
+    """One ``[[task]]``: one series, overriding any ``[sweep]`` default."""
+
+    specimen: str | None = None
+    incidence: Incidence | None = None
+    geometry: str | None = None
+    collector: CollectorSpec | None = None
+
+
+class SweepFile(_Strict):
+    """A sweep file: ``[sweep]`` and optional ``[[task]]`` entries."""
+
+    sweep: SweepTable
+    task: Annotated[list[TaskTable], Field(min_length=1, max_length=MAX_SWEEP_SERIES)] | None = None
+
+
+# --- scenes (virtual.scene; `bench tradeoff` validates with this before loading) -----------------
+
+_Frac = Annotated[Finite, Field(ge=0, le=1)]
+_Pos = Annotated[Finite, Field(gt=0)]
+
+
+class ApertureEffect(_Strict):
+    half_angle_deg: Annotated[Finite, Field(gt=0, le=90)] = 2.0
+    views: Annotated[list[Annotated[list[Finite], Field(min_length=1, max_length=2)]],
+                     Field(min_length=1, max_length=10_000)] = [[0.0, 0.0]]
+    distance_mm: _Pos | None = None
+
+
+class NoiseEffect(_Strict):
+    uncertainty: _Frac = 0.002
+    relative: StrictBool | None = None
+
+
+class StrayLightEffect(_Strict):
+    fraction: _Frac = 0.001
+
+
+class SphereEffect(_Strict):
+    wall_reflectance: _Frac = 0.98
+    port_fraction: _Frac = 0.05
+    detector_port: _Frac = 0.01
+    specimen_port: _Frac = 0.02
+    reference_reflectance: _Frac = 0.99
+
+
+class GlossTrapEffect(_Strict):
+    specular: Literal["excluded", "included"] = "excluded"
+    half_angle_deg: Annotated[Finite, Field(gt=0, le=90)] = 4.0
+
+
+class BandpassEffect(_Strict):
+    fwhm_nm: _Pos = 10.0
+    nodes: Annotated[Whole, Field(ge=1, le=1001)] = 9
+
+
+class SpecimenEffect(_Strict):
+    uniform: StrictBool = True
+    period_mm: _Pos = 5.0
+    contrast: _Frac = 0.5
+    spot_radius_mm: _Pos = 10.0
+
+
+def _effect(model: Any) -> Any:
+    return Union[StrictBool, model] | None  # true: the defaults, false: not declared
+
+
+class EffectsTable(_Strict):
+    aperture: _effect(ApertureEffect) = None
+    noise: _effect(NoiseEffect) = None
+    stray_light: _effect(StrayLightEffect) = None
+    sphere: _effect(SphereEffect) = None
+    gloss_trap: _effect(GlossTrapEffect) = None
+    bandpass: _effect(BandpassEffect) = None
+    specimen: _effect(SpecimenEffect) = None
+
+
+class SceneBeam(_Strict):
+    kind: Literal["collimated", "conical"] = "collimated"
+    emitter_radius_mm: _Pos = 5.0
+    specimen_radius_mm: _Pos = 12.5
+    distance_mm: _Pos = 76.2
+    disk_sampling: str = "auto"
+
+
+class SceneCollector(_Strict):
+    spec: CollectorSpec = "equal-psa:9x36"
+    method: Literal["auto", "rays", "fast"] = "auto"
+
+
+class TradeoffTable(_Strict):
+    rays: Annotated[list[Annotated[Whole, Field(ge=1, le=10**12)]], Field(min_length=1, max_length=50)] | None = None
+    budgets: Annotated[list[str], Field(min_length=1, max_length=20)] | None = None
+    repeats: Annotated[Whole, Field(ge=1, le=1000)] = 1
+    strategies: Annotated[list[str], Field(min_length=1, max_length=20)] | None = None
+    collectors: Annotated[list[CollectorSpec], Field(min_length=1, max_length=50)] | None = None
+    fast: StrictBool = True
+
+
+class PhysicalTable(_Strict):
+    theta_i: Union[Annotated[Finite, Field(ge=0, lt=90)],
+                   Annotated[list[Annotated[Finite, Field(ge=0, lt=90)]], Field(min_length=1, max_length=90)]] = [30.0]
+    theta_r: Annotated[list[Annotated[Finite, Field(ge=-90, le=90)]], Field(min_length=2, max_length=2)] = [-75.0, 75.0]
+    steps_deg: Annotated[list[Annotated[Finite, Field(ge=0.01, le=180)]], Field(min_length=1, max_length=50)] = [1, 2, 5, 10]
+    averages: Annotated[list[Annotated[Whole, Field(ge=1, le=MAX_AVERAGES)]], Field(min_length=1, max_length=50)] = [1, 4, 16]
+    integration_s: Annotated[Finite, Field(gt=0, le=MAX_INTEGRATION_S)] = 0.05
+    velocity_deg_s: _Pos = 30.0
+    acceleration_deg_s2: _Pos = 60.0
+    settle_s: Annotated[Finite, Field(ge=0, le=3600)] = 0.2
+    relative_noise_per_reading: Annotated[Finite, Field(ge=0, le=10)] = 0.01
+
+
+class SceneFile(_Strict):
+    """A scene file (:mod:`virtual.scene`): instrument, specimen, beam, collector, budget, effects,
+    and the ``[tradeoff]``/``[physical]`` tables of ``bench tradeoff``."""
+
+    name: str = "scene"
+    instrument: Literal["spectrophotometer", "goniophotometer", "physical"] = "spectrophotometer"
+    specimen: Union[str, SpecimenTable] = "lambert:reflectance=0.5"
+    wavelengths: Wavelengths = "550"
+    incidence: Union[Annotated[Finite, Field(ge=0, lt=90)],
+                     Annotated[list[Finite], Field(min_length=1, max_length=2)]] = [8.0, 0.0]
+    rays: Annotated[Whole, Field(ge=1, le=MAX_RAYS)] | None = None
+    uncertainty: Annotated[Finite, Field(gt=0, lt=1)] = 0.01
+    delta: Annotated[Finite, Field(gt=0, lt=1)] = 0.01
+    seed: Annotated[Whole, Field(ge=0, lt=2**63)] = 1
+    observable: Literal["reflectance", "transmittance", "missed"] = "reflectance"
+    method: Literal["auto", "rays", "fast"] = "auto"
+    beam: Union[Literal["collimated", "conical"], SceneBeam] = SceneBeam()
+    collector: Union[CollectorSpec, SceneCollector] = "equal-psa:9x36"
+    effects: EffectsTable = EffectsTable()
+    tradeoff: TradeoffTable = TradeoffTable()
+    physical: PhysicalTable = PhysicalTable()
+
+
 def _loc(loc: tuple[Any, ...]) -> str:
     out = ""
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
+        elif isinstance(part, str) and part[:1].isupper():
+            continue  # a union branch named by its model class (our keys are lower case)
         elif part in ("float", "int", "str", "list[float]", "RangeTable", "function-before[_finite_number(), float]",
                       "function-before[_whole_number(), int]") or "[" in str(part) or str(part).startswith("function"):
             continue  # union branch labels pydantic adds to the location
@@ -244,7 +443,9 @@ def validate_document(model: type[BaseModel], data: Mapping[str, Any], source: s
     try:
         return model.model_validate(dict(data))
     except ValidationError as exc:
-        err = exc.errors(include_url=False)[0]
+        errors = exc.errors(include_url=False)
+        # a union reports one error per branch: the one reaching deepest names the real problem
+        err = max(errors, key=lambda e: (e["type"] == "extra_forbidden", len(e.get("loc", ()))))
         loc = tuple(err.get("loc", ()))
         where = _loc(loc) or "(top level)"
         if err["type"] == "extra_forbidden":

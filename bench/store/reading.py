@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from bench.core.records import BSDF_COLUMNS, BSDFRecord
+from bench.store.owner import owner_state
 from bench.store.schema import READING_COLUMNS, _loads
 
 
@@ -43,7 +44,10 @@ class RunReader:
             "FROM runs r ORDER BY r.created_epoch, r.run_id")
         keys = ("run_id", "kind", "status", "reason", "created_utc", "finished_utc", "n_planned", "seed",
                 "points_done")
-        return [dict(zip(keys, r)) for r in cur.fetchall()]
+        out = [dict(zip(keys, r)) for r in cur.fetchall()]
+        for r in out:  # a "running" run whose process was killed: say so (resume still works)
+            r["process_gone"] = r["status"] == "running" and owner_state(self._db, r["run_id"]) == "gone"
+        return out
 
     def run(self, run_id: str) -> dict[str, Any]:
         """A run's metadata (JSON fields decoded), status history and counts

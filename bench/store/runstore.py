@@ -5,6 +5,9 @@ Reading back is :class:`bench.store.reading.RunReader`.
 
 from __future__ import annotations
 
+import functools
+import math
+import os
 import sqlite3
 import time
 from collections.abc import Mapping
@@ -17,12 +20,39 @@ from bench.core.errors import InputError, StoreError
 from bench.core.records import BSDFRecord
 from bench.store.reading import RunReader
 from bench.store.rows import _INSERT_READING, _reading_tuples
+from bench.store.owner import _OWNERS_TABLE, claim_run, owner_state
 from bench.store.schema import (_GEOMETRY, _MIGRATIONS, _SCHEMA, _TRANSITIONS, RUN_KINDS, RUN_STATUSES, SCHEMA_VERSION,
                                 _dumps, _loads, _now, _py, new_run_id, package_versions)
 
 __all__ = ["RunStore"]
 
 
+def _typed_errors(cls: type) -> type:
+    """Wrap every public method so an SQLite failure that escapes it (a corrupted page, a dropped
+    table, an I/O error) is a :class:`StoreError` naming the file, never a raw ``sqlite3`` error."""
+
+    def wrap(fn: Any) -> Any:
+        @functools.wraps(fn)
+        def method(self: Any, *a: Any, **kw: Any) -> Any:
+            try:
+                return fn(self, *a, **kw)
+            except (sqlite3.ProgrammingError, sqlite3.InterfaceError):
+                raise  # a bug in the caller or in goniobench, not a problem of the file
+            except sqlite3.Error as e:
+                raise StoreError(f"run store {self.path}: {e}") from e
+            except UnicodeError as e:  # a run id that is not text (a non-UTF-8 argument)
+                raise InputError(f"run store {self.path}: not valid text: {e.reason}") from None
+
+        return method
+
+    for klass in reversed(cls.__mro__[:-1]):
+        for name, fn in list(vars(klass).items()):
+            if not name.startswith("_") and callable(fn) and not isinstance(fn, (staticmethod, classmethod, type)):
+                setattr(cls, name, wrap(fn))
+    return cls
+
+
+@_typed_errors
 class RunStore(RunReader):
     """A goniobench run store (one SQLite file in WAL mode).
 
@@ -49,37 +79,87 @@ class RunStore(RunReader):
     ...     store.set_status(rid, "completed")
     """
     def __init__(self, path: str | Path, *, timeout: float = 30.0, synchronous: str = "NORMAL",
-                 create: bool = True) -> None:
+                 create: bool = True, readonly: bool = False) -> None:
         self.path = Path(path)
+        self.readonly = bool(readonly)
         sync = str(synchronous).upper()
         if sync not in ("NORMAL", "FULL"):
             raise InputError(f"synchronous must be 'NORMAL' or 'FULL', got {synchronous!r}")
-        if not (isinstance(timeout, (int, float)) and timeout >= 0):
+        if not (isinstance(timeout, (int, float)) and timeout >= 0 and math.isfinite(timeout)):
             raise InputError(f"timeout must be a number of seconds >= 0, got {timeout!r}")
-        if not self.path.exists():
-            if not create:
-                raise StoreError(f"no run store at {self.path}")
-            self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            exists = self.path.exists()
+            if exists and self.path.is_dir():
+                raise StoreError(f"run store {self.path} is a folder, not a file")
+            if not exists:
+                if not create or self.readonly:
+                    raise StoreError(f"no run store at {self.path}")
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:  # a parent that is a file, a symlink loop, no permission
+            raise StoreError(f"run store {self.path}: {exc.strerror or exc}") from None
         self.timeout = float(timeout)
         self.synchronous = sync
-        try:
-            self._db = sqlite3.connect(str(self.path), timeout=self.timeout, isolation_level=None)
-        except sqlite3.Error as e:
-            raise StoreError(f"cannot open run store {self.path}: {e}") from e
+        self._db = self._connect()
         try:
             self._db.execute(f"PRAGMA busy_timeout = {int(self.timeout * 1000)}")
+            self._refuse_foreign()  # before anything is written (no WAL switch on a foreign file)
+            if self.readonly:
+                self._check_schema_readonly()
+                return
             mode = self._db.execute("PRAGMA journal_mode = WAL").fetchone()[0]
             if str(mode).lower() != "wal":
                 raise StoreError(f"{self.path}: could not switch to WAL mode (journal_mode={mode})")
             self._db.execute(f"PRAGMA synchronous = {sync}")
             self._db.execute("PRAGMA foreign_keys = ON")
             self._ensure_schema()
+            self._db.execute(_OWNERS_TABLE)
         except sqlite3.DatabaseError as e:
             self._db.close()
+            if not self.readonly and not (os.access(self.path, os.W_OK) and os.access(self.path.parent, os.W_OK)):
+                raise StoreError(f"run store {self.path} cannot be written here (a read-only file, folder or "
+                                 f"file system); readers such as `bench runs` still work on it") from e
             raise StoreError(f"{self.path} is not a usable run store: {e}") from e
         except BaseException:
             self._db.close()
             raise
+
+    def _connect(self) -> sqlite3.Connection:
+        """A connection: read-write, or (``readonly``) a ``mode=ro`` URI that can never change the
+        file; a store in a read-only folder whose WAL index cannot be created is opened immutable."""
+        try:
+            if not self.readonly:
+                return sqlite3.connect(str(self.path), timeout=self.timeout, isolation_level=None)
+            uri = self.path.resolve().as_uri()
+            db = sqlite3.connect(f"{uri}?mode=ro", uri=True, timeout=self.timeout, isolation_level=None)
+            try:
+                db.execute("SELECT 1 FROM sqlite_master LIMIT 1").fetchall()
+            except sqlite3.OperationalError:
+                db.close()
+                wal = self.path.with_name(self.path.name + "-wal")
+                if wal.exists():  # a writer may be active: immutable would miss its commits
+                    raise
+                db = sqlite3.connect(f"{uri}?mode=ro&immutable=1", uri=True, timeout=self.timeout,
+                                     isolation_level=None)
+            return db
+        except sqlite3.Error as e:
+            raise StoreError(f"cannot open run store {self.path}: {e}") from e
+
+    def _refuse_foreign(self) -> None:
+        tables = self._tables()
+        if tables and "schema_version" not in tables:
+            raise StoreError(f"{self.path} is an SQLite file but not a goniobench run store "
+                             f"(tables: {', '.join(sorted(tables))}; no schema_version)")
+
+    def _check_schema_readonly(self) -> None:
+        tables = self._tables()
+        missing = {"schema_version", "runs", "points", "readings", "run_events"} - tables
+        if missing:
+            raise StoreError(f"{self.path} is not a complete goniobench run store (missing table(s) "
+                             f"{', '.join(sorted(missing))})")
+        version = self._db.execute("SELECT MAX(version) FROM schema_version").fetchone()[0]
+        if version is None or version != SCHEMA_VERSION:
+            raise StoreError(f"{self.path} has store schema version {version}; this goniobench reads "
+                             f"version {SCHEMA_VERSION} (open it once for writing to migrate an older one)")
 
     # -- lifecycle ---------------------------------------------------------------------------
     def close(self) -> None:
@@ -211,6 +291,7 @@ class RunStore(RunReader):
                                "started_utc, started_epoch, plan, bench, versions, seed, calibration, meta, "
                                "n_planned) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)", (rid, *fields))
                     db.execute("INSERT INTO run_events VALUES (?,?,?,?,?)", (rid, iso, t, "running", "created"))
+                    claim_run(db, rid)
                 return rid
             except sqlite3.IntegrityError:
                 if run_id is not None:
@@ -222,6 +303,10 @@ class RunStore(RunReader):
         if row is None:
             raise self._unknown(run_id)
         return row[0]
+
+    def _owned_here(self, run_id: str) -> bool:
+        row = self._db.execute("SELECT pid FROM run_owners WHERE run_id=?", (run_id,)).fetchone()
+        return row is not None and int(row[0]) == os.getpid()
 
     def _unknown(self, run_id: str) -> StoreError:
         return StoreError(f"unknown run {run_id!r} in {self.path}; list the run ids with "
@@ -242,7 +327,12 @@ class RunStore(RunReader):
             if status != old and status not in _TRANSITIONS[old]:
                 raise StoreError(f"run {run_id!r}: cannot go from {old!r} to {status!r} "
                                  f"(allowed: {', '.join(sorted(_TRANSITIONS[old])) or 'none'})")
+            if status == "running" and old == "running" and owner_state(db, run_id) == "alive" \
+                    and not self._owned_here(run_id):
+                raise StoreError(f"run {run_id!r} is still being measured by another process; wait for it, "
+                                 f"or stop it first")
             if status == "running":
+                claim_run(db, run_id)
                 db.execute("UPDATE runs SET status=?, reason=?, finished_utc=NULL, finished_epoch=NULL "
                            "WHERE run_id=?", (status, reason, run_id))
             else:

@@ -46,7 +46,8 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, *,
                 threads_per_worker: int = 1, **cluster_kw: Any) -> Iterator[Any]:
     """A ``distributed.Client`` for a scheduler address, or for a local cluster of ``workers``
     processes (``threads_per_worker`` threads each); closed (and the local cluster shut down)
-    on exit. Needs ``dask[distributed]`` (the ``scale`` extra).
+    on exit. Needs ``dask[distributed]`` (the ``scale`` extra). A local cluster's scheduler and
+    dashboard listen on loopback (127.0.0.1) unless ``host``/``dashboard_address`` say otherwise.
 
     Raises
     ------
@@ -72,7 +73,8 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, *,
     if not isinstance(workers, int) or workers < 1:
         raise InputError(f"workers must be an integer >= 1, got {workers!r}")
     cluster_kw.setdefault("processes", True)
-    cluster_kw.setdefault("dashboard_address", ":8787")
+    cluster_kw.setdefault("host", "127.0.0.1")  # services bind loopback unless the caller says otherwise
+    cluster_kw["dashboard_address"] = cluster_kw.get("dashboard_address") or "127.0.0.1:8787"
     cluster_kw.setdefault("silence_logs", logging.ERROR)
     with LocalCluster(n_workers=workers, threads_per_worker=threads_per_worker, **cluster_kw) as cluster, \
             Client(cluster, set_as_default=False) as client:
@@ -248,8 +250,10 @@ def _execute(spec: SweepSpec, store: Any, run_id: str, done: set[int], client: A
                      retries)
     except KeyboardInterrupt:
         store.set_status(run_id, "interrupted", "interrupted by the user (Ctrl-C)")
-        raise RunInterrupted(f"sweep run {run_id} interrupted by the user after {len(done)} of {len(spec)} tasks; "
-                             f"finish it with: bench sweep --resume {run_id}") from None
+        err = RunInterrupted(f"sweep run {run_id} interrupted by the user after {len(done)} of {len(spec)} "
+                             f"tasks; finish it with: bench sweep --resume {run_id}")
+        err.by_user = True  # type: ignore[attr-defined]  # the CLI exits 130 for Ctrl-C
+        raise err from None
     except _TaskFailed as exc:
         store.set_status(run_id, "interrupted", str(exc))
         raise RunInterrupted(f"sweep run {run_id} interrupted after {len(done)} of {len(spec)} tasks: {exc}; "

@@ -19,6 +19,7 @@ import numpy as np
 from bench.core.errors import ConfigError, InputError
 from bench.core.geometry import cie_geometry
 from bench.core.parsing import parse_wavelengths, read_toml
+from bench.core.schemas import MAX_SWEEP_SERIES, SweepFile, validate_document
 from virtual.bounds import hoeffding_rays
 from virtual.collector import parse_collector
 from virtual.specimens import parse_specimen
@@ -138,11 +139,11 @@ def _list(d: Mapping[str, Any], key: str, where: str) -> list[Any]:
 
 def load_sweep(path: str | Path) -> SweepSpec:
     """Read and validate a ``SWEEP.toml`` (see :func:`sweep_from_dict`)."""
-    d = read_toml(path)
-    return sweep_from_dict(d, default_name=Path(path).stem)
+    d = read_toml(path, "sweep file")
+    return sweep_from_dict(d, default_name=Path(path).stem, source=f"sweep file {path}")
 
 
-def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep") -> SweepSpec:
+def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: str = "sweep") -> SweepSpec:
     """Validate a sweep description and cut it into tasks.
 
     Format (TOML shown; a dict of the same shape works)::
@@ -172,7 +173,10 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep") -> SweepS
         Unknown keys, bad values, specimens that lack a wavelength, duplicate series.
     """
     if not isinstance(d, Mapping) or not isinstance(d.get("sweep"), Mapping):
-        raise ConfigError("a sweep needs a [sweep] table")
+        raise ConfigError(f"{source}: a sweep needs a [sweep] table")
+    # the declared shape first (bench.core.schemas.SweepFile): unknown keys with "did you mean",
+    # types, non-finite and out-of-range numbers, bounded rays, collectors and wavelengths
+    validate_document(SweepFile, d, source)
     top_unknown = set(d) - {"sweep", "task"}
     if top_unknown:
         raise ConfigError(f"sweep: unknown top-level key(s) {', '.join(sorted(top_unknown))}; "
@@ -227,6 +231,11 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep") -> SweepS
                                   "sweep takes incidences")
             incidences = _list(s, "incidences", "[sweep]") or [0.0]
             collectors = _list(s, "collectors", "[sweep]") or ["equal-psa:9x36"]
+            n = len(specimens) * len(collectors) * len(incidences)
+            if n > MAX_SWEEP_SERIES:
+                raise ConfigError(f"{source}: {len(specimens)} specimens x {len(collectors)} collectors x "
+                                  f"{len(incidences)} incidences = {n:,} series, more than the limit of "
+                                  f"{MAX_SWEEP_SERIES:,}")
             for sp in specimens:
                 for col in collectors:
                     for inc in incidences:
@@ -236,6 +245,9 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep") -> SweepS
                 raise ConfigError("[sweep]: a spectrophotometer sweep takes geometries (CIE names), not "
                                   "incidences or collectors")
             geometries = _list(s, "geometries", "[sweep]") or ["8/d"]
+            if len(specimens) * len(geometries) > MAX_SWEEP_SERIES:
+                raise ConfigError(f"{source}: {len(specimens)} specimens x {len(geometries)} geometries, more "
+                                  f"than the limit of {MAX_SWEEP_SERIES:,} series")
             for sp in specimens:
                 for g in geometries:
                     series.append(({**s, "specimen": sp, "geometry": g}, "[sweep]"))
@@ -282,7 +294,7 @@ def _series(instrument: str, e: Mapping[str, Any], where: str, parse_wavelengths
     beam = str(e.get("beam", "collimated"))
     if beam not in _BEAMS:
         raise ConfigError(f"{where}: beam must be one of {', '.join(_BEAMS)}, got {beam!r}")
-    delta = float(e.get("delta", 0.01))
+    delta = float(e.get("delta", 0.01))  # a number: the schema checked it
     if not 0.0 < delta < 1.0:
         raise ConfigError(f"{where}: delta must lie in (0, 1), got {delta}")
     try:

@@ -8,7 +8,7 @@ from scipy import special, stats
 from bench.core.errors import BudgetError
 from virtual.bounds.checks import check_delta, check_uncertainty
 
-__all__ = ["binomial_ci", "CI_METHODS"]
+__all__ = ["binomial_ci", "CI_METHODS", "relative_patch_rays"]
 
 CI_METHODS: tuple[str, ...] = ("clopper-pearson", "wilson")
 
