@@ -349,13 +349,6 @@ def test_the_dask_dashboard_binds_loopback(monkeypatch):
     assert seen["dashboard_address"].startswith("127.0.0.1:") and seen["host"] == "127.0.0.1"
 
 
-def _has_declarations() -> bool:
-    import virtual.specimens as vs
-
-    return hasattr(vs, "specimen_families") and hasattr(vs, "specimen_table_markdown")
-
-
-@pytest.mark.xfail(not _has_declarations(), reason="needs wt-a (virtual.specimens.specimen_families)", strict=False)
 def test_bench_specimens_lists_every_family_and_parameter(capsys):
     from virtual.specimens import specimen_families
 

@@ -138,7 +138,7 @@ def test_plan_home_key_is_declared_and_checked():
     validate_document(PlanFile, {**SHORT, "home": True}, "p.toml")
     with pytest.raises(ConfigError, match="home"):
         validate_document(PlanFile, {**SHORT, "home": "yes"}, "p.toml")
-    with pytest.raises(ConfigError, match="home must be true or false"):
+    with pytest.raises(ConfigError, match="key home"):
         plan_from_dict({**SHORT, "home": 1})
 
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import argparse
 
-from bench.cli.common import emit_json, number
+from bench.cli.argtypes import real
+from bench.cli.common import emit_json
 from bench.core.errors import ConfigError
 
 __all__ = ["register", "cmd_home"]
@@ -40,9 +41,9 @@ def cmd_home(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``home`` to the subcommands."""
     h = sub.add_parser("home", help="return the turntable (or another axis) to its home position")
-    h.add_argument("--bench", required=True, metavar="BENCH.toml")
+    h.add_argument("--bench", required=True, metavar="BENCH.toml", help="the bench config (required)")
     h.add_argument("--axis", default="turntable", help="the axis to home (default: turntable)")
-    h.add_argument("--timeout", type=number, metavar="S",
-                   help="longest wait for HOME-END (default: the axis' home_timeout_s)")
-    h.add_argument("--json", action="store_true")
+    h.add_argument("--timeout", type=real(0.0, 3600.0, lo_open=True), metavar="S",
+                   help="longest wait for HOME-END, seconds in (0, 3600] (default: the axis' home_timeout_s)")
+    h.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     h.set_defaults(func=cmd_home)

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import argparse
 
-from bench.cli.common import DEFAULT_STORE, emit_json, number, open_store, positive_int
+from bench.cli.argtypes import count, real, run_id
+from bench.cli.common import DEFAULT_STORE, emit_json, open_store, output_file
 from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_white"]
@@ -62,12 +63,16 @@ def cmd_white(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``white`` to the subcommands."""
     w = sub.add_parser("white", help="save a white reference file (measured now or from a completed run)")
-    w.add_argument("--bench", metavar="BENCH.toml", help="measure the white standard on this bench now")
-    w.add_argument("--from-run", metavar="RUN", help="take the white reference of this completed run")
-    w.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite")
-    w.add_argument("--out", required=True, metavar="FILE.csv")
-    w.add_argument("--note", default="", help="the operator's note (standard, cleaning, lamp warm-up...)")
-    w.add_argument("--integration-s", type=number, default=0.1, metavar="S")
-    w.add_argument("--averages", type=positive_int, default=1)
-    w.add_argument("--json", action="store_true")
+    w.add_argument("--bench", metavar="BENCH.toml", help="measure the white standard on this bench now (default: none)")
+    w.add_argument("--from-run", type=run_id, metavar="RUN",
+                   help="take the white reference of this completed run (default: none)")
+    w.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",
+                   help="the run store holding --from-run (default %(default)s)")
+    w.add_argument("--out", required=True, type=output_file(), metavar="FILE.csv",
+                   help="the white reference file to write (required)")
+    w.add_argument("--note", default="", help="the operator's note (standard, cleaning, lamp warm-up...; default: none)")
+    w.add_argument("--integration-s", type=real(0.0, 3600.0, lo_open=True), default=0.1, metavar="S",
+                   help="integration time, seconds (default %(default)s)")
+    w.add_argument("--averages", type=count(1, 100_000), default=1, help="scans averaged, 1..100000 (default %(default)s)")
+    w.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     w.set_defaults(func=cmd_white)
