@@ -47,6 +47,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from bench.core.errors import InputError
 
 from virtual.engine import chunking
 from virtual.kernels.effects import (FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE,
@@ -81,7 +82,7 @@ def _ptab(ptab: np.ndarray, cdf: np.ndarray | None) -> tuple[np.ndarray, np.ndar
     t = np.ascontiguousarray(np.atleast_2d(np.asarray(ptab, dtype=np.float64)))
     c = np.ones(1) if cdf is None else np.ascontiguousarray(np.asarray(cdf, dtype=np.float64))
     if c.shape[0] != t.shape[0]:
-        raise ValueError("bandpass cdf and parameter table must have as many rows")
+        raise InputError("bandpass cdf and parameter table must have as many rows")
     return t, c
 
 
@@ -91,9 +92,9 @@ def _effect_vector(e: np.ndarray | None, flags: int) -> np.ndarray:
         out[: len(e)] = np.asarray(e, dtype=np.float64)
     out[5] = out[5] if out[5] > 0 else 1.0
     if flags & FX_POSITIONS and not (math.isfinite(out[7]) and out[7] > 0):
-        raise ValueError(f"effects that sample positions need a spot radius e[7] > 0, got {out[7]!r}")
+        raise InputError(f"effects that sample positions need a spot radius e[7] > 0, got {out[7]!r}")
     if flags & FX_NEAR and not (out[8] > 0 and out[9] > 0):
-        raise ValueError("near-field detectors need a distance e[8] > 0 and a radius e[9] > 0")
+        raise InputError("near-field detectors need a distance e[8] > 0 and a radius e[9] > 0")
     return out
 
 
@@ -172,7 +173,7 @@ def spectro_point_counts(model: int, params: np.ndarray, beam_args: np.ndarray, 
     """
     pts = np.ascontiguousarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 4:
-        raise ValueError(f"points must have shape (n, 4), got {pts.shape}")
+        raise InputError(f"points must have shape (n, 4), got {pts.shape}")
     sizes = chunking(len(pts))
     starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     states = stream_states(seq, sizes.shape[0])

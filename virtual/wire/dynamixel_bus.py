@@ -63,6 +63,8 @@ import sys
 import time
 from typing import Any, Mapping, Sequence
 
+from bench.core.errors import DeviceError
+
 from virtual.wire.dxl_bus import BusTransport, DynamixelBus, Faults, PtyBusThread, _write_all  # noqa: F401
 from virtual.wire.dxl_codec import (
     BROADCAST_ID, ERR, ERRBIT_ALERT, HW_ERROR_BITS, INST, Packet, PacketError, PacketParser, crc16,
@@ -189,7 +191,7 @@ class BusControl:
         line, _, self._buf = self._buf.partition(b"\n")
         resp = json.loads(line)
         if not resp.get("ok"):
-            raise RuntimeError(f"emulator refused {cmd}: {resp.get('error')}")
+            raise DeviceError(f"emulator refused {cmd}: {resp.get('error')}")
         return resp
 
     def state(self) -> dict[str, Any]:

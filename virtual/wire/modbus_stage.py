@@ -47,6 +47,8 @@ import sys
 import threading
 from typing import Any
 
+from bench.core.errors import ConfigError
+
 from virtual.wire.modbus_stage_model import (  # noqa: F401
     AZ_LAYOUT, StageConfig, StageModel, _Layout, read_feedback_steps,
 )
@@ -201,7 +203,7 @@ async def _serve(cfg: dict[str, Any], transport: str, conn: Any) -> None:
         address = {"transport": "rtu", "port": p_cli, "url": p_cli,
                    "baudrate": scfg.baudrate, "parity": scfg.parity}
     else:
-        raise ValueError(f"transport must be 'tcp' or 'rtu', not {transport!r}")
+        raise ConfigError(f"transport must be 'tcp' or 'rtu', not {transport!r}")
     address["device_id"] = scfg.device_id
     address["device_ids"] = ids
     address["pid"] = os.getpid()

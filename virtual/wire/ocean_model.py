@@ -12,6 +12,8 @@ from __future__ import annotations
 import importlib
 import json
 from dataclasses import dataclass, field
+
+from bench.core.errors import ConfigError
 from typing import Any, Callable
 
 import numpy as np
@@ -207,7 +209,7 @@ class SpectrometerModel:
         if m == 5:
             idx = [np.arange(a, b + 1) for a, b in zip(prm[1::2], prm[2::2])]
             return np.concatenate(idx)
-        raise ValueError(m)
+        raise ConfigError(f"pixel mode {m!r}: expected 0, 1, 3, 4 or 5")
 
     def acquire(self) -> np.ndarray:
         """Sum of ``scans`` scans over the selected pixels."""

@@ -22,6 +22,8 @@ import tty
 from pathlib import Path
 from typing import Any, Sequence
 
+from bench.core.errors import DeviceError, PortGoneError
+
 __all__ = ["open_pty", "open_raw_pty", "EmulatorProcess", "EmulatorStartError", "PipeEmulator"]
 
 log = logging.getLogger(__name__)
@@ -91,19 +93,19 @@ class PipeEmulator:
         info = parent.recv()
         if "error" in info:
             proc.join(2)
-            raise RuntimeError(f"{cls.label} failed to start: {info['error']}")
+            raise DeviceError(f"{cls.label} failed to start: {info['error']}")
         return proc, parent, info
 
     def _call(self, msg: dict[str, Any], timeout: float = 5.0) -> dict[str, Any]:
         with self._lock:
             if not self._proc.is_alive():
-                raise RuntimeError("the emulator process is not running")
+                raise PortGoneError("the emulator process is not running")
             self._conn.send(msg)
             if not self._conn.poll(timeout):
                 raise TimeoutError(f"emulator did not answer {msg}")
             reply = self._conn.recv()
         if not reply.get("ok"):
-            raise RuntimeError(reply.get("error", "emulator refused"))
+            raise DeviceError(reply.get("error", "emulator refused"))
         return reply
 
     @property
