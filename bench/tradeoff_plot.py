@@ -31,11 +31,16 @@ def _key(r: dict[str, Any]) -> tuple:
 
 
 def repeated_sweep(scene: Any, *, rays: Sequence[int] | None = None, repeats: int = MIN_REPEATS,
-                   seed: int | None = None) -> list[dict[str, Any]]:
-    """Rows of ``repeats`` independent sweeps merged per configuration (see the module docstring)."""
+                   seed: int | None = None, progress: bool = False) -> list[dict[str, Any]]:
+    """Rows of ``repeats`` independent sweeps merged per configuration (see the module docstring);
+    ``progress`` draws a bar with an ETA over the sweeps on stderr."""
+    from tqdm import tqdm
+
     repeats = max(int(repeats), MIN_REPEATS)
     base = int(seed if seed is not None else scene.seed)
-    runs = [tradeoff.sweep(scene, rays=rays, repeats=1, seed=base + 7919 * k) for k in range(repeats)]
+    runs = [tradeoff.sweep(scene, rays=rays, repeats=1, seed=base + 7919 * k)
+            for k in tqdm(range(repeats), disable=not progress, desc="tradeoff", unit="sweep", leave=False,
+                          dynamic_ncols=True)]
     merged: dict[tuple, list[dict[str, Any]]] = {}
     for rows in runs:
         for r in rows:

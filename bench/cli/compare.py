@@ -22,7 +22,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from bench.cli.argtypes import real
+from bench.cli.argtypes import real, stderr_is_terminal
 from bench.cli.common import DEFAULT_STORE, output_dir
 from bench.core.errors import InputError
 
@@ -83,14 +83,25 @@ def _settings(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
 def cmd_compare(args: argparse.Namespace) -> int:
     from compare.report import compare_records
 
+    from tqdm import tqdm
+
     criterion, opts = _settings(args)
-    actual_name, actual = _load(args.actual, args.store)
-    candidates = dict(_load(c, args.store) for c in args.candidates)
-    out = Path(args.report or "compare-report")
-    align_kw = {k: float(opts[k]) for k in ("angle_tol_deg", "wavelength_tol_nm") if k in opts}
-    summary = compare_records(actual, candidates, out, primary_metric=opts.get("metric", "chi2_per_dof"),
-                              title=opts.get("title") or f"{', '.join(candidates)} against {actual_name}",
-                              on_error="skip" if args.skip_bad else "raise", criterion=criterion, **align_kw)
+    # progress with an ETA on a terminal: one step per record read, one for the statistics and report
+    with tqdm(total=len(args.candidates) + 2, disable=not stderr_is_terminal(), desc="compare", unit="step",
+              leave=False, dynamic_ncols=True) as bar:
+        actual_name, actual = _load(args.actual, args.store)
+        bar.update()
+        candidates = {}
+        for c in args.candidates:
+            name, record = _load(c, args.store)
+            candidates[name] = record
+            bar.update()
+        out = Path(args.report or "compare-report")
+        align_kw = {k: float(opts[k]) for k in ("angle_tol_deg", "wavelength_tol_nm") if k in opts}
+        summary = compare_records(actual, candidates, out, primary_metric=opts.get("metric", "chi2_per_dof"),
+                                  title=opts.get("title") or f"{', '.join(candidates)} against {actual_name}",
+                                  on_error="skip" if args.skip_bad else "raise", criterion=criterion, **align_kw)
+        bar.update()
     if args.json:
         print(json.dumps(summary))
         return 0

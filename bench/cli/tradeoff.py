@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from bench.cli.argtypes import count, int_list, seed
+from bench.cli.argtypes import count, int_list, seed, stderr_is_terminal
 from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
 
 __all__ = ["register", "cmd_tradeoff"]
@@ -87,7 +87,8 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
         return 0
     from bench.tradeoff_plot import MIN_REPEATS, plot_small_multiples, repeated_sweep
 
-    rows = repeated_sweep(scene, rays=rays, repeats=args.repeats or MIN_REPEATS, seed=args.seed)
+    rows = repeated_sweep(scene, rays=rays, repeats=args.repeats or MIN_REPEATS, seed=args.seed,
+                          progress=stderr_is_terminal())
     costs = [] if args.no_costs or not scene.effects.declared() else effect_costs(
         scene, rays=min(scene.n_rays, 1_000_000), repeat=3)
     unit = "1/sr" if scene.instrument == "goniophotometer" else "reflectance, 1"
