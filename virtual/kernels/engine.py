@@ -109,11 +109,15 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
     vx = np.empty(nb)
     vy = np.empty(nb)
     vz = np.empty(nb)
+    cx = np.empty(nb)
+    cy = np.empty(nb)
+    cz = np.empty(nb)
     # Absorbed and missed rays are spread over 8 bins each (by i mod 8), summed at the end: when
     # most rays are absorbed, one bin would chain every increment on the previous one's store.
-    h = np.zeros(n_bins + 16, dtype=np.int64)
+    h = np.zeros(n_bins + 24, dtype=np.int64)
     absorbed = n_bins
     missed = n_bins + 8
+    dump = n_bins + 16  # survivors' placeholder counts during compaction (discarded)
     left = n_rays
     while left > 0:
         m = min(left, nb)
@@ -132,23 +136,33 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
                 vx[i], vy[i], vz[i], alive = scatter_given(MODEL_GGX, p, wx, wy, wz, u[s0 + i],
                                                            u[s0 + nb + i], u[s0 + 2 * nb + i])
                 code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
-        if scheme == SCHEME_EQUAL_PSA:
-            for i in range(nb):
-                g = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
-                code[i] = g if code[i] == -2 else code[i]
-        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
-            for i in range(nb):
-                g = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
-                              sector_margin)
-                code[i] = g if code[i] == -2 else code[i]
-        else:
-            for i in range(nb):
-                g = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
-                code[i] = g if code[i] == -2 else code[i]
+        # Compaction: the surviving rays' directions move to the front (branch-free: every ray
+        # is written, the write position advances only for a survivor); the others are counted
+        # now (absorbed/missed bins, or a dump bin for a survivor). Only survivors are binned --
+        # a GGX dielectric absorbs 96 % of its rays, a Lambertian of albedo 0.5 half of them.
+        j = 0
         for i in range(m):
             k = code[i]
+            live = k == -2
+            cx[j] = vx[i]
+            cy[j] = vy[i]
+            cz[j] = vz[i]
+            h[dump + (i & 7) if live else k] += 1
+            j += live
+        if scheme == SCHEME_EQUAL_PSA:
+            for i in range(j):
+                code[i] = guess_bin(cx[i], cy[i], cz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
+        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
+            for i in range(j):
+                code[i] = guess_bin(cx[i], cy[i], cz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
+                                    sector_margin)
+        else:
+            for i in range(j):
+                code[i] = guess_bin(cx[i], cy[i], cz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+        for i in range(j):
+            k = code[i]
             if k < 0:  # too near an edge (or the pole, or the horizon) for the guess: exact lookup
-                k = patch_of(vx[i], vy[i], vz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
+                k = patch_of(cx[i], cy[i], cz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
             h[k] += 1
         left -= m
     for k in range(n_bins):
