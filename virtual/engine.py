@@ -17,8 +17,10 @@ Two kernel shapes:
   (:func:`~virtual.specimens.scatter_given`) and bins (:func:`~virtual.collector.guess_bin`)
   every ray, which LLVM compiles to AVX-512/AVX2 code; then a short scalar loop adds the bins
   to the histogram, settling the rare uncertain bin with the exact
-  :func:`~virtual.collector.patch_of`. It serves the :data:`~virtual.specimens.GIVEN_MODELS`
-  (Lambertian, GGX, anisotropic GGX), 2-5x the ray-by-ray kernel's throughput.
+  :func:`~virtual.collector.patch_of`. Only the surviving rays are binned (compacted first).
+  It serves the :data:`~virtual.kernels.engine.BLOCK_MODELS` (Lambertian, GGX, anisotropic GGX
+  with three uniforms per ray; Phong, Oren-Nayar, rough dielectric with four), 2-5x the
+  ray-by-ray kernel's throughput.
 
 Both count the same physics with the same distribution (tested by two-sample chi-square); their
 random streams differ, so equal seeds give equal counts only within one kernel shape.
@@ -32,8 +34,8 @@ import numpy as np
 
 from virtual.collector import guess_margins
 from virtual.kernels.beam import DISK_REJECTION
-from virtual.kernels.engine import BEAM_UNIFORMS, BLOCK_RAYS, gonio_block_kernel, gonio_kernel, spectro_kernel  # noqa: F401
-from virtual.kernels.scatter import GIVEN_MODELS
+from virtual.kernels.engine import (BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS, gonio_block_kernel,  # noqa: F401
+                                    gonio_kernel, spectro_kernel)
 from virtual.rng import lane_states, stream_states
 
 __all__ = [
@@ -152,9 +154,9 @@ def gonio_kernel_for(model: int, disk: int, kernel: str = "auto") -> str:
     form (unless the beam asks for rejection-sampled disks), else ``"ray"``."""
     if kernel not in GONIO_KERNELS:
         raise ValueError(f"kernel must be one of {', '.join(GONIO_KERNELS)}, got {kernel!r}")
-    can_block = int(model) in GIVEN_MODELS and int(disk) != DISK_REJECTION
+    can_block = int(model) in BLOCK_MODELS and int(disk) != DISK_REJECTION
     if kernel == "block" and not can_block:
-        raise ValueError(f"the block kernel runs models {GIVEN_MODELS} with polar or auto disk sampling, "
+        raise ValueError(f"the block kernel runs models {BLOCK_MODELS} with polar or auto disk sampling, "
                          f"not model {model} with disk code {disk}")
     if kernel == "auto":
         return "block" if can_block else "ray"
@@ -177,7 +179,7 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     with single_chunk_threads(n_rays):
         if shape == "block":
-            p4 = np.zeros(max(4, p.size))  # the block kernel reads four parameters whatever the model
+            p4 = np.zeros(max(BLOCK_PARAMS, p.size))  # the block kernel reads six parameters whatever the model
             p4[:p.size] = p
             out = gonio_block_kernel(np.int64(model), p4, np.int64(beam_kind), b, tuple(collector_args),
                                       guess_margins(n_theta, n_phi), np.int64(n_bins), sizes,

@@ -20,13 +20,19 @@ from virtual.kernels import jit
 from virtual.kernels.beam import BEAM_CONICAL, emit, emit_given
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
 from virtual.kernels.rng import LANES, fill_uniforms
-from virtual.kernels.scatter import GIVEN_UNIFORMS, MODEL_GGX, MODEL_LAMBERT, scatter, scatter_given
+from virtual.kernels.scatter import (GIVEN4_MODELS, GIVEN4_UNIFORMS, GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC,
+                                     MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, scatter, scatter_given,
+                                     scatter_given4)
 
-__all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "spectro_kernel", "gonio_kernel", "gonio_block_kernel"]
+__all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "spectro_kernel", "gonio_kernel", "gonio_block_kernel"]
 
 #: Rays per block of the block kernel: its 7 uniforms and 4 outputs per ray (88 KiB) stay in L2.
 BLOCK_RAYS = 1024
 BEAM_UNIFORMS = 4  # two polar disk points
+#: Models the block kernel runs (three uniforms each for the first, four for the second group).
+BLOCK_MODELS = GIVEN_MODELS + GIVEN4_MODELS
+#: Parameters the block kernel passes to a model (as a tuple; shorter vectors are zero-padded).
+BLOCK_PARAMS = 6
 
 
 @jit(parallel=True, fastmath=True)
@@ -100,7 +106,9 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
     """
     nb = BLOCK_RAYS
     n_beam = BEAM_UNIFORMS if beam_kind == BEAM_CONICAL else 0
-    ublock = np.empty(((n_beam + GIVEN_UNIFORMS) * nb // LANES, LANES))
+    n_scat = GIVEN4_UNIFORMS if (model == MODEL_PHONG or model == MODEL_OREN_NAYAR or model == MODEL_DIELECTRIC) \
+        else GIVEN_UNIFORMS
+    ublock = np.empty(((n_beam + n_scat) * nb // LANES, LANES))
     u = ublock.reshape(ublock.size)
     s0 = n_beam * nb  # the scatterer's uniforms follow the beam's
     bo = nb if n_beam > 0 else 0  # a collimated beam reads none: any valid index will do
@@ -129,6 +137,24 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
                 wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
                 vx[i], vy[i], vz[i], alive = scatter_given(MODEL_LAMBERT, p, wx, wy, wz, u[s0 + i],
                                                            u[s0 + nb + i], u[s0 + 2 * nb + i])
+                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+        elif model == MODEL_PHONG:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = scatter_given4(MODEL_PHONG, p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                                                            u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+        elif model == MODEL_OREN_NAYAR:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = scatter_given4(MODEL_OREN_NAYAR, p, wx, wy, wz, u[s0 + i],
+                                                            u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+        elif model == MODEL_DIELECTRIC:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = scatter_given4(MODEL_DIELECTRIC, p, wx, wy, wz, u[s0 + i],
+                                                            u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
                 code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
         else:
             for i in range(nb):
@@ -175,7 +201,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
 
 @jit(parallel=True)
 def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes):
-    p = (params[0], params[1], params[2], params[3])
+    p = (params[0], params[1], params[2], params[3], params[4], params[5])
     b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
          beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
          beam_args[14])
