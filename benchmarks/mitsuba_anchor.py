@@ -7,39 +7,22 @@ Mitsuba's concentric disk warp), ``bsdf.sample``, a survival roll on the sampled
 weight of an analog estimator is the directional albedo's share, <= 1 for these BSDFs), the
 equal-PSA patch index computed with Dr.Jit, and ``dr.scatter_reduce`` into the histogram.
 
-The LLVM variant needs a libLLVM shared object: :func:`llvm_library` finds Debian's
-``libllvm19`` (``DRJIT_LIBLLVM_PATH`` wins when set), and :func:`available` says why not when
-it is missing.
+The LLVM variant needs a libLLVM shared object: :func:`virtual.mitsuba_llvm.llvm_library` finds
+Debian's ``libllvm19`` (``DRJIT_LIBLLVM_PATH`` wins when set), and :func:`available` says why
+not when it is missing.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import time
-from pathlib import Path
 from typing import Any
 
-__all__ = ["LIBLLVM_CANDIDATES", "llvm_library", "available", "MitsubaGonio"]
+from virtual.mitsuba_llvm import llvm_library
 
-#: Where Debian/Ubuntu put libLLVM (the newest first).
-LIBLLVM_CANDIDATES = tuple(f"/usr/lib/x86_64-linux-gnu/libLLVM-{v}.so" for v in (19, 18, 17, 16, 15)) + (
-    "/usr/lib/x86_64-linux-gnu/libLLVM.so",)
+__all__ = ["available", "MitsubaGonio", "WAVEFRONT"]
 
 WAVEFRONT = 10_000_000
-
-
-def llvm_library() -> str | None:
-    """The libLLVM path Dr.Jit will load: ``DRJIT_LIBLLVM_PATH`` when set, else the first
-    existing candidate (and then ``DRJIT_LIBLLVM_PATH`` is set to it, before Dr.Jit loads)."""
-    env = os.environ.get("DRJIT_LIBLLVM_PATH")
-    if env:
-        return env if Path(env).exists() else None
-    for c in LIBLLVM_CANDIDATES:
-        if Path(c).exists():
-            os.environ["DRJIT_LIBLLVM_PATH"] = c
-            return c
-    return None
 
 
 def available(variant: str = "llvm_ad_rgb") -> tuple[Any, str]:
