@@ -35,7 +35,8 @@ import numpy as np
 from virtual.collector import guess_margins
 from virtual.kernels.beam import DISK_REJECTION
 from virtual.kernels.engine import (BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS, gonio_block_kernel,  # noqa: F401
-                                    gonio_kernel, spectro_kernel)
+                                    gonio_kernel, lambert_spectral_kernel, spectro_kernel)
+from virtual.kernels.scatter import MODEL_LAMBERT
 from virtual.rng import lane_states, stream_states
 
 __all__ = [
@@ -49,6 +50,7 @@ __all__ = [
     "GONIO_KERNELS",
     "gonio_kernel_for",
     "multinomial_counts",
+    "gonio_counts_spectral",
 ]
 
 #: Rays per chunk aimed at; enough to amortise a chunk's set-up, small enough to balance 2 cores.
@@ -188,6 +190,81 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
             out = gonio_kernel(np.int64(model), p, np.int64(beam_kind), np.int64(disk), b,
                                 tuple(collector_args), np.int64(n_bins), sizes, stream_states(seq, sizes.shape[0]))
     return out.sum(axis=0)
+
+
+#: Chunks per call of the spectral kernel: bounds its per-chunk tables (cells x patches) in memory.
+SPECTRAL_CHUNK_GROUP = 16
+
+
+def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, beam_kind: int, disk: int,
+                          beam_args: np.ndarray, collector_args: tuple, n_rays: int,
+                          seq: np.random.SeedSequence) -> np.ndarray:
+    """:func:`gonio_counts` at W wavelengths at once: ``params`` holds one parameter vector per
+    wavelength; returns int64 counts ``(W, n_bins + 2)``, each row distributed exactly as
+    :func:`gonio_counts` with that row's parameters.
+
+    Spectral batching (issue 18). A Lambertian's direction (cosine-weighted, drawn from u1, u2)
+    does not depend on the wavelength; only its fate does: with one survival uniform u0, the ray
+    leaves on the source's side when u0 < R, on the far side when R <= u0 < R + T, and is
+    absorbed otherwise. The block kernel therefore draws each ray's direction and u0 once and
+    locates u0 among the sorted thresholds {R_w, R_w + T_w} of all wavelengths (the "cell" of
+    u0); within a cell every wavelength's fate is fixed, so counting rays by (cell, patch) and
+    then adding each cell's counts to each wavelength's bins reproduces, for every wavelength,
+    exactly the single-wavelength kernel's law (for that wavelength alone it is the same
+    computation: u0 uniform, independent of the direction). Wavelengths share the rays, so their
+    counts are correlated (common random numbers): each row is exact, the rows are not
+    independent. Cost: one direction, one patch lookup and one count per ray, whatever W.
+
+    Other models fall back to one :func:`gonio_counts` per wavelength (same ``seq`` each, so
+    the same rays). GGX with a wavelength-dependent Fresnel could batch the same way (its
+    direction does not depend on eta, k) but its survival thresholds F_w(w.m) G2/G1 vary per
+    ray, so the cell trick does not apply; not done yet.
+    """
+    rows = [np.ascontiguousarray(p, dtype=np.float64) for p in params]
+    if not rows:
+        raise ValueError("gonio_counts_spectral needs at least one wavelength's parameters")
+    n_theta, n_phi = int(collector_args[1]), int(collector_args[2])
+    n_patches = n_theta * n_phi
+    n_bins = 2 * n_patches
+    if int(model) != MODEL_LAMBERT or gonio_kernel_for(model, disk) != "block":
+        def same(q: np.random.SeedSequence) -> np.random.SeedSequence:  # spawning advances a SeedSequence
+            return np.random.SeedSequence(q.entropy, spawn_key=q.spawn_key, pool_size=q.pool_size,
+                                          n_children_spawned=q.n_children_spawned)
+
+        return np.stack([gonio_counts(model, p, beam_kind, disk, beam_args, collector_args, n_rays, same(seq))
+                         for p in rows])
+    r = np.array([p[0] for p in rows])
+    rt = np.minimum(r + np.array([p[1] for p in rows]), 1.0)
+    thr = np.unique(np.concatenate([r, rt]))
+    sizes = chunking(n_rays)
+    lanes = lane_states(seq, sizes.shape[0])
+    b = np.ascontiguousarray(beam_args, dtype=np.float64)
+    margins = guess_margins(n_theta, n_phi)
+    cells = np.zeros((thr.size + 1, n_patches), dtype=np.int64)
+    missed = 0
+    with single_chunk_threads(n_rays):
+        for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
+            sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
+            c, m = lambert_spectral_kernel(thr, np.int64(beam_kind), b, tuple(collector_args), margins,
+                                           np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
+                                           np.ascontiguousarray(lanes[sl]))
+            cells += c
+            missed += int(m)
+    # each cell's fate per wavelength, judged at the cell's lower end (a value u0 takes in it)
+    lower = np.concatenate([[0.0], thr])
+    source_above = b[14] > 0.0  # every hit ray comes from the axis' side (collimated: the axis)
+    out = np.zeros((len(rows), n_bins + 2), dtype=np.int64)
+    per_cell = cells.sum(axis=1)
+    for w in range(len(rows)):
+        near = lower < r[w]
+        far = (lower >= r[w]) & (lower < rt[w])
+        upper = np.where(source_above, near, far)
+        lower_side = np.where(source_above, far, near)
+        out[w, :n_patches] = cells[upper].sum(axis=0)
+        out[w, n_patches:n_bins] = cells[lower_side].sum(axis=0)
+        out[w, n_bins] = per_cell[~(near | far)].sum()
+        out[w, n_bins + 1] = missed
+    return out
 
 
 def multinomial_counts(probabilities: np.ndarray, n_rays: int, seq: np.random.SeedSequence) -> np.ndarray:

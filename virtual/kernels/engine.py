@@ -20,6 +20,7 @@ from virtual.kernels import jit
 from virtual.kernels.beam import BEAM_CONICAL, emit, emit_given
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
 from virtual.kernels.rng import LANES, fill_uniforms
+from virtual.kernels.sampling import warp_cosine_hemisphere
 from virtual.kernels.scatter import (GIVEN4_MODELS, GIVEN4_UNIFORMS, GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC,
                                      MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, scatter, scatter_given,
                                      scatter_given4)
@@ -213,3 +214,83 @@ def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bi
                            hist)
         out[c] = hist
     return out
+
+
+@jit(fastmath=True, error_model="numpy")
+def lambert_spectral_chunk(thr, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, cells, missed):
+    """One chunk of the spectral Lambertian block kernel (see :func:`lambert_spectral_kernel`):
+    every hit ray's upper-hemisphere patch counted in ``cells[cell of u0, patch]``, missed rays in
+    ``missed[0]``. ``thr`` are the sorted survival thresholds of all wavelengths."""
+    nb = BLOCK_RAYS
+    n_beam = BEAM_UNIFORMS if beam_kind == BEAM_CONICAL else 0
+    ublock = np.empty(((n_beam + GIVEN_UNIFORMS) * nb // LANES, LANES))
+    u = ublock.reshape(ublock.size)
+    s0 = n_beam * nb
+    bo = nb if n_beam > 0 else 0
+    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
+    n_thr = thr.shape[0]
+    code = np.empty(nb, dtype=np.int64)
+    cell = np.empty(nb, dtype=np.int64)
+    vx = np.empty(nb)
+    vy = np.empty(nb)
+    vz = np.empty(nb)
+    m_count = np.int64(0)
+    left = n_rays
+    while left > 0:
+        m = min(left, nb)
+        fill_uniforms(lane, ublock)
+        for i in range(nb):
+            wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+            x, y, z = warp_cosine_hemisphere(u[s0 + 2 * nb + i], u[s0 + nb + i])
+            vx[i] = x
+            vy[i] = y
+            vz[i] = z
+            cell[i] = 0 if hit else -(n_thr + 1)  # a missed ray's cell stays < 0
+        for t in range(n_thr):  # the cell of u0: how many thresholds lie at or below it
+            th = thr[t]
+            for i in range(nb):
+                cell[i] += u[s0 + i] >= th
+        if scheme == SCHEME_EQUAL_PSA:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
+        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
+                                    sector_margin)
+        else:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+        for i in range(m):
+            c = cell[i]
+            if c < 0:
+                m_count += 1
+                continue
+            k = code[i]
+            if k < 0:
+                k = patch_of(vx[i], vy[i], vz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
+            cells[c, k] += 1
+        left -= m
+    missed[0] += m_count
+
+
+@jit(parallel=True)
+def lambert_spectral_kernel(thr, beam_kind, beam_args, cargs, margins, n_patches, sizes, lanes):
+    """The Lambertian block kernel for many wavelengths at once: each ray's direction is drawn
+    once, and its survival uniform u0 is located among the sorted thresholds ``thr`` (every
+    wavelength's R and R + T). Returns per chunk the counts ``(n_thr + 1, n_patches)`` of hit
+    rays by (cell of u0, upper-hemisphere patch of the cosine-distributed direction), and the
+    missed rays; :func:`virtual.engine.gonio_counts_spectral` turns them into each wavelength's
+    counts."""
+    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
+         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
+         beam_args[14])
+    n_chunks = sizes.shape[0]
+    out = np.zeros((n_chunks, thr.shape[0] + 1, n_patches), dtype=np.int64)
+    miss = np.zeros((n_chunks, 1), dtype=np.int64)
+    for c in prange(n_chunks):
+        cells = np.zeros((thr.shape[0] + 1, n_patches), dtype=np.int64)
+        m = np.zeros(1, dtype=np.int64)
+        lambert_spectral_chunk(thr, beam_kind, b, cargs, margins[0], margins[1], sizes[c], lanes[c].copy(), cells, m)
+        out[c] = cells
+        miss[c, 0] = m[0]
+    return out.sum(axis=0), miss.sum()
