@@ -35,7 +35,7 @@ from numba import prange
 from benchmarks.common import best_of, numpy_uniform_rate, table
 from virtual.beam import Beam
 from virtual.collector import Collector
-from virtual.engine import gonio_counts, gonio_kernel_for, measurement_seed
+from virtual.engine import gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.kernels import jit
 from virtual.rng import LANES, fill_uniforms, lane_states, next_double, stream_states
@@ -155,7 +155,7 @@ _PEAK_SCRIPT = """
 import time
 from virtual.beam import Beam
 from virtual.collector import Collector
-from virtual.engine import gonio_counts, gonio_kernel_for, measurement_seed
+from virtual.engine import gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
 from virtual.specimens import parse_specimen
 sp, beam, col = parse_specimen("lambert:albedo=0.5"), Beam("conical"), Collector("equal-psa", 30, 30)
 t0 = time.perf_counter()
@@ -223,6 +223,48 @@ def native_rows(n: int = N_RAYS, families: dict[str, str] = FAMILY_SPECS) -> lis
     return rows
 
 
+SPECTRAL_W = 31
+
+
+def spectral_rows(n: int = N_RAYS, w: int = SPECTRAL_W) -> list[dict]:
+    """A Lambertian with a spectral albedo at ``w`` wavelengths in one batched measurement
+    (:func:`virtual.engine.gonio_counts_spectral`), and the same at one wavelength; the target
+    is ``w`` wavelengths in <= 3x the time of one single-wavelength measurement."""
+    args, cargs = BEAM.kernel_args(30.0, 0.0), COLLECTOR.kernel_args()
+    rows_w = [np.array([0.2 + 0.6 * k / max(w - 1, 1), 0.0]) for k in range(w)]
+
+    def batched() -> object:
+        return gonio_counts_spectral(0, rows_w, BEAM.code, BEAM.disk_code, args, cargs, n, measurement_seed(1))
+
+    gonio_counts_spectral(0, rows_w, BEAM.code, BEAM.disk_code, args, cargs, 1000, measurement_seed(1))
+    seconds, out = best_of(batched, 2)
+    assert out.shape[0] == w and (out.sum(axis=1) == n).all()
+    return [_row(f"ours-lambert-{w}wl", "lambert", f"block, spectral batch of {w}", seconds, n)]
+
+
+def mitsuba_specimen_rows(n: int = 10_000_000, batch: int = 1_000_000) -> list[dict]:
+    """A Mitsuba specimen's ``sample`` (the devices' Python engine calls it per batch) through
+    the LLVM wavefront sampler (target >= 1e7 rays/s) -- and the scalar loop, for scale."""
+    from virtual.mitsuba import MitsubaSpecimen
+    from virtual.mitsuba_llvm import llvm_status
+
+    bsdf = MITSUBA_BSDFS["mitsuba-llvm-ggx"][1]
+    wi, rows = np.array([0.5, 0.0, math.sqrt(0.75)]), []
+    why = llvm_status("llvm_ad_rgb")
+    if why:
+        rows.append(_row("ours-mitsuba-specimen-wavefront", "mitsuba", "llvm wavefront sample", None, n, why))
+    else:
+        sp = MitsubaSpecimen(bsdf)
+        rng = np.random.default_rng(1)
+        sp.sample(wi, batch, 550.0, rng)
+        seconds, _ = best_of(lambda: [sp.sample(wi, batch, 550.0, rng) for _ in range(n // batch)], 2)
+        rows.append(_row("ours-mitsuba-specimen-wavefront", "mitsuba", "llvm wavefront sample", seconds, n))
+    scalar, m = MitsubaSpecimen(bsdf, wavefront=False), 100_000
+    seconds, _ = best_of(lambda: scalar.sample(wi, m, 550.0, np.random.default_rng(1)), 1)
+    rows.append(_row("ours-mitsuba-specimen-scalar", "mitsuba", "scalar loop sample", seconds, m))
+    return rows
+
+
 def ratios(rows: list[dict]) -> dict[str, float]:
     """The ratios the regression guard watches (all "higher is better"), from one run's rows:
     each family against the Mitsuba GGX row (and the two anchors against their own Mitsuba row)
@@ -234,19 +276,25 @@ def ratios(rows: list[dict]) -> dict[str, float]:
         out["ggx / mitsuba-llvm-ggx"] = by["ours-ggx"] / mg
         out["lambert / mitsuba-llvm-diffuse"] = by["ours-lambert"] / md
         for r in rows:
-            if r["name"].startswith("ours-") and r["name"] not in ("ours-ggx", "ours-lambert"):
+            if r["name"] in [f"ours-{f}" for f in FAMILY_SPECS if f not in ("ggx", "lambert")]:
                 out[f"{r['specimen']} / mitsuba-llvm-ggx"] = r["rays_per_s"] / mg
     lam = by.get("ours-lambert")
     for r in rows:
-        if r["name"].startswith("ours-") and r["name"] != "ours-lambert" and lam:
+        if r["name"] in [f"ours-{f}" for f in FAMILY_SPECS if f != "lambert"] and lam:
             out[f"{r['specimen']} / lambert"] = r["rays_per_s"] / lam
+    spec = by.get(f"ours-lambert-{SPECTRAL_W}wl")
+    if spec and lam:  # time of one wavelength / time of W: >= 1/3 meets the target
+        out[f"lambert 1 wavelength time / {SPECTRAL_W} wavelengths time"] = spec / lam
+    wave = by.get("ours-mitsuba-specimen-wavefront")
+    if wave and mg:
+        out["mitsuba specimen wavefront / mitsuba-llvm-ggx"] = wave / mg
     return out
 
 
 def measure(n: int = N_RAYS) -> dict:
     """The JSON of ``python -m benchmarks gonio --json``: ``rows`` and the ``ratios``."""
     threads = numba.get_num_threads()
-    rows = mitsuba_rows(n, threads) + native_rows(n)
+    rows = mitsuba_rows(n, threads) + native_rows(n) + spectral_rows(n) + mitsuba_specimen_rows()
     return {"threads": threads, "collector": "equal-psa 30x30", "incidence_deg": 30.0, "rows": rows,
             "ratios": ratios(rows)}
 
@@ -264,7 +312,14 @@ def _anchor_table(m: dict) -> str:
         a = anchor.get("rays_per_s")
         x_anchor = rate / a if a and r["name"].startswith("ours-") else "-"
         target = "-"
-        if r["name"].startswith("ours-"):
+        if r["name"] == f"ours-lambert-{SPECTRAL_W}wl":
+            lam = by["ours-lambert"]["rays_per_s"]
+            target = f"{lam / rate:.2f}x one wavelength's time: {'yes' if rate * 3 >= lam else 'NO'} (<= 3x)"
+            x_anchor = "-"
+        elif r["name"].startswith("ours-mitsuba-specimen"):
+            target = ("yes" if rate >= 1e7 else "NO") + " (>= 1e7)" if "wavefront" in r["name"] else "-"
+            x_anchor = "-"
+        elif r["name"].startswith("ours-"):
             ok = rate >= 1e8 and (mg is None or rate >= mg)
             if r["specimen"] in ("ggx", "lambert") and a:
                 ok = ok and rate >= 2 * a
