@@ -1,4 +1,5 @@
-"""The block kernel's four-uniform families (Phong, Oren-Nayar, rough dielectric; issue 18) count
+"""The block kernel's four-uniform families (Phong, Oren-Nayar, rough dielectric) and the rough
+plastic (seven uniforms and a rejection fallback; issue 18) count
 the same distribution as the ray-by-ray kernel, and the test can tell a slightly different
 specimen apart.
 
@@ -30,12 +31,15 @@ CASES = [
     ("oren-nayar:sigma=10", Beam("collimated"), 0.0),
     ("dielectric:alpha=0.2,eta=1.5", Beam("conical"), 35.0),
     ("dielectric:alpha=0.3,eta=1.5", Beam("collimated"), 150.0),  # from inside: total internal reflection
+    ("plastic", Beam("conical"), 35.0),
+    ("plastic:alpha=0.3,eta=1.9", Beam("collimated"), 160.0),  # from below (two-sided), a strong Fresnel
 ]
 
 PERTURBED = [
     ("phong:exponent=20", "phong:exponent=23"),
     ("oren-nayar:sigma=30,albedo=0.7", "oren-nayar:sigma=40,albedo=0.7"),
     ("dielectric:alpha=0.2,eta=1.5", "dielectric:alpha=0.2,eta=1.6"),
+    ("plastic", "plastic:eta=1.6"),
 ]
 
 
@@ -55,13 +59,13 @@ def test_the_comparison_has_power_against_a_perturbed_parameter(spec, other):
     assert _two_sample_p(a, b) < 1e-6
 
 
-def test_four_uniform_block_counts_do_not_depend_on_the_thread_count():
+def test_block_counts_with_a_rejection_fallback_do_not_depend_on_the_thread_count():
     n, before = 3 * (1 << 20) + 7, numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        one = _gonio("oren-nayar:sigma=30,albedo=0.7", Beam("conical"), COL, n, 5, "block")
+        one = _gonio("plastic:eta=1.9", Beam("conical"), COL, n, 5, "block")
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        many = _gonio("oren-nayar:sigma=30,albedo=0.7", Beam("conical"), COL, n, 5, "block")
+        many = _gonio("plastic:eta=1.9", Beam("conical"), COL, n, 5, "block")
     finally:
         numba.set_num_threads(before)
     np.testing.assert_array_equal(one, many)

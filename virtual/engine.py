@@ -19,8 +19,9 @@ Two kernel shapes:
   to the histogram, settling the rare uncertain bin with the exact
   :func:`~virtual.collector.patch_of`. Only the surviving rays are binned (compacted first).
   It serves the :data:`~virtual.kernels.engine.BLOCK_MODELS` (Lambertian, GGX, anisotropic GGX
-  with three uniforms per ray; Phong, Oren-Nayar, rough dielectric with four), 2-5x the
-  ray-by-ray kernel's throughput.
+  with three uniforms per ray; Phong, Oren-Nayar, rough dielectric with four; the rough plastic
+  with seven and one attempt of its diffuse rejection loop, the rare rejected ray finishing
+  the loop on a scalar stream), 2-5x the ray-by-ray kernel's throughput.
 
 Both count the same physics with the same distribution (tested by two-sample chi-square); their
 random streams differ, so equal seeds give equal counts only within one kernel shape.
@@ -185,7 +186,7 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
             p4[:p.size] = p
             out = gonio_block_kernel(np.int64(model), p4, np.int64(beam_kind), b, tuple(collector_args),
                                       guess_margins(n_theta, n_phi), np.int64(n_bins), sizes,
-                                      lane_states(seq, sizes.shape[0]))
+                                      lane_states(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
         else:
             out = gonio_kernel(np.int64(model), p, np.int64(beam_kind), np.int64(disk), b,
                                 tuple(collector_args), np.int64(n_bins), sizes, stream_states(seq, sizes.shape[0]))

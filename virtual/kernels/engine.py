@@ -22,7 +22,8 @@ from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHE
 from virtual.kernels.rng import LANES, fill_uniforms
 from virtual.kernels.sampling import warp_cosine_hemisphere
 from virtual.kernels.scatter import (GIVEN4_MODELS, GIVEN4_UNIFORMS, GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC,
-                                     MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, scatter, scatter_given,
+                                     MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC,
+                                     PLASTIC_UNIFORMS, plastic_diffuse_redo, plastic_given, scatter, scatter_given,
                                      scatter_given4)
 
 __all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "spectro_kernel", "gonio_kernel", "gonio_block_kernel"]
@@ -31,7 +32,7 @@ __all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "spect
 BLOCK_RAYS = 1024
 BEAM_UNIFORMS = 4  # two polar disk points
 #: Models the block kernel runs (three uniforms each for the first, four for the second group).
-BLOCK_MODELS = GIVEN_MODELS + GIVEN4_MODELS
+BLOCK_MODELS = GIVEN_MODELS + GIVEN4_MODELS + (MODEL_PLASTIC,)
 #: Parameters the block kernel passes to a model (as a tuple; shorter vectors are zero-padded).
 BLOCK_PARAMS = 6
 
@@ -94,9 +95,10 @@ def gonio_kernel(model, params, beam_kind, disk, b, cargs, n_bins, sizes, states
 
 
 @jit(fastmath=True, error_model="numpy")
-def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, hist):
+def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
     """One chunk of the block kernel: ``n_rays`` rays from the xoshiro lanes ``lane`` (advanced in
-    place) added to ``hist``.
+    place) added to ``hist``; ``s`` is a scalar xoshiro stream for the rare rays a fixed-count
+    form leaves to a rejection loop (the plastic's diffuse lobe).
 
     Compiled on its own, not inlined into the parallel loop: numba's parfor lowering would hoist
     the block buffers out of the loop and compile the body with other flags, and the loops would
@@ -108,7 +110,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
     nb = BLOCK_RAYS
     n_beam = BEAM_UNIFORMS if beam_kind == BEAM_CONICAL else 0
     n_scat = GIVEN4_UNIFORMS if (model == MODEL_PHONG or model == MODEL_OREN_NAYAR or model == MODEL_DIELECTRIC) \
-        else GIVEN_UNIFORMS
+        else (PLASTIC_UNIFORMS if model == MODEL_PLASTIC else GIVEN_UNIFORMS)
     ublock = np.empty(((n_beam + n_scat) * nb // LANES, LANES))
     u = ublock.reshape(ublock.size)
     s0 = n_beam * nb  # the scatterer's uniforms follow the beam's
@@ -151,6 +153,20 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
                 vx[i], vy[i], vz[i], alive = scatter_given4(MODEL_OREN_NAYAR, p, wx, wy, wz, u[s0 + i],
                                                             u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
                 code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+        elif model == MODEL_PLASTIC:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive, redo = plastic_given(
+                    p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i],
+                    u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i])
+                code[i] = -2 if (alive & hit) else (-3 if (redo & hit) else ((absorbed if hit else missed) + (i & 7)))
+            for i in range(m):  # the diffuse rays whose one attempt was rejected: the loop continues
+                if code[i] == -3:
+                    ox, oy, oz = plastic_diffuse_redo(p[1], s)
+                    vx[i] = ox
+                    vy[i] = oy
+                    vz[i] = oz if vz[i] > 0.0 else -oz
+                    code[i] = -2
         elif model == MODEL_DIELECTRIC:
             for i in range(nb):
                 wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
@@ -201,7 +217,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
 
 
 @jit(parallel=True)
-def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes):
+def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes, states):
     p = (params[0], params[1], params[2], params[3], params[4], params[5])
     b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
          beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
@@ -211,7 +227,7 @@ def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bi
     for c in prange(n_chunks):
         hist = np.zeros(n_bins + 2, dtype=np.int64)
         gonio_block_chunk(model, p, beam_kind, b, cargs, margins[0], margins[1], n_bins, sizes[c], lanes[c].copy(),
-                           hist)
+                          states[c].copy(), hist)
         out[c] = hist
     return out
 

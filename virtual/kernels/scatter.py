@@ -29,7 +29,8 @@ from virtual.kernels.sampling import sample_cosine_hemisphere, sincos_2pi, warp_
 
 __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX",
            "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
-           "scatter", "scatter_given", "GIVEN4_MODELS", "GIVEN4_UNIFORMS", "scatter_given4"]
+           "scatter", "scatter_given", "GIVEN4_MODELS", "GIVEN4_UNIFORMS", "scatter_given4",
+           "PLASTIC_UNIFORMS", "plastic_given", "plastic_diffuse_redo"]
 
 # Model ids: one branch each in `scatter`. Keep them stable (records and caches name them).
 MODEL_LAMBERT = 0
@@ -393,3 +394,61 @@ def scatter_given4(model, p, wx, wy, wz, u0, u1, u2, u3):
     if model == MODEL_OREN_NAYAR:
         return _oren_nayar_given(p, wx, wy, wz, u0, u1, u2, u3)
     return _dielectric_given(p, wx, wy, wz, u0, u1, u2, u3)
+
+
+# --- rough plastic for the block kernel (issue 18) ------------------------------------------------
+#: Uniforms :func:`plastic_given` consumes per ray.
+PLASTIC_UNIFORMS = 7
+
+
+@jit(inline="always")
+def plastic_given(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
+    """:func:`_plastic` with its uniforms given and one attempt of the diffuse lobe's rejection
+    loop: ``(ox, oy, oz, alive, redo)``. ``redo`` marks a diffuse ray whose one attempt was
+    rejected: its direction must come from :func:`plastic_diffuse_redo` (the loop continued,
+    which -- attempts being independent -- gives exactly the loop's law); ``oz`` then carries
+    only the side (+-1).
+
+    u0 < F picks the specular reflection (visible normal from (u1, u2), survival G2/G1 by u3);
+    otherwise u0 is uniform on [F, 1), so u0 - F < kd (1 - F) is the diffuse survival with
+    probability kd, no new uniform; the diffuse attempt is Malley's direction from (u4, u5),
+    accepted when u6 >= F(cos theta_o).
+    """
+    flip = wz < 0.0
+    wz = abs(wz)
+    a = p[0]
+    eta = p[1]
+    ni = ggx_n(wx, wy, wz, a, a)
+    ca, sa = sincos_2pi(u1)
+    mx, my, mz = ggx_vndf_given(wx, wy, wz, a, a, 1.0 / ni, ca, sa, u2)
+    c = max(wx * mx + wy * my + wz * mz, 0.0)
+    f, _ = fresnel_dielectric(c, eta)
+    spec = u0 < f
+    sx = 2.0 * c * mx - wx
+    sy = 2.0 * c * my - wy
+    sz = 2.0 * c * mz - wz
+    g_num, g_den = g2_over_g1_ratio(wz, ni, sz, ggx_n(sx, sy, sz, a, a))
+    spec_ok = (sz > 0.0) & (u3 * g_den < g_num)
+    dx, dy, dz = warp_cosine_hemisphere(u5, u4)
+    fo, _ = fresnel_dielectric(dz, eta)
+    diffuse = (u0 >= f) & ((u0 - f) < p[2] * (1.0 - f))
+    accepted = u6 >= fo
+    ox = sx if spec else dx
+    oy = sy if spec else dy
+    oz = sz if spec else (dz if accepted else 1.0)
+    ok = wz > 0.0
+    alive = ok & ((spec & spec_ok) | (diffuse & accepted))
+    redo = ok & diffuse & (u6 < fo)
+    return ox, oy, (-oz if flip else oz), alive, redo
+
+
+@jit(inline="always")
+def plastic_diffuse_redo(eta, s):
+    """The plastic's diffuse direction (cosine lobe thinned by 1 - F(cos theta_o)) drawn by
+    rejection from the stream ``s``, upper hemisphere: the fallback of :func:`plastic_given`."""
+    while True:
+        ox, oy, r2 = unit_disk(s)
+        oz = math.sqrt(1.0 - r2)
+        fo, _ = fresnel_dielectric(oz, eta)
+        if next_double(s) >= fo:
+            return ox, oy, oz
