@@ -23,7 +23,8 @@ from virtual.kernels.rng import LANES, fill_uniforms
 from virtual.kernels.sampling import warp_cosine_hemisphere
 from virtual.kernels.scatter import (GIVEN4_MODELS, GIVEN4_UNIFORMS, GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC,
                                      MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC,
-                                     PLASTIC_UNIFORMS, plastic_diffuse_redo, plastic_given, scatter, scatter_given,
+                                     PLASTIC_UNIFORMS, phong_given, phong_lobe_cos, plastic_diffuse_redo, plastic_given,
+                                     scatter, scatter_given,
                                      scatter_given4)
 
 __all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "spectro_kernel", "gonio_kernel", "gonio_block_kernel"]
@@ -142,10 +143,13 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
                                                            u[s0 + nb + i], u[s0 + 2 * nb + i])
                 code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
         elif model == MODEL_PHONG:
+            for i in range(nb):  # pow does not vectorize: alone in its loop, and only for lobe rays
+                uc = u[s0 + i]
+                vx[i] = phong_lobe_cos(p, u[s0 + 2 * nb + i]) if (uc >= p[0]) & (uc < p[0] + p[3]) else 1.0
             for i in range(nb):
                 wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive = scatter_given4(MODEL_PHONG, p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
-                                                            u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+                vx[i], vy[i], vz[i], alive = phong_given(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                                                         u[s0 + 2 * nb + i], u[s0 + 3 * nb + i], vx[i])
                 code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
         elif model == MODEL_OREN_NAYAR:
             for i in range(nb):

@@ -30,7 +30,8 @@ from virtual.kernels.sampling import sample_cosine_hemisphere, sincos_2pi, warp_
 __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX",
            "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
            "scatter", "scatter_given", "GIVEN4_MODELS", "GIVEN4_UNIFORMS", "scatter_given4",
-           "PLASTIC_UNIFORMS", "plastic_given", "plastic_diffuse_redo"]
+           "PLASTIC_UNIFORMS", "plastic_given", "plastic_diffuse_redo",
+           "phong_given", "phong_lobe_cos"]
 
 # Model ids: one branch each in `scatter`. Keep them stable (records and caches name them).
 MODEL_LAMBERT = 0
@@ -303,16 +304,23 @@ GIVEN4_UNIFORMS = 4
 
 
 @jit(inline="always")
-def _phong_given(p, wx, wy, wz, u0, u1, u2, u3):
+def phong_lobe_cos(p, u2):
+    """cos(alpha) of Phong's cos^n lobe from its uniform: u2^(1/(n+1)). A call of ``pow``,
+    which LLVM does not vectorize: the block kernel computes it in a loop of its own."""
+    return u2 ** (1.0 / (p[2] + 1.0))
+
+
+@jit(inline="always")
+def phong_given(p, wx, wy, wz, u0, u1, u2, u3, ca):
     """:func:`_phong` given its uniforms: diffuse when u0 < kd-share (Malley from (u1, u2)),
-    the cos^n lobe when u0 < kd + lobe share (cos(alpha) = u2^(1/(n+1)), azimuth 2 pi u1,
-    surviving with probability cos(theta_o) by u3), else absorbed."""
+    the cos^n lobe when u0 < kd + lobe share (cos(alpha) = ``ca`` =
+    :func:`phong_lobe_cos` (u2), azimuth 2 pi u1, surviving with probability cos(theta_o) by
+    u3), else absorbed."""
     flip = wz < 0.0
     wz = abs(wz)
     c1, s1 = sincos_2pi(u1)
     rho = math.sqrt(u2)
     dz = math.sqrt(1.0 - u2)
-    ca = u2 ** (1.0 / (p[2] + 1.0))
     sa = math.sqrt(max((1.0 - ca) * (1.0 + ca), 0.0))
     t1x, t1y, t1z, t2x, t2y, t2z = frame(-wx, -wy, wz)
     ta = c1 * sa
@@ -390,7 +398,7 @@ def scatter_given4(model, p, wx, wy, wz, u0, u1, u2, u3):
     """:func:`scatter` for the :data:`GIVEN4_MODELS`, with four uniforms given: the same
     distribution of ``(ox, oy, oz, alive)``, no branch (callers pass a constant ``model``)."""
     if model == MODEL_PHONG:
-        return _phong_given(p, wx, wy, wz, u0, u1, u2, u3)
+        return phong_given(p, wx, wy, wz, u0, u1, u2, u3, phong_lobe_cos(p, u2))
     if model == MODEL_OREN_NAYAR:
         return _oren_nayar_given(p, wx, wy, wz, u0, u1, u2, u3)
     return _dielectric_given(p, wx, wy, wz, u0, u1, u2, u3)
