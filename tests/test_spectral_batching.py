@@ -1,4 +1,4 @@
-"""Spectral batching (issue 18): a Lambertian measured at W wavelengths at once
+"""Spectral batching (issue 18): a Lambertian (and GGX with one roughness) measured at W wavelengths at once
 (:func:`virtual.engine.gonio_counts_spectral`) gives, per wavelength, exactly the
 single-wavelength count distribution.
 
@@ -18,7 +18,7 @@ from tests.test_engine import _two_sample_p
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import gonio_counts, gonio_counts_spectral, measurement_seed
-from virtual.kernels.scatter import MODEL_LAMBERT, MODEL_PHONG
+from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG
 from virtual.specimens import parse_specimen
 
 COL = Collector("equal-psa", 9, 24)
@@ -76,3 +76,43 @@ def test_other_models_fall_back_to_one_measurement_per_wavelength():
     with pytest.raises(ValueError, match="at least one"):
         gonio_counts_spectral(MODEL_LAMBERT, [], beam.code, beam.disk_code, beam.kernel_args(30.0, 0.0),
                               COL.kernel_args(), 10, measurement_seed(2))
+
+
+# GGX, one roughness, eta and k per wavelength: a dielectric, a conductor, another conductor
+GGX_ROWS = [(0.2, 0.2, 1.5, 0.0), (0.2, 0.2, 0.2, 3.0), (0.2, 0.2, 0.6, 2.0)]
+
+
+def _ggx_single(p, beam, theta, seed, model=MODEL_GGX):
+    return gonio_counts(model, np.array(p), beam.code, beam.disk_code, beam.kernel_args(theta, 20.0),
+                        COL.kernel_args(), N, measurement_seed(seed))
+
+
+def _ggx_spectral(rows, beam, theta, seed, model=MODEL_GGX, n=N):
+    return gonio_counts_spectral(model, [np.array(p) for p in rows], beam.code, beam.disk_code,
+                                 beam.kernel_args(theta, 20.0), COL.kernel_args(), n, measurement_seed(seed))
+
+
+@pytest.mark.parametrize("beam, theta", [(Beam("conical"), 35.0), (Beam("collimated"), 150.0)])
+def test_ggx_wavelengths_each_have_the_single_wavelength_distribution(beam, theta):
+    many = _ggx_spectral(GGX_ROWS, beam, theta, 1)
+    assert (many.sum(axis=1) == N).all()
+    for w, p in enumerate(GGX_ROWS):
+        assert _two_sample_p(many[w], _ggx_single(p, beam, theta, 20 + w)) > 1e-3, w
+    aniso = [(0.4, 0.1, 1.5, 0.0), (0.4, 0.1, 0.2, 3.0)]
+    many = _ggx_spectral(aniso, beam, theta, 2, MODEL_ANISO_GGX)
+    for w, p in enumerate(aniso):
+        assert _two_sample_p(many[w], _ggx_single(p, beam, theta, 30 + w, MODEL_ANISO_GGX)) > 1e-3, w
+
+
+def test_ggx_batch_has_power_against_a_slightly_different_fresnel():
+    many = _ggx_spectral(GGX_ROWS, Beam("conical"), 35.0, 1)
+    assert _two_sample_p(many[1], _ggx_single((0.2, 0.2, 0.2, 3.3), Beam("conical"), 35.0, 20)) < 1e-6
+
+
+def test_ggx_with_a_spectral_roughness_falls_back_to_one_measurement_per_wavelength():
+    rows = [(0.2, 0.2, 1.5, 0.0), (0.3, 0.3, 1.5, 0.0)]
+    many = _ggx_spectral(rows, Beam("conical"), 35.0, 3, n=10_000)
+    for w, p in enumerate(rows):
+        np.testing.assert_array_equal(many[w], gonio_counts(
+            MODEL_GGX, np.array(p), Beam("conical").code, Beam("conical").disk_code,
+            Beam("conical").kernel_args(35.0, 20.0), COL.kernel_args(), 10_000, measurement_seed(3)))

@@ -36,8 +36,8 @@ import numpy as np
 from virtual.collector import guess_margins
 from virtual.kernels.beam import DISK_REJECTION
 from virtual.kernels.engine import (BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS, gonio_block_kernel,  # noqa: F401
-                                    gonio_kernel, lambert_spectral_kernel, spectro_kernel)
-from virtual.kernels.scatter import MODEL_LAMBERT
+                                    ggx_spectral_kernel, gonio_kernel, lambert_spectral_kernel, spectro_kernel)
+from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
 from virtual.rng import lane_states, stream_states
 
 __all__ = [
@@ -216,10 +216,16 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     counts are correlated (common random numbers): each row is exact, the rows are not
     independent. Cost: one direction, one patch lookup and one count per ray, whatever W.
 
-    Other models fall back to one :func:`gonio_counts` per wavelength (same ``seq`` each, so
-    the same rays). GGX with a wavelength-dependent Fresnel could batch the same way (its
-    direction does not depend on eta, k) but its survival thresholds F_w(w.m) G2/G1 vary per
-    ray, so the cell trick does not apply; not done yet.
+    GGX and anisotropic GGX whose roughness is the same at every wavelength (eta and k may
+    vary) batch too: the sampled direction (a visible normal, mirrored) does not depend on eta
+    or k, only the survival probability F_w(w.m) G2/G1 does. The kernel draws each ray's normal
+    and survival uniform u once and tests u < F_w G2/G1 per wavelength -- for each wavelength
+    alone exactly the single-wavelength kernel's test on the same kind of draw. Its thresholds
+    vary per ray, so it costs one Fresnel factor and one count per wavelength and surviving ray.
+
+    Other models (or a roughness varying with the wavelength: the direction would depend on
+    it) fall back to one :func:`gonio_counts` per wavelength with the same ``seq`` (the same
+    rays where the kernels allow).
     """
     rows = [np.ascontiguousarray(p, dtype=np.float64) for p in params]
     if not rows:
@@ -227,6 +233,9 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     n_theta, n_phi = int(collector_args[1]), int(collector_args[2])
     n_patches = n_theta * n_phi
     n_bins = 2 * n_patches
+    ggx = int(model) in (MODEL_GGX, MODEL_ANISO_GGX) and all(p[0] == rows[0][0] and p[1] == rows[0][1] for p in rows)
+    if ggx and gonio_kernel_for(model, disk) == "block":
+        return _ggx_spectral(rows, beam_kind, beam_args, collector_args, n_rays, seq)
     if int(model) != MODEL_LAMBERT or gonio_kernel_for(model, disk) != "block":
         def same(q: np.random.SeedSequence) -> np.random.SeedSequence:  # spawning advances a SeedSequence
             return np.random.SeedSequence(q.entropy, spawn_key=q.spawn_key, pool_size=q.pool_size,
@@ -265,6 +274,32 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
         out[w, n_patches:n_bins] = cells[lower_side].sum(axis=0)
         out[w, n_bins] = per_cell[~(near | far)].sum()
         out[w, n_bins + 1] = missed
+    return out
+
+
+def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray, collector_args: tuple,
+                  n_rays: int, seq: np.random.SeedSequence) -> np.ndarray:
+    """:func:`gonio_counts_spectral` for GGX with one roughness (see there)."""
+    n_theta, n_phi = int(collector_args[1]), int(collector_args[2])
+    n_bins = 2 * n_theta * n_phi
+    etas = np.array([p[2] for p in rows])
+    ks = np.array([p[3] for p in rows])
+    sizes = chunking(n_rays)
+    lanes = lane_states(seq, sizes.shape[0])
+    b = np.ascontiguousarray(beam_args, dtype=np.float64)
+    margins = guess_margins(n_theta, n_phi)
+    out = np.zeros((len(rows), n_bins + 2), dtype=np.int64)
+    hits = 0
+    with single_chunk_threads(n_rays):
+        for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
+            sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
+            h, t = ggx_spectral_kernel(float(rows[0][0]), float(rows[0][1]), etas, ks, np.int64(beam_kind), b,
+                                       tuple(collector_args), margins, np.int64(n_bins),
+                                       np.ascontiguousarray(sizes[sl]), np.ascontiguousarray(lanes[sl]))
+            out[:, :n_bins] += h.T
+            hits += int(t[0])
+    out[:, n_bins] = hits - out[:, :n_bins].sum(axis=1)
+    out[:, n_bins + 1] = int(n_rays) - hits
     return out
 
 

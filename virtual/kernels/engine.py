@@ -20,10 +20,11 @@ from virtual.kernels import jit
 from virtual.kernels.beam import BEAM_CONICAL, emit, emit_given
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
 from virtual.kernels.rng import LANES, fill_uniforms
-from virtual.kernels.sampling import warp_cosine_hemisphere
+from virtual.kernels.microfacet import fresnel_conductor_ratio
+from virtual.kernels.sampling import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.scatter import (GIVEN4_MODELS, GIVEN4_UNIFORMS, GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC,
                                      MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC,
-                                     PLASTIC_UNIFORMS, phong_given, phong_lobe_cos, plastic_diffuse_redo, plastic_given,
+                                     PLASTIC_UNIFORMS, ggx_given_parts, phong_given, phong_lobe_cos, plastic_diffuse_redo, plastic_given,
                                      scatter, scatter_given,
                                      scatter_given4)
 
@@ -314,3 +315,93 @@ def lambert_spectral_kernel(thr, beam_kind, beam_args, cargs, margins, n_patches
         out[c] = cells
         miss[c, 0] = m[0]
     return out.sum(axis=0), miss.sum()
+
+
+@jit(fastmath=True, error_model="numpy")
+def ggx_spectral_chunk(ax, ay, etas, ks, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, hist, tally):
+    """One chunk of the spectral GGX block kernel (see :func:`ggx_spectral_kernel`): surviving
+    rays added to ``hist[patch, w]`` per wavelength w; ``tally`` = (hits, missed)."""
+    nb = BLOCK_RAYS
+    n_beam = BEAM_UNIFORMS if beam_kind == BEAM_CONICAL else 0
+    ublock = np.empty(((n_beam + GIVEN_UNIFORMS) * nb // LANES, LANES))
+    u = ublock.reshape(ublock.size)
+    s0 = n_beam * nb
+    bo = nb if n_beam > 0 else 0
+    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
+    n_w = etas.shape[0]
+    code = np.empty(nb, dtype=np.int64)
+    vx = np.empty(nb)
+    vy = np.empty(nb)
+    vz = np.empty(nb)
+    cc = np.empty(nb)
+    lhs = np.empty(nb)  # u g_den
+    rhs = np.empty(nb)  # g_num, 0 for an invalid or missed ray
+    alive = np.empty((n_w, nb), dtype=np.bool_)
+    hits = np.int64(0)
+    left = n_rays
+    while left > 0:
+        m = min(left, nb)
+        fill_uniforms(lane, ublock)
+        for i in range(nb):
+            wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+            ca, sa = sincos_2pi(u[s0 + 2 * nb + i])
+            ox, oy, oz, c, g_num, g_den, valid = ggx_given_parts(ax, ay, wx, wy, wz, ca, sa, u[s0 + nb + i])
+            vx[i] = ox
+            vy[i] = oy
+            vz[i] = oz
+            cc[i] = c
+            lhs[i] = u[s0 + i] * g_den
+            rhs[i] = g_num if (valid & hit) else -1.0
+            code[i] = 1 if hit else 0
+        for w in range(n_w):  # each wavelength's survival: the same u, its own Fresnel factor
+            eta = etas[w]
+            k = ks[w]
+            for i in range(nb):
+                f_num, f_den = fresnel_conductor_ratio(cc[i], eta, k)
+                alive[w, i] = lhs[i] * f_den < f_num * rhs[i]
+        for i in range(m):
+            hits += code[i]
+        if scheme == SCHEME_EQUAL_PSA:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
+        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
+                                    sector_margin)
+        else:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+        for i in range(m):
+            if rhs[i] < 0.0:
+                continue  # missed, or absorbed at every wavelength (a cosine <= 0)
+            kb = code[i]
+            if kb < 0:
+                kb = patch_of(vx[i], vy[i], vz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
+            row = hist[kb]  # (W,) contiguous: a ray's W counts share a few cache lines
+            for w in range(n_w):
+                row[w] += alive[w, i]
+        left -= m
+    tally[0] += hits
+    tally[1] += n_rays - hits
+
+
+@jit(parallel=True)
+def ggx_spectral_kernel(ax, ay, etas, ks, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes):
+    """GGX (any alpha_x, alpha_y shared by every wavelength) at many wavelengths at once: each
+    ray's direction and its survival uniform are drawn once, each wavelength's Fresnel factor
+    (``etas``, ``ks``) decides its survival. Summed over chunks: counts ``(n_bins, W)`` of the survivors
+    and (hits, missed); :func:`virtual.engine.gonio_counts_spectral` adds the absorbed."""
+    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
+         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
+         beam_args[14])
+    n_chunks = sizes.shape[0]
+    out = np.zeros((n_chunks, n_bins, etas.shape[0]), dtype=np.int64)
+    tallies = np.zeros((n_chunks, 2), dtype=np.int64)
+    for c in prange(n_chunks):
+        hist = np.zeros((n_bins, etas.shape[0]), dtype=np.int64)
+        tally = np.zeros(2, dtype=np.int64)
+        ggx_spectral_chunk(ax, ay, etas, ks, beam_kind, b, cargs, margins[0], margins[1], sizes[c], lanes[c].copy(),
+                           hist, tally)
+        out[c] = hist
+        tallies[c] = tally
+    return out.sum(axis=0), tallies.sum(axis=0)

@@ -31,7 +31,7 @@ __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MOD
            "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
            "scatter", "scatter_given", "GIVEN4_MODELS", "GIVEN4_UNIFORMS", "scatter_given4",
            "PLASTIC_UNIFORMS", "plastic_given", "plastic_diffuse_redo",
-           "phong_given", "phong_lobe_cos"]
+           "phong_given", "phong_lobe_cos", "ggx_given_parts"]
 
 # Model ids: one branch each in `scatter`. Keep them stable (records and caches name them).
 MODEL_LAMBERT = 0
@@ -460,3 +460,24 @@ def plastic_diffuse_redo(eta, s):
         fo, _ = fresnel_dielectric(oz, eta)
         if next_double(s) >= fo:
             return ox, oy, oz
+
+
+@jit(inline="always")
+def ggx_given_parts(ax, ay, wx, wy, wz, ca, sa, r2):
+    """The wavelength-free part of :func:`_ggx_given` (the spectral batch samples it once per
+    ray): ``(ox, oy, oz, c, g_num, g_den, valid)`` -- the reflected direction (side restored),
+    the cosine w.m the Fresnel factor takes, G2/G1 as a ratio, and whether both cosines are
+    > 0. A wavelength's ray survives when ``valid`` and u f_den g_den < f_num g_num with
+    ``fresnel_conductor_ratio(c, eta, k)``: :func:`_ggx_given`'s test, term for term.
+    (The same formulas as :func:`_ggx_given`; merge the two when issue 16's edits of that
+    branch have landed.)"""
+    flip = wz < 0.0
+    wz = abs(wz)
+    ni = ggx_n(wx, wy, wz, ax, ay)
+    mx, my, mz = ggx_vndf_given(wx, wy, wz, ax, ay, 1.0 / ni, ca, sa, r2)
+    c = max(wx * mx + wy * my + wz * mz, 0.0)
+    ox = 2.0 * c * mx - wx
+    oy = 2.0 * c * my - wy
+    oz = 2.0 * c * mz - wz
+    g_num, g_den = g2_over_g1_ratio(wz, ni, oz, ggx_n(ox, oy, oz, ax, ay))
+    return ox, oy, (-oz if flip else oz), c, g_num, g_den, (wz > 0.0) & (oz > 0.0)
