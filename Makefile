@@ -5,7 +5,17 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.goniobench-installed
 
-.PHONY: demo test bench-perf clean
+.PHONY: demo test bench-perf llvm clean
+
+# Mitsuba's LLVM variants (the benchmark's anchor, vectorized Mitsuba specimens) need a libLLVM:
+# Debian's libllvm19, installed here when missing and apt-get can (as root); never fatal --
+# without it those rows say "not available" and the LLVM tests skip, saying why.
+LIBLLVM ?= /usr/lib/x86_64-linux-gnu/libLLVM-19.so
+llvm:
+	@if [ ! -e "$(LIBLLVM)" ] && command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null) \
+	    || echo "libllvm19 could not be installed: Mitsuba's LLVM rows and tests will say why"; \
+	fi
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -18,10 +28,11 @@ $(STAMP): pyproject.toml | $(BIN)/python
 demo: $(STAMP)
 	$(BIN)/bench demo --out demo-out
 
-test: $(STAMP)
+test: $(STAMP) llvm
 	$(BIN)/python -m pytest -q
 
-bench-perf: $(STAMP)
+bench-perf: $(STAMP) llvm
+	@if [ -e "$(LIBLLVM)" ]; then export DRJIT_LIBLLVM_PATH="$${DRJIT_LIBLLVM_PATH:-$(LIBLLVM)}"; fi; \
 	$(BIN)/python -m benchmarks
 
 clean:

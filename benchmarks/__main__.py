@@ -1,16 +1,48 @@
-"""Run the benchmark studies: ``python -m benchmarks [NAME ...]``."""
+"""Run the benchmark studies: ``python -m benchmarks [NAME ...]``.
+
+``python -m benchmarks gonio --json`` prints the goniophotometer's rows and ratios as JSON
+(:func:`benchmarks.bench_gonio.measure`). ``python -m benchmarks --check`` measures them and
+fails (exit 1) when a ratio fell by more than :data:`benchmarks.guard.TOLERANCE` against the
+accepted ones (``benchmarks/accepted_ratios.json``); ``--accept`` rewrites that file with this
+run's ratios. Neither is part of ``make test``: timings on a shared machine are noisy.
+"""
 
 from __future__ import annotations
 
 import importlib
+import json
 import sys
 
 STUDIES = ["spectro", "gonio", "store", "scan", "effects", "adaptive", "tradeoff", "sweep"]
+FLAGS = ("--json", "--check", "--accept")
 
 
 def main(argv: list[str]) -> int:
-    names = argv or STUDIES
-    for name in names:
+    flags = [a for a in argv if a.startswith("--")]
+    names = [a for a in argv if not a.startswith("--")]
+    bad = [f for f in flags if f not in FLAGS]
+    if bad:
+        print(f"unknown option {bad[0]!r}; known: {', '.join(FLAGS)}", file=sys.stderr)
+        return 2
+    if flags:
+        if any(n != "gonio" for n in names):
+            print("--json, --check and --accept apply to the gonio study only", file=sys.stderr)
+            return 2
+        from benchmarks import guard
+        from benchmarks.bench_gonio import measure
+
+        m = measure()
+        if "--json" in flags:
+            print(json.dumps(m, indent=2))
+        code = 0
+        if "--check" in flags:
+            code, report = guard.check(m["ratios"])
+            print(report, file=sys.stderr if "--json" in flags else sys.stdout)
+        if "--accept" in flags:
+            path = guard.accept(m["ratios"])
+            print(f"accepted ratios written to {path}", file=sys.stderr)
+        return code
+    for name in names or STUDIES:
         if name not in STUDIES:
             print(f"unknown study {name!r}; known: {', '.join(STUDIES)}", file=sys.stderr)
             return 2

@@ -1,6 +1,12 @@
-"""Virtual goniophotometer: kernel throughput against a numpy baseline and the RNG limit (issue 3).
+"""Virtual goniophotometer: kernel throughput against the Mitsuba-LLVM anchor, a numpy baseline and
+the RNG limit (issues 3, 18).
 
 Measured in one run on this machine:
+
+* the anchor: the same measurement written as a Mitsuba 3 user would write it, vectorized on
+  Dr.Jit's LLVM back end (:mod:`benchmarks.mitsuba_anchor`; rows ``mitsuba-llvm-ggx`` and
+  ``mitsuba-llvm-diffuse``, "not available" without a libLLVM), and every native specimen
+  family by the kernel ``gonio_counts`` picks for it, as rays/s and as ratios to the anchor;
 
 * rays/s of a 10^8-ray, 900-patch (30 x 30 equal-PSA) measurement, conical incidence, for a
   Lambertian and a GGX specimen (target >= 1e8 rays/s), by the block kernel (the default) and by
@@ -9,7 +15,7 @@ Measured in one run on this machine:
 * the raw random-number throughput each kernel needs (its own generator alone on all threads:
   64 xoshiro lanes for the block kernel, one xoshiro stream per chunk for the ray-by-ray one;
   numpy's PCG64 for reference), as the limit ratio;
-* Mitsuba 3's ``bsdf.sample`` throughput on the same GGX, when mitsuba is installed;
+* Mitsuba 3's scalar ``bsdf.sample`` in a Python loop, for scale;
 * the exact fast path for a 10^8-ray-equivalent measurement: first (quadrature of 900 patches +
   one multinomial) and repeated (cached probabilities, a new seed) (target <= 1 ms);
 * peak resident memory of a 10^9-ray measurement in a fresh process (target <= 300 MB).
@@ -29,7 +35,7 @@ from numba import prange
 from benchmarks.common import best_of, numpy_uniform_rate, table
 from virtual.beam import Beam
 from virtual.collector import Collector
-from virtual.engine import gonio_counts, measurement_seed
+from virtual.engine import gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.kernels import jit
 from virtual.rng import LANES, fill_uniforms, lane_states, next_double, stream_states
@@ -149,7 +155,7 @@ _PEAK_SCRIPT = """
 import time
 from virtual.beam import Beam
 from virtual.collector import Collector
-from virtual.engine import gonio_counts, measurement_seed
+from virtual.engine import gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
 from virtual.specimens import parse_specimen
 sp, beam, col = parse_specimen("lambert:albedo=0.5"), Beam("conical"), Collector("equal-psa", 30, 30)
 t0 = time.perf_counter()
@@ -169,10 +175,192 @@ def _peak_memory(n: int = 1_000_000_000) -> tuple[float, float]:
     return float(mb), float(seconds)
 
 
-def run() -> str:
+#: One specimen string per native family: the anchor's two first, then the others' defaults.
+FAMILY_SPECS = {
+    "lambert": "lambert:albedo=0.5",
+    "ggx": "ggx:alpha=0.2,eta=1.5,k=0",
+    "oren-nayar": "oren-nayar",
+    "phong": "phong",
+    "aniso-ggx": "aniso-ggx",
+    "plastic": "plastic",
+    "dielectric": "dielectric",
+}
+#: The Mitsuba BSDFs of the anchor rows (the same physics as ``lambert`` and ``ggx`` above).
+MITSUBA_BSDFS = {
+    "mitsuba-llvm-ggx": ("ggx", {"type": "roughconductor", "distribution": "ggx", "alpha": 0.2, "eta": 1.5, "k": 0.0}),
+    "mitsuba-llvm-diffuse": ("lambert", {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}),
+}
+
+
+def _row(name: str, specimen: str, kernel: str, seconds: float | None, n: int = N_RAYS, note: str = "") -> dict:
+    return {"name": name, "specimen": specimen, "kernel": kernel, "beam": BEAM.kind, "rays": n,
+            "seconds": seconds, "rays_per_s": (n / seconds) if seconds else None, **({"note": note} if note else {})}
+
+
+def mitsuba_rows(n: int = N_RAYS, threads: int = 2) -> list[dict]:
+    """The anchor rows: ``rays_per_s`` None and a ``note`` when the LLVM variant is unavailable."""
+    from benchmarks.mitsuba_anchor import MitsubaGonio, available
+
+    mi, why = available()
+    rows = []
+    for name, (family, bsdf) in MITSUBA_BSDFS.items():
+        if mi is None:
+            rows.append(_row(name, family, "mitsuba llvm_ad_rgb", None, n, why))
+            continue
+        seconds, counts = MitsubaGonio(mi, bsdf, threads=threads).rate(n)
+        assert int(counts.sum()) == n
+        rows.append(_row(name, family, "mitsuba llvm_ad_rgb", seconds, n))
+    return rows
+
+
+def native_rows(n: int = N_RAYS, families: dict[str, str] = FAMILY_SPECS) -> list[dict]:
+    """One row per native family, by the kernel ``gonio_counts`` picks for it."""
+    rows = []
+    for family, spec in families.items():
+        sp = parse_specimen(spec)
+        rate = _kernel_rate(spec, n=n)
+        rows.append(_row(f"ours-{family}", family, gonio_kernel_for(sp.model, BEAM.disk_code), n / rate, n))
+    return rows
+
+
+SPECTRAL_W = 31
+
+
+def spectral_rows(n: int = N_RAYS, w: int = SPECTRAL_W) -> list[dict]:
+    """A Lambertian with a spectral albedo at ``w`` wavelengths in one batched measurement
+    (:func:`virtual.engine.gonio_counts_spectral`), and the same at one wavelength; the target
+    is ``w`` wavelengths in <= 3x the time of one single-wavelength measurement."""
+    args, cargs = BEAM.kernel_args(30.0, 0.0), COLLECTOR.kernel_args()
+    rows_w = [np.array([0.2 + 0.6 * k / max(w - 1, 1), 0.0]) for k in range(w)]
+
+    def batched() -> object:
+        return gonio_counts_spectral(0, rows_w, BEAM.code, BEAM.disk_code, args, cargs, n, measurement_seed(1))
+
+    gonio_counts_spectral(0, rows_w, BEAM.code, BEAM.disk_code, args, cargs, 1000, measurement_seed(1))
+    seconds, out = best_of(batched, 2)
+    assert out.shape[0] == w and (out.sum(axis=1) == n).all()
+    rows = [_row(f"ours-lambert-{w}wl", "lambert", f"block, spectral batch of {w}", seconds, n)]
+    # GGX alpha 0.2 with a spectral conductor Fresnel (eta, k per wavelength)
+    ggx_w = [np.array([0.2, 0.2, 0.2 + 0.05 * k, 3.0 - 0.03 * k]) for k in range(w)]
+
+    def batched_ggx() -> object:
+        return gonio_counts_spectral(3, ggx_w, BEAM.code, BEAM.disk_code, args, cargs, n, measurement_seed(1))
+
+    gonio_counts_spectral(3, ggx_w, BEAM.code, BEAM.disk_code, args, cargs, 1000, measurement_seed(1))
+    seconds, out = best_of(batched_ggx, 2)
+    assert out.shape[0] == w and (out.sum(axis=1) == n).all()
+    rows.append(_row(f"ours-ggx-{w}wl", "ggx", f"block, spectral batch of {w}", seconds, n))
+
+    def single_ggx() -> object:  # the batch's first wavelength alone, for the ratio
+        return gonio_counts(3, ggx_w[0], BEAM.code, BEAM.disk_code, args, cargs, n, measurement_seed(1))
+
+    seconds, _ = best_of(single_ggx, 2)
+    rows.append(_row("ours-ggx-conductor-1wl", "ggx", "block", seconds, n))
+    return rows
+
+
+def mitsuba_specimen_rows(n: int = 10_000_000, batch: int = 1_000_000) -> list[dict]:
+    """A Mitsuba specimen's ``sample`` (the devices' Python engine calls it per batch) through
+    the LLVM wavefront sampler (target >= 1e7 rays/s) -- and the scalar loop, for scale."""
+    from virtual.mitsuba import MitsubaSpecimen
+    from virtual.mitsuba_llvm import llvm_status
+
+    bsdf = MITSUBA_BSDFS["mitsuba-llvm-ggx"][1]
+    wi, rows = np.array([0.5, 0.0, math.sqrt(0.75)]), []
+    why = llvm_status("llvm_ad_rgb")
+    if why:
+        rows.append(_row("ours-mitsuba-specimen-wavefront", "mitsuba", "llvm wavefront sample", None, n, why))
+    else:
+        sp = MitsubaSpecimen(bsdf)
+        rng = np.random.default_rng(1)
+        sp.sample(wi, batch, 550.0, rng)
+        seconds, _ = best_of(lambda: [sp.sample(wi, batch, 550.0, rng) for _ in range(n // batch)], 2)
+        rows.append(_row("ours-mitsuba-specimen-wavefront", "mitsuba", "llvm wavefront sample", seconds, n))
+    scalar, m = MitsubaSpecimen(bsdf, wavefront=False), 100_000
+    seconds, _ = best_of(lambda: scalar.sample(wi, m, 550.0, np.random.default_rng(1)), 1)
+    rows.append(_row("ours-mitsuba-specimen-scalar", "mitsuba", "scalar loop sample", seconds, m))
+    return rows
+
+
+def ratios(rows: list[dict]) -> dict[str, float]:
+    """The ratios the regression guard watches (all "higher is better"), from one run's rows:
+    each family against the Mitsuba GGX row (and the two anchors against their own Mitsuba row)
+    when the anchor ran, else each family against the Lambertian block kernel; the spectral
+    batches against one wavelength; the Mitsuba wavefront specimen against the anchor."""
+    by = {r["name"]: r["rays_per_s"] for r in rows}
+    out: dict[str, float] = {}
+    mg, md = by.get("mitsuba-llvm-ggx"), by.get("mitsuba-llvm-diffuse")
+    if mg and md:
+        out["ggx / mitsuba-llvm-ggx"] = by["ours-ggx"] / mg
+        out["lambert / mitsuba-llvm-diffuse"] = by["ours-lambert"] / md
+        for r in rows:
+            if r["name"] in [f"ours-{f}" for f in FAMILY_SPECS if f not in ("ggx", "lambert")]:
+                out[f"{r['specimen']} / mitsuba-llvm-ggx"] = r["rays_per_s"] / mg
+    lam = by.get("ours-lambert")
+    for r in rows:  # without the anchor only: one noisy row would move them all
+        if r["name"] in [f"ours-{f}" for f in FAMILY_SPECS if f != "lambert"] and lam and not (mg and md):
+            out[f"{r['specimen']} / lambert"] = r["rays_per_s"] / lam
+    for fam, single in (("lambert", "ours-lambert"), ("ggx", "ours-ggx-conductor-1wl")):
+        spec, one = by.get(f"ours-{fam}-{SPECTRAL_W}wl"), by.get(single)
+        if spec and one:  # time of one wavelength / time of W: >= 1/3 meets the target
+            out[f"{fam} 1 wavelength time / {SPECTRAL_W} wavelengths time"] = spec / one
+    wave = by.get("ours-mitsuba-specimen-wavefront")
+    if wave and mg:
+        out["mitsuba specimen wavefront / mitsuba-llvm-ggx"] = wave / mg
+    return out
+
+
+def measure(n: int = N_RAYS) -> dict:
+    """The JSON of ``python -m benchmarks gonio --json``: ``rows`` and the ``ratios``."""
     threads = numba.get_num_threads()
-    lambert, ggx = "lambert:albedo=0.5", "ggx:alpha=0.2,eta=1.5,k=0"
-    lam, ggx_b = _kernel_rate(lambert), _kernel_rate(ggx)
+    rows = mitsuba_rows(n, threads) + native_rows(n) + spectral_rows(n) + mitsuba_specimen_rows()
+    return {"threads": threads, "collector": "equal-psa 30x30", "incidence_deg": 30.0, "rows": rows,
+            "ratios": ratios(rows)}
+
+
+def _anchor_table(m: dict) -> str:
+    by = {r["name"]: r for r in m["rows"]}
+    mg = (by.get("mitsuba-llvm-ggx") or {}).get("rays_per_s")
+    out_rows = []
+    for r in m["rows"]:
+        rate = r["rays_per_s"]
+        if rate is None:
+            out_rows.append([r["name"], r["kernel"], r.get("note", "not available"), "-", "-", "-"])
+            continue
+        anchor = by.get("mitsuba-llvm-diffuse" if r["specimen"] == "lambert" else "mitsuba-llvm-ggx") or {}
+        a = anchor.get("rays_per_s")
+        x_anchor = rate / a if a and r["name"].startswith("ours-") else "-"
+        target = "-"
+        if r["name"] in (f"ours-lambert-{SPECTRAL_W}wl", f"ours-ggx-{SPECTRAL_W}wl"):
+            lam = by["ours-lambert" if r["specimen"] == "lambert" else "ours-ggx-conductor-1wl"]["rays_per_s"]
+            target = f"{lam / rate:.2f}x one wavelength's time: {'yes' if rate * 3 >= lam else 'NO'} (<= 3x)"
+            x_anchor = "-"
+        elif r["name"].startswith("ours-mitsuba-specimen"):
+            target = ("yes" if rate >= 1e7 else "NO") + " (>= 1e7)" if "wavefront" in r["name"] else "-"
+            x_anchor = "-"
+        elif r["name"] == "ours-ggx-conductor-1wl":
+            target, x_anchor = "- (the 31-wavelength row's reference)", "-"
+        elif r["name"].startswith("ours-"):
+            ok = rate >= 1e8 and (mg is None or rate >= mg)
+            if r["specimen"] in ("ggx", "lambert") and a:
+                ok = ok and rate >= 2 * a
+            target = "yes" if ok else "NO"
+        out_rows.append([r["name"], r["kernel"], rate, r["seconds"], x_anchor, target])
+    return table(f"Against the anchor: 1e8 rays, 900 equal-PSA patches, conical beam, 30 deg, {m['threads']} threads "
+                 f"(targets: ggx, lambert >= 2x their Mitsuba row; every family >= 1e8 rays/s and >= the Mitsuba "
+                 f"GGX row)", ["row", "kernel", "rays/s", "s", "x its Mitsuba row", "target met"], out_rows)
+
+
+def run() -> str:
+    m = measure()
+    by = {r["name"]: r["rays_per_s"] for r in m["rows"]}
+    threads = m["threads"]
+    out = _anchor_table(m) + "\n\n" + _details(threads, by["ours-lambert"], by["ours-ggx"])
+    return out
+
+
+def _details(threads: int, lam: float, ggx_b: float) -> str:
+    lambert, ggx = FAMILY_SPECS["lambert"], FAMILY_SPECS["ggx"]
     lam_r, ggx_r = _kernel_rate(lambert, "ray"), _kernel_rate(ggx, "ray")
     base = _numpy_lambert_rate()
     # uniforms per ray. Block kernel: two polar disk points (4) + the specimen's 3, every ray.
@@ -213,7 +401,7 @@ def run() -> str:
                 rows_)
     out += (f"\n  block / ray-by-ray: Lambertian {lam / lam_r:.1f}x, GGX {ggx_b / ggx_r:.1f}x; "
             f"the numpy baseline is limited by its generator at {base / limit_numpy:.2f} of it")
-    out += f"\nMitsuba 3 GGX bsdf.sample: {_mitsuba_rate()}"
+    out += f"\nMitsuba 3 GGX bsdf.sample, scalar: {_mitsuba_rate()}"
     out += (f"\nExact fast path, 1e8-ray-equivalent, 900 patches: first {first * 1e3:.1f} ms (quadrature + "
             f"multinomial), repeated with a new seed {repeat * 1e3:.3f} ms (target <= 1 ms)")
     out += (f"\n1e9-ray measurement in a fresh process: peak RSS {mb:.0f} MB (target <= 300 MB), {t_big:.1f} s; "

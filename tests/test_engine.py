@@ -169,12 +169,13 @@ def test_block_kernel_result_is_identical_whatever_the_thread_count():
 
 
 def test_kernel_choice_follows_the_model_and_the_disk_sampling():
-    lam, phong = parse_specimen("lambert:albedo=0.5"), parse_specimen("phong:exponent=20")
-    assert gonio_kernel_for(lam.model, Beam("conical").disk_code) == "block"
-    assert gonio_kernel_for(lam.model, Beam("conical", disk_sampling="rejection").disk_code) == "ray"
-    assert gonio_kernel_for(phong.model, Beam("conical").disk_code) == "ray"
+    lam, rejection = parse_specimen("lambert:albedo=0.5"), Beam("conical", disk_sampling="rejection").disk_code
+    for spec in ("lambert:albedo=0.5", "phong:exponent=20", "plastic", "dielectric", "oren-nayar"):
+        assert gonio_kernel_for(parse_specimen(spec).model, Beam("conical").disk_code) == "block"
+    assert gonio_kernel_for(lam.model, rejection) == "ray"
+    assert gonio_kernel_for(-1, Beam("conical").disk_code) == "ray"  # no kernel model at all
     with pytest.raises(ValueError, match="block kernel"):
-        gonio_kernel_for(phong.model, Beam("conical").disk_code, "block")
+        gonio_kernel_for(lam.model, rejection, "block")
     with pytest.raises(ValueError, match="kernel must be"):
         gonio_kernel_for(lam.model, Beam("conical").disk_code, "simd")
 

@@ -88,10 +88,13 @@ def test_no_effects_runs_the_bare_kernel_bit_for_bit():
 
 def test_far_field_effects_sample_no_positions():
     """A uniform specimen with far-field detectors draws exactly the bare kernel's random numbers:
-    its collector counts are identical to the bare kernel's for the same seed. A non-uniform
-    specimen or near-field detectors do sample positions."""
+    its collector counts are identical to the bare ray-by-ray kernel's for the same seed (every
+    native family also has a block kernel, with other streams: rejection-sampled beam disks keep
+    the bare measurement on the ray-by-ray kernel). A non-uniform specimen or near-field
+    detectors do sample positions."""
     base = Scene(OrenNayar(sigma=20.0, albedo=0.8), instrument="goniophotometer",
-                 collector=Collector("equal-psa", 4, 8), method="rays", seed=2, incidence=(30.0, 0.0))
+                 collector=Collector("equal-psa", 4, 8), method="rays", seed=2, incidence=(30.0, 0.0),
+                 beam=Beam("conical", disk_sampling="rejection"))
     far = base.with_effects(Effects(aperture=Aperture(2.0, ((0.0, 0.0), (30.0, 180.0))),
                                     specimen=SpecimenPattern(uniform=True)))
     assert not far.needs_positions

@@ -17,8 +17,11 @@ Two kernel shapes:
   (:func:`~virtual.specimens.scatter_given`) and bins (:func:`~virtual.collector.guess_bin`)
   every ray, which LLVM compiles to AVX-512/AVX2 code; then a short scalar loop adds the bins
   to the histogram, settling the rare uncertain bin with the exact
-  :func:`~virtual.collector.patch_of`. It serves the :data:`~virtual.specimens.GIVEN_MODELS`
-  (Lambertian, GGX, anisotropic GGX), 2-5x the ray-by-ray kernel's throughput.
+  :func:`~virtual.collector.patch_of`. Only the surviving rays are binned (compacted first).
+  It serves the :data:`~virtual.kernels.engine.BLOCK_MODELS` (Lambertian, GGX, anisotropic GGX
+  with three uniforms per ray; Phong, Oren-Nayar, rough dielectric with four; the rough plastic
+  with seven and one attempt of its diffuse rejection loop, the rare rejected ray finishing
+  the loop on a scalar stream), 2-5x the ray-by-ray kernel's throughput.
 
 Both count the same physics with the same distribution (tested by two-sample chi-square); their
 random streams differ, so equal seeds give equal counts only within one kernel shape.
@@ -32,8 +35,9 @@ import numpy as np
 
 from virtual.collector import guess_margins
 from virtual.kernels.beam import DISK_REJECTION
-from virtual.kernels.engine import BEAM_UNIFORMS, BLOCK_RAYS, gonio_block_kernel, gonio_kernel, spectro_kernel  # noqa: F401
-from virtual.kernels.scatter import GIVEN_MODELS
+from virtual.kernels.engine import (BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS, gonio_block_kernel,  # noqa: F401
+                                    ggx_spectral_kernel, gonio_kernel, lambert_spectral_kernel, spectro_kernel)
+from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
 from virtual.rng import lane_states, stream_states
 
 __all__ = [
@@ -47,6 +51,7 @@ __all__ = [
     "GONIO_KERNELS",
     "gonio_kernel_for",
     "multinomial_counts",
+    "gonio_counts_spectral",
 ]
 
 #: Rays per chunk aimed at; enough to amortise a chunk's set-up, small enough to balance 2 cores.
@@ -152,9 +157,9 @@ def gonio_kernel_for(model: int, disk: int, kernel: str = "auto") -> str:
     form (unless the beam asks for rejection-sampled disks), else ``"ray"``."""
     if kernel not in GONIO_KERNELS:
         raise ValueError(f"kernel must be one of {', '.join(GONIO_KERNELS)}, got {kernel!r}")
-    can_block = int(model) in GIVEN_MODELS and int(disk) != DISK_REJECTION
+    can_block = int(model) in BLOCK_MODELS and int(disk) != DISK_REJECTION
     if kernel == "block" and not can_block:
-        raise ValueError(f"the block kernel runs models {GIVEN_MODELS} with polar or auto disk sampling, "
+        raise ValueError(f"the block kernel runs models {BLOCK_MODELS} with polar or auto disk sampling, "
                          f"not model {model} with disk code {disk}")
     if kernel == "auto":
         return "block" if can_block else "ray"
@@ -177,15 +182,125 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     with single_chunk_threads(n_rays):
         if shape == "block":
-            p4 = np.zeros(max(4, p.size))  # the block kernel reads four parameters whatever the model
+            p4 = np.zeros(max(BLOCK_PARAMS, p.size))  # the block kernel reads six parameters whatever the model
             p4[:p.size] = p
             out = gonio_block_kernel(np.int64(model), p4, np.int64(beam_kind), b, tuple(collector_args),
                                       guess_margins(n_theta, n_phi), np.int64(n_bins), sizes,
-                                      lane_states(seq, sizes.shape[0]))
+                                      lane_states(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
         else:
             out = gonio_kernel(np.int64(model), p, np.int64(beam_kind), np.int64(disk), b,
                                 tuple(collector_args), np.int64(n_bins), sizes, stream_states(seq, sizes.shape[0]))
     return out.sum(axis=0)
+
+
+#: Chunks per call of the spectral kernel: bounds its per-chunk tables (cells x patches) in memory.
+SPECTRAL_CHUNK_GROUP = 16
+
+
+def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, beam_kind: int, disk: int,
+                          beam_args: np.ndarray, collector_args: tuple, n_rays: int,
+                          seq: np.random.SeedSequence) -> np.ndarray:
+    """:func:`gonio_counts` at W wavelengths at once: ``params`` holds one parameter vector per
+    wavelength; returns int64 counts ``(W, n_bins + 2)``, each row distributed exactly as
+    :func:`gonio_counts` with that row's parameters.
+
+    Spectral batching (issue 18). A Lambertian's direction (cosine-weighted, drawn from u1, u2)
+    does not depend on the wavelength; only its fate does: with one survival uniform u0, the ray
+    leaves on the source's side when u0 < R, on the far side when R <= u0 < R + T, and is
+    absorbed otherwise. The block kernel therefore draws each ray's direction and u0 once and
+    locates u0 among the sorted thresholds {R_w, R_w + T_w} of all wavelengths (the "cell" of
+    u0); within a cell every wavelength's fate is fixed, so counting rays by (cell, patch) and
+    then adding each cell's counts to each wavelength's bins reproduces, for every wavelength,
+    exactly the single-wavelength kernel's law (for that wavelength alone it is the same
+    computation: u0 uniform, independent of the direction). Wavelengths share the rays, so their
+    counts are correlated (common random numbers): each row is exact, the rows are not
+    independent. Cost: one direction, one patch lookup and one count per ray, whatever W.
+
+    GGX and anisotropic GGX whose roughness is the same at every wavelength (eta and k may
+    vary) batch too: the sampled direction (a visible normal, mirrored) does not depend on eta
+    or k, only the survival probability F_w(w.m) G2/G1 does. The kernel draws each ray's normal
+    and survival uniform u once and tests u < F_w G2/G1 per wavelength -- for each wavelength
+    alone exactly the single-wavelength kernel's test on the same kind of draw. Its thresholds
+    vary per ray, so it costs one Fresnel factor and one count per wavelength and surviving ray.
+
+    Other models (or a roughness varying with the wavelength: the direction would depend on
+    it) fall back to one :func:`gonio_counts` per wavelength with the same ``seq`` (the same
+    rays where the kernels allow).
+    """
+    rows = [np.ascontiguousarray(p, dtype=np.float64) for p in params]
+    if not rows:
+        raise ValueError("gonio_counts_spectral needs at least one wavelength's parameters")
+    n_theta, n_phi = int(collector_args[1]), int(collector_args[2])
+    n_patches = n_theta * n_phi
+    n_bins = 2 * n_patches
+    ggx = int(model) in (MODEL_GGX, MODEL_ANISO_GGX) and all(p[0] == rows[0][0] and p[1] == rows[0][1] for p in rows)
+    if ggx and gonio_kernel_for(model, disk) == "block":
+        return _ggx_spectral(rows, beam_kind, beam_args, collector_args, n_rays, seq)
+    if int(model) != MODEL_LAMBERT or gonio_kernel_for(model, disk) != "block":
+        def same(q: np.random.SeedSequence) -> np.random.SeedSequence:  # spawning advances a SeedSequence
+            return np.random.SeedSequence(q.entropy, spawn_key=q.spawn_key, pool_size=q.pool_size,
+                                          n_children_spawned=q.n_children_spawned)
+
+        return np.stack([gonio_counts(model, p, beam_kind, disk, beam_args, collector_args, n_rays, same(seq))
+                         for p in rows])
+    r = np.array([p[0] for p in rows])
+    rt = np.minimum(r + np.array([p[1] for p in rows]), 1.0)
+    thr = np.unique(np.concatenate([r, rt]))
+    sizes = chunking(n_rays)
+    lanes = lane_states(seq, sizes.shape[0])
+    b = np.ascontiguousarray(beam_args, dtype=np.float64)
+    margins = guess_margins(n_theta, n_phi)
+    cells = np.zeros((thr.size + 1, n_patches), dtype=np.int64)
+    missed = 0
+    with single_chunk_threads(n_rays):
+        for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
+            sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
+            c, m = lambert_spectral_kernel(thr, np.int64(beam_kind), b, tuple(collector_args), margins,
+                                           np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
+                                           np.ascontiguousarray(lanes[sl]))
+            cells += c
+            missed += int(m)
+    # each cell's fate per wavelength, judged at the cell's lower end (a value u0 takes in it)
+    lower = np.concatenate([[0.0], thr])
+    source_above = b[14] > 0.0  # every hit ray comes from the axis' side (collimated: the axis)
+    out = np.zeros((len(rows), n_bins + 2), dtype=np.int64)
+    per_cell = cells.sum(axis=1)
+    for w in range(len(rows)):
+        near = lower < r[w]
+        far = (lower >= r[w]) & (lower < rt[w])
+        upper = np.where(source_above, near, far)
+        lower_side = np.where(source_above, far, near)
+        out[w, :n_patches] = cells[upper].sum(axis=0)
+        out[w, n_patches:n_bins] = cells[lower_side].sum(axis=0)
+        out[w, n_bins] = per_cell[~(near | far)].sum()
+        out[w, n_bins + 1] = missed
+    return out
+
+
+def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray, collector_args: tuple,
+                  n_rays: int, seq: np.random.SeedSequence) -> np.ndarray:
+    """:func:`gonio_counts_spectral` for GGX with one roughness (see there)."""
+    n_theta, n_phi = int(collector_args[1]), int(collector_args[2])
+    n_bins = 2 * n_theta * n_phi
+    etas = np.array([p[2] for p in rows])
+    ks = np.array([p[3] for p in rows])
+    sizes = chunking(n_rays)
+    lanes = lane_states(seq, sizes.shape[0])
+    b = np.ascontiguousarray(beam_args, dtype=np.float64)
+    margins = guess_margins(n_theta, n_phi)
+    out = np.zeros((len(rows), n_bins + 2), dtype=np.int64)
+    hits = 0
+    with single_chunk_threads(n_rays):
+        for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
+            sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
+            h, t = ggx_spectral_kernel(float(rows[0][0]), float(rows[0][1]), etas, ks, np.int64(beam_kind), b,
+                                       tuple(collector_args), margins, np.int64(n_bins),
+                                       np.ascontiguousarray(sizes[sl]), np.ascontiguousarray(lanes[sl]))
+            out[:, :n_bins] += h.T
+            hits += int(t[0])
+    out[:, n_bins] = hits - out[:, :n_bins].sum(axis=1)
+    out[:, n_bins + 1] = int(n_rays) - hits
+    return out
 
 
 def multinomial_counts(probabilities: np.ndarray, n_rays: int, seq: np.random.SeedSequence) -> np.ndarray:

@@ -27,9 +27,12 @@ Incidence from below the surface (wi_z < 0): Mitsuba's one-sided BSDFs (``diffus
 ``roughconductor``, ...) return a zero weight, so every such ray is absorbed; wrap them in
 Mitsuba's ``twosided`` BSDF for a two-sided specimen.
 
-Only ``scalar_*`` variants (not polarized) are supported: the sampling is a Python loop, one
-``bsdf.sample`` call per ray (about 1e6 rays/s). ``mitsuba.set_variant`` is global: every call
-here switches to the specimen's variant first.
+Only ``scalar_*`` variants (not polarized) are supported. When the variant's LLVM twin runs
+here (:mod:`virtual.mitsuba_llvm`: a libLLVM is found), ``sample`` hands each batch to it as one
+wavefront -- the same uniforms, the same single-precision arithmetic, >= 1e7 rays/s; otherwise
+(or with ``wavefront=False``) it is a Python loop, one ``bsdf.sample`` call per ray (about 1e6
+rays/s). ``mitsuba.set_variant`` is global: every call here switches to the specimen's variant
+first.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ import numpy as np
 
 from bench.core.errors import SpecimenError
 from virtual.kernels.scatter import MODEL_PYTHON
+from virtual.mitsuba_llvm import WavefrontSampler, llvm_status, llvm_variant
 from virtual.specimens.declare import Specimen
 
 __all__ = ["MitsubaSpecimen", "parse_mitsuba", "SPECTRAL_RANGE_NM"]
@@ -68,8 +72,8 @@ def _mitsuba(variant: str) -> Any:
     return mi
 
 
-def _rebuild(definition: dict, variant: str, label: str) -> "MitsubaSpecimen":
-    return MitsubaSpecimen(definition, variant, label=label)
+def _rebuild(definition: dict, variant: str, label: str, wavefront: bool = True) -> "MitsubaSpecimen":
+    return MitsubaSpecimen(definition, variant, label=label, wavefront=wavefront)
 
 
 @dataclass(frozen=True)
@@ -82,6 +86,9 @@ class MitsubaSpecimen(Specimen):
         A Mitsuba BSDF dictionary (what ``mitsuba.load_dict`` takes).
     variant : str
         A scalar Mitsuba variant, ``"scalar_rgb"`` (default) or ``"scalar_spectral"``.
+    wavefront : bool
+        Sample through the variant's LLVM twin when it runs here (default); False keeps the
+        scalar loop.
 
     It has no numba kernel (``model = MODEL_PYTHON``); the devices count its rays with
     :mod:`virtual.python_engine`, which calls :meth:`sample`.
@@ -90,6 +97,7 @@ class MitsubaSpecimen(Specimen):
     model: ClassVar[int] = MODEL_PYTHON
     definition: dict = field(compare=False)
     variant: str = "scalar_rgb"
+    wavefront: bool = field(default=True, compare=False)
     key: str = field(init=False, repr=False)
     _bsdf: Any = field(init=False, repr=False, compare=False)
     _stats: dict = field(init=False, repr=False, compare=False)
@@ -114,7 +122,7 @@ class MitsubaSpecimen(Specimen):
             object.__setattr__(self, "label", f"mitsuba:{key}{suffix}")
 
     def __reduce__(self) -> tuple:  # the Mitsuba object does not pickle: rebuild it
-        return _rebuild, (self.definition, self.variant, self.label)
+        return _rebuild, (self.definition, self.variant, self.label, self.wavefront)
 
     # -- Specimen face ---------------------------------------------------------------------
     @property
@@ -131,6 +139,15 @@ class MitsubaSpecimen(Specimen):
     def clamped(self) -> int:
         """How many sampled weights exceeded 1 and were clamped (see the module docstring)."""
         return int(self._stats["clamped"])
+
+    @property
+    def sampler(self) -> Any:
+        """The :class:`~virtual.mitsuba_llvm.WavefrontSampler` ``sample`` uses, or None (scalar
+        loop): ``wavefront`` is False or the LLVM variant does not run here."""
+        if "sampler" not in self._stats:
+            ok = self.wavefront and not llvm_status(llvm_variant(self.variant))
+            self._stats["sampler"] = WavefrontSampler(self.definition, self.variant) if ok else None
+        return self._stats["sampler"]
 
     def _has(self, flag: Any) -> bool:
         return bool(int(self._bsdf.flags()) & int(flag))
@@ -218,6 +235,9 @@ class MitsubaSpecimen(Specimen):
         per_ray = w_in.ndim == 2
         if per_ray and w_in.shape != (n, 3):
             raise SpecimenError(f"wi must have shape (3,) or ({n}, 3), got {w_in.shape}")
+        if self.sampler is not None:
+            wo, weight = self.sampler.sample(w_in, rng.random((n, 3)), float(wavelength_nm))
+            return self._survive(wo, weight, n, rng)
         u = rng.random((n, 3)).tolist()
         sample, vec, pt = self._bsdf.sample, mi.Vector3f, mi.Point2f
         wos: list[tuple[float, ...]] = []
@@ -237,6 +257,11 @@ class MitsubaSpecimen(Specimen):
         wo = np.array(wos, dtype=np.float64).reshape(n, 3)
         wt = np.array(ws, dtype=np.float64).reshape(n, -1)
         weight = wt[:, 0] if self.spectral else wt.mean(axis=1)
+        return self._survive(wo, weight, n, rng)
+
+    def _survive(self, wo: np.ndarray, weight: np.ndarray, n: int,
+                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Russian roulette on the sampled weights (clamped to 1, counted and warned once)."""
         weight = np.nan_to_num(weight, nan=0.0, posinf=0.0, neginf=0.0)
         over = int(np.count_nonzero(weight > 1.0))
         self._stats["samples"] += n
@@ -246,11 +271,11 @@ class MitsubaSpecimen(Specimen):
                 self._stats["warned"] = True
                 warnings.warn(f"{self.label}: {over} of {n} Mitsuba sample weights exceed 1 and were clamped "
                               f"(analog sampling cannot reproduce them; the measurement is biased low)",
-                              RuntimeWarning, stacklevel=2)
+                              RuntimeWarning, stacklevel=3)
         norm = np.sqrt(np.einsum("ij,ij->i", wo, wo))
         alive = (rng.random(n) < np.clip(weight, 0.0, 1.0)) & (norm > 0.0)
-        dirs = np.zeros((n, 3))
-        dirs[alive] = wo[alive] / norm[alive, None]
+        inv = 1.0 / np.where(alive, norm, 1.0)  # no boolean gathers: ~3x faster at 1e6 rays
+        dirs = np.where(alive[:, None], wo * inv[:, None], 0.0)
         return dirs, alive
 
 

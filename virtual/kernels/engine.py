@@ -20,13 +20,23 @@ from virtual.kernels import jit
 from virtual.kernels.beam import BEAM_CONICAL, emit, emit_given
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
 from virtual.kernels.rng import LANES, fill_uniforms
-from virtual.kernels.scatter import GIVEN_UNIFORMS, MODEL_GGX, MODEL_LAMBERT, scatter, scatter_given
+from virtual.kernels.microfacet import fresnel_conductor_ratio
+from virtual.kernels.sampling import sincos_2pi, warp_cosine_hemisphere
+from virtual.kernels.scatter import (GIVEN4_MODELS, GIVEN4_UNIFORMS, GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC,
+                                     MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC,
+                                     PLASTIC_UNIFORMS, ggx_given_parts, phong_given, phong_lobe_cos, plastic_diffuse_redo, plastic_given,
+                                     scatter, scatter_given,
+                                     scatter_given4)
 
-__all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "spectro_kernel", "gonio_kernel", "gonio_block_kernel"]
+__all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "spectro_kernel", "gonio_kernel", "gonio_block_kernel"]
 
 #: Rays per block of the block kernel: its 7 uniforms and 4 outputs per ray (88 KiB) stay in L2.
 BLOCK_RAYS = 1024
 BEAM_UNIFORMS = 4  # two polar disk points
+#: Models the block kernel runs (three uniforms each for the first, four for the second group).
+BLOCK_MODELS = GIVEN_MODELS + GIVEN4_MODELS + (MODEL_PLASTIC,)
+#: Parameters the block kernel passes to a model (as a tuple; shorter vectors are zero-padded).
+BLOCK_PARAMS = 6
 
 
 @jit(parallel=True, fastmath=True)
@@ -87,9 +97,10 @@ def gonio_kernel(model, params, beam_kind, disk, b, cargs, n_bins, sizes, states
 
 
 @jit(fastmath=True, error_model="numpy")
-def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, hist):
+def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
     """One chunk of the block kernel: ``n_rays`` rays from the xoshiro lanes ``lane`` (advanced in
-    place) added to ``hist``.
+    place) added to ``hist``; ``s`` is a scalar xoshiro stream for the rare rays a fixed-count
+    form leaves to a rejection loop (the plastic's diffuse lobe).
 
     Compiled on its own, not inlined into the parallel loop: numba's parfor lowering would hoist
     the block buffers out of the loop and compile the body with other flags, and the loops would
@@ -100,7 +111,9 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
     """
     nb = BLOCK_RAYS
     n_beam = BEAM_UNIFORMS if beam_kind == BEAM_CONICAL else 0
-    ublock = np.empty(((n_beam + GIVEN_UNIFORMS) * nb // LANES, LANES))
+    n_scat = GIVEN4_UNIFORMS if (model == MODEL_PHONG or model == MODEL_OREN_NAYAR or model == MODEL_DIELECTRIC) \
+        else (PLASTIC_UNIFORMS if model == MODEL_PLASTIC else GIVEN_UNIFORMS)
+    ublock = np.empty(((n_beam + n_scat) * nb // LANES, LANES))
     u = ublock.reshape(ublock.size)
     s0 = n_beam * nb  # the scatterer's uniforms follow the beam's
     bo = nb if n_beam > 0 else 0  # a collimated beam reads none: any valid index will do
@@ -109,11 +122,15 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
     vx = np.empty(nb)
     vy = np.empty(nb)
     vz = np.empty(nb)
+    cx = np.empty(nb)
+    cy = np.empty(nb)
+    cz = np.empty(nb)
     # Absorbed and missed rays are spread over 8 bins each (by i mod 8), summed at the end: when
     # most rays are absorbed, one bin would chain every increment on the previous one's store.
-    h = np.zeros(n_bins + 16, dtype=np.int64)
+    h = np.zeros(n_bins + 24, dtype=np.int64)
     absorbed = n_bins
     missed = n_bins + 8
+    dump = n_bins + 16  # survivors' placeholder counts during compaction (discarded)
     left = n_rays
     while left > 0:
         m = min(left, nb)
@@ -126,29 +143,74 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
                 vx[i], vy[i], vz[i], alive = scatter_given(MODEL_LAMBERT, p, wx, wy, wz, u[s0 + i],
                                                            u[s0 + nb + i], u[s0 + 2 * nb + i])
                 code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+        elif model == MODEL_PHONG:
+            for i in range(nb):  # pow does not vectorize: alone in its loop, and only for lobe rays
+                uc = u[s0 + i]
+                vx[i] = phong_lobe_cos(p, u[s0 + 2 * nb + i]) if (uc >= p[0]) & (uc < p[0] + p[3]) else 1.0
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = phong_given(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                                                         u[s0 + 2 * nb + i], u[s0 + 3 * nb + i], vx[i])
+                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+        elif model == MODEL_OREN_NAYAR:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = scatter_given4(MODEL_OREN_NAYAR, p, wx, wy, wz, u[s0 + i],
+                                                            u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+        elif model == MODEL_PLASTIC:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive, redo = plastic_given(
+                    p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i],
+                    u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i])
+                code[i] = -2 if (alive & hit) else (-3 if (redo & hit) else ((absorbed if hit else missed) + (i & 7)))
+            for i in range(m):  # the diffuse rays whose one attempt was rejected: the loop continues
+                if code[i] == -3:
+                    ox, oy, oz = plastic_diffuse_redo(p[1], s)
+                    vx[i] = ox
+                    vy[i] = oy
+                    vz[i] = oz if vz[i] > 0.0 else -oz
+                    code[i] = -2
+        elif model == MODEL_DIELECTRIC:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = scatter_given4(MODEL_DIELECTRIC, p, wx, wy, wz, u[s0 + i],
+                                                            u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
         else:
             for i in range(nb):
                 wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
                 vx[i], vy[i], vz[i], alive = scatter_given(MODEL_GGX, p, wx, wy, wz, u[s0 + i],
                                                            u[s0 + nb + i], u[s0 + 2 * nb + i])
                 code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
-        if scheme == SCHEME_EQUAL_PSA:
-            for i in range(nb):
-                g = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
-                code[i] = g if code[i] == -2 else code[i]
-        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
-            for i in range(nb):
-                g = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
-                              sector_margin)
-                code[i] = g if code[i] == -2 else code[i]
-        else:
-            for i in range(nb):
-                g = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
-                code[i] = g if code[i] == -2 else code[i]
+        # Compaction: the surviving rays' directions move to the front (branch-free: every ray
+        # is written, the write position advances only for a survivor); the others are counted
+        # now (absorbed/missed bins, or a dump bin for a survivor). Only survivors are binned --
+        # a GGX dielectric absorbs 96 % of its rays, a Lambertian of albedo 0.5 half of them.
+        j = 0
         for i in range(m):
             k = code[i]
+            live = k == -2
+            cx[j] = vx[i]
+            cy[j] = vy[i]
+            cz[j] = vz[i]
+            h[dump + (i & 7) if live else k] += 1
+            j += live
+        if scheme == SCHEME_EQUAL_PSA:
+            for i in range(j):
+                code[i] = guess_bin(cx[i], cy[i], cz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
+        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
+            for i in range(j):
+                code[i] = guess_bin(cx[i], cy[i], cz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
+                                    sector_margin)
+        else:
+            for i in range(j):
+                code[i] = guess_bin(cx[i], cy[i], cz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+        for i in range(j):
+            k = code[i]
             if k < 0:  # too near an edge (or the pole, or the horizon) for the guess: exact lookup
-                k = patch_of(vx[i], vy[i], vz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
+                k = patch_of(cx[i], cy[i], cz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
             h[k] += 1
         left -= m
     for k in range(n_bins):
@@ -160,8 +222,8 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
 
 
 @jit(parallel=True)
-def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes):
-    p = (params[0], params[1], params[2], params[3])
+def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes, states):
+    p = (params[0], params[1], params[2], params[3], params[4], params[5])
     b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
          beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
          beam_args[14])
@@ -170,6 +232,176 @@ def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bi
     for c in prange(n_chunks):
         hist = np.zeros(n_bins + 2, dtype=np.int64)
         gonio_block_chunk(model, p, beam_kind, b, cargs, margins[0], margins[1], n_bins, sizes[c], lanes[c].copy(),
-                           hist)
+                          states[c].copy(), hist)
         out[c] = hist
     return out
+
+
+@jit(fastmath=True, error_model="numpy")
+def lambert_spectral_chunk(thr, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, cells, missed):
+    """One chunk of the spectral Lambertian block kernel (see :func:`lambert_spectral_kernel`):
+    every hit ray's upper-hemisphere patch counted in ``cells[cell of u0, patch]``, missed rays in
+    ``missed[0]``. ``thr`` are the sorted survival thresholds of all wavelengths."""
+    nb = BLOCK_RAYS
+    n_beam = BEAM_UNIFORMS if beam_kind == BEAM_CONICAL else 0
+    ublock = np.empty(((n_beam + GIVEN_UNIFORMS) * nb // LANES, LANES))
+    u = ublock.reshape(ublock.size)
+    s0 = n_beam * nb
+    bo = nb if n_beam > 0 else 0
+    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
+    n_thr = thr.shape[0]
+    code = np.empty(nb, dtype=np.int64)
+    cell = np.empty(nb, dtype=np.int64)
+    vx = np.empty(nb)
+    vy = np.empty(nb)
+    vz = np.empty(nb)
+    m_count = np.int64(0)
+    left = n_rays
+    while left > 0:
+        m = min(left, nb)
+        fill_uniforms(lane, ublock)
+        for i in range(nb):
+            wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+            x, y, z = warp_cosine_hemisphere(u[s0 + 2 * nb + i], u[s0 + nb + i])
+            vx[i] = x
+            vy[i] = y
+            vz[i] = z
+            cell[i] = 0 if hit else -(n_thr + 1)  # a missed ray's cell stays < 0
+        for t in range(n_thr):  # the cell of u0: how many thresholds lie at or below it
+            th = thr[t]
+            for i in range(nb):
+                cell[i] += u[s0 + i] >= th
+        if scheme == SCHEME_EQUAL_PSA:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
+        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
+                                    sector_margin)
+        else:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+        for i in range(m):
+            c = cell[i]
+            if c < 0:
+                m_count += 1
+                continue
+            k = code[i]
+            if k < 0:
+                k = patch_of(vx[i], vy[i], vz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
+            cells[c, k] += 1
+        left -= m
+    missed[0] += m_count
+
+
+@jit(parallel=True)
+def lambert_spectral_kernel(thr, beam_kind, beam_args, cargs, margins, n_patches, sizes, lanes):
+    """The Lambertian block kernel for many wavelengths at once: each ray's direction is drawn
+    once, and its survival uniform u0 is located among the sorted thresholds ``thr`` (every
+    wavelength's R and R + T). Returns per chunk the counts ``(n_thr + 1, n_patches)`` of hit
+    rays by (cell of u0, upper-hemisphere patch of the cosine-distributed direction), and the
+    missed rays; :func:`virtual.engine.gonio_counts_spectral` turns them into each wavelength's
+    counts."""
+    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
+         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
+         beam_args[14])
+    n_chunks = sizes.shape[0]
+    out = np.zeros((n_chunks, thr.shape[0] + 1, n_patches), dtype=np.int64)
+    miss = np.zeros((n_chunks, 1), dtype=np.int64)
+    for c in prange(n_chunks):
+        cells = np.zeros((thr.shape[0] + 1, n_patches), dtype=np.int64)
+        m = np.zeros(1, dtype=np.int64)
+        lambert_spectral_chunk(thr, beam_kind, b, cargs, margins[0], margins[1], sizes[c], lanes[c].copy(), cells, m)
+        out[c] = cells
+        miss[c, 0] = m[0]
+    return out.sum(axis=0), miss.sum()
+
+
+@jit(fastmath=True, error_model="numpy")
+def ggx_spectral_chunk(ax, ay, etas, ks, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, hist, tally):
+    """One chunk of the spectral GGX block kernel (see :func:`ggx_spectral_kernel`): surviving
+    rays added to ``hist[patch, w]`` per wavelength w; ``tally`` = (hits, missed)."""
+    nb = BLOCK_RAYS
+    n_beam = BEAM_UNIFORMS if beam_kind == BEAM_CONICAL else 0
+    ublock = np.empty(((n_beam + GIVEN_UNIFORMS) * nb // LANES, LANES))
+    u = ublock.reshape(ublock.size)
+    s0 = n_beam * nb
+    bo = nb if n_beam > 0 else 0
+    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
+    n_w = etas.shape[0]
+    code = np.empty(nb, dtype=np.int64)
+    vx = np.empty(nb)
+    vy = np.empty(nb)
+    vz = np.empty(nb)
+    cc = np.empty(nb)
+    lhs = np.empty(nb)  # u g_den
+    rhs = np.empty(nb)  # g_num, 0 for an invalid or missed ray
+    alive = np.empty((n_w, nb), dtype=np.bool_)
+    hits = np.int64(0)
+    left = n_rays
+    while left > 0:
+        m = min(left, nb)
+        fill_uniforms(lane, ublock)
+        for i in range(nb):
+            wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+            ca, sa = sincos_2pi(u[s0 + 2 * nb + i])
+            ox, oy, oz, c, g_num, g_den, valid = ggx_given_parts(ax, ay, wx, wy, wz, ca, sa, u[s0 + nb + i])
+            vx[i] = ox
+            vy[i] = oy
+            vz[i] = oz
+            cc[i] = c
+            lhs[i] = u[s0 + i] * g_den
+            rhs[i] = g_num if (valid & hit) else -1.0
+            code[i] = 1 if hit else 0
+        for w in range(n_w):  # each wavelength's survival: the same u, its own Fresnel factor
+            eta = etas[w]
+            k = ks[w]
+            for i in range(nb):
+                f_num, f_den = fresnel_conductor_ratio(cc[i], eta, k)
+                alive[w, i] = lhs[i] * f_den < f_num * rhs[i]
+        for i in range(m):
+            hits += code[i]
+        if scheme == SCHEME_EQUAL_PSA:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
+        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
+                                    sector_margin)
+        else:
+            for i in range(nb):
+                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+        for i in range(m):
+            if rhs[i] < 0.0:
+                continue  # missed, or absorbed at every wavelength (a cosine <= 0)
+            kb = code[i]
+            if kb < 0:
+                kb = patch_of(vx[i], vy[i], vz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
+            row = hist[kb]  # (W,) contiguous: a ray's W counts share a few cache lines
+            for w in range(n_w):
+                row[w] += alive[w, i]
+        left -= m
+    tally[0] += hits
+    tally[1] += n_rays - hits
+
+
+@jit(parallel=True)
+def ggx_spectral_kernel(ax, ay, etas, ks, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes):
+    """GGX (any alpha_x, alpha_y shared by every wavelength) at many wavelengths at once: each
+    ray's direction and its survival uniform are drawn once, each wavelength's Fresnel factor
+    (``etas``, ``ks``) decides its survival. Summed over chunks: counts ``(n_bins, W)`` of the survivors
+    and (hits, missed); :func:`virtual.engine.gonio_counts_spectral` adds the absorbed."""
+    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
+         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
+         beam_args[14])
+    n_chunks = sizes.shape[0]
+    out = np.zeros((n_chunks, n_bins, etas.shape[0]), dtype=np.int64)
+    tallies = np.zeros((n_chunks, 2), dtype=np.int64)
+    for c in prange(n_chunks):
+        hist = np.zeros((n_bins, etas.shape[0]), dtype=np.int64)
+        tally = np.zeros(2, dtype=np.int64)
+        ggx_spectral_chunk(ax, ay, etas, ks, beam_kind, b, cargs, margins[0], margins[1], sizes[c], lanes[c].copy(),
+                           hist, tally)
+        out[c] = hist
+        tallies[c] = tally
+    return out.sum(axis=0), tallies.sum(axis=0)
