@@ -43,7 +43,8 @@ def _spectrum_json(s: Any) -> dict[str, Any]:
 def _spectro_instrument(args: argparse.Namespace):
     from virtual.spectrophotometer import VirtualSpectrophotometer
 
-    kw: dict[str, Any] = {"beam": args.beam, "seed": args.seed, "delta": args.delta}
+    kw: dict[str, Any] = {"beam": args.beam, "seed": args.seed, "delta": args.delta,
+                          "common_random_numbers": args.common_random_numbers}
     if args.rays is not None:
         kw["rays"] = args.rays
     else:
@@ -80,7 +81,8 @@ def cmd_spectro(args: argparse.Namespace) -> int:
         emit_json(out)
         return 0
     print(f"specimen {s.meta['specimen']}  geometry {s.geometry}  beam {sp.beam.kind}  "
-          f"N = {int(s.N[0])} rays/wavelength  seed {s.seed}  confidence {1 - s.delta:g}")
+          f"N = {int(s.N[0])} rays/wavelength  seed {s.seed}  confidence {1 - s.delta:g}  "
+          f"streams {'common to every specimen' if sp.common_random_numbers else 'per specimen'}")
     if adaptive:
         print(adaptive["message"])
     q = "RF" if s.meta.get("quantity") == "reflectance factor" else "R"
@@ -112,7 +114,8 @@ def gonio_json(record: Any) -> dict[str, Any]:
                for r in sub.itertuples(index=False)]
     tot = m["totals"][0]
     return {"N": int(m["rays"]), "seed": m["seed"], "collector": m["collector"], "beam": m["beam"],
-            "method": m["method"], "kernel": m.get("kernel"), "specimen": m["specimen"], "incidence": [float(t.theta_i.iloc[0]),
+            "method": m["method"], "common_random_numbers": m.get("common_random_numbers", False),
+            "kernel": m.get("kernel"), "specimen": m["specimen"], "incidence": [float(t.theta_i.iloc[0]),
                                                                            float(t.phi_i.iloc[0])],
             "wavelength_nm": first, "delta": m["delta"], "reflectance": tot["reflectance"],
             "transmittance": tot["transmittance"], "absorbed": tot["absorbed"], "missed": tot["missed"],
@@ -124,7 +127,8 @@ def cmd_gonio(args: argparse.Namespace) -> int:
 
     theta_i, phi_i = _incidence(args.incidence)
     kw: dict[str, Any] = {"collector": args.collector, "beam": args.beam, "seed": args.seed, "delta": args.delta,
-                          "wavelengths": args.wavelengths, "method": args.method}
+                          "wavelengths": args.wavelengths, "method": args.method,
+                          "common_random_numbers": args.common_random_numbers}
     if args.rays is not None:
         kw["rays"] = args.rays
     elif args.uncertainty is not None:
@@ -155,18 +159,28 @@ def cmd_gonio(args: argparse.Namespace) -> int:
         return 0
     m = record.meta
     print(f"specimen {m['specimen']}  incidence ({theta_i:g}, {phi_i:g}) deg  collector {g.collector}  "
-          f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']} ({m.get('kernel')} kernel)  seed {g.seed}")
+          f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']} ({m.get('kernel')} kernel)  seed {g.seed}  "
+          f"streams {'common to every specimen' if g.common_random_numbers else 'per specimen'}")
     if adaptive:
         print(adaptive["message"])
     for tot in m["totals"]:
         print(f"  {tot['wavelength_nm']:7.1f} nm  reflectance {tot['reflectance']:.5f}  "
-              f"transmittance {tot['transmittance']:.5f}  absorbed {tot['absorbed']:,}")
+              f"transmittance {tot['transmittance']:.5f}  absorbed {tot['absorbed']:,}  {_method_note(tot)}")
     t = record.table
     top = t.sort_values("value", ascending=False).head(5)
     print("  brightest patches (hemisphere, theta, phi, BSDF [1/sr], interval):")
     for r in top.itertuples(index=False):
         print(f"    {r.hemisphere}  {r.theta_r:6.2f} {r.phi_r:7.2f}  {r.value:.5g}  [{r.ci_lo:.5g}, {r.ci_hi:.5g}]")
     return 0
+
+
+def _method_note(tot: dict[str, Any]) -> str:
+    """Which method counted one wavelength and, for the fast path, its certified quadrature error."""
+    if tot.get("method") == "fast":
+        return f"[fast, quadrature error <= {tot['quadrature_error']:.1e}]"
+    if "fallback_reason" in tot:
+        return f"[rays: fast path not certified: {tot['fallback_reason']}]"
+    return "[rays]"
 
 
 def _budget(adaptive: dict[str, Any]) -> dict[str, Any]:
@@ -197,6 +211,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--max-seconds", type=number, default=3600.0,
                    help="refuse budgets estimated to take longer (reports N and the time)")
     s.add_argument("--seed", type=int)
+    s.add_argument("--common-random-numbers", action="store_true",
+                   help="one random stream whatever the specimen (default: a stream per specimen)")
     s.add_argument("--json", action="store_true")
     s.add_argument("--plot", metavar="FILE.png")
     s.add_argument("--csv", metavar="FILE")
@@ -219,6 +235,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--max-seconds", type=number, default=3600.0,
                    help="refuse budgets estimated to take longer (reports N and the time)")
     g.add_argument("--seed", type=int)
+    g.add_argument("--common-random-numbers", action="store_true",
+                   help="one random stream whatever the specimen (default: a stream per specimen)")
     g.add_argument("--json", action="store_true")
     g.add_argument("--csv", metavar="FILE")
     g.add_argument("--plot", metavar="FILE.png")

@@ -22,7 +22,7 @@ import math
 
 from virtual.kernels import jit
 from virtual.kernels.microfacet import (disk_direction, fresnel_conductor_ratio, fresnel_dielectric, frame,
-                                        g2_over_g1, g2_over_g1_ratio, ggx_n, ggx_vndf, ggx_vndf_given,
+                                        g2_over_g1, g2_over_g1_masked, g2_over_g1_masked_ratio, ggx_n, ggx_vndf, ggx_vndf_given,
                                         unit_disk)
 from virtual.kernels.rng import next_double
 from virtual.kernels.sampling import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
@@ -129,7 +129,7 @@ def _ggx_given(p, wx, wy, wz, ca, sa, r2, u):
     """GGX reflection of the ray from w (either side: two-sided) given the VNDF's disk point
     (direction (ca, sa), squared radius r2) and the survival uniform u. Branch-free (block
     kernels vectorize it): ``(ox, oy, oz, alive)``, the ray surviving with probability
-    F(w.m) G2/G1.
+    F(w.m) G2/G1 (masking convention p[4]: 0 height-correlated, 1 separable).
 
     u < F G2/G1 is tested as u den_F den_G < num_F num_G (both denominators are >= 0, and > 0
     when wz, oz > 0): no division. The conductor Fresnel formula with k = 0 is the dielectric
@@ -146,7 +146,7 @@ def _ggx_given(p, wx, wy, wz, ca, sa, r2, u):
     oy = 2.0 * c * my - wy
     oz = 2.0 * c * mz - wz
     f_num, f_den = fresnel_conductor_ratio(c, p[2], p[3])
-    g_num, g_den = g2_over_g1_ratio(wz, ni, oz, ggx_n(ox, oy, oz, ax, ay))
+    g_num, g_den = g2_over_g1_masked_ratio(wz, ni, oz, ggx_n(ox, oy, oz, ax, ay), p[4])
     alive = (wz > 0.0) & (oz > 0.0) & (u * f_den * g_den < f_num * g_num)
     return ox, oy, (-oz if flip else oz), alive
 
@@ -207,7 +207,7 @@ def _dielectric(p, wx, wy, wz, s):
         ox = 2.0 * c * mx - wx
         oy = 2.0 * c * my - wy
         oz = 2.0 * c * mz - wz
-        if not (oz > 0.0 and next_double(s) < g2_over_g1(wx, wy, wz, ox, oy, oz, a, a)):
+        if not (oz > 0.0 and next_double(s) < g2_over_g1_masked(wx, wy, wz, ox, oy, oz, a, a, p[2])):
             return _DEAD
         return ox, oy, (-oz if flip else oz), True
     inv = 1.0 / er
@@ -215,7 +215,7 @@ def _dielectric(p, wx, wy, wz, s):
     ox = -wx * inv + k * mx
     oy = -wy * inv + k * my
     oz = -wz * inv + k * mz
-    if not (oz < 0.0 and next_double(s) < g2_over_g1(wx, wy, wz, ox, oy, -oz, a, a)):
+    if not (oz < 0.0 and next_double(s) < g2_over_g1_masked(wx, wy, wz, ox, oy, -oz, a, a, p[2])):
         return _DEAD
     return ox, oy, (-oz if flip else oz), True
 

@@ -30,6 +30,7 @@ class Lambertian(DeclaredSpecimen):
 
     name = "lambert"
     model = MODEL_LAMBERT
+    convention = "ideal diffuse (Mitsuba 3 diffuse, plus a diffuse transmission)"
     has_density = True
     parameters = (
         Param("reflectance", 0.5, 0.0, 1.0, doc="reflectance R (diffuse, same side)", aliases=("albedo", "R")),
@@ -78,6 +79,7 @@ class OrenNayar(DeclaredSpecimen):
 
     name = "oren-nayar"
     model = MODEL_OREN_NAYAR
+    convention = "Oren & Nayar 1994 qualitative model (A, B form)"
     has_density = True
     opaque = True
     parameters = (
@@ -126,6 +128,7 @@ class Phong(DeclaredSpecimen):
 
     name = "phong"
     model = MODEL_PHONG
+    convention = "Lafortune & Willems 1994 energy-normalized modified Phong"
     has_density = True
     opaque = True
     parameters = (
