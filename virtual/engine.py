@@ -207,7 +207,7 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     with single_chunk_threads(n_rays):
         if shape == "block":
-            p4 = np.zeros(max(4, p.size))  # the block kernel reads four parameters whatever the model
+            p4 = np.zeros(max(5, p.size))  # the block kernel reads five parameters whatever the model
             p4[:p.size] = p
             out = gonio_block_kernel(np.int64(model), p4, np.int64(beam_kind), b, tuple(collector_args),
                                       guess_margins(n_theta, n_phi), np.int64(n_bins), sizes,

@@ -161,7 +161,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
 
 @jit(parallel=True)
 def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes):
-    p = (params[0], params[1], params[2], params[3])
+    p = (params[0], params[1], params[2], params[3], params[4])  # GGX: alpha_x, alpha_y, eta, k, separable
     b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
          beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
          beam_args[14])

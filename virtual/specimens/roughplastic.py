@@ -8,7 +8,8 @@ of reflectance kd seen through the coat:
         + kd' t(cos_i) t(cos_o) / (pi eta^2),      kd' = kd / (1 - R_int)     (nonlinear = false)
                                                    kd' = kd / (1 - kd R_int)  (nonlinear = true)
 
-t(mu) = 1 - (the coat's specular albedo at cos theta = mu) is tabulated at 64 cosines
+t(mu) = the coat's rough transmittance at cos theta = mu (refracted rays that pass the
+masking, E[(1 - F) G1(wt)] over the visible normals) is tabulated at 64 cosines
 mu_i = max(1e-6, i / 63) and interpolated linearly (``lerp_gather``); R_int = 2 mean_i(R(mu_i;
 1/eta) mu_i) is the coat's internal reflectance, the mean over the same 64 nodes of the
 specular albedo seen from inside. Here the table entries are the albedos converged by adaptive
@@ -21,7 +22,8 @@ what the coat lets through (``kd' (2 int t mu dmu) / eta^2 > 1``) is refused.
 Sampling (exact, so ray counting and the fast path measure the same thing): a visible normal
 m, mirror reflection, kept with probability F(wi.m) G1(wo) -- the specular term. Otherwise (the
 remaining probability is exactly 1 - albedo_spec(wi), which the table's t(cos_i) interpolates)
-the ray goes to the base with probability c t(cos_i) / (1 - albedo_spec(wi)), c = kd' 2 int t
+the ray goes to the base with probability c t(cos_i) / (1 - albedo_spec(wi)) (<= 1 since
+t <= 1 - albedo_spec and c <= 1), c = kd' 2 int t
 mu dmu / eta^2, and leaves with a direction of density t(cos_o) cos_o / (pi 2 int t mu dmu)
 (a cosine direction kept with probability t(cos_o), redrawn otherwise).
 """
@@ -37,7 +39,7 @@ import numpy as np
 from bench.core.errors import SpecimenError
 from virtual.kernels.scatter import MODEL_PYTHON
 from virtual.specimens.declare import DeclaredSpecimen, Param, register_specimen
-from virtual.specimens.microfacet import _LT, _LU, ALPHA_MAX, ALPHA_MIN, _lit, _reflected
+from virtual.specimens.microfacet import _LT, _LU, ALPHA_MAX, ALPHA_MIN, _lit, _reflected, _refracted
 from virtual.specimens.physics import (lobe_width, local, mirror, np_fresnel_dielectric, np_g2_over_g1,
                                        np_ggx_reflection, vndf_expectation, vndf_normals)
 
@@ -61,11 +63,25 @@ def _specular_albedo(mu: float, alpha: float, eta: float, rtol: float = 1e-9) ->
     return vndf_expectation(w, alpha, alpha, g, rtol=rtol, atol=rtol * 1e-2)[0]
 
 
+@lru_cache(maxsize=4096)
+def _coat_transmittance(mu: float, alpha: float, eta: float, rtol: float = 1e-6) -> float:
+    """E[(1 - F(wi.m)) G1(wt)] over the visible normals, wt the refracted direction: the rough
+    coat's transmittance under separable masking (Mitsuba's ``eval_transmittance``)."""
+    w = np.array([math.sqrt(max(1.0 - mu * mu, 0.0)), 0.0, mu])
+    down = np.array([1.0, 1.0, -1.0])
+
+    def g(m: np.ndarray) -> np.ndarray:
+        _, f, o = _refracted(w, m, eta)
+        return (1.0 - f) * np_g2_over_g1(w, o * down, alpha, alpha, "separable")
+
+    return vndf_expectation(w, alpha, alpha, g, rtol=rtol, atol=rtol * 1e-2)[0]
+
+
 @lru_cache(maxsize=64)
 def coat_tables(alpha: float, eta: float) -> tuple[np.ndarray, np.ndarray, float]:
     """``(mu nodes, t(mu) at the nodes, R_int)`` as Mitsuba builds them (see the module docstring)."""
     mu = np.maximum(1e-6, np.arange(TABLE_RES) / (TABLE_RES - 1))
-    t = np.array([1.0 - _specular_albedo(float(m), alpha, eta, 1e-6) for m in mu])
+    t = np.array([_coat_transmittance(float(m), alpha, eta) for m in mu])
     r_int = 2.0 * float(np.mean([_specular_albedo(float(m), alpha, 1.0 / eta, 1e-6) * m for m in mu]))
     return mu, t, r_int
 
