@@ -256,7 +256,7 @@ class VirtualGoniophotometer(InstrumentBase):
                 fast = True
             elif self.method == "fast":
                 raise InputError(f"method fast refused for {self.specimen.label} at theta_i = {theta_i:g} deg, "
-                                      f"{wavelength_nm:g} nm: {cert.reason} (use --method rays or auto)")
+                                 f"{wavelength_nm:g} nm: {cert.reason} (use --method rays or auto)")
         self._ran[key] = "fast" if fast else "rays"
         if fast:
             counts = multinomial_counts(self.bin_probabilities(theta_i, phi_i, wavelength_nm), self.rays, seq)
