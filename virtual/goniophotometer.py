@@ -205,13 +205,31 @@ class VirtualGoniophotometer(InstrumentBase):
             return True
         return self.method == "auto" and self.specimen.has_density and self.beam.kind == "collimated"
 
-    def stream(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.random.SeedSequence:
-        """The random stream of one (incidence, wavelength): keyed by the specimen too unless
-        ``common_random_numbers``."""
+    def stream_key(self, theta_i: float, phi_i: float, wavelength_nm: float) -> tuple[int, ...]:
+        """The spawn key of one (incidence, wavelength)'s stream: (specimen hash,) pm, mdeg
+        theta_i, mdeg phi_i -- the specimen left out under ``common_random_numbers``."""
         key = (int(round(wavelength_nm * 1000)), int(round(theta_i * 1000)), int(round((phi_i % 360.0) * 1000)))
-        if not self.common_random_numbers:
-            key = (specimen_stream_key(self.specimen), *key)
-        return measurement_seed(self.seed, *key)
+        return key if self.common_random_numbers else (specimen_stream_key(self.specimen), *key)
+
+    def stream(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.random.SeedSequence:
+        """The random stream of one (incidence, wavelength) (:meth:`stream_key`)."""
+        return measurement_seed(self.seed, *self.stream_key(theta_i, phi_i, wavelength_nm))
+
+    def fast_path_for(self, theta_i: float, phi_i: float, wavelength_nm: float) -> bool:
+        """Whether this (incidence, wavelength) is counted by the fast path: tried and certified.
+        Records the decision (:meth:`method_ran`); raises :class:`InputError` when
+        ``method="fast"`` and the quadrature is not certified."""
+        key = (round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))
+        fast = False
+        if self.uses_fast_path():
+            cert = self.quadrature(theta_i, phi_i, wavelength_nm)
+            if cert.certified:
+                fast = True
+            elif self.method == "fast":
+                raise InputError(f"method fast refused for {self.specimen.label} at theta_i = {theta_i:g} deg, "
+                                 f"{wavelength_nm:g} nm: {cert.reason} (use --method rays or auto)")
+        self._ran[key] = "fast" if fast else "rays"
+        return fast
 
     def quadrature(self, theta_i: float, phi_i: float, wavelength_nm: float) -> PatchIntegrals:
         """The certified patch integrals of one collimated incidence (cached)."""
@@ -224,8 +242,10 @@ class VirtualGoniophotometer(InstrumentBase):
     def method_ran(self, theta_i: float, phi_i: float, wavelength_nm: float) -> str:
         """``"fast"`` or ``"rays"``: what counted this (incidence, wavelength) (simulating it
         if needed)."""
-        self.simulate(theta_i, phi_i, wavelength_nm)
-        return self._ran[(round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))]
+        key = (round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))
+        if key not in self._ran:
+            self.simulate(theta_i, phi_i, wavelength_nm)
+        return self._ran[key]
 
     def kernel(self) -> str:
         """What counts the rays: ``"fast"`` (one multinomial), ``"block"`` or ``"ray"`` (the
@@ -249,16 +269,7 @@ class VirtualGoniophotometer(InstrumentBase):
             return self._cache[key]
         seq = self.stream(theta_i, phi_i, wavelength_nm)
         params = self.specimen.params(wavelength_nm)
-        fast = False
-        if self.uses_fast_path():
-            cert = self.quadrature(theta_i, phi_i, wavelength_nm)
-            if cert.certified:
-                fast = True
-            elif self.method == "fast":
-                raise InputError(f"method fast refused for {self.specimen.label} at theta_i = {theta_i:g} deg, "
-                                 f"{wavelength_nm:g} nm: {cert.reason} (use --method rays or auto)")
-        self._ran[key] = "fast" if fast else "rays"
-        if fast:
+        if self.fast_path_for(theta_i, phi_i, wavelength_nm):
             counts = multinomial_counts(self.bin_probabilities(theta_i, phi_i, wavelength_nm), self.rays, seq)
         elif self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
             counts = gonio_counts_python(self.specimen, wavelength_nm, self.beam, theta_i, phi_i, self.collector,

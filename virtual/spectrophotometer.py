@@ -95,6 +95,12 @@ class VirtualSpectrophotometer(InstrumentBase):
                    "specimen": self.specimen.label},
         )
 
+    def stream_key(self, theta_i: float, phi_i: float, wavelength_nm: float) -> tuple[int, ...]:
+        """The spawn key of one wavelength's stream: (specimen hash,) pm, mdeg theta_i -- the
+        specimen left out under ``common_random_numbers`` (``phi_i`` is not part of it)."""
+        key = (int(round(wavelength_nm * 1000)), int(round(theta_i * 1000)))
+        return key if self.common_random_numbers else (specimen_stream_key(self.specimen), *key)
+
     # -- Spectrophotometer -------------------------------------------------------------------
     def measure(self, geometry: str | CIEGeometry, wavelengths: Iterable[float] | str) -> Spectrum:
         g = cie_geometry(geometry)
@@ -106,10 +112,7 @@ class VirtualSpectrophotometer(InstrumentBase):
         cone, cone_psa_over_pi = self._cone(measured)
         tallies: list[SpectroTally] = []
         for w in wl:
-            key = (int(round(w * 1000)), int(round(theta_i * 1000)))
-            if not self.common_random_numbers:
-                key = (specimen_stream_key(self.specimen), *key)
-            seq = measurement_seed(self.seed, *key)
+            seq = measurement_seed(self.seed, *self.stream_key(theta_i, 0.0, float(w)))
             if self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
                 tallies.append(spectro_counts_python(self.specimen, float(w), self.beam, theta_i, 0.0,
                                                      self.rays, seq, cone))
