@@ -100,7 +100,9 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
         total = [None]
         calls = [0]
         if gonio:
-            probs = instrument.bin_probabilities(theta_i, phi_i, float(w)) if fast else None
+            # the fast path only where its quadrature is certified (refused under method "fast")
+            fast_w = fast and instrument.fast_path_for(theta_i, phi_i, float(w))
+            probs = instrument.bin_probabilities(theta_i, phi_i, float(w)) if fast_w else None
             cols = np.arange(instrument.collector.n_bins if sp.transmits(float(w)) else m)
         else:
             cols = np.array([0, 1]) if (sp.transmits(float(w)) and not directional) else np.array([0])
@@ -109,8 +111,7 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
         def draw(n_new: int, _w: float = float(w), _p: Any = params, _probs: Any = None if not gonio else probs,
                  _cols: Any = cols) -> Any:
             calls[0] += 1
-            seq = measurement_seed(instrument.seed, int(round(_w * 1000)), int(round(theta_i * 1000)), 0xADA,
-                                   calls[0])
+            seq = measurement_seed(instrument.seed, *instrument.stream_key(theta_i, phi_i, _w), 0xADA, calls[0])
             if gonio:
                 if _probs is not None:
                     c = multinomial_counts(_probs, n_new, seq)

@@ -262,7 +262,7 @@ def spectral_rows(n: int = N_RAYS, w: int = SPECTRAL_W) -> list[dict]:
 def mitsuba_specimen_rows(n: int = 10_000_000, batch: int = 1_000_000) -> list[dict]:
     """A Mitsuba specimen's ``sample`` (the devices' Python engine calls it per batch) through
     the LLVM wavefront sampler (target >= 1e7 rays/s) -- and the scalar loop, for scale."""
-    from virtual.mitsuba import MitsubaSpecimen
+    from virtual.specimens.mitsuba import MitsubaSpecimen
     from virtual.mitsuba_llvm import llvm_status
 
     bsdf = MITSUBA_BSDFS["mitsuba-llvm-ggx"][1]

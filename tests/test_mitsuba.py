@@ -18,7 +18,7 @@ from scipy import stats  # noqa: E402
 
 from bench.core.errors import SpecimenError  # noqa: E402
 from virtual.goniophotometer import VirtualGoniophotometer  # noqa: E402
-from virtual.mitsuba import MitsubaSpecimen  # noqa: E402
+from virtual.specimens.mitsuba import MitsubaSpecimen  # noqa: E402
 from virtual.specimens import MODEL_PYTHON, Lambertian, parse_specimen  # noqa: E402
 from virtual.spectrophotometer import VirtualSpectrophotometer  # noqa: E402
 

@@ -79,11 +79,13 @@ def shoot(specimen, wi, n, seed, col=COL):
 
 @pytest.mark.parametrize("spec,cls,params", [
     ("lambert:albedo=0.5", Lambertian, [0.5, 0.0]),
-    ("ggx:alpha=0.2,eta=1.5,k=0", GGX, [0.2, 0.2, 1.5, 0.0]),
+    ("ggx:alpha=0.2,eta=1.5,k=0", GGX, [0.2, 0.2, 1.5, 0.0, 0.0]),
+    ("ggx:alpha=0.2,masking=separable", GGX, [0.2, 0.2, 1.5, 0.0, 1.0]),
     ("phong:exponent=20,ks=0.5,kd=0.3", Phong, [0.3, 0.5, 20.0, 0.5 * 22 / 21]),
     ("plastic:alpha=0.1,eta=1.5,kd=0.5", RoughPlastic, None),
-    ("aniso-ggx:alpha_x=0.1,alpha_y=0.4,eta=0.2,k=3", AnisoGGX, [0.1, 0.4, 0.2, 3.0]),
-    ("dielectric:alpha=0.2,eta=1.5", RoughDielectric, [0.2, 1.5]),
+    ("aniso-ggx:alpha_x=0.1,alpha_y=0.4,eta=0.2,k=3", AnisoGGX, [0.1, 0.4, 0.2, 3.0, 0.0]),
+    ("dielectric:alpha=0.2,eta=1.5", RoughDielectric, [0.2, 1.5, 0.0]),
+    ("dielectric:alpha=0.2,eta=1.5,masking=separable", RoughDielectric, [0.2, 1.5, 1.0]),
     ("oren-nayar:sigma=20,albedo=0.8", OrenNayar, None),
 ])
 def test_cli_strings_parse(spec, cls, params):
@@ -355,15 +357,27 @@ def test_every_family_is_listed_with_its_declared_parameters():
     sigma = fams["oren-nayar"]["parameters"][0]
     assert (sigma["range"], sigma["unit"], sigma["default"]) == ([0.0, 90.0], "degrees", 20.0)
     table = specimen_table_markdown()
-    assert table.startswith("| specimen | parameter | range | unit | default | meaning |")
+    assert table.startswith("| specimen | convention | parameter | range | unit | default | meaning |")
     rows = [r for r in table.splitlines()[2:]]
     assert len(rows) == sum(len(f["parameters"]) for f in fams.values())
-    assert "| oren-nayar | `sigma` | 0 .. 90 | degrees | 20 |" in table
+    assert "| oren-nayar | Oren & Nayar 1994 qualitative model (A, B form) | `sigma` | 0 .. 90 | degrees | 20 |" in table
+    # the conventions a Mitsuba user selects are named in the table, with their choices
+    assert "separable = Mitsuba 3 roughconductor" in table and "| roughplastic | Mitsuba 3 roughplastic" in table
+    assert "| `masking` | correlated \\| separable | - | correlated |" in table
     # defaults declared are the defaults used
     for name, cls in SPECIMENS.items():
         s = cls()
         for p in cls.parameters:
             assert getattr(s, p.name)(WL) == p.default, (name, p.name)
+
+
+def test_a_categorical_parameter_takes_its_names_and_refuses_anything_else():
+    assert parse_specimen("ggx:masking=separable").params(WL)[4] == 1.0
+    assert parse_specimen("dielectric:masking=correlated").params(WL)[2] == 0.0
+    for bad, msg in (("ggx:masking=smith", "one of correlated, separable"), ("ggx:masking=0.5", "one of"),
+                     ("ggx:alpha=rough", "alpha must be a number")):
+        with pytest.raises(SpecimenError, match=msg):
+            parse_specimen(bad)
 
 
 class _Velvet(DeclaredSpecimen):

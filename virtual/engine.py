@@ -29,7 +29,9 @@ random streams differ, so equal seeds give equal counts only within one kernel s
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -43,6 +45,8 @@ from virtual.rng import lane_states, stream_states
 __all__ = [
     "chunking",
     "measurement_seed",
+    "specimen_description",
+    "specimen_stream_key",
     "spectro_counts",
     "SPECTRO_BINS",
     "SpectroTally",
@@ -78,6 +82,32 @@ def measurement_seed(seed: int, *key: int) -> np.random.SeedSequence:
     wavelength in pm, the incidence in millidegrees, a sweep task's key). Equal keys give equal
     streams, so the same wavelength measured in two runs draws the same rays."""
     return np.random.SeedSequence(int(seed), spawn_key=tuple(int(k) for k in key))
+
+
+def specimen_description(specimen: Any) -> str:
+    """The full, canonical description of a specimen: its family name and every declared
+    parameter's value (spectral tables in full, floats by ``repr``), or its label for a specimen
+    without declared parameters. Two specimens that scatter alike describe alike, however their
+    strings were written (``ggx:alpha=0.20`` and ``ggx:alpha=.2``)."""
+    params = getattr(specimen, "parameters", None)
+    if not params:
+        return f"{type(specimen).__module__}.{type(specimen).__qualname__}:{getattr(specimen, 'label', '') or repr(specimen)}"
+    parts = []
+    for p in params:
+        v = getattr(specimen, p.name)
+        wl = getattr(v, "wavelengths", None)
+        vals = ",".join(repr(float(x)) for x in np.atleast_1d(getattr(v, "values", v)))
+        parts.append(f"{p.name}={vals}" if wl is None else
+                     f"{p.name}=({','.join(repr(float(x)) for x in wl)};{vals})")
+    return f"{getattr(specimen, 'name', type(specimen).__name__)}:{';'.join(parts)}"
+
+
+def specimen_stream_key(specimen: Any) -> int:
+    """A stable 63-bit hash (blake2b) of :func:`specimen_description`: the spawn-key entry
+    that gives each specimen its own random stream under one seed (independent streams by
+    default; a parameter scan that wants common random numbers leaves it out)."""
+    digest = hashlib.blake2b(specimen_description(specimen).encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "big") >> 1
 
 
 @dataclass(frozen=True)
@@ -284,6 +314,7 @@ def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray,
     n_bins = 2 * n_theta * n_phi
     etas = np.array([p[2] for p in rows])
     ks = np.array([p[3] for p in rows])
+    separable = float(rows[0][4]) if len(rows[0]) > 4 else 0.0  # masking convention (one per specimen)
     sizes = chunking(n_rays)
     lanes = lane_states(seq, sizes.shape[0])
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
@@ -293,7 +324,7 @@ def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray,
     with single_chunk_threads(n_rays):
         for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
             sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
-            h, t = ggx_spectral_kernel(float(rows[0][0]), float(rows[0][1]), etas, ks, np.int64(beam_kind), b,
+            h, t = ggx_spectral_kernel(float(rows[0][0]), float(rows[0][1]), separable, etas, ks, np.int64(beam_kind), b,
                                        tuple(collector_args), margins, np.int64(n_bins),
                                        np.ascontiguousarray(sizes[sl]), np.ascontiguousarray(lanes[sl]))
             out[:, :n_bins] += h.T

@@ -17,7 +17,17 @@ over viewing directions costs one simulation per (incidence, wavelength).
 Methods: ``"rays"`` counts rays in the numba kernel; ``"fast"`` draws the same counts as one
 multinomial over patch probabilities integrated from the specimen's density (statistically
 identical, O(patches)); ``"auto"`` takes the fast path when the specimen has a density and the
-beam is collimated (a conical beam's incidence distribution is sampled, not integrated).
+beam is collimated (a conical beam's incidence distribution is sampled, not integrated). The
+fast path is taken only when its quadrature is certified
+(:func:`virtual.quadrature.certified_patch_integrals`: total probability within
+:data:`~virtual.quadrature.CERTIFY_TOL` of an independent albedo); otherwise ``auto`` counts rays
+and ``fast`` is refused with the reason. The record says, per wavelength, which method ran and the
+achieved quadrature error.
+
+Random streams: each (specimen, wavelength, incidence) draws from
+``measurement_seed(seed, specimen_stream_key, pm, mdeg theta_i, mdeg phi_i)``, so two specimens
+measured with one seed are independent; ``common_random_numbers=True`` leaves the specimen out
+(every specimen sees the same stream: lower variance when comparing models).
 """
 
 from __future__ import annotations
@@ -35,9 +45,9 @@ from bench.core.records import BSDF_COLUMNS, BSDFRecord
 from virtual.beam import Beam, check_incidence
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.collector import Collector, parse_collector
-from virtual.engine import gonio_counts, gonio_kernel_for, measurement_seed, multinomial_counts
+from virtual.engine import gonio_counts, gonio_kernel_for, measurement_seed, multinomial_counts, specimen_stream_key
 from virtual.python_engine import gonio_counts_python
-from virtual.quadrature import patch_integrals
+from virtual.quadrature import PatchIntegrals, certified_patch_integrals
 from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
 from virtual.spectrophotometer import fresh_seed
 
@@ -63,12 +73,15 @@ class VirtualGoniophotometer(InstrumentBase):
     wavelengths : nm, the detector's channels (default 550 nm)
     method : ``"auto"``, ``"rays"`` or ``"fast"``
     gain : detector counts per (1/sr) per second
+    common_random_numbers : bool
+        Draw the same random stream whatever the specimen (default: a stream per specimen).
     """
 
     def __init__(self, specimen: Specimen | str, *, collector: Collector | str = "equal-psa:9x36",
                  rays: int | None = None, uncertainty: float | None = None, delta: float = 0.01,
                  beam: Beam | str = "collimated", seed: int | None = None,
-                 wavelengths: Any = (550.0,), method: str = "auto", gain: float = 1.0e4) -> None:
+                 wavelengths: Any = (550.0,), method: str = "auto", gain: float = 1.0e4,
+                 common_random_numbers: bool = False) -> None:
         self.specimen = parse_specimen(specimen)
         self.collector = parse_collector(collector)
         self.beam = beam if isinstance(beam, Beam) else Beam(kind=str(beam))
@@ -97,6 +110,9 @@ class VirtualGoniophotometer(InstrumentBase):
         self._light_on = True
         self._cache: dict[tuple[float, float, float], np.ndarray] = {}
         self._probabilities: dict[tuple[float, float, float], np.ndarray] = {}
+        self._certificates: dict[tuple[float, float, float], PatchIntegrals] = {}
+        self._ran: dict[tuple[float, float, float], str] = {}
+        self.common_random_numbers = bool(common_random_numbers)
 
     # -- Instrument --------------------------------------------------------------------------
     def describe(self) -> InstrumentInfo:
@@ -106,7 +122,8 @@ class VirtualGoniophotometer(InstrumentBase):
             ranges={"theta_i": (0.0, 89.999), "theta_r": (0.0, 180.0),
                     "wavelength_nm": (float(self._wavelengths[0]), float(self._wavelengths[-1]))},
             extra={"collector": self.collector.describe(), "beam": self.beam.describe(), "rays": self.rays,
-                   "method": self.method, "specimen": self.specimen.label},
+                   "method": self.method, "specimen": self.specimen.label,
+                   "common_random_numbers": self.common_random_numbers},
         )
 
     # -- Goniometer --------------------------------------------------------------------------
@@ -183,14 +200,57 @@ class VirtualGoniophotometer(InstrumentBase):
 
     # -- simulation --------------------------------------------------------------------------
     def uses_fast_path(self) -> bool:
+        """Whether the fast path is *tried* (it runs only where its quadrature is certified)."""
         if self.method == "fast":
             return True
         return self.method == "auto" and self.specimen.has_density and self.beam.kind == "collimated"
 
+    def stream_key(self, theta_i: float, phi_i: float, wavelength_nm: float) -> tuple[int, ...]:
+        """The spawn key of one (incidence, wavelength)'s stream: (specimen hash,) pm, mdeg
+        theta_i, mdeg phi_i -- the specimen left out under ``common_random_numbers``."""
+        key = (int(round(wavelength_nm * 1000)), int(round(theta_i * 1000)), int(round((phi_i % 360.0) * 1000)))
+        return key if self.common_random_numbers else (specimen_stream_key(self.specimen), *key)
+
+    def stream(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.random.SeedSequence:
+        """The random stream of one (incidence, wavelength) (:meth:`stream_key`)."""
+        return measurement_seed(self.seed, *self.stream_key(theta_i, phi_i, wavelength_nm))
+
+    def fast_path_for(self, theta_i: float, phi_i: float, wavelength_nm: float) -> bool:
+        """Whether this (incidence, wavelength) is counted by the fast path: tried and certified.
+        Records the decision (:meth:`method_ran`); raises :class:`InputError` when
+        ``method="fast"`` and the quadrature is not certified."""
+        key = (round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))
+        fast = False
+        if self.uses_fast_path():
+            cert = self.quadrature(theta_i, phi_i, wavelength_nm)
+            if cert.certified:
+                fast = True
+            elif self.method == "fast":
+                raise InputError(f"method fast refused for {self.specimen.label} at theta_i = {theta_i:g} deg, "
+                                 f"{wavelength_nm:g} nm: {cert.reason} (use --method rays or auto)")
+        self._ran[key] = "fast" if fast else "rays"
+        return fast
+
+    def quadrature(self, theta_i: float, phi_i: float, wavelength_nm: float) -> PatchIntegrals:
+        """The certified patch integrals of one collimated incidence (cached)."""
+        key = (round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))
+        if key not in self._certificates:
+            wi = Geometry(theta_i, phi_i, 0.0, 0.0).incident
+            self._certificates[key] = certified_patch_integrals(self.specimen, wi, self.collector, wavelength_nm)
+        return self._certificates[key]
+
+    def method_ran(self, theta_i: float, phi_i: float, wavelength_nm: float) -> str:
+        """``"fast"`` or ``"rays"``: what counted this (incidence, wavelength) (simulating it
+        if needed)."""
+        key = (round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))
+        if key not in self._ran:
+            self.simulate(theta_i, phi_i, wavelength_nm)
+        return self._ran[key]
+
     def kernel(self) -> str:
         """What counts the rays: ``"fast"`` (one multinomial), ``"block"`` or ``"ray"`` (the
         numba kernels, see :mod:`virtual.engine`) or ``"python"`` (a specimen without a kernel)."""
-        if self.uses_fast_path():
+        if self.uses_fast_path() and "rays" not in self._ran.values():
             return "fast"
         if self.specimen.model == MODEL_PYTHON:
             return "python"
@@ -199,15 +259,17 @@ class VirtualGoniophotometer(InstrumentBase):
     def simulate(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.ndarray:
         """Counts per bin (R patches, T patches, absorbed, missed) for one incidence and
         wavelength; cached. The stream is keyed by (wavelength, incidence) so a repeated or
-        resumed measurement draws the same rays."""
+        resumed measurement draws the same rays (see :meth:`stream`).
+
+        Raises :class:`InputError` when ``method="fast"`` and the quadrature is not certified.
+        """
         check_incidence(theta_i)
         key = (round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))
         if key in self._cache:
             return self._cache[key]
-        seq = measurement_seed(self.seed, int(round(wavelength_nm * 1000)), int(round(theta_i * 1000)),
-                               int(round((phi_i % 360.0) * 1000)))
+        seq = self.stream(theta_i, phi_i, wavelength_nm)
         params = self.specimen.params(wavelength_nm)
-        if self.uses_fast_path():
+        if self.fast_path_for(theta_i, phi_i, wavelength_nm):
             counts = multinomial_counts(self.bin_probabilities(theta_i, phi_i, wavelength_nm), self.rays, seq)
         elif self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
             counts = gonio_counts_python(self.specimen, wavelength_nm, self.beam, theta_i, phi_i, self.collector,
@@ -221,12 +283,12 @@ class VirtualGoniophotometer(InstrumentBase):
 
     def bin_probabilities(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.ndarray:
         """Probabilities of every bin (R patches, T patches, absorbed, missed = 0) for a
-        collimated beam, by quadrature of the specimen's density over each patch."""
+        collimated beam, by quadrature of the specimen's density over each patch (certified or
+        not: see :meth:`quadrature` for the check)."""
         key = (round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))
         if key in self._probabilities:  # a new seed or N redraws from the same integrals
             return self._probabilities[key]
-        wi = Geometry(theta_i, phi_i, 0.0, 0.0).incident
-        p = np.clip(np.asarray(patch_integrals(self.specimen, wi, self.collector, wavelength_nm), float), 0.0, 1.0)
+        p = np.clip(np.asarray(self.quadrature(theta_i, phi_i, wavelength_nm).p, float), 0.0, 1.0)
         absorbed = max(0.0, 1.0 - p.sum())
         probabilities = np.concatenate([p / max(1.0, p.sum()), [absorbed, 0.0]])
         self._probabilities[key] = probabilities
@@ -268,12 +330,23 @@ class VirtualGoniophotometer(InstrumentBase):
                 "phi_min": np.degrees(bounds[:, 2]), "phi_max": np.degrees(bounds[:, 3]),
                 "psa": psa, "count": k.astype(np.int64), "N": np.int64(hits),
             }))
-            totals.append({"wavelength_nm": float(w), "reflectance": float(k[:col.n_patches].sum() / n),
-                           "transmittance": float(k[col.n_patches:].sum() / n),
-                           "absorbed": int(counts[n_bins]), "missed": int(counts[n_bins + 1]), "N": hits})
+            ran = self.method_ran(theta_i, phi_i, float(w))
+            tot = {"wavelength_nm": float(w), "reflectance": float(k[:col.n_patches].sum() / n),
+                   "transmittance": float(k[col.n_patches:].sum() / n),
+                   "absorbed": int(counts[n_bins]), "missed": int(counts[n_bins + 1]), "N": hits, "method": ran}
+            if self.uses_fast_path():
+                cert = self.quadrature(theta_i, phi_i, float(w))
+                tot["quadrature_error"] = float(cert.achieved_error)
+                tot["quadrature_certified"] = bool(cert.certified)
+                if not cert.certified:
+                    tot["fallback_reason"] = cert.reason
+            totals.append(tot)
         table = pd.concat(frames, ignore_index=True)[BSDF_COLUMNS]
+        methods = {t["method"] for t in totals}
+        ran_all = methods.pop() if len(methods) == 1 else "mixed"
         meta = {"source": "virtual", "specimen": self.specimen.label, "collector": col.describe(),
                 "beam": self.beam.describe(), "rays": self.rays, "seed": self.seed, "delta": self.delta,
-                "method": "fast" if self.uses_fast_path() else "rays", "kernel": self.kernel(), "totals": totals,
+                "method": ran_all, "method_requested": self.method, "kernel": self.kernel(), "totals": totals,
+                "common_random_numbers": self.common_random_numbers,
                 "reciprocal": self.specimen.reciprocal, "isotropic": self.specimen.isotropic}
         return BSDFRecord(table, meta)

@@ -1,7 +1,7 @@
 """Ray counting for specimens without a kernel (``model == MODEL_PYTHON``), in numpy.
 
 The same measurements as :mod:`virtual.engine`, with the same result layouts, for specimens
-that scatter in Python (e.g. :class:`virtual.mitsuba.MitsubaSpecimen`). Such a specimen has a
+that scatter in Python (e.g. :class:`virtual.specimens.mitsuba.MitsubaSpecimen`). Such a specimen has a
 method ``sample(wi, n, wavelength_nm, rng) -> (dirs (n, 3), alive (n,))`` where ``wi`` is one
 direction (3,) toward the source or one per ray (n, 3).
 

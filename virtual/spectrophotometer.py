@@ -28,7 +28,7 @@ from bench.core.geometry import CIEGeometry, cie_geometry, direction
 from bench.core.roles import InstrumentBase, InstrumentInfo, Spectrum
 from virtual.beam import Beam
 from virtual.bounds import binomial_ci, hoeffding_rays
-from virtual.engine import NO_CONE, SpectroTally, measurement_seed, spectro_counts
+from virtual.engine import NO_CONE, SpectroTally, measurement_seed, specimen_stream_key, spectro_counts
 from virtual.python_engine import spectro_counts_python
 from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
 
@@ -59,11 +59,14 @@ class VirtualSpectrophotometer(InstrumentBase):
         Root seed; a fresh one is drawn (and reported) when omitted.
     cone_deg : float
         Viewing (bidirectional geometries) and gloss-trap cone half-angle.
+    common_random_numbers : bool
+        Draw the same stream whatever the specimen (default: the stream is keyed by a stable
+        hash of the specimen's full description too, :func:`virtual.engine.specimen_stream_key`).
     """
 
     def __init__(self, specimen: Specimen | str, *, rays: int | None = None, uncertainty: float = 0.005,
                  delta: float = 0.01, beam: Beam | str = "collimated", seed: int | None = None,
-                 cone_deg: float | None = None) -> None:
+                 cone_deg: float | None = None, common_random_numbers: bool = False) -> None:
         self.specimen = parse_specimen(specimen)
         self.beam = beam if isinstance(beam, Beam) else Beam(kind=str(beam))
         if rays is None:
@@ -79,6 +82,7 @@ class VirtualSpectrophotometer(InstrumentBase):
         self.delta = float(delta)
         self.seed = fresh_seed() if seed is None else int(seed)
         self.cone_deg = cone_deg
+        self.common_random_numbers = bool(common_random_numbers)
 
     # -- Instrument --------------------------------------------------------------------------
     def describe(self) -> InstrumentInfo:
@@ -91,6 +95,12 @@ class VirtualSpectrophotometer(InstrumentBase):
                    "specimen": self.specimen.label},
         )
 
+    def stream_key(self, theta_i: float, phi_i: float, wavelength_nm: float) -> tuple[int, ...]:
+        """The spawn key of one wavelength's stream: (specimen hash,) pm, mdeg theta_i -- the
+        specimen left out under ``common_random_numbers`` (``phi_i`` is not part of it)."""
+        key = (int(round(wavelength_nm * 1000)), int(round(theta_i * 1000)))
+        return key if self.common_random_numbers else (specimen_stream_key(self.specimen), *key)
+
     # -- Spectrophotometer -------------------------------------------------------------------
     def measure(self, geometry: str | CIEGeometry, wavelengths: Iterable[float] | str) -> Spectrum:
         g = cie_geometry(geometry)
@@ -102,7 +112,7 @@ class VirtualSpectrophotometer(InstrumentBase):
         cone, cone_psa_over_pi = self._cone(measured)
         tallies: list[SpectroTally] = []
         for w in wl:
-            seq = measurement_seed(self.seed, int(round(w * 1000)), int(round(theta_i * 1000)))
+            seq = measurement_seed(self.seed, *self.stream_key(theta_i, 0.0, float(w)))
             if self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
                 tallies.append(spectro_counts_python(self.specimen, float(w), self.beam, theta_i, 0.0,
                                                      self.rays, seq, cone))
@@ -138,7 +148,8 @@ class VirtualSpectrophotometer(InstrumentBase):
         t_lo, t_hi = binomial_ci(k_t, safe, self.delta)
         meta = {
             "specimen": self.specimen.label, "beam": self.beam.describe(), "delta": self.delta,
-            "uncertainty": self.uncertainty, "measured_as": measured.name if g.illumination == "diffuse" else g.name,
+            "uncertainty": self.uncertainty, "common_random_numbers": self.common_random_numbers,
+            "measured_as": measured.name if g.illumination == "diffuse" else g.name,
             "reciprocity": g.illumination == "diffuse",
             "counts": [t.__dict__ for t in tallies],
             "quantity": "reflectance factor" if measured.viewing == "directional" else "reflectance",

@@ -89,7 +89,8 @@ def spectrum_colour(s: Any) -> dict[str, Any] | None:
 def _spectro_instrument(args: argparse.Namespace):
     from virtual.spectrophotometer import VirtualSpectrophotometer
 
-    kw: dict[str, Any] = {"beam": args.beam, "seed": args.seed, "delta": args.delta}
+    kw: dict[str, Any] = {"beam": args.beam, "seed": args.seed, "delta": args.delta,
+                          "common_random_numbers": args.common_random_numbers}
     if args.rays is not None:
         kw["rays"] = args.rays
     else:
@@ -133,7 +134,8 @@ def cmd_spectro(args: argparse.Namespace) -> int:
     n = np.broadcast_to(np.asarray(s.N), s.wavelengths.shape)
     print(f"specimen {s.meta['specimen']}  geometry {s.geometry}  beam {sp.beam.kind}  "
           f"N = {n_label(n)} rays/wavelength{'' if n.min() == n.max() else ' (per wavelength in the table)'}  "
-          f"seed {s.seed}  confidence {1 - s.delta:g}")
+          f"seed {s.seed}  confidence {1 - s.delta:g}  "
+          f"streams {'common to every specimen' if sp.common_random_numbers else 'per specimen'}")
     note = reciprocity_note(s)
     if note:
         print(note)
@@ -191,7 +193,8 @@ def gonio_json(record: Any) -> dict[str, Any]:
                for r in sub.itertuples(index=False)]
     tot = m["totals"][0]
     return {"N": int(m["rays"]), "seed": m["seed"], "collector": m["collector"], "beam": m["beam"],
-            "method": m["method"], "kernel": m.get("kernel"), "specimen": m["specimen"], "incidence": [float(t.theta_i.iloc[0]),
+            "method": m["method"], "common_random_numbers": m.get("common_random_numbers", False),
+            "kernel": m.get("kernel"), "specimen": m["specimen"], "incidence": [float(t.theta_i.iloc[0]),
                                                                            float(t.phi_i.iloc[0])],
             "wavelength_nm": first, "delta": m["delta"], "reflectance": tot["reflectance"],
             "transmittance": tot["transmittance"], "absorbed": tot["absorbed"], "missed": tot["missed"],
@@ -238,7 +241,8 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     theta_i, phi_i = args.incidence
     announce_compilation()
     kw: dict[str, Any] = {"collector": args.collector, "beam": args.beam, "seed": args.seed, "delta": args.delta,
-                          "wavelengths": args.wavelengths, "method": args.method}
+                          "wavelengths": args.wavelengths, "method": args.method,
+                          "common_random_numbers": args.common_random_numbers}
     relative = None
     if args.rays is not None:
         kw["rays"] = args.rays
@@ -290,7 +294,8 @@ def cmd_gonio(args: argparse.Namespace) -> int:
         return 0
     m = record.meta
     print(f"specimen {m['specimen']}  incidence ({theta_i:g}, {phi_i:g}) deg  collector {g.collector}  "
-          f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']} ({m.get('kernel')} kernel)  seed {g.seed}")
+          f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']} ({m.get('kernel')} kernel)  seed {g.seed}  "
+          f"streams {'common to every specimen' if g.common_random_numbers else 'per specimen'}")
     if relative is not None:
         print(f"uncertainty: relative BSDF half-width {args.uncertainty:g} per patch of interest (pilot probability "
               f">= {INTEREST_FRACTION:g} x the brightest: {relative['patches_of_interest']} of {relative['patches']} "
@@ -310,13 +315,22 @@ def cmd_gonio(args: argparse.Namespace) -> int:
           f"{d['relative_half_width']:.3g}")
     for tot in m["totals"]:
         print(f"  {tot['wavelength_nm']:7.1f} nm  reflectance {tot['reflectance']:.5f}  "
-              f"transmittance {tot['transmittance']:.5f}  absorbed {tot['absorbed']:,}")
+              f"transmittance {tot['transmittance']:.5f}  absorbed {tot['absorbed']:,}  {_method_note(tot)}")
     t = record.table
     top = t.sort_values("value", ascending=False).head(5)
     print("  brightest patches (hemisphere, theta, phi, BSDF [1/sr], interval):")
     for r in top.itertuples(index=False):
         print(f"    {r.hemisphere}  {r.theta_r:6.2f} {r.phi_r:7.2f}  {r.value:.5g}  [{r.ci_lo:.5g}, {r.ci_hi:.5g}]")
     return 0
+
+
+def _method_note(tot: dict[str, Any]) -> str:
+    """Which method counted one wavelength and, for the fast path, its certified quadrature error."""
+    if tot.get("method") == "fast":
+        return f"[fast, quadrature error <= {tot['quadrature_error']:.1e}]"
+    if "fallback_reason" in tot:
+        return f"[rays: fast path not certified: {tot['fallback_reason']}]"
+    return "[rays]"
 
 
 def _budget(adaptive: dict[str, Any]) -> dict[str, Any]:
@@ -356,6 +370,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"refuse work estimated to take longer, seconds (rays counted at {RAYS_PER_SECOND:.0e} "
                         f"rays/s; default %(default)g)")
     s.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: a fresh one, printed)")
+    s.add_argument("--common-random-numbers", action="store_true",
+                   help="one random stream whatever the specimen, for lower-variance model comparisons "
+                        "(default: a stream per specimen)")
     s.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     s.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw the spectrum to this image (png, pdf, svg, ...; default: none)")
@@ -391,6 +408,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"refuse work estimated to take longer, seconds, for every method (rays counted at "
                         f"{RAYS_PER_SECOND:.0e} rays/s; default %(default)g)")
     g.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: a fresh one, printed)")
+    g.add_argument("--common-random-numbers", action="store_true",
+                   help="one random stream whatever the specimen, for lower-variance model comparisons "
+                        "(default: a stream per specimen)")
     g.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     g.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the record as CSV (default: none)")
     g.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",

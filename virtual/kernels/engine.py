@@ -22,11 +22,11 @@ from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHE
 from virtual.kernels.rng import LANES, fill_uniforms
 from virtual.kernels.microfacet import fresnel_conductor_ratio
 from virtual.kernels.sampling import sincos_2pi, warp_cosine_hemisphere
-from virtual.kernels.scatter import (GIVEN4_MODELS, GIVEN4_UNIFORMS, GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC,
-                                     MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC,
-                                     PLASTIC_UNIFORMS, ggx_given_parts, phong_given, phong_lobe_cos, plastic_diffuse_redo, plastic_given,
-                                     scatter, scatter_given,
-                                     scatter_given4)
+from virtual.kernels.given import (GIVEN4_MODELS, GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, phong_given, phong_lobe_cos,
+                                   plastic_diffuse_redo, plastic_given, scatter_given4)
+from virtual.kernels.scatter import (GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT,
+                                     MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, ggx_given_parts, scatter,
+                                     scatter_given)
 
 __all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "spectro_kernel", "gonio_kernel", "gonio_block_kernel"]
 
@@ -318,7 +318,7 @@ def lambert_spectral_kernel(thr, beam_kind, beam_args, cargs, margins, n_patches
 
 
 @jit(fastmath=True, error_model="numpy")
-def ggx_spectral_chunk(ax, ay, etas, ks, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, hist, tally):
+def ggx_spectral_chunk(ax, ay, separable, etas, ks, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, hist, tally):
     """One chunk of the spectral GGX block kernel (see :func:`ggx_spectral_kernel`): surviving
     rays added to ``hist[patch, w]`` per wavelength w; ``tally`` = (hits, missed)."""
     nb = BLOCK_RAYS
@@ -345,7 +345,7 @@ def ggx_spectral_chunk(ax, ay, etas, ks, beam_kind, b, cargs, ring_margin, secto
         for i in range(nb):
             wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
             ca, sa = sincos_2pi(u[s0 + 2 * nb + i])
-            ox, oy, oz, c, g_num, g_den, valid = ggx_given_parts(ax, ay, wx, wy, wz, ca, sa, u[s0 + nb + i])
+            ox, oy, oz, c, g_num, g_den, valid = ggx_given_parts(ax, ay, separable, wx, wy, wz, ca, sa, u[s0 + nb + i])
             vx[i] = ox
             vy[i] = oy
             vz[i] = oz
@@ -386,7 +386,7 @@ def ggx_spectral_chunk(ax, ay, etas, ks, beam_kind, b, cargs, ring_margin, secto
 
 
 @jit(parallel=True)
-def ggx_spectral_kernel(ax, ay, etas, ks, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes):
+def ggx_spectral_kernel(ax, ay, separable, etas, ks, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes):
     """GGX (any alpha_x, alpha_y shared by every wavelength) at many wavelengths at once: each
     ray's direction and its survival uniform are drawn once, each wavelength's Fresnel factor
     (``etas``, ``ks``) decides its survival. Summed over chunks: counts ``(n_bins, W)`` of the survivors
@@ -400,7 +400,7 @@ def ggx_spectral_kernel(ax, ay, etas, ks, beam_kind, beam_args, cargs, margins, 
     for c in prange(n_chunks):
         hist = np.zeros((n_bins, etas.shape[0]), dtype=np.int64)
         tally = np.zeros(2, dtype=np.int64)
-        ggx_spectral_chunk(ax, ay, etas, ks, beam_kind, b, cargs, margins[0], margins[1], sizes[c], lanes[c].copy(),
+        ggx_spectral_chunk(ax, ay, separable, etas, ks, beam_kind, b, cargs, margins[0], margins[1], sizes[c], lanes[c].copy(),
                            hist, tally)
         out[c] = hist
         tallies[c] = tally

@@ -128,6 +128,24 @@ def g2_over_g1_ratio(wz, ni, oz, no):
 
 
 @jit(inline="always")
+def g2_over_g1_masked_ratio(wz, ni, oz, no, separable):
+    """G2(wi, wo) / G1(wi) as ``(num, den)`` under either masking convention, branch-free:
+    ``separable`` = 0.0 (height-correlated, :func:`g2_over_g1_ratio`) or 1.0 (separable Smith,
+    G2 = G1(wi) G1(wo), so the ratio is G1(wo) = 2 oz / (oz + n_o))."""
+    c = 1.0 - separable
+    return c * (wz + ni) * oz + separable * 2.0 * oz, c * (ni * oz + no * wz) + separable * (oz + no)
+
+
+
+@jit(inline="always")
+def g2_over_g1_masked(wx, wy, wz, ox, oy, oz, ax, ay, separable):
+    """:func:`g2_over_g1` under the masking convention ``separable`` (0.0 or 1.0)."""
+    num, den = g2_over_g1_masked_ratio(wz, ggx_n(wx, wy, wz, ax, ay), oz, ggx_n(ox, oy, oz, ax, ay), separable)
+    return num / den
+
+
+
+@jit(inline="always")
 def g2_over_g1(wx, wy, wz, ox, oy, oz, ax, ay):
     """G2(wi, wo) / G1(wi) for wz, oz > 0 (<= 1)."""
     num, den = g2_over_g1_ratio(wz, ggx_n(wx, wy, wz, ax, ay), oz, ggx_n(ox, oy, oz, ax, ay))

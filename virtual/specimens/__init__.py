@@ -34,12 +34,14 @@ from virtual.specimens.declare import (SPECIMENS, DeclaredSpecimen, Param, Speci
 from virtual.specimens.diffuse import Lambertian, OrenNayar, Phong
 from virtual.specimens.leaf import Leaf
 from virtual.specimens.microfacet import ALPHA_MAX, ALPHA_MIN, GGX, AnisoGGX, RoughDielectric, RoughPlastic
+from virtual.specimens.roughplastic import MitsubaRoughPlastic
 from virtual.specimens.strings import known_specimen_names, parse_specimen
 
 __all__ = [
     "Spectral", "Param", "Specimen", "DeclaredSpecimen", "register_specimen", "specimen_family",
     "specimen_families", "specimen_table_markdown", "known_specimen_names", "parse_specimen", "SPECIMENS",
     "Lambertian", "OrenNayar", "Phong", "GGX", "AnisoGGX", "RoughPlastic", "RoughDielectric", "Leaf",
+    "MitsubaRoughPlastic",
     "ALPHA_MIN", "ALPHA_MAX",
     # kernel face, re-exported for the callers of the old single module
     "scatter", "scatter_given", "GIVEN_MODELS", "GIVEN_UNIFORMS", "MODEL_LAMBERT", "MODEL_OREN_NAYAR",

@@ -105,6 +105,9 @@ class Param:
         What it is, in a few words.
     aliases : tuple of str
         Other keywords accepted in specimen strings.
+    choices : tuple of str
+        For a categorical parameter (e.g. a convention): its names; the value is the index
+        (``lo = 0``, ``hi = len(choices) - 1``) and strings may give the name.
     """
 
     name: str
@@ -114,10 +117,27 @@ class Param:
     unit: str = ""
     doc: str = ""
     aliases: tuple[str, ...] = ()
+    choices: tuple[str, ...] = ()
+
+    def coerce(self, v: Any) -> Any:
+        """A choice's name -> its index; any other string is refused naming what is accepted."""
+        if isinstance(v, str):
+            key = v.strip().lower()
+            if self.choices and key in self.choices:
+                return float(self.choices.index(key))
+            if self.choices:
+                raise SpecimenError(f"{self.name} must be one of {', '.join(self.choices)}, got {v!r}")
+            try:
+                return float(key)
+            except ValueError:
+                raise SpecimenError(f"{self.name} must be a number, got {v!r}") from None
+        return v
 
     def check(self, v: float) -> float:
         """``v`` as a float, or :class:`SpecimenError` naming the parameter and its range."""
         v = float(v)
+        if self.choices and not (v in range(len(self.choices))):
+            raise SpecimenError(f"{self.name} must be one of {', '.join(self.choices)}, got {v:g}")
         if not (math.isfinite(v) and self.lo <= v <= self.hi):
             u = f" {self.unit}" if self.unit else ""
             raise SpecimenError(f"{self.name} must lie in [{self.lo:.10g}, {self.hi:.10g}]{u}, got {v:g}")
@@ -128,6 +148,8 @@ class Param:
         al = f" (alias {', '.join(self.aliases)})" if self.aliases else ""
         u = f" {self.unit}" if self.unit else ""
         doc = f": {self.doc}" if self.doc else ""
+        if self.choices:
+            return f"{self.name}{al}{doc}, one of {' | '.join(self.choices)}, default {self.choices[int(self.default)]}"
         return f"{self.name}{al}{doc}, in [{self.lo:.10g}, {self.hi:.10g}]{u}, default {self.default:g}"
 
 
@@ -179,10 +201,12 @@ class DeclaredSpecimen(Specimen):
     parameters: ClassVar[tuple[Param, ...]] = ()
     #: True when no light leaves on the far side at any wavelength
     opaque: ClassVar[bool] = False
+    #: Which published definition the model follows (README table; "" for none in particular)
+    convention: ClassVar[str] = ""
 
     def __post_init__(self) -> None:
         for p in self.parameters:
-            s = Spectral.of(getattr(self, p.name), p.name)
+            s = Spectral.of(p.coerce(getattr(self, p.name)), p.name)
             object.__setattr__(self, p.name, s)
             for v in s.values:  # every table entry, also outside the overlap of the tables
                 p.check(float(v))
@@ -323,20 +347,26 @@ def specimen_families() -> list[dict[str, Any]]:
         out.append({
             "name": name, "class": f"{cls.__module__}.{cls.__qualname__}", "model": int(cls.model),
             "doc": (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else "",
+            "convention": getattr(cls, "convention", ""),
             "parameters": [{"name": p.name, "aliases": list(p.aliases), "range": [p.lo, p.hi], "unit": p.unit,
-                            "default": p.default, "doc": p.doc} for p in cls.parameters],
+                            "default": p.default, "doc": p.doc, "choices": list(p.choices)}
+                           for p in cls.parameters],
         })
     return out
 
 
 def specimen_table_markdown() -> str:
-    """The README table of specimen families: one row per parameter."""
-    rows = ["| specimen | parameter | range | unit | default | meaning |",
-            "|---|---|---|---|---|---|"]
+    """The README table of specimen families: one row per parameter, the family's convention
+    (which published definition it follows) on its first row."""
+    rows = ["| specimen | convention | parameter | range | unit | default | meaning |",
+            "|---|---|---|---|---|---|---|"]
     for fam in specimen_families():
         for i, p in enumerate(fam["parameters"]):
             key = p["name"] + (f" ({', '.join(p['aliases'])})" if p["aliases"] else "")
             lo, hi = p["range"]
-            rows.append(f"| {fam['name'] if i == 0 else ''} | `{key}` | {lo:.10g} .. {hi:.10g} | {p['unit'] or '-'} "
-                        f"| {p['default']:g} | {p['doc']} |")
+            rng = " \\| ".join(p["choices"]) if p["choices"] else f"{lo:.10g} .. {hi:.10g}"
+            default = p["choices"][int(p["default"])] if p["choices"] else f"{p['default']:g}"
+            first = i == 0
+            rows.append(f"| {fam['name'] if first else ''} | {fam['convention'] if first else ''} | `{key}` | {rng} "
+                        f"| {p['unit'] or '-'} | {default} | {p['doc']} |")
     return "\n".join(rows) + "\n"

@@ -14,6 +14,7 @@ import numpy as np
 from bench.core.errors import SpecimenError
 from virtual.kernels.scatter import MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG
 from virtual.specimens.declare import DeclaredSpecimen, Param, register_specimen
+from virtual.cubature import adaptive_rectangle
 from virtual.specimens.physics import local, mirror
 
 __all__ = ["Lambertian", "OrenNayar", "Phong"]
@@ -30,6 +31,7 @@ class Lambertian(DeclaredSpecimen):
 
     name = "lambert"
     model = MODEL_LAMBERT
+    convention = "ideal diffuse (Mitsuba 3 diffuse, plus a diffuse transmission)"
     has_density = True
     parameters = (
         Param("reflectance", 0.5, 0.0, 1.0, doc="reflectance R (diffuse, same side)", aliases=("albedo", "R")),
@@ -78,6 +80,7 @@ class OrenNayar(DeclaredSpecimen):
 
     name = "oren-nayar"
     model = MODEL_OREN_NAYAR
+    convention = "Oren & Nayar 1994 qualitative model (A, B form)"
     has_density = True
     opaque = True
     parameters = (
@@ -126,6 +129,7 @@ class Phong(DeclaredSpecimen):
 
     name = "phong"
     model = MODEL_PHONG
+    convention = "Lafortune & Willems 1994 energy-normalized modified Phong"
     has_density = True
     opaque = True
     parameters = (
@@ -151,6 +155,30 @@ class Phong(DeclaredSpecimen):
         lobe = np.where(ca > 0.0, np.maximum(ca, 0.0) ** n, 0.0)
         f = kd / math.pi + ks * (n + 2.0) / (2.0 * math.pi) * lobe
         return np.where((wo[:, 2] > 0.0) & (wi[2] > 0.0), f, 0.0)
+
+    def albedo_reference(self, wi: np.ndarray, wavelength_nm: float) -> tuple[float, float]:
+        """Directional albedo in the sampler's own space (never the density): kd + ks (n+2)/(n+1)
+        E[max(cos theta_o, 0)] over the lobe's directions (cos alpha = u^(1/(n+1)), phi = 2 pi v),
+        by adaptive cubature: ``(value, error estimate)``."""
+        kd, ks, n, ws = self.params(wavelength_nm)
+        if ws == 0.0:
+            return float(kd), 0.0
+        w, _, _ = local(wi, np.zeros((1, 3)))
+        w = w / np.linalg.norm(w)
+        r = mirror(w)
+        t1 = np.cross(r, [1.0, 0.0, 0.0] if abs(r[0]) < 0.9 else [0.0, 1.0, 0.0])
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(r, t1)
+
+        def integrand(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+            ca = np.power(np.maximum(u, 1e-300), 1.0 / (n + 1.0))
+            sa = np.sqrt(np.maximum(1.0 - ca * ca, 0.0))
+            ph = 2.0 * math.pi * v
+            z = ca * r[2] + sa * (np.cos(ph) * t1[2] + np.sin(ph) * t2[2])
+            return np.maximum(z, 0.0)
+
+        value, err, _ = adaptive_rectangle(integrand, start=(4, 8), order=6, rtol=1e-10, atol=1e-12)
+        return float(kd + ws * value), float(ws * err)
 
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
         kd, ks, n, _ = self.params(wavelength_nm)

@@ -14,15 +14,43 @@ import numpy as np
 
 from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_PLASTIC
 from virtual.specimens.declare import DeclaredSpecimen, Param, register_specimen
-from virtual.specimens.physics import (fresnel_hemispherical_average, local, mirror, np_fresnel_conductor,
-                                       np_fresnel_dielectric, np_ggx_d, np_ggx_n, np_ggx_reflection, vndf_mean)
+from virtual.specimens.physics import (fresnel_hemispherical_average, fresnel_vndf_mean, lobe_width, local, mirror,
+                                       np_fresnel_conductor, np_fresnel_dielectric, np_g2_over_g1, np_ggx_d,
+                                       np_ggx_n, np_ggx_reflection, vndf_expectation, vndf_normals,
+                                       MASKINGS, g2_over_4)
 
 __all__ = ["GGX", "AnisoGGX", "RoughPlastic", "RoughDielectric", "ALPHA_MIN", "ALPHA_MAX"]
 
 ALPHA_MIN = 1e-4
 ALPHA_MAX = 1.0
+
+# points of the sampler's unit square whose visible normals trace a lobe's extent
+_LU, _LT = (a.ravel() for a in np.meshgrid((np.arange(16) + 0.5) / 16, np.linspace(0.1, 0.9, 9), indexing="ij"))
+
+
+def _reflected(wi: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cos wi.m, mirror directions of wi about each normal m)."""
+    c = np.clip(m @ wi, 0.0, 1.0)
+    return c, 2.0 * c[:, None] * m - wi
+
+
+def _refracted(wi: np.ndarray, m: np.ndarray, er: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(cos wi.m, Fresnel reflectance, refracted directions) for relative index er = n_t / n_i
+    (as the kernel's dielectric branch; the direction is meaningless where F = 1)."""
+    c = np.clip(m @ wi, 0.0, 1.0)
+    st2 = (1.0 - c * c) / (er * er)
+    ct = np.sqrt(np.maximum(1.0 - st2, 0.0))
+    k = c / er - ct
+    return c, np_fresnel_dielectric(c, er), -wi / er + k[:, None] * m
+
+
+def _lit(wi: np.ndarray) -> np.ndarray:
+    w = np.asarray(wi, dtype=float).reshape(3)
+    return w * np.array([1.0, 1.0, -1.0]) if w[2] < 0.0 else w
 _ETA = Param("eta", 1.5, 1e-3, 100.0, doc="real part of the index (coat or conductor)")
 _K = Param("k", 0.0, 0.0, 100.0, doc="extinction coefficient (0: dielectric coat)")
+_MASKING = Param("masking", 0.0, 0.0, 1.0, doc="Smith masking-shadowing: height-correlated, or separable "
+                 "G1(wi) G1(wo) as Mitsuba 3", choices=MASKINGS)
 
 
 class _GGXFace(DeclaredSpecimen):
@@ -32,17 +60,38 @@ class _GGXFace(DeclaredSpecimen):
     opaque = True
 
     def bsdf(self, wi: np.ndarray, wo: np.ndarray, wavelength_nm: float) -> np.ndarray:
-        ax, ay, eta, k = self.params(wavelength_nm)
+        ax, ay, eta, k, sep = self.params(wavelength_nm)
         wi, wo, _ = local(wi, wo)
         if not wi[2] > 0.0:
             return np.zeros(len(wo))
-        if k == 0.0:  # as in the kernel: the dielectric form (same value, better near TIR)
-            return np_ggx_reflection(wi, wo, ax, ay, lambda c: np_fresnel_dielectric(c, eta))
-        return np_ggx_reflection(wi, wo, ax, ay, lambda c: np_fresnel_conductor(c, eta, k))
+        # k = 0 as in the kernel: the dielectric form (same value, better near TIR)
+        return np_ggx_reflection(wi, wo, ax, ay, self._fresnel(wavelength_nm), MASKINGS[int(sep)])
+
+    def _fresnel(self, wavelength_nm: float):
+        ax, ay, eta, k, _ = self.params(wavelength_nm)
+        if k == 0.0:
+            return lambda c: np_fresnel_dielectric(c, eta)
+        return lambda c: np_fresnel_conductor(c, eta, k)
 
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
+        """The mirror lobe, its width measured from the sampler's own visible normals."""
         ax, ay = self.params(wavelength_nm)[:2]
-        return [(mirror(wi), 2.0 * max(ax, ay))]
+        w = _lit(wi)
+        m, _ = vndf_normals(w, ax, ay, _LU, _LT)
+        return [(mirror(wi), lobe_width(mirror(w), _reflected(w, m)[1]))]
+
+    def albedo_reference(self, wi: np.ndarray, wavelength_nm: float) -> tuple[float, float]:
+        """Directional albedo ``E[F(wi.m) G2/G1]`` over the visible normals (the sampler's
+        space, not the density): ``(value, error estimate)``."""
+        ax, ay, _, _, sep = self.params(wavelength_nm)
+        fres = self._fresnel(wavelength_nm)
+        w = _lit(wi)
+
+        def g(m: np.ndarray) -> np.ndarray:
+            c, o = _reflected(w, m)
+            return fres(c) * np_g2_over_g1(w, o, ax, ay, MASKINGS[int(sep)])
+
+        return vndf_expectation(w, ax, ay, g)
 
 
 @register_specimen
@@ -57,31 +106,36 @@ class GGX(_GGXFace):
     Sampling: a visible normal m (Heitz 2018, spherical caps of Dupuy & Benyoub 2023), mirror
     reflection about m, killed below the horizon, kept with probability F G2/G1 <= 1.
 
-    params: ``[alpha_x, alpha_y, eta, k]`` (alpha_x along the specimen X axis).
+    Masking: ``masking=correlated`` (default, height-correlated Smith) or ``separable``
+    (G1(wi) G1(wo), Mitsuba 3's ``roughconductor``); they agree at normal incidence.
+
+    params: ``[alpha_x, alpha_y, eta, k, separable]`` (alpha_x along the specimen X axis).
     """
 
     name = "ggx"
     model = MODEL_GGX
-    parameters = (Param("alpha", 0.2, ALPHA_MIN, ALPHA_MAX, doc="GGX roughness"), _ETA, _K)
+    convention = "Walter 2007 GGX; masking correlated (default) or separable = Mitsuba 3 roughconductor"
+    parameters = (Param("alpha", 0.2, ALPHA_MIN, ALPHA_MAX, doc="GGX roughness"), _ETA, _K, _MASKING)
 
     def kernel_params(self, v: Mapping[str, float]) -> np.ndarray:
-        return np.array([v["alpha"], v["alpha"], v["eta"], v["k"]])
+        return np.array([v["alpha"], v["alpha"], v["eta"], v["k"], v["masking"]])
 
 
 @register_specimen
 class AnisoGGX(_GGXFace):
     """Anisotropic GGX reflector: :class:`GGX` with roughness alpha_x along the specimen's X axis
     and alpha_y along Y (so the BRDF depends on the azimuths themselves, not only on their
-    difference). params: ``[alpha_x, alpha_y, eta, k]``."""
+    difference). params: ``[alpha_x, alpha_y, eta, k, separable]``."""
 
     name = "aniso-ggx"
     model = MODEL_ANISO_GGX
     isotropic = False
+    convention = GGX.convention
     parameters = (Param("alpha_x", 0.1, ALPHA_MIN, ALPHA_MAX, doc="GGX roughness along the specimen X axis"),
-                  Param("alpha_y", 0.4, ALPHA_MIN, ALPHA_MAX, doc="GGX roughness along Y"), _ETA, _K)
+                  Param("alpha_y", 0.4, ALPHA_MIN, ALPHA_MAX, doc="GGX roughness along Y"), _ETA, _K, _MASKING)
 
     def kernel_params(self, v: Mapping[str, float]) -> np.ndarray:
-        return np.array([v["alpha_x"], v["alpha_y"], v["eta"], v["k"]])
+        return np.array([v["alpha_x"], v["alpha_y"], v["eta"], v["k"], v["masking"]])
 
 
 @register_specimen
@@ -106,6 +160,7 @@ class RoughPlastic(DeclaredSpecimen):
 
     name = "plastic"
     model = MODEL_PLASTIC
+    convention = "goniobench's own (single-pass, not reciprocal; Mitsuba's is `roughplastic`); masking correlated"
     has_density = True
     reciprocal = False
     opaque = True
@@ -122,7 +177,7 @@ class RoughPlastic(DeclaredSpecimen):
         a, eta = self.params(wavelength_nm)[:2]
         w = np.asarray(wi, dtype=float).reshape(3)
         w = w * np.array([1.0, 1.0, -1.0]) if w[2] < 0 else w
-        return vndf_mean(w, a, a, lambda c: np_fresnel_dielectric(c, eta))
+        return fresnel_vndf_mean(float(w[0]), float(w[1]), float(w[2]), float(a), float(eta))
 
     def bsdf(self, wi: np.ndarray, wo: np.ndarray, wavelength_nm: float) -> np.ndarray:
         a, eta, kd, norm = self.params(wavelength_nm)
@@ -130,13 +185,29 @@ class RoughPlastic(DeclaredSpecimen):
         if not wi[2] > 0.0:
             return np.zeros(len(wo))
         spec = np_ggx_reflection(wi, wo, a, a, lambda c: np_fresnel_dielectric(c, eta))
-        fbar = vndf_mean(wi, a, a, lambda c: np_fresnel_dielectric(c, eta))
+        fbar = fresnel_vndf_mean(float(wi[0]), float(wi[1]), float(wi[2]), float(a), float(eta))
         zo = wo[:, 2]
         diff = kd * (1.0 - fbar) * norm / math.pi * (1.0 - np_fresnel_dielectric(np.maximum(zo, 0.0), eta))
         return spec + np.where(zo > 0.0, diff, 0.0)
 
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
-        return [(mirror(wi), 2.0 * float(self.params(wavelength_nm)[0]))]
+        a = float(self.params(wavelength_nm)[0])
+        w = _lit(wi)
+        m, _ = vndf_normals(w, a, a, _LU, _LT)
+        return [(mirror(wi), lobe_width(mirror(w), _reflected(w, m)[1]))]
+
+    def albedo_reference(self, wi: np.ndarray, wavelength_nm: float) -> tuple[float, float]:
+        """``E[F G2/G1] + kd (1 - Fbar)`` over the visible normals (what the sampler does: a
+        ray that enters and survives the base always leaves)."""
+        a, eta, kd, _ = self.params(wavelength_nm)
+        w = _lit(wi)
+
+        def g(m: np.ndarray) -> np.ndarray:
+            c, o = _reflected(w, m)
+            f = np_fresnel_dielectric(c, eta)
+            return f * np_g2_over_g1(w, o, a, a) + kd * (1.0 - f)
+
+        return vndf_expectation(w, a, a, g)
 
 
 @register_specimen
@@ -155,21 +226,26 @@ class RoughDielectric(DeclaredSpecimen):
     part is reciprocal). Single scattering: rays the sampled microfacet sends to the wrong side
     are absorbed, so the albedo is < 1.
 
-    params: ``[alpha, eta]``.
+    Masking: ``masking=correlated`` (default; G2 = 1 / (1 + L(wi) + L(wo)) also for
+    transmission) or ``separable`` (G1(wi) G1(wo), Mitsuba 3's ``roughdielectric``).
+
+    params: ``[alpha, eta, separable]``.
     """
 
     name = "dielectric"
     model = MODEL_DIELECTRIC
     has_density = True
     reciprocal = False
+    convention = "Walter 2007; masking correlated (default) or separable = Mitsuba 3 roughdielectric"
     parameters = (Param("alpha", 0.2, ALPHA_MIN, ALPHA_MAX, doc="interface roughness (GGX)"),
-                  Param("eta", 1.5, 1.0 + 1e-6, 10.0, doc="index below the interface (> 1)"))
+                  Param("eta", 1.5, 1.0 + 1e-6, 10.0, doc="index below the interface (> 1)"), _MASKING)
 
     def kernel_params(self, v: Mapping[str, float]) -> np.ndarray:
-        return np.array([v["alpha"], v["eta"]])
+        return np.array([v["alpha"], v["eta"], v["masking"]])
 
     def bsdf(self, wi: np.ndarray, wo: np.ndarray, wavelength_nm: float) -> np.ndarray:
-        a, eta = self.params(wavelength_nm)
+        a, eta, sep = self.params(wavelength_nm)
+        masking = MASKINGS[int(sep)]
         wi0 = np.asarray(wi, dtype=float).reshape(3)
         er = eta if wi0[2] >= 0.0 else 1.0 / eta
         wi, wo, _ = local(wi, wo)
@@ -177,7 +253,7 @@ class RoughDielectric(DeclaredSpecimen):
         if not wi[2] > 0.0:
             return out
         up = wo[:, 2] > 0.0
-        out[up] = np_ggx_reflection(wi, wo[up], a, a, lambda c: np_fresnel_dielectric(c, er))
+        out[up] = np_ggx_reflection(wi, wo[up], a, a, lambda c: np_fresnel_dielectric(c, er), masking)
         down = wo[:, 2] < 0.0
         o = wo[down]
         hx, hy, hz = -(wi[0] + er * o[:, 0]), -(wi[1] + er * o[:, 1]), -(wi[2] + er * o[:, 2])
@@ -192,21 +268,47 @@ class RoughDielectric(DeclaredSpecimen):
         den = ci + er * co
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             f = ((1.0 - np_fresnel_dielectric(ci, er)) * np_ggx_d(hx, hy, hz, a, a) * er * er
-                 * ci * (-co) * 2.0 / ((ni * zo + no * wi[2]) * den * den))
+                 * ci * (-co) * 4.0 * g2_over_4(wi[2], ni, zo, no, masking) / (den * den))
         ok = (ci > 0.0) & (co < 0.0) & (hz > 0.0)
         out[down] = np.where(ok, np.nan_to_num(f, nan=0.0, posinf=0.0), 0.0)
         return out
 
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
-        a, eta = self.params(wavelength_nm)
-        w = np.asarray(wi, dtype=float).reshape(3)
-        er = eta if w[2] >= 0.0 else 1.0 / eta
-        out = [(mirror(w), 2.0 * a)]
-        c = abs(w[2])
+        """The reflected and the refracted lobe, each with the width its visible normals give it:
+        the refracted lobe narrows to about alpha |1 - 1/eta_r| as eta_r -> 1 (a constant 2 alpha
+        hint never found it at eta = 1.0001)."""
+        a, eta, _ = self.params(wavelength_nm)
+        w0 = np.asarray(wi, dtype=float).reshape(3)
+        er = eta if w0[2] >= 0.0 else 1.0 / eta
+        w = _lit(w0)
+        m, _ = vndf_normals(w, a, a, _LU, _LT)
+        out = [(mirror(w0), lobe_width(mirror(w), _reflected(w, m)[1]))]
+        c = w[2]
         st2 = (1.0 - c * c) / (er * er)
         if st2 < 1.0:
-            ct = math.sqrt(1.0 - st2)
-            n = np.array([0.0, 0.0, 1.0 if w[2] >= 0 else -1.0])
-            t = -w / er + (c / er - ct) * n
-            out.append((t / np.linalg.norm(t), 2.0 * a * max(1.0, 1.0 / er)))
+            t = -w / er + (c / er - math.sqrt(1.0 - st2)) * np.array([0.0, 0.0, 1.0])
+            _, f, o = _refracted(w, m, er)
+            o = o[(f < 1.0) & (o[:, 2] < 0.0)]
+            if len(o):
+                width = lobe_width(t, o)
+                flip = np.array([1.0, 1.0, -1.0 if w0[2] < 0.0 else 1.0])
+                out.append((t / np.linalg.norm(t) * flip, width))
         return out
+
+    def albedo_reference(self, wi: np.ndarray, wavelength_nm: float) -> tuple[float, float]:
+        """``E[F G2/G1(reflected) + (1 - F) G2/G1(refracted)]`` over the visible normals, with
+        the sampler's own directions (continuous: G2/G1 -> 0 at the horizon, F -> 1 at TIR)."""
+        a, eta, sep = self.params(wavelength_nm)
+        masking = MASKINGS[int(sep)]
+        w0 = np.asarray(wi, dtype=float).reshape(3)
+        er = eta if w0[2] >= 0.0 else 1.0 / eta
+        w = _lit(w0)
+        down = np.array([1.0, 1.0, -1.0])
+
+        def g(m: np.ndarray) -> np.ndarray:
+            _, o_r = _reflected(w, m)
+            _, f, o_t = _refracted(w, m, er)
+            return (f * np_g2_over_g1(w, o_r, a, a, masking)
+                    + (1.0 - f) * np_g2_over_g1(w, o_t * down, a, a, masking))
+
+        return vndf_expectation(w, a, a, g)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.core.errors import SpecimenError
-from virtual.mitsuba import parse_mitsuba
+from virtual.specimens.mitsuba import parse_mitsuba
 from virtual.specimens.declare import RESERVED_NAMES, SPECIMENS, Specimen, Spectral
 from virtual.specimens.diffuse import Lambertian
 
@@ -36,8 +36,10 @@ def _colorchecker(name: str, chart: str = "BabelColor Average") -> Lambertian:
                       label=f"colorchecker:{key}")
 
 
-def _kwargs(text: str, spec: str) -> dict[str, float]:
-    out: dict[str, float] = {}
+def _kwargs(text: str, spec: str) -> dict[str, float | str]:
+    """``key=value`` pairs: numbers as floats; a word (a categorical parameter's choice, e.g.
+    ``masking=separable``) is passed on for the family's :class:`Param` to check."""
+    out: dict[str, float | str] = {}
     for item in filter(None, (t.strip() for t in text.split(","))):
         if "=" not in item:
             raise SpecimenError(f"specimen {spec!r}: expected key=value, got {item!r}")
@@ -47,7 +49,7 @@ def _kwargs(text: str, spec: str) -> dict[str, float]:
         try:
             out[k] = float(v)
         except ValueError:
-            raise SpecimenError(f"specimen {spec!r}: {k} must be a number, got {v!r}") from None
+            out[k] = v
     return out
 
 
