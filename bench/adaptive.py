@@ -150,9 +150,16 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
         result.meta["budget"] = "adaptive"
     hoeff = hoeffding_rays(uncertainty, delta, m)
     saved = hoeff - n_used
-    msg = (f"adaptive budget: {n_used:,} rays per {'incidence and wavelength' if gonio else 'wavelength'} "
-           f"(at most) instead of eq. {'3.12' if gonio else '3.5'}'s {hoeff:,} ({saved / hoeff:.0%} saved, "
-           f"same v = {uncertainty:g}, delta = {delta:g})")
+    per = 'incidence and wavelength' if gonio else 'wavelength'
+    eq = '3.12' if gonio else '3.5'
+    if saved >= 0:
+        msg = (f"adaptive budget: {n_used:,} rays per {per} (at most) instead of eq. {eq}'s {hoeff:,} "
+               f"({saved / hoeff:.0%} saved, same v = {uncertainty:g}, delta = {delta:g})")
+    else:  # ran to its cap: every tracked reading certified jointly at delta (eq. 3.5 at delta/m each)
+        msg = (f"adaptive budget: {n_used:,} rays per {per} (at most), {-saved:,} more than eq. {eq}'s {hoeff:,}: "
+               f"the rule certifies its {plan.patches} readings jointly (v = {uncertainty:g} for all at once with "
+               f"probability 1 - delta = {1 - delta:g}; its cap is eq. 3.5 at delta/{plan.patches}), where eq. {eq} "
+               f"bounds {'each patch' if gonio else 'one reading'} at a time")
     return AdaptiveMeasurement(result=result, N=n_used, hoeffding_N=hoeff, saved_rays=saved,
                                saved_fraction=saved / hoeff, per_wavelength=per_wl, mode=plan.mode, message=msg)
 

@@ -63,6 +63,8 @@ class Leaf(DeclaredSpecimen):
     """
 
     name = "leaf"
+    convention = ("PROSPECT-D (Féret 2017) at 8 deg; GGX wax cuticle (masking correlated) over a diffuse body, "
+                  "Kelemen & Szirmay-Kalos 2001 coupling (reciprocal)")
     model = MODEL_LEAF
     has_density = True
     reciprocal = True
