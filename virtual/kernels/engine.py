@@ -39,6 +39,22 @@ BLOCK_MODELS = GIVEN_MODELS + GIVEN4_MODELS + (MODEL_PLASTIC,)
 BLOCK_PARAMS = 6
 
 
+@jit(inline="always")
+def guess_bins(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_margin):
+    """``code[i] = guess_bin(x[i], y[i], z[i], ...)`` for i < n, one loop per scheme so that the
+    scheme is a constant inside each loop and the loop vectorizes; -1 where the exact lookup must
+    decide."""
+    if scheme == SCHEME_EQUAL_PSA:
+        for i in range(n):
+            code[i] = guess_bin(x[i], y[i], z[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
+    elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
+        for i in range(n):
+            code[i] = guess_bin(x[i], y[i], z[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+    else:
+        for i in range(n):
+            code[i] = guess_bin(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+
+
 @jit(parallel=True, fastmath=True)
 def spectro_kernel(model, params, beam_kind, disk, b, cone, sizes, states):
     n_chunks = sizes.shape[0]
@@ -197,16 +213,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
             cz[j] = vz[i]
             h[dump + (i & 7) if live else k] += 1
             j += live
-        if scheme == SCHEME_EQUAL_PSA:
-            for i in range(j):
-                code[i] = guess_bin(cx[i], cy[i], cz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
-        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
-            for i in range(j):
-                code[i] = guess_bin(cx[i], cy[i], cz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
-                                    sector_margin)
-        else:
-            for i in range(j):
-                code[i] = guess_bin(cx[i], cy[i], cz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+        guess_bins(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
         for i in range(j):
             k = code[i]
             if k < 0:  # too near an edge (or the pole, or the horizon) for the guess: exact lookup
@@ -271,16 +278,7 @@ def lambert_spectral_chunk(thr, beam_kind, b, cargs, ring_margin, sector_margin,
             th = thr[t]
             for i in range(nb):
                 cell[i] += u[s0 + i] >= th
-        if scheme == SCHEME_EQUAL_PSA:
-            for i in range(nb):
-                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
-        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
-            for i in range(nb):
-                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
-                                    sector_margin)
-        else:
-            for i in range(nb):
-                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+        guess_bins(code, vx, vy, vz, nb, scheme, n_theta, n_phi, ring_margin, sector_margin)
         for i in range(m):
             c = cell[i]
             if c < 0:
@@ -361,16 +359,7 @@ def ggx_spectral_chunk(ax, ay, separable, etas, ks, beam_kind, b, cargs, ring_ma
                 alive[w, i] = lhs[i] * f_den < f_num * rhs[i]
         for i in range(m):
             hits += code[i]
-        if scheme == SCHEME_EQUAL_PSA:
-            for i in range(nb):
-                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
-        elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
-            for i in range(nb):
-                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
-                                    sector_margin)
-        else:
-            for i in range(nb):
-                code[i] = guess_bin(vx[i], vy[i], vz[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+        guess_bins(code, vx, vy, vz, nb, scheme, n_theta, n_phi, ring_margin, sector_margin)
         for i in range(m):
             if rhs[i] < 0.0:
                 continue  # missed, or absorbed at every wavelength (a cosine <= 0)
