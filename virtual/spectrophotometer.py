@@ -18,7 +18,7 @@ Intervals are two-sided at confidence ``1 - delta`` (Clopper-Pearson on the coun
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
@@ -102,7 +102,10 @@ class VirtualSpectrophotometer(InstrumentBase):
         return key if self.common_random_numbers else (specimen_stream_key(self.specimen), *key)
 
     # -- Spectrophotometer -------------------------------------------------------------------
-    def measure(self, geometry: str | CIEGeometry, wavelengths: Iterable[float] | str) -> Spectrum:
+    def measure(self, geometry: str | CIEGeometry, wavelengths: Iterable[float] | str, *,
+                progress: Callable[[Iterable[float]], Iterable[float]] | None = None) -> Spectrum:
+        """Measure ``geometry`` at ``wavelengths``; ``progress`` (e.g. ``tqdm``) wraps the loop over
+        wavelengths, so a caller can show how far it got."""
         g = cie_geometry(geometry)
         wl = parse_wavelengths(wavelengths)
         self.specimen.check_wavelengths(wl)  # all data present before any ray is shot
@@ -111,7 +114,7 @@ class VirtualSpectrophotometer(InstrumentBase):
         beam_args = self.beam.kernel_args(theta_i, 0.0)
         cone, cone_psa_over_pi = self._cone(measured)
         tallies: list[SpectroTally] = []
-        for w in wl:
+        for w in (progress(wl) if progress is not None else wl):
             seq = measurement_seed(self.seed, *self.stream_key(theta_i, 0.0, float(w)))
             if self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
                 tallies.append(spectro_counts_python(self.specimen, float(w), self.beam, theta_i, 0.0,

@@ -114,6 +114,13 @@ def cmd_spectro(args: argparse.Namespace) -> int:
                                     wavelengths=args.wavelengths, max_seconds=args.max_seconds,
                                     progress=stderr_is_terminal())
         s = adaptive["result"]
+    elif stderr_is_terminal():  # progress with an ETA, one step per wavelength
+        from functools import partial
+
+        from tqdm import tqdm
+
+        s = sp.measure(args.geometry, args.wavelengths,
+                       progress=partial(tqdm, desc="spectro", unit="wl", leave=False, dynamic_ncols=True))
     else:
         s = sp.measure(args.geometry, args.wavelengths)
     if args.csv:
