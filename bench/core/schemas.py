@@ -257,6 +257,7 @@ class SweepTable(_SweepCommon):
     geometries: _one_or_many(str) | None = None
     collectors: _one_or_many(CollectorSpec) | None = None
     wavelengths_per_task: Annotated[Whole, Field(ge=0, le=10_000)] | None = None
+    common_random_numbers: StrictBool = False  # one stream for every specimen (lower-variance model comparisons)
 
 
 class TaskTable(_SweepCommon):

@@ -32,7 +32,8 @@ INSTRUMENTS = ("gonio", "spectro")
 _METHODS = ("auto", "rays", "fast")
 _BEAMS = ("collimated", "conical")
 _SWEEP_KEYS = {"name", "seed", "instrument", "specimens", "incidences", "geometries", "collectors", "wavelengths",
-               "wavelengths_per_task", "rays", "uncertainty", "delta", "method", "beam", "cone_deg"}
+               "wavelengths_per_task", "rays", "uncertainty", "delta", "method", "beam", "cone_deg",
+               "common_random_numbers"}
 _TASK_KEYS = {"specimen", "incidence", "geometry", "collector", "wavelengths", "rays", "uncertainty", "delta",
               "method", "beam", "cone_deg"}
 #: per-task columns of :func:`sweep_readings` that differ between executions (who ran it, how long)
@@ -63,6 +64,7 @@ class SweepTask:
     cone_deg: float | None
     key: int
     seed: int
+    common_random_numbers: bool = False  # the series' seed and streams leave the specimen out
 
     def label(self) -> str:
         where = self.geometry if self.instrument == "spectro" else f"({self.theta_i:g},{self.phi_i:g})"
@@ -195,6 +197,9 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: s
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise ConfigError(f"[sweep]: seed must be an integer >= 0, got {seed!r}")
     s["seed"] = seed
+    crn = s.get("common_random_numbers", False)
+    if not isinstance(crn, bool):
+        raise ConfigError(f"[sweep]: common_random_numbers must be true or false, got {crn!r}")
     name = str(s.get("name", default_name))
     per_task = s.get("wavelengths_per_task", 1 if instrument == "gonio" else 0)
     if not isinstance(per_task, int) or isinstance(per_task, bool) or per_task < 0:
@@ -264,7 +269,9 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: s
             raise ConfigError(f"{label}: the same measurement as {seen[key]} (equal parameters draw the same "
                               f"rays); remove the duplicate or merge their wavelengths")
         seen[key] = label
-        seed_i = series_seed(seed, key)
+        # by default each specimen draws its own rays; with common random numbers every specimen of
+        # an otherwise equal series shares them (the seed's key and the streams leave it out)
+        seed_i = series_seed(seed, task_key({k: v for k, v in params.items() if k != "specimen"}) if crn else key)
         group = len(wl) if per_task == 0 else per_task
         for start in range(0, len(wl), group):
             theta, phi = params.get("incidence") or (params["theta_i"], 0.0)
@@ -273,7 +280,7 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: s
                 phi_i=float(phi), geometry=params.get("geometry"), collector=params.get("collector"),
                 wavelengths=tuple(float(w) for w in wl[start:start + group]), rays=params["rays"],
                 method=params.get("method", "rays"), beam=params["beam"], delta=delta,
-                cone_deg=params.get("cone_deg"), key=key, seed=seed_i))
+                cone_deg=params.get("cone_deg"), key=key, seed=seed_i, common_random_numbers=crn))
     source = {"sweep": s, **({"task": [dict(e) for e in entries]} if entries is not None else {})}
     return SweepSpec(name=name, seed=seed, instrument=instrument, tasks=tuple(tasks), source=source)
 

@@ -97,7 +97,7 @@ def _run_task(task: SweepTask) -> TaskResult:
     if task.instrument == "gonio":
         g = VirtualGoniophotometer(task.specimen, collector=task.collector, rays=task.rays, beam=task.beam,
                                    seed=task.seed, wavelengths=list(task.wavelengths), method=task.method,
-                                   delta=task.delta)
+                                   delta=task.delta, common_random_numbers=task.common_random_numbers)
         rows = g.measure_bsdf(task.theta_i, task.phi_i, list(task.wavelengths)).table
         rows = rows.drop(columns=["theta_i", "phi_i"])
     else:
@@ -115,7 +115,8 @@ def _spectro_rows(task: SweepTask) -> Any:
     (45/0, 0/45; ``quantity`` in :func:`sweep_readings`); its ``std`` is scaled like its value."""
 
     sp = VirtualSpectrophotometer(task.specimen, rays=task.rays, beam=task.beam, seed=task.seed,
-                                  delta=task.delta, cone_deg=task.cone_deg)
+                                  delta=task.delta, cone_deg=task.cone_deg,
+                                  common_random_numbers=task.common_random_numbers)
     s = sp.measure(task.geometry, list(task.wavelengths))
     counts = s.meta["counts"]
     measured = cie_geometry(task.geometry).reciprocal_directional
