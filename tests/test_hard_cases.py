@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
@@ -473,14 +473,16 @@ _finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(x=_finite, y=_finite, z=_finite, scheme=st.sampled_from(["equal-angle", "equal-solid-angle", "equal-psa"]))
+@example(x=0.0, y=1e140, z=-3.5608683997293454e-144, scheme="equal-angle")  # found by CI: rescaling flushed z to -0
 def test_property_every_finite_direction_gets_a_valid_bin(x, y, z, scheme):
-    """Any finite vector (subnormal, huge, zero, negative zeros) maps into [0, n_bins)."""
+    """Any finite vector (subnormal, huge, zero, negative zeros) maps into [0, n_bins), and the
+    hemisphere is the sign of z however small (a huge vector's rescaling may flush z to -0:
+    the naive lookup then counted it in the upper hemisphere)."""
     col = Collector(scheme, 7, 13)
     i = int(col.index(np.array([[x, y, z]]))[0])
     assert 0 <= i < col.n_bins
-    m = max(abs(x), abs(y), abs(z))
-    if z < 0 and m > 0 and -z / m > 1e-300:
-        assert i >= col.n_patches  # below the horizon (not by an underflowing angle): lower hemisphere
+    if z < 0:
+        assert i >= col.n_patches  # below the horizon, by however little: lower hemisphere
 
 
 @settings(max_examples=200, deadline=None)

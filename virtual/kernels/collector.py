@@ -124,6 +124,7 @@ def _patch_of_rare(x, y, z, scheme_code, n_theta, n_phi, sin2_edges, phi_cs):
     m = max(abs(x), max(abs(y), abs(z)))
     if not (m > 0.0):  # zero vector or NaN
         return 0
+    below = z < 0.0  # the hemisphere is the sign of z, even when scaling flushes a tiny z to -0
     # exact power-of-two rescaling: tiny components become normal, huge finite ones moderate
     f = _SCALE_UP if m < 1.0 else _SCALE_DOWN
     x = x * f
@@ -137,7 +138,9 @@ def _patch_of_rare(x, y, z, scheme_code, n_theta, n_phi, sin2_edges, phi_cs):
     r2 = rho2 + z * z
     if not (r2 > 0.0):
         return 0
-    return _patch_core(x, y, z, rho2, r2, scheme_code, n_theta, n_phi, sin2_edges, phi_cs)
+    b = _patch_core(x, y, z, rho2, r2, scheme_code, n_theta, n_phi, sin2_edges, phi_cs)
+    half = n_theta * n_phi
+    return b + half if below and b < half else b
 
 
 
