@@ -344,6 +344,18 @@ def _budget(adaptive: dict[str, Any]) -> dict[str, Any]:
     return {k: adaptive[k] for k in ("N", "hoeffding_N", "saved_rays", "saved_fraction", "per_wavelength", "mode")}
 
 
+def _run_options(p: argparse.ArgumentParser) -> None:
+    """The options spectro and gonio share: the time limit, the seed, the streams, JSON output."""
+    p.add_argument("--max-seconds", type=real(0.0, 1e9, lo_open=True), default=3600.0,
+                   help=f"refuse work estimated to take longer, seconds, for every method (rays counted at "
+                        f"{RAYS_PER_SECOND:.0e} rays/s; default %(default)g)")
+    p.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: a fresh one, printed)")
+    p.add_argument("--common-random-numbers", action="store_true",
+                   help="one random stream whatever the specimen, for lower-variance model comparisons "
+                        "(default: a stream per specimen)")
+    p.add_argument("--json", action="store_true", help="one JSON object with stable keys")
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``rays``, ``spectro`` and ``gonio`` to the ``bench`` subcommands."""
     r = sub.add_parser("rays", help="ray budget of eq. 3.5 (eq. 3.12 with --patches)")
@@ -373,14 +385,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--beam", choices=("collimated", "conical"), default="collimated", help="beam (default %(default)s)")
     s.add_argument("--no-adaptive", action="store_true",
                    help="with --uncertainty: the fixed eq. 3.5 ray count instead of the adaptive rule")
-    s.add_argument("--max-seconds", type=real(0.0, 1e9, lo_open=True), default=3600.0,
-                   help=f"refuse work estimated to take longer, seconds (rays counted at {RAYS_PER_SECOND:.0e} "
-                        f"rays/s; default %(default)g)")
-    s.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: a fresh one, printed)")
-    s.add_argument("--common-random-numbers", action="store_true",
-                   help="one random stream whatever the specimen, for lower-variance model comparisons "
-                        "(default: a stream per specimen)")
-    s.add_argument("--json", action="store_true", help="one JSON object with stable keys")
+    _run_options(s)
     s.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw the spectrum to this image (png, pdf, svg, ...; default: none)")
     s.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the spectrum as CSV (default: none)")
@@ -411,14 +416,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--no-adaptive", action="store_true",
                    help="with --patch-probability-uncertainty: the fixed eq. 3.12 ray count instead of the "
                         "adaptive rule")
-    g.add_argument("--max-seconds", type=real(0.0, 1e9, lo_open=True), default=3600.0,
-                   help=f"refuse work estimated to take longer, seconds, for every method (rays counted at "
-                        f"{RAYS_PER_SECOND:.0e} rays/s; default %(default)g)")
-    g.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: a fresh one, printed)")
-    g.add_argument("--common-random-numbers", action="store_true",
-                   help="one random stream whatever the specimen, for lower-variance model comparisons "
-                        "(default: a stream per specimen)")
-    g.add_argument("--json", action="store_true", help="one JSON object with stable keys")
+    _run_options(g)
     g.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the record as CSV (default: none)")
     g.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw a polar plot to this image (png, pdf, svg, ...; default: none)")

@@ -131,13 +131,7 @@ class _Device:
             self._command(c, [mode] + [word(3 + 2 * i) for i in range(need)])
             return 3 + 2 * need
         if c in (ord("a"), ord("b")):
-            if len(b) < 2:
-                return 0
-            if b[1] == c - 32:
-                self._command(c, [])
-                return 2
-            self._reply_nak(c)
-            return 1
+            return self._mode_switch(c, b)
         if c == ord("?"):
             if len(b) < 2:
                 return 0
@@ -179,13 +173,7 @@ class _Device:
             self._command(c, [])
             return 1
         if c in (ord("a"), ord("b")):
-            if len(b) < 2:
-                return 0
-            if b[1] == c - 32:
-                self._command(c, [])
-                return 2
-            self._reply_nak(c)
-            return 1
+            return self._mode_switch(c, b)
         if c == ord("?"):
             if len(b) < 2:
                 return 0
@@ -229,6 +217,16 @@ class _Device:
     def _nak_all(self, c: int) -> int:
         self._reply_nak(c)
         return len(self.buf)
+
+    def _mode_switch(self, c: int, b: bytes | bytearray) -> int:
+        """``aA`` / ``bB`` (two bare bytes, the same in either mode): bytes consumed, 0 to wait."""
+        if len(b) < 2:
+            return 0
+        if b[1] == c - 32:
+            self._command(c, [])
+            return 2
+        self._reply_nak(c)
+        return 1
 
     # -- semantics ----------------------------------------------------------------------------
     def _reply_nak(self, c: int) -> None:
