@@ -82,7 +82,7 @@ def test_fast_path_matches_counting_rays_in_distribution():
     chi2, pvalue, _, _ = stats.chi2_contingency(np.vstack([a, b]))
     assert pvalue > 1e-3
     assert fast.meta["method"] == "fast" and rays.meta["method"] == "rays"
-    assert fast.meta["kernel"] == "fast" and rays.meta["kernel"] == "block"  # a Lambertian: the block kernel
+    assert fast.meta["kernel"] == "fast" and rays.meta["kernel"] == "block32"  # a Lambertian: the float32 block kernel
 
 
 def test_record_says_which_kernel_counted():
@@ -91,7 +91,9 @@ def test_record_says_which_kernel_counted():
     g = VirtualGoniophotometer("ggx:alpha=0.3", beam=Beam("conical", disk_sampling="rejection"), rays=1000, seed=1)
     assert g.kernel() == "ray"  # rejection-sampled disks are the ray-by-ray kernel's
     g = VirtualGoniophotometer("ggx:alpha=0.3", beam=Beam("conical"), rays=1000, seed=1)
-    assert g.kernel() == "block" and g.measure_bsdf(30.0, 0.0).meta["kernel"] == "block"
+    assert g.kernel() == "block32" and g.measure_bsdf(30.0, 0.0).meta["kernel"] == "block32"
+    g = VirtualGoniophotometer("ggx:alpha=0.001", beam=Beam("conical"), rays=1000, seed=1)
+    assert g.kernel() == "block"  # a near mirror: float32 would not resolve its lobe, the float64 block kernel
 
 
 def test_roles_and_conformance():

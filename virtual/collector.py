@@ -58,6 +58,7 @@ import numpy as np
 from bench.core.errors import InputError
 from virtual.kernels.collector import (ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA,  # noqa: F401
                                        SCHEME_EQUAL_SOLID_ANGLE, _approx_phi, index_many, guess_bin, patch_of)
+from virtual.kernels.f32 import ATAN32_MAX_ERROR
 
 __all__ = [
     "SCHEMES",
@@ -68,6 +69,7 @@ __all__ = [
     "patch_of",
     "guess_bin",
     "guess_margins",
+    "guess_margins32",
     "ATAN_MAX_ERROR",
     "parse_collector",
 ]
@@ -104,6 +106,18 @@ def guess_margins(n_theta: int, n_phi: int) -> tuple[float, float]:
     ring = 4.0 * ATAN_MAX_ERROR * n_theta / _HALF_PI + 64.0 * eps * n_theta * n_theta + 1e-12
     sector = 4.0 * ATAN_MAX_ERROR * n_phi / _TWO_PI + 64.0 * eps * n_phi + 1e-12
     return float(ring), float(sector)
+
+
+def guess_margins32(n_theta: int, n_phi: int) -> np.ndarray:
+    """float32 ``(ring_margin, sector_margin)`` of :func:`virtual.kernels.f32.guess_bin32`: four
+    times the float32 atan's error bound plus 32 float32 ulp of the ring and sector coordinates
+    (their rounding, approximate reciprocals included), plus the float64 lookup's own margin
+    (:func:`guess_margins`), in ring and sector units."""
+    eps32 = float(np.finfo(np.float32).eps)
+    ring64, sector64 = guess_margins(n_theta, n_phi)
+    ring = 4.0 * ATAN32_MAX_ERROR * n_theta / _HALF_PI + 32.0 * eps32 * n_theta + ring64
+    sector = 4.0 * ATAN32_MAX_ERROR * n_phi / _TWO_PI + 32.0 * eps32 * n_phi + sector64
+    return np.array([ring, sector], dtype=np.float32)
 
 
 def _theta_edges(scheme: str, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -281,6 +295,10 @@ class Collector:
     def guess_margins(self) -> tuple[float, float]:
         """:func:`guess_margins` of this collector: the trailing arguments of :func:`guess_bin`."""
         return guess_margins(self.n_theta, self.n_phi)
+
+    def guess_margins32(self) -> np.ndarray:
+        """:func:`guess_margins32` of this collector (the float32 block kernel's)."""
+        return guess_margins32(self.n_theta, self.n_phi)
 
     def index(self, dirs: np.ndarray) -> np.ndarray:
         """Bin index (int64) of each row of ``dirs`` (n, 3); rows need not be unit vectors."""

@@ -35,12 +35,16 @@ from typing import Any
 
 import numpy as np
 
-from virtual.collector import guess_margins
+from virtual.collector import guess_margins, guess_margins32
+from virtual.kernels.beam import BEAM_CONICAL
+from virtual.kernels.block32 import BLOCK32_MODELS, gonio_block32_kernel
+from virtual.kernels.f32 import MAX_PHONG_EXPONENT, MIN_ALPHA
 from virtual.kernels.beam import DISK_REJECTION
 from virtual.kernels.engine import (BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS, gonio_block_kernel,  # noqa: F401
                                     ggx_spectral_kernel, gonio_kernel, lambert_spectral_kernel, spectro_kernel)
-from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
-from virtual.rng import lane_states, stream_states
+from virtual.kernels.scatter import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG,
+                                     MODEL_PLASTIC)
+from virtual.rng import lane_states, lane_states32, stream_states
 
 __all__ = [
     "chunking",
@@ -54,6 +58,7 @@ __all__ = [
     "gonio_counts",
     "GONIO_KERNELS",
     "gonio_kernel_for",
+    "float32_suits",
     "multinomial_counts",
     "gonio_counts_spectral",
 ]
@@ -179,19 +184,43 @@ def spectro_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, be
 # --- goniophotometer: counts per collector patch ------------------------------------------------
 
 #: The goniophotometer's kernel shapes (see the module docstring).
-GONIO_KERNELS = ("auto", "block", "ray")
+GONIO_KERNELS = ("auto", "block32", "block", "ray")
 
 
-def gonio_kernel_for(model: int, disk: int, kernel: str = "auto") -> str:
-    """The kernel shape ``gonio_counts`` runs: ``"block"`` for the models with a branch-free
-    form (unless the beam asks for rejection-sampled disks), else ``"ray"``."""
+def float32_suits(model: int, params: np.ndarray) -> bool:
+    """Whether float32 resolves this specimen (:mod:`virtual.kernels.f32`): a model with a
+    float32 form, roughness >= ``MIN_ALPHA``, a Phong exponent <= ``MAX_PHONG_EXPONENT``, and
+    every parameter finite and of moderate size (no float32 overflow in the Fresnel terms)."""
+    p = np.asarray(params, dtype=np.float64)
+    if int(model) not in BLOCK32_MODELS or not np.isfinite(p).all() or np.abs(p).max(initial=0.0) > 100.0:
+        return False
+    if int(model) in (MODEL_GGX, MODEL_ANISO_GGX):
+        return min(p[0], p[1]) >= MIN_ALPHA
+    if int(model) in (MODEL_DIELECTRIC, MODEL_PLASTIC):
+        return p[0] >= MIN_ALPHA
+    if int(model) == MODEL_PHONG:
+        return p[2] <= MAX_PHONG_EXPONENT
+    return True
+
+
+def gonio_kernel_for(model: int, disk: int, kernel: str = "auto", params: np.ndarray | None = None) -> str:
+    """The kernel shape ``gonio_counts`` runs. ``"auto"``: ``"block32"`` when the model's
+    float32 form suits ``params`` (:func:`float32_suits`; never without ``params``), else
+    ``"block"`` for the models with a branch-free float64 form, else ``"ray"``; rejection-sampled
+    disks always run ``"ray"``."""
     if kernel not in GONIO_KERNELS:
         raise ValueError(f"kernel must be one of {', '.join(GONIO_KERNELS)}, got {kernel!r}")
     can_block = int(model) in BLOCK_MODELS and int(disk) != DISK_REJECTION
+    can32 = can_block and int(model) in BLOCK32_MODELS
     if kernel == "block" and not can_block:
         raise ValueError(f"the block kernel runs models {BLOCK_MODELS} with polar or auto disk sampling, "
                          f"not model {model} with disk code {disk}")
+    if kernel == "block32" and not can32:
+        raise ValueError(f"the block32 kernel runs models {BLOCK32_MODELS} with polar or auto disk sampling, "
+                         f"not model {model} with disk code {disk}")
     if kernel == "auto":
+        if can32 and params is not None and float32_suits(model, params):
+            return "block32"
         return "block" if can_block else "ray"
     return kernel
 
@@ -204,14 +233,20 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     O(chunks x bins), independent of ``n_rays``. ``kernel`` picks the kernel shape
     (:func:`gonio_kernel_for`); the counts' distribution is the same either way.
     """
-    shape = gonio_kernel_for(model, disk, kernel)
+    shape = gonio_kernel_for(model, disk, kernel, params)
     n_theta, n_phi = int(collector_args[1]), int(collector_args[2])  # (scheme, n_theta, n_phi, ...)
     n_bins = 2 * n_theta * n_phi
     sizes = chunking(n_rays)
     p = np.ascontiguousarray(params, dtype=np.float64)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     with single_chunk_threads(n_rays):
-        if shape == "block":
+        if shape == "block32":
+            p32 = np.zeros(max(BLOCK_PARAMS, p.size), dtype=np.float32)
+            p32[:p.size] = p
+            out = gonio_block32_kernel(np.int64(model), p32, int(beam_kind) == BEAM_CONICAL, b.astype(np.float32),
+                                       tuple(collector_args), guess_margins32(n_theta, n_phi), np.int64(n_bins), sizes,
+                                       lane_states32(seq, sizes.shape[0]))
+        elif shape == "block":
             p4 = np.zeros(max(BLOCK_PARAMS, p.size))  # the block kernel reads six parameters whatever the model
             p4[:p.size] = p
             out = gonio_block_kernel(np.int64(model), p4, np.int64(beam_kind), b, tuple(collector_args),

@@ -248,13 +248,14 @@ class VirtualGoniophotometer(InstrumentBase):
         return self._ran[key]
 
     def kernel(self) -> str:
-        """What counts the rays: ``"fast"`` (one multinomial), ``"block"`` or ``"ray"`` (the
-        numba kernels, see :mod:`virtual.engine`) or ``"python"`` (a specimen without a kernel)."""
+        """What counts the rays: ``"fast"`` (one multinomial), ``"block32"``, ``"block"`` or
+        ``"ray"`` (the numba kernels, see :mod:`virtual.engine`; the specimen's parameters at
+        550 nm decide between float32 and float64) or ``"python"`` (a specimen without a kernel)."""
         if self.uses_fast_path() and "rays" not in self._ran.values():
             return "fast"
         if self.specimen.model == MODEL_PYTHON:
             return "python"
-        return gonio_kernel_for(self.specimen.model, self.beam.disk_code)
+        return gonio_kernel_for(self.specimen.model, self.beam.disk_code, params=self.specimen.params(550.0))
 
     def simulate(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.ndarray:
         """Counts per bin (R patches, T patches, absorbed, missed) for one incidence and

@@ -17,23 +17,30 @@ from __future__ import annotations
 import numpy as np
 from virtual.kernels.rng import LANES, fill_uniforms, next_double, next_uint64  # noqa: F401 (re-exported)
 
-__all__ = ["stream_states", "next_double", "next_uint64", "LANES", "lane_states", "fill_uniforms"]
+__all__ = ["stream_states", "next_double", "next_uint64", "LANES", "lane_states", "lane_states32", "fill_uniforms"]
 
 
-def lane_states(seed: int | np.random.SeedSequence, n_streams: int, lanes: int = LANES) -> np.ndarray:
-    """``(n_streams, 4, lanes)`` uint64: for each chunk, ``lanes`` xoshiro states drawn from one
+def lane_states(seed: int | np.random.SeedSequence, n_streams: int, lanes: int = LANES,
+                dtype: type = np.uint64) -> np.ndarray:
+    """``(n_streams, 4, lanes)`` uint64 (or ``dtype``): for each chunk, ``lanes`` xoshiro states drawn from one
     independent child of ``seed``.
 
     A state of all zeros is a fixed point of xoshiro; SeedSequence output is never all zero
     in practice, but it is checked.
     """
     ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    states = np.empty((n_streams, 4, lanes), dtype=np.uint64)
+    states = np.empty((n_streams, 4, lanes), dtype=dtype)
     for i, child in enumerate(ss.spawn(n_streams)):
-        st = child.generate_state(4 * lanes, dtype=np.uint64).reshape(lanes, 4)
+        st = child.generate_state(4 * lanes, dtype=dtype).reshape(lanes, 4)
         st[~st.any(axis=1), 0] = 1
         states[i] = st.T
     return states
+
+
+def lane_states32(seed: int | np.random.SeedSequence, n_streams: int, lanes: int = LANES) -> np.ndarray:
+    """``(n_streams, 4, lanes)`` uint32 xoshiro128+ states for the float32 block kernel
+    (:func:`virtual.kernels.rng.fill_uniforms32`), seeded like :func:`lane_states`."""
+    return lane_states(seed, n_streams, lanes, np.uint32)
 
 
 def stream_states(seed: int | np.random.SeedSequence, n_streams: int) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""xoshiro256+ kernels: one stream advanced in place, or 64 lanes side by side.
+"""xoshiro256+ kernels: one stream advanced in place, or 64 lanes side by side; and 64 lanes of
+xoshiro128+ (float32 uniforms) for the float32 block kernel.
 
 The states come from :func:`virtual.rng.stream_states` / :func:`virtual.rng.lane_states`
 (numpy's SeedSequence does the seeding); these kernels only advance four 64-bit words.
@@ -6,11 +7,12 @@ The states come from :func:`virtual.rng.stream_states` / :func:`virtual.rng.lane
 
 from __future__ import annotations
 
-from numba import int64, uint64
+import numpy as np
+from numba import int32, int64, uint32, uint64
 
 from virtual.kernels import jit
 
-__all__ = ["LANES", "next_uint64", "next_double", "fill_uniforms"]
+__all__ = ["LANES", "next_uint64", "next_double", "fill_uniforms", "fill_uniforms32"]
 
 #: Independent xoshiro streams advanced side by side by :func:`fill_uniforms` (one SIMD
 #: register holds 8 of them; 64 keeps the vectorized loop free of a scalar remainder).
@@ -76,3 +78,39 @@ def fill_uniforms(lanes, out):
             lanes[2, lane] = s2
             lanes[3, lane] = s3
             row[lane] = int64(r >> uint64(11)) * _TO_DOUBLE
+
+
+_TO_FLOAT32 = np.float32(2.0 ** -24)
+
+
+@jit(inline="always")
+def _rotl32(x, k):
+    return (x << uint32(k)) | (x >> uint32(32 - k))
+
+
+@jit(inline="always")
+def fill_uniforms32(lanes, out):
+    """Fill ``out`` (float32[rows, LANES]) with uniforms k 2^-24 in [0, 1) from xoshiro128+
+    (Blackman & Vigna): column ``l`` from lane ``l`` of ``lanes`` (uint32[4, LANES], advanced in
+    place), the top 24 bits of each 32-bit output."""
+    n_lanes = lanes.shape[1]
+    for j in range(out.shape[0]):
+        row = out[j]
+        for lane in range(n_lanes):
+            s0 = lanes[0, lane]
+            s1 = lanes[1, lane]
+            s2 = lanes[2, lane]
+            s3 = lanes[3, lane]
+            r = s0 + s3  # numba widens uint32 arithmetic: the stores and the 24-bit mask cut it back
+            t = s1 << uint32(9)
+            s2 ^= s0
+            s3 ^= s1
+            s1 ^= s2
+            s0 ^= s3
+            s2 ^= t
+            s3 = _rotl32(s3, 11)
+            lanes[0, lane] = s0
+            lanes[1, lane] = s1
+            lanes[2, lane] = s2
+            lanes[3, lane] = s3
+            row[lane] = np.float32(int32(r >> uint32(8)) & int32(0xFFFFFF)) * _TO_FLOAT32  # bits 8-31 of the 32-bit sum

@@ -1,0 +1,130 @@
+"""The float32 block kernel: :func:`~virtual.kernels.engine.gonio_block_kernel` on 16-lane
+float32 vectors (issue 18).
+
+Same shape as the float64 block kernel -- a block's uniforms first (64 xoshiro128+ lanes,
+:func:`~virtual.kernels.rng.fill_uniforms32`), one branch-free loop that emits, scatters and
+marks every ray, compaction of the survivors, a vectorized guess of their bins
+(:func:`~virtual.kernels.f32.guess_bin32`) and the exact float64
+:func:`~virtual.kernels.collector.patch_of` for the few near an edge -- with twice the lanes
+per instruction and half the generator's work per uniform. :func:`virtual.engine.gonio_kernel_for`
+sends a specimen here only when float32 suffices for it (:mod:`virtual.kernels.f32`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import prange
+
+from virtual.kernels import jit
+from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
+from virtual.kernels.f32 import emit_given32, guess_bin32
+from virtual.kernels.given32 import ggx_given32, lambert_given32
+from virtual.kernels.rng import LANES, fill_uniforms32
+from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
+
+__all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "gonio_block32_kernel"]
+
+#: Models with a float32 form (the others run the float64 block or ray-by-ray kernel).
+BLOCK32_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX)
+#: Rays per block: 7 float32 uniforms and 6 float32 coordinates per ray stay in L1/L2.
+BLOCK32_RAYS = 1024
+_BEAM_UNIFORMS = 4
+
+
+@jit(inline="always")
+def _guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_margin):
+    """``code[i] = guess_bin32(...)`` for i < n, one loop per scheme (the scheme a constant in
+    each, so each vectorizes)."""
+    if scheme == SCHEME_EQUAL_PSA:
+        for i in range(n):
+            code[i] = guess_bin32(x[i], y[i], z[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
+    elif scheme == SCHEME_EQUAL_SOLID_ANGLE:
+        for i in range(n):
+            code[i] = guess_bin32(x[i], y[i], z[i], SCHEME_EQUAL_SOLID_ANGLE, n_theta, n_phi, ring_margin,
+                                  sector_margin)
+    else:
+        for i in range(n):
+            code[i] = guess_bin32(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+
+
+@jit(fastmath=True, error_model="numpy")
+def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, hist):
+    """One chunk: ``n_rays`` rays from the xoshiro128+ lanes ``lane`` (advanced in place) added
+    to ``hist``. Compiled on its own for the reasons given on the float64
+    :func:`~virtual.kernels.engine.gonio_block_chunk`."""
+    nb = BLOCK32_RAYS
+    n_beam = _BEAM_UNIFORMS if conical else 0
+    n_scat = 3
+    ublock = np.empty(((n_beam + n_scat) * nb // LANES, LANES), dtype=np.float32)
+    u = ublock.reshape(ublock.size)
+    s0 = n_beam * nb
+    bo = nb if conical else 0
+    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
+    code = np.empty(nb, dtype=np.int32)  # int32: 16 lanes per vector, like the float32 values
+    vx = np.empty(nb, dtype=np.float32)
+    vy = np.empty(nb, dtype=np.float32)
+    vz = np.empty(nb, dtype=np.float32)
+    cx = np.empty(nb, dtype=np.float32)
+    cy = np.empty(nb, dtype=np.float32)
+    cz = np.empty(nb, dtype=np.float32)
+    h = np.zeros(n_bins, dtype=np.int64)
+    n_dead = np.zeros(2, dtype=np.int64)  # absorbed, missed: summed in the vectorized loops, not binned
+    left = n_rays
+    while left > 0:
+        m = min(left, nb)
+        fill_uniforms32(lane, ublock)
+        if model == MODEL_LAMBERT:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = lambert_given32(p, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i])
+                code[i] = 1 if (alive & hit) else (0 if hit else 2)  # survivor, absorbed, missed
+        else:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = ggx_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                                                         u[s0 + 2 * nb + i])
+                code[i] = 1 if (alive & hit) else (0 if hit else 2)  # survivor, absorbed, missed
+        j = 0
+        n_absorbed = 0
+        n_missed = 0
+        for i in range(m):  # compaction of the survivors, branch-free (every ray written, j advances for survivors)
+            k = code[i]
+            cx[j] = vx[i]
+            cy[j] = vy[i]
+            cz[j] = vz[i]
+            j += k == 1
+            n_absorbed += k == 0
+            n_missed += k == 2
+        n_dead[0] += n_absorbed
+        n_dead[1] += n_missed
+        _guess_bins32(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
+        for i in range(j):
+            k = code[i]
+            if k < 0:  # near an edge, the pole or the horizon: the exact float64 lookup
+                k = patch_of(np.float64(cx[i]), np.float64(cy[i]), np.float64(cz[i]), scheme, n_theta, n_phi,
+                             sin2_edges, phi_cs)
+            h[k] += 1
+        left -= m
+    for k in range(n_bins):
+        hist[k] += h[k]
+    hist[n_bins] += n_dead[0]
+    hist[n_bins + 1] += n_dead[1]
+
+
+@jit(parallel=True)
+def gonio_block32_kernel(model, params, conical, beam_args, cargs, margins, n_bins, sizes, lanes):
+    """Counts per chunk (rows summed by the caller), float32 ``params`` (6) and ``beam_args``
+    (15), float32 ``margins`` (:func:`virtual.collector.guess_margins32`), uint32 ``lanes``
+    (:func:`virtual.rng.lane_states32`)."""
+    p = (params[0], params[1], params[2], params[3], params[4], params[5])
+    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
+         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
+         beam_args[14])
+    n_chunks = sizes.shape[0]
+    out = np.zeros((n_chunks, n_bins + 2), dtype=np.int64)
+    for c in prange(n_chunks):
+        hist = np.zeros(n_bins + 2, dtype=np.int64)
+        gonio_block32_chunk(model, p, conical, b, cargs, margins[0], margins[1], n_bins, sizes[c], lanes[c].copy(),
+                            hist)
+        out[c] = hist
+    return out

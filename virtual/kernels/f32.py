@@ -1,0 +1,216 @@
+"""Float32 twins of the scalar helpers, for the block kernel's 16-lane path (issue 18).
+
+An AVX-512 register holds 16 float32 lanes against 8 float64 ones, so the block kernel's
+branch-free loops run about twice as fast in float32 (:mod:`virtual.kernels.block32`). numba
+types a float literal as float64 and promotes float32 with it, so every constant here is a
+module-level ``np.float32`` (frozen by numba as a float32 constant) and every helper takes and
+returns float32: one float64 literal in a loop would silently turn it back into float64.
+
+What float32 costs, and where it stops (:func:`virtual.engine.gonio_kernel_for` decides): each
+direction carries a relative error of a few 1e-7 and each survival test a few 1e-7 of its
+probability -- far below what any count of rays can detect, but not nothing. So only
+well-conditioned specimens take this path (GGX-like roughness >= :data:`MIN_ALPHA`, Phong
+exponents <= :data:`MAX_PHONG_EXPONENT`); the bin of each computed direction is exact (a guess
+with margins, the float64 :func:`~virtual.kernels.collector.patch_of` near an edge).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import int32
+
+from virtual.kernels import jit
+from virtual.kernels.collector import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
+
+__all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "ATAN32_MAX_ERROR",
+           "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "guess_bin32",
+           "ggx_n32", "ggx_vndf_given32", "fresnel_conductor_ratio32", "fresnel_dielectric32", "frame32"]
+
+F = np.float32
+ZERO = F(0.0)
+ONE = F(1.0)
+TWO = F(2.0)
+FOUR = F(4.0)
+HALF = F(0.5)
+PI = F(math.pi)
+HALF_PI = F(0.5 * math.pi)
+TWO_PI = F(2.0 * math.pi)
+_TINY = F(1e-30)
+_TINY2 = F(1e-30)   # |v|^2 below: the float32 squares may have lost their precision -> exact lookup
+_HUGE2 = F(1e30)    # |v|^2 above: may overflow -> exact lookup
+
+#: Smallest roughness (alpha) the float32 path takes: a lobe of width ~alpha spans >= 1e5 float32 ulps.
+MIN_ALPHA = 0.01
+#: Largest Phong exponent the float32 path takes (its lobe's 1 - cos(alpha) stays >= 1e-4 typically).
+MAX_PHONG_EXPONENT = 1000.0
+
+# sin and cos of x in [-pi/4, pi/4]: Taylor to x^7 and x^8, truncation below 4e-9 (float32 ulp 6e-8)
+_S3, _S5, _S7 = F(-1.0 / 6.0), F(1.0 / 120.0), F(-1.0 / 5040.0)
+_C2, _C4, _C6, _C8 = F(-0.5), F(1.0 / 24.0), F(-1.0 / 720.0), F(1.0 / 40320.0)
+
+# atan(t)/t on [0, 1], least squares in t^2 (degree 7): 1.8e-7 rad evaluated in float32 (tested)
+_A0, _A1, _A2, _A3 = F(0.9999999403953552), F(-0.33332303166389465), F(0.1997368037700653), F(-0.14040134847164154)
+_A4, _A5, _A6, _A7 = F(0.09967909753322601), F(-0.06021890789270401), F(0.02475660853087902), F(-0.004831115715205669)
+#: Largest error (rad) of the float32 polynomial atan2, with its input's rounding (tested on a grid).
+ATAN32_MAX_ERROR = 4e-7
+
+
+@jit(inline="always")
+def sincos_2pi32(u):
+    """``(cos 2 pi u, sin 2 pi u)`` in float32 for u in [0, 1): the float64
+    :func:`~virtual.kernels.sampling.sincos_2pi` with float32 polynomials (error < 2e-7)."""
+    t = FOUR * u
+    q = np.floor(t + HALF)
+    x = (t - q) * HALF_PI
+    x2 = x * x
+    s = x * (ONE + x2 * (_S3 + x2 * (_S5 + x2 * _S7)))
+    c = ONE + x2 * (_C2 + x2 * (_C4 + x2 * (_C6 + x2 * _C8)))
+    quarter = int32(q) & 3
+    odd = (quarter & 1) == 1
+    cq = s if odd else c
+    sq = c if odd else s
+    cq = -cq if (quarter == 1 or quarter == 2) else cq
+    sq = -sq if quarter >= 2 else sq
+    return cq, sq
+
+
+@jit(inline="always")
+def warp_polar32(u1, u2, r):
+    """Eq. 3.4: (rho cos phi, rho sin phi) with phi = 2 pi u1, rho = r sqrt(u2)."""
+    c, s = sincos_2pi32(u1)
+    rho = r * math.sqrt(u2)
+    return rho * c, rho * s
+
+
+@jit(inline="always")
+def warp_cosine_hemisphere32(u1, u2):
+    """Malley's method: z = sqrt(1 - u2) from u2 directly (never from rho)."""
+    x, y = warp_polar32(u1, u2, ONE)
+    return x, y, math.sqrt(ONE - u2)
+
+
+@jit(inline="always")
+def emit_given32(conical, b, u1, u2, u3, u4):
+    """:func:`~virtual.kernels.beam.emit_given` in float32 (``b`` a tuple of float32)."""
+    x1, y1 = warp_polar32(u1, u2, b[9])
+    x2, y2 = warp_polar32(u3, u4, b[10])
+    d = b[11]
+    ox = b[0] * x1 + b[1] * y1 + b[2] * d - x2
+    oy = b[3] * x1 + b[4] * y1 + b[5] * d - y2
+    oz = b[6] * x1 + b[7] * y1 + b[8] * d
+    inv = ONE / math.sqrt(ox * ox + oy * oy + oz * oz)
+    wx = ox * inv
+    wy = oy * inv
+    wz = oz * inv
+    hit = wz * b[14] > ZERO
+    return (wx if conical else b[12]), (wy if conical else b[13]), (wz if conical else b[14]), (hit if conical else True)
+
+
+@jit(inline="always")
+def _atan_first_quadrant32(ay, ax):
+    swap = ay > ax
+    t = min(ax, ay) / max(max(ax, ay), _TINY)
+    t2 = t * t
+    a = t * (_A0 + t2 * (_A1 + t2 * (_A2 + t2 * (_A3 + t2 * (_A4 + t2 * (_A5 + t2 * (_A6 + t2 * _A7)))))))
+    return HALF_PI - a if swap else a
+
+
+@jit(inline="always")
+def _phi32(x, y):
+    a = _atan_first_quadrant32(abs(y), abs(x))
+    a = PI - a if x < ZERO else a
+    return TWO_PI - a if y < ZERO else a
+
+
+@jit(inline="always")
+def guess_bin32(x, y, z, scheme_code, n_theta, n_phi, ring_margin, sector_margin):
+    """:func:`~virtual.kernels.collector.guess_bin` in float32: the bin of (x, y, z), or -1 when
+    it lies within the margins (:func:`virtual.collector.guess_margins32`) of an edge, at the
+    pole or with badly scaled squares -- then the float64 ``patch_of`` decides."""
+    rho2 = x * x + y * y
+    r2 = rho2 + z * z
+    s2 = min(rho2 / r2, ONE)
+    nt = F(n_theta)
+    if scheme_code == SCHEME_EQUAL_PSA:  # sin^2 theta is the ring coordinate
+        g = s2 * nt
+    elif scheme_code == SCHEME_EQUAL_SOLID_ANGLE:  # 1 - cos theta
+        g = (ONE - abs(z) / math.sqrt(r2)) * nt
+    else:  # equal angle
+        g = _atan_first_quadrant32(math.sqrt(rho2), abs(z)) * (nt / HALF_PI)
+    k = min(int32(g), int32(n_theta - 1))
+    fk = g - F(k)
+    f = _phi32(x, y) * (F(n_phi) / TWO_PI)
+    j = min(int32(f), int32(n_phi - 1))
+    fj = f - F(j)
+    sure = ((fk > ring_margin) & (fk < ONE - ring_margin) & (fj > sector_margin) & (fj < ONE - sector_margin)
+            & (rho2 > _TINY2) & (r2 < _HUGE2))
+    b = k * n_phi + j + (n_theta * n_phi) * (z < ZERO)
+    return b if sure else -1
+
+
+@jit(inline="always")
+def ggx_n32(wx, wy, wz, ax, ay):
+    """|(ax wx, ay wy, wz)| (:func:`~virtual.kernels.microfacet.ggx_n`)."""
+    return math.sqrt(ax * ax * wx * wx + ay * ay * wy * wy + wz * wz)
+
+
+@jit(inline="always")
+def ggx_vndf_given32(wx, wy, wz, ax, ay, inv_ni, ca, sa, r2):
+    """:func:`~virtual.kernels.microfacet.ggx_vndf_given` in float32."""
+    vx = ax * wx * inv_ni
+    vy = ay * wy * inv_ni
+    vz = wz * inv_ni
+    q = ONE + vz
+    z = ONE - q * r2
+    sc = math.sqrt(max(r2 * q * (TWO - q * r2), ZERO))
+    hx = ca * sc + vx
+    hy = sa * sc + vy
+    hz = max(z + vz, ZERO)
+    mx = ax * hx
+    my = ay * hy
+    n2 = mx * mx + my * my + hz * hz
+    good = n2 > ZERO
+    inv = ONE / math.sqrt(n2 if good else ONE)
+    return (mx * inv if good else ZERO), (my * inv if good else ZERO), (hz * inv if good else ONE)
+
+
+@jit(inline="always")
+def fresnel_conductor_ratio32(c, eta, k):
+    """:func:`~virtual.kernels.microfacet.fresnel_conductor_ratio` in float32: ``(num, den)``."""
+    c2 = c * c
+    s2 = ONE - c2
+    e2 = eta * eta
+    k2 = k * k
+    t0 = e2 - k2 - s2
+    a2b2 = math.sqrt(t0 * t0 + FOUR * e2 * k2)
+    t1 = a2b2 + c2
+    a = math.sqrt(max(HALF * (a2b2 + t0), ZERO))
+    t2 = TWO * c * a
+    t3 = c2 * a2b2 + s2 * s2
+    t4 = t2 * s2
+    return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)
+
+
+@jit(inline="always")
+def fresnel_dielectric32(c, eta):
+    """:func:`~virtual.kernels.microfacet.fresnel_dielectric` in float32, branch-free:
+    ``(F, cos_t)``, F = 1 and cos_t = 0 on total internal reflection."""
+    st2 = (ONE - c * c) / (eta * eta)
+    tir = st2 >= ONE
+    ct = math.sqrt(max(ONE - st2, ZERO))
+    rs = (c - eta * ct) / max(c + eta * ct, _TINY)
+    rp = (eta * c - ct) / max(eta * c + ct, _TINY)
+    f = HALF * (rs * rs + rp * rp)
+    return (ONE if tir else f), (ZERO if tir else ct)
+
+
+@jit(inline="always")
+def frame32(nx, ny, nz):
+    """:func:`~virtual.kernels.microfacet.frame` (Duff et al. 2017) in float32."""
+    sign = ONE if nz >= ZERO else -ONE
+    a = -ONE / (sign + nz)
+    b = nx * ny * a
+    return (ONE + sign * nx * nx * a, sign * b, -sign * nx,
+            b, sign + ny * ny * a, -ny)
