@@ -1,0 +1,196 @@
+"""The float32 block kernel (issue 18): its generator against the published xoshiro128+, its bin
+guess against the exact float64 lookup, its counts against the float64 ray-by-ray kernel's, and
+the rule that sends a specimen to float32 only when float32 resolves it.
+
+Two-sample comparisons as in tests/test_engine.py: chi-square over bins plus absorbed and
+missed, p > 1e-3 (a correct kernel fails once in 1000; seeds are fixed); power: a perturbed
+parameter must give p < 1e-6.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import pytest
+
+from tests.test_engine import _gonio, _two_sample_p
+from virtual.beam import Beam
+from virtual.collector import Collector
+from virtual.engine import float32_suits, gonio_kernel_for
+from virtual.kernels import jit
+from virtual.kernels.collector import patch_of
+from virtual.kernels.f32 import ATAN32_MAX_ERROR, _atan_first_quadrant32, guess_bin32
+from virtual.kernels.rng import fill_uniforms32
+from virtual.rng import lane_states32
+from virtual.specimens import parse_specimen
+
+
+# --- the generator ------------------------------------------------------------------------------------
+
+def _xoshiro128plus(state: list[int], n: int) -> list[int]:
+    """Blackman & Vigna's xoshiro128+ (prng.di.unimi.it/xoshiro128plus.c), in Python integers."""
+    s, out, m = list(state), [], 0xFFFFFFFF
+    for _ in range(n):
+        out.append((s[0] + s[3]) & m)
+        t = (s[1] << 9) & m
+        s[2] ^= s[0]
+        s[3] ^= s[1]
+        s[1] ^= s[2]
+        s[0] ^= s[3]
+        s[2] ^= t
+        s[3] = ((s[3] << 11) | (s[3] >> 21)) & m
+    return out
+
+
+def test_float32_uniforms_are_the_top_24_bits_of_the_published_xoshiro128plus():
+    lanes = lane_states32(7, 1)[0]
+    start = lanes.copy()
+    out = np.empty((40, lanes.shape[1]), dtype=np.float32)
+    fill_uniforms32(lanes, out)
+    for lane in (0, 1, 17, 63):
+        ref = [(r >> 8) * 2.0 ** -24 for r in _xoshiro128plus([int(v) for v in start[:, lane]], 40)]
+        np.testing.assert_array_equal(out[:, lane], np.array(ref, dtype=np.float32))
+    assert not np.array_equal(lanes, start)  # advanced in place
+
+
+def test_float32_uniforms_lie_in_the_unit_interval_and_are_uniform():
+    from scipy import stats
+
+    lanes = lane_states32(3, 1)[0]
+    out = np.empty((4096, lanes.shape[1]), dtype=np.float32)
+    fill_uniforms32(lanes, out)
+    u = out.ravel()
+    assert u.min() >= 0.0 and u.max() < 1.0
+    counts = np.bincount((u * 64).astype(np.int64), minlength=64)
+    assert stats.chisquare(counts).pvalue > 1e-3  # a uniform fails once in 1000
+
+
+# --- the bin guess ------------------------------------------------------------------------------------
+
+@jit(fastmath=True, error_model="numpy")
+def _guesses(v, scheme, n_theta, n_phi, rm, sm, sin2_edges, phi_cs, guess, exact):
+    for i in range(v.shape[0]):
+        guess[i] = guess_bin32(v[i, 0], v[i, 1], v[i, 2], scheme, n_theta, n_phi, rm, sm)
+        exact[i] = patch_of(np.float64(v[i, 0]), np.float64(v[i, 1]), np.float64(v[i, 2]), scheme, n_theta, n_phi,
+                            sin2_edges, phi_cs)
+
+
+def _directions_near_edges(col: Collector, n: int, rng: np.random.Generator) -> np.ndarray:
+    """float32 directions on and within a few float32 ulps of every ring and sector edge, at the
+    pole and the horizon, plus uniform ones; both hemispheres."""
+    theta = np.radians(col.theta_edges_deg)
+    phi = np.radians(col.phi_edges_deg)
+    t = rng.choice(theta, n) * (1 + rng.integers(-8, 9, n) * 2.0 ** -23)
+    p = rng.choice(phi, n) + rng.integers(-8, 9, n) * 2.0 ** -22
+    half = n // 2
+    t[half:] = np.arccos(rng.random(n - half))
+    p[half:] = rng.random(n - half) * 2 * np.pi
+    v = np.column_stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])
+    v[rng.random(n) < 0.5, 2] *= -1
+    v *= rng.uniform(0.5, 2.0, (n, 1))  # the guess takes any length
+    return v.astype(np.float32)
+
+
+@pytest.mark.parametrize("scheme, n_theta, n_phi", [("equal-psa", 30, 30), ("equal-angle", 18, 36),
+                                                    ("equal-solid-angle", 9, 24), ("equal-psa", 90, 180)])
+def test_the_float32_guess_is_the_exact_bin_or_declines(scheme, n_theta, n_phi):
+    col = Collector(scheme, n_theta, n_phi)
+    rng = np.random.default_rng(n_theta * n_phi)
+    v = _directions_near_edges(col, 400_000, rng)
+    code, nt, nph, s2e, pcs = col.kernel_args()
+    rm, sm = col.guess_margins32()
+    guess = np.empty(v.shape[0], dtype=np.int64)
+    exact = np.empty(v.shape[0], dtype=np.int64)
+    _guesses(v, code, nt, nph, rm, sm, s2e, pcs, guess, exact)
+    sure = guess >= 0
+    np.testing.assert_array_equal(guess[sure], exact[sure])
+    # power: the same directions without margins are binned wrongly (the test sees edges)
+    _guesses(v, code, nt, nph, np.float32(0.0), np.float32(0.0), s2e, pcs, guess, exact)
+    assert ((guess >= 0) & (guess != exact)).sum() > 100
+    # the uniform half: the exact lookup is rarely needed (the margins are tight)
+    assert (~sure[v.shape[0] // 2:]).mean() < 5e-3
+
+
+def test_the_float32_atan_keeps_its_stated_error():
+    @jit(fastmath=True, error_model="numpy")
+    def atan_many(y, x, out):
+        for i in range(y.shape[0]):
+            out[i] = _atan_first_quadrant32(y[i], x[i])
+
+    rng = np.random.default_rng(5)
+    y = rng.random(1_000_000).astype(np.float32)
+    x = rng.random(1_000_000).astype(np.float32)
+    y[:1000], x[:1000] = np.float32(1.0), np.linspace(0, 1, 1000, dtype=np.float32)
+    out = np.empty_like(y)
+    atan_many(y, x, out)
+    err = np.abs(out.astype(np.float64) - np.arctan2(y.astype(np.float64), x.astype(np.float64)))
+    assert err.max() < ATAN32_MAX_ERROR
+
+
+# --- counts against the float64 ray-by-ray kernel ----------------------------------------------------
+
+CASES = [
+    ("lambert:reflectance=0.6,transmittance=0.3", Beam("conical"), Collector("equal-psa", 9, 24), 35.0),
+    ("lambert:albedo=0.8", Beam("collimated"), Collector("equal-angle", 6, 12), 160.0),
+    ("ggx:alpha=0.2,eta=0.2,k=3", Beam("conical"), Collector("equal-psa", 9, 24), 35.0),
+    ("ggx:alpha=0.05,eta=1.5,k=0", Beam("collimated"), Collector("equal-solid-angle", 12, 16), 75.0),
+    ("ggx:alpha=0.3,eta=1.5,k=0", Beam("conical"), Collector("equal-psa", 9, 24), 150.0),  # from below
+    ("aniso-ggx:alpha_x=0.4,alpha_y=0.1,eta=1.5,k=0", Beam("conical"), Collector("equal-psa", 9, 24), 35.0),
+]
+
+
+@pytest.mark.parametrize("spec, beam, col, theta", CASES)
+def test_float32_and_float64_ray_kernels_count_the_same_distribution(spec, beam, col, theta):
+    sp = parse_specimen(spec)
+    assert gonio_kernel_for(sp.model, beam.disk_code, params=sp.params(550.0)) == "block32"
+    n = 400_000
+    a = _gonio(spec, beam, col, n, 41, "block32", theta=theta)
+    b = _gonio(spec, beam, col, n, 42, "ray", theta=theta)
+    assert a.sum() == n == b.sum()
+    assert _two_sample_p(a, b) > 1e-3
+
+
+@pytest.mark.parametrize("spec, other", [("ggx:alpha=0.2,eta=0.2,k=3", "ggx:alpha=0.22,eta=0.2,k=3"),
+                                         ("lambert:reflectance=0.6,transmittance=0.3",
+                                          "lambert:reflectance=0.6,transmittance=0.31")])
+def test_the_float32_comparison_has_power_against_a_perturbed_parameter(spec, other):
+    col, beam = Collector("equal-psa", 9, 24), Beam("conical")
+    a = _gonio(spec, beam, col, 1_000_000, 41, "block32")
+    b = _gonio(other, beam, col, 1_000_000, 42, "ray")
+    assert _two_sample_p(a, b) < 1e-6
+
+
+def test_float32_counts_do_not_depend_on_the_thread_count():
+    col, beam, n = Collector("equal-psa", 9, 24), Beam("conical"), 3 * (1 << 20) + 5
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = _gonio("ggx:alpha=0.3", beam, col, n, 3, "block32")
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        many = _gonio("ggx:alpha=0.3", beam, col, n, 3, "block32")
+    finally:
+        numba.set_num_threads(before)
+    np.testing.assert_array_equal(one, many)
+    assert not np.array_equal(_gonio("ggx:alpha=0.3", beam, col, n, 4, "block32"), one)
+
+
+# --- which specimens float32 takes -------------------------------------------------------------------
+
+def test_float32_takes_only_specimens_it_resolves():
+    conical = Beam("conical").disk_code
+    for spec in ("lambert:albedo=0.5", "ggx:alpha=0.2", "aniso-ggx:alpha_x=0.3,alpha_y=0.05"):
+        sp = parse_specimen(spec)
+        assert float32_suits(sp.model, sp.params(550.0)), spec
+    for spec in ("ggx:alpha=0.001", "aniso-ggx:alpha_x=0.3,alpha_y=0.005"):  # lobes float32 would blur
+        sp = parse_specimen(spec)
+        assert not float32_suits(sp.model, sp.params(550.0)), spec
+        assert gonio_kernel_for(sp.model, conical, params=sp.params(550.0)) == "block"
+    sp = parse_specimen("ggx:alpha=0.2")
+    assert not float32_suits(sp.model, np.array([0.2, 0.2, math.inf, 0.0, 0.0]))
+    assert gonio_kernel_for(sp.model, conical) == "block"  # without parameters: never float32
+    rejection = Beam("conical", disk_sampling="rejection").disk_code
+    assert gonio_kernel_for(sp.model, rejection, params=sp.params(550.0)) == "ray"
+    with pytest.raises(ValueError, match="block32 kernel"):
+        gonio_kernel_for(sp.model, rejection, "block32")
