@@ -87,7 +87,9 @@ def test_fast_path_matches_counting_rays_in_distribution():
 
 def test_record_says_which_kernel_counted():
     g = VirtualGoniophotometer("phong:exponent=20", rays=1000, seed=1, method="rays")
-    assert g.kernel() == "block"  # every native family has a block form (issue 18)
+    assert g.kernel() == "block32"  # Phong has a float32 form (issue 18)
+    g = VirtualGoniophotometer("phong:exponent=1e5,ks=0.4", rays=1000, seed=1, method="rays")
+    assert g.kernel() == "block"  # a lobe narrower than float32 resolves: the float64 block kernel
     g = VirtualGoniophotometer("ggx:alpha=0.3", beam=Beam("conical", disk_sampling="rejection"), rays=1000, seed=1)
     assert g.kernel() == "ray"  # rejection-sampled disks are the ray-by-ray kernel's
     g = VirtualGoniophotometer("ggx:alpha=0.3", beam=Beam("conical"), rays=1000, seed=1)

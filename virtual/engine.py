@@ -192,14 +192,16 @@ def float32_suits(model: int, params: np.ndarray) -> bool:
     float32 form, roughness >= ``MIN_ALPHA``, a Phong exponent <= ``MAX_PHONG_EXPONENT``, and
     every parameter finite and of moderate size (no float32 overflow in the Fresnel terms)."""
     p = np.asarray(params, dtype=np.float64)
-    if int(model) not in BLOCK32_MODELS or not np.isfinite(p).all() or np.abs(p).max(initial=0.0) > 100.0:
+    if int(model) not in BLOCK32_MODELS or not np.isfinite(p).all():
+        return False
+    if int(model) == MODEL_PHONG:  # [kd, ks, n, lobe share]: n alone may be large, and enters as 1/(n+1)
+        return p[2] <= MAX_PHONG_EXPONENT
+    if np.abs(p).max(initial=0.0) > 100.0:
         return False
     if int(model) in (MODEL_GGX, MODEL_ANISO_GGX):
         return min(p[0], p[1]) >= MIN_ALPHA
     if int(model) in (MODEL_DIELECTRIC, MODEL_PLASTIC):
         return p[0] >= MIN_ALPHA
-    if int(model) == MODEL_PHONG:
-        return p[2] <= MAX_PHONG_EXPONENT
     return True
 
 

@@ -18,14 +18,15 @@ from numba import prange
 from virtual.kernels import jit
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
 from virtual.kernels.f32 import emit_given32, guess_bin32
-from virtual.kernels.given32 import ggx_given32, lambert_given32
+from virtual.kernels.given import GIVEN4_UNIFORMS
+from virtual.kernels.given32 import ggx_given32, lambert_given32, oren_nayar_given32, phong_given32, phong_lobe_omc32
 from virtual.kernels.rng import LANES, fill_uniforms32
-from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
+from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG
 
 __all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "gonio_block32_kernel"]
 
 #: Models with a float32 form (the others run the float64 block or ray-by-ray kernel).
-BLOCK32_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX)
+BLOCK32_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX, MODEL_PHONG, MODEL_OREN_NAYAR)
 #: Rays per block: 7 float32 uniforms and 6 float32 coordinates per ray stay in L1/L2.
 BLOCK32_RAYS = 1024
 _BEAM_UNIFORMS = 4
@@ -54,7 +55,7 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
     :func:`~virtual.kernels.engine.gonio_block_chunk`."""
     nb = BLOCK32_RAYS
     n_beam = _BEAM_UNIFORMS if conical else 0
-    n_scat = 3
+    n_scat = GIVEN4_UNIFORMS if (model == MODEL_PHONG or model == MODEL_OREN_NAYAR) else 3
     ublock = np.empty(((n_beam + n_scat) * nb // LANES, LANES), dtype=np.float32)
     u = ublock.reshape(ublock.size)
     s0 = n_beam * nb
@@ -78,6 +79,19 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
                 vx[i], vy[i], vz[i], alive = lambert_given32(p, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i])
                 code[i] = 1 if (alive & hit) else (0 if hit else 2)  # survivor, absorbed, missed
+        elif model == MODEL_PHONG:
+            phong_lobe_omc32(p, u[s0 + 2 * nb:s0 + 3 * nb], code, vx)  # code: int32 scratch until written below
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = phong_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                                                           u[s0 + 2 * nb + i], u[s0 + 3 * nb + i], vx[i])
+                code[i] = 1 if (alive & hit) else (0 if hit else 2)
+        elif model == MODEL_OREN_NAYAR:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = oren_nayar_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                                                                u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+                code[i] = 1 if (alive & hit) else (0 if hit else 2)
         else:
             for i in range(nb):
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])

@@ -10,8 +10,8 @@ What float32 costs, and where it stops (:func:`virtual.engine.gonio_kernel_for` 
 direction carries a relative error of a few 1e-7 and each survival test a few 1e-7 of its
 probability -- far below what any count of rays can detect, but not nothing. So only
 well-conditioned specimens take this path (GGX-like roughness >= :data:`MIN_ALPHA`, Phong
-exponents <= :data:`MAX_PHONG_EXPONENT`); the bin of each computed direction is exact (a guess
-with margins, the float64 :func:`~virtual.kernels.collector.patch_of` near an edge).
+exponents <= :data:`MAX_PHONG_EXPONENT`, the same lobe width); the bin of each computed direction
+is exact (a guess with margins, the float64 :func:`~virtual.kernels.collector.patch_of` near an edge).
 """
 
 from __future__ import annotations
@@ -43,8 +43,10 @@ _HUGE2 = F(1e30)    # |v|^2 above: may overflow -> exact lookup
 
 #: Smallest roughness (alpha) the float32 path takes: a lobe of width ~alpha spans >= 1e5 float32 ulps.
 MIN_ALPHA = 0.01
-#: Largest Phong exponent the float32 path takes (its lobe's 1 - cos(alpha) stays >= 1e-4 typically).
-MAX_PHONG_EXPONENT = 1000.0
+#: Largest Phong exponent the float32 path takes: the lobe as narrow as GGX's at MIN_ALPHA (n = 2/alpha^2,
+#: width sqrt(2/(n+1)) = alpha). Its 1 - cos(alpha) is computed to a relative 3e-7 at any n
+#: (:func:`~virtual.kernels.given32.phong_lobe_omc32`), not as 1 - cos, which float32 cannot resolve.
+MAX_PHONG_EXPONENT = 2.0 / MIN_ALPHA ** 2
 
 # sin and cos of x in [-pi/4, pi/4]: Taylor to x^7 and x^8, truncation below 4e-9 (float32 ulp 6e-8)
 _S3, _S5, _S7 = F(-1.0 / 6.0), F(1.0 / 120.0), F(-1.0 / 5040.0)
