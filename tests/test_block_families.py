@@ -45,7 +45,7 @@ PERTURBED = [
 
 @pytest.mark.parametrize("spec, beam, theta", CASES)
 def test_block_and_ray_kernels_agree_for_the_four_uniform_families(spec, beam, theta):
-    assert gonio_kernel_for(parse_specimen(spec).model, beam.disk_code, "block") == "block"  # still available
+    assert gonio_kernel_for(parse_specimen(spec).model, beam.disk_code, "block") == "block"  # float64 still available
     a = _gonio(spec, beam, COL, N, 31, "block", theta=theta)
     b = _gonio(spec, beam, COL, N, 32, "ray", theta=theta)
     assert a.sum() == b.sum() == N

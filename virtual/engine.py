@@ -38,7 +38,7 @@ import numpy as np
 from virtual.collector import guess_margins, guess_margins32
 from virtual.kernels.beam import BEAM_CONICAL
 from virtual.kernels.block32 import BLOCK32_MODELS, gonio_block32_kernel
-from virtual.kernels.f32 import MAX_PHONG_EXPONENT, MIN_ALPHA
+from virtual.kernels.f32 import MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA
 from virtual.kernels.beam import DISK_REJECTION
 from virtual.kernels.engine import (BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS, gonio_block_kernel,  # noqa: F401
                                     ggx_spectral_kernel, gonio_kernel, lambert_spectral_kernel, spectro_kernel)
@@ -189,7 +189,8 @@ GONIO_KERNELS = ("auto", "block32", "block", "ray")
 
 def float32_suits(model: int, params: np.ndarray) -> bool:
     """Whether float32 resolves this specimen (:mod:`virtual.kernels.f32`): a model with a
-    float32 form, roughness >= ``MIN_ALPHA``, a Phong exponent <= ``MAX_PHONG_EXPONENT``, and
+    float32 form, roughness >= ``MIN_ALPHA``, a Phong exponent <= ``MAX_PHONG_EXPONENT``, a
+    dielectric index within ``MAX_ETA`` (``1/MAX_ETA <= eta <= MAX_ETA``), and
     every parameter finite and of moderate size (no float32 overflow in the Fresnel terms)."""
     p = np.asarray(params, dtype=np.float64)
     if int(model) not in BLOCK32_MODELS or not np.isfinite(p).all():
@@ -201,7 +202,7 @@ def float32_suits(model: int, params: np.ndarray) -> bool:
     if int(model) in (MODEL_GGX, MODEL_ANISO_GGX):
         return min(p[0], p[1]) >= MIN_ALPHA
     if int(model) in (MODEL_DIELECTRIC, MODEL_PLASTIC):
-        return p[0] >= MIN_ALPHA
+        return p[0] >= MIN_ALPHA and 1.0 / MAX_ETA <= p[1] <= MAX_ETA
     return True
 
 
@@ -247,7 +248,7 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
             p32[:p.size] = p
             out = gonio_block32_kernel(np.int64(model), p32, int(beam_kind) == BEAM_CONICAL, b.astype(np.float32),
                                        tuple(collector_args), guess_margins32(n_theta, n_phi), np.int64(n_bins), sizes,
-                                       lane_states32(seq, sizes.shape[0]))
+                                       lane_states32(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
         elif shape == "block":
             p4 = np.zeros(max(BLOCK_PARAMS, p.size))  # the block kernel reads six parameters whatever the model
             p4[:p.size] = p

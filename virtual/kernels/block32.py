@@ -17,17 +17,20 @@ from numba import prange
 
 from virtual.kernels import jit
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
-from virtual.kernels.f32 import emit_given32, guess_bin32
-from virtual.kernels.given import GIVEN4_UNIFORMS
+from virtual.kernels.f32 import ZERO, emit_given32, guess_bin32
+from virtual.kernels.given import GIVEN4_UNIFORMS, plastic_diffuse_redo
 from virtual.kernels.given32 import ggx_given32, lambert_given32, oren_nayar_given32, phong_given32, phong_lobe_omc32
+from virtual.kernels.given32_rough import DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_given32, plastic_given32
 from virtual.kernels.rng import LANES, fill_uniforms32
-from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG
+from virtual.kernels.scatter import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR,
+                                     MODEL_PHONG, MODEL_PLASTIC)
 
 __all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "gonio_block32_kernel"]
 
 #: Models with a float32 form (the others run the float64 block or ray-by-ray kernel).
-BLOCK32_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX, MODEL_PHONG, MODEL_OREN_NAYAR)
-#: Rays per block: 7 float32 uniforms and 6 float32 coordinates per ray stay in L1/L2.
+BLOCK32_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX, MODEL_PHONG, MODEL_OREN_NAYAR, MODEL_DIELECTRIC,
+                  MODEL_PLASTIC)
+#: Rays per block: up to 11 float32 uniforms and 6 float32 coordinates per ray stay in L1/L2.
 BLOCK32_RAYS = 1024
 _BEAM_UNIFORMS = 4
 
@@ -49,13 +52,20 @@ def _guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_
 
 
 @jit(fastmath=True, error_model="numpy")
-def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, hist):
+def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
     """One chunk: ``n_rays`` rays from the xoshiro128+ lanes ``lane`` (advanced in place) added
-    to ``hist``. Compiled on its own for the reasons given on the float64
+    to ``hist``; ``s`` is a scalar float64 xoshiro stream for the plastic's rare rejected
+    diffuse rays. Compiled on its own for the reasons given on the float64
     :func:`~virtual.kernels.engine.gonio_block_chunk`."""
     nb = BLOCK32_RAYS
     n_beam = _BEAM_UNIFORMS if conical else 0
-    n_scat = GIVEN4_UNIFORMS if (model == MODEL_PHONG or model == MODEL_OREN_NAYAR) else 3
+    n_scat = 3
+    if model == MODEL_PHONG or model == MODEL_OREN_NAYAR:
+        n_scat = GIVEN4_UNIFORMS
+    elif model == MODEL_DIELECTRIC:
+        n_scat = DIELECTRIC32_UNIFORMS
+    elif model == MODEL_PLASTIC:
+        n_scat = PLASTIC32_UNIFORMS
     ublock = np.empty(((n_beam + n_scat) * nb // LANES, LANES), dtype=np.float32)
     u = ublock.reshape(ublock.size)
     s0 = n_beam * nb
@@ -92,6 +102,27 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
                 vx[i], vy[i], vz[i], alive = oren_nayar_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
                                                                 u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
                 code[i] = 1 if (alive & hit) else (0 if hit else 2)
+        elif model == MODEL_DIELECTRIC:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = dielectric_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                                                                u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+                code[i] = 1 if (alive & hit) else (0 if hit else 2)  # survivor, absorbed, missed
+        elif model == MODEL_PLASTIC:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive, redo = plastic_given32(
+                    p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i],
+                    u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i])
+                code[i] = 1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2))  # 3: redo
+            eta = np.float64(p[1])
+            for i in range(m):  # the diffuse rays whose one attempt was rejected: the loop continues in float64
+                if code[i] == 3:
+                    ox, oy, oz = plastic_diffuse_redo(eta, s)
+                    vx[i] = ox
+                    vy[i] = oy
+                    vz[i] = oz if vz[i] > ZERO else -oz
+                    code[i] = 1
         else:
             for i in range(nb):
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
@@ -126,10 +157,11 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
 
 
 @jit(parallel=True)
-def gonio_block32_kernel(model, params, conical, beam_args, cargs, margins, n_bins, sizes, lanes):
+def gonio_block32_kernel(model, params, conical, beam_args, cargs, margins, n_bins, sizes, lanes, states):
     """Counts per chunk (rows summed by the caller), float32 ``params`` (6) and ``beam_args``
     (15), float32 ``margins`` (:func:`virtual.collector.guess_margins32`), uint32 ``lanes``
-    (:func:`virtual.rng.lane_states32`)."""
+    (:func:`virtual.rng.lane_states32`), uint64 ``states`` (:func:`virtual.rng.stream_states`:
+    the plastic's fallback streams)."""
     p = (params[0], params[1], params[2], params[3], params[4], params[5])
     b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
          beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
@@ -139,6 +171,6 @@ def gonio_block32_kernel(model, params, conical, beam_args, cargs, margins, n_bi
     for c in prange(n_chunks):
         hist = np.zeros(n_bins + 2, dtype=np.int64)
         gonio_block32_chunk(model, p, conical, b, cargs, margins[0], margins[1], n_bins, sizes[c], lanes[c].copy(),
-                            hist)
+                            states[c].copy(), hist)
         out[c] = hist
     return out

@@ -10,8 +10,9 @@ What float32 costs, and where it stops (:func:`virtual.engine.gonio_kernel_for` 
 direction carries a relative error of a few 1e-7 and each survival test a few 1e-7 of its
 probability -- far below what any count of rays can detect, but not nothing. So only
 well-conditioned specimens take this path (GGX-like roughness >= :data:`MIN_ALPHA`, Phong
-exponents <= :data:`MAX_PHONG_EXPONENT`, the same lobe width); the bin of each computed direction
-is exact (a guess with margins, the float64 :func:`~virtual.kernels.collector.patch_of` near an edge).
+exponents <= :data:`MAX_PHONG_EXPONENT`, the same lobe width, dielectric indices within
+:data:`MAX_ETA`); the bin of each computed direction is exact (a guess with margins, the float64
+:func:`~virtual.kernels.collector.patch_of` near an edge).
 """
 
 from __future__ import annotations
@@ -24,9 +25,9 @@ from numba import int32
 from virtual.kernels import jit
 from virtual.kernels.collector import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
 
-__all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "ATAN32_MAX_ERROR",
+__all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
            "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "guess_bin32",
-           "ggx_n32", "ggx_vndf_given32", "fresnel_conductor_ratio32", "fresnel_dielectric32", "frame32"]
+           "ggx_n32", "ggx_vndf_given32", "g2_over_g1_masked_ratio32", "fresnel_conductor_ratio32", "fresnel_dielectric32", "frame32"]
 
 F = np.float32
 ZERO = F(0.0)
@@ -47,6 +48,9 @@ MIN_ALPHA = 0.01
 #: width sqrt(2/(n+1)) = alpha). Its 1 - cos(alpha) is computed to a relative 3e-7 at any n
 #: (:func:`~virtual.kernels.given32.phong_lobe_omc32`), not as 1 - cos, which float32 cannot resolve.
 MAX_PHONG_EXPONENT = 2.0 / MIN_ALPHA ** 2
+#: Dielectric indices (rough dielectric, plastic coat) the float32 path takes: 1/MAX_ETA <= eta <= MAX_ETA,
+#: the specimens' declared range, where the Fresnel terms and the refracted direction stay well scaled.
+MAX_ETA = 10.0
 
 # sin and cos of x in [-pi/4, pi/4]: Taylor to x^7 and x^8, truncation below 4e-9 (float32 ulp 6e-8)
 _S3, _S5, _S7 = F(-1.0 / 6.0), F(1.0 / 120.0), F(-1.0 / 5040.0)
@@ -176,6 +180,14 @@ def ggx_vndf_given32(wx, wy, wz, ax, ay, inv_ni, ca, sa, r2):
     good = n2 > ZERO
     inv = ONE / math.sqrt(n2 if good else ONE)
     return (mx * inv if good else ZERO), (my * inv if good else ZERO), (hz * inv if good else ONE)
+
+
+@jit(inline="always")
+def g2_over_g1_masked_ratio32(wz, ni, oz, no, separable):
+    """:func:`~virtual.kernels.microfacet.g2_over_g1_masked_ratio` in float32: ``(num, den)``
+    (``separable`` 0 height-correlated, 1 separable Smith)."""
+    one_minus = ONE - separable
+    return one_minus * (wz + ni) * oz + separable * TWO * oz, one_minus * (ni * oz + no * wz) + separable * (oz + no)
 
 
 @jit(inline="always")

@@ -15,8 +15,8 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
-from virtual.kernels.f32 import (F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32, frame32, ggx_n32,
-                                 ggx_vndf_given32, sincos_2pi32, warp_cosine_hemisphere32)
+from virtual.kernels.f32 import (F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32, frame32, g2_over_g1_masked_ratio32,
+                                 ggx_n32, ggx_vndf_given32, sincos_2pi32, warp_cosine_hemisphere32)
 
 __all__ = ["lambert_given32", "ggx_given_parts32", "ggx_given32", "phong_lobe_omc32", "phong_given32",
            "oren_nayar_given32"]
@@ -52,10 +52,7 @@ def ggx_given_parts32(ax, ay, separable, wx, wy, wz, ca, sa, r2):
     ox = TWO * c * mx - wx
     oy = TWO * c * my - wy
     oz = TWO * c * mz - wz
-    no = ggx_n32(ox, oy, oz, ax, ay)
-    one_minus = ONE - separable
-    g_num = one_minus * (wz + ni) * oz + separable * TWO * oz
-    g_den = one_minus * (ni * oz + no * wz) + separable * (oz + no)
+    g_num, g_den = g2_over_g1_masked_ratio32(wz, ni, oz, ggx_n32(ox, oy, oz, ax, ay), separable)
     return ox, oy, (-oz if flip else oz), c, g_num, g_den, (wz > ZERO) & (oz > ZERO)
 
 

@@ -1,0 +1,87 @@
+"""Float32 forms of the rough dielectric and the rough plastic for the 16-lane block kernel
+(:mod:`virtual.kernels.block32`, issue 18).
+
+Each is its float64 given form (:func:`~virtual.kernels.given._dielectric_given`,
+:func:`~virtual.kernels.given.plastic_given`) with the same uniforms in the same roles, written
+with the float32 helpers of :mod:`virtual.kernels.f32` (the branch-free
+:func:`~virtual.kernels.f32.fresnel_dielectric32` among them): the same law of the outputs up to
+float32 rounding, tested against the float64 ray-by-ray kernel by two-sample chi-square
+(tests/test_block32_rough_families.py). Parameters ``p`` are a tuple of float32. The plastic's
+rare rejected diffuse rays are finished in float64 by
+:func:`~virtual.kernels.given.plastic_diffuse_redo`, as in the float64 block kernel.
+"""
+
+from __future__ import annotations
+
+from virtual.kernels import jit
+from virtual.kernels.f32 import (ONE, TWO, ZERO, fresnel_dielectric32, g2_over_g1_masked_ratio32, ggx_n32,
+                                 ggx_vndf_given32, sincos_2pi32, warp_cosine_hemisphere32)
+
+__all__ = ["DIELECTRIC32_UNIFORMS", "PLASTIC32_UNIFORMS", "dielectric_given32", "plastic_given32"]
+
+#: Uniforms :func:`dielectric_given32` consumes per ray.
+DIELECTRIC32_UNIFORMS = 4
+#: Uniforms :func:`plastic_given32` consumes per ray.
+PLASTIC32_UNIFORMS = 7
+
+
+@jit(inline="always")
+def dielectric_given32(p, wx, wy, wz, u0, u1, u2, u3):
+    """Rough dielectric (``p`` = alpha, eta, separable): the visible normal from (u1, u2),
+    reflection when u0 < F (else refraction; F = 1 on total internal reflection), surviving
+    with probability G2/G1 by u3. From below the relative index is 1/eta."""
+    a = p[0]
+    flip = wz < ZERO
+    wz = abs(wz)
+    er = ONE / p[1] if flip else p[1]
+    inv = p[1] if flip else ONE / p[1]
+    ni = ggx_n32(wx, wy, wz, a, a)
+    ca, sa = sincos_2pi32(u1)
+    mx, my, mz = ggx_vndf_given32(wx, wy, wz, a, a, ONE / ni, ca, sa, u2)
+    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    f, ct = fresnel_dielectric32(c, er)
+    refl = u0 < f
+    k = c * inv - ct
+    ox = TWO * c * mx - wx if refl else k * mx - wx * inv
+    oy = TWO * c * my - wy if refl else k * my - wy * inv
+    oz = TWO * c * mz - wz if refl else k * mz - wz * inv
+    az = oz if refl else -oz  # the cosine on the side the ray leaves to
+    g_num, g_den = g2_over_g1_masked_ratio32(wz, ni, az, ggx_n32(ox, oy, az, a, a), p[2])
+    alive = (wz > ZERO) & (az > ZERO) & (u3 * g_den < g_num)
+    return ox, oy, (-oz if flip else oz), alive
+
+
+@jit(inline="always")
+def plastic_given32(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
+    """Rough plastic (``p`` = alpha, eta, kd), two-sided, one attempt of the diffuse lobe's
+    rejection loop: ``(ox, oy, oz, alive, redo)``, ``redo`` marking a rejected diffuse ray
+    (``oz`` then only its side, +-1) whose direction the float64 ``plastic_diffuse_redo`` draws.
+    u0 < F: specular (visible normal from (u1, u2), G2/G1 by u3); else u0 - F < kd (1 - F) is
+    the diffuse survival; the attempt is Malley's direction from (u4, u5), kept when
+    u6 >= F(cos theta_o)."""
+    flip = wz < ZERO
+    wz = abs(wz)
+    a = p[0]
+    eta = p[1]
+    ni = ggx_n32(wx, wy, wz, a, a)
+    ca, sa = sincos_2pi32(u1)
+    mx, my, mz = ggx_vndf_given32(wx, wy, wz, a, a, ONE / ni, ca, sa, u2)
+    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    f, _ = fresnel_dielectric32(c, eta)
+    spec = u0 < f
+    sx = TWO * c * mx - wx
+    sy = TWO * c * my - wy
+    sz = TWO * c * mz - wz
+    g_num, g_den = g2_over_g1_masked_ratio32(wz, ni, sz, ggx_n32(sx, sy, sz, a, a), ZERO)
+    spec_ok = (sz > ZERO) & (u3 * g_den < g_num)
+    dx, dy, dz = warp_cosine_hemisphere32(u5, u4)
+    fo, _ = fresnel_dielectric32(dz, eta)
+    diffuse = (u0 >= f) & ((u0 - f) < p[2] * (ONE - f))
+    accepted = u6 >= fo
+    ox = sx if spec else dx
+    oy = sy if spec else dy
+    oz = sz if spec else (dz if accepted else ONE)
+    ok = wz > ZERO
+    alive = ok & ((spec & spec_ok) | (diffuse & accepted))
+    redo = ok & diffuse & (u6 < fo)
+    return ox, oy, (-oz if flip else oz), alive, redo
