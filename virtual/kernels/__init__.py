@@ -2,13 +2,18 @@
 
 Modules (each owns one kind of kernel; none holds Python-side objects):
 
-``rng``         xoshiro256+ streams advanced in place (scalar and 64 lanes side by side)
+``rng``         xoshiro256+ streams advanced in place (scalar and 64 lanes side by side), and
+                64 xoshiro128+ lanes of float32 uniforms
 ``sampling``    scalar warps of uniforms into points of disks, triangles, the hemisphere
 ``beam``        emitting one incident ray (collimated or conical beam)
 ``collector``   the exact and the vectorizable patch lookup of the collector sphere
 ``microfacet``  Fresnel factors, GGX visible normals, masking ratios, frames
 ``scatter``     the specimen model ids and the ``scatter`` dispatch, one branch per model
-``engine``      the bare counting kernels (ray by ray, and the vectorized block kernel)
+``engine``      the bare counting kernels (ray by ray, and the vectorized float64 block kernel)
+``f32``         float32 twins of the scalar helpers (warps, beam, bin guess, microfacet terms)
+``given32``     float32 forms of the specimens (Lambertian, GGX, Phong, Oren-Nayar)
+``given32_rough`` float32 forms of the rough dielectric and the rough plastic
+``block32``     the float32 block kernel (16 lanes per AVX-512 vector), the default fast path
 ``effects``     the counting kernels with a scene's per-ray effects, float32 lookup, given points
 
 The cache policy: decorate with :func:`jit` (never ``numba.njit(cache=True)``). numba's own
