@@ -203,3 +203,26 @@ def test_fresnel_bounds_bracket_the_fresnel_factor():
     assert worst(c, etas, ks, lo, hi) <= 0.0
     # and the bounds are tight enough to decide almost every ray without the exact factor
     assert np.median(hi[:, :len(etas)] - lo[:, :len(etas)]) < 1e-3
+
+
+def test_narrow_ggx_lobes_keep_the_float64_batch(monkeypatch):
+    """alpha < MIN_ALPHA at some wavelength's parameters: float32 does not suit, the float64 batch runs
+    (still each row with the single-wavelength distribution, here the float64 block kernel's)."""
+    calls = _counting(monkeypatch, "ggx_spectral_kernel")
+    rows = [(0.005, 0.005, 0.2, 3.0), (0.005, 0.005, 1.5, 0.0)]
+    many = _ggx_spectral(rows, Beam("conical"), 35.0, 8)
+    assert calls and (many.sum(axis=1) == N).all()
+    for w, p in enumerate(rows):
+        assert _two_sample_p(many[w], _ggx_single(p, Beam("conical"), 35.0, 60 + w)) > 1e-3, w
+
+
+def test_float32_ggx_batch_does_not_depend_on_the_thread_count():
+    n, before = 3 * (1 << 20) + 9, numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = _ggx_spectral(GGX32_ROWS, Beam("conical"), 35.0, 4, n=n)
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        many = _ggx_spectral(GGX32_ROWS, Beam("conical"), 35.0, 4, n=n)
+    finally:
+        numba.set_num_threads(before)
+    np.testing.assert_array_equal(one, many)
