@@ -35,7 +35,7 @@ from numba import prange
 from benchmarks.common import best_of, numpy_uniform_rate, table
 from virtual.beam import Beam
 from virtual.collector import Collector
-from virtual.engine import gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
+from virtual.engine import float32_suits, gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.kernels import jit
 from virtual.rng import LANES, fill_uniforms, lane_states, next_double, stream_states
@@ -227,35 +227,32 @@ SPECTRAL_W = 31
 
 
 def spectral_rows(n: int = N_RAYS, w: int = SPECTRAL_W) -> list[dict]:
-    """A Lambertian with a spectral albedo at ``w`` wavelengths in one batched measurement
-    (:func:`virtual.engine.gonio_counts_spectral`), and the same at one wavelength; the target
-    is ``w`` wavelengths in <= 3x the time of one single-wavelength measurement."""
+    """A Lambertian with a spectral albedo and a GGX conductor with a spectral (eta, k), each at
+    ``w`` wavelengths in one batched measurement (:func:`virtual.engine.gonio_counts_spectral`),
+    and each batch's first wavelength alone by the kernel ``gonio_counts`` picks for it; the
+    target is ``w`` wavelengths in <= 3x the time of one single-wavelength measurement."""
     args, cargs = BEAM.kernel_args(30.0, 0.0), COLLECTOR.kernel_args()
-    rows_w = [np.array([0.2 + 0.6 * k / max(w - 1, 1), 0.0]) for k in range(w)]
+    cases = (("lambert", 0, [np.array([0.2 + 0.6 * k / max(w - 1, 1), 0.0]) for k in range(w)]),
+             # GGX alpha 0.2 with a spectral conductor Fresnel (eta, k per wavelength)
+             ("ggx", 3, [np.array([0.2, 0.2, 0.2 + 0.05 * k, 3.0 - 0.03 * k]) for k in range(w)]))
+    rows = []
+    for family, model, params in cases:
+        precision = "float32" if all(float32_suits(model, p) for p in params) else "float64"
 
-    def batched() -> object:
-        return gonio_counts_spectral(0, rows_w, BEAM.code, BEAM.disk_code, args, cargs, n, measurement_seed(1))
+        def batched() -> object:
+            return gonio_counts_spectral(model, params, BEAM.code, BEAM.disk_code, args, cargs, n, measurement_seed(1))
 
-    gonio_counts_spectral(0, rows_w, BEAM.code, BEAM.disk_code, args, cargs, 1000, measurement_seed(1))
-    seconds, out = best_of(batched, 2)
-    assert out.shape[0] == w and (out.sum(axis=1) == n).all()
-    rows = [_row(f"ours-lambert-{w}wl", "lambert", f"block, spectral batch of {w}", seconds, n)]
-    # GGX alpha 0.2 with a spectral conductor Fresnel (eta, k per wavelength)
-    ggx_w = [np.array([0.2, 0.2, 0.2 + 0.05 * k, 3.0 - 0.03 * k]) for k in range(w)]
+        def single() -> object:  # the batch's first wavelength alone, for the ratio
+            return gonio_counts(model, params[0], BEAM.code, BEAM.disk_code, args, cargs, n, measurement_seed(1))
 
-    def batched_ggx() -> object:
-        return gonio_counts_spectral(3, ggx_w, BEAM.code, BEAM.disk_code, args, cargs, n, measurement_seed(1))
-
-    gonio_counts_spectral(3, ggx_w, BEAM.code, BEAM.disk_code, args, cargs, 1000, measurement_seed(1))
-    seconds, out = best_of(batched_ggx, 2)
-    assert out.shape[0] == w and (out.sum(axis=1) == n).all()
-    rows.append(_row(f"ours-ggx-{w}wl", "ggx", f"block, spectral batch of {w}", seconds, n))
-
-    def single_ggx() -> object:  # the batch's first wavelength alone, for the ratio
-        return gonio_counts(3, ggx_w[0], BEAM.code, BEAM.disk_code, args, cargs, n, measurement_seed(1))
-
-    seconds, _ = best_of(single_ggx, 2)
-    rows.append(_row("ours-ggx-conductor-1wl", "ggx", "block", seconds, n))
+        gonio_counts_spectral(model, params, BEAM.code, BEAM.disk_code, args, cargs, 1000, measurement_seed(1))
+        seconds, out = best_of(batched, 2)
+        assert out.shape[0] == w and (out.sum(axis=1) == n).all()
+        rows.append(_row(f"ours-{family}-{w}wl", family, f"block {precision}, spectral batch of {w}", seconds, n))
+        kernel = gonio_kernel_for(model, BEAM.disk_code, params=params[0])
+        gonio_counts(model, params[0], BEAM.code, BEAM.disk_code, args, cargs, 1000, measurement_seed(1))
+        seconds, _ = best_of(single, 2)
+        rows.append(_row(f"ours-{family}-1wl", family, "block float32" if kernel == "block32" else kernel, seconds, n))
     return rows
 
 
@@ -300,8 +297,8 @@ def ratios(rows: list[dict]) -> dict[str, float]:
     for r in rows:  # without the anchor only: one noisy row would move them all
         if r["name"] in [f"ours-{f}" for f in FAMILY_SPECS if f != "lambert"] and lam and not (mg and md):
             out[f"{r['specimen']} / lambert"] = r["rays_per_s"] / lam
-    for fam, single in (("lambert", "ours-lambert"), ("ggx", "ours-ggx-conductor-1wl")):
-        spec, one = by.get(f"ours-{fam}-{SPECTRAL_W}wl"), by.get(single)
+    for fam in ("lambert", "ggx"):
+        spec, one = by.get(f"ours-{fam}-{SPECTRAL_W}wl"), by.get(f"ours-{fam}-1wl")
         if spec and one:  # time of one wavelength / time of W: >= 1/3 meets the target
             out[f"{fam} 1 wavelength time / {SPECTRAL_W} wavelengths time"] = spec / one
     wave = by.get("ours-mitsuba-specimen-wavefront")
@@ -332,13 +329,13 @@ def _anchor_table(m: dict) -> str:
         x_anchor = rate / a if a and r["name"].startswith("ours-") else "-"
         target = "-"
         if r["name"] in (f"ours-lambert-{SPECTRAL_W}wl", f"ours-ggx-{SPECTRAL_W}wl"):
-            lam = by["ours-lambert" if r["specimen"] == "lambert" else "ours-ggx-conductor-1wl"]["rays_per_s"]
+            lam = by[f"ours-{r['specimen']}-1wl"]["rays_per_s"]
             target = f"{lam / rate:.2f}x one wavelength's time: {'yes' if rate * 3 >= lam else 'NO'} (<= 3x)"
             x_anchor = "-"
         elif r["name"].startswith("ours-mitsuba-specimen"):
             target = ("yes" if rate >= 1e7 else "NO") + " (>= 1e7)" if "wavefront" in r["name"] else "-"
             x_anchor = "-"
-        elif r["name"] == "ours-ggx-conductor-1wl":
+        elif r["name"] in ("ours-lambert-1wl", "ours-ggx-1wl"):
             target, x_anchor = "- (the 31-wavelength row's reference)", "-"
         elif r["name"].startswith("ours-"):
             ok = rate >= 1e8 and (mg is None or rate >= mg)

@@ -116,3 +116,113 @@ def test_ggx_with_a_spectral_roughness_falls_back_to_one_measurement_per_wavelen
         np.testing.assert_array_equal(many[w], gonio_counts(
             MODEL_GGX, np.array(p), Beam("conical").code, Beam("conical").disk_code,
             Beam("conical").kernel_args(35.0, 20.0), COL.kernel_args(), 10_000, measurement_seed(3)))
+
+
+# --- the float32 batches (virtual.kernels.spectral32), against the float64 ray-by-ray kernel --------------------
+# Same two-sample chi-square, p > 1e-3 per comparison (false alarm 1e-3 each, fixed seeds); power: a perturbed
+# parameter gives p < 1e-6. GGX rows: conductors, a dielectric and total internal reflection (eta < 1, k = 0).
+GGX32_ROWS = [(0.2, 0.2, 0.2, 3.0), (0.2, 0.2, 1.5, 0.0), (0.2, 0.2, 0.6, 0.0), (0.2, 0.2, 2.5, 8.0)]
+
+
+def _ray(model, p, beam, theta, seed):
+    return gonio_counts(model, np.array(p), beam.code, beam.disk_code, beam.kernel_args(theta, 20.0),
+                        COL.kernel_args(), N, measurement_seed(seed), kernel="ray")
+
+
+def _counting(monkeypatch, name):
+    """Count the calls of ``virtual.engine.<name>`` (to know which batch ran)."""
+    import virtual.engine as eng
+
+    calls, fn = [], getattr(eng, name)
+    monkeypatch.setattr(eng, name, lambda *a: calls.append(1) or fn(*a))
+    return calls
+
+
+@pytest.mark.parametrize("beam, theta", [(Beam("conical"), 35.0), (Beam("collimated"), 150.0)])
+def test_float32_lambert_batch_matches_the_ray_kernel(monkeypatch, beam, theta):
+    calls = _counting(monkeypatch, "lambert_spectral32_kernel")
+    many = _spectral(RT, beam, theta, 5)
+    assert calls and (many.sum(axis=1) == N).all()
+    for w in (0, 2, 3):
+        assert _two_sample_p(many[w], _ray(MODEL_LAMBERT, RT[w], beam, theta, 40 + w)) > 1e-3, w
+
+
+@pytest.mark.parametrize("beam, theta", [(Beam("conical"), 35.0), (Beam("collimated"), 150.0)])
+def test_float32_ggx_batch_matches_the_ray_kernel(monkeypatch, beam, theta):
+    calls = _counting(monkeypatch, "ggx_spectral32_kernel")
+    many = _ggx_spectral(GGX32_ROWS, beam, theta, 6)
+    assert calls and (many.sum(axis=1) == N).all()
+    for w in range(len(GGX32_ROWS)):
+        assert _two_sample_p(many[w], _ray(MODEL_GGX, GGX32_ROWS[w], beam, theta, 50 + w)) > 1e-3, w
+
+
+def test_float32_batches_have_power_against_a_perturbed_parameter():
+    beam = Beam("conical")
+    many = _ggx_spectral(GGX32_ROWS, beam, 35.0, 6)
+    assert _two_sample_p(many[0], _ray(MODEL_GGX, (0.2, 0.2, 0.2, 3.3), beam, 35.0, 50)) < 1e-6
+    assert _two_sample_p(many[2], _ray(MODEL_GGX, (0.2, 0.2, 0.66, 0.0), beam, 35.0, 52)) < 1e-6
+    lam = _spectral(RT, beam, 35.0, 5)
+    assert _two_sample_p(lam[0], _ray(MODEL_LAMBERT, (0.62, 0.3), beam, 35.0, 40)) < 1e-6
+
+
+def test_fresnel_bounds_bracket_the_fresnel_factor():
+    """lo <= F(c) <= hi (F in float64 and in float32) at 10^6 random c and at every cell edge, the
+    critical angle of total internal reflection and the ends, for extreme (eta, k)."""
+    from numba import int32
+
+    from virtual.kernels import jit
+    from virtual.kernels.f32 import fresnel_conductor_ratio32
+    from virtual.kernels.microfacet import fresnel_conductor_ratio
+    from virtual.kernels.spectral32 import FRESNEL_CELLS, FRESNEL_SAMPLES, fresnel_bounds
+
+    @jit
+    def worst(c32, etas, ks, lo, hi):  # the largest violation of either bound (<= 0 when all hold)
+        n = np.float32(lo.shape[0])
+        out = -1.0
+        for i in range(c32.shape[0]):
+            j = min(int32(c32[i] * n), int32(lo.shape[0] - 1))
+            for w in range(etas.shape[0]):
+                a, b = fresnel_conductor_ratio(np.float64(c32[i]), etas[w], ks[w])
+                a32, b32 = fresnel_conductor_ratio32(c32[i], np.float32(etas[w]), np.float32(ks[w]))
+                if b > 0.0 and b32 > 0.0:  # 0/0 only at c = 0 with eta = 1, k = 0 (no interface, no ray)
+                    for f in (a / b, np.float64(a32 / b32)):
+                        out = max(out, lo[j, w] - f, f - hi[j, w])
+        return out
+
+    etas = np.array([0.2, 0.2, 0.5, 0.9, 0.99, 1.0, 1.01, 1.5, 3.0, 3.0, 0.2, 1.0])
+    ks = np.array([0.0, 10.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 10.0, 3.0, 1e-3])
+    etas, ks = etas.astype(np.float32).astype(np.float64), ks.astype(np.float32).astype(np.float64)
+    lo, hi = fresnel_bounds(etas, ks, FRESNEL_CELLS, FRESNEL_SAMPLES, 16)
+    assert (lo <= hi).all() and (lo[:, len(etas):] == 0).all() and (hi[:, len(etas):] == 0).all()
+    rng = np.random.default_rng(7)
+    edges = np.arange(FRESNEL_CELLS + 1) / FRESNEL_CELLS
+    crit = np.sqrt(1.0 - etas[etas < 1.0] ** 2)  # total internal reflection below these cosines (k = 0)
+    special = np.concatenate([edges, crit, [0.0, 1.0, 1e-7, 1.0 - 1e-7]]).astype(np.float32)
+    near = np.concatenate([np.nextafter(special, np.float32(-1)), special, np.nextafter(special, np.float32(2))])
+    c = np.concatenate([rng.random(1_000_000, dtype=np.float32), np.clip(near, 0, np.float32(1.0000001))])
+    assert worst(c, etas, ks, lo, hi) <= 0.0
+    # and the bounds are tight enough to decide almost every ray without the exact factor
+    assert np.median(hi[:, :len(etas)] - lo[:, :len(etas)]) < 1e-3
+
+
+def test_narrow_ggx_lobes_keep_the_float64_batch(monkeypatch):
+    """alpha < MIN_ALPHA at some wavelength's parameters: float32 does not suit, the float64 batch runs
+    (still each row with the single-wavelength distribution, here the float64 block kernel's)."""
+    calls = _counting(monkeypatch, "ggx_spectral_kernel")
+    rows = [(0.005, 0.005, 0.2, 3.0), (0.005, 0.005, 1.5, 0.0)]
+    many = _ggx_spectral(rows, Beam("conical"), 35.0, 8)
+    assert calls and (many.sum(axis=1) == N).all()
+    for w, p in enumerate(rows):
+        assert _two_sample_p(many[w], _ggx_single(p, Beam("conical"), 35.0, 60 + w)) > 1e-3, w
+
+
+def test_float32_ggx_batch_does_not_depend_on_the_thread_count():
+    n, before = 3 * (1 << 20) + 9, numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = _ggx_spectral(GGX32_ROWS, Beam("conical"), 35.0, 4, n=n)
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        many = _ggx_spectral(GGX32_ROWS, Beam("conical"), 35.0, 4, n=n)
+    finally:
+        numba.set_num_threads(before)
+    np.testing.assert_array_equal(one, many)

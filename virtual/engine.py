@@ -42,6 +42,8 @@ from virtual.kernels.f32 import MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA
 from virtual.kernels.beam import DISK_REJECTION
 from virtual.kernels.engine import (BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS, gonio_block_kernel,  # noqa: F401
                                     ggx_spectral_kernel, gonio_kernel, lambert_spectral_kernel, spectro_kernel)
+from virtual.kernels.spectral32 import (FRESNEL_CELLS, FRESNEL_SAMPLES, fresnel_bounds, ggx_spectral32_kernel,
+                                        lambert_spectral32_kernel)
 from virtual.kernels.scatter import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG,
                                      MODEL_PLASTIC)
 from virtual.rng import lane_states, lane_states32, stream_states
@@ -291,6 +293,12 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     alone exactly the single-wavelength kernel's test on the same kind of draw. Its thresholds
     vary per ray, so it costs one Fresnel factor and one count per wavelength and surviving ray.
 
+    When :func:`float32_suits` every wavelength's parameters (so that ``gonio_counts`` would run
+    the float32 block kernel), both batches run in float32 (:mod:`virtual.kernels.spectral32`):
+    the Lambertian's thresholds rounded as the float32 kernel rounds them, the GGX's Fresnel
+    factors bracketed by a per-wavelength table of bounds over cos(theta_m) and computed exactly
+    only between them -- the same decisions, at a fraction of the cost per wavelength.
+
     Other models (or a roughness varying with the wavelength: the direction would depend on
     it) fall back to one :func:`gonio_counts` per wavelength with the same ``seq`` (the same
     rays where the kernels allow).
@@ -302,8 +310,9 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     n_patches = n_theta * n_phi
     n_bins = 2 * n_patches
     ggx = int(model) in (MODEL_GGX, MODEL_ANISO_GGX) and all(p[0] == rows[0][0] and p[1] == rows[0][1] for p in rows)
+    f32 = all(float32_suits(model, p) for p in rows)  # the float32 batch where gonio_counts runs block32
     if ggx and gonio_kernel_for(model, disk) == "block":
-        return _ggx_spectral(rows, beam_kind, beam_args, collector_args, n_rays, seq)
+        return (_ggx_spectral32 if f32 else _ggx_spectral)(rows, beam_kind, beam_args, collector_args, n_rays, seq)
     if int(model) != MODEL_LAMBERT or gonio_kernel_for(model, disk) != "block":
         def same(q: np.random.SeedSequence) -> np.random.SeedSequence:  # spawning advances a SeedSequence
             return np.random.SeedSequence(q.entropy, spawn_key=q.spawn_key, pool_size=q.pool_size,
@@ -311,21 +320,35 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
 
         return np.stack([gonio_counts(model, p, beam_kind, disk, beam_args, collector_args, n_rays, same(seq))
                          for p in rows])
-    r = np.array([p[0] for p in rows])
-    rt = np.minimum(r + np.array([p[1] for p in rows]), 1.0)
+    if f32:  # thresholds rounded as lambert_given32 rounds them (u0 < R, u0 < R + T in float32)
+        r32 = np.array([p[0] for p in rows], dtype=np.float32)
+        r, rt = r32.astype(np.float64), (r32 + np.array([p[1] for p in rows], dtype=np.float32)).astype(np.float64)
+    else:
+        r = np.array([p[0] for p in rows])
+        rt = np.minimum(r + np.array([p[1] for p in rows]), 1.0)
     thr = np.unique(np.concatenate([r, rt]))
     sizes = chunking(n_rays)
-    lanes = lane_states(seq, sizes.shape[0])
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
-    margins = guess_margins(n_theta, n_phi)
     cells = np.zeros((thr.size + 1, n_patches), dtype=np.int64)
     missed = 0
     with single_chunk_threads(n_rays):
+        if f32:
+            lanes = lane_states32(seq, sizes.shape[0])
+            margins = guess_margins32(n_theta, n_phi)
+        else:
+            lanes = lane_states(seq, sizes.shape[0])
+            margins = guess_margins(n_theta, n_phi)
         for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
             sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
-            c, m = lambert_spectral_kernel(thr, np.int64(beam_kind), b, tuple(collector_args), margins,
-                                           np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
-                                           np.ascontiguousarray(lanes[sl]))
+            if f32:
+                c, m = lambert_spectral32_kernel(thr.astype(np.float32), int(beam_kind) == BEAM_CONICAL,
+                                                 b.astype(np.float32), tuple(collector_args), margins,
+                                                 np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
+                                                 np.ascontiguousarray(lanes[sl]))
+            else:
+                c, m = lambert_spectral_kernel(thr, np.int64(beam_kind), b, tuple(collector_args), margins,
+                                               np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
+                                               np.ascontiguousarray(lanes[sl]))
             cells += c
             missed += int(m)
     # each cell's fate per wavelength, judged at the cell's lower end (a value u0 takes in it)
@@ -366,6 +389,37 @@ def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray,
                                        tuple(collector_args), margins, np.int64(n_bins),
                                        np.ascontiguousarray(sizes[sl]), np.ascontiguousarray(lanes[sl]))
             out[:, :n_bins] += h.T
+            hits += int(t[0])
+    out[:, n_bins] = hits - out[:, :n_bins].sum(axis=1)
+    out[:, n_bins + 1] = int(n_rays) - hits
+    return out
+
+
+def _ggx_spectral32(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray, collector_args: tuple,
+                    n_rays: int, seq: np.random.SeedSequence) -> np.ndarray:
+    """:func:`_ggx_spectral` in float32 (:func:`~virtual.kernels.spectral32.ggx_spectral32_kernel`):
+    for specimens :func:`float32_suits` at every wavelength, the law of ``gonio_counts``'s block32."""
+    n_theta, n_phi = int(collector_args[1]), int(collector_args[2])
+    n_bins = 2 * n_theta * n_phi
+    etas = np.array([p[2] for p in rows], dtype=np.float32)
+    ks = np.array([p[3] for p in rows], dtype=np.float32)
+    wp = -(-len(rows) // 16) * 16  # whole 16-lane vectors per ray
+    lo, hi = fresnel_bounds(etas.astype(np.float64), ks.astype(np.float64), FRESNEL_CELLS, FRESNEL_SAMPLES, wp)
+    separable = float(rows[0][4]) if len(rows[0]) > 4 else 0.0
+    p = np.array([rows[0][0], rows[0][1], separable], dtype=np.float32)
+    sizes = chunking(n_rays)
+    lanes = lane_states32(seq, sizes.shape[0])
+    b = np.ascontiguousarray(beam_args, dtype=np.float32)
+    margins = guess_margins32(n_theta, n_phi)
+    out = np.zeros((len(rows), n_bins + 2), dtype=np.int64)
+    hits = 0
+    with single_chunk_threads(n_rays):
+        for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
+            sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
+            h, t = ggx_spectral32_kernel(p, etas, ks, lo, hi, int(beam_kind) == BEAM_CONICAL, b, tuple(collector_args),
+                                         margins, np.int64(n_bins), np.ascontiguousarray(sizes[sl]),
+                                         np.ascontiguousarray(lanes[sl]))
+            out[:, :n_bins] += h[:, :len(rows)].T
             hits += int(t[0])
     out[:, n_bins] = hits - out[:, :n_bins].sum(axis=1)
     out[:, n_bins + 1] = int(n_rays) - hits

@@ -36,7 +36,7 @@ _BEAM_UNIFORMS = 4
 
 
 @jit(inline="always")
-def _guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_margin):
+def guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_margin):
     """``code[i] = guess_bin32(...)`` for i < n, one loop per scheme (the scheme a constant in
     each, so each vectorizes)."""
     if scheme == SCHEME_EQUAL_PSA:
@@ -142,7 +142,7 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
             n_missed += k == 2
         n_dead[0] += n_absorbed
         n_dead[1] += n_missed
-        _guess_bins32(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
+        guess_bins32(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
         for i in range(j):
             k = code[i]
             if k < 0:  # near an edge, the pole or the horizon: the exact float64 lookup
