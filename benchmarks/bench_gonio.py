@@ -7,13 +7,15 @@ Measured in one run on this machine:
   Dr.Jit's LLVM back end (:mod:`benchmarks.mitsuba_anchor`; rows ``mitsuba-llvm-ggx`` and
   ``mitsuba-llvm-diffuse``, "not available" without a libLLVM), and every native specimen
   family by the kernel ``gonio_counts`` picks for it, as rays/s and as ratios to the anchor;
-
+* what each kernel shape buys, per family: ray-by-ray (float64), block (float64) and block32
+  (float32 lanes), in rays/s;
 * rays/s of a 10^8-ray, 900-patch (30 x 30 equal-PSA) measurement, conical incidence, for a
-  Lambertian and a GGX specimen (target >= 1e8 rays/s), by the block kernel (the default) and by
-  the ray-by-ray kernel;
+  Lambertian and a GGX specimen (target >= 1e8 rays/s), by the kernel picked (the float32 block
+  kernel) and by the ray-by-ray kernel;
 * the same Lambertian measurement written in plain vectorized numpy (float64), as a ratio;
 * the raw random-number throughput each kernel needs (its own generator alone on all threads:
-  64 xoshiro lanes for the block kernel, one xoshiro stream per chunk for the ray-by-ray one;
+  64 xoshiro lanes for the block kernels (xoshiro128+ float32, xoshiro256+ float64), one xoshiro
+  stream per chunk for the ray-by-ray one;
   numpy's PCG64 for reference), as the limit ratio;
 * Mitsuba 3's scalar ``bsdf.sample`` in a Python loop, for scale;
 * the exact fast path for a 10^8-ray-equivalent measurement: first (quadrature of 900 patches +
@@ -38,7 +40,8 @@ from virtual.collector import Collector
 from virtual.engine import float32_suits, gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.kernels import jit
-from virtual.rng import LANES, fill_uniforms, lane_states, next_double, stream_states
+from virtual.kernels.rng import fill_uniforms32
+from virtual.rng import LANES, fill_uniforms, lane_states, lane_states32, next_double, stream_states
 from virtual.specimens import parse_specimen
 
 N_RAYS = 100_000_000
@@ -68,6 +71,24 @@ def _lane_fill(lane, rows, reps):
     return acc
 
 
+@jit
+def _lane_fill32(lane, rows, reps):
+    out = np.empty((rows, lane.shape[1]), dtype=np.float32)
+    acc = 0.0
+    for _ in range(reps):
+        fill_uniforms32(lane, out)
+        acc += out[0, 0]
+    return acc
+
+
+@jit(parallel=True)
+def _lane32_rate_kernel(lanes, rows, reps):
+    acc = np.zeros(lanes.shape[0])
+    for c in prange(lanes.shape[0]):
+        acc[c] = _lane_fill32(lanes[c].copy(), rows, reps)
+    return acc.sum()
+
+
 @jit(parallel=True)
 def _lane_rate_kernel(lanes, rows, reps):
     acc = np.zeros(lanes.shape[0])
@@ -77,6 +98,7 @@ def _lane_rate_kernel(lanes, rows, reps):
 
 
 def _kernel_rate(spec: str, kernel: str = "auto", n: int = N_RAYS) -> float:
+    """rays/s of ``gonio_counts`` for ``spec`` by ``kernel`` (best of 2, after a compiling call)."""
     sp = parse_specimen(spec)
     args = BEAM.kernel_args(30.0, 0.0)
 
@@ -219,7 +241,8 @@ def native_rows(n: int = N_RAYS, families: dict[str, str] = FAMILY_SPECS) -> lis
     for family, spec in families.items():
         sp = parse_specimen(spec)
         rate = _kernel_rate(spec, n=n)
-        rows.append(_row(f"ours-{family}", family, gonio_kernel_for(sp.model, BEAM.disk_code), n / rate, n))
+        kernel = gonio_kernel_for(sp.model, BEAM.disk_code, params=sp.params(550.0))
+        rows.append(_row(f"ours-{family}", family, kernel, n / rate, n))
     return rows
 
 
@@ -352,8 +375,32 @@ def run() -> str:
     m = measure()
     by = {r["name"]: r["rays_per_s"] for r in m["rows"]}
     threads = m["threads"]
-    out = _anchor_table(m) + "\n\n" + _details(threads, by["ours-lambert"], by["ours-ggx"])
+    out = (_anchor_table(m) + "\n\n" + _ablation_table(threads) + "\n\n"
+           + _details(threads, by["ours-lambert"], by["ours-ggx"]))
     return out
+
+
+def kernel_ablation(n: int = N_RAYS, n_ray: int = 20_000_000) -> list[list]:
+    """What each kernel shape buys, per family: the ray-by-ray kernel (float64), the float64 block
+    kernel and the float32 block kernel where the family has one, in rays/s."""
+    out = []
+    for family, spec in FAMILY_SPECS.items():
+        sp = parse_specimen(spec)
+        ray = _kernel_rate(spec, "ray", n_ray)
+        block = _kernel_rate(spec, "block", n)
+        try:
+            b32: float | str = _kernel_rate(spec, "block32", n)
+        except ValueError:
+            b32 = "-"
+        auto = gonio_kernel_for(sp.model, BEAM.disk_code, params=sp.params(550.0))
+        out.append([family, ray, block, b32, block / ray, (b32 / block) if isinstance(b32, float) else "-", auto])
+    return out
+
+
+def _ablation_table(threads: int) -> str:
+    return table(f"What each kernel shape buys: 1e8 rays (ray-by-ray: 2e7), 900 patches, conical beam, {threads} threads",
+                 ["family", "ray (f64)", "block (f64)", "block32 (f32)", "block/ray", "block32/block", "auto picks"],
+                 kernel_ablation())
 
 
 def _details(threads: int, lam: float, ggx_b: float) -> str:
@@ -371,6 +418,10 @@ def _details(threads: int, lam: float, ggx_b: float) -> str:
     _lane_rate_kernel(lanes, rows, 1)
     t_l, _ = best_of(lambda: _lane_rate_kernel(lanes, rows, reps), 3)
     limit_lanes = lanes.shape[0] * rows * LANES * reps / t_l / k_block
+    lanes32 = lane_states32(1, 4 * threads)
+    _lane32_rate_kernel(lanes32, rows, 1)
+    t_l32, _ = best_of(lambda: _lane32_rate_kernel(lanes32, rows, reps), 3)
+    limit_lanes32 = lanes32.shape[0] * rows * LANES * reps / t_l32 / k_block
     states = stream_states(1, 64)
     _xoshiro_rate_kernel(states, 10)
     t_x, _ = best_of(lambda: _xoshiro_rate_kernel(states, 2_000_000), 2)
@@ -384,19 +435,21 @@ def _details(threads: int, lam: float, ggx_b: float) -> str:
         return "yes" if v >= 1e8 else "NO"
 
     rows_ = [
-        ["block kernel, Lambertian", lam, lam / base, lam / limit_lanes, target(lam)],
-        ["block kernel, GGX alpha 0.2", ggx_b, ggx_b / base, ggx_b / limit_lanes, target(ggx_b)],
+        ["float32 block kernel, Lambertian", lam, lam / base, lam / limit_lanes32, target(lam)],
+        ["float32 block kernel, GGX alpha 0.2", ggx_b, ggx_b / base, ggx_b / limit_lanes32, target(ggx_b)],
         ["ray-by-ray kernel, Lambertian", lam_r, lam_r / base, lam_r / limit_xoshiro, "-"],
         ["ray-by-ray kernel, GGX alpha 0.2", ggx_r, ggx_r / base, ggx_r / limit_xoshiro, "-"],
         ["numpy float64 baseline, Lambertian", base, 1.0, base / limit_numpy, "-"],
-        [f"RNG limit: 64 xoshiro lanes, {k_block} uniforms/ray", limit_lanes, limit_lanes / base, 1.0, "-"],
+        [f"RNG limit: 64 xoshiro128+ lanes, float32, {k_block} uniforms/ray", limit_lanes32, limit_lanes32 / base, 1.0,
+         "-"],
+        [f"RNG limit: 64 xoshiro256+ lanes, float64, {k_block} uniforms/ray", limit_lanes, limit_lanes / base, 1.0, "-"],
         [f"RNG limit: scalar xoshiro, {k_ray:.2f} uniforms/ray", limit_xoshiro, limit_xoshiro / base, 1.0, "-"],
         [f"RNG limit: numpy PCG64, {k_block} uniforms/ray", limit_numpy, limit_numpy / base, 1.0, "-"],
     ]
     out = table(f"Virtual goniophotometer, 1e8 rays, 900 equal-PSA patches, conical beam, {threads} threads "
                 f"(target >= 1e8 rays/s)", ["what", "rays/s", "x numpy baseline", "x own RNG limit", ">= 1e8"],
                 rows_)
-    out += (f"\n  block / ray-by-ray: Lambertian {lam / lam_r:.1f}x, GGX {ggx_b / ggx_r:.1f}x; "
+    out += (f"\n  float32 block / ray-by-ray: Lambertian {lam / lam_r:.1f}x, GGX {ggx_b / ggx_r:.1f}x; "
             f"the numpy baseline is limited by its generator at {base / limit_numpy:.2f} of it")
     out += f"\nMitsuba 3 GGX bsdf.sample, scalar: {_mitsuba_rate()}"
     out += (f"\nExact fast path, 1e8-ray-equivalent, 900 patches: first {first * 1e3:.1f} ms (quadrature + "

@@ -123,25 +123,40 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
                     vy[i] = oy
                     vz[i] = oz if vz[i] > ZERO else -oz
                     code[i] = 1
-        else:
+        elif p[0] == p[1] and p[3] == ZERO and p[4] == ZERO:  # isotropic, height-correlated, k = 0
             for i in range(nb):
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
                 vx[i], vy[i], vz[i], alive = ggx_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
-                                                         u[s0 + 2 * nb + i])
-                code[i] = 1 if (alive & hit) else (0 if hit else 2)  # survivor, absorbed, missed
-        j = 0
-        n_absorbed = 0
+                                                         u[s0 + 2 * nb + i], True)
+                code[i] = 1 if (alive & hit) else (0 if hit else 2)
+        else:  # GGX, anisotropic GGX
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i], vy[i], vz[i], alive = ggx_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                                                         u[s0 + 2 * nb + i], False)
+                code[i] = 1 if (alive & hit) else (0 if hit else 2)
+        n_live = 0
         n_missed = 0
-        for i in range(m):  # compaction of the survivors, branch-free (every ray written, j advances for survivors)
+        for i in range(m):  # a vectorized tally first
             k = code[i]
-            cx[j] = vx[i]
-            cy[j] = vy[i]
-            cz[j] = vz[i]
-            j += k == 1
-            n_absorbed += k == 0
+            n_live += k == 1
             n_missed += k == 2
-        n_dead[0] += n_absorbed
+        n_dead[0] += m - n_live - n_missed
         n_dead[1] += n_missed
+        j = 0
+        if 4 * n_live < m:  # few survivors (a dark or a specular specimen): a branch, rarely taken
+            for i in range(m):
+                if code[i] == 1:
+                    cx[j] = vx[i]
+                    cy[j] = vy[i]
+                    cz[j] = vz[i]
+                    j += 1
+        else:  # many: branch-free (every ray written, j advances for survivors)
+            for i in range(m):
+                cx[j] = vx[i]
+                cy[j] = vy[i]
+                cz[j] = vz[i]
+                j += code[i] == 1
         guess_bins32(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
         for i in range(j):
             k = code[i]

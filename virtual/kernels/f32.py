@@ -191,16 +191,22 @@ def g2_over_g1_masked_ratio32(wz, ni, oz, no, separable):
 
 
 @jit(inline="always")
-def fresnel_conductor_ratio32(c, eta, k):
-    """:func:`~virtual.kernels.microfacet.fresnel_conductor_ratio` in float32: ``(num, den)``."""
+def fresnel_conductor_ratio32(c, eta, k, k_zero):
+    """:func:`~virtual.kernels.microfacet.fresnel_conductor_ratio` in float32: ``(num, den)``.
+    ``k_zero`` (a literal: the branch folds away) says k = 0, where a^2 + b^2 = |t0| and
+    a = sqrt(max(t0, 0)): one square root fewer."""
     c2 = c * c
     s2 = ONE - c2
     e2 = eta * eta
     k2 = k * k
     t0 = e2 - k2 - s2
-    a2b2 = math.sqrt(t0 * t0 + FOUR * e2 * k2)
+    if k_zero:
+        a2b2 = abs(t0)
+        a = math.sqrt(max(t0, ZERO))
+    else:
+        a2b2 = math.sqrt(t0 * t0 + FOUR * e2 * k2)
+        a = math.sqrt(max(HALF * (a2b2 + t0), ZERO))
     t1 = a2b2 + c2
-    a = math.sqrt(max(HALF * (a2b2 + t0), ZERO))
     t2 = TWO * c * a
     t3 = c2 * a2b2 + s2 * s2
     t4 = t2 * s2

@@ -41,29 +41,39 @@ def lambert_given32(p, wz, u0, u1, u2):
 
 
 @jit(inline="always")
-def ggx_given_parts32(ax, ay, separable, wx, wy, wz, ca, sa, r2):
+def ggx_given_parts32(ax, ay, separable, wx, wy, wz, ca, sa, r2, plain):
     """:func:`~virtual.kernels.scatter.ggx_given_parts` in float32: ``(ox, oy, oz, c, g_num,
-    g_den, valid)``."""
+    g_den, valid)``. ``plain`` (a literal: the branches fold away) says ax == ay and
+    height-correlated masking, which saves the anisotropic and separable terms."""
     flip = wz < ZERO
     wz = abs(wz)
-    ni = ggx_n32(wx, wy, wz, ax, ay)
+    if plain:
+        a2 = ax * ax
+        ni = math.sqrt(a2 * (wx * wx + wy * wy) + wz * wz)
+    else:
+        ni = ggx_n32(wx, wy, wz, ax, ay)
     mx, my, mz = ggx_vndf_given32(wx, wy, wz, ax, ay, ONE / ni, ca, sa, r2)
     c = max(wx * mx + wy * my + wz * mz, ZERO)
     ox = TWO * c * mx - wx
     oy = TWO * c * my - wy
     oz = TWO * c * mz - wz
-    g_num, g_den = g2_over_g1_masked_ratio32(wz, ni, oz, ggx_n32(ox, oy, oz, ax, ay), separable)
+    if plain:
+        no = math.sqrt(a2 * (ox * ox + oy * oy) + oz * oz)
+        g_num, g_den = (wz + ni) * oz, ni * oz + no * wz
+    else:
+        g_num, g_den = g2_over_g1_masked_ratio32(wz, ni, oz, ggx_n32(ox, oy, oz, ax, ay), separable)
     return ox, oy, (-oz if flip else oz), c, g_num, g_den, (wz > ZERO) & (oz > ZERO)
 
 
 @jit(inline="always")
-def ggx_given32(p, wx, wy, wz, u0, u1, u2):
+def ggx_given32(p, wx, wy, wz, u0, u1, u2, plain):
     """GGX (isotropic or anisotropic) reflection, two-sided: the visible normal from the disk
     point (direction 2 pi u2, squared radius u1), surviving with probability F G2/G1 by u0
-    (``p`` = alpha_x, alpha_y, eta, k, separable)."""
+    (``p`` = alpha_x, alpha_y, eta, k, separable). ``plain`` (a literal) says isotropic,
+    height-correlated and k = 0 (a dielectric's Fresnel factor: one square root fewer)."""
     ca, sa = sincos_2pi32(u2)
-    ox, oy, oz, c, g_num, g_den, valid = ggx_given_parts32(p[0], p[1], p[4], wx, wy, wz, ca, sa, u1)
-    f_num, f_den = fresnel_conductor_ratio32(c, p[2], p[3])
+    ox, oy, oz, c, g_num, g_den, valid = ggx_given_parts32(p[0], p[1], p[4], wx, wy, wz, ca, sa, u1, plain)
+    f_num, f_den = fresnel_conductor_ratio32(c, p[2], p[3], plain)
     return ox, oy, oz, valid & (u0 * f_den * g_den < f_num * g_num)
 
 

@@ -185,7 +185,7 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
             wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
             ca, sa = sincos_2pi32(u[s0 + 2 * nb + i])
             ox, oy, oz, c, g_num, g_den, valid = ggx_given_parts32(p[0], p[1], p[2], wx, wy, wz, ca, sa,
-                                                                   u[s0 + nb + i])
+                                                                   u[s0 + nb + i], False)
             vx[i] = ox
             vy[i] = oy
             vz[i] = oz
@@ -234,7 +234,7 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
                 c = cc[i]
                 for w in range(n_w):
                     if (t >= lrow[w]) & (t < hrow[w]):
-                        f_num, f_den = fresnel_conductor_ratio32(c, etas[w], ks[w])
+                        f_num, f_den = fresnel_conductor_ratio32(c, etas[w], ks[w], False)
                         row[w] += _YES if x * f_den < f_num * y else _NO
         left -= m
     tally[0] += hits
