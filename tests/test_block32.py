@@ -194,3 +194,32 @@ def test_float32_takes_only_specimens_it_resolves():
     assert gonio_kernel_for(sp.model, rejection, params=sp.params(550.0)) == "ray"
     with pytest.raises(ValueError, match="block32 kernel"):
         gonio_kernel_for(sp.model, rejection, "block32")
+
+
+def test_the_k_zero_fresnel_form_is_the_general_one_at_k_zero():
+    """The block kernel's isotropic k = 0 GGX loop takes a^2 + b^2 = |t0| and a = sqrt(max(t0, 0)):
+    the same factor as the general conductor form at k = 0 (total internal reflection, eta < 1,
+    included), to float32 rounding -- and within 2e-5 of the float64 form, except where F ~
+    sqrt(t0) at the critical angle of eta < 1 amplifies t0's rounding (2e-4, |c - c_crit| < 1e-3)."""
+    from virtual.kernels.f32 import fresnel_conductor_ratio32
+    from virtual.kernels.microfacet import fresnel_conductor_ratio
+
+    @jit(fastmath=True, error_model="numpy")
+    def both(c, eta, out):
+        for i in range(c.shape[0]):
+            a, b = fresnel_conductor_ratio32(c[i], eta, np.float32(0.0), True)
+            g, h = fresnel_conductor_ratio32(c[i], eta, np.float32(0.0), False)
+            out[i, 0] = a / b
+            out[i, 1] = g / h
+
+    c = np.linspace(0.0, 1.0, 20_001).astype(np.float32)
+    c[0] = np.float32(1e-4)
+    for eta in (0.5, 0.9, 1.0, 1.5, 3.0):
+        out = np.empty((c.size, 2), dtype=np.float32)
+        both(c, np.float32(eta), out)
+        ref = np.array([np.divide(*fresnel_conductor_ratio(float(x), eta, 0.0)) for x in c])
+        np.testing.assert_allclose(out[:, 0], out[:, 1], rtol=2e-5, atol=2e-6)
+        err = np.abs(out[:, 0] - ref)
+        assert err.max() < 2e-4
+        near = np.abs(c - math.sqrt(max(1.0 - eta * eta, 0.0))) < 1e-3 if eta < 1 else np.zeros(c.size, bool)
+        assert (err[~near] < 2e-5 + 2e-5 * ref[~near]).all()

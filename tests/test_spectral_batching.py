@@ -183,7 +183,7 @@ def test_fresnel_bounds_bracket_the_fresnel_factor():
             j = min(int32(c32[i] * n), int32(lo.shape[0] - 1))
             for w in range(etas.shape[0]):
                 a, b = fresnel_conductor_ratio(np.float64(c32[i]), etas[w], ks[w])
-                a32, b32 = fresnel_conductor_ratio32(c32[i], np.float32(etas[w]), np.float32(ks[w]))
+                a32, b32 = fresnel_conductor_ratio32(c32[i], np.float32(etas[w]), np.float32(ks[w]), False)
                 if b > 0.0 and b32 > 0.0:  # 0/0 only at c = 0 with eta = 1, k = 0 (no interface, no ray)
                     for f in (a / b, np.float64(a32 / b32)):
                         out = max(out, lo[j, w] - f, f - hi[j, w])

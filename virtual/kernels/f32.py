@@ -199,7 +199,7 @@ def fresnel_conductor_ratio32(c, eta, k, k_zero):
     s2 = ONE - c2
     e2 = eta * eta
     k2 = k * k
-    t0 = e2 - k2 - s2
+    t0 = (eta - ONE) * (eta + ONE) - k2 + c2  # = e2 - k2 - s2, without rounding c2 away near eta = 1
     if k_zero:
         a2b2 = abs(t0)
         a = math.sqrt(max(t0, ZERO))
@@ -216,10 +216,12 @@ def fresnel_conductor_ratio32(c, eta, k, k_zero):
 @jit(inline="always")
 def fresnel_dielectric32(c, eta):
     """:func:`~virtual.kernels.microfacet.fresnel_dielectric` in float32, branch-free:
-    ``(F, cos_t)``, F = 1 and cos_t = 0 on total internal reflection."""
-    st2 = (ONE - c * c) / (eta * eta)
-    tir = st2 >= ONE
-    ct = math.sqrt(max(ONE - st2, ZERO))
+    ``(F, cos_t)``, F = 1 and cos_t = 0 on total internal reflection. cos_t^2 = ((eta - 1)(eta
+    + 1) + c^2) / eta^2, not 1 - (1 - c^2) / eta^2: at eta = 1 and grazing c the latter rounds
+    c^2 away (c < 2.4e-4 in float32) and reports total reflection where nothing reflects."""
+    ct2 = ((eta - ONE) * (eta + ONE) + c * c) / (eta * eta)
+    tir = ct2 <= ZERO
+    ct = math.sqrt(max(ct2, ZERO))
     rs = (c - eta * ct) / max(c + eta * ct, _TINY)
     rp = (eta * c - ct) / max(eta * c + ct, _TINY)
     f = HALF * (rs * rs + rp * rp)

@@ -42,7 +42,7 @@ def fresnel_conductor_ratio(c, eta, k):
     s2 = 1.0 - c2
     e2 = eta * eta
     k2 = k * k
-    t0 = e2 - k2 - s2
+    t0 = (eta - 1.0) * (eta + 1.0) - k2 + c2  # = e2 - k2 - s2, without rounding c2 away near eta = 1
     a2b2 = math.sqrt(t0 * t0 + 4.0 * e2 * k2)
     t1 = a2b2 + c2
     a = math.sqrt(max(0.5 * (a2b2 + t0), 0.0))
@@ -55,11 +55,12 @@ def fresnel_conductor_ratio(c, eta, k):
 
 @jit(inline="always")
 def fresnel_dielectric(c, eta):
-    """(F, cos_t) for incident cosine c in [0, 1] and eta = n_t / n_i; F = 1, cos_t = 0 on TIR."""
-    st2 = (1.0 - c * c) / (eta * eta)
-    if st2 >= 1.0:
+    """(F, cos_t) for incident cosine c in [0, 1] and eta = n_t / n_i; F = 1, cos_t = 0 on TIR.
+    cos_t^2 = ((eta - 1)(eta + 1) + c^2) / eta^2: exact at eta = 1 however grazing c is."""
+    ct2 = ((eta - 1.0) * (eta + 1.0) + c * c) / (eta * eta)
+    if ct2 <= 0.0:
         return 1.0, 0.0
-    ct = math.sqrt(1.0 - st2)
+    ct = math.sqrt(ct2)
     rs = (c - eta * ct) / max(c + eta * ct, 1e-300)
     rp = (eta * c - ct) / max(eta * c + ct, 1e-300)
     return 0.5 * (rs * rs + rp * rp), ct
