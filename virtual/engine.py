@@ -312,7 +312,7 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     ggx = int(model) in (MODEL_GGX, MODEL_ANISO_GGX) and all(p[0] == rows[0][0] and p[1] == rows[0][1] for p in rows)
     f32 = all(float32_suits(model, p) for p in rows)  # the float32 batch where gonio_counts runs block32
     if ggx and gonio_kernel_for(model, disk) == "block":
-        return (_ggx_spectral32 if f32 else _ggx_spectral)(rows, beam_kind, beam_args, collector_args, n_rays, seq)
+        return _ggx_spectral(rows, beam_kind, beam_args, collector_args, n_rays, seq, f32)
     if int(model) != MODEL_LAMBERT or gonio_kernel_for(model, disk) != "block":
         def same(q: np.random.SeedSequence) -> np.random.SeedSequence:  # spawning advances a SeedSequence
             return np.random.SeedSequence(q.entropy, spawn_key=q.spawn_key, pool_size=q.pool_size,
@@ -369,57 +369,43 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
 
 
 def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray, collector_args: tuple,
-                  n_rays: int, seq: np.random.SeedSequence) -> np.ndarray:
-    """:func:`gonio_counts_spectral` for GGX with one roughness (see there)."""
+                  n_rays: int, seq: np.random.SeedSequence, f32: bool) -> np.ndarray:
+    """:func:`gonio_counts_spectral` for GGX with one roughness (see there): the float64 batch
+    (:func:`~virtual.kernels.engine.ggx_spectral_kernel`) or, for specimens :func:`float32_suits`
+    at every wavelength, the float32 one (:func:`~virtual.kernels.spectral32.ggx_spectral32_kernel`,
+    the law of ``gonio_counts``'s block32)."""
     n_theta, n_phi = int(collector_args[1]), int(collector_args[2])
     n_bins = 2 * n_theta * n_phi
+    separable = float(rows[0][4]) if len(rows[0]) > 4 else 0.0  # masking convention (one per specimen)
     etas = np.array([p[2] for p in rows])
     ks = np.array([p[3] for p in rows])
-    separable = float(rows[0][4]) if len(rows[0]) > 4 else 0.0  # masking convention (one per specimen)
     sizes = chunking(n_rays)
-    lanes = lane_states(seq, sizes.shape[0])
-    b = np.ascontiguousarray(beam_args, dtype=np.float64)
-    margins = guess_margins(n_theta, n_phi)
+    cargs = tuple(collector_args)
+    if f32:
+        wp = -(-len(rows) // 16) * 16  # whole 16-lane vectors per ray
+        e32, k32 = etas.astype(np.float32), ks.astype(np.float32)  # the bounds are of the kernel's float32 eta, k
+        lo, hi = fresnel_bounds(e32.astype(np.float64), k32.astype(np.float64), FRESNEL_CELLS, FRESNEL_SAMPLES, wp)
+        p = np.array([rows[0][0], rows[0][1], separable], dtype=np.float32)
+        lanes, b, margins = lane_states32(seq, sizes.shape[0]), beam_args.astype(np.float32), guess_margins32(n_theta, n_phi)
+
+        def batch(sz: np.ndarray, ln: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            h, t = ggx_spectral32_kernel(p, e32, k32, lo, hi, int(beam_kind) == BEAM_CONICAL, b, cargs, margins,
+                                         np.int64(n_bins), sz, ln)
+            return h[:, :len(rows)], t
+    else:
+        lanes, margins = lane_states(seq, sizes.shape[0]), guess_margins(n_theta, n_phi)
+        b = np.ascontiguousarray(beam_args, dtype=np.float64)
+
+        def batch(sz: np.ndarray, ln: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return ggx_spectral_kernel(float(rows[0][0]), float(rows[0][1]), separable, etas, ks, np.int64(beam_kind),
+                                       b, cargs, margins, np.int64(n_bins), sz, ln)
     out = np.zeros((len(rows), n_bins + 2), dtype=np.int64)
     hits = 0
     with single_chunk_threads(n_rays):
         for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
             sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
-            h, t = ggx_spectral_kernel(float(rows[0][0]), float(rows[0][1]), separable, etas, ks, np.int64(beam_kind), b,
-                                       tuple(collector_args), margins, np.int64(n_bins),
-                                       np.ascontiguousarray(sizes[sl]), np.ascontiguousarray(lanes[sl]))
+            h, t = batch(np.ascontiguousarray(sizes[sl]), np.ascontiguousarray(lanes[sl]))
             out[:, :n_bins] += h.T
-            hits += int(t[0])
-    out[:, n_bins] = hits - out[:, :n_bins].sum(axis=1)
-    out[:, n_bins + 1] = int(n_rays) - hits
-    return out
-
-
-def _ggx_spectral32(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray, collector_args: tuple,
-                    n_rays: int, seq: np.random.SeedSequence) -> np.ndarray:
-    """:func:`_ggx_spectral` in float32 (:func:`~virtual.kernels.spectral32.ggx_spectral32_kernel`):
-    for specimens :func:`float32_suits` at every wavelength, the law of ``gonio_counts``'s block32."""
-    n_theta, n_phi = int(collector_args[1]), int(collector_args[2])
-    n_bins = 2 * n_theta * n_phi
-    etas = np.array([p[2] for p in rows], dtype=np.float32)
-    ks = np.array([p[3] for p in rows], dtype=np.float32)
-    wp = -(-len(rows) // 16) * 16  # whole 16-lane vectors per ray
-    lo, hi = fresnel_bounds(etas.astype(np.float64), ks.astype(np.float64), FRESNEL_CELLS, FRESNEL_SAMPLES, wp)
-    separable = float(rows[0][4]) if len(rows[0]) > 4 else 0.0
-    p = np.array([rows[0][0], rows[0][1], separable], dtype=np.float32)
-    sizes = chunking(n_rays)
-    lanes = lane_states32(seq, sizes.shape[0])
-    b = np.ascontiguousarray(beam_args, dtype=np.float32)
-    margins = guess_margins32(n_theta, n_phi)
-    out = np.zeros((len(rows), n_bins + 2), dtype=np.int64)
-    hits = 0
-    with single_chunk_threads(n_rays):
-        for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
-            sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
-            h, t = ggx_spectral32_kernel(p, etas, ks, lo, hi, int(beam_kind) == BEAM_CONICAL, b, tuple(collector_args),
-                                         margins, np.int64(n_bins), np.ascontiguousarray(sizes[sl]),
-                                         np.ascontiguousarray(lanes[sl]))
-            out[:, :n_bins] += h[:, :len(rows)].T
             hits += int(t[0])
     out[:, n_bins] = hits - out[:, :n_bins].sum(axis=1)
     out[:, n_bins + 1] = int(n_rays) - hits

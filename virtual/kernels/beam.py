@@ -13,7 +13,7 @@ from virtual.kernels import jit
 from virtual.kernels.rng import next_double
 from virtual.kernels.sampling import warp_polar, warp_square
 
-__all__ = ["BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "emit",
+__all__ = ["beam_tuple", "BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "emit",
            "emit_given", "toward_source"]
 
 BEAM_COLLIMATED = 0
@@ -73,3 +73,13 @@ def emit_given(kind, b, u1, u2, u3, u4):
     wx, wy, wz, hit = toward_source(b, x1, y1, x2, y2)
     col = kind == BEAM_COLLIMATED
     return (b[12] if col else wx), (b[13] if col else wy), (b[14] if col else wz), (True if col else hit)
+
+
+@jit(inline="always")
+def beam_tuple(beam_args):
+    """The 15 values of :meth:`virtual.beam.Beam.kernel_args` as a tuple (of the array's float
+    type): the block kernels pass it to their chunks, because LLVM must reload an array element
+    every iteration of a loop that might write the array, and a tuple it keeps in registers."""
+    return (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
+            beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
+            beam_args[14])

@@ -16,6 +16,7 @@ import numpy as np
 from numba import prange
 
 from virtual.kernels import jit
+from virtual.kernels.beam import beam_tuple
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
 from virtual.kernels.f32 import ZERO, emit_given32, guess_bin32
 from virtual.kernels.given import GIVEN4_UNIFORMS, plastic_diffuse_redo
@@ -178,9 +179,7 @@ def gonio_block32_kernel(model, params, conical, beam_args, cargs, margins, n_bi
     (:func:`virtual.rng.lane_states32`), uint64 ``states`` (:func:`virtual.rng.stream_states`:
     the plastic's fallback streams)."""
     p = (params[0], params[1], params[2], params[3], params[4], params[5])
-    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
-         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
-         beam_args[14])
+    b = beam_tuple(beam_args)
     n_chunks = sizes.shape[0]
     out = np.zeros((n_chunks, n_bins + 2), dtype=np.int64)
     for c in prange(n_chunks):

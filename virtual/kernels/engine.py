@@ -17,7 +17,7 @@ import numpy as np
 from numba import prange
 
 from virtual.kernels import jit
-from virtual.kernels.beam import BEAM_CONICAL, emit, emit_given
+from virtual.kernels.beam import BEAM_CONICAL, beam_tuple, emit, emit_given
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
 from virtual.kernels.rng import LANES, fill_uniforms
 from virtual.kernels.microfacet import fresnel_conductor_ratio
@@ -231,9 +231,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
 @jit(parallel=True)
 def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes, states):
     p = (params[0], params[1], params[2], params[3], params[4], params[5])
-    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
-         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
-         beam_args[14])
+    b = beam_tuple(beam_args)
     n_chunks = sizes.shape[0]
     out = np.zeros((n_chunks, n_bins + 2), dtype=np.int64)
     for c in prange(n_chunks):
@@ -300,9 +298,7 @@ def lambert_spectral_kernel(thr, beam_kind, beam_args, cargs, margins, n_patches
     rays by (cell of u0, upper-hemisphere patch of the cosine-distributed direction), and the
     missed rays; :func:`virtual.engine.gonio_counts_spectral` turns them into each wavelength's
     counts."""
-    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
-         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
-         beam_args[14])
+    b = beam_tuple(beam_args)
     n_chunks = sizes.shape[0]
     out = np.zeros((n_chunks, thr.shape[0] + 1, n_patches), dtype=np.int64)
     miss = np.zeros((n_chunks, 1), dtype=np.int64)
@@ -380,9 +376,7 @@ def ggx_spectral_kernel(ax, ay, separable, etas, ks, beam_kind, beam_args, cargs
     ray's direction and its survival uniform are drawn once, each wavelength's Fresnel factor
     (``etas``, ``ks``) decides its survival. Summed over chunks: counts ``(n_bins, W)`` of the survivors
     and (hits, missed); :func:`virtual.engine.gonio_counts_spectral` adds the absorbed."""
-    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
-         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
-         beam_args[14])
+    b = beam_tuple(beam_args)
     n_chunks = sizes.shape[0]
     out = np.zeros((n_chunks, n_bins, etas.shape[0]), dtype=np.int64)
     tallies = np.zeros((n_chunks, 2), dtype=np.int64)

@@ -20,6 +20,7 @@ import numpy as np
 from numba import int32, prange
 
 from virtual.kernels import jit
+from virtual.kernels.beam import beam_tuple
 from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32
 from virtual.kernels.collector import patch_of
 from virtual.kernels.f32 import (ONE, emit_given32, fresnel_conductor_ratio32, sincos_2pi32,
@@ -130,9 +131,7 @@ def lambert_spectral32_kernel(thr, conical, beam_args, cargs, margins, n_patches
     """The float32 Lambertian batch: summed over chunks, counts ``(n_thr + 1, n_patches)`` of hit
     rays by (cell of u0, upper patch), and the missed rays (float32 ``thr``, ``beam_args``,
     ``margins``; uint32 ``lanes``)."""
-    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
-         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
-         beam_args[14])
+    b = beam_tuple(beam_args)
     n_chunks = sizes.shape[0]
     n_cells = thr.shape[0] + 1
     out = np.zeros((n_chunks, n_cells * n_patches), dtype=np.int64)
@@ -247,9 +246,7 @@ def ggx_spectral32_kernel(params, etas, ks, lo, hi, conical, beam_args, cargs, m
     and bound tables from :func:`fresnel_bounds`): summed over chunks, survivor counts
     ``(n_bins, wp)`` and (hits, missed)."""
     p = (params[0], params[1], params[2])
-    b = (beam_args[0], beam_args[1], beam_args[2], beam_args[3], beam_args[4], beam_args[5], beam_args[6],
-         beam_args[7], beam_args[8], beam_args[9], beam_args[10], beam_args[11], beam_args[12], beam_args[13],
-         beam_args[14])
+    b = beam_tuple(beam_args)
     n_chunks = sizes.shape[0]
     wp = lo.shape[1]
     out = np.zeros((n_chunks, n_bins * wp), dtype=np.int64)
