@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import pytest
 
-from tests.test_engine import _gonio, _two_sample_p
+from tests.test_engine import _gonio, _two_sample_p, on_one_and_all_threads
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import float32_suits, gonio_kernel_for
@@ -164,14 +163,7 @@ def test_the_float32_comparison_has_power_against_a_perturbed_parameter(spec, ot
 
 def test_float32_counts_do_not_depend_on_the_thread_count():
     col, beam, n = Collector("equal-psa", 9, 24), Beam("conical"), 3 * (1 << 20) + 5
-    before = numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        one = _gonio("ggx:alpha=0.3", beam, col, n, 3, "block32")
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        many = _gonio("ggx:alpha=0.3", beam, col, n, 3, "block32")
-    finally:
-        numba.set_num_threads(before)
+    one, many = on_one_and_all_threads(lambda: _gonio("ggx:alpha=0.3", beam, col, n, 3, "block32"))
     np.testing.assert_array_equal(one, many)
     assert not np.array_equal(_gonio("ggx:alpha=0.3", beam, col, n, 4, "block32"), one)
 

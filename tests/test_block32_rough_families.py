@@ -10,11 +10,10 @@ outcome is too). Power: the same test with one parameter perturbed must give p <
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import pytest
 
-from tests.test_engine import _gonio, _two_sample_p
+from tests.test_engine import _gonio, _two_sample_p, on_one_and_all_threads
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import float32_suits, gonio_kernel_for
@@ -65,12 +64,6 @@ def test_float32_is_chosen_only_for_resolvable_rough_specimens():
 
 
 def test_block32_plastic_counts_do_not_depend_on_the_thread_count():
-    n, before = 3 * (1 << 20) + 7, numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        one = _gonio("plastic:eta=1.9", Beam("conical"), COL, n, 5, "block32")
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        many = _gonio("plastic:eta=1.9", Beam("conical"), COL, n, 5, "block32")
-    finally:
-        numba.set_num_threads(before)
+    n = 3 * (1 << 20) + 7
+    one, many = on_one_and_all_threads(lambda: _gonio("plastic:eta=1.9", Beam("conical"), COL, n, 5, "block32"))
     np.testing.assert_array_equal(one, many)

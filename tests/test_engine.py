@@ -17,6 +17,20 @@ def _count(specimen, beam, n, seed=1, theta=8.0, wl=550.0):
                           beam.kernel_args(theta, 0.0), n, measurement_seed(seed))
 
 
+def on_one_and_all_threads(run):
+    """``run()`` on one numba thread, then on all of them: both results (the thread count is
+    restored). A result that depends on the thread count differs between the two."""
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = run()
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        many = run()
+    finally:
+        numba.set_num_threads(before)
+    return one, many
+
+
 def test_chunking_depends_on_n_only_and_sums_to_n():
     for n in (0, 1, 7, 1 << 20, (1 << 20) + 1, 10**9):
         sizes = chunking(n)
@@ -33,14 +47,7 @@ def test_every_ray_is_reflected_transmitted_absorbed_or_missed(kind):
 def test_result_is_identical_whatever_the_thread_count():
     spec, beam = Lambertian(0.375, 0.2), Beam("conical")
     n = 5 * (1 << 20) + 3  # several chunks
-    before = numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        one = _count(spec, beam, n, seed=99)
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        many = _count(spec, beam, n, seed=99)
-    finally:
-        numba.set_num_threads(before)
+    one, many = on_one_and_all_threads(lambda: _count(spec, beam, n, seed=99))
     assert one == many
     assert _count(spec, beam, n, seed=100) != one
 
@@ -156,14 +163,7 @@ def test_the_two_sample_test_has_power_against_a_slightly_different_lobe():
 
 def test_block_kernel_result_is_identical_whatever_the_thread_count():
     col, beam, n = Collector("equal-psa", 9, 24), Beam("conical"), 3 * (1 << 20) + 5
-    before = numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        one = _gonio("ggx:alpha=0.3", beam, col, n, 3, "block")
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        many = _gonio("ggx:alpha=0.3", beam, col, n, 3, "block")
-    finally:
-        numba.set_num_threads(before)
+    one, many = on_one_and_all_threads(lambda: _gonio("ggx:alpha=0.3", beam, col, n, 3, "block"))
     np.testing.assert_array_equal(one, many)
     assert not np.array_equal(_gonio("ggx:alpha=0.3", beam, col, n, 4, "block"), one)
 

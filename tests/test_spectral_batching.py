@@ -10,11 +10,10 @@ differs by 0.02 gives p < 1e-6.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import pytest
 
-from tests.test_engine import _two_sample_p
+from tests.test_engine import _two_sample_p, on_one_and_all_threads
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import gonio_counts, gonio_counts_spectral, measurement_seed
@@ -52,14 +51,8 @@ def test_the_comparison_has_power_against_a_slightly_different_reflectance():
 
 
 def test_spectral_counts_do_not_depend_on_the_thread_count():
-    n, before = 3 * (1 << 20) + 9, numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        one = _spectral(RT, Beam("conical"), 35.0, 4, n)
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        many = _spectral(RT, Beam("conical"), 35.0, 4, n)
-    finally:
-        numba.set_num_threads(before)
+    n = 3 * (1 << 20) + 9
+    one, many = on_one_and_all_threads(lambda: _spectral(RT, Beam("conical"), 35.0, 4, n))
     np.testing.assert_array_equal(one, many)
 
 
@@ -217,12 +210,6 @@ def test_narrow_ggx_lobes_keep_the_float64_batch(monkeypatch):
 
 
 def test_float32_ggx_batch_does_not_depend_on_the_thread_count():
-    n, before = 3 * (1 << 20) + 9, numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        one = _ggx_spectral(GGX32_ROWS, Beam("conical"), 35.0, 4, n=n)
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        many = _ggx_spectral(GGX32_ROWS, Beam("conical"), 35.0, 4, n=n)
-    finally:
-        numba.set_num_threads(before)
+    n = 3 * (1 << 20) + 9
+    one, many = on_one_and_all_threads(lambda: _ggx_spectral(GGX32_ROWS, Beam("conical"), 35.0, 4, n=n))
     np.testing.assert_array_equal(one, many)
