@@ -230,7 +230,7 @@ def _spectral_figures(comps: dict[str, Comparison], figdir: Path, k: float, unit
     fig, ax = plt.subplots(figsize=(8, 3.6), dpi=110)
     for (name, c), colour in zip(comps.items(), _COLOURS):
         for ch, q in c.points.groupby("channel", sort=False):
-            q = q.sort_values("wavelength_nm")
+            q = q.sort_values("wavelength_nm", kind="stable")
             for _, qq in q.groupby(["specimen", "geometry"], sort=False, dropna=False):
                 ax.plot(qq.wavelength_nm, qq.z, marker="o", ms=3, lw=1, color=colour,
                         ls="-" if ch == chans[0] else "--")
@@ -334,7 +334,7 @@ def _bsdf_figures(act: BSDFRecord, comps: dict[str, Comparison], recs: dict[str,
     curves = []
     tiny = 1e-12
     if sel.any():
-        q = p0[sel].assign(x=signed[sel]).sort_values("x")
+        q = p0[sel].assign(x=signed[sel]).sort_values("x", kind="stable")
         ua = np.sqrt(q.u_instrument ** 2 + np.nan_to_num(q.actual_std) ** 2)
         curves.append(("actual", q.x.to_numpy(), np.maximum(q.actual_value.to_numpy(), tiny),
                        np.maximum((q.actual_value - k * ua).to_numpy(), tiny),
@@ -343,7 +343,7 @@ def _bsdf_figures(act: BSDFRecord, comps: dict[str, Comparison], recs: dict[str,
             pc = c.points
             pc = pc[(pc.wavelength_nm == wl) & (pc.theta_i == inc[0]) & (pc.phi_i == inc[1]) & (pc.channel == "R")]
             s2, x2 = _in_plane(pc, act_sel.table, inc, c.aligned.meta.get("angle_tol_deg", 1.0))
-            qc = pc[s2].assign(x=x2[s2]).sort_values("x")
+            qc = pc[s2].assign(x=x2[s2]).sort_values("x", kind="stable")
             sv = np.nan_to_num(qc.virtual_std)
             curves.append((name, qc.x.to_numpy(), np.maximum(qc.virtual_value.to_numpy(), tiny),
                            np.maximum((qc.virtual_value - k * sv).to_numpy(), tiny),

@@ -156,7 +156,7 @@ def spectra_grid(comps: Mapping[str, Comparison], path: Path, k: float, unit: st
     nr, nc = _grid(len(groups), 3)
     fig, axes = plt.subplots(nr, nc, figsize=(4.2 * nc, 3.0 * nr), dpi=90, squeeze=False, layout="constrained")
     for ax, (key, p) in zip(axes.flat, groups):
-        p = p.sort_values("wavelength_nm")
+        p = p.sort_values("wavelength_nm", kind="stable")
         ua = np.sqrt(p.u_instrument ** 2 + np.nan_to_num(p.actual_std) ** 2)
         ax.plot(p.wavelength_nm, p.actual_value, color="tab:blue", lw=1.6, label="actual")
         ax.fill_between(p.wavelength_nm, p.actual_value - k * ua, p.actual_value + k * ua, color="tab:blue",
@@ -164,7 +164,7 @@ def spectra_grid(comps: Mapping[str, Comparison], path: Path, k: float, unit: st
         for (name, c), colour in zip(comps.items(), _COLOURS):
             q = c.points
             q = q[(q.specimen.astype(str) == str(key[0])) & (q.geometry.astype(str) == str(key[1]))
-                  & (q.channel == key[2])].sort_values("wavelength_nm")
+                  & (q.channel == key[2])].sort_values("wavelength_nm", kind="stable")
             sv = np.nan_to_num(q.virtual_std)
             ax.plot(q.wavelength_nm, q.virtual_value, color=colour, lw=1.2, label=name)
             ax.fill_between(q.wavelength_nm, q.virtual_value - k * sv, q.virtual_value + k * sv, color=colour,

@@ -298,7 +298,7 @@ def spectrum_lab(wavelengths: np.ndarray, values: np.ndarray, illuminant: str = 
     notes: list[str] = []
     wl = np.asarray(wavelengths, float)
     v = np.asarray(values, float)
-    order = np.argsort(wl)
+    order = np.argsort(wl, kind="stable")
     wl, v = wl[order], v[order]
     steps = np.diff(wl)
     uniform = steps.size > 0 and np.allclose(steps, steps[0]) and any(np.isclose(steps[0], s) for s in (1, 5, 10, 20))
@@ -412,7 +412,7 @@ def compare(actual: Any, candidate: Any, *, name: str = "candidate", k: float = 
         for key, g in pts.groupby(["specimen", "geometry", "channel"], sort=False, dropna=False):
             label = " ".join(str(v) for c, v in zip(("specimen", "geometry", "channel"), key)
                              if c == "channel" or c in keys)
-            g = g.sort_values("wavelength_nm")
+            g = g.sort_values("wavelength_nm", kind="stable")
             try:
                 res = delta_e2000(g.wavelength_nm.to_numpy(), g.actual_value.to_numpy(), g.virtual_value.to_numpy(),
                                   illuminant, observer)

@@ -176,7 +176,7 @@ def group_verdicts(points: pd.DataFrame, keys: Sequence[str], crit: Criterion, k
     order = {"reject": 0, "inconclusive": 1, "accept": 2}
     df["_o"] = df.verdict.map(order)
     df["_p"] = pd.to_numeric(df.p_value, errors="coerce").fillna(1.0)
-    return df.sort_values(["_o", "_p"]).drop(columns=["_o", "_p"]).reset_index(drop=True)
+    return df.sort_values(["_o", "_p"], kind="stable").drop(columns=["_o", "_p"]).reset_index(drop=True)
 
 
 def model_verdict(groups: pd.DataFrame, pooled: Mapping[str, Any], crit: Criterion) -> dict[str, Any]:

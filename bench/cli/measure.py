@@ -324,7 +324,12 @@ def cmd_gonio(args: argparse.Namespace) -> int:
         print(f"  {tot['wavelength_nm']:7.1f} nm  reflectance {tot['reflectance']:.5f}  "
               f"transmittance {tot['transmittance']:.5f}  absorbed {tot['absorbed']:,}  {_method_note(tot)}")
     t = record.table
-    top = t.sort_values("value", ascending=False).head(5)
+    # Brightest first. Values equal to 10 significant digits are ties (a Lambertian's patches of equal
+    # counts: their exact PSAs differ in the last bits, by CPU as numpy's vectorized trigonometry does),
+    # listed in hemisphere, theta, phi order: the same listing on every CPU.
+    top = (t.assign(_key=[float(f"{v:.10g}") for v in t.value])
+           .sort_values(["_key", "hemisphere", "theta_r", "phi_r"], ascending=[False, True, True, True], kind="stable")
+           .head(5))
     print("  brightest patches (hemisphere, theta, phi, BSDF [1/sr], interval):")
     for r in top.itertuples(index=False):
         print(f"    {r.hemisphere}  {r.theta_r:6.2f} {r.phi_r:7.2f}  {r.value:.5g}  [{r.ci_lo:.5g}, {r.ci_hi:.5g}]")

@@ -52,7 +52,7 @@ def spectral_scan_spectra(record: BSDFRecord) -> tuple[Spectrum, ...]:
     delta = float(record.meta.get("delta", 0.01))
     spec = with_keys(record).table["specimen"].iloc[0] if len(t) else None
     for (ti, tr), g in t.groupby(["theta_i", "theta_r"], sort=True):
-        g = g.sort_values("wavelength_nm")
+        g = g.sort_values("wavelength_nm", kind="stable")
         name = _geometry_name(float(ti), float(tr), known)
         v = math.pi * g.value.to_numpy(float)
         s = math.pi * g["std"].to_numpy(float) if "std" in g else np.full(len(g), np.nan)

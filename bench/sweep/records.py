@@ -42,7 +42,7 @@ def sweep_record(store: Any, run_id: str) -> BSDFRecord | tuple[Spectrum, ...]:
 def _sweep_spectra(df: pd.DataFrame, base: dict[str, Any], delta: float) -> tuple[Spectrum, ...]:
     out = []
     for (spec, geo), g in df.groupby(["specimen", "geometry"], sort=False):
-        r = g[g.hemisphere == "R"].sort_values("wavelength_nm")
+        r = g[g.hemisphere == "R"].sort_values("wavelength_nm", kind="stable")
         t = g[g.hemisphere == "T"].set_index("wavelength_nm").reindex(r.wavelength_nm)
         q = str(r["quantity"].iloc[0]) if "quantity" in r.columns else "reflectance"
         out.append(Spectrum(
