@@ -68,7 +68,7 @@ def test_float32_uniforms_lie_in_the_unit_interval_and_are_uniform():
 
 # --- the bin guess ------------------------------------------------------------------------------------
 
-@jit(fastmath=True, error_model="numpy")
+@jit(error_model="numpy")
 def _guesses(v, scheme, n_theta, n_phi, rm, sm, sin2_edges, phi_cs, guess, exact):
     for i in range(v.shape[0]):
         guess[i] = guess_bin32(v[i, 0], v[i, 1], v[i, 2], scheme, n_theta, n_phi, rm, sm)
@@ -113,7 +113,7 @@ def test_the_float32_guess_is_the_exact_bin_or_declines(scheme, n_theta, n_phi):
 
 
 def test_the_float32_atan_keeps_its_stated_error():
-    @jit(fastmath=True, error_model="numpy")
+    @jit(error_model="numpy")
     def atan_many(y, x, out):
         for i in range(y.shape[0]):
             out[i] = _atan_first_quadrant32(y[i], x[i])
@@ -196,7 +196,7 @@ def test_the_k_zero_fresnel_form_is_the_general_one_at_k_zero():
     from virtual.kernels.f32 import fresnel_conductor_ratio32
     from virtual.kernels.microfacet import fresnel_conductor_ratio
 
-    @jit(fastmath=True, error_model="numpy")
+    @jit(error_model="numpy")
     def both(c, eta, out):
         for i in range(c.shape[0]):
             a, b = fresnel_conductor_ratio32(c[i], eta, np.float32(0.0), True)

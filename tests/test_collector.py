@@ -251,7 +251,7 @@ def test_patch_of_inlines_into_other_kernels():
 # --- the branch-free guess of the block kernel -----------------------------------------------------
 
 
-@jit(fastmath=True, error_model="numpy")  # as compiled in the block kernel
+@jit(error_model="numpy")  # as compiled in the block kernel
 def _guesses(dirs, scheme_code, n_theta, n_phi, ring_margin, sector_margin):
     out = np.empty(dirs.shape[0], dtype=np.int64)
     for i in range(dirs.shape[0]):

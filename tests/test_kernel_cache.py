@@ -4,7 +4,8 @@ A copy of the package is made in a temporary directory; a probe kernel calls a k
 file (``virtual/kernels/sampling.py``). Fresh processes share one ``NUMBA_CACHE_DIR``: after the
 called kernel's source is edited, the kernel compiled with :func:`virtual.kernels.jit` returns
 the new result, while a plain ``numba.njit(cache=True)`` twin in the same process still serves
-the stale one -- what the policy exists to prevent, and proof that the test can fail.
+the stale one -- what the policy exists to prevent, and proof that the test can fail. An edit of
+a kernel file the probe does not import leaves the probe's cache valid.
 """
 
 from __future__ import annotations
@@ -86,10 +87,19 @@ def test_editing_a_called_kernel_recompiles_its_callers(tmp_path):
     settled = _run(where, cache)  # and the new code is cached in its turn
     assert settled["policy"] == 1.5 and settled["policy_hits"] == 1
 
+    # an edit of a kernel file the probe cannot reach (it imports sampling, not spectral32) leaves
+    # its cache valid: one file's edit does not recompile every kernel
+    other = where / "virtual" / "kernels" / "spectral32.py"
+    other.write_text(other.read_text() + "\n# edited\n")
+    untouched = _run(where, cache)
+    assert untouched["policy"] == 1.5 and untouched["policy_hits"] == 1
+
 
 def test_jit_marks_and_refuses_a_cache_option():
     with pytest.raises(TypeError, match="cache"):
         jit(cache=False)
+    with pytest.raises(TypeError, match="fastmath"):
+        jit(fastmath=True)
 
     def f(x):
         return x + 1

@@ -42,8 +42,8 @@ Lookup rules (exact, never NaN, never out of range):
 Kernels use :func:`patch_of` inline; :meth:`Collector.kernel_args` gives its trailing arguments.
 The lookup kernels live in :mod:`virtual.kernels.collector` (``patch_of``, ``guess_bin``,
 ``ATAN_MAX_ERROR`` and the ``SCHEME_*`` codes are re-exported here for older callers).
-Note: a caller compiled with ``fastmath=True`` lets LLVM assume there are no NaNs, which may drop
-the NaN rule above (the other rules do not depend on it).
+Note: kernels are compiled with ``nnan`` (:data:`virtual.kernels.FASTMATH`), which lets LLVM assume
+there are no NaNs and may drop the NaN rule above (the other rules do not depend on it).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Every numba kernel of :mod:`virtual`, and the one cache policy they are compiled under.
+"""Every numba kernel of :mod:`virtual`, and the one policy they are compiled under.
 
 Modules (each owns one kind of kernel; none holds Python-side objects):
 
@@ -13,17 +13,28 @@ Modules (each owns one kind of kernel; none holds Python-side objects):
 ``f32``         float32 twins of the scalar helpers (warps, beam, bin guess, microfacet terms)
 ``given32``     float32 forms of the specimens (Lambertian, GGX, Phong, Oren-Nayar)
 ``given32_rough`` float32 forms of the rough dielectric and the rough plastic
-``block32``     the float32 block kernel (16 lanes per AVX-512 vector), the default fast path
+``block32``     the float32 block kernel (as many lanes as the machine's vectors hold), the default fast path
 ``effects``     the counting kernels with a scene's per-ray effects, float32 lookup, given points
+
+The floating-point policy (:data:`FASTMATH`): the same seed gives the same counts on every
+x86-64 CPU. numba's ``fastmath=True`` lets LLVM replace a division or square root by the
+vector unit's reciprocal estimates (12 bits on AVX2, 14 on AVX-512, refined differently), fuse
+multiply-adds only where the CPU has FMA, and reassociate sums by the vector width: each of
+these changes a direction in its last bits on one CPU and not another, and a ray near a patch
+edge or a survival threshold then counts elsewhere. Kernels therefore get only the flags that
+cannot change a finite result (no NaN or infinity is assumed); every operation is IEEE-rounded
+the same way whatever the vector width. ``jit`` refuses
+``fastmath=True``.
 
 The cache policy: decorate with :func:`jit` (never ``numba.njit(cache=True)``). numba's own
 on-disk cache checks only the source file of the decorated function, so after an edit of a
 kernel it *calls* (inlined or linked from another file) it would load machine code of the old
 source. :func:`jit` marks the function, and :class:`KernelSourceLocator` -- registered first
 among numba's cache locators -- gives every marked function a source stamp that is the hash of
-*all* the modules of this package plus the function's own file (so kernels in ``tests/`` and
-``benchmarks/`` decorated with :func:`jit` are covered too). Any edit of any kernel source makes
-every cached index stale, and numba then recompiles and overwrites it: no file is ever deleted,
+its own file and of every project module that file imports, directly or through others (the
+kernels of ``tests/`` and ``benchmarks/`` included): a kernel can call only what its module
+imports, so an edit of a file it cannot reach leaves its cache valid, and an edit of one it can
+makes the cached index stale -- numba then recompiles and overwrites it: no file is ever deleted,
 nothing happens at import time beyond registering the locator. Where the cache lives is numba's
 usual choice (``NUMBA_CACHE_DIR`` if set, else ``__pycache__`` beside the source, else the
 user-wide cache directory).
@@ -31,6 +42,7 @@ user-wide cache directory).
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
 from pathlib import Path
@@ -39,7 +51,7 @@ from typing import Any, Callable
 import numba
 from numba.core import caching
 
-__all__ = ["jit", "KernelSourceLocator", "kernel_sources_digest"]
+__all__ = ["jit", "FASTMATH", "KernelSourceLocator", "kernel_dependencies", "dependency_digest"]
 
 #: Attribute set on the Python function of every kernel compiled by :func:`jit`.
 MARK = "__goniobench_kernel__"
@@ -48,24 +60,93 @@ KERNELS_DIR = Path(__file__).resolve().parent
 _CacheImpl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
 
 
-@functools.lru_cache(maxsize=1)
-def kernel_sources_digest() -> str:
-    """SHA-256 of every module of this package (names and contents), read once per process."""
-    h = hashlib.sha256()
-    for src in sorted(KERNELS_DIR.glob("*.py")):
-        h.update(src.name.encode())
-        h.update(b"\0")
-        h.update(src.read_bytes())
-        h.update(b"\0")
-    return h.hexdigest()
+#: The fastmath flags every kernel is compiled with: those that cannot change a finite result
+#: (see the module docstring). No ``arcp``/``afn`` (reciprocal and square-root estimates), no
+#: ``contract`` (FMA only where the CPU has it), no ``reassoc`` (sums by vector width), no ``nsz``
+#: (a zero's sign decides atan2's branch).
+FASTMATH = frozenset({"nnan", "ninf"})
+
+#: The folder holding the project's packages (``virtual``, ``bench``...): imports resolve here.
+PROJECT_ROOT = KERNELS_DIR.parent.parent
+
+
+def _module_file(name: str, root: Path) -> Path | None:
+    """The file of module ``name`` under ``root`` (``a/b.py`` or ``a/b/__init__.py``), else None."""
+    base = root.joinpath(*name.split("."))
+    for candidate in (base.with_suffix(".py"), base / "__init__.py"):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _imports_of(path: Path) -> set[Path]:
+    """Project files that ``path`` imports directly: modules, and submodules named in a
+    ``from package import name``; modules outside the project (numpy, numba) are left out."""
+    try:
+        tree = ast.parse(path.read_bytes(), filename=str(path))
+    except (OSError, SyntaxError, ValueError):
+        return set()
+    roots = (PROJECT_ROOT, path.parent)
+    found: set[Path] = set()
+
+    def add(name: str, where: tuple[Path, ...] = roots) -> bool:
+        for root in where:
+            f = _module_file(name, root) if name else None
+            if f is not None:
+                found.add(f.resolve())
+                return True
+        return False
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                add(alias.name)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: from the package folder up
+                base = path.parent
+                for _ in range(node.level - 1):
+                    base = base.parent
+                where: tuple[Path, ...] = (base,)
+            else:
+                where = roots
+            module = node.module or ""
+            if module:
+                add(module, where)
+            else:
+                found.add((where[0] / "__init__.py").resolve()) if (where[0] / "__init__.py").is_file() else None
+            for alias in node.names:  # "from package import submodule"
+                add(f"{module}.{alias.name}" if module else alias.name, where)
+    return found
 
 
 @functools.lru_cache(maxsize=None)
-def _file_digest(path: str) -> str:
+def kernel_dependencies(py_file: str) -> tuple[Path, ...]:
+    """``py_file`` and every project file it imports, directly or through others, sorted."""
+    start = Path(py_file).resolve()
+    seen = {start}
+    todo = [start]
+    while todo:
+        for dep in _imports_of(todo.pop()):
+            if dep not in seen:
+                seen.add(dep)
+                todo.append(dep)
+    return tuple(sorted(seen))
+
+
+@functools.lru_cache(maxsize=None)
+def dependency_digest(py_file: str) -> str:
+    """SHA-256 of the names and contents of :func:`kernel_dependencies` of ``py_file`` ("" for a
+    file that cannot be read: frozen or interactive code)."""
+    h = hashlib.sha256()
     try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:  # no readable source (frozen, interactive): the package hash still applies
+        for dep in kernel_dependencies(py_file):
+            h.update(dep.name.encode())
+            h.update(b"\0")
+            h.update(dep.read_bytes())
+            h.update(b"\0")
+    except OSError:
         return ""
+    return h.hexdigest()
 
 
 class KernelSourceLocator(caching._CacheLocator):
@@ -89,8 +170,8 @@ class KernelSourceLocator(caching._CacheLocator):
         return self._inner.get_disambiguator()
 
     def get_source_stamp(self) -> str:
-        """The hash of all kernel sources and of the decorated function's own file."""
-        return f"{kernel_sources_digest()}:{_file_digest(str(self._py_file))}"
+        """The hash of the decorated function's file and of every project file it imports."""
+        return dependency_digest(str(self._py_file))
 
     @classmethod
     def from_function(cls, py_func: Callable, py_file: str) -> "KernelSourceLocator | None":
@@ -110,16 +191,19 @@ if KernelSourceLocator not in _CacheImpl._locator_classes:
 
 
 def jit(fn: Callable | None = None, /, **options: Any) -> Any:
-    """``numba.njit`` with the package's on-disk cache policy (see the module docstring).
+    """``numba.njit`` with the package's floating-point and cache policies (module docstring).
 
-    Use as ``@jit`` or ``@jit(inline="always")``, ``@jit(parallel=True, fastmath=True)``...;
-    ``cache`` is not an option: every kernel is cached under the policy.
+    Use as ``@jit`` or ``@jit(inline="always")``, ``@jit(parallel=True, error_model="numpy")``...;
+    ``cache`` is not an option (every kernel is cached under the policy), nor is ``fastmath``
+    (every kernel gets :data:`FASTMATH`).
     """
     if "cache" in options:
         raise TypeError("jit() sets the cache itself; do not pass cache=")
+    if "fastmath" in options:
+        raise TypeError("jit() sets fastmath itself (FASTMATH: flags that cannot change a finite result on any CPU)")
 
     def compile_(f: Callable) -> Any:
         setattr(f, MARK, True)
-        return numba.njit(cache=True, **options)(f)
+        return numba.njit(cache=True, fastmath=set(FASTMATH), **options)(f)
 
     return compile_ if fn is None else compile_(fn)

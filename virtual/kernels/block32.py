@@ -52,7 +52,7 @@ def guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_m
             code[i] = guess_bin32(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
 
 
-@jit(fastmath=True, error_model="numpy")
+@jit(error_model="numpy")
 def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
     """One chunk: ``n_rays`` rays from the xoshiro128+ lanes ``lane`` (advanced in place) added
     to ``hist``; ``s`` is a scalar float64 xoshiro stream for the plastic's rare rejected

@@ -116,10 +116,9 @@ def _patch_core(x, y, z, rho2, r2, scheme_code, n_theta, n_phi, sin2_edges, phi_
 def _patch_of_rare(x, y, z, scheme_code, n_theta, n_phi, sin2_edges, phi_cs):
     """Slow path of :func:`patch_of`: rescale, or map zero/NaN to bin 0 and infinities to axes.
 
-    Written to stay right when compiled under fastmath (it is called from fastmath kernels, and
-    numba may cache that compilation for every caller): no division by a possibly subnormal
-    number (it may become a multiplication by an overflowing reciprocal) and no comparison
-    with infinity (``ninf`` lets LLVM fold it away).
+    Written to stay right under the kernels' fastmath flags (:data:`virtual.kernels.FASTMATH`:
+    ``nnan``, ``ninf``): no comparison with infinity (``ninf`` lets LLVM fold it away), NaN
+    caught by ``not (m > 0)`` before any arithmetic.
     """
     m = max(abs(x), max(abs(y), abs(z)))
     if not (m > 0.0):  # zero vector or NaN

@@ -74,7 +74,7 @@ def _pick(cdf, s):
 
 
 
-@jit(parallel=True, fastmath=True)
+@jit(parallel=True)
 def spectro_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cone, flags, e, sizes, states):
     n_chunks = sizes.shape[0]
     out = np.zeros((n_chunks, 7), dtype=np.int64)
@@ -150,7 +150,7 @@ def spectro_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cone, flags, e, 
 
 
 
-@jit(parallel=True, fastmath=True)
+@jit(parallel=True)
 def gonio_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cargs, n_bins, flags, e, det, sizes, states):
     n_chunks = sizes.shape[0]
     n_det = det.shape[0]
@@ -203,7 +203,7 @@ def gonio_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cargs, n_bins, fla
 
 
 
-@jit(parallel=True, fastmath=True)
+@jit(parallel=True)
 def gonio_kernel_f32(model, params, beam_kind, disk, b, scheme, n_theta, n_phi, sin2_32, phi_cs32, n_bins,
                       sizes, states):
     n_chunks = sizes.shape[0]
@@ -227,7 +227,7 @@ def gonio_kernel_f32(model, params, beam_kind, disk, b, scheme, n_theta, n_phi, 
 
 
 
-@jit(parallel=True, fastmath=True)
+@jit(parallel=True)
 def spectro_points_kernel(model, params, b, pts, starts, states):
     n_chunks = starts.shape[0] - 1
     out = np.zeros((n_chunks, 5), dtype=np.int64)

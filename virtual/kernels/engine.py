@@ -55,7 +55,7 @@ def guess_bins(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_mar
             code[i] = guess_bin(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
 
 
-@jit(parallel=True, fastmath=True)
+@jit(parallel=True)
 def spectro_kernel(model, params, beam_kind, disk, b, cone, sizes, states):
     n_chunks = sizes.shape[0]
     out = np.zeros((n_chunks, 5), dtype=np.int64)
@@ -90,7 +90,7 @@ def spectro_kernel(model, params, beam_kind, disk, b, cone, sizes, states):
 
 
 
-@jit(parallel=True, fastmath=True)
+@jit(parallel=True)
 def gonio_kernel(model, params, beam_kind, disk, b, cargs, n_bins, sizes, states):
     n_chunks = sizes.shape[0]
     out = np.zeros((n_chunks, n_bins + 2), dtype=np.int64)
@@ -112,7 +112,7 @@ def gonio_kernel(model, params, beam_kind, disk, b, cargs, n_bins, sizes, states
 
 
 
-@jit(fastmath=True, error_model="numpy")
+@jit(error_model="numpy")
 def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
     """One chunk of the block kernel: ``n_rays`` rays from the xoshiro lanes ``lane`` (advanced in
     place) added to ``hist``; ``s`` is a scalar xoshiro stream for the rare rays a fixed-count
@@ -242,7 +242,7 @@ def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bi
     return out
 
 
-@jit(fastmath=True, error_model="numpy")
+@jit(error_model="numpy")
 def lambert_spectral_chunk(thr, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, cells, missed):
     """One chunk of the spectral Lambertian block kernel (see :func:`lambert_spectral_kernel`):
     every hit ray's upper-hemisphere patch counted in ``cells[cell of u0, patch]``, missed rays in
@@ -311,7 +311,7 @@ def lambert_spectral_kernel(thr, beam_kind, beam_args, cargs, margins, n_patches
     return out.sum(axis=0), miss.sum()
 
 
-@jit(fastmath=True, error_model="numpy")
+@jit(error_model="numpy")
 def ggx_spectral_chunk(ax, ay, separable, etas, ks, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, hist, tally):
     """One chunk of the spectral GGX block kernel (see :func:`ggx_spectral_kernel`): surviving
     rays added to ``hist[patch, w]`` per wavelength w; ``tally`` = (hits, missed)."""

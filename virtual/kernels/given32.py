@@ -77,7 +77,7 @@ def ggx_given32(p, wx, wy, wz, u0, u1, u2, plain):
     return ox, oy, oz, valid & (u0 * f_den * g_den < f_num * g_num)
 
 
-@jit(fastmath=True, error_model="numpy")
+@jit(error_model="numpy")
 def phong_lobe_omc32(p, u, ibuf, out):
     """``out[i]`` = 1 - cos(alpha) = -expm1(ln(u[i]) / (n+1)) of Phong's cos^n lobe (n = p[2]),
     to a relative 3e-7 at any n (1 - powf(u, 1/(n+1)) loses it all where cos(alpha) rounds to 1:

@@ -77,7 +77,7 @@ def fresnel_bounds(etas, ks, n_cells, n_samples, wp):
     return lo, hi
 
 
-@jit(fastmath=True, error_model="numpy")
+@jit(error_model="numpy")
 def lambert_spectral32_chunk(thr, conical, b, cargs, ring_margin, sector_margin, n_patches, n_rays, lane, cells, tally):
     """One chunk: hit rays counted in ``cells[cell of u0 * n_patches + patch]``, missed ones in
     ``tally[0]``; ``thr`` the sorted float32 thresholds."""
@@ -146,7 +146,7 @@ def lambert_spectral32_kernel(thr, conical, beam_args, cargs, margins, n_patches
     return out.sum(axis=0).reshape(n_cells, n_patches), miss.sum()
 
 
-@jit(fastmath=True, error_model="numpy")
+@jit(error_model="numpy")
 def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, sector_margin, n_rays, lane, hist,
                          tally):
     """One chunk: survivors added to ``hist[patch * wp + w]`` (int32, wp = lo.shape[1]);
