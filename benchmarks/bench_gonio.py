@@ -34,7 +34,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from benchmarks.common import best_of, numpy_uniform_rate, table
+from benchmarks.common import best_of, cpu_info, numpy_uniform_rate, table
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import float32_suits, gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
@@ -334,8 +334,8 @@ def measure(n: int = N_RAYS) -> dict:
     """The JSON of ``python -m benchmarks gonio --json``: ``rows`` and the ``ratios``."""
     threads = numba.get_num_threads()
     rows = mitsuba_rows(n, threads) + native_rows(n) + spectral_rows(n) + mitsuba_specimen_rows()
-    return {"threads": threads, "collector": "equal-psa 30x30", "incidence_deg": 30.0, "rows": rows,
-            "ratios": ratios(rows)}
+    return {"cpu": cpu_info(), "threads": threads, "collector": "equal-psa 30x30", "incidence_deg": 30.0,
+            "rows": rows, "ratios": ratios(rows)}
 
 
 def _anchor_table(m: dict) -> str:
@@ -366,7 +366,9 @@ def _anchor_table(m: dict) -> str:
                 ok = ok and rate >= 2 * a
             target = "yes" if ok else "NO"
         out_rows.append([r["name"], r["kernel"], rate, r["seconds"], x_anchor, target])
-    return table(f"Against the anchor: 1e8 rays, 900 equal-PSA patches, conical beam, 30 deg, {m['threads']} threads "
+    cpu = m["cpu"]
+    return table(f"Against the anchor on {cpu['model']} ({cpu['vector_isa']}{', FMA' if cpu['fma'] else ''}; LLVM "
+                 f"target {cpu['llvm_cpu']}): 1e8 rays, 900 equal-PSA patches, conical beam, 30 deg, {m['threads']} threads "
                  f"(targets: ggx, lambert >= 2x their Mitsuba row; every family >= 1e8 rays/s and >= the Mitsuba "
                  f"GGX row)", ["row", "kernel", "rays/s", "s", "x its Mitsuba row", "target met"], out_rows)
 

@@ -208,6 +208,15 @@ def gonio_json(record: Any) -> dict[str, Any]:
             "by_wavelength": m["totals"], "patches": patches}
 
 
+def _by_value(t: Any, brightest_first: bool = True) -> Any:
+    """Patches ordered by BSDF value, the same way on every CPU: values equal to 10 significant
+    digits are ties (a Lambertian's patches of equal counts, whose exact PSAs differ in the last
+    bits by CPU, as numpy's vectorized trigonometry does), in hemisphere, theta, phi order."""
+    return (t.assign(_key=[float(f"{v:.10g}") for v in t.value])
+            .sort_values(["_key", "hemisphere", "theta_r", "phi_r"], ascending=[not brightest_first, True, True, True],
+                         kind="stable"))
+
+
 def _relative_widths(record: Any) -> dict[str, Any]:
     """Relative half-width ``(ci_hi - ci_lo) / (2 value)`` of the brightest patch and of the
     dimmest patch of interest (value >= INTEREST_FRACTION x brightest), first wavelength."""
@@ -216,7 +225,7 @@ def _relative_widths(record: Any) -> dict[str, Any]:
     top = float(t.value.max())
     sel = t[t.value >= INTEREST_FRACTION * top]
     rel = (sel.ci_hi - sel.ci_lo) / (2.0 * sel.value)
-    b, d = sel.loc[sel.value.idxmax()], sel.loc[sel.value.idxmin()]
+    b, d = _by_value(sel).iloc[0], _by_value(sel, brightest_first=False).iloc[0]
     return {"brightest": {"theta": float(b.theta_r), "phi": float(b.phi_r), "value": float(b.value),
                           "relative_half_width": float(rel[b.name])},
             "dimmest_of_interest": {"theta": float(d.theta_r), "phi": float(d.phi_r), "value": float(d.value),
@@ -324,12 +333,7 @@ def cmd_gonio(args: argparse.Namespace) -> int:
         print(f"  {tot['wavelength_nm']:7.1f} nm  reflectance {tot['reflectance']:.5f}  "
               f"transmittance {tot['transmittance']:.5f}  absorbed {tot['absorbed']:,}  {_method_note(tot)}")
     t = record.table
-    # Brightest first. Values equal to 10 significant digits are ties (a Lambertian's patches of equal
-    # counts: their exact PSAs differ in the last bits, by CPU as numpy's vectorized trigonometry does),
-    # listed in hemisphere, theta, phi order: the same listing on every CPU.
-    top = (t.assign(_key=[float(f"{v:.10g}") for v in t.value])
-           .sort_values(["_key", "hemisphere", "theta_r", "phi_r"], ascending=[False, True, True, True], kind="stable")
-           .head(5))
+    top = _by_value(t).head(5)
     print("  brightest patches (hemisphere, theta, phi, BSDF [1/sr], interval):")
     for r in top.itertuples(index=False):
         print(f"    {r.hemisphere}  {r.theta_r:6.2f} {r.phi_r:7.2f}  {r.value:.5g}  [{r.ci_lo:.5g}, {r.ci_hi:.5g}]")
