@@ -391,24 +391,37 @@ def test_ctrl_c_during_a_scan_exits_130_and_the_run_resumes(capsys, tmp_path, st
 
 
 def test_the_first_kernel_compilation_is_announced_once(capsys, monkeypatch):
-    import logging
-
+    """Off a terminal: one header, then one line per kernel family that compiles (with its
+    estimate), nothing for other functions, and nothing once the command has ended."""
     import numba
 
     import bench.cli.common as common
 
     monkeypatch.setattr(common, "_ANNOUNCED", [])
-    monkeypatch.setattr(logging.getLogger("bench"), "level", logging.INFO)  # as with -v (or on a terminal)
     common.announce_compilation()
 
     @numba.njit(cache=False)
-    def twice(x):
+    def gonio_kernel(x):  # named as a kernel family
         return 2 * x
 
     @numba.njit(cache=False)
-    def thrice(x):
+    def spectro_kernel(x):
         return 3 * x
 
-    assert twice(2) == 4 and thrice(2) == 6  # two compilations, one announcement
-    err = capsys.readouterr().err
-    assert err.count("compiling kernels (first run only)...") == 1
+    @numba.njit(cache=False)
+    def not_a_kernel(x):
+        return 4 * x
+
+    assert gonio_kernel(2) == 4 and spectro_kernel(2) == 6 and not_a_kernel(2) == 8
+    common.stop_announcing()
+
+    @numba.njit(cache=False)
+    def gonio_block_kernel(x):
+        return 5 * x
+
+    assert gonio_block_kernel(2) == 10  # after the command: not announced
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "compiling kernels (first run only)..."
+    assert err[1].startswith("  compiling the goniophotometer kernel (ray by ray) (about ")
+    assert err[2].startswith("  compiling the spectrophotometer kernel (ray by ray) (about ")
+    assert len(err) == 3

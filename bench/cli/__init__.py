@@ -33,7 +33,7 @@ import traceback
 from typing import Callable, Sequence
 
 from bench.cli.argtypes import BenchArgumentParser
-from bench.cli.common import DEFAULT_STORE
+from bench.cli.common import DEFAULT_STORE, stop_announcing
 from bench.core.errors import BenchError, InputError, StoreError
 
 __all__ = ["main", "build_parser", "COMMAND_MODULES", "DEFAULT_STORE"]
@@ -123,7 +123,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="%(levelname)s %(name)s: %(message)s")
         func: Callable[[argparse.Namespace], int] = args.func
-        code = func(args)
+        try:
+            code = func(args)
+        finally:
+            stop_announcing()
         sys.stdout.flush()  # a closed pipe shows here, inside the handlers, not at interpreter exit
         return code
     except (InputError, StoreError) as exc:

@@ -16,7 +16,7 @@ from typing import Any, Callable, Sequence
 from bench.core.errors import InputError
 
 __all__ = ["DEFAULT_STORE", "emit_json", "positive_int", "number", "hms", "open_store", "report_run",
-           "output_file", "output_dir", "check_output", "PLOT_SUFFIXES", "announce_compilation"]
+           "output_file", "output_dir", "check_output", "PLOT_SUFFIXES", "announce_compilation", "stop_announcing"]
 
 #: image formats matplotlib writes (checked before any work, so a typo does not cost the run)
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".eps", ".ps", ".tif", ".tiff", ".webp",
@@ -117,37 +117,26 @@ def output_dir(text: str) -> str:
     return text
 
 
-_ANNOUNCED: list[bool] = []
+_ANNOUNCED: list = []  # the command's open compile_progress context, if any
 
 
 def announce_compilation() -> None:
-    """Say "compiling kernels (first run only)..." on stderr when numba starts its first compile
-    in this process (a terminal, or ``-v``), instead of a silent minute; the cache makes later runs quick."""
+    """Show the kernels numba compiles from here to the end of the command (a first run only; the
+    cache makes later runs quick): on a terminal a line per kernel family with elapsed seconds and
+    an estimate, otherwise one plain line per kernel family (:mod:`bench.compilation`)."""
     if _ANNOUNCED:
         return
-    _ANNOUNCED.append(True)
-    try:
-        interactive = sys.stderr.isatty()
-    except (AttributeError, ValueError):
-        interactive = False
-    import logging
+    from bench.compilation import compile_progress
 
-    if not (interactive or logging.getLogger("bench").isEnabledFor(logging.INFO)):
-        return
-    from numba.core import event
+    context = compile_progress()
+    context.__enter__()
+    _ANNOUNCED.append(context)
 
-    class _Announce(event.Listener):
-        said = False
 
-        def on_start(self, ev: Any) -> None:
-            if not self.said:
-                self.said = True
-                print("compiling kernels (first run only)...", file=sys.stderr, flush=True)
-
-        def on_end(self, ev: Any) -> None:
-            pass
-
-    event.register("numba:compile", _Announce())
+def stop_announcing() -> None:
+    """End :func:`announce_compilation`'s notices (at the end of a command)."""
+    while _ANNOUNCED:
+        _ANNOUNCED.pop().__exit__(None, None, None)
 
 
 def report_run(result: Any, as_json: bool) -> int:
