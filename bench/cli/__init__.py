@@ -49,11 +49,21 @@ COMMAND_MODULES = ["bench.cli.measure", "bench.cli.scans", "bench.cli.demo", "be
 
 def _version() -> str:
     try:
-        from importlib.metadata import version
+        from importlib.metadata import version  # ~30 ms: only when --version is asked for
 
         return version("goniobench")
     except Exception:  # not installed (a source checkout on PYTHONPATH)
         return "0.1.0 (source)"
+
+
+class _VersionAction(argparse._VersionAction):
+    """``--version``, looking the installed version up only when asked (argparse's own action
+    needs the string when the parser is built, i.e. on every command)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
+                 option_string: str | None = None) -> None:
+        self.version = f"bench (goniobench) {_version()}"
+        super().__call__(parser, namespace, values, option_string)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -62,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "goniophotometry and spectrophotometry behind one interface.",
                             epilog=EXIT_STATUS_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr (default: warnings only)")
-    p.add_argument("--version", action="version", version=f"bench (goniobench) {_version()}")
+    p.add_argument("--version", action=_VersionAction)
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMAND_MODULES:

@@ -19,13 +19,13 @@ import argparse
 import sys
 from typing import Any
 
-import numpy as np
-
 from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds,
                                 incidence, rays, real, seed, stderr_is_terminal, wavelengths)
 from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
 from bench.core.errors import InputError
-from bench.core.parsing import parse_wavelengths
+
+# numpy and everything heavier are imported inside the functions that use them, so that building
+# the parser (every `bench` command) and `bench rays` do not pay for them.
 
 __all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "spectrum_colour", "n_label",
            "reciprocity_note", "INTEREST_FRACTION", "PILOT_RAYS", "RAYS_PER_SECOND"]
@@ -51,6 +51,8 @@ def cmd_rays(args: argparse.Namespace) -> int:
 
 
 def _spectrum_json(s: Any) -> dict[str, Any]:
+    import numpy as np
+
     return {
         "N": int(s.N[0]), "N_per_wavelength": [int(n) for n in np.broadcast_to(s.N, s.wavelengths.shape)],
         "seed": s.seed, "geometry": s.geometry, "delta": s.delta,
@@ -99,7 +101,10 @@ def _spectro_instrument(args: argparse.Namespace):
 
 
 def cmd_spectro(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from bench.core.geometry import cie_geometry
+    from bench.core.parsing import parse_wavelengths
 
     cie_geometry(args.geometry)  # bad geometry: exit 2 before any work
     announce_compilation()
@@ -164,6 +169,8 @@ def cmd_spectro(args: argparse.Namespace) -> int:
 
 def n_label(n: Any) -> str:
     """``"85,505"`` when every wavelength had the same ray count, else ``"23,861-59,378"``."""
+    import numpy as np
+
     n = np.asarray(n)
     lo, hi = int(n.min()), int(n.max())
     return f"{lo:,}" if lo == hi else f"{lo:,}-{hi:,}"
@@ -226,6 +233,8 @@ def _relative_widths(record: Any) -> dict[str, Any]:
 
 def _relative_rays(args: argparse.Namespace, theta_i: float, phi_i: float, kw: dict[str, Any]) -> dict[str, Any]:
     """The ray count for a relative BSDF uncertainty (see the module docstring)."""
+    import numpy as np
+
     from virtual.bounds import relative_patch_rays
     from virtual.goniophotometer import VirtualGoniophotometer
 
