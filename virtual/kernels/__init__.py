@@ -48,11 +48,16 @@ KERNELS_DIR = Path(__file__).resolve().parent
 _CacheImpl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
 
 
+#: Sources outside this package whose values the kernels compile in as constants.
+KERNEL_CONSTANT_SOURCES = (KERNELS_DIR.parent / "model_ids.py",)
+
+
 @functools.lru_cache(maxsize=1)
 def kernel_sources_digest() -> str:
-    """SHA-256 of every module of this package (names and contents), read once per process."""
+    """SHA-256 of every module of this package and of :data:`KERNEL_CONSTANT_SOURCES` (names and
+    contents), read once per process."""
     h = hashlib.sha256()
-    for src in sorted(KERNELS_DIR.glob("*.py")):
+    for src in [*sorted(KERNELS_DIR.glob("*.py")), *KERNEL_CONSTANT_SOURCES]:
         h.update(src.name.encode())
         h.update(b"\0")
         h.update(src.read_bytes())
