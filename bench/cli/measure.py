@@ -21,11 +21,12 @@ from typing import Any
 
 from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds,
                                 incidence, rays, real, seed, stderr_is_terminal, wavelengths)
+from bench.cli.commands import command_help
 from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
 from bench.core.errors import InputError
 
-# numpy and everything heavier are imported inside the functions that use them, so that building
-# the parser (every `bench` command) and `bench rays` do not pay for them.
+# numpy and everything heavier are imported inside the functions that use them: `bench rays`
+# (eq. 3.5 in decimals) and the parsing of spectro's and gonio's arguments do not pay for them.
 
 __all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "spectrum_colour", "n_label",
            "reciprocity_note", "INTEREST_FRACTION", "PILOT_RAYS", "RAYS_PER_SECOND"]
@@ -367,7 +368,7 @@ def _run_options(p: argparse.ArgumentParser) -> None:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``rays``, ``spectro`` and ``gonio`` to the ``bench`` subcommands."""
-    r = sub.add_parser("rays", help="ray budget of eq. 3.5 (eq. 3.12 with --patches)")
+    r = sub.add_parser("rays", help=command_help("rays"))
     r.add_argument("--uncertainty", "-u", type=real(0.0, 1.0, lo_open=True, hi_open=True), required=True,
                    help="uncertainty v of the real instrument (a fraction in (0, 1); required)")
     r.add_argument("--delta", "-d", type=real(0.0, 1.0, lo_open=True, hi_open=True), required=True,
@@ -379,7 +380,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--json", action="store_true", help="one JSON object instead of the ray count")
     r.set_defaults(func=cmd_rays)
 
-    s = sub.add_parser("spectro", help="virtual spectrophotometric measurement (one spectrum)")
+    s = sub.add_parser("spectro", help=command_help("spectro"))
     s.add_argument("--specimen", required=True, help="e.g. 'lambert:reflectance=0.375', 'colorchecker:dark skin' "
                    "(required; `bench specimens` lists the families)")
     s.add_argument("--geometry", default="8/d", help="CIE geometry: 45/0, 0/45, d/0, 0/d, 8/d, 8/de (default %(default)s)")
@@ -400,7 +401,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the spectrum as CSV (default: none)")
     s.set_defaults(func=cmd_spectro)
 
-    g = sub.add_parser("gonio", help="virtual goniophotometric measurement (whole collector sphere)")
+    g = sub.add_parser("gonio", help=command_help("gonio"))
     g.add_argument("--specimen", required=True, help="e.g. 'lambert:albedo=0.5', 'ggx:alpha=0.2,eta=1.5,k=0' "
                    "(required; `bench specimens` lists the families)")
     g.add_argument("--incidence", type=incidence, default=(30.0, 0.0), metavar="THETA[,PHI]",
