@@ -1,7 +1,8 @@
 """Run the benchmark studies: ``python -m benchmarks [NAME ...]``.
 
 ``python -m benchmarks gonio --json`` prints the goniophotometer's rows and ratios as JSON
-(:func:`benchmarks.bench_gonio.measure`). ``python -m benchmarks --check`` measures them and
+(:func:`benchmarks.bench_gonio.measure`), ``python -m benchmarks cli --json`` the CLI's warm
+command times (:func:`benchmarks.bench_cli.measure`). ``python -m benchmarks --check`` measures them and
 fails (exit 1) when a ratio fell by more than :data:`benchmarks.guard.TOLERANCE` against the
 accepted ones (``benchmarks/accepted_ratios.json``); ``--accept`` rewrites that file with this
 run's ratios. Neither is part of ``make test``: timings on a shared machine are noisy.
@@ -13,7 +14,7 @@ import importlib
 import json
 import sys
 
-STUDIES = ["spectro", "gonio", "store", "scan", "effects", "adaptive", "tradeoff", "sweep"]
+STUDIES = ["spectro", "gonio", "store", "scan", "effects", "adaptive", "tradeoff", "sweep", "cli"]
 FLAGS = ("--json", "--check", "--accept")
 
 
@@ -24,9 +25,15 @@ def main(argv: list[str]) -> int:
     if bad:
         print(f"unknown option {bad[0]!r}; known: {', '.join(FLAGS)}", file=sys.stderr)
         return 2
+    if flags == ["--json"] and names == ["cli"]:
+        from benchmarks.bench_cli import measure as measure_cli
+
+        print(json.dumps(measure_cli(), indent=2))
+        return 0
     if flags:
         if any(n != "gonio" for n in names):
-            print("--json, --check and --accept apply to the gonio study only", file=sys.stderr)
+            print("--json applies to the gonio and cli studies, --check and --accept to gonio only",
+                  file=sys.stderr)
             return 2
         from benchmarks import guard
         from benchmarks.bench_gonio import measure

@@ -13,8 +13,10 @@ One module per command group, each with ``register(subparsers)``:
 * :mod:`bench.cli.white` -- ``white`` (save a white reference file);
 * :mod:`bench.cli.specimens` -- ``specimens``.
 
-Starts fast: heavy modules (numba kernels, colour-science, matplotlib, pandas) are imported
-inside the commands that use them. Exit status (one policy, :data:`EXIT_STATUS_HELP`): 0 ok,
+Starts fast: a command imports only the module that registers it (the table of
+:mod:`bench.cli.commands` names every command and its help, for ``bench --help``), and heavy
+modules (numba kernels, scipy, colour-science, matplotlib, pandas) are imported inside the
+commands that use them. Exit status (one policy, :data:`EXIT_STATUS_HELP`): 0 ok,
 2 bad input the user can fix, 1 a run that failed on its own, 130 Ctrl-C, 70 an internal error
 (one line naming a saved traceback). Every command that reports numbers has ``--json`` with
 stable keys. Argument types are declared in :mod:`bench.cli.argtypes`.
@@ -30,9 +32,10 @@ import sqlite3
 import sys
 import tempfile
 import traceback
-from typing import Callable, Sequence
+from typing import Callable, Collection, Sequence
 
 from bench.cli.argtypes import BenchArgumentParser
+from bench.cli.commands import COMMANDS
 from bench.cli.common import DEFAULT_STORE, stop_announcing
 from bench.core.errors import BenchError, InputError, StoreError
 
@@ -42,32 +45,57 @@ log = logging.getLogger("bench")
 
 #: Modules that add subcommands, in ``bench --help`` order: each has ``register(subparsers)`` and
 #: imports nothing heavy at module level (the CLI must start fast).
-COMMAND_MODULES = ["bench.cli.measure", "bench.cli.scans", "bench.cli.demo", "bench.cli.compare",
-                   "bench.cli.tradeoff", "bench.cli.sweep", "bench.cli.emulate",
-                   "bench.cli.home", "bench.cli.white", "bench.cli.specimens"]
+COMMAND_MODULES = list(dict.fromkeys(c.module for c in COMMANDS.values()))
 
 
 def _version() -> str:
     try:
-        from importlib.metadata import version
+        from importlib.metadata import version  # ~30 ms: only when --version is asked for
 
         return version("goniobench")
     except Exception:  # not installed (a source checkout on PYTHONPATH)
         return "0.1.0 (source)"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``bench`` parser with every command group's subcommands."""
+class _VersionAction(argparse._VersionAction):
+    """``--version``, looking the installed version up only when asked (argparse's own action
+    needs the string when the parser is built, i.e. on every command)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
+                 option_string: str | None = None) -> None:
+        self.version = f"bench (goniobench) {_version()}"
+        super().__call__(parser, namespace, values, option_string)
+
+
+def build_parser(load: Collection[str] | None = None) -> argparse.ArgumentParser:
+    """The ``bench`` parser with every command group's subcommands.
+
+    ``load`` names the commands whose modules are imported and registered in full (default:
+    all); every other command is listed by its name and help only (enough for ``bench --help``
+    and for refusing an unknown command), so a command does not import the others' modules.
+    """
     p = BenchArgumentParser(prog="bench", description="goniobench: real, emulated and virtual "
                             "goniophotometry and spectrophotometry behind one interface.",
                             epilog=EXIT_STATUS_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr (default: warnings only)")
-    p.add_argument("--version", action="version", version=f"bench (goniobench) {_version()}")
+    p.add_argument("--version", action=_VersionAction)
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+    modules = COMMAND_MODULES if load is None else {COMMANDS[c].module for c in load if c in COMMANDS}
+    registered: set[str] = set()
+    for name, command in COMMANDS.items():
+        if command.module not in modules:
+            sub.add_parser(name, help=command.help)
+        elif command.module not in registered:  # adds all of the module's commands, consecutive in COMMANDS
+            importlib.import_module(command.module).register(sub)
+            registered.add(command.module)
     return p
+
+
+def _command_of(argv: Sequence[str]) -> str | None:
+    """The command ``argv`` names: its first argument that is not an option (``bench``'s own
+    options take no value), or None (``bench --help``, no command)."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 #: the exit-status policy, shown by ``bench --help`` (and tabled in README)
@@ -114,7 +142,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     command = "?"
     try:
-        parser = build_parser()
+        argv = sys.argv[1:] if argv is None else list(argv)
+        named = _command_of(argv)
+        parser = build_parser(load=[named] if named is not None else [])
         try:
             args = parser.parse_args(argv)
         except SystemExit as exc:  # --help, --version, or a usage error (already one line)

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.cli.argtypes import real, stderr_is_terminal
+from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, output_dir
 from bench.core.errors import InputError
 
@@ -123,7 +124,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("compare", help="compare candidate records (virtual models) with an actual one")
+    p = sub.add_parser("compare", help=command_help("compare"))
     p.add_argument("actual", metavar="ACTUAL", help="[NAME=]RUN or FILE")
     p.add_argument("candidates", metavar="CANDIDATE", nargs="+", help="[NAME=]RUN or FILE")
     p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from bench.cli.argtypes import seed, stderr_is_terminal
+from bench.cli.commands import command_help
 from bench.cli.common import announce_compilation, emit_json, output_dir
 
 __all__ = ["register", "cmd_demo"]
@@ -26,7 +27,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``demo`` to the ``bench`` subcommands."""
-    d = sub.add_parser("demo", help="end-to-end demo on the embedded default bench")
+    d = sub.add_parser("demo", help=command_help("demo"))
     d.add_argument("--out", type=output_dir, default="demo-out", help="output folder (default ./%(default)s)")
     d.add_argument("--seed", type=seed, default=20261122, help="root seed, integer 0..2^63-1 (default %(default)s)")
     d.add_argument("--json", action="store_true", help="the demo summary as one JSON object")

@@ -9,6 +9,7 @@ import sys
 import time
 
 from bench.cli.argtypes import real, seed
+from bench.cli.commands import command_help
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
@@ -42,7 +43,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("emulate", help="start a bench's emulators and print their ports")
+    p = sub.add_parser("emulate", help=command_help("emulate"))
     p.add_argument("bench", metavar="BENCH.toml", help="an emulated bench config (see fixtures/benches/)")
     p.add_argument("--seed", type=seed, help="emulator seed, integer 0..2^63-1 (default: the config's, else 7)")
     p.add_argument("--seconds", type=real(0.0, 1e7), help="stop after this many seconds (default: until Ctrl-C)")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 
 from bench.cli.argtypes import real
+from bench.cli.commands import command_help
 from bench.cli.common import emit_json
 from bench.core.errors import ConfigError
 
@@ -40,7 +41,7 @@ def cmd_home(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``home`` to the subcommands."""
-    h = sub.add_parser("home", help="return the turntable (or another axis) to its home position")
+    h = sub.add_parser("home", help=command_help("home"))
     h.add_argument("--bench", required=True, metavar="BENCH.toml", help="the bench config (required)")
     h.add_argument("--axis", default="turntable", help="the axis to home (default: turntable)")
     h.add_argument("--timeout", type=real(0.0, 3600.0, lo_open=True), metavar="S",

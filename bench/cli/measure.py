@@ -19,13 +19,14 @@ import argparse
 import sys
 from typing import Any
 
-import numpy as np
-
 from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds,
                                 incidence, rays, real, seed, stderr_is_terminal, wavelengths)
+from bench.cli.commands import command_help
 from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
 from bench.core.errors import InputError
-from bench.core.parsing import parse_wavelengths
+
+# numpy and everything heavier are imported inside the functions that use them: `bench rays`
+# (eq. 3.5 in decimals) and the parsing of spectro's and gonio's arguments do not pay for them.
 
 __all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "spectrum_colour", "n_label",
            "reciprocity_note", "INTEREST_FRACTION", "PILOT_RAYS", "RAYS_PER_SECOND"]
@@ -51,6 +52,8 @@ def cmd_rays(args: argparse.Namespace) -> int:
 
 
 def _spectrum_json(s: Any) -> dict[str, Any]:
+    import numpy as np
+
     return {
         "N": int(s.N[0]), "N_per_wavelength": [int(n) for n in np.broadcast_to(s.N, s.wavelengths.shape)],
         "seed": s.seed, "geometry": s.geometry, "delta": s.delta,
@@ -99,7 +102,10 @@ def _spectro_instrument(args: argparse.Namespace):
 
 
 def cmd_spectro(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from bench.core.geometry import cie_geometry
+    from bench.core.parsing import parse_wavelengths
 
     cie_geometry(args.geometry)  # bad geometry: exit 2 before any work
     announce_compilation()
@@ -164,6 +170,8 @@ def cmd_spectro(args: argparse.Namespace) -> int:
 
 def n_label(n: Any) -> str:
     """``"85,505"`` when every wavelength had the same ray count, else ``"23,861-59,378"``."""
+    import numpy as np
+
     n = np.asarray(n)
     lo, hi = int(n.min()), int(n.max())
     return f"{lo:,}" if lo == hi else f"{lo:,}-{hi:,}"
@@ -235,6 +243,8 @@ def _relative_widths(record: Any) -> dict[str, Any]:
 
 def _relative_rays(args: argparse.Namespace, theta_i: float, phi_i: float, kw: dict[str, Any]) -> dict[str, Any]:
     """The ray count for a relative BSDF uncertainty (see the module docstring)."""
+    import numpy as np
+
     from virtual.bounds import relative_patch_rays
     from virtual.goniophotometer import VirtualGoniophotometer
 
@@ -367,7 +377,7 @@ def _run_options(p: argparse.ArgumentParser) -> None:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``rays``, ``spectro`` and ``gonio`` to the ``bench`` subcommands."""
-    r = sub.add_parser("rays", help="ray budget of eq. 3.5 (eq. 3.12 with --patches)")
+    r = sub.add_parser("rays", help=command_help("rays"))
     r.add_argument("--uncertainty", "-u", type=real(0.0, 1.0, lo_open=True, hi_open=True), required=True,
                    help="uncertainty v of the real instrument (a fraction in (0, 1); required)")
     r.add_argument("--delta", "-d", type=real(0.0, 1.0, lo_open=True, hi_open=True), required=True,
@@ -379,7 +389,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--json", action="store_true", help="one JSON object instead of the ray count")
     r.set_defaults(func=cmd_rays)
 
-    s = sub.add_parser("spectro", help="virtual spectrophotometric measurement (one spectrum)")
+    s = sub.add_parser("spectro", help=command_help("spectro"))
     s.add_argument("--specimen", required=True, help="e.g. 'lambert:reflectance=0.375', 'colorchecker:dark skin' "
                    "(required; `bench specimens` lists the families)")
     s.add_argument("--geometry", default="8/d", help="CIE geometry: 45/0, 0/45, d/0, 0/d, 8/d, 8/de (default %(default)s)")
@@ -400,7 +410,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the spectrum as CSV (default: none)")
     s.set_defaults(func=cmd_spectro)
 
-    g = sub.add_parser("gonio", help="virtual goniophotometric measurement (whole collector sphere)")
+    g = sub.add_parser("gonio", help=command_help("gonio"))
     g.add_argument("--specimen", required=True, help="e.g. 'lambert:albedo=0.5', 'ggx:alpha=0.2,eta=1.5,k=0' "
                    "(required; `bench specimens` lists the families)")
     g.add_argument("--incidence", type=incidence, default=(30.0, 0.0), metavar="THETA[,PHI]",

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from bench.cli.argtypes import real, run_id, seed
+from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, announce_compilation, check_output, emit_json, hms, open_store, report_run
 from bench.core.errors import InputError
 
@@ -142,13 +143,13 @@ def cmd_export(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``plan``, ``scan``, ``resume``, ``runs``, ``show`` and ``export`` to the subcommands."""
     store_help = "the run store, an SQLite file (default %(default)s)"
-    pl = sub.add_parser("plan", help="check a plan on a bench and estimate its duration")
+    pl = sub.add_parser("plan", help=command_help("plan"))
     pl.add_argument("plan", metavar="PLAN.toml", help="the plan file (see fixtures/plans/)")
     pl.add_argument("--bench", required=True, metavar="BENCH.toml", help="the bench config (required)")
     pl.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     pl.set_defaults(func=cmd_plan)
 
-    sc = sub.add_parser("scan", help="run a plan on a bench into the store; prints the run id")
+    sc = sub.add_parser("scan", help=command_help("scan"))
     sc.add_argument("plan", metavar="PLAN.toml", help="the plan file (see fixtures/plans/)")
     sc.add_argument("--bench", required=True, metavar="BENCH.toml", help="the bench config (required)")
     sc.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
@@ -158,7 +159,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sc.add_argument("--json", action="store_true", help="the run result as one JSON object")
     sc.set_defaults(func=cmd_scan)
 
-    rs = sub.add_parser("resume", help="finish an interrupted run (scan or sweep)")
+    rs = sub.add_parser("resume", help=command_help("resume"))
     rs.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
     rs.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     rs.add_argument("--bench", metavar="BENCH.toml", help="bench config (default: the one stored with the run)")
@@ -166,18 +167,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     rs.add_argument("--json", action="store_true", help="the run result as one JSON object")
     rs.set_defaults(func=cmd_resume)
 
-    ru = sub.add_parser("runs", help="list the runs in a store (read-only)")
+    ru = sub.add_parser("runs", help=command_help("runs"))
     ru.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     ru.add_argument("--json", action="store_true", help="a JSON list of runs")
     ru.set_defaults(func=cmd_runs)
 
-    sh = sub.add_parser("show", help="summarize one run (read-only)")
+    sh = sub.add_parser("show", help=command_help("show"))
     sh.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
     sh.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     sh.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     sh.set_defaults(func=cmd_show)
 
-    ex = sub.add_parser("export", help="export a run: csv, parquet, astm, zemax (read-only on the store)")
+    ex = sub.add_parser("export", help=command_help("export"))
     ex.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
     ex.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     ex.add_argument("--format", choices=("csv", "parquet", "astm", "zemax"), default="csv",

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from bench.cli.commands import command_help
 from bench.cli.common import emit_json
 
 __all__ = ["register", "cmd_specimens"]
@@ -35,7 +36,7 @@ def cmd_specimens(args: argparse.Namespace) -> int:
 
 def register(sub: Any) -> None:
     """Add ``specimens`` to the ``bench`` subcommands."""
-    p = sub.add_parser("specimens", help="list every specimen family and its parameters (range, unit, default)")
+    p = sub.add_parser("specimens", help=command_help("specimens"))
     fmt = p.add_mutually_exclusive_group()
     fmt.add_argument("--json", action="store_true", help="a JSON list of families with their parameters")
     fmt.add_argument("--markdown", action="store_true", help="the README table (markdown)")

@@ -15,6 +15,7 @@ import sys
 from typing import Any, Iterator
 
 from bench.cli.argtypes import count, listen_address, run_id, scheduler_address
+from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, announce_compilation
 from bench.core.errors import InputError
 
@@ -22,7 +23,7 @@ from bench.core.errors import InputError
 def register(subparsers: Any) -> None:
     """Add ``bench sweep`` to the CLI."""
     p = subparsers.add_parser(
-        "sweep", help="run a sweep of virtual measurements (in-process, or on Dask); prints the run id",
+        "sweep", help=command_help("sweep"),
         description="Run every task of SWEEP.toml into the run store: in-process by default, on an existing "
                     "Dask cluster with --scheduler, or on a local cluster of N worker processes with --workers. "
                     "Results are identical however the work is split. --resume RUN finishes an interrupted "

@@ -17,6 +17,7 @@ import argparse
 from typing import Any
 
 from bench.cli.argtypes import count, int_list, seed, stderr_is_terminal
+from bench.cli.commands import command_help
 from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
 
 __all__ = ["register", "cmd_tradeoff"]
@@ -24,7 +25,7 @@ __all__ = ["register", "cmd_tradeoff"]
 
 def register(subparsers: Any) -> None:
     """Add ``tradeoff`` to the ``bench`` subcommands."""
-    t = subparsers.add_parser("tradeoff", help="accuracy versus time of a scene: table and Pareto plot")
+    t = subparsers.add_parser("tradeoff", help=command_help("tradeoff"))
     t.add_argument("scene", metavar="SCENE.toml", help="the scene file (see fixtures/scenes/)")
     t.add_argument("--json", action="store_true", help="one JSON object: rows (one per configuration), effects")
     t.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 
 from bench.cli.argtypes import count, real, run_id
+from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, emit_json, open_store, output_file
 from bench.core.errors import InputError
 
@@ -62,7 +63,7 @@ def cmd_white(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``white`` to the subcommands."""
-    w = sub.add_parser("white", help="save a white reference file (measured now or from a completed run)")
+    w = sub.add_parser("white", help=command_help("white"))
     w.add_argument("--bench", metavar="BENCH.toml", help="measure the white standard on this bench now (default: none)")
     w.add_argument("--from-run", type=run_id, metavar="RUN",
                    help="take the white reference of this completed run (default: none)")

@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy import special, stats
 
 from bench.core.errors import BudgetError
 from virtual.bounds.checks import check_delta, check_patches, check_uncertainty
@@ -122,6 +121,8 @@ def _chernoff_tail(t: np.ndarray, n: np.ndarray, p: np.ndarray, lower: bool) -> 
     """
     t, n, p = np.broadcast_arrays(np.asarray(t, dtype=np.float64), np.asarray(n, dtype=np.float64),
                                   np.asarray(p, dtype=np.float64))
+    from scipy import special  # ~0.4 s to import: only where a plan is certified or run, not for `bench rays`
+
     q = t / n
     with np.errstate(all="ignore"):
         kl = special.rel_entr(q, p) + special.rel_entr(1.0 - q, 1.0 - p)  # inf outside [0, 1]
@@ -135,6 +136,8 @@ def _exact_tail(t: np.ndarray, n: np.ndarray, p: np.ndarray, lower: bool, mask: 
     """The exact tail (scipy) at the entries of ``mask``; NaN elsewhere."""
     t, n, p = np.broadcast_arrays(np.asarray(t, dtype=np.float64), np.asarray(n, dtype=np.float64),
                                   np.asarray(p, dtype=np.float64))
+    from scipy import stats  # ~1.5 s to import: only when an exact tail is needed
+
     out = np.full(t.shape, np.nan)
     if lower:
         out[mask] = stats.binom.cdf(t[mask], n[mask], p[mask])

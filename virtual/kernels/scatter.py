@@ -12,8 +12,8 @@ density dominates ``f_s |cos theta_o|`` with total mass <= 1, then survival with
 Opaque models are two-sided (mirrored when the source is below).
 
 A new kernel model is its declaration (a :class:`virtual.specimens.Specimen` subclass naming
-its ``model`` id) plus, here, its id, its branch function and one line in
-:func:`_scatter_general`. The physics of each model is documented on its class.
+its ``model`` id) plus its id in :mod:`virtual.model_ids` and, here, its branch function and
+one line in :func:`_scatter_general`. The physics of each model is documented on its class.
 """
 
 from __future__ import annotations
@@ -26,24 +26,13 @@ from virtual.kernels.microfacet import (disk_direction, fresnel_conductor_ratio,
                                         unit_disk)
 from virtual.kernels.rng import next_double
 from virtual.kernels.sampling import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
+# Model ids: one branch each in `scatter`; they live in a numba-free module (specimens declare them).
+from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_LEAF,
+                               MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON)
 
 __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX",
            "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
            "scatter", "scatter_given", "ggx_given_parts"]
-
-# Model ids: one branch each in `scatter`. Keep them stable (records and caches name them).
-MODEL_LAMBERT = 0
-MODEL_OREN_NAYAR = 1
-MODEL_PHONG = 2
-MODEL_GGX = 3
-MODEL_ANISO_GGX = 4
-MODEL_PLASTIC = 5
-MODEL_DIELECTRIC = 6
-MODEL_LEAF = 7  # virtual.specimens.leaf: PROSPECT-D body under a GGX cuticle
-#: Specimens without a kernel (e.g. :class:`virtual.specimens.mitsuba.MitsubaSpecimen`, or a lab's own
-#: model registered with :func:`virtual.specimens.register_specimen`): the devices count their
-#: rays with :mod:`virtual.python_engine`, which calls the specimen's ``sample`` method.
-MODEL_PYTHON = -1
 
 #: Models with a branch-free form taking their uniforms as arguments (:func:`scatter_given`):
 #: the vectorized block kernel of :mod:`virtual.kernels.engine` runs them.

@@ -12,7 +12,7 @@ from typing import Mapping
 import numpy as np
 
 from bench.core.errors import SpecimenError
-from virtual.kernels.scatter import MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG
+from virtual.model_ids import MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG
 from virtual.specimens.declare import DeclaredSpecimen, Param, register_specimen
 from virtual.cubature import adaptive_rectangle
 from virtual.specimens.physics import local, mirror

@@ -17,7 +17,7 @@ import numpy as np
 
 from bench.core.errors import SpecimenError
 from bench.core.parsing import read_toml
-from virtual.kernels.scatter import MODEL_LEAF
+from virtual.model_ids import MODEL_LEAF
 from virtual.leaf_optics import (INCIDENCE_CALIBRATION_DEG, PROSPECT_RANGE_NM, LeafTables, cuticle_albedo,
                                  cuticle_integrals, leaf_tables, prospect_d)
 from virtual.specimens.declare import DeclaredSpecimen, Param, Spectral, register_specimen

@@ -12,7 +12,7 @@ from typing import Mapping
 
 import numpy as np
 
-from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_PLASTIC
+from virtual.model_ids import MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_PLASTIC
 from virtual.specimens.declare import DeclaredSpecimen, Param, register_specimen
 from virtual.specimens.physics import (fresnel_hemispherical_average, fresnel_vndf_mean, lobe_width, local, mirror,
                                        np_fresnel_conductor, np_fresnel_dielectric, np_g2_over_g1, np_ggx_d,

@@ -45,7 +45,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bench.core.errors import SpecimenError
-from virtual.kernels.scatter import MODEL_PYTHON
+from virtual.model_ids import MODEL_PYTHON
 from virtual.mitsuba_llvm import WavefrontSampler, llvm_status, llvm_variant
 from virtual.specimens.declare import Specimen
 

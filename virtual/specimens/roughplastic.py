@@ -37,7 +37,7 @@ from typing import Mapping
 import numpy as np
 
 from bench.core.errors import SpecimenError
-from virtual.kernels.scatter import MODEL_PYTHON
+from virtual.model_ids import MODEL_PYTHON
 from virtual.specimens.declare import DeclaredSpecimen, Param, register_specimen
 from virtual.specimens.microfacet import _LT, _LU, ALPHA_MAX, ALPHA_MIN, _lit, _reflected, _refracted
 from virtual.specimens.physics import (lobe_width, local, mirror, np_fresnel_dielectric, np_g2_over_g1,
