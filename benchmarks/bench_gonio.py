@@ -1,5 +1,5 @@
 """Virtual goniophotometer: kernel throughput against the Mitsuba-LLVM anchor, a numpy baseline and
-the RNG limit (issues 3, 18).
+the RNG limit; what a spectrum costs against one wavelength.
 
 Measured in one run on this machine:
 
@@ -20,7 +20,11 @@ Measured in one run on this machine:
 * Mitsuba 3's scalar ``bsdf.sample`` in a Python loop, for scale;
 * the exact fast path for a 10^8-ray-equivalent measurement: first (quadrature of 900 patches +
   one multinomial) and repeated (cached probabilities, a new seed) (target <= 1 ms);
-* peak resident memory of a 10^9-ray measurement in a fresh process (target <= 300 MB).
+* peak resident memory of a 10^9-ray measurement in a fresh process (target <= 300 MB);
+* 31 wavelengths against one through the ``bench gonio`` command, as a user runs it (a fresh
+  process: rows ``cli-<case>-31wl`` / ``-1wl``) and in-process with the kernels loaded (the
+  command's own work: rows ``inproc-<case>-...``), and their time ratios (target: 31 wavelengths
+  <= 3x one).
 """
 
 from __future__ import annotations
@@ -279,6 +283,54 @@ def spectral_rows(n: int = N_RAYS, w: int = SPECTRAL_W) -> list[dict]:
     return rows
 
 
+#: ``bench gonio`` cases timed at 31 wavelengths and at one (the CLI's defaults otherwise: 10^7 rays,
+#: equal-PSA 9x36, collimated beam at 30 deg): a Lambertian with a measured spectrum and a GGX
+#: conductor, counting rays (``--method rays``) and as ``auto`` chooses.
+CLI_CASES = {
+    "colorchecker-rays": ("colorchecker:dark skin", "rays"),
+    "colorchecker-auto": ("colorchecker:dark skin", "auto"),
+    "ggx-rays": ("ggx:alpha=0.2,eta=0.2,k=3", "rays"),
+    "ggx-auto": ("ggx:alpha=0.2,eta=0.2,k=3", "auto"),
+}
+CLI_WAVELENGTHS = "400:700:10"
+
+
+def _cli_seconds(argv: list[str], repeat: int = 2, process: bool = True) -> float:
+    """Best wall time of ``bench ARGV`` (output discarded): in a fresh ``python -m bench.cli``
+    process, or called in this one."""
+    import contextlib
+    import io
+
+    from bench.cli import main
+
+    def once() -> None:
+        if process:
+            subprocess.run([sys.executable, "-m", "bench.cli", *argv], capture_output=True, check=True)
+            return
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            assert main(argv) == 0, argv
+
+    seconds, _ = best_of(once, repeat)
+    return seconds
+
+
+def cli_rows(cases: dict[str, tuple[str, str]] = CLI_CASES, wavelengths: str = CLI_WAVELENGTHS) -> list[dict]:
+    """``bench gonio --wavelengths 400:700:10`` against ``--wavelengths 550``, each case timed
+    in this run, in a fresh process (``cli-``) and in this one (``inproc-``, after one untimed
+    run of each, which loads the kernels and colour-science)."""
+    rows = []
+    for case, (spec, method) in cases.items():
+        base = ["gonio", "--specimen", spec, "--method", method, "--seed", "1"]
+        for wl, tag in ((wavelengths, "31wl"), ("550", "1wl")):
+            argv = base + ["--wavelengths", wl]
+            _cli_seconds(argv, 1, process=False)
+            for prefix, process in (("inproc", False), ("cli", True)):
+                seconds = _cli_seconds(argv, process=process)
+                rows.append({**_row(f"{prefix}-{case}-{tag}", spec.split(":")[0], f"bench gonio --method {method}",
+                                    seconds, 10_000_000), "beam": "collimated"})
+    return rows
+
+
 def mitsuba_specimen_rows(n: int = 10_000_000, batch: int = 1_000_000) -> list[dict]:
     """A Mitsuba specimen's ``sample`` (the devices' Python engine calls it per batch) through
     the LLVM wavefront sampler (target >= 1e7 rays/s) -- and the scalar loop, for scale."""
@@ -324,6 +376,11 @@ def ratios(rows: list[dict]) -> dict[str, float]:
         spec, one = by.get(f"ours-{fam}-{SPECTRAL_W}wl"), by.get(f"ours-{fam}-1wl")
         if spec and one:  # time of one wavelength / time of W: >= 1/3 meets the target
             out[f"{fam} 1 wavelength time / {SPECTRAL_W} wavelengths time"] = spec / one
+    for case in CLI_CASES:
+        for prefix, how in (("cli", "process"), ("inproc", "in-process")):
+            spec, one = by.get(f"{prefix}-{case}-31wl"), by.get(f"{prefix}-{case}-1wl")
+            if spec and one:  # equal rays in both rows: rays_per_s(31) / rays_per_s(1) = time(1) / time(31)
+                out[f"bench gonio {case} ({how}) 1 wavelength time / 31 wavelengths time"] = spec / one
     wave = by.get("ours-mitsuba-specimen-wavefront")
     if wave and mg:
         out["mitsuba specimen wavefront / mitsuba-llvm-ggx"] = wave / mg
@@ -333,7 +390,7 @@ def ratios(rows: list[dict]) -> dict[str, float]:
 def measure(n: int = N_RAYS) -> dict:
     """The JSON of ``python -m benchmarks gonio --json``: ``rows`` and the ``ratios``."""
     threads = numba.get_num_threads()
-    rows = mitsuba_rows(n, threads) + native_rows(n) + spectral_rows(n) + mitsuba_specimen_rows()
+    rows = mitsuba_rows(n, threads) + native_rows(n) + spectral_rows(n) + cli_rows() + mitsuba_specimen_rows()
     return {"cpu": cpu_info(), "threads": threads, "collector": "equal-psa 30x30", "incidence_deg": 30.0,
             "rows": rows, "ratios": ratios(rows)}
 
@@ -373,11 +430,23 @@ def _anchor_table(m: dict) -> str:
                  f"GGX row)", ["row", "kernel", "rays/s", "s", "x its Mitsuba row", "target met"], out_rows)
 
 
+def _cli_table(m: dict) -> str:
+    by = {r["name"]: r for r in m["rows"]}
+    rows = []
+    for case, (spec, method) in CLI_CASES.items():
+        for prefix, how in (("cli", "process"), ("inproc", "in-process")):
+            many, one = by[f"{prefix}-{case}-31wl"]["seconds"], by[f"{prefix}-{case}-1wl"]["seconds"]
+            rows.append([spec, method, how, one, many, many / one, "yes" if many <= 3 * one else "NO"])
+    return table(f"bench gonio, 1e7 rays, equal-PSA 9x36, collimated 30 deg, {m['threads']} threads: 31 wavelengths "
+                 f"({CLI_WAVELENGTHS}) against one (550), as a fresh process and in-process (target: <= 3x)",
+                 ["specimen", "--method", "run", "1 wl s", "31 wl s", "31 / 1", "target met"], rows)
+
+
 def run() -> str:
     m = measure()
     by = {r["name"]: r["rays_per_s"] for r in m["rows"]}
     threads = m["threads"]
-    out = (_anchor_table(m) + "\n\n" + _ablation_table(threads) + "\n\n"
+    out = (_anchor_table(m) + "\n\n" + _cli_table(m) + "\n\n" + _ablation_table(threads) + "\n\n"
            + _details(threads, by["ours-lambert"], by["ours-ggx"]))
     return out
 

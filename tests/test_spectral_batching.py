@@ -1,4 +1,4 @@
-"""Spectral batching (issue 18): a Lambertian (and GGX with one roughness) measured at W wavelengths at once
+"""Spectral batching: a Lambertian (and GGX with one roughness) measured at W wavelengths at once
 (:func:`virtual.engine.gonio_counts_spectral`) gives, per wavelength, exactly the
 single-wavelength count distribution.
 
@@ -6,6 +6,12 @@ Each wavelength's row is compared with an independent single-wavelength run by t
 chi-square (bins + absorbed + missed): p > 1e-3 fails a correct kernel once in 1000 per
 comparison (fixed seeds, so fixed outcomes). Power: a row against a single run whose reflectance
 differs by 0.02 gives p < 1e-6.
+
+The stream rule of the product (:mod:`virtual.goniophotometer`): rays counted for a specimen
+whose wavelengths share the angular part draw one stream per (specimen, incidence), and a
+wavelength's counts do not depend on the other wavelengths of its batch -- tested exactly (31
+wavelengths in one batch against 31 batches of one) in both precisions, through
+:class:`VirtualGoniophotometer`, a sweep and the virtual bench.
 """
 
 from __future__ import annotations
@@ -122,12 +128,13 @@ def _ray(model, p, beam, theta, seed):
                         COL.kernel_args(), N, measurement_seed(seed), kernel="ray")
 
 
-def _counting(monkeypatch, name):
-    """Count the calls of ``virtual.engine.<name>`` (to know which batch ran)."""
-    import virtual.engine as eng
+def _counting(monkeypatch, name, module="virtual.engine"):
+    """Count the calls of ``<module>.<name>`` (to know which batch ran)."""
+    import importlib
 
-    calls, fn = [], getattr(eng, name)
-    monkeypatch.setattr(eng, name, lambda *a: calls.append(1) or fn(*a))
+    mod = importlib.import_module(module)
+    calls, fn = [], getattr(mod, name)
+    monkeypatch.setattr(mod, name, lambda *a, **k: calls.append(1) or fn(*a, **k))
     return calls
 
 
@@ -213,3 +220,128 @@ def test_float32_ggx_batch_does_not_depend_on_the_thread_count():
     n = 3 * (1 << 20) + 9
     one, many = on_one_and_all_threads(lambda: _ggx_spectral(GGX32_ROWS, Beam("conical"), 35.0, 4, n=n))
     np.testing.assert_array_equal(one, many)
+
+
+# --- the product's stream rule: a batch of 31 wavelengths == 31 batches of one, exactly ---------------------------
+WL31 = np.arange(400.0, 701.0, 10.0)
+LAMBERT31 = [(0.05 + 0.03 * i, 0.3 - 0.009 * i) for i in range(31)]
+GGX31 = [(0.2, 0.2, 0.2 + 0.05 * i, 3.0 - 0.09 * i, 0.0) for i in range(31)]
+
+
+def _rows_equal_single_batches(model, rows, beam, n=60_000):
+    args, cargs = beam.kernel_args(35.0, 20.0), COL.kernel_args()
+    many = gonio_counts_spectral(model, [np.array(p) for p in rows], beam.code, beam.disk_code, args, cargs, n,
+                                 measurement_seed(7, 11))
+    for w, p in enumerate(rows):
+        one = gonio_counts_spectral(model, [np.array(p)], beam.code, beam.disk_code, args, cargs, n,
+                                    measurement_seed(7, 11))
+        np.testing.assert_array_equal(many[w], one[0], err_msg=f"row {w}")
+    return many
+
+
+@pytest.mark.parametrize("float32", [True, False])
+@pytest.mark.parametrize("beam", [Beam("conical"), Beam("collimated")])
+def test_a_lambert_batch_of_31_gives_exactly_31_single_wavelength_batches(monkeypatch, beam, float32):
+    import virtual.engine as eng
+
+    if not float32:  # a Lambertian always suits float32: force the float64 batch to test it too
+        monkeypatch.setattr(eng, "float32_suits", lambda model, params: False)
+    calls = _counting(monkeypatch, "lambert_spectral32_kernel" if float32 else "lambert_spectral_kernel")
+    many = _rows_equal_single_batches(MODEL_LAMBERT, LAMBERT31, beam)
+    assert calls and len({tuple(r) for r in many}) == 31  # every wavelength its own counts
+
+
+@pytest.mark.parametrize("alpha, kernel", [(0.2, "ggx_spectral32_kernel"), (0.005, "ggx_spectral_kernel")])
+@pytest.mark.parametrize("beam", [Beam("conical"), Beam("collimated")])
+def test_a_ggx_batch_of_31_gives_exactly_31_single_wavelength_batches(monkeypatch, beam, alpha, kernel):
+    calls = _counting(monkeypatch, kernel)  # alpha 0.005 < MIN_ALPHA: the float64 batch
+    rows = [(alpha, alpha, *p[2:]) for p in GGX31]
+    many = _rows_equal_single_batches(MODEL_GGX, rows, beam)
+    assert calls and len({tuple(r) for r in many}) > 25
+
+
+def _spectral_ggx():
+    from virtual.specimens.microfacet import GGX
+
+    return GGX(alpha=0.2, eta=(list(WL31), [p[2] for p in GGX31]), k=(list(WL31), [p[3] for p in GGX31]))
+
+
+@pytest.mark.parametrize("specimen", ["colorchecker:dark skin", "ggx"])
+def test_the_goniophotometer_batches_its_wavelengths_with_the_counts_of_single_wavelength_runs(monkeypatch, specimen):
+    from virtual.goniophotometer import VirtualGoniophotometer
+
+    sp = _spectral_ggx() if specimen == "ggx" else parse_specimen(specimen)
+    kw = {"collector": "equal-psa:9x24", "rays": 60_000, "seed": 3, "method": "rays", "beam": "conical"}
+    calls = _counting(monkeypatch, "gonio_counts_spectral", "virtual.goniophotometer")
+    g = VirtualGoniophotometer(sp, wavelengths=WL31, **kw)
+    assert g.batches_wavelengths
+    rec = g.measure_bsdf(30.0, 10.0)
+    assert len(calls) == 1 and rec.meta["method"] == "rays"  # one batch for the 31 wavelengths
+    for w in WL31:
+        one = VirtualGoniophotometer(sp, wavelengths=[w], **kw).measure_bsdf(30.0, 10.0)
+        assert rec.table[rec.table.wavelength_nm == w]["count"].tolist() == one.table["count"].tolist(), w
+    # one wavelength asked alone first (a detector scan): the rest of the spectrum comes in its batch
+    g2 = VirtualGoniophotometer(sp, wavelengths=WL31, **kw)
+    np.testing.assert_array_equal(g2.simulate(30.0, 10.0, 550.0), g.simulate(30.0, 10.0, 550.0))
+    assert len(calls) == 1 + 31 + 1 and len(g2._cache) == 31
+
+
+def test_specimens_whose_direction_depends_on_the_wavelength_keep_a_stream_per_wavelength(monkeypatch):
+    from virtual.goniophotometer import VirtualGoniophotometer
+    from virtual.specimens.microfacet import GGX
+
+    calls = _counting(monkeypatch, "gonio_counts_spectral", "virtual.goniophotometer")
+    kw = {"collector": "equal-psa:9x24", "rays": 20_000, "seed": 3, "method": "rays"}
+    for sp in (GGX(alpha=([400.0, 700.0], [0.1, 0.3])), parse_specimen("phong"), parse_specimen("plastic")):
+        g = VirtualGoniophotometer(sp, wavelengths=[450, 550], **kw)
+        assert not g.batches_wavelengths
+        g.measure_bsdf(30.0)
+    assert not calls
+    assert not VirtualGoniophotometer("lambert:albedo=0.5", beam=Beam("collimated", disk_sampling="rejection"),
+                                      **kw).batches_wavelengths
+
+
+def test_auto_counts_rays_for_several_wavelengths_only_where_one_batch_beats_the_quadratures():
+    from virtual.goniophotometer import VirtualGoniophotometer
+
+    def method(sp, wl, rays=10_000_000):
+        return "fast" if VirtualGoniophotometer(sp, wavelengths=wl, rays=rays, seed=1).uses_fast_path() else "rays"
+
+    ggx = "ggx:alpha=0.2,eta=0.2,k=3"
+    assert method(ggx, [550]) == "fast"  # one wavelength: the fast path, as before
+    assert method(ggx, WL31) == "rays"  # 31 quadratures of ~1 s against one batch
+    assert method(ggx, WL31, rays=10_000_000_000) == "fast"  # a batch of 1e10 rays costs more
+    assert method("lambert:albedo=0.5", WL31) == "fast"  # a Lambertian's quadrature is cheap
+    assert method("phong", WL31) == "fast"  # no batch for a Phong lobe
+
+
+def test_a_sweep_batches_a_task_s_wavelengths_with_the_counts_of_one_wavelength_tasks(monkeypatch):
+    import pandas as pd
+
+    from bench.sweep import run_task, sweep_from_dict
+
+    d = {"sweep": {"seed": 4, "instrument": "gonio", "specimens": ["ggx:alpha=0.3,eta=1.5,k=0"],
+                   "incidences": [20], "collectors": ["equal-psa:6x12"], "wavelengths": "450:650:50",
+                   "rays": 100_000}}
+    whole = sweep_from_dict(d)  # default: a whole spectrum per task; auto resolves to rays (one batch)
+    split = sweep_from_dict({"sweep": {**d["sweep"], "wavelengths_per_task": 1}})
+    assert len(whole) == 1 and len(split) == 5 and {t.method for t in whole.tasks + split.tasks} == {"rays"}
+    calls = _counting(monkeypatch, "gonio_counts_spectral", "virtual.goniophotometer")
+    a = run_task(whole.tasks[0]).rows
+    assert len(calls) == 1
+    b = pd.concat([run_task(t).rows for t in split.tasks], ignore_index=True)
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
+
+
+def test_the_virtual_bench_reads_every_detector_wavelength_from_one_batch(monkeypatch):
+    from bench.core.geometry import Geometry
+    from virtual.goniophotometer import VirtualGoniophotometer
+
+    calls = _counting(monkeypatch, "gonio_counts_spectral", "virtual.goniophotometer")
+    g = VirtualGoniophotometer("colorchecker:foliage", collector="equal-psa:9x24", rays=50_000, seed=2, method="rays",
+                               wavelengths=WL31)
+    g.move_to(Geometry(30.0, 0.0, 30.0, 180.0))
+    r = g.acquire(1.0)
+    g.move_to(Geometry(30.0, 0.0, 45.0, 180.0))
+    g.acquire(1.0)
+    assert len(calls) == 1 and r.signal.shape == (31,) and (r.signal > 0).all()

@@ -36,6 +36,9 @@ def test_streams_are_per_specimen_by_default_and_common_on_request():
     same = [VirtualGoniophotometer(s, common_random_numbers=True, **kw)
             for s in ("lambert:albedo=0.5", "lambert:albedo=0.50000001")]
     assert same[0].stream(30.0, 0.0, 550.0).spawn_key == same[1].stream(30.0, 0.0, 550.0).spawn_key
+    # the Lambertian's rays are batched over wavelengths: one stream per (specimen, incidence), same rule
+    assert g[0].batches_wavelengths and g[0].batch_stream_key(30.0, 0.0) != g[1].batch_stream_key(30.0, 0.0)
+    assert same[0].batch_stream_key(30.0, 0.0) == same[1].batch_stream_key(30.0, 0.0) == (30_000, 0)
     # common random numbers: two specimens that differ by 1e-8 count (almost) the same rays
     a, b = (x.simulate(30.0, 0.0, 550.0) for x in same)
     assert np.abs(a - b).sum() <= 2

@@ -26,7 +26,7 @@ SWEEPS = ROOT / "fixtures" / "sweeps"
 SMALL = {"sweep": {"name": "small", "seed": 99, "instrument": "gonio",
                    "specimens": ["lambert:albedo=0.5", "lambert:reflectance=0.4,transmittance=0.3"],
                    "incidences": [10, [50, 90]], "collectors": ["equal-psa:3x8"], "wavelengths": [500, 600],
-                   "rays": 2_000_000, "method": "rays"}}
+                   "rays": 2_000_000, "method": "rays", "wavelengths_per_task": 1}}
 
 
 def _science(store, run_id):
@@ -49,9 +49,10 @@ def test_fixtures_load_into_the_documented_task_counts():
     assert len(load_sweep(SWEEPS / "gonio-product.toml")) == 2 * 3 * 1 * 3  # specimens x incidences x wl
     assert len(load_sweep(SWEEPS / "spectro-colorchecker.toml")) == 4 * 3  # whole spectra per task
     tasks = load_sweep(SWEEPS / "gonio-tasks.toml").tasks
-    assert len(tasks) == 1 + 1 + 3
+    assert len(tasks) == 1 + 1 + 1  # a whole spectrum per task by default
     assert tasks[1].collector == "equal-solid-angle:6x24" and (tasks[1].theta_i, tasks[1].phi_i) == (45.0, 90.0)
-    assert tasks[4].rays == 500_000 and tasks[0].rays == 1_000_000  # [[task]] overrides [sweep]
+    assert tasks[2].rays == 500_000 and tasks[0].rays == 1_000_000  # [[task]] overrides [sweep]
+    assert tasks[2].wavelengths == (450.0, 550.0, 650.0)
 
 
 @pytest.mark.parametrize("change,needle", [
@@ -204,7 +205,7 @@ def test_cli_runs_a_sweep_and_resumes_by_run_id(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 0
     d = json.loads(out)
-    assert d["status"] == "completed" and d["tasks_done"] == d["tasks_planned"] == 5 and d["executor"] == "in-process"
+    assert d["status"] == "completed" and d["tasks_done"] == d["tasks_planned"] == 3 and d["executor"] == "in-process"
     # resuming a completed run is a mistake the user can fix: exit 2 (issue 13 policy)
     assert main(["sweep", "--resume", d["run_id"], "--store", str(store)]) == 2
     assert main(["sweep", str(SWEEPS / "missing.toml"), "--store", str(store)]) == 2
@@ -251,7 +252,7 @@ def test_cli_points_a_sweep_at_an_existing_scheduler_and_prints_the_dashboard(tm
     out, err = capsys.readouterr()
     assert code == 0, err
     d = json.loads(out)
-    assert d["executor"] == "dask" and d["tasks_done"] == 5
+    assert d["executor"] == "dask" and d["tasks_done"] == 3
     assert f"Dask scheduler {address} with 2 workers; dashboard: http" in err
     with RunStore(store) as s:
         assert s.run(d["run_id"])["meta"]["executions"][0]["scheduler"] == address

@@ -63,6 +63,8 @@ __all__ = [
     "float32_suits",
     "multinomial_counts",
     "gonio_counts_spectral",
+    "SPECTRAL_BATCH_MODELS",
+    "shares_angular_part",
 ]
 
 #: Rays per chunk aimed at; enough to amortise a chunk's set-up, small enough to balance 2 cores.
@@ -274,7 +276,7 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     wavelength; returns int64 counts ``(W, n_bins + 2)``, each row distributed exactly as
     :func:`gonio_counts` with that row's parameters.
 
-    Spectral batching (issue 18). A Lambertian's direction (cosine-weighted, drawn from u1, u2)
+    Spectral batching. A Lambertian's direction (cosine-weighted, drawn from u1, u2)
     does not depend on the wavelength; only its fate does: with one survival uniform u0, the ray
     leaves on the source's side when u0 < R, on the far side when R <= u0 < R + T, and is
     absorbed otherwise. The block kernel therefore draws each ray's direction and u0 once and
@@ -286,9 +288,9 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     counts are correlated (common random numbers): each row is exact, the rows are not
     independent. Cost: one direction, one patch lookup and one count per ray, whatever W.
 
-    GGX and anisotropic GGX whose roughness is the same at every wavelength (eta and k may
-    vary) batch too: the sampled direction (a visible normal, mirrored) does not depend on eta
-    or k, only the survival probability F_w(w.m) G2/G1 does. The kernel draws each ray's normal
+    GGX and anisotropic GGX whose roughness and masking convention are the same at every
+    wavelength (eta and k may vary) batch too: the sampled direction (a visible normal,
+    mirrored) does not depend on eta or k, only the survival probability F_w(w.m) G2/G1 does. The kernel draws each ray's normal
     and survival uniform u once and tests u < F_w G2/G1 per wavelength -- for each wavelength
     alone exactly the single-wavelength kernel's test on the same kind of draw. Its thresholds
     vary per ray, so it costs one Fresnel factor and one count per wavelength and surviving ray.
@@ -299,9 +301,16 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     factors bracketed by a per-wavelength table of bounds over cos(theta_m) and computed exactly
     only between them -- the same decisions, at a fraction of the cost per wavelength.
 
-    Other models (or a roughness varying with the wavelength: the direction would depend on
-    it) fall back to one :func:`gonio_counts` per wavelength with the same ``seq`` (the same
-    rays where the kernels allow).
+    Every row depends only on its own parameters and the rays: the counts of a wavelength are
+    the same whichever other wavelengths share the batch (so W separate calls with one row each
+    and the same ``seq`` give exactly the rows of one call with all W), provided the batch runs
+    in the same precision -- float32 when every row suits it (for the declared Lambertian and GGX
+    families that depends on the roughness alone). :func:`shares_angular_part` says which
+    specimens take this path.
+
+    Other models (or a roughness or masking varying with the wavelength: the direction would
+    depend on it) fall back to one :func:`gonio_counts` per wavelength with the same ``seq``
+    (the same rays where the kernels allow).
     """
     rows = [np.ascontiguousarray(p, dtype=np.float64) for p in params]
     if not rows:
@@ -309,7 +318,8 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     n_theta, n_phi = int(collector_args[1]), int(collector_args[2])
     n_patches = n_theta * n_phi
     n_bins = 2 * n_patches
-    ggx = int(model) in (MODEL_GGX, MODEL_ANISO_GGX) and all(p[0] == rows[0][0] and p[1] == rows[0][1] for p in rows)
+    ggx = int(model) in (MODEL_GGX, MODEL_ANISO_GGX) and all(
+        p[0] == rows[0][0] and p[1] == rows[0][1] and p[4:5].tolist() == rows[0][4:5].tolist() for p in rows)
     f32 = all(float32_suits(model, p) for p in rows)  # the float32 batch where gonio_counts runs block32
     if ggx and gonio_kernel_for(model, disk) == "block":
         return _ggx_spectral(rows, beam_kind, beam_args, collector_args, n_rays, seq, f32)
@@ -366,6 +376,31 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
         out[w, n_bins] = per_cell[~(near | far)].sum()
         out[w, n_bins + 1] = missed
     return out
+
+
+#: The models :func:`gonio_counts_spectral` batches (one direction per ray, a survival test per
+#: wavelength), and the kernel parameters that decide a ray's direction (equal at every wavelength
+#: for the batch): none for the Lambertian, roughness and masking convention for GGX.
+SPECTRAL_BATCH_MODELS = {MODEL_LAMBERT: (), MODEL_GGX: (0, 1, 4), MODEL_ANISO_GGX: (0, 1, 4)}
+
+
+def shares_angular_part(specimen: Any, disk: int) -> bool:
+    """Whether :func:`gonio_counts_spectral` batches this specimen's wavelengths: a model of
+    :data:`SPECTRAL_BATCH_MODELS` whose direction parameters are the same at every wavelength the
+    specimen declares (its spectral tables' wavelengths; a constant is the same everywhere), under
+    a beam whose disks the block kernels sample (not ``disk_sampling = "rejection"``). A property
+    of the specimen and the beam only, never of which wavelengths a measurement asks for."""
+    angular = SPECTRAL_BATCH_MODELS.get(int(getattr(specimen, "model", -1)))
+    if angular is None or gonio_kernel_for(specimen.model, disk) != "block":
+        return False
+    if not angular:
+        return True
+    tables = [getattr(getattr(specimen, p.name), "wavelengths", None) for p in getattr(specimen, "parameters", ())]
+    grid = sorted({float(w) for t in tables if t is not None for w in t})
+    lo, hi = specimen.wavelength_range() or (-np.inf, np.inf)
+    grid = [w for w in grid if lo <= w <= hi] or [550.0]
+    first = specimen.params(grid[0])
+    return all(specimen.params(w)[list(angular)].tolist() == first[list(angular)].tolist() for w in grid[1:])
 
 
 def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray, collector_args: tuple,

@@ -17,17 +17,40 @@ over viewing directions costs one simulation per (incidence, wavelength).
 Methods: ``"rays"`` counts rays in the numba kernel; ``"fast"`` draws the same counts as one
 multinomial over patch probabilities integrated from the specimen's density (statistically
 identical, O(patches)); ``"auto"`` takes the fast path when the specimen has a density and the
-beam is collimated (a conical beam's incidence distribution is sampled, not integrated). The
+beam is collimated (a conical beam's incidence distribution is sampled, not integrated) --
+except for an instrument of several wavelengths whose specimen batches them (below) when one
+batch of rays is estimated to cost less than one quadrature per wavelength
+(:func:`auto_counts_rays`: a GGX's quadrature takes about a second, a Lambertian's about 1/50 s,
+a batch of 10^7 rays well under one), so that 31 wavelengths cost at most a few times one. The
 fast path is taken only when its quadrature is certified
 (:func:`virtual.quadrature.certified_patch_integrals`: total probability within
 :data:`~virtual.quadrature.CERTIFY_TOL` of an independent albedo); otherwise ``auto`` counts rays
 and ``fast`` is refused with the reason. The record says, per wavelength, which method ran and the
 achieved quadrature error.
 
-Random streams: each (specimen, wavelength, incidence) draws from
-``measurement_seed(seed, specimen_stream_key, pm, mdeg theta_i, mdeg phi_i)``, so two specimens
-measured with one seed are independent; ``common_random_numbers=True`` leaves the specimen out
-(every specimen sees the same stream: lower variance when comparing models).
+Spectral batching. When the specimen's wavelengths share the angular part -- its spectral
+dependence is only in the survival probability: a Lambertian (spectral reflectance and
+transmittance), GGX and anisotropic GGX with one roughness and masking convention (spectral eta,
+k), under a beam the block kernels sample (:func:`virtual.engine.shares_angular_part`) -- the
+rays of one incidence are counted for all the instrument's wavelengths at once
+(:func:`virtual.engine.gonio_counts_spectral`): each ray's direction is drawn once and each
+wavelength rolls its own survival, so 31 wavelengths cost 1-3x one.
+
+Random streams (the one rule):
+
+* rays counted for a specimen that batches: one stream per (specimen, incidence), shared by
+  every wavelength -- ``measurement_seed(seed, specimen_stream_key, mdeg theta_i, mdeg phi_i)``
+  (:meth:`batch_stream_key`). The wavelengths see common random numbers (each wavelength's
+  counts have exactly the single-wavelength distribution; the wavelengths are correlated), and a
+  wavelength's counts do not depend on which other wavelengths are measured with it: a
+  single-wavelength run is the batch of one, and a batch of 31 gives exactly the counts of 31
+  single-wavelength runs;
+* everything else (the fast path, specimens that do not batch): one stream per (specimen,
+  wavelength, incidence), ``measurement_seed(seed, specimen_stream_key, pm, mdeg theta_i,
+  mdeg phi_i)`` (:meth:`stream_key`), so wavelengths are independent.
+
+Two specimens measured with one seed are independent; ``common_random_numbers=True`` leaves the
+specimen out (every specimen sees the same stream: lower variance when comparing models).
 """
 
 from __future__ import annotations
@@ -45,16 +68,39 @@ from bench.core.records import BSDF_COLUMNS, BSDFRecord
 from virtual.beam import Beam, check_incidence
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.collector import Collector, parse_collector
-from virtual.engine import gonio_counts, gonio_kernel_for, measurement_seed, multinomial_counts, specimen_stream_key
+from virtual.engine import (float32_suits, gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed,
+                            multinomial_counts, shares_angular_part, specimen_stream_key)
 from virtual.python_engine import gonio_counts_python
 from virtual.quadrature import PatchIntegrals, certified_patch_integrals
+from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
 from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
 from virtual.spectrophotometer import fresh_seed
 
-__all__ = ["VirtualGoniophotometer", "METHODS"]
+__all__ = ["VirtualGoniophotometer", "METHODS", "auto_counts_rays"]
 
 METHODS = ("auto", "rays", "fast")
 DEFAULT_RAYS = 10_000_000
+
+#: Fixed estimates for ``auto``'s choice at several wavelengths (never timed at run time, so the
+#: choice is the same on every machine): seconds of one wavelength's certified quadrature by
+#: model (9x36 and 18x72 collectors, 2 cores), the rays/s a spectral batch is costed at, and what
+#: a batch of any number of wavelengths costs in single-wavelength measurements (measured 1-3x).
+QUADRATURE_SECONDS = {MODEL_LAMBERT: 0.02, MODEL_GGX: 1.0, MODEL_ANISO_GGX: 0.5}
+BATCH_RAYS_PER_SECOND = 2e7
+BATCH_COST = 3
+
+
+def auto_counts_rays(specimen: Specimen, beam: Beam, n_wavelengths: int, rays: int) -> bool:
+    """Whether ``method="auto"`` counts rays, in one spectral batch, where it would otherwise take
+    the fast path: several wavelengths of a specimen whose wavelengths share the angular part
+    (:func:`virtual.engine.shares_angular_part`), and the batch's estimated time
+    ``rays * min(W, BATCH_COST) / BATCH_RAYS_PER_SECOND`` below the quadratures'
+    ``W * QUADRATURE_SECONDS[model]``. One wavelength always keeps the fast path."""
+    w = int(n_wavelengths)
+    if w < 2 or not shares_angular_part(specimen, beam.disk_code):
+        return False
+    batch = float(rays) * min(w, BATCH_COST) / BATCH_RAYS_PER_SECOND
+    return batch < w * QUADRATURE_SECONDS.get(int(specimen.model), 0.0)
 
 
 class VirtualGoniophotometer(InstrumentBase):
@@ -113,6 +159,8 @@ class VirtualGoniophotometer(InstrumentBase):
         self._certificates: dict[tuple[float, float, float], PatchIntegrals] = {}
         self._ran: dict[tuple[float, float, float], str] = {}
         self.common_random_numbers = bool(common_random_numbers)
+        #: whether counted rays are batched over wavelengths (the stream rule of the module docstring)
+        self.batches_wavelengths = shares_angular_part(self.specimen, self.beam.disk_code)
 
     # -- Instrument --------------------------------------------------------------------------
     def describe(self) -> InstrumentInfo:
@@ -173,8 +221,7 @@ class VirtualGoniophotometer(InstrumentBase):
         b = int(self.collector.index(view[None, :])[0])
         signal, std = np.empty(self._wavelengths.size), np.empty(self._wavelengths.size)
         psa = self.collector.psa[b]
-        for i, w in enumerate(self._wavelengths):
-            counts = self.simulate(g.theta_i, g.phi_i, float(w))
+        for i, counts in enumerate(self.simulate_spectrum(g.theta_i, g.phi_i, self._wavelengths)):
             hits = int(counts[:-2].sum() + counts[-2])
             p = counts[b] / max(hits, 1)
             f = p / psa
@@ -191,8 +238,7 @@ class VirtualGoniophotometer(InstrumentBase):
         b = int(self.collector.index(geometry.view[None, :])[0])
         psa = self.collector.psa[b]
         out = np.empty((3, self._wavelengths.size))
-        for i, w in enumerate(self._wavelengths):
-            counts = self.simulate(geometry.theta_i, geometry.phi_i, float(w))
+        for i, counts in enumerate(self.simulate_spectrum(geometry.theta_i, geometry.phi_i, self._wavelengths)):
             n = int(counts[:-2].sum() + counts[-2])
             lo, hi = binomial_ci(np.array([counts[b]]), np.array([n]), self.delta)
             out[:, i] = counts[b] / max(n, 1) / psa, lo[0] / psa, hi[0] / psa
@@ -203,6 +249,8 @@ class VirtualGoniophotometer(InstrumentBase):
         """Whether the fast path is *tried* (it runs only where its quadrature is certified)."""
         if self.method == "fast":
             return True
+        if auto_counts_rays(self.specimen, self.beam, self._wavelengths.size, self.rays):
+            return False  # one batch of rays costs less than a quadrature per wavelength
         return self.method == "auto" and self.specimen.has_density and self.beam.kind == "collimated"
 
     def stream_key(self, theta_i: float, phi_i: float, wavelength_nm: float) -> tuple[int, ...]:
@@ -214,6 +262,13 @@ class VirtualGoniophotometer(InstrumentBase):
     def stream(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.random.SeedSequence:
         """The random stream of one (incidence, wavelength) (:meth:`stream_key`)."""
         return measurement_seed(self.seed, *self.stream_key(theta_i, phi_i, wavelength_nm))
+
+    def batch_stream_key(self, theta_i: float, phi_i: float) -> tuple[int, ...]:
+        """The spawn key of one incidence's batch of rays, shared by every wavelength when the
+        specimen batches (:attr:`batches_wavelengths`): (specimen hash,) mdeg theta_i, mdeg phi_i
+        -- no wavelength; the specimen left out under ``common_random_numbers``."""
+        key = (int(round(theta_i * 1000)), int(round((phi_i % 360.0) * 1000)))
+        return key if self.common_random_numbers else (specimen_stream_key(self.specimen), *key)
 
     def fast_path_for(self, theta_i: float, phi_i: float, wavelength_nm: float) -> bool:
         """Whether this (incidence, wavelength) is counted by the fast path: tried and certified.
@@ -255,12 +310,17 @@ class VirtualGoniophotometer(InstrumentBase):
             return "fast"
         if self.specimen.model == MODEL_PYTHON:
             return "python"
+        if self.batches_wavelengths:  # the spectral batch: float32 when every wavelength suits it
+            f32 = all(float32_suits(self.specimen.model, self.specimen.params(float(w))) for w in self._wavelengths)
+            return "block32" if f32 else "block"
         return gonio_kernel_for(self.specimen.model, self.beam.disk_code, params=self.specimen.params(550.0))
 
     def simulate(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.ndarray:
         """Counts per bin (R patches, T patches, absorbed, missed) for one incidence and
-        wavelength; cached. The stream is keyed by (wavelength, incidence) so a repeated or
-        resumed measurement draws the same rays (see :meth:`stream`).
+        wavelength; cached. The stream is keyed by the incidence (and the wavelength, unless the
+        rays are batched over wavelengths) so a repeated or resumed measurement draws the same
+        rays (see the module docstring). Counting rays for a specimen that batches, the
+        instrument's other wavelengths are counted in the same batch and cached.
 
         Raises :class:`InputError` when ``method="fast"`` and the quadrature is not certified.
         """
@@ -272,6 +332,10 @@ class VirtualGoniophotometer(InstrumentBase):
         params = self.specimen.params(wavelength_nm)
         if self.fast_path_for(theta_i, phi_i, wavelength_nm):
             counts = multinomial_counts(self.bin_probabilities(theta_i, phi_i, wavelength_nm), self.rays, seq)
+        elif self.batches_wavelengths:  # with the instrument's other wavelengths not yet counted here
+            others = [] if self.uses_fast_path() else [float(w) for w in self._wavelengths]
+            self._simulate_batch(theta_i, phi_i, [float(wavelength_nm), *others])
+            return self._cache[key]
         elif self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
             counts = gonio_counts_python(self.specimen, wavelength_nm, self.beam, theta_i, phi_i, self.collector,
                                          self.rays, seq)
@@ -281,6 +345,37 @@ class VirtualGoniophotometer(InstrumentBase):
                                   self.rays, seq)
         self._cache[key] = counts
         return counts
+
+    def simulate_spectrum(self, theta_i: float, phi_i: float, wavelengths: Iterable[float]) -> list[np.ndarray]:
+        """:meth:`simulate` at each of ``wavelengths`` -- in one spectral batch when the specimen
+        batches and no wavelength takes the fast path (the counts are those of :meth:`simulate`
+        one wavelength at a time)."""
+        wl = [float(w) for w in wavelengths]
+        if self.batches_wavelengths and not self.uses_fast_path():
+            check_incidence(theta_i)
+            self._simulate_batch(theta_i, phi_i, wl)
+        return [self.simulate(theta_i, phi_i, w) for w in wl]
+
+    def _simulate_batch(self, theta_i: float, phi_i: float, wavelengths: list[float]) -> None:
+        """Count rays for those of ``wavelengths`` not yet simulated at this incidence in one
+        spectral batch on the incidence's shared stream (:meth:`batch_stream_key`), and cache
+        each row. A row is what a batch of that wavelength alone gives: the batch's make-up
+        changes no count."""
+        phi = round(phi_i % 360.0, 9)
+        todo: dict[tuple[float, float, float], float] = {}
+        for w in wavelengths:
+            key = (round(theta_i, 9), phi, round(w, 9))
+            if key not in self._cache:
+                todo.setdefault(key, w)
+        if not todo:
+            return
+        seq = measurement_seed(self.seed, *self.batch_stream_key(theta_i, phi_i))
+        rows = gonio_counts_spectral(self.specimen.model, [self.specimen.params(w) for w in todo.values()],
+                                     self.beam.code, self.beam.disk_code, self.beam.kernel_args(theta_i, phi_i),
+                                     self.collector.kernel_args(), self.rays, seq)
+        for key, counts in zip(todo, rows):
+            self._ran[key] = "rays"
+            self._cache[key] = counts
 
     def bin_probabilities(self, theta_i: float, phi_i: float, wavelength_nm: float) -> np.ndarray:
         """Probabilities of every bin (R patches, T patches, absorbed, missed = 0) for a
@@ -314,8 +409,7 @@ class VirtualGoniophotometer(InstrumentBase):
         n_bins = 2 * col.n_patches
         frames = []
         totals = []
-        for w in wl:
-            counts = self.simulate(theta_i, phi_i, float(w))
+        for w, counts in zip(wl, self.simulate_spectrum(theta_i, phi_i, wl)):
             k = counts[:n_bins]
             hits = int(k.sum() + counts[n_bins])
             n = max(hits, 1)

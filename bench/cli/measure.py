@@ -188,12 +188,17 @@ def reciprocity_note(s: Any) -> str:
 
 def _refuse_long(instrument: Any, n_wl: int, max_seconds: float, option: str) -> None:
     """Refuse a fixed ray count whose estimated time exceeds ``--max-seconds`` (every method: the
-    exact fast path costs nothing per ray; counting rays runs at the stated rate)."""
+    exact fast path costs nothing per ray; counting rays runs at the stated rate, and a spectral
+    batch costs at most :data:`virtual.goniophotometer.BATCH_COST` single-wavelength measurements)."""
+    from virtual.goniophotometer import BATCH_COST
+
     fast = getattr(instrument, "uses_fast_path", lambda: False)()
+    batched = bool(getattr(instrument, "batches_wavelengths", False)) and n_wl > 1
     n = int(getattr(instrument, "rays", 0) or 0)
-    seconds = 0.0 if fast else estimated_seconds(n, n_wl)
+    seconds = 0.0 if fast else estimated_seconds(n, min(n_wl, BATCH_COST) if batched else n_wl)
     if seconds > max_seconds:
-        raise InputError(f"{option} {n:,} x {n_wl} wavelength(s) would take about {seconds:,.0f} s at "
+        how = f" (one spectral batch, at most {BATCH_COST}x one wavelength)" if batched else ""
+        raise InputError(f"{option} {n:,} x {n_wl} wavelength(s){how} would take about {seconds:,.0f} s at "
                          f"{RAYS_PER_SECOND:.0e} rays/s, more than --max-seconds {max_seconds:g}")
 
 
@@ -289,8 +294,10 @@ def cmd_gonio(args: argparse.Namespace) -> int:
                                     phi_i=phi_i, max_seconds=args.max_seconds, progress=stderr_is_terminal())
         record = adaptive["result"]
     else:
-        if stderr_is_terminal() and not g.uses_fast_path():  # progress with an ETA, one step per wavelength:
-            from tqdm import tqdm  # the counts are cached per (incidence, wavelength), measure_bsdf reuses them
+        # progress with an ETA, one step per wavelength (a spectral batch is one step: no bar); the counts
+        # are cached per (incidence, wavelength), measure_bsdf reuses them
+        if stderr_is_terminal() and not g.uses_fast_path() and not g.batches_wavelengths:
+            from tqdm import tqdm
 
             for w in tqdm(g.wavelengths, desc="gonio", unit="wl", leave=False, dynamic_ncols=True):
                 g.simulate(theta_i, phi_i, float(w))
@@ -431,7 +438,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--beam", choices=("collimated", "conical"), default="collimated", help="beam (default %(default)s)")
     g.add_argument("--method", choices=("auto", "rays", "fast"), default="auto",
                    help="rays: count rays; fast: one multinomial over integrated patch probabilities; "
-                        "auto: fast when exact (default %(default)s)")
+                        "auto: fast when exact, except rays for several wavelengths of a specimen whose "
+                        "wavelengths batch (default %(default)s)")
     g.add_argument("--no-adaptive", action="store_true",
                    help="with --patch-probability-uncertainty: the fixed eq. 3.12 ray count instead of the "
                         "adaptive rule")

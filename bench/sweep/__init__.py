@@ -43,7 +43,13 @@ specimen text with the whitespace around ``: , =`` removed, incidence rounded to
 CIE geometry, collector, beam, method, rays, cone). Its seed is
 ``SeedSequence(sweep_seed, spawn_key=(key,))`` reduced to a 63-bit integer (``series_seed`` in
 the run's task table); the instrument then draws wavelength ``w`` from
-``measurement_seed(series_seed, w in pm, theta_i, phi_i)``. A result therefore depends on the
+``measurement_seed(series_seed, [specimen hash,] w in pm, theta_i, phi_i)`` -- or, counting rays
+for a specimen whose wavelengths share the angular part (Lambertian, single-roughness GGX), all
+the task's wavelengths from one spectral batch on ``measurement_seed(series_seed, [specimen
+hash,] theta_i, phi_i)`` (the specimen hash left out under common random numbers), whose
+row for ``w`` is exactly what a task of ``w`` alone gives (see
+:mod:`virtual.goniophotometer`). Tasks hold a whole spectrum by default
+(``wavelengths_per_task = 0``), so such a series costs one batch. A result therefore depends on the
 sweep seed and the measurement's own parameters only -- never on the task index, the order of
 the product, how wavelengths are grouped into tasks, which worker ran it, the thread count, or
 a retry -- and ``bench gonio --seed SERIES_SEED`` (``bench spectro``) reproduces one series.

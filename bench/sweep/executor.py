@@ -115,7 +115,9 @@ def run_sweep(spec: SweepSpec, store: Any, *, client: Any = None, progress: bool
     executor = _executor(client)
     meta = {"sweep": spec.name, "instrument": spec.instrument, "n_tasks": len(spec),
             "seeding": "series_seed = SeedSequence(seed, spawn_key=(blake2b64(series parameters),)); "
-                       "wavelength stream = measurement_seed(series_seed, pm, mdeg theta_i, mdeg phi_i)",
+                       "wavelength stream = measurement_seed(series_seed, [specimen hash,] pm, mdeg theta_i, "
+                       "mdeg phi_i); rays batched over wavelengths (gonio Lambertian, single-roughness GGX): one "
+                       "stream measurement_seed(series_seed, [specimen hash,] mdeg theta_i, mdeg phi_i)",
             "tasks": task_table(spec), "task_runs": {"worker": [None] * len(spec), "compute_s": [None] * len(spec)},
             "executions": [executor]}
     run_id = store.create_run(kind="sweep", plan=spec.source, bench={"kind": "virtual", "instrument": spec.instrument},

@@ -20,8 +20,10 @@ from bench.core.errors import ConfigError, InputError
 from bench.core.geometry import cie_geometry
 from bench.core.parsing import parse_wavelengths, read_toml
 from bench.core.schemas import MAX_SWEEP_SERIES, SweepFile, validate_document
+from virtual.beam import Beam
 from virtual.bounds import hoeffding_rays
 from virtual.collector import parse_collector
+from virtual.goniophotometer import auto_counts_rays
 from virtual.specimens import parse_specimen
 from virtual.spectrophotometer import fresh_seed
 
@@ -158,7 +160,7 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: s
         geometries = ["8/d", "45/0"]    # spectro: CIE geometries
         collectors = ["equal-psa:9x36"] # gonio (default equal-psa:9x36)
         wavelengths = "450:650:50"      # START:STOP:STEP, a list, or a number (nm)
-        wavelengths_per_task = 1        # 0 = all in one task (default: gonio 1, spectro 0)
+        wavelengths_per_task = 1        # 0 = all in one task (the default)
         rays = 2_000_000                # per wavelength; or uncertainty = v (eq. 3.5/3.12)
         delta = 0.01
         method = "rays"                 # gonio: auto | rays | fast
@@ -201,7 +203,9 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: s
     if not isinstance(crn, bool):
         raise ConfigError(f"[sweep]: common_random_numbers must be true or false, got {crn!r}")
     name = str(s.get("name", default_name))
-    per_task = s.get("wavelengths_per_task", 1 if instrument == "gonio" else 0)
+    # default: a whole spectrum per task -- a goniophotometer's Lambertian or GGX counts its
+    # wavelengths in one spectral batch (31 cost 1-3x one), which tasks of one wavelength would forgo
+    per_task = s.get("wavelengths_per_task", 0)
     if not isinstance(per_task, int) or isinstance(per_task, bool) or per_task < 0:
         raise ConfigError(f"[sweep]: wavelengths_per_task must be an integer >= 0, got {per_task!r}")
 
@@ -327,12 +331,15 @@ def _series(instrument: str, e: Mapping[str, Any], where: str, parse_wavelengths
             raise ConfigError(f"{where}: method must be one of {', '.join(_METHODS)}, got {method!r}")
         if method == "fast" and not spec.has_density:
             raise ConfigError(f"{where}: method 'fast' needs a specimen with a density; {specimen} has none")
-        if method == "auto":  # resolve now: the key and the stored rows name the method really used
-            method = "fast" if spec.has_density and beam == "collimated" else "rays"
-        params["method"] = method
         if rays is None:
             u = e.get("uncertainty")
             rays = hoeffding_rays(float(u), delta, col.n_patches) if u is not None else 10_000_000
+        if method == "auto":  # resolve now: the key and the stored rows name the method really used
+            # as VirtualGoniophotometer resolves it for the whole series (auto_counts_rays), so that
+            # however the wavelengths are cut into tasks, each runs the same method
+            batch = isinstance(rays, (int, np.integer)) and auto_counts_rays(spec, Beam(kind=beam), wl.size, int(rays))
+            method = "fast" if spec.has_density and beam == "collimated" and not batch else "rays"
+        params["method"] = method
     else:
         if "incidence" in e or "collector" in e:
             raise ConfigError(f"{where}: a spectro series takes a geometry, not an incidence or collector")
