@@ -29,17 +29,14 @@ __all__ = ["KERNEL_FAMILIES", "CompileProgress", "compile_progress", "WARM_UP", 
 #: Kernels called from Python, by name: (what the user reads, seconds a cold compile takes on a
 #: 2-core machine, the estimate before this machine has compiled it once).
 KERNEL_FAMILIES: dict[str, tuple[str, float]] = {
-    "spectro_kernel": ("spectrophotometer kernel (ray by ray)", 30.0),
-    "gonio_kernel": ("goniophotometer kernel (ray by ray)", 30.0),
     "gonio_block_kernel": ("float64 block kernel", 40.0),
     "gonio_block32_kernel": ("float32 block kernel", 40.0),
     "ggx_spectral_kernel": ("float64 spectral GGX batch", 15.0),
     "lambert_spectral32_kernel": ("float32 spectral Lambertian batch", 10.0),
     "ggx_spectral32_kernel": ("float32 spectral GGX batch", 15.0),
     "fresnel_bounds": ("Fresnel bound tables", 3.0),
-    "spectro_fx_kernel": ("spectrophotometer kernel with scene effects", 35.0),
-    "gonio_fx_kernel": ("goniophotometer kernel with scene effects", 35.0),
-    "gonio_kernel_f32": ("goniophotometer kernel with a float32 lookup", 30.0),
+    "spectro_fx_kernel": ("spectrophotometer kernel (ray by ray, scene effects by flag)", 60.0),
+    "gonio_fx_kernel": ("goniophotometer kernel (ray by ray, scene effects by flag)", 60.0),
     "spectro_points_kernel": ("spectrophotometer kernel on given points", 25.0),
     "index_many": ("collector patch lookup", 3.0),
     "_warp_polar_array": ("disk sampler", 2.0),
@@ -166,16 +163,20 @@ def compile_progress(stream: TextIO | None = None, interactive: bool | None = No
 
 # --- the warm-up ---------------------------------------------------------------------------------
 
-def _gonio_shapes() -> None:
+def _gonio(kernel: str) -> None:
     from virtual.beam import Beam
     from virtual.collector import Collector
     from virtual.engine import gonio_counts, measurement_seed
     from virtual.specimens import parse_specimen
 
     sp, beam, col = parse_specimen("ggx:alpha=0.2"), Beam("conical"), Collector("equal-psa", 3, 6)
-    for kernel in ("ray", "block", "block32"):
-        gonio_counts(sp.model, sp.params(550.0), beam.code, beam.disk_code, beam.kernel_args(30.0, 0.0),
-                     col.kernel_args(), 100, measurement_seed(1), kernel=kernel)
+    gonio_counts(sp.model, sp.params(550.0), beam.code, beam.disk_code, beam.kernel_args(30.0, 0.0), col.kernel_args(),
+                 100, measurement_seed(1), kernel=kernel)
+
+
+def _block_kernels() -> None:
+    _gonio("block")
+    _gonio("block32")
 
 
 def _spectral_batches() -> None:
@@ -201,6 +202,7 @@ def _instruments() -> None:
     VirtualSpectrophotometer("lambert:reflectance=0.5", rays=100, beam="conical", seed=1).measure("8/d", [550.0])
     VirtualSpectrophotometer("lambert:reflectance=0.5", seed=1, uncertainty=0.2).measure("8/d", [550.0])
     VirtualGoniophotometer("lambert:albedo=0.5", rays=1000, method="fast", seed=1).simulate(30.0, 0.0, 550.0)
+    _gonio("ray")
 
 
 def _effects() -> None:
@@ -208,17 +210,16 @@ def _effects() -> None:
 
     from virtual.beam import Beam
     from virtual.collector import Collector
-    from virtual.effects import gonio_counts_f32, gonio_effect_counts, spectro_effect_counts, spectro_point_counts
+    from virtual.effects import gonio_effect_counts, spectro_effect_counts, spectro_point_counts
     from virtual.engine import NO_CONE, measurement_seed
     from virtual.specimens import parse_specimen
 
     sp, beam, col = parse_specimen("lambert:albedo=0.5"), Beam("conical"), Collector("equal-psa", 3, 6)
     p, b = sp.params(550.0), beam.kernel_args(30.0, 0.0)
     spectro_effect_counts(sp.model, p[None, :], None, beam.code, beam.disk_code, b, NO_CONE, 0, None, 100,
-                          measurement_seed(1))
+                          measurement_seed(1))  # the same kernels as _instruments': loaded, not compiled again
     gonio_effect_counts(sp.model, p[None, :], None, beam.code, beam.disk_code, b, col.kernel_args(), 0, None, None,
                         100, measurement_seed(1))
-    gonio_counts_f32(sp.model, p, beam.code, beam.disk_code, b, col.kernel_args(), 100, measurement_seed(1))
     spectro_point_counts(sp.model, p, b, np.zeros((4, 2)), measurement_seed(1))
 
 
@@ -233,10 +234,12 @@ def _samplers() -> None:
     sample_triangle(4, (0.0, 0.0), (1.0, 0.0), (0.0, 1.0), "random", 1)
 
 
-#: The warm-up's tasks, in two groups of about equal compile time (one process each).
+#: The warm-up's tasks, in two groups of about equal compile time (one process each) that share
+#: no kernel: the block kernels and spectral batches; the ray-by-ray kernels (bare and with
+#: effects are one kernel each) and the samplers.
 WARM_UP: tuple[tuple[Callable[[], None], ...], ...] = (
-    (_gonio_shapes, _samplers),
-    (_instruments, _spectral_batches, _effects),
+    (_block_kernels, _spectral_batches),
+    (_instruments, _effects, _samplers),
 )
 
 

@@ -401,18 +401,18 @@ def test_the_first_kernel_compilation_is_announced_once(capsys, monkeypatch):
     common.announce_compilation()
 
     @numba.njit(cache=False)
-    def gonio_kernel(x):  # named as a kernel family
+    def gonio_fx_kernel(x):  # named as a kernel family
         return 2 * x
 
     @numba.njit(cache=False)
-    def spectro_kernel(x):
+    def spectro_fx_kernel(x):
         return 3 * x
 
     @numba.njit(cache=False)
     def not_a_kernel(x):
         return 4 * x
 
-    assert gonio_kernel(2) == 4 and spectro_kernel(2) == 6 and not_a_kernel(2) == 8
+    assert gonio_fx_kernel(2) == 4 and spectro_fx_kernel(2) == 6 and not_a_kernel(2) == 8
     common.stop_announcing()
 
     @numba.njit(cache=False)
@@ -422,6 +422,6 @@ def test_the_first_kernel_compilation_is_announced_once(capsys, monkeypatch):
     assert gonio_block_kernel(2) == 10  # after the command: not announced
     err = capsys.readouterr().err.splitlines()
     assert err[0] == "compiling kernels (first run only)..."
-    assert err[1].startswith("  compiling the goniophotometer kernel (ray by ray) (about ")
-    assert err[2].startswith("  compiling the spectrophotometer kernel (ray by ray) (about ")
+    assert err[1].startswith("  compiling the goniophotometer kernel (ray by ray, scene effects by flag) (about ")
+    assert err[2].startswith("  compiling the spectrophotometer kernel (ray by ray, scene effects by flag) (about ")
     assert len(err) == 3

@@ -51,14 +51,14 @@ def test_families_other_than_kernels_and_nested_compiles_are_not_shown():
             return x + 1
 
         @numba.njit(cache=False)
-        def spectro_kernel(x):
+        def spectro_fx_kernel(x):
             return inner(x)  # compiles inside: one line, for the outer family
 
-        assert spectro_kernel(1) == 2
+        assert spectro_fx_kernel(1) == 2
     lines = out.getvalue().splitlines()
     assert lines == ["compiling kernels (first run only)...",
-                     f"  compiling the {KERNEL_FAMILIES['spectro_kernel'][0]} (about "
-                     f"{KERNEL_FAMILIES['spectro_kernel'][1]:.0f} s)"]
+                     f"  compiling the {KERNEL_FAMILIES['spectro_fx_kernel'][0]} (about "
+                     f"{KERNEL_FAMILIES['spectro_fx_kernel'][1]:.0f} s)"]
 
 
 COMPILES = """

@@ -21,7 +21,6 @@ from bench.core.geometry import Geometry, spherical
 from virtual.beam import Beam, check_incidence, rotation_to
 from virtual.bounds import adaptive_plan, binomial_ci, budget_report, hoeffding_rays
 from virtual.collector import Collector
-from virtual.effects import F32_MISASSIGNMENT_PER_RAY, gonio_counts_f32
 from virtual.engine import chunking, gonio_counts, measurement_seed, multinomial_counts, spectro_counts
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.scene import Scene
@@ -291,32 +290,6 @@ def test_calibration_with_a_reference_at_or_below_dark_on_a_virtual_bench():
     # BRDF is 0.99 / pi within the Monte Carlo uncertainty (5 sigma)
     assert np.all(np.abs(c2.brdf[[0, 2]] - 0.99 / math.pi) < 5 * c2.std[[0, 2]])
     del dark
-
-
-# --- float32 vs float64 kernels -------------------------------------------------------------------
-
-
-def test_float32_and_float64_kernels_agree_within_the_stated_error():
-    """The float32 lookup's stated error: at most F32_MISASSIGNMENT_PER_RAY (1e-5) of the rays
-    change patch. Catches a naive float32 kernel that evaluates the ring by acos in single
-    precision (misassigns ~1e-3 near the pole) or counts in float32. (1) Same seed, same rays:
-    the fraction of rays that moved is below the stated error. (2) Independent seeds: a
-    two-sample chi-square test of homogeneity does not reject at the 1e-3 level."""
-    sp = GGX(alpha=0.3, eta=1.5, k=0.0)
-    col = Collector("equal-psa", 9, 36)
-    b = Beam("collimated")
-    args = (sp.model, sp.params(550.0), b.code, b.disk_code, b.kernel_args(30.0, 0.0), col.kernel_args())
-    n = 2_000_000
-    c64 = gonio_counts(*args, n, measurement_seed(11), kernel="ray")  # the f32 kernel is its twin
-    c32 = gonio_counts_f32(*args, n, measurement_seed(11))
-    moved = np.abs(c64 - c32).sum() / 2
-    assert c32.sum() == n and c32.dtype == np.int64
-    assert moved / n <= F32_MISASSIGNMENT_PER_RAY
-    d32 = gonio_counts_f32(*args, n, measurement_seed(12))
-    table = np.vstack([c64, d32])
-    table = table[:, table.sum(axis=0) >= 10]
-    chi2, p, _, _ = stats.chi2_contingency(table)
-    assert p > 1e-3
 
 
 # --- Phong with exponent 0 (issue 16, item 2) ------------------------------------------------------

@@ -37,9 +37,8 @@ drawn on the specimen disk and the origin comes from :func:`~virtual.beam.emit` 
 with a pin-point specimen disk, the origin is ``w D / (w . axis)``), so the beam's geometry is
 never re-implemented.
 
-Also here: :func:`gonio_counts_f32`, the goniophotometer counting kernel with single-precision
-patch lookup (see its docstring for the stated error), and :func:`spectro_point_counts`, the
-spectrophotometer kernel fed with precomputed disk points (jittered or Sobol strategies).
+Also here: :func:`spectro_point_counts`, the spectrophotometer kernel fed with precomputed disk
+points (jittered or Sobol strategies).
 """
 
 from __future__ import annotations
@@ -50,25 +49,17 @@ import numpy as np
 from bench.core.errors import InputError
 
 from virtual.engine import chunking
-from virtual.kernels.effects import (FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE,
-                                     FX_STRAY, gonio_fx_kernel, gonio_kernel_f32, spectro_fx_kernel,
-                                     spectro_points_kernel)
+from virtual.kernels.effects import (N_EFFECT_ARGS, FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE,
+                                     FX_STRAY, gonio_fx_kernel, spectro_fx_kernel, spectro_points_kernel)
 from virtual.rng import stream_states
 
 __all__ = [
     "FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN", "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS",
     "N_EFFECT_ARGS", "SPECTRO_FX_COLUMNS", "spectro_effect_counts", "gonio_effect_counts",
-    "gonio_counts_f32", "F32_MISASSIGNMENT_PER_RAY", "spectro_point_counts", "pinpoint_beam_args",
+    "spectro_point_counts", "pinpoint_beam_args",
 ]
 
-#: length of the effect parameter vector ``e``
-N_EFFECT_ARGS = 10
 SPECTRO_FX_COLUMNS = ("reflected", "transmitted", "absorbed", "missed", "cone", "detected", "stray")
-
-#: Stated error of :func:`gonio_counts_f32`: the fraction of rays whose patch differs from the
-#: float64 kernel's is at most this (per ray, for collectors up to ~100 rings x 360 sectors).
-F32_MISASSIGNMENT_PER_RAY = 1e-5
-
 
 def pinpoint_beam_args(beam_args: np.ndarray) -> np.ndarray:
     """Beam arguments whose specimen disk is a point (radius 1e-150): :func:`emit` then returns
@@ -130,32 +121,6 @@ def gonio_effect_counts(model: int, ptab: np.ndarray, cdf: np.ndarray | None, be
     out = gonio_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b, pinpoint_beam_args(b),
                            tuple(collector_args), np.int64(n_bins), np.int64(flags), _effect_vector(e, flags), det,
                            sizes, states)
-    return out.sum(axis=0)
-
-
-# --- float32 patch lookup -----------------------------------------------------------------------
-
-def gonio_counts_f32(model: int, params: np.ndarray, beam_kind: int, disk: int, beam_args: np.ndarray,
-                     collector_args: tuple, n_rays: int, seq: np.random.SeedSequence) -> np.ndarray:
-    """:func:`virtual.engine.gonio_counts` with the patch lookup in single precision.
-
-    Same signature, same random streams (a given seed casts the very same rays); the outgoing
-    direction and the collector's edges are rounded to float32 before the lookup. Stated error:
-    rounding moves a direction by ~2^-24 relative (~6e-8 rad), so only rays that land within
-    that distance of a patch edge can change patch. For a density that is bounded near the
-    edges that is ~(number of edges) x 1e-7 of the rays -- about 2e-6 for 9 x 36 patches --
-    and at most :data:`F32_MISASSIGNMENT_PER_RAY` (1e-5) per ray for collectors up to
-    ~100 x 360. Counts stay int64; the estimates' bias is below that fraction, far below
-    Monte Carlo noise for any N < 1e10.
-    """
-    scheme, n_theta, n_phi, sin2, phi_cs = collector_args
-    n_bins = 2 * int(n_theta) * int(n_phi)
-    sizes = chunking(n_rays)
-    states = stream_states(seq, sizes.shape[0])
-    out = gonio_kernel_f32(np.int64(model), np.ascontiguousarray(params, dtype=np.float64), np.int64(beam_kind),
-                            np.int64(disk), np.ascontiguousarray(beam_args, dtype=np.float64), np.int64(scheme),
-                            np.int64(n_theta), np.int64(n_phi), np.ascontiguousarray(sin2, dtype=np.float32),
-                            np.ascontiguousarray(phi_cs, dtype=np.float32), np.int64(n_bins), sizes, states)
     return out.sum(axis=0)
 
 

@@ -8,9 +8,9 @@ identical for a given seed whatever the thread count, and memory does not grow w
 
 Two kernel shapes:
 
-* ray by ray (``spectro_kernel``, ``gonio_kernel``): each ray is emitted, scattered and
-  counted before the next; any specimen, any disk sampling, and the shape the effect kernels of
-  :mod:`virtual.effects` extend;
+* ray by ray (``spectro_fx_kernel``, ``gonio_fx_kernel`` of :mod:`virtual.kernels.effects`, with
+  no effect flag): each ray is emitted, scattered and counted before the next; any specimen, any
+  disk sampling; a scene's per-ray effects (:mod:`virtual.effects`) set flags in the same kernels;
 * block (``gonio_block_kernel``), the goniophotometer's fast path: rays go through in blocks of
   :data:`BLOCK_RAYS`. The block's uniforms are drawn first, 64 xoshiro lanes side by side
   (:func:`~virtual.rng.fill_uniforms`); then one branch-free loop emits (polar disks), scatters
@@ -29,6 +29,7 @@ random streams differ, so equal seeds give equal counts only within one kernel s
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass
 from typing import Any
@@ -40,8 +41,9 @@ from virtual.kernels.beam import BEAM_CONICAL
 from virtual.kernels.block32 import BLOCK32_MODELS, gonio_block32_kernel
 from virtual.kernels.f32 import MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA
 from virtual.kernels.beam import DISK_REJECTION
+from virtual.kernels.effects import N_EFFECT_ARGS, gonio_fx_kernel, spectro_fx_kernel
 from virtual.kernels.engine import (BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS, gonio_block_kernel,  # noqa: F401
-                                    ggx_spectral_kernel, gonio_kernel, lambert_spectral_kernel, spectro_kernel)
+                                    ggx_spectral_kernel, lambert_spectral_kernel)
 from virtual.kernels.spectral32 import (FRESNEL_CELLS, FRESNEL_SAMPLES, fresnel_bounds, ggx_spectral32_kernel,
                                         lambert_spectral32_kernel)
 from virtual.kernels.scatter import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG,
@@ -165,6 +167,15 @@ class single_chunk_threads:
 
 
 NO_CONE = np.array([0.0, 0.0, 1.0, 2.0])  # cos >= 2 never happens: no cone tally
+_NO_FLAGS = np.int64(0)  # the ray-by-ray kernels with no scene effect: the bare kernels
+
+
+def _no_effects(params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The effect kernels' arguments that no flag reads: a one-row parameter table, its cdf,
+    the effect vector and an empty detector table (the types the effect path passes, so both
+    share one compiled kernel)."""
+    return (np.ascontiguousarray(np.atleast_2d(params), dtype=np.float64), np.ones(1), np.zeros(N_EFFECT_ARGS),
+            np.zeros((0, 4)))
 
 
 def spectro_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam_args: np.ndarray,
@@ -176,12 +187,12 @@ def spectro_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, be
     """
     sizes = chunking(n_rays)
     states = stream_states(seq, sizes.shape[0])
+    ptab, cdf, e, _ = _no_effects(params)
+    b = np.ascontiguousarray(beam_args, dtype=np.float64)
     with single_chunk_threads(n_rays):
-        out = spectro_kernel(np.int64(model), np.ascontiguousarray(params, dtype=np.float64),
-                              np.int64(beam_kind), np.int64(disk),
-                              np.ascontiguousarray(beam_args, dtype=np.float64),
-                              np.ascontiguousarray(cone, dtype=np.float64), sizes, states)
-    tot = out.sum(axis=0)
+        out = spectro_fx_kernel(np.int64(model), ptab, cdf, np.int64(beam_kind), np.int64(disk), b, b,
+                                np.ascontiguousarray(cone, dtype=np.float64), _NO_FLAGS, e, sizes, states)
+    tot = out[:, :len(SPECTRO_BINS)].sum(axis=0)
     return SpectroTally(int(n_rays), *(int(v) for v in tot))
 
 
@@ -260,8 +271,10 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
                                       guess_margins(n_theta, n_phi), np.int64(n_bins), sizes,
                                       lane_states(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
         else:
-            out = gonio_kernel(np.int64(model), p, np.int64(beam_kind), np.int64(disk), b,
-                                tuple(collector_args), np.int64(n_bins), sizes, stream_states(seq, sizes.shape[0]))
+            ptab, cdf, e, det = _no_effects(p)
+            out = gonio_fx_kernel(np.int64(model), ptab, cdf, np.int64(beam_kind), np.int64(disk), b, b,
+                                  tuple(collector_args), np.int64(n_bins), _NO_FLAGS, e, det, sizes,
+                                  stream_states(seq, sizes.shape[0]))
     return out.sum(axis=0)
 
 
@@ -403,6 +416,27 @@ def shares_angular_part(specimen: Any, disk: int) -> bool:
     return all(specimen.params(w)[list(angular)].tolist() == first[list(angular)].tolist() for w in grid[1:])
 
 
+@functools.lru_cache(maxsize=1)
+def float32_lanes() -> int:
+    """float32 lanes of this CPU's widest vector (16 with AVX-512, 8 with AVX/AVX2, else 4): a
+    choice of speed only -- no count depends on it."""
+    try:
+        from llvmlite import binding
+
+        features = binding.get_host_cpu_features()
+    except Exception:  # noqa: BLE001 -- an unknown CPU: the narrowest vector
+        return 4
+    return 16 if features.get("avx512f") else (8 if features.get("avx") else 4)
+
+
+def _padded_wavelengths(w: int) -> int:
+    """Wavelengths of the float32 GGX batch's table per ray: ``w`` itself when fewer than a
+    vector's lanes (one wavelength costs one), else whole vectors. The padding wavelengths have
+    empty bounds (never counted), so the counts do not depend on it, only the speed."""
+    lanes = float32_lanes()
+    return w if w < lanes else -(-w // lanes) * lanes
+
+
 def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray, collector_args: tuple,
                   n_rays: int, seq: np.random.SeedSequence, f32: bool) -> np.ndarray:
     """:func:`gonio_counts_spectral` for GGX with one roughness (see there): the float64 batch
@@ -417,7 +451,7 @@ def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray,
     sizes = chunking(n_rays)
     cargs = tuple(collector_args)
     if f32:
-        wp = -(-len(rows) // 16) * 16  # whole 16-lane vectors per ray
+        wp = _padded_wavelengths(len(rows))
         e32, k32 = etas.astype(np.float32), ks.astype(np.float32)  # the bounds are of the kernel's float32 eta, k
         lo, hi = fresnel_bounds(e32.astype(np.float64), k32.astype(np.float64), FRESNEL_CELLS, FRESNEL_SAMPLES, wp)
         p = np.array([rows[0][0], rows[0][1], separable], dtype=np.float32)

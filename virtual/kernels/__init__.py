@@ -9,12 +9,13 @@ Modules (each owns one kind of kernel; none holds Python-side objects):
 ``collector``   the exact and the vectorizable patch lookup of the collector sphere
 ``microfacet``  Fresnel factors, GGX visible normals, masking ratios, frames
 ``scatter``     the specimen model ids and the ``scatter`` dispatch, one branch per model
-``engine``      the bare counting kernels (ray by ray, and the vectorized float64 block kernel)
+``engine``      the vectorized float64 block kernel and the spectral batches
 ``f32``         float32 twins of the scalar helpers (warps, beam, bin guess, microfacet terms)
 ``given32``     float32 forms of the specimens (Lambertian, GGX, Phong, Oren-Nayar)
 ``given32_rough`` float32 forms of the rough dielectric and the rough plastic
 ``block32``     the float32 block kernel (as many lanes as the machine's vectors hold), the default fast path
-``effects``     the counting kernels with a scene's per-ray effects, float32 lookup, given points
+``effects``     the ray-by-ray counting kernels (a scene's per-ray effects by flag; none: the bare
+                kernels), and the spectrophotometer on given disk points
 
 The floating-point policy (:data:`FASTMATH`): the same seed gives the same counts on every
 x86-64 CPU. numba's ``fastmath=True`` lets LLVM replace a division or square root by the

@@ -1,6 +1,7 @@
-"""The counting kernels with a scene's per-ray effects (bit flags, see :mod:`virtual.effects` for
-what each effect does), the float32-lookup goniophotometer kernel and the spectrophotometer fed
-with given disk points. They reuse :func:`~virtual.kernels.beam.emit`,
+"""The ray-by-ray counting kernels, with a scene's per-ray effects (bit flags, see
+:mod:`virtual.effects` for what each effect does; with none set they are the bare kernels, which
+:func:`virtual.engine.spectro_counts` and the ``ray`` shape of :func:`virtual.engine.gonio_counts`
+run), and the spectrophotometer fed with given disk points. They reuse :func:`~virtual.kernels.beam.emit`,
 :func:`~virtual.kernels.scatter.scatter` and :func:`~virtual.kernels.collector.patch_of`.
 """
 
@@ -18,8 +19,8 @@ from virtual.kernels.rng import next_double
 from virtual.kernels.sampling import sample_cosine_hemisphere, warp_square
 from virtual.kernels.scatter import scatter
 
-__all__ = ["FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN", "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS",
-           "spectro_fx_kernel", "gonio_fx_kernel", "gonio_kernel_f32", "spectro_points_kernel"]
+__all__ = ["N_EFFECT_ARGS", "FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN", "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS",
+           "spectro_fx_kernel", "gonio_fx_kernel", "spectro_points_kernel"]
 
 FX_STRAY = 1
 FX_BANDPASS = 2
@@ -29,6 +30,8 @@ FX_DETECTORS = 16
 FX_NEAR = 32
 #: effects that need the point where a ray meets the specimen
 FX_POSITIONS = FX_PATTERN | FX_NEAR
+#: length of the effect parameter vector ``e`` (see :mod:`virtual.effects`)
+N_EFFECT_ARGS = 10
 
 _TWO_PI = 2.0 * math.pi
 
@@ -198,30 +201,6 @@ def gonio_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cargs, n_bins, fla
                                 hist[n_bins + 2 + j] += 1
                     elif cv >= det[j, 3]:
                         hist[n_bins + 2 + j] += 1
-        out[c] = hist
-    return out
-
-
-
-@jit(parallel=True)
-def gonio_kernel_f32(model, params, beam_kind, disk, b, scheme, n_theta, n_phi, sin2_32, phi_cs32, n_bins,
-                      sizes, states):
-    n_chunks = sizes.shape[0]
-    out = np.zeros((n_chunks, n_bins + 2), dtype=np.int64)
-    for c in prange(n_chunks):
-        s = states[c].copy()
-        hist = np.zeros(n_bins + 2, dtype=np.int64)
-        for _ in range(sizes[c]):
-            wx, wy, wz, hit = emit(beam_kind, disk, b, s)
-            if not hit:
-                hist[n_bins + 1] += 1
-                continue
-            ox, oy, oz, alive = scatter(model, params, wx, wy, wz, s)
-            if not alive:
-                hist[n_bins] += 1
-                continue
-            hist[patch_of(np.float32(ox), np.float32(oy), np.float32(oz), scheme, n_theta, n_phi,
-                          sin2_32, phi_cs32)] += 1
         out[c] = hist
     return out
 

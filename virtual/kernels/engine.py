@@ -1,7 +1,9 @@
-"""The bare counting kernels: every chunk draws its own stream and writes only its own row.
+"""The block counting kernels: every chunk draws its own stream and writes only its own row.
 
-* ray by ray (``spectro_kernel``, ``gonio_kernel``): each ray is emitted, scattered and counted
-  before the next; any specimen, any disk sampling;
+(The ray-by-ray kernels, which emit, scatter and count each ray before the next, for any specimen
+and any disk sampling, are :mod:`virtual.kernels.effects`'s: with no effect flag set they are the
+bare kernels, drawing exactly the same numbers -- one compiled kernel per instrument, not two.)
+
 * block (``gonio_block_kernel``): rays go through in blocks of :data:`BLOCK_RAYS`; the block's
   uniforms are drawn first, 64 lanes side by side, then one branch-free loop emits (polar
   disks), scatters (:func:`~virtual.kernels.scatter.scatter_given`) and bins
@@ -17,7 +19,7 @@ import numpy as np
 from numba import prange
 
 from virtual.kernels import jit
-from virtual.kernels.beam import BEAM_CONICAL, beam_tuple, emit, emit_given
+from virtual.kernels.beam import BEAM_CONICAL, beam_tuple, emit_given
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
 from virtual.kernels.rng import LANES, fill_uniforms
 from virtual.kernels.microfacet import fresnel_conductor_ratio
@@ -25,10 +27,9 @@ from virtual.kernels.sampling import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.given import (GIVEN4_MODELS, GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, phong_given, phong_lobe_cos,
                                    plastic_diffuse_redo, plastic_given, scatter_given4)
 from virtual.kernels.scatter import (GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT,
-                                     MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, ggx_given_parts, scatter,
-                                     scatter_given)
+                                     MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, ggx_given_parts, scatter_given)
 
-__all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "spectro_kernel", "gonio_kernel", "gonio_block_kernel"]
+__all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "gonio_block_kernel"]
 
 #: Rays per block of the block kernel: its 7 uniforms and 4 outputs per ray (88 KiB) stay in L2.
 BLOCK_RAYS = 1024
@@ -53,63 +54,6 @@ def guess_bins(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_mar
     else:
         for i in range(n):
             code[i] = guess_bin(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
-
-
-@jit(parallel=True)
-def spectro_kernel(model, params, beam_kind, disk, b, cone, sizes, states):
-    n_chunks = sizes.shape[0]
-    out = np.zeros((n_chunks, 5), dtype=np.int64)
-    for c in prange(n_chunks):
-        s = states[c].copy()
-        refl = np.int64(0)
-        trans = np.int64(0)
-        absorbed = np.int64(0)
-        missed = np.int64(0)
-        in_cone = np.int64(0)
-        for _ in range(sizes[c]):
-            wx, wy, wz, hit = emit(beam_kind, disk, b, s)
-            if not hit:
-                missed += 1
-                continue
-            ox, oy, oz, alive = scatter(model, params, wx, wy, wz, s)
-            if not alive:
-                absorbed += 1
-                continue
-            if oz * wz > 0.0:
-                refl += 1
-            else:
-                trans += 1
-            if ox * cone[0] + oy * cone[1] + oz * cone[2] >= cone[3]:
-                in_cone += 1
-        out[c, 0] = refl
-        out[c, 1] = trans
-        out[c, 2] = absorbed
-        out[c, 3] = missed
-        out[c, 4] = in_cone
-    return out
-
-
-
-@jit(parallel=True)
-def gonio_kernel(model, params, beam_kind, disk, b, cargs, n_bins, sizes, states):
-    n_chunks = sizes.shape[0]
-    out = np.zeros((n_chunks, n_bins + 2), dtype=np.int64)
-    for c in prange(n_chunks):
-        s = states[c].copy()
-        hist = np.zeros(n_bins + 2, dtype=np.int64)  # chunk-private: no false sharing
-        for _ in range(sizes[c]):
-            wx, wy, wz, hit = emit(beam_kind, disk, b, s)
-            if not hit:
-                hist[n_bins + 1] += 1
-                continue
-            ox, oy, oz, alive = scatter(model, params, wx, wy, wz, s)
-            if not alive:
-                hist[n_bins] += 1
-                continue
-            hist[patch_of(ox, oy, oz, cargs[0], cargs[1], cargs[2], cargs[3], cargs[4])] += 1
-        out[c] = hist
-    return out
-
 
 
 @jit(error_model="numpy")

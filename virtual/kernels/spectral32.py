@@ -1,5 +1,5 @@
 """Float32 spectral batches (issue 18): the Lambertian and one-roughness GGX at many wavelengths
-at once on 16-lane float32 vectors, like :mod:`virtual.kernels.block32`.
+at once on float32 vectors (as many lanes as the machine's hold), like :mod:`virtual.kernels.block32`.
 
 * Lambertian (:func:`lambert_spectral32_kernel`): each hit ray's cosine-distributed direction
   is drawn and binned once; its survival uniform u0 is located among the sorted float32
@@ -225,7 +225,7 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
             lrow = lo[ci]
             hrow = hi[ci]
             unsure = _NO
-            for w in range(wp):  # contiguous in the table and the histogram: 16 lanes per vector
+            for w in range(wp):  # contiguous in the table and the histogram: whole vectors per ray
                 sure = t < lrow[w]
                 row[w] += _YES if sure else _NO
                 unsure |= _YES if (t < hrow[w]) != sure else _NO
