@@ -17,7 +17,7 @@ from bench.core.errors import BudgetError
 from bench.core.geometry import Geometry, cie_geometry
 from bench.core.parsing import parse_wavelengths
 from virtual.bounds import adaptive_plan, budget_report, hoeffding_rays, run_adaptive
-from virtual.engine import (SpectroTally, gonio_counts, measurement_seed, multinomial_counts, single_chunk_threads,
+from virtual.engine import (SpectroTally, gonio_counts, measurement_seed, multinomial_counts,
                             spectro_counts)
 
 __all__ = ["adaptive_measure", "AdaptiveMeasurement", "DEFAULT_MAX_SECONDS"]
@@ -116,14 +116,12 @@ def adaptive_measure(instrument: Any, uncertainty: float, delta: float, *, rays_
                 if _probs is not None:
                     c = multinomial_counts(_probs, n_new, seq)
                 else:
-                    with single_chunk_threads(n_new):
-                        c = gonio_counts(sp.model, _p, instrument.beam.code, instrument.beam.disk_code, b, cargs,
-                                         n_new, seq)
+                    c = gonio_counts(sp.model, _p, instrument.beam.code, instrument.beam.disk_code, b, cargs,
+                                     n_new, seq)
                 total[0] = c if total[0] is None else total[0] + c
                 return c[_cols]
-            with single_chunk_threads(n_new):
-                t = spectro_counts(sp.model, _p, instrument.beam.code, instrument.beam.disk_code, b, n_new, seq,
-                                   cone)
+            t = spectro_counts(sp.model, _p, instrument.beam.code, instrument.beam.disk_code, b, n_new, seq,
+                               cone)
             v = np.array([t.reflected, t.transmitted, t.absorbed, t.missed, t.cone], dtype=np.int64)
             total[0] = v if total[0] is None else total[0] + v
             r = t.cone if directional else t.reflected - (t.cone if excluded else 0)

@@ -29,15 +29,16 @@ __all__ = ["KERNEL_FAMILIES", "CompileProgress", "compile_progress", "WARM_UP", 
 #: Kernels called from Python, by name: (what the user reads, seconds a cold compile takes on a
 #: 2-core machine, the estimate before this machine has compiled it once).
 KERNEL_FAMILIES: dict[str, tuple[str, float]] = {
-    "gonio_block_kernel": ("float64 block kernel", 40.0),
-    "gonio_block32_kernel": ("float32 block kernel", 40.0),
-    "ggx_spectral_kernel": ("float64 spectral GGX batch", 15.0),
-    "lambert_spectral32_kernel": ("float32 spectral Lambertian batch", 10.0),
-    "ggx_spectral32_kernel": ("float32 spectral GGX batch", 15.0),
+    "gonio_block_chunk": ("float64 block kernel", 60.0),
+    "gonio_block32_chunk": ("float32 block kernel", 50.0),
+    "lambert_spectral_chunk": ("float64 spectral Lambertian batch", 15.0),
+    "ggx_spectral_chunk": ("float64 spectral GGX batch", 20.0),
+    "lambert_spectral32_chunk": ("float32 spectral Lambertian batch", 15.0),
+    "ggx_spectral32_chunk": ("float32 spectral GGX batch", 15.0),
     "fresnel_bounds": ("Fresnel bound tables", 3.0),
-    "spectro_fx_kernel": ("spectrophotometer kernel (ray by ray, scene effects by flag)", 60.0),
-    "gonio_fx_kernel": ("goniophotometer kernel (ray by ray, scene effects by flag)", 60.0),
-    "spectro_points_kernel": ("spectrophotometer kernel on given points", 25.0),
+    "spectro_fx_chunk": ("spectrophotometer kernel (ray by ray, scene effects by flag)", 60.0),
+    "gonio_fx_chunk": ("goniophotometer kernel (ray by ray, scene effects by flag)", 60.0),
+    "spectro_points_chunk": ("spectrophotometer kernel on given points", 25.0),
     "index_many": ("collector patch lookup", 3.0),
     "_warp_polar_array": ("disk sampler", 2.0),
     "_warp_triangle_array": ("triangle sampler", 2.0),
@@ -220,7 +221,7 @@ def _effects() -> None:
                           measurement_seed(1))  # the same kernels as _instruments': loaded, not compiled again
     gonio_effect_counts(sp.model, p[None, :], None, beam.code, beam.disk_code, b, col.kernel_args(), 0, None, None,
                         100, measurement_seed(1))
-    spectro_point_counts(sp.model, p, b, np.zeros((4, 2)), measurement_seed(1))
+    spectro_point_counts(sp.model, p, b, np.zeros((4, 4)), measurement_seed(1))
 
 
 def _samplers() -> None:

@@ -401,25 +401,25 @@ def test_the_first_kernel_compilation_is_announced_once(capsys, monkeypatch):
     common.announce_compilation()
 
     @numba.njit(cache=False)
-    def gonio_fx_kernel(x):  # named as a kernel family
+    def gonio_fx_chunk(x):  # named as a kernel family
         return 2 * x
 
     @numba.njit(cache=False)
-    def spectro_fx_kernel(x):
+    def spectro_fx_chunk(x):
         return 3 * x
 
     @numba.njit(cache=False)
     def not_a_kernel(x):
         return 4 * x
 
-    assert gonio_fx_kernel(2) == 4 and spectro_fx_kernel(2) == 6 and not_a_kernel(2) == 8
+    assert gonio_fx_chunk(2) == 4 and spectro_fx_chunk(2) == 6 and not_a_kernel(2) == 8
     common.stop_announcing()
 
     @numba.njit(cache=False)
-    def gonio_block_kernel(x):
+    def gonio_block_chunk(x):
         return 5 * x
 
-    assert gonio_block_kernel(2) == 10  # after the command: not announced
+    assert gonio_block_chunk(2) == 10  # after the command: not announced
     err = capsys.readouterr().err.splitlines()
     assert err[0] == "compiling kernels (first run only)..."
     assert err[1].startswith("  compiling the goniophotometer kernel (ray by ray, scene effects by flag) (about ")

@@ -25,10 +25,10 @@ class _Terminal(io.StringIO):
 
 
 def test_a_terminal_sees_elapsed_seconds_and_an_estimate():
-    def gonio_block32_kernel():  # what a compile event names: a dispatcher of a kernel family
+    def gonio_block32_chunk():  # what a compile event names: a dispatcher of a kernel family
         pass
 
-    dispatcher = type("Dispatcher", (), {"py_func": staticmethod(gonio_block32_kernel)})()
+    dispatcher = type("Dispatcher", (), {"py_func": staticmethod(gonio_block32_chunk)})()
     out = _Terminal()
     with compile_progress(out) as progress:
         assert progress.interactive
@@ -36,7 +36,7 @@ def test_a_terminal_sees_elapsed_seconds_and_an_estimate():
         time.sleep(1.2)  # the ticker redraws every 0.5 s
         progress._end()
     text = out.getvalue()
-    label, estimate = KERNEL_FAMILIES["gonio_block32_kernel"]
+    label, estimate = KERNEL_FAMILIES["gonio_block32_chunk"]
     assert text.startswith("compiling kernels (first run only)...\n")
     ticks = re.findall(rf"\r  compiling the {re.escape(label)}: +(\d+) s, about (\d+) s left", text)
     assert ticks and all(abs(int(a) + int(b) - estimate) <= 1 for a, b in ticks)  # elapsed + left
@@ -51,14 +51,14 @@ def test_families_other_than_kernels_and_nested_compiles_are_not_shown():
             return x + 1
 
         @numba.njit(cache=False)
-        def spectro_fx_kernel(x):
+        def spectro_fx_chunk(x):
             return inner(x)  # compiles inside: one line, for the outer family
 
-        assert spectro_fx_kernel(1) == 2
+        assert spectro_fx_chunk(1) == 2
     lines = out.getvalue().splitlines()
     assert lines == ["compiling kernels (first run only)...",
-                     f"  compiling the {KERNEL_FAMILIES['spectro_fx_kernel'][0]} (about "
-                     f"{KERNEL_FAMILIES['spectro_fx_kernel'][1]:.0f} s)"]
+                     f"  compiling the {KERNEL_FAMILIES['spectro_fx_chunk'][0]} (about "
+                     f"{KERNEL_FAMILIES['spectro_fx_chunk'][1]:.0f} s)"]
 
 
 COMPILES = """

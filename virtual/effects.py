@@ -49,8 +49,9 @@ import numpy as np
 from bench.core.errors import InputError
 
 from virtual.engine import chunking
+from virtual.chunked import gonio_fx_kernel, spectro_fx_kernel, spectro_points_kernel
 from virtual.kernels.effects import (N_EFFECT_ARGS, FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE,
-                                     FX_STRAY, gonio_fx_kernel, spectro_fx_kernel, spectro_points_kernel)
+                                     FX_STRAY)
 from virtual.rng import stream_states
 
 __all__ = [

@@ -3,7 +3,8 @@
 
 A measurement of ``N`` rays is split into a number of chunks that depends only on ``N``; chunk
 ``c`` draws from its own xoshiro stream(s), children of the measurement's ``SeedSequence``. Chunks
-run in parallel (``prange``) and each writes only its own row of counts, so the result is
+run side by side (:mod:`virtual.chunked`: threads, a single chunk in the caller's) and each writes
+only its own row of counts, so the result is
 identical for a given seed whatever the thread count, and memory does not grow with ``N``.
 
 Two kernel shapes:
@@ -37,15 +38,15 @@ from typing import Any
 import numpy as np
 
 from virtual.collector import guess_margins, guess_margins32
+from virtual.chunked import (ggx_spectral32_kernel, ggx_spectral_kernel, gonio_block32_kernel, gonio_block_kernel,
+                             gonio_fx_kernel, lambert_spectral32_kernel, lambert_spectral_kernel, spectro_fx_kernel)
 from virtual.kernels.beam import BEAM_CONICAL
-from virtual.kernels.block32 import BLOCK32_MODELS, gonio_block32_kernel
+from virtual.kernels.block32 import BLOCK32_MODELS
 from virtual.kernels.f32 import MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA
 from virtual.kernels.beam import DISK_REJECTION
-from virtual.kernels.effects import N_EFFECT_ARGS, gonio_fx_kernel, spectro_fx_kernel
-from virtual.kernels.engine import (BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS, gonio_block_kernel,  # noqa: F401
-                                    ggx_spectral_kernel, lambert_spectral_kernel)
-from virtual.kernels.spectral32 import (FRESNEL_CELLS, FRESNEL_SAMPLES, fresnel_bounds, ggx_spectral32_kernel,
-                                        lambert_spectral32_kernel)
+from virtual.kernels.effects import N_EFFECT_ARGS
+from virtual.kernels.engine import BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS  # noqa: F401
+from virtual.kernels.spectral32 import FRESNEL_CELLS, FRESNEL_SAMPLES, fresnel_bounds
 from virtual.kernels.scatter import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG,
                                      MODEL_PLASTIC)
 from virtual.rng import lane_states, lane_states32, stream_states
@@ -58,7 +59,6 @@ __all__ = [
     "spectro_counts",
     "SPECTRO_BINS",
     "SpectroTally",
-    "single_chunk_threads",
     "gonio_counts",
     "GONIO_KERNELS",
     "gonio_kernel_for",
@@ -138,34 +138,6 @@ class SpectroTally:
         return self.N - self.missed
 
 
-class single_chunk_threads:
-    """Context manager: run numba kernels on one thread when ``n_rays`` fits one chunk.
-
-    A measurement of at most :data:`virtual.engine.CHUNK_RAYS` rays is one chunk, i.e. one
-    task of the parallel loop, so extra threads only add their wake-up (several ms per launch on
-    a loaded 2-core machine -- 16x the kernel time of an adaptive rule's small batches). Results
-    never depend on the thread count.
-    """
-
-    def __init__(self, n_rays: int) -> None:
-        self.n_rays = int(n_rays)
-        self.previous: int | None = None
-
-    def __enter__(self) -> "single_chunk_threads":
-        import numba
-
-        if self.n_rays <= CHUNK_RAYS:
-            self.previous = numba.get_num_threads()
-            numba.set_num_threads(1)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.previous is not None:
-            import numba
-
-            numba.set_num_threads(self.previous)
-
-
 NO_CONE = np.array([0.0, 0.0, 1.0, 2.0])  # cos >= 2 never happens: no cone tally
 _NO_FLAGS = np.int64(0)  # the ray-by-ray kernels with no scene effect: the bare kernels
 
@@ -189,9 +161,8 @@ def spectro_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, be
     states = stream_states(seq, sizes.shape[0])
     ptab, cdf, e, _ = _no_effects(params)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
-    with single_chunk_threads(n_rays):
-        out = spectro_fx_kernel(np.int64(model), ptab, cdf, np.int64(beam_kind), np.int64(disk), b, b,
-                                np.ascontiguousarray(cone, dtype=np.float64), _NO_FLAGS, e, sizes, states)
+    out = spectro_fx_kernel(np.int64(model), ptab, cdf, np.int64(beam_kind), np.int64(disk), b, b,
+                            np.ascontiguousarray(cone, dtype=np.float64), _NO_FLAGS, e, sizes, states)
     tot = out[:, :len(SPECTRO_BINS)].sum(axis=0)
     return SpectroTally(int(n_rays), *(int(v) for v in tot))
 
@@ -257,24 +228,23 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     sizes = chunking(n_rays)
     p = np.ascontiguousarray(params, dtype=np.float64)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
-    with single_chunk_threads(n_rays):
-        if shape == "block32":
-            p32 = np.zeros(max(BLOCK_PARAMS, p.size), dtype=np.float32)
-            p32[:p.size] = p
-            out = gonio_block32_kernel(np.int64(model), p32, int(beam_kind) == BEAM_CONICAL, b.astype(np.float32),
-                                       tuple(collector_args), guess_margins32(n_theta, n_phi), np.int64(n_bins), sizes,
-                                       lane_states32(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
-        elif shape == "block":
-            p4 = np.zeros(max(BLOCK_PARAMS, p.size))  # the block kernel reads six parameters whatever the model
-            p4[:p.size] = p
-            out = gonio_block_kernel(np.int64(model), p4, np.int64(beam_kind), b, tuple(collector_args),
-                                      guess_margins(n_theta, n_phi), np.int64(n_bins), sizes,
-                                      lane_states(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
-        else:
-            ptab, cdf, e, det = _no_effects(p)
-            out = gonio_fx_kernel(np.int64(model), ptab, cdf, np.int64(beam_kind), np.int64(disk), b, b,
-                                  tuple(collector_args), np.int64(n_bins), _NO_FLAGS, e, det, sizes,
-                                  stream_states(seq, sizes.shape[0]))
+    if shape == "block32":
+        p32 = np.zeros(max(BLOCK_PARAMS, p.size), dtype=np.float32)
+        p32[:p.size] = p
+        out = gonio_block32_kernel(np.int64(model), p32, int(beam_kind) == BEAM_CONICAL, b.astype(np.float32),
+                                   tuple(collector_args), guess_margins32(n_theta, n_phi), np.int64(n_bins), sizes,
+                                   lane_states32(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
+    elif shape == "block":
+        p4 = np.zeros(max(BLOCK_PARAMS, p.size))  # the block kernel reads six parameters whatever the model
+        p4[:p.size] = p
+        out = gonio_block_kernel(np.int64(model), p4, np.int64(beam_kind), b, tuple(collector_args),
+                                  guess_margins(n_theta, n_phi), np.int64(n_bins), sizes,
+                                  lane_states(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
+    else:
+        ptab, cdf, e, det = _no_effects(p)
+        out = gonio_fx_kernel(np.int64(model), ptab, cdf, np.int64(beam_kind), np.int64(disk), b, b,
+                              tuple(collector_args), np.int64(n_bins), _NO_FLAGS, e, det, sizes,
+                              stream_states(seq, sizes.shape[0]))
     return out.sum(axis=0)
 
 
@@ -354,26 +324,25 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     cells = np.zeros((thr.size + 1, n_patches), dtype=np.int64)
     missed = 0
-    with single_chunk_threads(n_rays):
+    if f32:
+        lanes = lane_states32(seq, sizes.shape[0])
+        margins = guess_margins32(n_theta, n_phi)
+    else:
+        lanes = lane_states(seq, sizes.shape[0])
+        margins = guess_margins(n_theta, n_phi)
+    for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
+        sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
         if f32:
-            lanes = lane_states32(seq, sizes.shape[0])
-            margins = guess_margins32(n_theta, n_phi)
+            c, m = lambert_spectral32_kernel(thr.astype(np.float32), int(beam_kind) == BEAM_CONICAL,
+                                             b.astype(np.float32), tuple(collector_args), margins,
+                                             np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
+                                             np.ascontiguousarray(lanes[sl]))
         else:
-            lanes = lane_states(seq, sizes.shape[0])
-            margins = guess_margins(n_theta, n_phi)
-        for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
-            sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
-            if f32:
-                c, m = lambert_spectral32_kernel(thr.astype(np.float32), int(beam_kind) == BEAM_CONICAL,
-                                                 b.astype(np.float32), tuple(collector_args), margins,
-                                                 np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
-                                                 np.ascontiguousarray(lanes[sl]))
-            else:
-                c, m = lambert_spectral_kernel(thr, np.int64(beam_kind), b, tuple(collector_args), margins,
-                                               np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
-                                               np.ascontiguousarray(lanes[sl]))
-            cells += c
-            missed += int(m)
+            c, m = lambert_spectral_kernel(thr, np.int64(beam_kind), b, tuple(collector_args), margins,
+                                           np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
+                                           np.ascontiguousarray(lanes[sl]))
+        cells += c
+        missed += int(m)
     # each cell's fate per wavelength, judged at the cell's lower end (a value u0 takes in it)
     lower = np.concatenate([[0.0], thr])
     source_above = b[14] > 0.0  # every hit ray comes from the axis' side (collimated: the axis)
@@ -470,12 +439,11 @@ def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray,
                                        b, cargs, margins, np.int64(n_bins), sz, ln)
     out = np.zeros((len(rows), n_bins + 2), dtype=np.int64)
     hits = 0
-    with single_chunk_threads(n_rays):
-        for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
-            sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
-            h, t = batch(np.ascontiguousarray(sizes[sl]), np.ascontiguousarray(lanes[sl]))
-            out[:, :n_bins] += h.T
-            hits += int(t[0])
+    for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
+        sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
+        h, t = batch(np.ascontiguousarray(sizes[sl]), np.ascontiguousarray(lanes[sl]))
+        out[:, :n_bins] += h.T
+        hits += int(t[0])
     out[:, n_bins] = hits - out[:, :n_bins].sum(axis=1)
     out[:, n_bins + 1] = int(n_rays) - hits
     return out

@@ -194,7 +194,7 @@ if KernelSourceLocator not in _CacheImpl._locator_classes:
 def jit(fn: Callable | None = None, /, **options: Any) -> Any:
     """``numba.njit`` with the package's floating-point and cache policies (module docstring).
 
-    Use as ``@jit`` or ``@jit(inline="always")``, ``@jit(parallel=True, error_model="numpy")``...;
+    Use as ``@jit`` or ``@jit(inline="always")``, ``@jit(nogil=True, error_model="numpy")``...;
     ``cache`` is not an option (every kernel is cached under the policy), nor is ``fastmath``
     (every kernel gets :data:`FASTMATH`).
     """

@@ -1,5 +1,5 @@
-"""The float32 block kernel: :func:`~virtual.kernels.engine.gonio_block_kernel` on 16-lane
-float32 vectors (issue 18).
+"""The float32 block kernel: :func:`~virtual.kernels.engine.gonio_block_chunk` on float32
+vectors (as many lanes as the machine's hold: twice the float64 kernel's).
 
 Same shape as the float64 block kernel -- a block's uniforms first (64 xoshiro128+ lanes,
 :func:`~virtual.kernels.rng.fill_uniforms32`), one branch-free loop that emits, scatters and
@@ -13,7 +13,6 @@ sends a specimen here only when float32 suffices for it (:mod:`virtual.kernels.f
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
 from virtual.kernels import jit
 from virtual.kernels.beam import beam_tuple
@@ -26,7 +25,7 @@ from virtual.kernels.rng import LANES, fill_uniforms32
 from virtual.kernels.scatter import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR,
                                      MODEL_PHONG, MODEL_PLASTIC)
 
-__all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "gonio_block32_kernel"]
+__all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "gonio_block32_chunk"]
 
 #: Models with a float32 form (the others run the float64 block or ray-by-ray kernel).
 BLOCK32_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX, MODEL_PHONG, MODEL_OREN_NAYAR, MODEL_DIELECTRIC,
@@ -52,7 +51,7 @@ def guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_m
             code[i] = guess_bin32(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
 
 
-@jit(error_model="numpy")
+@jit(nogil=True, error_model="numpy")
 def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
     """One chunk: ``n_rays`` rays from the xoshiro128+ lanes ``lane`` (advanced in place) added
     to ``hist``; ``s`` is a scalar float64 xoshiro stream for the plastic's rare rejected
@@ -170,21 +169,3 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
         hist[k] += h[k]
     hist[n_bins] += n_dead[0]
     hist[n_bins + 1] += n_dead[1]
-
-
-@jit(parallel=True)
-def gonio_block32_kernel(model, params, conical, beam_args, cargs, margins, n_bins, sizes, lanes, states):
-    """Counts per chunk (rows summed by the caller), float32 ``params`` (6) and ``beam_args``
-    (15), float32 ``margins`` (:func:`virtual.collector.guess_margins32`), uint32 ``lanes``
-    (:func:`virtual.rng.lane_states32`), uint64 ``states`` (:func:`virtual.rng.stream_states`:
-    the plastic's fallback streams)."""
-    p = (params[0], params[1], params[2], params[3], params[4], params[5])
-    b = beam_tuple(beam_args)
-    n_chunks = sizes.shape[0]
-    out = np.zeros((n_chunks, n_bins + 2), dtype=np.int64)
-    for c in prange(n_chunks):
-        hist = np.zeros(n_bins + 2, dtype=np.int64)
-        gonio_block32_chunk(model, p, conical, b, cargs, margins[0], margins[1], n_bins, sizes[c], lanes[c].copy(),
-                            states[c].copy(), hist)
-        out[c] = hist
-    return out

@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import prange
 
 from virtual.kernels import jit
 from virtual.kernels.beam import BEAM_COLLIMATED, emit, toward_source
@@ -20,7 +19,7 @@ from virtual.kernels.sampling import sample_cosine_hemisphere, warp_square
 from virtual.kernels.scatter import scatter
 
 __all__ = ["N_EFFECT_ARGS", "FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN", "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS",
-           "spectro_fx_kernel", "gonio_fx_kernel", "spectro_points_kernel"]
+           "spectro_fx_chunk", "gonio_fx_chunk", "spectro_points_chunk"]
 
 FX_STRAY = 1
 FX_BANDPASS = 2
@@ -77,164 +76,152 @@ def _pick(cdf, s):
 
 
 
-@jit(parallel=True)
-def spectro_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cone, flags, e, sizes, states):
-    n_chunks = sizes.shape[0]
-    out = np.zeros((n_chunks, 7), dtype=np.int64)
+@jit(nogil=True)
+def spectro_fx_chunk(model, ptab, cdf, beam_kind, disk, b, bp, cone, flags, e, n_rays, s, out):
+    """One chunk of the ray-by-ray spectrophotometer: ``n_rays`` rays from the stream ``s``
+    (advanced in place), tallies added to ``out`` (:data:`virtual.effects.SPECTRO_FX_COLUMNS`).
+    Without the GIL: :mod:`virtual.chunked` runs chunks on threads."""
     positions = (flags & FX_POSITIONS) != 0
-    for c in prange(n_chunks):
-        s = states[c].copy()
-        refl = np.int64(0)
-        trans = np.int64(0)
-        absorbed = np.int64(0)
-        missed = np.int64(0)
-        in_cone = np.int64(0)
-        detected = np.int64(0)
-        stray = np.int64(0)
-        for _ in range(sizes[c]):
-            if (flags & FX_STRAY) != 0 and next_double(s) < e[0]:
-                stray += 1
+    refl = np.int64(0)
+    trans = np.int64(0)
+    absorbed = np.int64(0)
+    missed = np.int64(0)
+    in_cone = np.int64(0)
+    detected = np.int64(0)
+    stray = np.int64(0)
+    for _ in range(n_rays):
+        if (flags & FX_STRAY) != 0 and next_double(s) < e[0]:
+            stray += 1
+            continue
+        if positions:
+            wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[7], s)
+        else:
+            wx, wy, wz, hit = emit(beam_kind, disk, b, s)
+            px = 0.0
+        if not hit:
+            missed += 1
+            continue
+        if (flags & FX_PATTERN) != 0:
+            m = 1.0 - e[6] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[5]))
+            if next_double(s) >= m:
+                absorbed += 1
                 continue
+        k = _pick(cdf, s) if (flags & FX_BANDPASS) != 0 else 0
+        p = ptab[k]
+        ox, oy, oz, alive = scatter(model, p, wx, wy, wz, s)
+        if not alive:
+            absorbed += 1
+            continue
+        up = oz * wz > 0.0
+        if up:
+            refl += 1
+        else:
+            trans += 1
+        if ox * cone[0] + oy * cone[1] + oz * cone[2] >= cone[3]:
+            in_cone += 1
+        if (flags & FX_SPHERE) != 0 and up:
+            side = 1.0 if wz > 0.0 else -1.0
+            while True:  # strikes on the sphere surface; ends w.p. 1 (wall reflectance < 1)
+                u = next_double(s)
+                if u < e[2]:
+                    detected += 1
+                    break
+                u -= e[2]
+                if u < e[3]:  # back on the specimen: diffuse illumination from the sphere
+                    dx, dy, dz = sample_cosine_hemisphere(s)
+                    dz = dz * side
+                    qx, qy, qz, ok = scatter(model, p, dx, dy, dz, s)
+                    if not ok or qz * dz <= 0.0:
+                        break
+                    continue
+                u -= e[3]
+                if u < e[4] - e[2] - e[3]:  # another port: lost
+                    break
+                u -= e[4] - e[2] - e[3]
+                if u >= (1.0 - e[4]) * e[1]:  # absorbed by the wall
+                    break
+    out[0] += refl
+    out[1] += trans
+    out[2] += absorbed
+    out[3] += missed
+    out[4] += in_cone
+    out[5] += detected
+    out[6] += stray
+
+
+@jit(nogil=True)
+def gonio_fx_chunk(model, ptab, cdf, beam_kind, disk, b, bp, cargs, n_bins, flags, e, det, n_rays, s, hist):
+    """One chunk of the ray-by-ray goniophotometer: ``n_rays`` rays from the stream ``s`` counted
+    in ``hist`` (patches, absorbed, missed, then one count per detector row of ``det``)."""
+    n_det = det.shape[0]
+    positions = (flags & FX_POSITIONS) != 0
+    near = (flags & FX_NEAR) != 0
+    for _ in range(n_rays):
+        px = 0.0
+        py = 0.0
+        if (flags & FX_STRAY) != 0 and next_double(s) < e[0]:
+            ox, oy, oz = sample_cosine_hemisphere(s)
+        else:
             if positions:
                 wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[7], s)
             else:
                 wx, wy, wz, hit = emit(beam_kind, disk, b, s)
-                px = 0.0
             if not hit:
-                missed += 1
+                hist[n_bins + 1] += 1
                 continue
             if (flags & FX_PATTERN) != 0:
                 m = 1.0 - e[6] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[5]))
                 if next_double(s) >= m:
-                    absorbed += 1
-                    continue
-            k = _pick(cdf, s) if (flags & FX_BANDPASS) != 0 else 0
-            p = ptab[k]
-            ox, oy, oz, alive = scatter(model, p, wx, wy, wz, s)
-            if not alive:
-                absorbed += 1
-                continue
-            up = oz * wz > 0.0
-            if up:
-                refl += 1
-            else:
-                trans += 1
-            if ox * cone[0] + oy * cone[1] + oz * cone[2] >= cone[3]:
-                in_cone += 1
-            if (flags & FX_SPHERE) != 0 and up:
-                side = 1.0 if wz > 0.0 else -1.0
-                while True:  # strikes on the sphere surface; ends w.p. 1 (wall reflectance < 1)
-                    u = next_double(s)
-                    if u < e[2]:
-                        detected += 1
-                        break
-                    u -= e[2]
-                    if u < e[3]:  # back on the specimen: diffuse illumination from the sphere
-                        dx, dy, dz = sample_cosine_hemisphere(s)
-                        dz = dz * side
-                        qx, qy, qz, ok = scatter(model, p, dx, dy, dz, s)
-                        if not ok or qz * dz <= 0.0:
-                            break
-                        continue
-                    u -= e[3]
-                    if u < e[4] - e[2] - e[3]:  # another port: lost
-                        break
-                    u -= e[4] - e[2] - e[3]
-                    if u >= (1.0 - e[4]) * e[1]:  # absorbed by the wall
-                        break
-        out[c, 0] = refl
-        out[c, 1] = trans
-        out[c, 2] = absorbed
-        out[c, 3] = missed
-        out[c, 4] = in_cone
-        out[c, 5] = detected
-        out[c, 6] = stray
-    return out
-
-
-
-@jit(parallel=True)
-def gonio_fx_kernel(model, ptab, cdf, beam_kind, disk, b, bp, cargs, n_bins, flags, e, det, sizes, states):
-    n_chunks = sizes.shape[0]
-    n_det = det.shape[0]
-    width = n_bins + 2 + n_det
-    out = np.zeros((n_chunks, width), dtype=np.int64)
-    positions = (flags & FX_POSITIONS) != 0
-    near = (flags & FX_NEAR) != 0
-    for c in prange(n_chunks):
-        s = states[c].copy()
-        hist = np.zeros(width, dtype=np.int64)
-        for _ in range(sizes[c]):
-            px = 0.0
-            py = 0.0
-            if (flags & FX_STRAY) != 0 and next_double(s) < e[0]:
-                ox, oy, oz = sample_cosine_hemisphere(s)
-            else:
-                if positions:
-                    wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[7], s)
-                else:
-                    wx, wy, wz, hit = emit(beam_kind, disk, b, s)
-                if not hit:
-                    hist[n_bins + 1] += 1
-                    continue
-                if (flags & FX_PATTERN) != 0:
-                    m = 1.0 - e[6] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[5]))
-                    if next_double(s) >= m:
-                        hist[n_bins] += 1
-                        continue
-                k = _pick(cdf, s) if (flags & FX_BANDPASS) != 0 else 0
-                ox, oy, oz, alive = scatter(model, ptab[k], wx, wy, wz, s)
-                if not alive:
                     hist[n_bins] += 1
                     continue
-            hist[patch_of(ox, oy, oz, cargs[0], cargs[1], cargs[2], cargs[3], cargs[4])] += 1
-            if (flags & FX_DETECTORS) != 0:
-                for j in range(n_det):
-                    cv = ox * det[j, 0] + oy * det[j, 1] + oz * det[j, 2]
-                    if near:
-                        if cv > 0.0:
-                            t = (e[8] - (px * det[j, 0] + py * det[j, 1])) / cv
-                            hx = px + t * ox - e[8] * det[j, 0]
-                            hy = py + t * oy - e[8] * det[j, 1]
-                            hz = t * oz - e[8] * det[j, 2]
-                            if hx * hx + hy * hy + hz * hz <= e[9] * e[9]:
-                                hist[n_bins + 2 + j] += 1
-                    elif cv >= det[j, 3]:
-                        hist[n_bins + 2 + j] += 1
-        out[c] = hist
-    return out
-
-
-
-@jit(parallel=True)
-def spectro_points_kernel(model, params, b, pts, starts, states):
-    n_chunks = starts.shape[0] - 1
-    out = np.zeros((n_chunks, 5), dtype=np.int64)
-    for c in prange(n_chunks):
-        s = states[c].copy()
-        refl = np.int64(0)
-        trans = np.int64(0)
-        absorbed = np.int64(0)
-        missed = np.int64(0)
-        for i in range(starts[c], starts[c + 1]):
-            x1 = pts[i, 0]
-            y1 = pts[i, 1]
-            x2 = pts[i, 2]
-            y2 = pts[i, 3]
-            wx, wy, wz, hit = toward_source(b, x1, y1, x2, y2)  # the beam's one direction formula
-            if not hit:
-                missed += 1
-                continue
-            qx, qy, qz, alive = scatter(model, params, wx, wy, wz, s)
+            k = _pick(cdf, s) if (flags & FX_BANDPASS) != 0 else 0
+            ox, oy, oz, alive = scatter(model, ptab[k], wx, wy, wz, s)
             if not alive:
-                absorbed += 1
+                hist[n_bins] += 1
                 continue
-            if qz * wz > 0.0:
-                refl += 1
-            else:
-                trans += 1
-        out[c, 0] = refl
-        out[c, 1] = trans
-        out[c, 2] = absorbed
-        out[c, 3] = missed
-    return out
+        hist[patch_of(ox, oy, oz, cargs[0], cargs[1], cargs[2], cargs[3], cargs[4])] += 1
+        if (flags & FX_DETECTORS) != 0:
+            for j in range(n_det):
+                cv = ox * det[j, 0] + oy * det[j, 1] + oz * det[j, 2]
+                if near:
+                    if cv > 0.0:
+                        t = (e[8] - (px * det[j, 0] + py * det[j, 1])) / cv
+                        hx = px + t * ox - e[8] * det[j, 0]
+                        hy = py + t * oy - e[8] * det[j, 1]
+                        hz = t * oz - e[8] * det[j, 2]
+                        if hx * hx + hy * hy + hz * hz <= e[9] * e[9]:
+                            hist[n_bins + 2 + j] += 1
+                elif cv >= det[j, 3]:
+                    hist[n_bins + 2 + j] += 1
+
+
+@jit(nogil=True)
+def spectro_points_chunk(model, params, b, pts, start, stop, s, out):
+    """One chunk of the spectrophotometer on given points: rays ``pts[start:stop]`` (emitter x, y,
+    specimen x, y), scattering from the stream ``s``; tallies (reflected, transmitted, absorbed,
+    missed) added to ``out``."""
+    refl = np.int64(0)
+    trans = np.int64(0)
+    absorbed = np.int64(0)
+    missed = np.int64(0)
+    for i in range(start, stop):
+        x1 = pts[i, 0]
+        y1 = pts[i, 1]
+        x2 = pts[i, 2]
+        y2 = pts[i, 3]
+        wx, wy, wz, hit = toward_source(b, x1, y1, x2, y2)  # the beam's one direction formula
+        if not hit:
+            missed += 1
+            continue
+        qx, qy, qz, alive = scatter(model, params, wx, wy, wz, s)
+        if not alive:
+            absorbed += 1
+            continue
+        if qz * wz > 0.0:
+            refl += 1
+        else:
+            trans += 1
+    out[0] += refl
+    out[1] += trans
+    out[2] += absorbed
+    out[3] += missed

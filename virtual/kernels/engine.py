@@ -4,7 +4,7 @@
 and any disk sampling, are :mod:`virtual.kernels.effects`'s: with no effect flag set they are the
 bare kernels, drawing exactly the same numbers -- one compiled kernel per instrument, not two.)
 
-* block (``gonio_block_kernel``): rays go through in blocks of :data:`BLOCK_RAYS`; the block's
+* block (``gonio_block_chunk``): rays go through in blocks of :data:`BLOCK_RAYS`; the block's
   uniforms are drawn first, 64 lanes side by side, then one branch-free loop emits (polar
   disks), scatters (:func:`~virtual.kernels.scatter.scatter_given`) and bins
   (:func:`~virtual.kernels.collector.guess_bin`) every ray, then a short scalar loop settles
@@ -16,7 +16,6 @@ The Python wrappers (chunking, seeding, choosing a kernel) are :mod:`virtual.eng
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
 from virtual.kernels import jit
 from virtual.kernels.beam import BEAM_CONICAL, beam_tuple, emit_given
@@ -29,7 +28,8 @@ from virtual.kernels.given import (GIVEN4_MODELS, GIVEN4_UNIFORMS, PLASTIC_UNIFO
 from virtual.kernels.scatter import (GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT,
                                      MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, ggx_given_parts, scatter_given)
 
-__all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "gonio_block_kernel"]
+__all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "gonio_block_chunk", "lambert_spectral_chunk",
+           "ggx_spectral_chunk"]
 
 #: Rays per block of the block kernel: its 7 uniforms and 4 outputs per ray (88 KiB) stay in L2.
 BLOCK_RAYS = 1024
@@ -56,15 +56,16 @@ def guess_bins(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_mar
             code[i] = guess_bin(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
 
 
-@jit(error_model="numpy")
+@jit(nogil=True, error_model="numpy")
 def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
     """One chunk of the block kernel: ``n_rays`` rays from the xoshiro lanes ``lane`` (advanced in
     place) added to ``hist``; ``s`` is a scalar xoshiro stream for the rare rays a fixed-count
     form leaves to a rejection loop (the plastic's diffuse lobe).
 
-    Compiled on its own, not inlined into the parallel loop: numba's parfor lowering would hoist
-    the block buffers out of the loop and compile the body with other flags, and the loops would
-    no longer vectorize. ``error_model="numpy"``: a float division must not test its divisor and
+    Compiled on its own, without the GIL: :mod:`virtual.chunked` runs the chunks on threads
+    (numba's parfor would cost every kernel a slow compile of its parallel loop, and inlined into
+    a parfor body the block buffers would be hoisted and the loops no longer vectorize).
+    ``error_model="numpy"``: a float division must not test its divisor and
     raise (a branch per division also stops vectorization); the formulas guard their divisors.
     ``p`` and ``b`` are tuples: loads from an array that the loop might write (for all LLVM
     knows) would be repeated every iteration.
@@ -172,23 +173,9 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
 
 
 
-@jit(parallel=True)
-def gonio_block_kernel(model, params, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes, states):
-    p = (params[0], params[1], params[2], params[3], params[4], params[5])
-    b = beam_tuple(beam_args)
-    n_chunks = sizes.shape[0]
-    out = np.zeros((n_chunks, n_bins + 2), dtype=np.int64)
-    for c in prange(n_chunks):
-        hist = np.zeros(n_bins + 2, dtype=np.int64)
-        gonio_block_chunk(model, p, beam_kind, b, cargs, margins[0], margins[1], n_bins, sizes[c], lanes[c].copy(),
-                          states[c].copy(), hist)
-        out[c] = hist
-    return out
-
-
-@jit(error_model="numpy")
+@jit(nogil=True, error_model="numpy")
 def lambert_spectral_chunk(thr, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, cells, missed):
-    """One chunk of the spectral Lambertian block kernel (see :func:`lambert_spectral_kernel`):
+    """One chunk of the spectral Lambertian block kernel (:func:`virtual.chunked.lambert_spectral_kernel` runs it):
     every hit ray's upper-hemisphere patch counted in ``cells[cell of u0, patch]``, missed rays in
     ``missed[0]``. ``thr`` are the sorted survival thresholds of all wavelengths."""
     nb = BLOCK_RAYS
@@ -234,30 +221,9 @@ def lambert_spectral_chunk(thr, beam_kind, b, cargs, ring_margin, sector_margin,
     missed[0] += m_count
 
 
-@jit(parallel=True)
-def lambert_spectral_kernel(thr, beam_kind, beam_args, cargs, margins, n_patches, sizes, lanes):
-    """The Lambertian block kernel for many wavelengths at once: each ray's direction is drawn
-    once, and its survival uniform u0 is located among the sorted thresholds ``thr`` (every
-    wavelength's R and R + T). Returns per chunk the counts ``(n_thr + 1, n_patches)`` of hit
-    rays by (cell of u0, upper-hemisphere patch of the cosine-distributed direction), and the
-    missed rays; :func:`virtual.engine.gonio_counts_spectral` turns them into each wavelength's
-    counts."""
-    b = beam_tuple(beam_args)
-    n_chunks = sizes.shape[0]
-    out = np.zeros((n_chunks, thr.shape[0] + 1, n_patches), dtype=np.int64)
-    miss = np.zeros((n_chunks, 1), dtype=np.int64)
-    for c in prange(n_chunks):
-        cells = np.zeros((thr.shape[0] + 1, n_patches), dtype=np.int64)
-        m = np.zeros(1, dtype=np.int64)
-        lambert_spectral_chunk(thr, beam_kind, b, cargs, margins[0], margins[1], sizes[c], lanes[c].copy(), cells, m)
-        out[c] = cells
-        miss[c, 0] = m[0]
-    return out.sum(axis=0), miss.sum()
-
-
-@jit(error_model="numpy")
+@jit(nogil=True, error_model="numpy")
 def ggx_spectral_chunk(ax, ay, separable, etas, ks, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, hist, tally):
-    """One chunk of the spectral GGX block kernel (see :func:`ggx_spectral_kernel`): surviving
+    """One chunk of the spectral GGX block kernel (:func:`virtual.chunked.ggx_spectral_kernel` runs it): surviving
     rays added to ``hist[patch, w]`` per wavelength w; ``tally`` = (hits, missed)."""
     nb = BLOCK_RAYS
     n_beam = BEAM_UNIFORMS if beam_kind == BEAM_CONICAL else 0
@@ -312,23 +278,3 @@ def ggx_spectral_chunk(ax, ay, separable, etas, ks, beam_kind, b, cargs, ring_ma
         left -= m
     tally[0] += hits
     tally[1] += n_rays - hits
-
-
-@jit(parallel=True)
-def ggx_spectral_kernel(ax, ay, separable, etas, ks, beam_kind, beam_args, cargs, margins, n_bins, sizes, lanes):
-    """GGX (any alpha_x, alpha_y shared by every wavelength) at many wavelengths at once: each
-    ray's direction and its survival uniform are drawn once, each wavelength's Fresnel factor
-    (``etas``, ``ks``) decides its survival. Summed over chunks: counts ``(n_bins, W)`` of the survivors
-    and (hits, missed); :func:`virtual.engine.gonio_counts_spectral` adds the absorbed."""
-    b = beam_tuple(beam_args)
-    n_chunks = sizes.shape[0]
-    out = np.zeros((n_chunks, n_bins, etas.shape[0]), dtype=np.int64)
-    tallies = np.zeros((n_chunks, 2), dtype=np.int64)
-    for c in prange(n_chunks):
-        hist = np.zeros((n_bins, etas.shape[0]), dtype=np.int64)
-        tally = np.zeros(2, dtype=np.int64)
-        ggx_spectral_chunk(ax, ay, separable, etas, ks, beam_kind, b, cargs, margins[0], margins[1], sizes[c], lanes[c].copy(),
-                           hist, tally)
-        out[c] = hist
-        tallies[c] = tally
-    return out.sum(axis=0), tallies.sum(axis=0)

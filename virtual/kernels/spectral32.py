@@ -1,11 +1,11 @@
 """Float32 spectral batches (issue 18): the Lambertian and one-roughness GGX at many wavelengths
 at once on float32 vectors (as many lanes as the machine's hold), like :mod:`virtual.kernels.block32`.
 
-* Lambertian (:func:`lambert_spectral32_kernel`): each hit ray's cosine-distributed direction
+* Lambertian (:func:`lambert_spectral32_chunk`): each hit ray's cosine-distributed direction
   is drawn and binned once; its survival uniform u0 is located among the sorted float32
   thresholds (every wavelength's R and R + T, rounded as the single-wavelength
   :func:`~virtual.kernels.given32.lambert_given32` rounds them) -- counts by (cell of u0, patch).
-* GGX (:func:`ggx_spectral32_kernel`): the direction, the microfacet cosine c and the masking
+* GGX (:func:`ggx_spectral32_chunk`): the direction, the microfacet cosine c and the masking
   ratio g_num / g_den are drawn once; wavelength w survives when u g_den < F_w(c) g_num. F_w is
   bracketed by a table of rigorous bounds over cells of c (:func:`fresnel_bounds`), laid out
   [cell, wavelength]: survive below the lower bound, die above the upper one, and only in
@@ -17,7 +17,7 @@ at once on float32 vectors (as many lanes as the machine's hold), like :mod:`vir
 from __future__ import annotations
 
 import numpy as np
-from numba import int32, prange
+from numba import int32
 
 from virtual.kernels import jit
 from virtual.kernels.beam import beam_tuple
@@ -29,7 +29,7 @@ from virtual.kernels.given32 import ggx_given_parts32
 from virtual.kernels.microfacet import fresnel_conductor_ratio
 from virtual.kernels.rng import LANES, fill_uniforms32
 
-__all__ = ["FRESNEL_CELLS", "fresnel_bounds", "lambert_spectral32_kernel", "ggx_spectral32_kernel"]
+__all__ = ["FRESNEL_CELLS", "fresnel_bounds", "lambert_spectral32_chunk", "ggx_spectral32_chunk"]
 
 #: Cells of c = cos(theta_m) in [0, 1] of the Fresnel bound table.
 FRESNEL_CELLS = 512
@@ -77,7 +77,7 @@ def fresnel_bounds(etas, ks, n_cells, n_samples, wp):
     return lo, hi
 
 
-@jit(error_model="numpy")
+@jit(nogil=True, error_model="numpy")
 def lambert_spectral32_chunk(thr, conical, b, cargs, ring_margin, sector_margin, n_patches, n_rays, lane, cells, tally):
     """One chunk: hit rays counted in ``cells[cell of u0 * n_patches + patch]``, missed ones in
     ``tally[0]``; ``thr`` the sorted float32 thresholds."""
@@ -126,27 +126,7 @@ def lambert_spectral32_chunk(thr, conical, b, cargs, ring_margin, sector_margin,
     tally[0] += missed
 
 
-@jit(parallel=True)
-def lambert_spectral32_kernel(thr, conical, beam_args, cargs, margins, n_patches, sizes, lanes):
-    """The float32 Lambertian batch: summed over chunks, counts ``(n_thr + 1, n_patches)`` of hit
-    rays by (cell of u0, upper patch), and the missed rays (float32 ``thr``, ``beam_args``,
-    ``margins``; uint32 ``lanes``)."""
-    b = beam_tuple(beam_args)
-    n_chunks = sizes.shape[0]
-    n_cells = thr.shape[0] + 1
-    out = np.zeros((n_chunks, n_cells * n_patches), dtype=np.int64)
-    miss = np.zeros((n_chunks, 1), dtype=np.int64)
-    for c in prange(n_chunks):
-        cells = np.zeros(n_cells * n_patches, dtype=np.int32)  # <= 2^20 rays per chunk: no overflow
-        t = np.zeros(1, dtype=np.int64)
-        lambert_spectral32_chunk(thr, conical, b, cargs, margins[0], margins[1], n_patches, sizes[c],
-                                 lanes[c].copy(), cells, t)
-        out[c] = cells
-        miss[c, 0] = t[0]
-    return out.sum(axis=0).reshape(n_cells, n_patches), miss.sum()
-
-
-@jit(error_model="numpy")
+@jit(nogil=True, error_model="numpy")
 def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, sector_margin, n_rays, lane, hist,
                          tally):
     """One chunk: survivors added to ``hist[patch * wp + w]`` (int32, wp = lo.shape[1]);
@@ -238,24 +218,3 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
         left -= m
     tally[0] += hits
     tally[1] += n_rays - hits
-
-
-@jit(parallel=True)
-def ggx_spectral32_kernel(params, etas, ks, lo, hi, conical, beam_args, cargs, margins, n_bins, sizes, lanes):
-    """The float32 GGX batch (``params`` = alpha_x, alpha_y, separable; float32 ``etas``, ``ks``
-    and bound tables from :func:`fresnel_bounds`): summed over chunks, survivor counts
-    ``(n_bins, wp)`` and (hits, missed)."""
-    p = (params[0], params[1], params[2])
-    b = beam_tuple(beam_args)
-    n_chunks = sizes.shape[0]
-    wp = lo.shape[1]
-    out = np.zeros((n_chunks, n_bins * wp), dtype=np.int64)
-    tallies = np.zeros((n_chunks, 2), dtype=np.int64)
-    for c in prange(n_chunks):
-        hist = np.zeros(n_bins * wp, dtype=np.int32)  # <= 2^20 rays per chunk: no overflow
-        tally = np.zeros(2, dtype=np.int64)
-        ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, margins[0], margins[1], sizes[c],
-                             lanes[c].copy(), hist, tally)
-        out[c] = hist
-        tallies[c] = tally
-    return out.sum(axis=0).reshape(n_bins, wp), tallies.sum(axis=0)

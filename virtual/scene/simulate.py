@@ -22,7 +22,7 @@ from virtual.beam import Beam, check_incidence
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.collector import Collector
 from virtual.effects import N_EFFECT_ARGS
-from virtual.engine import NO_CONE, measurement_seed, multinomial_counts, single_chunk_threads
+from virtual.engine import NO_CONE, measurement_seed, multinomial_counts
 from virtual.quadrature import integrate_patches
 from virtual.scene.declared import Effects
 from virtual.specimens import Lambertian, Specimen
@@ -235,8 +235,7 @@ class Scene:
                 c, p = self._fast_counts(float(w), n, seq)
                 probs.append(p)
             else:
-                with single_chunk_threads(n):
-                    c = self._ray_counts(float(w), n, seq, flags)
+                c = self._ray_counts(float(w), n, seq, flags)
             counts.append(np.asarray(c, dtype=np.int64))
         values, ci, hits = self._readings(counts, n, sd)
         seconds = time.perf_counter() - t0
