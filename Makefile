@@ -1,11 +1,12 @@
 # The two commands a newcomer needs: `make demo` and `make test`.
-# Each creates .venv when missing and (re)installs the project when pyproject.toml changed.
+# Each runs `make install`: creates .venv when missing and (re)installs the project when
+# pyproject.toml changed.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.goniobench-installed
 
-.PHONY: demo test bench-perf llvm clean
+.PHONY: install demo test bench-perf llvm clean
 
 # Mitsuba's LLVM variants (the benchmark's anchor, vectorized Mitsuba specimens) need a libLLVM:
 # Debian's libllvm19, installed here when missing and apt-get can (as root); never fatal --
@@ -25,13 +26,16 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e ".[test,scale,parquet,mitsuba,bluesky]"
 	touch $(STAMP)
 
-demo: $(STAMP)
+# The project with every extra its tests use, without running anything.
+install: $(STAMP)
+
+demo: install
 	$(BIN)/bench demo --out demo-out
 
-test: $(STAMP) llvm
+test: install llvm
 	$(BIN)/python -m pytest -q
 
-bench-perf: $(STAMP) llvm
+bench-perf: install llvm
 	@if [ -e "$(LIBLLVM)" ]; then export DRJIT_LIBLLVM_PATH="$${DRJIT_LIBLLVM_PATH:-$(LIBLLVM)}"; fi; \
 	$(BIN)/python -m benchmarks
 
