@@ -1,12 +1,16 @@
 # The two commands a newcomer needs: `make demo` and `make test`.
 # Each runs `make install`: creates .venv when missing and (re)installs the project when
-# pyproject.toml changed.
+# pyproject.toml changed. `make test` runs the suite less the tests marked `slow`, on
+# $(WORKERS) pytest-xdist workers (numba's on-disk kernel cache is shared by them);
+# `make test-slow` runs only those, `make test-all` both (CI runs both).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.goniobench-installed
+WORKERS ?= 2
+PYTEST := $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile
 
-.PHONY: install demo test bench-perf llvm clean
+.PHONY: install demo test test-slow test-all bench-perf llvm clean
 
 # Mitsuba's LLVM variants (the benchmark's anchor, vectorized Mitsuba specimens) need a libLLVM:
 # Debian's libllvm19, installed here when missing and apt-get can (as root); never fatal --
@@ -37,7 +41,12 @@ demo: install
 	$(BIN)/bench demo --out demo-out
 
 test: install llvm
-	$(BIN)/python -m pytest -q
+	$(PYTEST) -m "not slow"
+
+test-slow: install llvm
+	$(PYTEST) -m slow
+
+test-all: test test-slow
 
 bench-perf: install llvm
 	@if [ -e "$(LIBLLVM)" ]; then export DRJIT_LIBLLVM_PATH="$${DRJIT_LIBLLVM_PATH:-$(LIBLLVM)}"; fi; \

@@ -345,7 +345,10 @@ class _NaiveWidthDielectric(RoughDielectric):
         return [(d, 2.0 * a) for d, _ in super().lobes(wi, wavelength_nm)]
 
 
-@pytest.mark.parametrize("eta,theta,t_true", [(1.0001, 60.0, 0.97247), (1.000001, 0.0, 1.0000),
+# Normal incidence at eta = 1.000001 is slow (about four minutes on two cores, nearly all in the naive
+# hint's certified retry): make test-all and CI run it, make test the other four.
+@pytest.mark.parametrize("eta,theta,t_true", [(1.0001, 60.0, 0.97247),
+                                              pytest.param(1.000001, 0.0, 1.0000, marks=pytest.mark.slow),
                                               (1.000001, 30.0, 0.9967), (1.000001, 60.0, 0.9725),
                                               (1.000001, 89.0, 0.5436)])
 def test_narrow_refracted_lobe_near_eta_one_is_found_and_certified(eta, theta, t_true):

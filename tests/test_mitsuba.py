@@ -60,6 +60,7 @@ def _goodness_of_fit(observed: np.ndarray, expected: np.ndarray) -> tuple[float,
     return float(chi2), float(p), len(obs) - 1
 
 
+@pytest.mark.slow  # 2.5 minutes per incidence, warm (make test-all and CI run it, make test does not)
 @pytest.mark.parametrize("theta_i", [30.0, 60.0])
 def test_mitsuba_ggx_sampling_matches_its_own_eval(theta_i: float) -> None:
     spec = MitsubaSpecimen(GGX)
