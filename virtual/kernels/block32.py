@@ -17,7 +17,7 @@ import numpy as np
 from virtual.kernels import jit
 from virtual.kernels.beam import beam_tuple
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
-from virtual.kernels.f32 import ZERO, emit_given32, guess_bin32
+from virtual.kernels.f32 import ZERO, emit_given32, emit_side32, guess_bin32
 from virtual.kernels.given import GIVEN4_UNIFORMS, plastic_diffuse_redo
 from virtual.kernels.given32 import ggx_given32, lambert_given32, oren_nayar_given32, phong_given32, phong_lobe_omc32
 from virtual.kernels.given32_rough import DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_given32, plastic_given32
@@ -86,7 +86,7 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
         fill_uniforms32(lane, ublock)
         if model == MODEL_LAMBERT:
             for i in range(nb):
-                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                wz, hit = emit_side32(conical, b, u[i], u[bo + i])
                 vx[i], vy[i], vz[i], alive = lambert_given32(p, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i])
                 code[i] = 1 if (alive & hit) else (0 if hit else 2)  # survivor, absorbed, missed
         elif model == MODEL_PHONG:

@@ -26,7 +26,7 @@ from virtual.kernels import jit
 from virtual.kernels.collector import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
 
 __all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
-           "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "guess_bin32",
+           "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "emit_side32", "guess_bin32",
            "ggx_n32", "ggx_vndf_given32", "g2_over_g1_masked_ratio32", "fresnel_conductor_ratio32", "fresnel_dielectric32", "frame32"]
 
 F = np.float32
@@ -112,6 +112,17 @@ def emit_given32(conical, b, u1, u2, u3, u4):
     wz = oz * inv
     hit = wz * b[14] > ZERO
     return (wx if conical else b[12]), (wy if conical else b[13]), (wz if conical else b[14]), (hit if conical else True)
+
+
+@jit(inline="always")
+def emit_side32(conical, b, u1, u2):
+    """What a Lambertian needs of :func:`emit_given32`: the z of the direction toward the source
+    before normalization (the sign of its ``wz``: the normalization is by a positive factor) and
+    whether the ray hits -- the same decisions, without the second disk point (z of the specimen
+    point is 0), the square root and the division. u3, u4 are drawn all the same."""
+    x1, y1 = warp_polar32(u1, u2, b[9])
+    oz = b[6] * x1 + b[7] * y1 + b[8] * b[11]
+    return (oz if conical else b[14]), ((oz * b[14] > ZERO) if conical else True)
 
 
 @jit(inline="always")

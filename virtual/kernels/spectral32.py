@@ -23,7 +23,7 @@ from virtual.kernels import jit
 from virtual.kernels.beam import beam_tuple
 from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32
 from virtual.kernels.collector import patch_of
-from virtual.kernels.f32 import (ONE, emit_given32, fresnel_conductor_ratio32, sincos_2pi32,
+from virtual.kernels.f32 import (ONE, emit_given32, emit_side32, fresnel_conductor_ratio32, sincos_2pi32,
                                  warp_cosine_hemisphere32)
 from virtual.kernels.given32 import ggx_given_parts32
 from virtual.kernels.microfacet import fresnel_conductor_ratio
@@ -101,7 +101,7 @@ def lambert_spectral32_chunk(thr, conical, b, cargs, ring_margin, sector_margin,
         m = min(left, nb)
         fill_uniforms32(lane, ublock)
         for i in range(nb):
-            wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+            _, hit = emit_side32(conical, b, u[i], u[bo + i])
             x, y, z = warp_cosine_hemisphere32(u[s0 + 2 * nb + i], u[s0 + nb + i])  # lambert_given32's draw
             vx[i] = x
             vy[i] = y
