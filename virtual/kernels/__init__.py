@@ -90,13 +90,12 @@ def _imports_of(path: Path) -> set[Path]:
     roots = (PROJECT_ROOT, path.parent)
     found: set[Path] = set()
 
-    def add(name: str, where: tuple[Path, ...] = roots) -> bool:
+    def add(name: str, where: tuple[Path, ...] = roots) -> None:
         for root in where:
             f = _module_file(name, root) if name else None
             if f is not None:
                 found.add(f.resolve())
-                return True
-        return False
+                return
 
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -111,10 +110,11 @@ def _imports_of(path: Path) -> set[Path]:
             else:
                 where = roots
             module = node.module or ""
+            init = where[0] / "__init__.py"
             if module:
                 add(module, where)
-            else:
-                found.add((where[0] / "__init__.py").resolve()) if (where[0] / "__init__.py").is_file() else None
+            elif init.is_file():  # "from . import name": the package itself
+                found.add(init.resolve())
             for alias in node.names:  # "from package import submodule"
                 add(f"{module}.{alias.name}" if module else alias.name, where)
     return found
