@@ -80,13 +80,15 @@ def _module_file(name: str, root: Path) -> Path | None:
     return None
 
 
-def _imports_of(path: Path) -> set[Path]:
+@functools.lru_cache(maxsize=None)
+def _imports_of(path: Path) -> frozenset[Path]:
     """Project files that ``path`` imports directly: modules, and submodules named in a
-    ``from package import name``; modules outside the project (numpy, numba) are left out."""
+    ``from package import name``; modules outside the project (numpy, numba) are left out.
+    Parsed once per process: the kernels' closures share most of their files."""
     try:
         tree = ast.parse(path.read_bytes(), filename=str(path))
     except (OSError, SyntaxError, ValueError):
-        return set()
+        return frozenset()
     roots = (PROJECT_ROOT, path.parent)
     found: set[Path] = set()
 
@@ -117,7 +119,7 @@ def _imports_of(path: Path) -> set[Path]:
                 found.add(init.resolve())
             for alias in node.names:  # "from package import submodule"
                 add(f"{module}.{alias.name}" if module else alias.name, where)
-    return found
+    return frozenset(found)
 
 
 @functools.lru_cache(maxsize=None)
@@ -150,6 +152,40 @@ def dependency_digest(py_file: str) -> str:
     return h.hexdigest()
 
 
+class DeferredDigest:
+    """:func:`dependency_digest` of a file, computed when numba first compares or stores it.
+
+    numba asks every cached dispatcher for its source stamp when the dispatcher is made, that is
+    when a kernel module is imported; walking the imports then would cost every command that
+    imports a kernel module and never calls it (the certified fast path, ``bench --help``) a
+    parse of the kernels' whole closure. numba only compares the stamp with the one pickled in the
+    cache index and pickles it: both work on this object, which pickles as the plain digest string.
+    """
+
+    __slots__ = ("py_file",)
+
+    def __init__(self, py_file: str) -> None:
+        self.py_file = py_file
+
+    def value(self) -> str:
+        return dependency_digest(self.py_file)
+
+    def __eq__(self, other: object) -> bool:
+        return self.value() == (other.value() if isinstance(other, DeferredDigest) else other)
+
+    def __ne__(self, other: object) -> bool:
+        return not self == other
+
+    def __hash__(self) -> int:
+        return hash(self.value())
+
+    def __reduce__(self) -> tuple[type, tuple[str]]:
+        return str, (self.value(),)
+
+    def __repr__(self) -> str:
+        return f"DeferredDigest({self.py_file!r})"
+
+
 class KernelSourceLocator(caching._CacheLocator):
     """numba cache locator for :func:`jit` kernels: numba's usual place, our source stamp.
 
@@ -170,9 +206,10 @@ class KernelSourceLocator(caching._CacheLocator):
     def get_disambiguator(self) -> str:
         return self._inner.get_disambiguator()
 
-    def get_source_stamp(self) -> str:
-        """The hash of the decorated function's file and of every project file it imports."""
-        return dependency_digest(str(self._py_file))
+    def get_source_stamp(self) -> DeferredDigest:
+        """The hash of the decorated function's file and of every project file it imports
+        (computed when numba first needs it: :class:`DeferredDigest`)."""
+        return DeferredDigest(str(self._py_file))
 
     @classmethod
     def from_function(cls, py_func: Callable, py_file: str) -> "KernelSourceLocator | None":
