@@ -16,6 +16,8 @@ things keep that from looking like a hang or landing on a user's first command:
 from __future__ import annotations
 
 import contextlib
+import importlib.abc
+import importlib.util
 import json
 import sys
 import threading
@@ -68,8 +70,6 @@ class CompileProgress:
     """
 
     def __init__(self, stream: TextIO | None = None, interactive: bool | None = None) -> None:
-        from numba.core import event
-
         self.stream = stream if stream is not None else sys.stderr
         if interactive is None:
             try:
@@ -82,6 +82,10 @@ class CompileProgress:
         self._ticker: threading.Thread | None = None
         self._stop = threading.Event()
         self._header_said = False
+        self.listener: Any = None
+
+    def listen(self, event: Any) -> Any:
+        """This progress as a listener of numba's event module ``event`` (``numba.core.event``)."""
         outer = self
 
         class _Listener(event.Listener):
@@ -92,6 +96,7 @@ class CompileProgress:
                 outer._end()
 
         self.listener = _Listener()
+        return self.listener
 
     def _say(self, text: str, end: str = "\n") -> None:
         try:
@@ -149,17 +154,60 @@ class CompileProgress:
                 history.write_text(json.dumps(data, sort_keys=True))
 
 
+class _AfterImport(importlib.abc.MetaPathFinder):
+    """Calls ``action(module)`` right after module ``name`` is first imported (then leaves
+    ``sys.meta_path``): a listener reaches numba's event bus without importing numba itself."""
+
+    def __init__(self, name: str, action: Callable[[Any], None]) -> None:
+        self.name, self.action = name, action
+
+    def find_spec(self, fullname: str, path: Any = None, target: Any = None) -> Any:
+        if fullname != self.name:
+            return None
+        self.remove()
+        spec = importlib.util.find_spec(fullname)
+        loader = getattr(spec, "loader", None)
+        if loader is None or not hasattr(loader, "exec_module"):
+            return spec
+        run = loader.exec_module
+
+        def exec_then_act(module: Any) -> None:
+            run(module)
+            self.action(module)
+
+        loader.exec_module = exec_then_act
+        return spec
+
+    def remove(self) -> None:
+        with contextlib.suppress(ValueError):
+            sys.meta_path.remove(self)
+
+
 @contextlib.contextmanager
 def compile_progress(stream: TextIO | None = None, interactive: bool | None = None) -> Iterator[CompileProgress]:
-    """Show kernel compiles (:class:`CompileProgress`) while the block runs."""
-    from numba.core import event
-
+    """Show kernel compiles (:class:`CompileProgress`) while the block runs. Loads nothing: when
+    numba is not imported yet (a command on the certified fast path may never import it), the
+    listener joins numba's event bus when it is."""
     progress = CompileProgress(stream, interactive)
-    event.register("numba:compile", progress.listener)
+    registered: list[Any] = []
+
+    def register(event: Any) -> None:
+        event.register("numba:compile", progress.listen(event))
+        registered.append(event)
+
+    hook = None
+    if "numba.core.event" in sys.modules:
+        register(sys.modules["numba.core.event"])
+    else:
+        hook = _AfterImport("numba.core.event", register)
+        sys.meta_path.insert(0, hook)
     try:
         yield progress
     finally:
-        event.unregister("numba:compile", progress.listener)
+        if hook is not None:
+            hook.remove()
+        for event in registered:
+            event.unregister("numba:compile", progress.listener)
 
 
 # --- the warm-up ---------------------------------------------------------------------------------

@@ -82,14 +82,25 @@ def test_runs_reads_the_store_without_heavy_imports(store):
     assert command_modules(mods) == ["bench.cli.scans"]
 
 
-def test_gonio_fast_path_imports_what_it_uses_only():
-    """numba (the kernels' constants), pandas (the record) and scipy.special (the intervals) are
-    needed; scipy.stats, plotting, colour, Mitsuba, Dask and Bluesky are not."""
-    mods = imported_by(["gonio", "--specimen", "lambert:albedo=0.8", "--rays", "1000", "--seed", "1"])
+@pytest.mark.parametrize("specimen", ["lambert:albedo=0.8", "ggx:alpha=0.3"])
+def test_gonio_fast_path_imports_what_it_uses_only(specimen):
+    """pandas (the record) and scipy.special (the intervals) are needed; no kernel is loaded
+    (the certified fast path draws one multinomial), so neither numba nor a kernel module is;
+    nor are scipy.stats, plotting, colour, Mitsuba, Dask and Bluesky."""
+    mods = imported_by(["gonio", "--specimen", specimen, "--incidence", "30", "--rays", "1000000", "--seed", "1"])
     assert not [m for m in mods if m == "scipy.stats" or m.startswith("scipy.stats.")]
-    assert [m for m in heavy(mods) if m.split(".")[0] in ("matplotlib", "colour", "mitsuba", "drjit", "dask",
-                                                          "distributed", "bluesky", "ophyd", "ophyd_async")] == []
+    assert [m for m in heavy(mods) if m.split(".")[0] in ("numba", "llvmlite", "matplotlib", "colour", "mitsuba",
+                                                          "drjit", "dask", "distributed", "bluesky", "ophyd",
+                                                          "ophyd_async")] == []
+    assert not [m for m in mods if m.startswith("virtual.kernels")]
     assert command_modules(mods) == ["bench.cli.measure"]
+
+
+def test_gonio_on_rays_loads_the_kernels():
+    """The power of the check above: the same command counting rays does import numba."""
+    mods = imported_by(["gonio", "--specimen", "lambert:albedo=0.8", "--incidence", "30", "--rays", "1000",
+                        "--method", "rays", "--seed", "1"])
+    assert "numba" in mods and "virtual.kernels.block32" in mods
 
 
 def test_the_command_table_matches_what_the_modules_register():

@@ -61,6 +61,33 @@ def test_families_other_than_kernels_and_nested_compiles_are_not_shown():
                      f"{KERNEL_FAMILIES['spectro_fx_chunk'][1]:.0f} s)"]
 
 
+LATE_NUMBA = """
+import io, sys
+from bench.compilation import KERNEL_FAMILIES, compile_progress
+out = io.StringIO()
+with compile_progress(out, interactive=False):
+    assert "numba" not in sys.modules  # nothing loaded yet: the listener waits for numba's event bus
+    import numba
+
+    @numba.njit(cache=False)
+    def gonio_fx_chunk(x):
+        return x + 1
+
+    assert gonio_fx_chunk(1) == 2
+assert out.getvalue().splitlines() == ["compiling kernels (first run only)...",
+    f"  compiling the {KERNEL_FAMILIES['gonio_fx_chunk'][0]} (about {KERNEL_FAMILIES['gonio_fx_chunk'][1]:.0f} s)"]
+print("ok")
+"""
+
+
+def test_progress_set_up_before_numba_is_imported_still_sees_the_compiles():
+    """A command on the certified fast path never imports numba, so the progress listener must not
+    import it either -- yet a command that falls back to rays later must still show its compiles."""
+    r = subprocess.run([sys.executable, "-c", LATE_NUMBA], capture_output=True, text=True, cwd=ROOT,
+                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
 COMPILES = """
 import json, sys
 from numba.core import event

@@ -1,5 +1,5 @@
 """Incidence: collimated or conical beams (the kernel that emits a ray is :mod:`virtual.kernels.beam`;
-``emit``, ``emit_given`` and the ``BEAM_*``/``DISK_*`` codes are re-exported here for older callers).
+the ``BEAM_*``/``DISK_*`` codes are in :mod:`virtual.kernel_codes`, which does not load numba).
 
 Collimated (directional-hemispherical): every ray arrives from the same direction; positions on
 the specimen are irrelevant to a far-field count, so none are sampled.
@@ -20,11 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.core.errors import GeometryError, InputError
-from virtual.kernels.beam import (BEAM_COLLIMATED, BEAM_CONICAL, DISK_AUTO, DISK_POLAR, DISK_REJECTION, emit,  # noqa: F401
-                                  emit_given)
+from virtual.kernel_codes import BEAM_COLLIMATED, BEAM_CONICAL, DISK_AUTO, DISK_POLAR, DISK_REJECTION
 
-__all__ = ["Beam", "BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "emit",
-           "emit_given", "rotation_to"]
+__all__ = ["Beam", "rotation_to"]
 
 DISK_CODES = {"polar": DISK_POLAR, "rejection": DISK_REJECTION, "auto": DISK_AUTO}
 

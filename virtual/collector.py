@@ -40,8 +40,9 @@ Lookup rules (exact, never NaN, never out of range):
   (``(inf, 1, 1)`` is the direction (1, 0, 0)).
 
 Kernels use :func:`patch_of` inline; :meth:`Collector.kernel_args` gives its trailing arguments.
-The lookup kernels live in :mod:`virtual.kernels.collector` (``patch_of``, ``guess_bin``,
-``ATAN_MAX_ERROR`` and the ``SCHEME_*`` codes are re-exported here for older callers).
+The lookup kernels live in :mod:`virtual.kernels.collector` (``patch_of``, ``guess_bin``), the
+``SCHEME_*`` codes and the atan error bounds in :mod:`virtual.kernel_codes` (which does not load
+numba: listing, parsing and the fast path's quadrature never need a kernel).
 Note: kernels are compiled with ``nnan`` (:data:`virtual.kernels.FASTMATH`), which lets LLVM assume
 there are no NaNs and may drop the NaN rule above (the other rules do not depend on it).
 """
@@ -56,21 +57,14 @@ from typing import Any
 import numpy as np
 
 from bench.core.errors import InputError
-from virtual.kernels.collector import (ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA,  # noqa: F401
-                                       SCHEME_EQUAL_SOLID_ANGLE, _approx_phi, index_many, guess_bin, patch_of)
-from virtual.kernels.f32 import ATAN32_MAX_ERROR
+from virtual.kernel_codes import (ATAN32_MAX_ERROR, ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA,
+                                  SCHEME_EQUAL_SOLID_ANGLE)
 
 __all__ = [
     "SCHEMES",
-    "SCHEME_EQUAL_ANGLE",
-    "SCHEME_EQUAL_SOLID_ANGLE",
-    "SCHEME_EQUAL_PSA",
     "Collector",
-    "patch_of",
-    "guess_bin",
     "guess_margins",
     "guess_margins32",
-    "ATAN_MAX_ERROR",
     "parse_collector",
 ]
 
@@ -305,6 +299,8 @@ class Collector:
         d = np.ascontiguousarray(np.atleast_2d(np.asarray(dirs, dtype=np.float64)))
         if d.ndim != 2 or d.shape[1] != 3:
             raise InputError(f"directions must have shape (n, 3), got {np.shape(dirs)}")
+        from virtual.kernels.collector import index_many  # numba only when rays are binned
+
         out = np.empty(d.shape[0], dtype=np.int64)
         index_many(d, *self.kernel_args(), out)
         return out

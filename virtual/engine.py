@@ -38,18 +38,13 @@ from typing import Any
 import numpy as np
 
 from virtual.collector import guess_margins, guess_margins32
-from virtual.chunked import (ggx_spectral32_kernel, ggx_spectral_kernel, gonio_block32_kernel, gonio_block_kernel,
-                             gonio_fx_kernel, lambert_spectral32_kernel, lambert_spectral_kernel, spectro_fx_kernel)
-from virtual.kernels.beam import BEAM_CONICAL
-from virtual.kernels.block32 import BLOCK32_MODELS
-from virtual.kernels.f32 import MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA
-from virtual.kernels.beam import DISK_REJECTION
-from virtual.kernels.effects import N_EFFECT_ARGS
-from virtual.kernels.engine import BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS  # noqa: F401
-from virtual.kernels.spectral32 import FRESNEL_CELLS, FRESNEL_SAMPLES, fresnel_bounds
-from virtual.kernels.scatter import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG,
-                                     MODEL_PLASTIC)
+from virtual.kernel_codes import (BEAM_CONICAL, BLOCK32_MODELS, BLOCK_MODELS, BLOCK_PARAMS, DISK_REJECTION,
+                                  FRESNEL_CELLS, FRESNEL_SAMPLES, MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA, N_EFFECT_ARGS)
+from virtual.model_ids import MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG, MODEL_PLASTIC
 from virtual.rng import lane_states, lane_states32, stream_states
+
+# The compiled kernels (virtual.chunked, which loads numba) are imported where rays are counted,
+# not here: routing, seeding and the certified fast path's multinomial draw never need them.
 
 __all__ = [
     "chunking",
@@ -157,6 +152,8 @@ def spectro_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, be
     ``cone`` = (cx, cy, cz, cos_half_angle): rays leaving within that cone are also counted
     (a bidirectional detector's field of view, or a gloss trap).
     """
+    from virtual.chunked import spectro_fx_kernel
+
     sizes = chunking(n_rays)
     states = stream_states(seq, sizes.shape[0])
     ptab, cdf, e, _ = _no_effects(params)
@@ -222,6 +219,8 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     O(chunks x bins), independent of ``n_rays``. ``kernel`` picks the kernel shape
     (:func:`gonio_kernel_for`); the counts' distribution is the same either way.
     """
+    from virtual.chunked import gonio_block32_kernel, gonio_block_kernel, gonio_fx_kernel
+
     shape = gonio_kernel_for(model, disk, kernel, params)
     n_theta, n_phi = int(collector_args[1]), int(collector_args[2])  # (scheme, n_theta, n_phi, ...)
     n_bins = 2 * n_theta * n_phi
@@ -319,6 +318,8 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     else:
         r = np.array([p[0] for p in rows])
         rt = np.minimum(r + np.array([p[1] for p in rows]), 1.0)
+    from virtual.chunked import lambert_spectral32_kernel, lambert_spectral_kernel
+
     thr = np.unique(np.concatenate([r, rt]))
     sizes = chunking(n_rays)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
@@ -412,6 +413,9 @@ def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray,
     (:func:`~virtual.kernels.engine.ggx_spectral_kernel`) or, for specimens :func:`float32_suits`
     at every wavelength, the float32 one (:func:`~virtual.kernels.spectral32.ggx_spectral32_kernel`,
     the law of ``gonio_counts``'s block32)."""
+    from virtual.chunked import ggx_spectral32_kernel, ggx_spectral_kernel
+    from virtual.kernels.spectral32 import fresnel_bounds
+
     n_theta, n_phi = int(collector_args[1]), int(collector_args[2])
     n_bins = 2 * n_theta * n_phi
     separable = float(rows[0][4]) if len(rows[0]) > 4 else 0.0  # masking convention (one per specimen)

@@ -70,9 +70,8 @@ from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.collector import Collector, parse_collector
 from virtual.engine import (float32_suits, gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed,
                             multinomial_counts, shares_angular_part, specimen_stream_key)
-from virtual.python_engine import gonio_counts_python
 from virtual.quadrature import PatchIntegrals, certified_patch_integrals
-from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
+from virtual.model_ids import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
 from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
 from virtual.spectrophotometer import fresh_seed
 
@@ -337,6 +336,8 @@ class VirtualGoniophotometer(InstrumentBase):
             self._simulate_batch(theta_i, phi_i, [float(wavelength_nm), *others])
             return self._cache[key]
         elif self.specimen.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): count in numpy
+            from virtual.python_engine import gonio_counts_python  # its disk sampling loads numba
+
             counts = gonio_counts_python(self.specimen, wavelength_nm, self.beam, theta_i, phi_i, self.collector,
                                          self.rays, seq)
         else:

@@ -27,7 +27,6 @@ import numpy as np
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import NO_CONE, SpectroTally, chunking
-from virtual.sampling import sample_disk
 
 __all__ = ["gonio_counts_python", "spectro_counts_python", "incidence"]
 
@@ -43,6 +42,8 @@ def incidence(beam: Beam, theta_i: float, phi_i: float, n: int,
     axis = b[12:15]
     if beam.kind == "collimated":
         return axis.copy(), np.ones(n, dtype=bool)
+    from virtual.sampling import sample_disk  # its warps are kernels: numba only for conical rays
+
     rot = b[:9].reshape(3, 3)
     r1, r2, d = b[9], b[10], b[11]
     strategy = "rejection" if beam.disk_sampling == "auto" else beam.disk_sampling

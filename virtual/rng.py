@@ -9,15 +9,15 @@ depends on the seed and the chunking, never on the thread count.
 
 This module owns the seeding (:func:`stream_states`, :func:`lane_states`); the kernels that
 advance the states are :mod:`virtual.kernels.rng` (``next_double``, ``next_uint64``,
-``fill_uniforms``, ``LANES`` are re-exported here for older callers; new code imports them there).
+``fill_uniforms``); ``LANES`` is in :mod:`virtual.kernel_codes`. Seeding needs no numba.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from virtual.kernels.rng import LANES, fill_uniforms, next_double, next_uint64  # noqa: F401 (re-exported)
+from virtual.kernel_codes import LANES
 
-__all__ = ["stream_states", "next_double", "next_uint64", "LANES", "lane_states", "lane_states32", "fill_uniforms"]
+__all__ = ["stream_states", "lane_states", "lane_states32"]
 
 
 def lane_states(seed: int | np.random.SeedSequence, n_streams: int, lanes: int = LANES,

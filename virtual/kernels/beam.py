@@ -16,11 +16,7 @@ from virtual.kernels.sampling import warp_polar, warp_square
 __all__ = ["beam_tuple", "BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "emit",
            "emit_given", "toward_source"]
 
-BEAM_COLLIMATED = 0
-BEAM_CONICAL = 1
-DISK_POLAR = 0
-DISK_REJECTION = 1
-DISK_AUTO = 2
+from virtual.kernel_codes import BEAM_COLLIMATED, BEAM_CONICAL, DISK_AUTO, DISK_POLAR, DISK_REJECTION  # noqa: E402
 
 
 @jit(inline="always")

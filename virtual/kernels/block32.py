@@ -15,23 +15,18 @@ from __future__ import annotations
 import numpy as np
 
 from virtual.kernels import jit
-from virtual.kernels.beam import beam_tuple
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
 from virtual.kernels.f32 import ZERO, emit_given32, emit_side32, guess_bin32
 from virtual.kernels.given import GIVEN4_UNIFORMS, plastic_diffuse_redo
 from virtual.kernels.given32 import ggx_given32, lambert_given32, oren_nayar_given32, phong_given32, phong_lobe_omc32
 from virtual.kernels.given32_rough import DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_given32, plastic_given32
 from virtual.kernels.rng import LANES, fill_uniforms32
-from virtual.kernels.scatter import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR,
+from virtual.kernels.scatter import (MODEL_DIELECTRIC, MODEL_LAMBERT, MODEL_OREN_NAYAR,
                                      MODEL_PHONG, MODEL_PLASTIC)
 
 __all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "gonio_block32_chunk"]
 
-#: Models with a float32 form (the others run the float64 block or ray-by-ray kernel).
-BLOCK32_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX, MODEL_PHONG, MODEL_OREN_NAYAR, MODEL_DIELECTRIC,
-                  MODEL_PLASTIC)
-#: Rays per block: up to 11 float32 uniforms and 6 float32 coordinates per ray stay in L1/L2.
-BLOCK32_RAYS = 1024
+from virtual.kernel_codes import BLOCK32_MODELS, BLOCK32_RAYS  # noqa: E402
 _BEAM_UNIFORMS = 4
 
 

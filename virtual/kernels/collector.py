@@ -16,9 +16,7 @@ from virtual.kernels import jit
 __all__ = ["SCHEME_EQUAL_ANGLE", "SCHEME_EQUAL_SOLID_ANGLE", "SCHEME_EQUAL_PSA", "ATAN_MAX_ERROR",
            "patch_of", "guess_bin"]
 
-SCHEME_EQUAL_ANGLE = 0
-SCHEME_EQUAL_SOLID_ANGLE = 1
-SCHEME_EQUAL_PSA = 2
+from virtual.kernel_codes import ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE  # noqa: E402
 
 _TWO_PI = 2.0 * math.pi
 _SCALE_UP = 2.0 ** 600     # brings any tiny component (>= 2^-1074) to >= 2^-474: squares stay normal
@@ -28,9 +26,8 @@ _HALF_PI = 0.5 * math.pi
 _TINY2 = 1e-280  # |v|^2 below: squares may have underflowed -> rescale
 _HUGE2 = 1e280   # |v|^2 above: squares may overflow -> rescale
 
-#: Largest error (rad) of :func:`_atan_first_quadrant` (1.35e-8 measured on a 2e6-point grid,
-#: tested): the margin of :func:`guess_bin` is built on it.
-ATAN_MAX_ERROR = 1.4e-8
+# ATAN_MAX_ERROR (virtual.kernel_codes): the largest error of :func:`_atan_first_quadrant`; the
+# margin of :func:`guess_bin` is built on it.
 
 
 @jit(inline="always")

@@ -21,16 +21,8 @@ from virtual.kernels.scatter import scatter
 __all__ = ["N_EFFECT_ARGS", "FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN", "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS",
            "spectro_fx_chunk", "gonio_fx_chunk", "spectro_points_chunk"]
 
-FX_STRAY = 1
-FX_BANDPASS = 2
-FX_SPHERE = 4
-FX_PATTERN = 8
-FX_DETECTORS = 16
-FX_NEAR = 32
-#: effects that need the point where a ray meets the specimen
-FX_POSITIONS = FX_PATTERN | FX_NEAR
-#: length of the effect parameter vector ``e`` (see :mod:`virtual.effects`)
-N_EFFECT_ARGS = 10
+from virtual.kernel_codes import (FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE,  # noqa: E402
+                                  FX_STRAY, N_EFFECT_ARGS)
 
 _TWO_PI = 2.0 * math.pi
 

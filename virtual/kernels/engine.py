@@ -18,26 +18,20 @@ from __future__ import annotations
 import numpy as np
 
 from virtual.kernels import jit
-from virtual.kernels.beam import BEAM_CONICAL, beam_tuple, emit_given
+from virtual.kernels.beam import BEAM_CONICAL, emit_given
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
 from virtual.kernels.rng import LANES, fill_uniforms
 from virtual.kernels.microfacet import fresnel_conductor_ratio
 from virtual.kernels.sampling import sincos_2pi, warp_cosine_hemisphere
-from virtual.kernels.given import (GIVEN4_MODELS, GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, phong_given, phong_lobe_cos,
+from virtual.kernels.given import (GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, phong_given, phong_lobe_cos,
                                    plastic_diffuse_redo, plastic_given, scatter_given4)
-from virtual.kernels.scatter import (GIVEN_MODELS, GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT,
+from virtual.kernels.scatter import (GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT,
                                      MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, ggx_given_parts, scatter_given)
 
 __all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "gonio_block_chunk", "lambert_spectral_chunk",
            "ggx_spectral_chunk"]
 
-#: Rays per block of the block kernel: its 7 uniforms and 4 outputs per ray (88 KiB) stay in L2.
-BLOCK_RAYS = 1024
-BEAM_UNIFORMS = 4  # two polar disk points
-#: Models the block kernel runs (three uniforms each for the first, four for the second group).
-BLOCK_MODELS = GIVEN_MODELS + GIVEN4_MODELS + (MODEL_PLASTIC,)
-#: Parameters the block kernel passes to a model (as a tuple; shorter vectors are zero-padded).
-BLOCK_PARAMS = 6
+from virtual.kernel_codes import BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS  # noqa: E402
 
 
 @jit(inline="always")

@@ -42,15 +42,7 @@ _TINY = F(1e-30)
 _TINY2 = F(1e-30)   # |v|^2 below: the float32 squares may have lost their precision -> exact lookup
 _HUGE2 = F(1e30)    # |v|^2 above: may overflow -> exact lookup
 
-#: Smallest roughness (alpha) the float32 path takes: a lobe of width ~alpha spans >= 1e5 float32 ulps.
-MIN_ALPHA = 0.01
-#: Largest Phong exponent the float32 path takes: the lobe as narrow as GGX's at MIN_ALPHA (n = 2/alpha^2,
-#: width sqrt(2/(n+1)) = alpha). Its 1 - cos(alpha) is computed to a relative 3e-7 at any n
-#: (:func:`~virtual.kernels.given32.phong_lobe_omc32`), not as 1 - cos, which float32 cannot resolve.
-MAX_PHONG_EXPONENT = 2.0 / MIN_ALPHA ** 2
-#: Dielectric indices (rough dielectric, plastic coat) the float32 path takes: 1/MAX_ETA <= eta <= MAX_ETA,
-#: the specimens' declared range, where the Fresnel terms and the refracted direction stay well scaled.
-MAX_ETA = 10.0
+from virtual.kernel_codes import ATAN32_MAX_ERROR, MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA  # noqa: E402
 
 # sin and cos of x in [-pi/4, pi/4]: Taylor to x^7 and x^8, truncation below 4e-9 (float32 ulp 6e-8)
 _S3, _S5, _S7 = F(-1.0 / 6.0), F(1.0 / 120.0), F(-1.0 / 5040.0)
@@ -59,8 +51,7 @@ _C2, _C4, _C6, _C8 = F(-0.5), F(1.0 / 24.0), F(-1.0 / 720.0), F(1.0 / 40320.0)
 # atan(t)/t on [0, 1], least squares in t^2 (degree 7): 1.8e-7 rad evaluated in float32 (tested)
 _A0, _A1, _A2, _A3 = F(0.9999999403953552), F(-0.33332303166389465), F(0.1997368037700653), F(-0.14040134847164154)
 _A4, _A5, _A6, _A7 = F(0.09967909753322601), F(-0.06021890789270401), F(0.02475660853087902), F(-0.004831115715205669)
-#: Largest error (rad) of the float32 polynomial atan2, with its input's rounding (tested on a grid).
-ATAN32_MAX_ERROR = 4e-7
+# ATAN32_MAX_ERROR (virtual.kernel_codes): the largest error of the float32 polynomial atan2 below.
 
 
 @jit(inline="always")

@@ -18,16 +18,13 @@ from virtual.kernels.microfacet import (fresnel_dielectric, g2_over_g1_masked_ra
                                         ggx_vndf_given, unit_disk)
 from virtual.kernels.rng import next_double
 from virtual.kernels.sampling import sincos_2pi, warp_cosine_hemisphere
-from virtual.kernels.scatter import MODEL_DIELECTRIC, MODEL_OREN_NAYAR, MODEL_PHONG, frame
+from virtual.kernels.scatter import MODEL_OREN_NAYAR, MODEL_PHONG, frame
 
 __all__ = ["GIVEN4_MODELS", "GIVEN4_UNIFORMS", "scatter_given4", "PLASTIC_UNIFORMS", "plastic_given",
            "plastic_diffuse_redo", "phong_given", "phong_lobe_cos"]
 
 
-#: Models :func:`scatter_given4` serves.
-GIVEN4_MODELS = (MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_DIELECTRIC)
-#: Uniforms :func:`scatter_given4` consumes per ray.
-GIVEN4_UNIFORMS = 4
+from virtual.kernel_codes import GIVEN4_MODELS, GIVEN4_UNIFORMS  # noqa: E402
 
 
 @jit(inline="always")

@@ -14,9 +14,7 @@ from virtual.kernels import jit
 
 __all__ = ["LANES", "next_uint64", "next_double", "fill_uniforms", "fill_uniforms32"]
 
-#: Independent xoshiro streams advanced side by side by :func:`fill_uniforms` (one SIMD
-#: register holds 8 of them; 64 keeps the vectorized loop free of a scalar remainder).
-LANES = 64
+from virtual.kernel_codes import LANES  # noqa: E402
 
 _TO_DOUBLE = 1.0 / 9007199254740992.0  # 2**-53
 

@@ -34,11 +34,7 @@ __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MOD
            "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
            "scatter", "scatter_given", "ggx_given_parts"]
 
-#: Models with a branch-free form taking their uniforms as arguments (:func:`scatter_given`):
-#: the vectorized block kernel of :mod:`virtual.kernels.engine` runs them.
-GIVEN_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX)
-#: Uniforms :func:`scatter_given` consumes per ray.
-GIVEN_UNIFORMS = 3
+from virtual.kernel_codes import GIVEN_MODELS, GIVEN_UNIFORMS  # noqa: E402
 
 _DEAD = (0.0, 0.0, 0.0, False)
 

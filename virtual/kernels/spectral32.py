@@ -20,7 +20,6 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
-from virtual.kernels.beam import beam_tuple
 from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32
 from virtual.kernels.collector import patch_of
 from virtual.kernels.f32 import (ONE, emit_given32, emit_side32, fresnel_conductor_ratio32, sincos_2pi32,
@@ -31,10 +30,7 @@ from virtual.kernels.rng import LANES, fill_uniforms32
 
 __all__ = ["FRESNEL_CELLS", "fresnel_bounds", "lambert_spectral32_chunk", "ggx_spectral32_chunk"]
 
-#: Cells of c = cos(theta_m) in [0, 1] of the Fresnel bound table.
-FRESNEL_CELLS = 512
-#: Samples per cell (float64) from which its bounds are taken.
-FRESNEL_SAMPLES = 64
+from virtual.kernel_codes import FRESNEL_CELLS  # noqa: E402
 #: Absolute padding of the bounds: covers the float32 evaluation of F (a few 1e-7) and of the
 #: products u g_den, F g_num (a few ulp), with a wide margin.
 FRESNEL_PAD = 1e-5
