@@ -11,15 +11,16 @@ from __future__ import annotations
 
 import difflib
 import math
-from typing import Annotated, Any, List, Literal, Mapping, Union
+from typing import Annotated, Any, ClassVar, List, Literal, Mapping, Union, get_args
 
-from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, ValidationError,
-                      field_validator)
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, ValidationError,
+                      create_model, field_validator, model_validator)
 
 from bench.core.errors import ConfigError, InputError
 from bench.core.parsing import check_collector_spec, parse_range, parse_wavelengths
 
-__all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "MAX_PLAN_POINTS", "MAX_INTEGRATION_S",
+__all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "validation_message", "BENCH_KINDS", "SceneEffect", "EFFECT_SCHEMAS",
+           "MAX_PLAN_POINTS", "MAX_INTEGRATION_S",
            "MAX_AVERAGES", "MAX_RAYS", "MAX_SWEEP_SERIES"]
 
 #: the most points one plan may expand to (a plan of more is almost surely a typo in a step)
@@ -199,6 +200,11 @@ class BandsTable(_Strict):
     bandwidth_nm: Annotated[Finite, Field(gt=0, le=1000)] = 10.0
 
 
+#: the bodies a bench description may be built as (``kind`` of a bench file)
+BenchKind = Literal["virtual", "emulated", "real"]
+BENCH_KINDS: tuple[str, ...] = get_args(BenchKind)
+
+
 class BenchFile(BaseModel):
     """A bench config: the roles' tables. Driver tables (``arm``, ``turntable``, ``spectrometer``,
     ``light``) are checked by the drivers' own declared settings; their presence is checked here."""
@@ -206,7 +212,7 @@ class BenchFile(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: str = "bench"
-    kind: Literal["virtual", "emulated", "real"] = "virtual"
+    kind: BenchKind = "virtual"
     description: str = ""
     seed: Annotated[Whole, Field(ge=0, lt=2**63)] | None = None
     specimen: SpecimenTable | None = None
@@ -237,7 +243,7 @@ class _SweepCommon(_Strict):
     uncertainty: Annotated[Finite, Field(gt=0, lt=1)] | None = None
     delta: Annotated[Finite, Field(gt=0, lt=1)] = 0.01
     method: Literal["auto", "rays", "fast"] | None = None
-    beam: str = "collimated"
+    beam: Literal["collimated", "conical"] = "collimated"
     cone_deg: Annotated[Finite, Field(gt=0, lt=90)] | None = None
 
 
@@ -282,59 +288,106 @@ _Frac = Annotated[Finite, Field(ge=0, le=1)]
 _Pos = Annotated[Finite, Field(gt=0)]
 
 
-class ApertureEffect(_Strict):
-    half_angle_deg: Annotated[Finite, Field(gt=0, le=90)] = 2.0
-    views: Annotated[list[Annotated[list[Finite], Field(min_length=1, max_length=2)]],
-                     Field(min_length=1, max_length=10_000)] = [[0.0, 0.0]]
+class SceneEffect(_Strict):
+    """One ``[effects.NAME]`` table: the settings (with their ranges) a declared effect takes;
+    :mod:`virtual.scene` subclasses each to add what the effect does."""
+
+    effect_name: ClassVar[str] = ""
+
+
+def _view(v: Any) -> Any:
+    """``[theta_r]`` or ``[theta_r, phi_r]`` (deg) -> ``(theta_r, phi_r)``, phi_r defaulting to 0."""
+    if isinstance(v, (list, tuple)) and len(v) == 1:
+        return (v[0], 0.0)
+    return v
+
+
+class ApertureEffect(SceneEffect):
+    effect_name: ClassVar[str] = "aperture"
+    half_angle_deg: Annotated[Finite, Field(gt=0, lt=45)] = 2.0
+    views: Annotated[tuple[Annotated[tuple[Finite, Finite], BeforeValidator(_view)], ...],
+                     Field(min_length=1, max_length=10_000)] = ((0.0, 0.0),)
     distance_mm: _Pos | None = None
 
+    @model_validator(mode="after")
+    def _above_the_horizon(self) -> "ApertureEffect":
+        for t, _ in self.views:
+            if not 0.0 <= t + self.half_angle_deg < 90.0:
+                raise ValueError(f"views: a detector at theta_r = {t!r} deg with half_angle_deg = "
+                                 f"{self.half_angle_deg!r} reaches the horizon")
+        return self
 
-class NoiseEffect(_Strict):
+
+class NoiseEffect(SceneEffect):
+    effect_name: ClassVar[str] = "noise"
     uncertainty: _Frac = 0.002
     relative: StrictBool | None = None
 
 
-class StrayLightEffect(_Strict):
-    fraction: _Frac = 0.001
+class StrayLightEffect(SceneEffect):
+    effect_name: ClassVar[str] = "stray_light"
+    fraction: Annotated[Finite, Field(ge=0, lt=1)] = 0.001
 
 
-class SphereEffect(_Strict):
-    wall_reflectance: _Frac = 0.98
-    port_fraction: _Frac = 0.05
-    detector_port: _Frac = 0.01
-    specimen_port: _Frac = 0.02
-    reference_reflectance: _Frac = 0.99
+class SphereEffect(SceneEffect):
+    """Wall reflectance 0.970-0.985 and ports of at most 10 % of the sphere's area (detector and
+    specimen ports included): the range the single-beam substitution model holds in."""
+
+    effect_name: ClassVar[str] = "sphere"
+    wall_reflectance: Annotated[Finite, Field(ge=0.970, le=0.985)] = 0.98
+    port_fraction: Annotated[Finite, Field(gt=0, le=0.10)] = 0.05
+    detector_port: _Pos = 0.01
+    specimen_port: Annotated[Finite, Field(ge=0)] = 0.02
+    reference_reflectance: Annotated[Finite, Field(gt=0, le=1)] = 0.99
+
+    @model_validator(mode="after")
+    def _ports_fit(self) -> "SphereEffect":
+        if self.detector_port + self.specimen_port > self.port_fraction:
+            raise ValueError(f"detector_port + specimen_port ({self.detector_port!r} + {self.specimen_port!r}) must "
+                             f"fit in port_fraction ({self.port_fraction!r})")
+        return self
 
 
-class GlossTrapEffect(_Strict):
+class GlossTrapEffect(SceneEffect):
+    effect_name: ClassVar[str] = "gloss_trap"
     specular: Literal["excluded", "included"] = "excluded"
-    half_angle_deg: Annotated[Finite, Field(gt=0, le=90)] = 4.0
+    half_angle_deg: Annotated[Finite, Field(gt=0, lt=45)] = 4.0
 
 
-class BandpassEffect(_Strict):
+def _odd(v: int) -> int:
+    if v % 2 == 0:
+        raise ValueError(f"expected an odd number of nodes, got {v}")
+    return v
+
+
+class BandpassEffect(SceneEffect):
+    effect_name: ClassVar[str] = "bandpass"
     fwhm_nm: _Pos = 10.0
-    nodes: Annotated[Whole, Field(ge=1, le=1001)] = 9
+    nodes: Annotated[Whole, Field(ge=3, le=257), AfterValidator(_odd)] = 9
 
 
-class SpecimenEffect(_Strict):
-    uniform: StrictBool = True
+class SpecimenEffect(SceneEffect):
+    """A non-uniform specimen (declaring the table means a pattern unless ``uniform = true``)."""
+
+    effect_name: ClassVar[str] = "specimen"
+    uniform: StrictBool = False
     period_mm: _Pos = 5.0
     contrast: _Frac = 0.5
     spot_radius_mm: _Pos = 10.0
+
+
+#: every effect a scene may declare, by its ``[effects.NAME]`` key (the order effects are listed in)
+EFFECT_SCHEMAS: dict[str, type[SceneEffect]] = {m.effect_name: m for m in (
+    ApertureEffect, NoiseEffect, StrayLightEffect, SphereEffect, GlossTrapEffect, BandpassEffect, SpecimenEffect)}
 
 
 def _effect(model: Any) -> Any:
     return Union[StrictBool, model] | None  # true: the defaults, false: not declared
 
 
-class EffectsTable(_Strict):
-    aperture: _effect(ApertureEffect) = None
-    noise: _effect(NoiseEffect) = None
-    stray_light: _effect(StrayLightEffect) = None
-    sphere: _effect(SphereEffect) = None
-    gloss_trap: _effect(GlossTrapEffect) = None
-    bandpass: _effect(BandpassEffect) = None
-    specimen: _effect(SpecimenEffect) = None
+#: ``[effects]``: one optional table per declared effect (``true``: its defaults, ``false``: absent)
+EffectsTable = create_model("EffectsTable", __base__=_Strict,
+                            **{name: (_effect(model), None) for name, model in EFFECT_SCHEMAS.items()})
 
 
 class SceneBeam(_Strict):
@@ -402,7 +455,7 @@ def _loc(loc: tuple[Any, ...]) -> str:
             out += f"[{part}]"
         elif isinstance(part, str) and part[:1].isupper():
             continue  # a union branch named by its model class (our keys are lower case)
-        elif part in ("float", "int", "str", "list[float]", "RangeTable", "function-before[_finite_number(), float]",
+        elif part in ("bool", "float", "int", "str", "list[float]", "RangeTable", "function-before[_finite_number(), float]",
                       "function-before[_whole_number(), int]") or "[" in str(part) or str(part).startswith("function"):
             continue  # union branch labels pydantic adds to the location
         else:
@@ -444,22 +497,31 @@ def validate_document(model: type[BaseModel], data: Mapping[str, Any], source: s
     try:
         return model.model_validate(dict(data))
     except ValidationError as exc:
-        errors = exc.errors(include_url=False)
-        # a union reports one error per branch: the one reaching deepest names the real problem
-        err = max(errors, key=lambda e: (e["type"] == "extra_forbidden", len(e.get("loc", ()))))
-        loc = tuple(err.get("loc", ()))
-        where = _loc(loc) or "(top level)"
-        if err["type"] == "extra_forbidden":
-            key = str(loc[-1]) if loc else where
-            known = [k for k in _known_keys(model, loc)]
-            near = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
-            hint = f"; did you mean {near[0]!r}?" if near else (f"; accepted: {', '.join(known)}" if known else "")
-            raise ConfigError(f"{source}: unknown key {where!r}{hint}") from None
-        value = err.get("input")
-        msg = str(err.get("msg", "invalid"))
-        if msg.startswith("Value error, "):  # our own validators already name the value
-            raise ConfigError(f"{source}: key {where}: {msg.removeprefix('Value error, ')}") from None
-        shown = repr(value)
-        if len(shown) > 60:
-            shown = shown[:57] + "..."
-        raise ConfigError(f"{source}: key {where}: {msg[:1].lower() + msg[1:]} (got {shown})") from None
+        raise ConfigError(validation_message(model, exc, source)) from None
+
+
+def validation_message(model: type[BaseModel], exc: ValidationError, source: str) -> str:
+    """The first problem of ``exc`` as ``SOURCE: key a.b: problem (got VALUE)`` (unknown keys
+    with a "did you mean" for near misses)."""
+    errors = exc.errors(include_url=False)
+    # a union reports one error per branch: the one reaching deepest names the real problem, and
+    # of equals a wrong value (a table's own check) rather than a wrong type (another branch's)
+    err = max(errors, key=lambda e: (e["type"] == "extra_forbidden", len(e.get("loc", ())),
+                                     not e["type"].endswith("_type")))
+    loc = tuple(err.get("loc", ()))
+    where = _loc(loc) or "(top level)"
+    if err["type"] == "extra_forbidden":
+        key = str(loc[-1]) if loc else where
+        known = [k for k in _known_keys(model, loc)]
+        near = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
+        hint = f"; did you mean {near[0]!r}?" if near else (f"; accepted: {', '.join(known)}" if known else "")
+        return f"{source}: unknown key {where!r}{hint}"
+    value = err.get("input")
+    msg = str(err.get("msg", "invalid"))
+    if msg.startswith("Value error, "):  # our own validators already name the value
+        msg = msg.removeprefix("Value error, ")
+        return f"{source}: {msg}" if where == "(top level)" else f"{source}: key {where}: {msg}"
+    shown = repr(value)
+    if len(shown) > 60:
+        shown = shown[:57] + "..."
+    return f"{source}: key {where}: {msg[:1].lower() + msg[1:]} (got {shown})"

@@ -10,12 +10,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any, Mapping
+from typing import Any, Mapping, get_args
 
 import numpy as np
 
 from bench.core.errors import ConfigError, InputError
 from bench.core.geometry import direction
+from bench.core.schemas import SceneFile
 from virtual import effects as fx
 from virtual import engine
 from virtual.beam import Beam, check_incidence
@@ -29,8 +30,9 @@ from virtual.specimens import Lambertian, Specimen
 
 __all__ = ["Scene", "SceneResult", "cone_probability", "INSTRUMENTS", "OBSERVABLES"]
 
-INSTRUMENTS = ("spectrophotometer", "goniophotometer", "physical")
-OBSERVABLES = ("reflectance", "transmittance", "missed")
+#: the instruments and observables a scene may name (declared by its schema, bench.core.schemas)
+INSTRUMENTS: tuple[str, ...] = get_args(SceneFile.model_fields["instrument"].annotation)
+OBSERVABLES: tuple[str, ...] = get_args(SceneFile.model_fields["observable"].annotation)
 
 
 @dataclass
