@@ -19,7 +19,7 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fi
 from bench.core.errors import ConfigError, InputError
 from bench.core.parsing import check_collector_spec, parse_range, parse_wavelengths
 
-__all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "validation_message", "BENCH_KINDS", "SceneEffect", "EFFECT_SCHEMAS",
+__all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "validation_message", "Settings", "BENCH_KINDS", "SceneEffect", "EFFECT_SCHEMAS",
            "MAX_PLAN_POINTS", "MAX_INTEGRATION_S",
            "MAX_AVERAGES", "MAX_RAYS", "MAX_SWEEP_SERIES"]
 
@@ -59,6 +59,43 @@ Whole = Annotated[int, BeforeValidator(_whole_number)]
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=False, frozen=True)
+
+
+class Settings(BaseModel):
+    """A device's or an effect's settings, each declared once with its type and range (the idea
+    of PyMeasure's ``Instrument.control``, validated by pydantic like every user file).
+
+    Built from Python by keyword or by position (the declared order), a bad value is one
+    :class:`ConfigError` line naming :attr:`settings_of`, the key and the value; a TOML table
+    goes through :meth:`from_dict` (unknown keys refused with a "did you mean"). A model nested
+    in a file schema must not derive from this class: its own ``__init__`` would run inside the
+    file's validation."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    #: what the settings belong to, as errors name it (``stage axis config``, ``effects.noise``)
+    settings_of: ClassVar[str] = "settings"
+
+    def __init__(self, *args: Any, _source: str | None = None, **kw: Any) -> None:
+        model = type(self)
+        where = _source or model.settings_of
+        fields = list(model.model_fields)
+        if len(args) > len(fields):
+            raise ConfigError(f"{where}: takes at most {len(fields)} settings ({', '.join(fields)}), got {len(args)}")
+        for name, value in zip(fields, args):
+            if name in kw:
+                raise ConfigError(f"{where}: {name} given twice")
+            kw[name] = value
+        try:
+            super().__init__(**kw)
+        except ValidationError as exc:
+            raise ConfigError(validation_message(model, exc, where)) from None
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], source: str | None = None) -> Any:
+        """Validate a table (a TOML table, a mapping) into these settings; errors name ``source``."""
+        if not isinstance(d, Mapping):
+            raise ConfigError(f"{source or cls.settings_of}: expected a table of keys, got {type(d).__name__}")
+        return cls(_source=source, **{str(k): v for k, v in d.items()})
 
 
 def _range(v: Any) -> Any:

@@ -13,13 +13,11 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
-from pydantic import ValidationError
-
 from bench.core.errors import ConfigError
 from bench.core.geometry import direction
 from bench.core.schemas import (EFFECT_SCHEMAS, ApertureEffect, BandpassEffect, EffectsTable, GlossTrapEffect,
-                                NoiseEffect, SceneEffect, SpecimenEffect, SphereEffect, StrayLightEffect,
-                                validate_document, validation_message)
+                                NoiseEffect, SceneEffect, Settings, SpecimenEffect, SphereEffect,
+                                StrayLightEffect, validate_document)
 
 __all__ = ["Aperture", "Noise", "StrayLight", "Sphere", "GlossTrap", "Bandpass", "SpecimenPattern", "Effects",
            "EFFECT_NAMES", "effects_from_dict"]
@@ -28,24 +26,13 @@ __all__ = ["Aperture", "Noise", "StrayLight", "Sphere", "GlossTrap", "Bandpass",
 EFFECT_NAMES = tuple(EFFECT_SCHEMAS)
 
 
-class _Settings:
-    """Built from Python, an effect takes its settings by position too (the declared order) and
-    refuses a bad value with one :class:`ConfigError` naming ``effects.NAME``, key and value."""
+class _Settings(Settings):
+    """Built from Python, an effect takes its settings by keyword or position and refuses a bad
+    value with one :class:`ConfigError` naming ``effects.NAME``, the key and the value."""
 
-    def __init__(self, *args: Any, **kw: Any) -> None:
-        model: type[SceneEffect] = type(self)  # type: ignore[assignment]
-        fields = list(model.model_fields)
-        where = f"effects.{model.effect_name}"
-        if len(args) > len(fields):
-            raise ConfigError(f"{where}: takes at most {len(fields)} settings ({', '.join(fields)}), got {len(args)}")
-        for name, value in zip(fields, args):
-            if name in kw:
-                raise ConfigError(f"{where}: {name} given twice")
-            kw[name] = value
-        try:
-            super().__init__(**kw)
-        except ValidationError as exc:
-            raise ConfigError(validation_message(model, exc, where)) from None
+    def __init_subclass__(cls, **kw: Any) -> None:
+        super().__init_subclass__(**kw)
+        cls.settings_of = f"effects.{getattr(cls, 'effect_name', '')}"
 
 
 # --- effects ------------------------------------------------------------------------------------
