@@ -17,11 +17,12 @@ import sys
 import sysconfig
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from bench.cli import main
-from bench.core import plugins
+from bench.core import plugins, schemas
 from bench.core.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,14 +55,17 @@ def lab(tmp_path, monkeypatch):
     from virtual.specimens import declare
 
     _declare(tmp_path / "site", "[goniobench.specimens]\nvelvet = labvelvet:Velvet\n\n"
-                                "[goniobench.formats]\nlabjson = labvelvet:LAB_JSON\n")
+                                "[goniobench.formats]\nlabjson = labvelvet:LAB_JSON\n\n"
+                                "[goniobench.effects]\nveiling = labvelvet.effects:Veiling\n")
     monkeypatch.syspath_prepend(str(LAB))
     monkeypatch.syspath_prepend(str(tmp_path / "site"))
     monkeypatch.setattr(plugins, "_LOADED", set())
     yield tmp_path
     declare._REGISTRY.pop("velvet", None)
     registry._REGISTRY.pop("labjson", None)
+    schemas._PLUGIN_EFFECTS.pop("veiling", None)
     sys.modules.pop("labvelvet", None)
+    sys.modules.pop("labvelvet.effects", None)
 
 
 def test_an_installed_family_and_format_are_found_by_name_and_listed(lab, capsys):
@@ -88,6 +92,27 @@ def test_toml_files_name_an_installed_family(lab):
     assert {t.specimen for t in spec.tasks} == {"velvet:retro=0.25,albedo=0.6", "lambert:albedo=0.5"}
     scene = scene_from_dict({"specimen": "velvet:albedo=0.7"})
     assert scene.specimen.params(550.0).tolist() == [0.5, 0.7]
+
+
+def test_a_scene_file_declares_an_installed_effect(lab, tmp_path):
+    from virtual.scene import load_scene
+
+    scene = tmp_path / "veiled.toml"
+    base = 'specimen = "lambert:reflectance=0.6"\nrays = 20000\nseed = 3\n'
+    scene.write_text(base + "[effects.veiling]\nlevel = 0.01\n")
+    veiled = load_scene(scene)
+    assert veiled.effects.declared() == ["veiling"]
+    plain = veiled.with_effects(veiled.effects.only())
+    r, r0 = veiled.run(), plain.run()
+    assert np.array_equal(r.values, r0.values + 0.01) and np.array_equal(r.ci, r0.ci + 0.01)
+    (ref, exact), (ref0, exact0) = veiled.reference(), plain.reference()
+    assert exact and exact0 and np.array_equal(ref, ref0 + 0.01)
+    scene.write_text(base + "[effects.veiling]\nlevel = 0.5\n")
+    with pytest.raises(ConfigError, match=rf"^scene file {scene}: key effects.veiling.level: .*0.1 .got 0.5.$"):
+        load_scene(scene)
+    scene.write_text(base + "[effects.veiling]\nlevle = 0.01\n")
+    with pytest.raises(ConfigError, match=r"unknown key 'effects.veiling.levle'; did you mean 'level'\?"):
+        load_scene(scene)
 
 
 def test_a_broken_plugin_is_one_line_naming_its_entry_point(tmp_path, monkeypatch, capsys):

@@ -110,7 +110,9 @@ def test_rules_across_settings_are_the_schemas(effect, table, accepted):
 
 def test_every_declared_effect_has_its_computation():
     assert EFFECT_NAMES == tuple(EFFECT_SCHEMAS)
-    assert [f for f in Effects.__dataclass_fields__] == list(EFFECT_NAMES)
+    assert [f for f in Effects.__dataclass_fields__ if f != "extra"] == list(EFFECT_NAMES)  # extra: plugins'
+    assert "did you mean 'uncertainty'" in str(pytest.raises(ConfigError, scene_from_dict,
+                                                             _doc("noise", {"uncertainy": 0.01})).value)
     for effect in EFFECT_NAMES:  # `true` declares an effect with its defaults
         assert getattr(scene_from_dict(_doc(effect, True)).effects, effect) is not None
 

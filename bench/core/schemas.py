@@ -18,8 +18,10 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fi
 
 from bench.core.errors import ConfigError, InputError
 from bench.core.parsing import check_collector_spec, parse_range, parse_wavelengths
+from bench.core.plugins import EFFECT_GROUP, load_plugins
 
 __all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "validation_message", "Settings", "BENCH_KINDS", "SceneEffect", "EFFECT_SCHEMAS",
+           "plugin_effects", "scene_schema",
            "MAX_PLAN_POINTS", "MAX_INTEGRATION_S",
            "MAX_AVERAGES", "MAX_RAYS", "MAX_SWEEP_SERIES"]
 
@@ -422,9 +424,13 @@ def _effect(model: Any) -> Any:
     return Union[StrictBool, model] | None  # true: the defaults, false: not declared
 
 
+def _effects_table(schemas: Mapping[str, type[SceneEffect]]) -> type[BaseModel]:
+    return create_model("EffectsTable", __base__=_Strict,
+                        **{name: (_effect(model), None) for name, model in schemas.items()})
+
+
 #: ``[effects]``: one optional table per declared effect (``true``: its defaults, ``false``: absent)
-EffectsTable = create_model("EffectsTable", __base__=_Strict,
-                            **{name: (_effect(model), None) for name, model in EFFECT_SCHEMAS.items()})
+EffectsTable = _effects_table(EFFECT_SCHEMAS)
 
 
 class SceneBeam(_Strict):
@@ -485,6 +491,39 @@ class SceneFile(_Strict):
     physical: PhysicalTable = PhysicalTable()
 
 
+# --- effects added by installed packages (entry point group goniobench.effects) -------------------
+
+#: effects of installed plugins, by their ``[effects.NAME]`` key (filled by :func:`plugin_effects`)
+_PLUGIN_EFFECTS: dict[str, type[SceneEffect]] = {}
+_SCENE_SCHEMA: dict[tuple[str, ...], type[SceneFile]] = {}
+
+
+def _register_effect(entry: str, obj: Any) -> None:
+    if not (isinstance(obj, type) and issubclass(obj, SceneEffect) and obj.effect_name):
+        raise ConfigError(f"expected a bench.core.schemas.SceneEffect subclass with an effect_name, got {obj!r}")
+    if obj.effect_name in EFFECT_SCHEMAS or obj.effect_name in _PLUGIN_EFFECTS:
+        raise ConfigError(f"effect name {obj.effect_name!r} is already taken")
+    _PLUGIN_EFFECTS[obj.effect_name] = obj
+
+
+def plugin_effects() -> dict[str, type[SceneEffect]]:
+    """The effects installed ``goniobench.effects`` entry points add (loaded once)."""
+    load_plugins(EFFECT_GROUP, _register_effect)
+    return dict(_PLUGIN_EFFECTS)
+
+
+def scene_schema() -> type[SceneFile]:
+    """The scene file's schema: :class:`SceneFile`, its ``[effects]`` extended by the installed
+    plugins' effects (every reader of a scene file validates with this)."""
+    extra = plugin_effects()
+    key = tuple(extra)
+    if key not in _SCENE_SCHEMA:
+        table = _effects_table({**EFFECT_SCHEMAS, **extra})
+        _SCENE_SCHEMA[key] = SceneFile if not extra else create_model(
+            "SceneFile", __base__=SceneFile, __doc__=SceneFile.__doc__, effects=(table, table()))
+    return _SCENE_SCHEMA[key]
+
+
 def _loc(loc: tuple[Any, ...]) -> str:
     out = ""
     for part in loc:
@@ -517,6 +556,8 @@ def _known_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
     current: Any = model
     for part in loc[:-1]:
         fields = getattr(current, "model_fields", None)
+        if fields and part not in fields and not _loc((part,)):
+            continue  # a union branch's label (the model's class name, a type)
         if not fields or part not in fields:
             return []
         ann = fields[part].annotation

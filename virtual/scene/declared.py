@@ -15,12 +15,12 @@ from typing import Any, Mapping
 import numpy as np
 from bench.core.errors import ConfigError
 from bench.core.geometry import direction
-from bench.core.schemas import (EFFECT_SCHEMAS, ApertureEffect, BandpassEffect, EffectsTable, GlossTrapEffect,
+from bench.core.schemas import (EFFECT_SCHEMAS, ApertureEffect, BandpassEffect, GlossTrapEffect,
                                 NoiseEffect, SceneEffect, Settings, SpecimenEffect, SphereEffect,
-                                StrayLightEffect, validate_document)
+                                StrayLightEffect, plugin_effects, scene_schema, validate_document)
 
 __all__ = ["Aperture", "Noise", "StrayLight", "Sphere", "GlossTrap", "Bandpass", "SpecimenPattern", "Effects",
-           "EFFECT_NAMES", "effects_from_dict"]
+           "EFFECT_NAMES", "ReadingEffect", "effects_from_dict"]
 
 #: the ``[effects.NAME]`` keys, in the order effects are listed (declared in bench.core.schemas)
 EFFECT_NAMES = tuple(EFFECT_SCHEMAS)
@@ -118,6 +118,25 @@ class SpecimenPattern(_Settings, SpecimenEffect):
         return 1.0 - 0.5 * self.contrast * (1.0 + 2.0 * float(j1(kr)) / kr)
 
 
+class ReadingEffect(SceneEffect):
+    """Base of an effect a lab's package adds (entry point group ``goniobench.effects``): its
+    settings are its pydantic fields (with ``effect_name``, the ``[effects.NAME]`` key), and it
+    acts on the readings after counting, as instrument noise does.
+
+    ``apply_to_readings(values, ci, rng, instrument)`` returns the new readings and intervals
+    (arrays shaped like :attr:`SceneResult.values` and ``.ci``; ``rng`` is the effect's own
+    stream of the scene's seed). ``expected(reference)`` returns the expected readings given
+    those without the effect, or None when unknown (then :meth:`Scene.reference` is not exact).
+    """
+
+    def apply_to_readings(self, values: np.ndarray, ci: np.ndarray, rng: np.random.Generator,
+                          instrument: str) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError(f"effect {self.effect_name} declares no apply_to_readings")
+
+    def expected(self, reference: np.ndarray) -> np.ndarray | None:
+        return None
+
+
 #: the class computing each declared effect, by its ``[effects.NAME]`` key
 EFFECT_CLASSES: dict[str, type[SceneEffect]] = {
     c.effect_name: c for c in (Aperture, Noise, StrayLight, Sphere, GlossTrap, Bandpass, SpecimenPattern)}
@@ -136,17 +155,21 @@ class Effects:
     gloss_trap: GlossTrap | None = None
     bandpass: Bandpass | None = None
     specimen: SpecimenPattern | None = None
+    extra: tuple[ReadingEffect, ...] = ()  # effects of installed plugins, in the order declared
 
     def declared(self) -> list[str]:
         return [n for n in EFFECT_NAMES if getattr(self, n) is not None
-                and not (n == "specimen" and self.specimen.uniform)]  # type: ignore[union-attr]
+                and not (n == "specimen" and self.specimen.uniform)] + [  # type: ignore[union-attr]
+            e.effect_name for e in self.extra]
 
     def only(self, *names: str) -> "Effects":
-        return Effects(**{n: getattr(self, n) for n in names})
+        return Effects(**{n: getattr(self, n) for n in names if n in EFFECT_NAMES},
+                       extra=tuple(e for e in self.extra if e.effect_name in names))
 
 
 def effects_from_table(table: Any) -> Effects:
-    """The :class:`Effects` of a validated ``[effects]`` table (``true``: an effect's defaults)."""
+    """The :class:`Effects` of a validated ``[effects]`` table (``true``: an effect's defaults);
+    the table of :func:`bench.core.schemas.scene_schema` may hold installed plugins' effects."""
     kw: dict[str, Any] = {}
     for name, cls in EFFECT_CLASSES.items():
         value = getattr(table, name)
@@ -154,9 +177,20 @@ def effects_from_table(table: Any) -> Effects:
             kw[name] = cls()
         elif isinstance(value, SceneEffect):
             kw[name] = cls.model_construct(value.model_fields_set, **dict(value))
-    return Effects(**kw)
+    extra = []
+    for name, cls in plugin_effects().items():
+        value = getattr(table, name, None)
+        if value is None or value is False:
+            continue
+        effect = cls() if value is True else value
+        if not isinstance(effect, ReadingEffect):
+            raise ConfigError(f"effects.{name}: a plugin's effect must derive from virtual.scene.ReadingEffect, "
+                              f"got {type(effect).__module__}.{type(effect).__qualname__}")
+        extra.append(effect)
+    return Effects(**kw, extra=tuple(extra))
 
 
 def effects_from_dict(d: Mapping[str, Any], source: str = "effects") -> Effects:
     """Read the ``[effects]`` tables (unknown effects and keys, bad values: one :class:`ConfigError`)."""
-    return effects_from_table(validate_document(EffectsTable, d, source))
+    table = scene_schema().model_fields["effects"].annotation
+    return effects_from_table(validate_document(table, d, source))

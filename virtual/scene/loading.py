@@ -1,8 +1,8 @@
 """Reading scenes: a TOML file or a mapping to a :class:`~virtual.scene.simulate.Scene`
 (see :mod:`virtual.scene` for the format).
 
-The document is validated by its declared schema (:class:`bench.core.schemas.SceneFile`, the
-one ``bench tradeoff`` and every other reader use), which refuses unknown keys, wrong types and
+The document is validated by its declared schema (:func:`bench.core.schemas.scene_schema`:
+:class:`~bench.core.schemas.SceneFile` with the installed plugins' effects), which refuses unknown keys, wrong types and
 out-of-range values in one :class:`ConfigError` line naming the file, key and value; this module
 only turns the validated tables into the scene's objects.
 """
@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from bench.core.parsing import parse_wavelengths, read_toml
-from bench.core.schemas import SceneFile, validate_document
+from bench.core.schemas import SceneFile, scene_schema, validate_document
 from virtual.beam import Beam
 from virtual.collector import parse_collector
 from virtual.scene.declared import effects_from_table
@@ -25,7 +25,7 @@ __all__ = ["scene_from_dict", "load_scene"]
 
 def scene_from_dict(d: Mapping[str, Any], name: str = "scene", source: str = "scene") -> Scene:
     """Build a :class:`Scene` from its TOML table (``source`` names it in errors)."""
-    doc: SceneFile = validate_document(SceneFile, d, source)  # type: ignore[assignment]
+    doc: SceneFile = validate_document(scene_schema(), d, source)  # type: ignore[assignment]
     given = doc.model_fields_set
     specimen = parse_specimen(doc.specimen if isinstance(doc.specimen, str) else doc.specimen.spec)
     beam = Beam(kind=doc.beam) if isinstance(doc.beam, str) else Beam(**doc.beam.model_dump(exclude_unset=True))
