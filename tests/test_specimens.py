@@ -380,26 +380,22 @@ def test_a_categorical_parameter_takes_its_names_and_refuses_anything_else():
             parse_specimen(bad)
 
 
-class _Velvet(DeclaredSpecimen):
+def _lab_velvet() -> type[DeclaredSpecimen]:
+    """The velvet family of the lab's plugin package (fixtures/plugins), loaded from its file."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "fixtures/plugins/goniobench-labvelvet/labvelvet/__init__.py"
+    spec = importlib.util.spec_from_file_location("labvelvet_in_test_specimens", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.Velvet
+
+
+class _Velvet(_lab_velvet()):
     """A lab's own model, defined outside the package: a retro-reflector with a diffuse floor."""
 
     name = "test-velvet"
-    model = MODEL_PYTHON
-    parameters = (Param("retro", 0.5, 0.0, 1.0, doc="probability of going back to the source"),
-                  Param("albedo", 0.8, 0.0, 1.0, doc="survival probability"))
-
-    def kernel_params(self, v):
-        return np.array([v["retro"], v["albedo"]])
-
-    def sample(self, wi, n, wavelength_nm, rng):
-        retro, albedo = self.params(wavelength_nm)
-        wi = np.broadcast_to(np.asarray(wi, dtype=float), (n, 3))
-        phi = 2 * np.pi * rng.random(n)
-        r = np.sqrt(rng.random(n))
-        diffuse = np.column_stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(1 - r * r)])
-        back = rng.random(n) < retro
-        dirs = np.where(back[:, None], wi, diffuse * np.sign(wi[:, 2:3]))
-        return dirs, rng.random(n) < albedo
 
 
 def test_a_lab_registers_its_own_model_without_editing_ours():
