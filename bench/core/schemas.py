@@ -594,6 +594,8 @@ def validation_message(model: type[BaseModel], exc: ValidationError, source: str
         near = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
         hint = f"; did you mean {near[0]!r}?" if near else (f"; accepted: {', '.join(known)}" if known else "")
         return f"{source}: unknown key {where!r}{hint}"
+    if err["type"] == "missing":
+        return f"{source}: key {where} is required"
     value = err.get("input")
     msg = str(err.get("msg", "invalid"))
     if msg.startswith("Value error, "):  # our own validators already name the value
