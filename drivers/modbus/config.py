@@ -104,8 +104,8 @@ class AxisConfig(Settings):
     zero_offset: Finite = 0.0
     limits: tuple[Finite, Finite] = (-180.0, 180.0)
     speed: _Positive = 30.0
-    accel: int = 1000
-    decel: int = 1000
+    accel: Annotated[int, Field(ge=0)] = 1000
+    decel: Annotated[int, Field(ge=0)] = 1000
     current: Annotated[int, Field(ge=0, le=1000)] = 1000
     tolerance: _Positive = 0.05
     move_timeout_s: Finite | None = None
