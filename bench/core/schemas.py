@@ -1,29 +1,27 @@
 """Declared schemas of the files a user gives: plans, bench configs, sweeps, scenes (pydantic v2).
 
-Every file goes through :func:`validate_document` before anything uses it: unknown keys are
-refused (with a "did you mean" for near misses), and so are wrong types, non-finite numbers,
-out-of-range values and sizes beyond the stated bounds. The error is one line naming the file,
+Every file goes through :func:`~bench.core.validation.validate_document` (re-exported here)
+before anything uses it: unknown keys are refused (with a "did you mean" for near misses), and
+so are wrong types, non-finite numbers, out-of-range values and sizes beyond the stated bounds. The error is one line naming the file,
 the key (dotted path) and the value. The builders and plan expansion keep the checks that need
 the devices (reachability, specimen parameters); the shape of the file is checked here, once.
 """
 
 from __future__ import annotations
 
-import difflib
-import math
-from typing import Annotated, Any, ClassVar, List, Literal, Mapping, Union, get_args
+from typing import Annotated, Any, ClassVar, Literal, Mapping, Union, get_args
 
-from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, ValidationError,
-                      create_model, field_validator, model_validator)
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, create_model,
+                      field_validator, model_validator)
 
 from bench.core.errors import ConfigError, InputError
 from bench.core.parsing import check_collector_spec, parse_range, parse_wavelengths
 from bench.core.plugins import EFFECT_GROUP, load_plugins
+from bench.core.validation import Finite, Settings, Table, Whole, validate_document, validation_message
 
-__all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "validation_message", "Settings", "BENCH_KINDS", "SceneEffect", "EFFECT_SCHEMAS",
-           "plugin_effects", "scene_schema",
-           "MAX_PLAN_POINTS", "MAX_INTEGRATION_S",
-           "MAX_AVERAGES", "MAX_RAYS", "MAX_SWEEP_SERIES"]
+__all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "validation_message", "Settings",
+           "BENCH_KINDS", "SceneEffect", "EFFECT_SCHEMAS", "plugin_effects", "scene_schema", "MAX_PLAN_POINTS",
+           "MAX_INTEGRATION_S", "MAX_AVERAGES", "MAX_RAYS", "MAX_SWEEP_SERIES"]
 
 #: the most points one plan may expand to (a plan of more is almost surely a typo in a step)
 MAX_PLAN_POINTS = 200_000
@@ -35,69 +33,6 @@ MAX_AVERAGES = 100_000
 MAX_RAYS = 10**15
 #: the most series (specimen x collector x incidence/geometry) one sweep may hold
 MAX_SWEEP_SERIES = 100_000
-
-
-def _finite_number(v: Any) -> Any:
-    if isinstance(v, bool):
-        raise ValueError("expected a number, got a boolean")
-    if isinstance(v, (int, float)) and not math.isfinite(float(v)):
-        raise ValueError(f"expected a finite number, got {v!r}")
-    return v
-
-
-def _whole_number(v: Any) -> Any:
-    if isinstance(v, bool):
-        raise ValueError("expected an integer, got a boolean")
-    if isinstance(v, float):
-        if not math.isfinite(v) or v != int(v):
-            raise ValueError(f"expected an integer, got {v!r}")
-        return int(v)
-    return v
-
-
-Finite = Annotated[float, BeforeValidator(_finite_number)]
-Whole = Annotated[int, BeforeValidator(_whole_number)]
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=False, frozen=True)
-
-
-class Settings(BaseModel):
-    """A device's or an effect's settings, each declared once with its type and range (the idea
-    of PyMeasure's ``Instrument.control``, validated by pydantic like every user file).
-
-    Built from Python by keyword or by position (the declared order), a bad value is one
-    :class:`ConfigError` line naming :attr:`settings_of`, the key and the value; a TOML table
-    goes through :meth:`from_dict` (unknown keys refused with a "did you mean"). A model nested
-    in a file schema must not derive from this class: its own ``__init__`` would run inside the
-    file's validation."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    #: what the settings belong to, as errors name it (``stage axis config``, ``effects.noise``)
-    settings_of: ClassVar[str] = "settings"
-
-    def __init__(self, *args: Any, _source: str | None = None, **kw: Any) -> None:
-        model = type(self)
-        where = _source or model.settings_of
-        fields = list(model.model_fields)
-        if len(args) > len(fields):
-            raise ConfigError(f"{where}: takes at most {len(fields)} settings ({', '.join(fields)}), got {len(args)}")
-        for name, value in zip(fields, args):
-            if name in kw:
-                raise ConfigError(f"{where}: {name} given twice")
-            kw[name] = value
-        try:
-            super().__init__(**kw)
-        except ValidationError as exc:
-            raise ConfigError(validation_message(model, exc, where)) from None
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any], source: str | None = None) -> Any:
-        """Validate a table (a TOML table, a mapping) into these settings; errors name ``source``."""
-        if not isinstance(d, Mapping):
-            raise ConfigError(f"{source or cls.settings_of}: expected a table of keys, got {type(d).__name__}")
-        return cls(_source=source, **{str(k): v for k, v in d.items()})
 
 
 def _range(v: Any) -> Any:
@@ -139,37 +74,37 @@ CollectorSpec = Annotated[str, BeforeValidator(_collector)]
 Wavelengths = Annotated[Any, BeforeValidator(_wavelengths)]
 
 
-class SpectralTable(_Strict):
+class SpectralTable(Table):
     geometries: Annotated[list[str], Field(min_length=1)]
     phi_i: Finite = 0.0
 
 
-class InPlaneTable(_Strict):
+class InPlaneTable(Table):
     theta_i: Range = [30.0]
     theta_r: Range = {"start": -80, "stop": 80, "step": 10}
     phi_i: Finite = 0.0
 
 
-class HemisphericalTable(_Strict):
+class HemisphericalTable(Table):
     theta_i: Range = [30.0]
     theta_r: Range = {"start": 0, "stop": 80, "step": 10}
     phi_r: Range = {"start": 0, "stop": 345, "step": 15}
     phi_i: Finite = 0.0
 
 
-class HalfVectorTable(_Strict):
+class HalfVectorTable(Table):
     theta_h: Range = [0.0, 10.0, 20.0]
     theta_d: Range = [10.0, 30.0]
     phi_d: Range = [90.0]
     phi_h: Finite = 90.0
 
 
-class ListTable(_Strict):
+class ListTable(Table):
     points: Annotated[list[Annotated[list[Finite], Field(min_length=4, max_length=4)]],
                       Field(min_length=1, max_length=MAX_PLAN_POINTS)]
 
 
-class PlanFile(_Strict):
+class PlanFile(Table):
     """A plan file: common keys and the table of its ``kind``."""
 
     name: str = "plan"
@@ -189,14 +124,14 @@ class PlanFile(_Strict):
     list_table: ListTable | None = Field(None, alias="list")
 
 
-class GeometryTable(_Strict):
+class GeometryTable(Table):
     theta_i: Finite
     phi_i: Finite = 0.0
     theta_r: Finite
     phi_r: Finite = 0.0
 
 
-class WhiteTable(_Strict):
+class WhiteTable(Table):
     name: str = ""
     reflectance_factor: Union[Annotated[Finite, Field(gt=0, le=1.5)],
                               Annotated[list[list[Finite]], Field(min_length=2, max_length=2)]] = 0.99
@@ -207,11 +142,11 @@ class WhiteTable(_Strict):
     date: str = ""
 
 
-class SpecimenTable(_Strict):
+class SpecimenTable(Table):
     spec: str
 
 
-class VirtualTable(_Strict):
+class VirtualTable(Table):
     """``[virtual]``: the virtual goniophotometer's settings (virtual.goniophotometer)."""
 
     collector: CollectorSpec = "equal-psa:9x36"
@@ -224,7 +159,7 @@ class VirtualTable(_Strict):
     gain: Annotated[Finite, Field(gt=0)] = 1.0e4
 
 
-class EmulatedTable(_Strict):
+class EmulatedTable(Table):
     """``[emulated]``: how the wire emulators behave."""
 
     time_scale: Annotated[Finite, Field(gt=0, le=1e6)] = 20.0
@@ -234,7 +169,7 @@ class EmulatedTable(_Strict):
     seed: Annotated[Whole, Field(ge=0, lt=2**63)] | None = None
 
 
-class BandsTable(_Strict):
+class BandsTable(Table):
     centres: Wavelengths
     bandwidth_nm: Annotated[Finite, Field(gt=0, le=1000)] = 10.0
 
@@ -276,7 +211,7 @@ class BenchFile(BaseModel):
 Incidence = Union[Finite, Annotated[list[Finite], Field(min_length=1, max_length=2)], str]
 
 
-class _SweepCommon(_Strict):
+class _SweepCommon(Table):
     wavelengths: Wavelengths | None = None
     rays: Annotated[Whole, Field(ge=1, le=MAX_RAYS)] | None = None
     uncertainty: Annotated[Finite, Field(gt=0, lt=1)] | None = None
@@ -314,7 +249,7 @@ class TaskTable(_SweepCommon):
     collector: CollectorSpec | None = None
 
 
-class SweepFile(_Strict):
+class SweepFile(Table):
     """A sweep file: ``[sweep]`` and optional ``[[task]]`` entries."""
 
     sweep: SweepTable
@@ -327,7 +262,7 @@ _Frac = Annotated[Finite, Field(ge=0, le=1)]
 _Pos = Annotated[Finite, Field(gt=0)]
 
 
-class SceneEffect(_Strict):
+class SceneEffect(Table):
     """One ``[effects.NAME]`` table: the settings (with their ranges) a declared effect takes;
     :mod:`virtual.scene` subclasses each to add what the effect does."""
 
@@ -425,7 +360,7 @@ def _effect(model: Any) -> Any:
 
 
 def _effects_table(schemas: Mapping[str, type[SceneEffect]]) -> type[BaseModel]:
-    return create_model("EffectsTable", __base__=_Strict,
+    return create_model("EffectsTable", __base__=Table,
                         **{name: (_effect(model), None) for name, model in schemas.items()})
 
 
@@ -433,7 +368,7 @@ def _effects_table(schemas: Mapping[str, type[SceneEffect]]) -> type[BaseModel]:
 EffectsTable = _effects_table(EFFECT_SCHEMAS)
 
 
-class SceneBeam(_Strict):
+class SceneBeam(Table):
     kind: Literal["collimated", "conical"] = "collimated"
     emitter_radius_mm: _Pos = 5.0
     specimen_radius_mm: _Pos = 12.5
@@ -441,12 +376,12 @@ class SceneBeam(_Strict):
     disk_sampling: str = "auto"
 
 
-class SceneCollector(_Strict):
+class SceneCollector(Table):
     spec: CollectorSpec = "equal-psa:9x36"
     method: Literal["auto", "rays", "fast"] = "auto"
 
 
-class TradeoffTable(_Strict):
+class TradeoffTable(Table):
     rays: Annotated[list[Annotated[Whole, Field(ge=1, le=10**12)]], Field(min_length=1, max_length=50)] | None = None
     budgets: Annotated[list[str], Field(min_length=1, max_length=20)] | None = None
     repeats: Annotated[Whole, Field(ge=1, le=1000)] = 1
@@ -455,7 +390,7 @@ class TradeoffTable(_Strict):
     fast: StrictBool = True
 
 
-class PhysicalTable(_Strict):
+class PhysicalTable(Table):
     theta_i: Union[Annotated[Finite, Field(ge=0, lt=90)],
                    Annotated[list[Annotated[Finite, Field(ge=0, lt=90)]], Field(min_length=1, max_length=90)]] = [30.0]
     theta_r: Annotated[list[Annotated[Finite, Field(ge=-90, le=90)]], Field(min_length=2, max_length=2)] = [-75.0, 75.0]
@@ -468,7 +403,7 @@ class PhysicalTable(_Strict):
     relative_noise_per_reading: Annotated[Finite, Field(ge=0, le=10)] = 0.01
 
 
-class SceneFile(_Strict):
+class SceneFile(Table):
     """A scene file (:mod:`virtual.scene`): instrument, specimen, beam, collector, budget, effects,
     and the ``[tradeoff]``/``[physical]`` tables of ``bench tradeoff``."""
 
@@ -522,86 +457,3 @@ def scene_schema() -> type[SceneFile]:
         _SCENE_SCHEMA[key] = SceneFile if not extra else create_model(
             "SceneFile", __base__=SceneFile, __doc__=SceneFile.__doc__, effects=(table, table()))
     return _SCENE_SCHEMA[key]
-
-
-def _loc(loc: tuple[Any, ...]) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif isinstance(part, str) and part[:1].isupper():
-            continue  # a union branch named by its model class (our keys are lower case)
-        elif part in ("bool", "float", "int", "str", "list[float]", "RangeTable", "function-before[_finite_number(), float]",
-                      "function-before[_whole_number(), int]") or "[" in str(part) or str(part).startswith("function"):
-            continue  # union branch labels pydantic adds to the location
-        else:
-            out += ("." if out else "") + str(part)
-    return out
-
-
-def _value_at(data: Any, loc: tuple[Any, ...]) -> tuple[bool, Any]:
-    cur = data
-    for part in loc:
-        if isinstance(cur, Mapping) and part in cur:
-            cur = cur[part]
-        elif isinstance(cur, list) and isinstance(part, int) and 0 <= part < len(cur):
-            cur = cur[part]
-        else:
-            continue
-    return True, cur
-
-
-def _known_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
-    """The keys accepted at the table holding ``loc``'s last part (for "did you mean")."""
-    current: Any = model
-    for part in loc[:-1]:
-        fields = getattr(current, "model_fields", None)
-        if fields and part not in fields and not _loc((part,)):
-            continue  # a union branch's label (the model's class name, a type)
-        if not fields or part not in fields:
-            return []
-        ann = fields[part].annotation
-        current = next((a for a in getattr(ann, "__args__", (ann,)) if hasattr(a, "model_fields")), None)
-        if current is None:
-            return []
-    return sorted(getattr(current, "model_fields", {}))
-
-
-def validate_document(model: type[BaseModel], data: Mapping[str, Any], source: str) -> BaseModel:
-    """Validate ``data`` (a parsed file) against ``model``; the first problem becomes one
-    :class:`ConfigError` line: ``SOURCE: key a.b: problem (got VALUE)``."""
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"{source}: expected a table of keys, got {type(data).__name__}")
-    try:
-        return model.model_validate(dict(data))
-    except ValidationError as exc:
-        raise ConfigError(validation_message(model, exc, source)) from None
-
-
-def validation_message(model: type[BaseModel], exc: ValidationError, source: str) -> str:
-    """The first problem of ``exc`` as ``SOURCE: key a.b: problem (got VALUE)`` (unknown keys
-    with a "did you mean" for near misses)."""
-    errors = exc.errors(include_url=False)
-    # a union reports one error per branch: the one reaching deepest names the real problem, and
-    # of equals a wrong value (a table's own check) rather than a wrong type (another branch's)
-    err = max(errors, key=lambda e: (e["type"] == "extra_forbidden", len(e.get("loc", ())),
-                                     not e["type"].endswith("_type")))
-    loc = tuple(err.get("loc", ()))
-    where = _loc(loc) or "(top level)"
-    if err["type"] == "extra_forbidden":
-        key = str(loc[-1]) if loc else where
-        known = [k for k in _known_keys(model, loc)]
-        near = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
-        hint = f"; did you mean {near[0]!r}?" if near else (f"; accepted: {', '.join(known)}" if known else "")
-        return f"{source}: unknown key {where!r}{hint}"
-    if err["type"] == "missing":
-        return f"{source}: key {where} is required"
-    value = err.get("input")
-    msg = str(err.get("msg", "invalid"))
-    if msg.startswith("Value error, "):  # our own validators already name the value
-        msg = msg.removeprefix("Value error, ")
-        return f"{source}: {msg}" if where == "(top level)" else f"{source}: key {where}: {msg}"
-    shown = repr(value)
-    if len(shown) > 60:
-        shown = shown[:57] + "..."
-    return f"{source}: key {where}: {msg[:1].lower() + msg[1:]} (got {shown})"

@@ -12,7 +12,7 @@ from typing import Annotated, Any, ClassVar, Literal, Mapping
 from pydantic import Field, StrictInt, field_validator
 
 from bench.core.errors import ConfigError
-from bench.core.schemas import Finite, Settings
+from bench.core.validation import Finite, Settings
 from drivers.kinematics import JOINTS, KinematicsConfig
 
 ADDR = {"model_number": 0, "operating_mode": 11, "max_position": 48, "min_position": 52,

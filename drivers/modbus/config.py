@@ -9,7 +9,7 @@ from typing import Annotated, ClassVar, Literal, Protocol, runtime_checkable
 from pydantic import Field, StrictInt, field_validator
 
 from bench.core.roles import InstrumentInfo
-from bench.core.schemas import Finite, Settings
+from bench.core.validation import Finite, Settings
 
 _Positive = Annotated[Finite, Field(gt=0)]
 

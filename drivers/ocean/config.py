@@ -9,7 +9,7 @@ from typing import Annotated, Any, ClassVar, Literal
 from pydantic import Field, StrictInt, field_validator
 
 from bench.core.errors import ConfigError
-from bench.core.schemas import Finite, Settings
+from bench.core.validation import Finite, Settings
 
 #: Per-model defaults: pixel count and the half-open index range of optically masked pixels
 #: (electrical dark). Values as python-seabreeze uses them; confirm against the unit in hand.
