@@ -2,8 +2,9 @@
 
 Each class is the table's declared schema (:mod:`bench.core.schemas`: its settings, ranges and
 one-line errors, the same the scene files are validated with) plus what the effect computes.
-:class:`Effects` gathers them; :func:`effects_from_dict` reads the ``[effects]`` tables. What
-each effect does to the rays is :mod:`virtual.effects`.
+:class:`Effects` gathers them, with the effects of installed packages (:class:`ReadingEffect`,
+entry point group ``goniobench.effects``); :func:`effects_from_dict` reads the ``[effects]``
+tables. What each effect does to the rays is :mod:`virtual.effects`.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
+
 from bench.core.errors import ConfigError
 from bench.core.geometry import direction
 from bench.core.schemas import (EFFECT_SCHEMAS, ApertureEffect, BandpassEffect, GlossTrapEffect,
