@@ -10,7 +10,7 @@ STAMP := $(VENV)/.goniobench-installed
 WORKERS ?= 2
 PYTEST := $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile
 
-.PHONY: install demo test test-slow test-all bench-perf llvm clean
+.PHONY: install demo test test-slow test-all bench-perf llvm docs clean
 
 # Mitsuba's LLVM variants (the benchmark's anchor, vectorized Mitsuba specimens) need a libLLVM:
 # Debian's libllvm19, installed here when missing and apt-get can (as root); never fatal --
@@ -51,6 +51,10 @@ test-all: test test-slow
 bench-perf: install llvm
 	@if [ -e "$(LIBLLVM)" ]; then export DRJIT_LIBLLVM_PATH="$${DRJIT_LIBLLVM_PATH:-$(LIBLLVM)}"; fi; \
 	$(BIN)/python -m benchmarks
+
+# The README's generated blocks (the specimen-family table) rewritten from the declarations.
+docs: $(STAMP)
+	$(BIN)/python -m bench.docs
 
 clean:
 	rm -rf $(VENV) demo-out .pytest_cache

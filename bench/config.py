@@ -35,20 +35,17 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from bench.core.calibration import WhiteStandard
-from bench.core.errors import BenchError, ConfigError
+from bench.core.errors import BenchError
 from bench.core.parsing import read_toml
-from bench.core.schemas import BenchFile, validate_document
+from bench.core.schemas import BENCH_KINDS, BenchFile, validate_document
 from bench.core.roles import Goniometer, LightSource, Reading, Spectrometer
 from bench.plans import MotionProfile
 
 __all__ = ["Bench", "load_bench", "read_toml", "BUILDERS"]
 
-#: kind -> "module:function" building a Bench from (config dict, seed)
-BUILDERS: dict[str, str] = {
-    "virtual": "bench.builders.virtual:build_virtual_bench",
-    "emulated": "bench.builders.emulated:build_emulated_bench",
-    "real": "bench.builders.real:build_real_bench",
-}
+#: kind -> "module:function" building a Bench from (config dict, seed): one builder module per
+#: kind the bench schema declares (bench.builders.KIND:build_KIND_bench)
+BUILDERS: dict[str, str] = {kind: f"bench.builders.{kind}:build_{kind}_bench" for kind in BENCH_KINDS}
 
 
 @dataclass
@@ -113,10 +110,7 @@ def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None) 
         d, source = dict(config), "bench config"
     else:
         d, source = read_toml(config, "bench config"), f"bench config {config}"
-    validate_document(BenchFile, d, source)
-    kind = str(d.get("kind", "virtual"))
-    if kind not in BUILDERS:
-        raise ConfigError(f"bench kind must be one of {', '.join(BUILDERS)}, got {kind!r}")
+    kind = validate_document(BenchFile, d, source).kind  # type: ignore[attr-defined]
     module, func = BUILDERS[kind].split(":")
     builder = getattr(importlib.import_module(module), func)
     return builder(d, seed)

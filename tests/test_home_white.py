@@ -80,7 +80,7 @@ def test_gear_ratio_and_zero_profiles():
     assert p.velocity["source"] == pytest.approx(41.22 / 2) and math.isinf(p.acceleration["source"])
     assert "detector_azimuth" not in p.velocity  # Velocity Limit unknown: the profile default applies
     assert p.move_time({"detector_azimuth": 0.0}, {"detector_azimuth": 30.0}) == pytest.approx(1.0 + 0.2)
-    with pytest.raises(ConfigError, match=r"\[turntable\]\.speed"):
+    with pytest.raises(ConfigError, match=r"^\[turntable\]: key speed: expected a finite number, got nan$"):
         motion_profile(arm, {"speed": float("nan")})
 
 

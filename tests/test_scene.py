@@ -51,15 +51,16 @@ def test_every_fixture_scene_loads():
 
 @pytest.mark.parametrize("bad, match", [
     ({"colour": 1}, "unknown key"),
-    ({"effects": {"glare": {}}}, "unknown effect"),
-    ({"effects": {"sphere": {"wall_reflectance": 0.99}}}, "0.970, 0.985"),
-    ({"effects": {"sphere": {"port_fraction": 0.12}}}, "port_fraction"),
+    ({"effects": {"glare": {}}}, "unknown key 'effects.glare'"),
+    ({"effects": {"sphere": {"wall_reflectance": 0.99}}}, "effects.sphere.wall_reflectance: .* 0.985 .got 0.99"),
+    ({"effects": {"sphere": {"port_fraction": 0.12}}}, "effects.sphere.port_fraction"),
     ({"effects": {"aperture": {"half_angle_deg": 2}}}, "goniophotometer"),
     ({"instrument": "goniophotometer", "effects": {"sphere": {}}}, "spectrophotometer"),
     ({"instrument": "goniophotometer", "effects": {"aperture": {"views": [[89, 0]]}}}, "horizon"),
     ({"effects": {"bandpass": {"nodes": 4}}}, "odd"),
     ({"effects": {"gloss_trap": {"specular": "maybe"}}}, "excluded"),
     ({"observable": "colour"}, "observable"),
+    ({"effects": {"gloss_trap": {"half_angle_deg": 60}}}, "effects.gloss_trap.half_angle_deg"),
     ({"beam": {"kind": "conical"}, "method": "fast"}, "fast"),
 ])
 def test_bad_scenes_are_refused_naming_the_key(bad, match):

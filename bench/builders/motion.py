@@ -23,8 +23,9 @@ from __future__ import annotations
 import math
 from typing import Any, Mapping
 
-from bench.core.errors import ConfigError
 from bench.plans import MotionProfile
+from drivers.dynamixel.config import AxisConfig as ServoAxisConfig
+from drivers.modbus.config import AxisConfig as StageAxisConfig
 
 __all__ = ["motion_profile", "PROFILE_VELOCITY_DEG_S", "PROFILE_ACCELERATION_DEG_S2", "AZ_ACCEL_STEPS_S2"]
 
@@ -35,16 +36,8 @@ PROFILE_ACCELERATION_DEG_S2 = 214.577 * 360.0 / 3600.0
 #: one unit of the AZ drive's acceleration rate (0.001 kHz/s) in steps/s^2
 AZ_ACCEL_STEPS_S2 = 1.0
 
-# the drivers' defaults for keys a config may omit (drivers.modbus.AxisConfig)
-_TURNTABLE_DEFAULTS = {"speed": 30.0, "accel": 1000, "decel": 1000, "steps_per_rev": 1000,
-                       "gear_ratio": 1.0, "units_per_rev": 360.0}
-
-
-def _number(table: Mapping[str, Any], key: str, default: float, where: str) -> float:
-    v = table.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-        raise ConfigError(f"{where}.{key} must be a finite number >= 0, got {v!r}")
-    return float(v)
+#: keys of a ``[turntable]`` table that are the builder's, not the drive's settings
+_STAGE_TABLE_KEYS = ("port", "name")
 
 
 def motion_profile(arm: Mapping[str, Any] | None, turntable: Mapping[str, Any] | None = None,
@@ -70,25 +63,23 @@ def motion_profile(arm: Mapping[str, Any] | None, turntable: Mapping[str, Any] |
     Raises
     ------
     ConfigError
-        A speed or ramp that is not a finite number >= 0.
+        A setting the drivers' declarations refuse (the same the drivers apply, with their
+        defaults for keys the tables omit).
     """
     vel: dict[str, float] = {}
     acc: dict[str, float] = {}
-    for joint, a in ((arm or {}).get("axes") or {}).items():
-        where = f"[arm.axes.{joint}]"
-        gear = _number(a, "gear_ratio", 1.0, where) or 1.0
-        pv = _number(a, "profile_velocity", 0, where)
-        pa = _number(a, "profile_acceleration", 0, where)
+    for joint, table in ((arm or {}).get("axes") or {}).items():
+        a = ServoAxisConfig.from_dict(joint, table)
+        gear, pv, pa = a.gear_ratio, a.profile_velocity, a.profile_acceleration
         if pv > 0:  # 0 = the servo's Velocity Limit, unknown here: the profile's default applies
             vel[joint] = pv * PROFILE_VELOCITY_DEG_S / gear * time_scale
         acc[joint] = pa * PROFILE_ACCELERATION_DEG_S2 / gear * time_scale**2 if (ramps and pa > 0) else math.inf
     if turntable is not None:
-        t = {**_TURNTABLE_DEFAULTS, **turntable}
-        where = "[turntable]"
-        steps_per_deg = (_number(t, "steps_per_rev", 1000, where) * _number(t, "gear_ratio", 1.0, where)
-                         / (_number(t, "units_per_rev", 360.0, where) or 360.0))
-        vel["turntable"] = _number(t, "speed", 30.0, where) * time_scale
-        ramp = min(_number(t, "accel", 1000, where), _number(t, "decel", 1000, where))
+        t = StageAxisConfig.from_dict({k: v for k, v in turntable.items() if k not in _STAGE_TABLE_KEYS},
+                                      "[turntable]")
+        steps_per_deg = t.steps_per_unit
+        vel["turntable"] = t.speed * time_scale
+        ramp = min(t.accel, t.decel)
         acc["turntable"] = (ramp * AZ_ACCEL_STEPS_S2 / steps_per_deg * time_scale**2
                             if (ramps and ramp > 0 and steps_per_deg > 0) else math.inf)
     base = MotionProfile({}, {})  # its defaults stand for joints whose speed the config does not give

@@ -12,10 +12,10 @@ import argparse
 import math
 import re
 import sys
-from typing import Callable, NoReturn
+from typing import Callable, Iterable, Iterator, NoReturn
 from urllib.parse import urlsplit
 
-__all__ = ["BenchArgumentParser", "count", "real", "seed", "rays", "incidence", "wavelengths", "collector",
+__all__ = ["BenchArgumentParser", "RegistryChoices", "count", "real", "seed", "rays", "incidence", "wavelengths", "collector",
            "int_list", "scheduler_address", "run_id", "listen_address", "MAX_RAYS", "MAX_PATCHES", "MAX_SEED", "RAYS_PER_SECOND"]
 
 #: the most rays per wavelength a command accepts at all (the time bound, --max-seconds, comes first)
@@ -42,6 +42,20 @@ class BenchArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+class RegistryChoices:
+    """``choices=`` read from a registry when first needed (to check a value or print help), so
+    building the parser imports no registry -- and plugins registered by then are offered too."""
+
+    def __init__(self, names: Callable[[], Iterable[str]]) -> None:
+        self._names = names
+
+    def __contains__(self, value: object) -> bool:
+        return value in tuple(self._names())
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(tuple(self._names()))
 
 
 def _number(text: str) -> float:

@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.cli.argtypes import real, run_id, seed
+from bench.cli.argtypes import RegistryChoices, real, run_id, seed
 from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, announce_compilation, check_output, emit_json, hms, open_store, report_run
 from bench.core.errors import InputError
@@ -140,6 +140,13 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _export_formats() -> tuple[str, ...]:
+    """What ``bench export --format`` offers: every registered format that writes records."""
+    from bench.io.registry import formats
+
+    return formats(writable=True)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``plan``, ``scan``, ``resume``, ``runs``, ``show`` and ``export`` to the subcommands."""
     store_help = "the run store, an SQLite file (default %(default)s)"
@@ -181,8 +188,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     ex = sub.add_parser("export", help=command_help("export"))
     ex.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
     ex.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
-    ex.add_argument("--format", choices=("csv", "parquet", "astm", "zemax"), default="csv",
-                    help="file format (default %(default)s)")
+    ex.add_argument("--format", choices=RegistryChoices(_export_formats), default="csv",
+                    metavar="FORMAT", help="file format: %(choices)s (default %(default)s)")
     ex.add_argument("--out", metavar="FILE", help="output file (default: RUN plus the format's suffix)")
     ex.add_argument("--wavelength", type=real(0.0, 1e6, lo_open=True), metavar="NM",
                     help="zemax: the wavelength to write, nm (default: one file per wavelength, FILE-<w>nm.bsdf)")

@@ -63,11 +63,7 @@ def _table(header: list[str], rows: list[list[Any]]) -> str:
 def cmd_tradeoff(args: argparse.Namespace) -> int:
     from virtual.scene import effect_costs, load_scene
 
-    from bench.core.parsing import read_toml
-    from bench.core.schemas import SceneFile, validate_document
-
-    validate_document(SceneFile, read_toml(args.scene, "scene file"), f"scene file {args.scene}")
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene)  # validated by the scene schema: one line naming file, key, value
     announce_compilation()
     rays = args.rays  # a list of ints, checked by argparse
     if scene.instrument == "physical":

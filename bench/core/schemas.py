@@ -1,26 +1,27 @@
 """Declared schemas of the files a user gives: plans, bench configs, sweeps, scenes (pydantic v2).
 
-Every file goes through :func:`validate_document` before anything uses it: unknown keys are
-refused (with a "did you mean" for near misses), and so are wrong types, non-finite numbers,
-out-of-range values and sizes beyond the stated bounds. The error is one line naming the file,
+Every file goes through :func:`~bench.core.validation.validate_document` (re-exported here)
+before anything uses it: unknown keys are refused (with a "did you mean" for near misses), and
+so are wrong types, non-finite numbers, out-of-range values and sizes beyond the stated bounds. The error is one line naming the file,
 the key (dotted path) and the value. The builders and plan expansion keep the checks that need
 the devices (reachability, specimen parameters); the shape of the file is checked here, once.
 """
 
 from __future__ import annotations
 
-import difflib
-import math
-from typing import Annotated, Any, List, Literal, Mapping, Union
+from typing import Annotated, Any, ClassVar, Literal, Mapping, Union, get_args
 
-from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, ValidationError,
-                      field_validator)
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, create_model,
+                      field_validator, model_validator)
 
 from bench.core.errors import ConfigError, InputError
 from bench.core.parsing import check_collector_spec, parse_range, parse_wavelengths
+from bench.core.plugins import EFFECT_GROUP, load_plugins
+from bench.core.validation import Finite, Settings, Table, Whole, validate_document, validation_message
 
-__all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "MAX_PLAN_POINTS", "MAX_INTEGRATION_S",
-           "MAX_AVERAGES", "MAX_RAYS", "MAX_SWEEP_SERIES"]
+__all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "validation_message", "Settings",
+           "BENCH_KINDS", "SceneEffect", "EFFECT_SCHEMAS", "plugin_effects", "scene_schema", "MAX_PLAN_POINTS",
+           "MAX_INTEGRATION_S", "MAX_AVERAGES", "MAX_RAYS", "MAX_SWEEP_SERIES"]
 
 #: the most points one plan may expand to (a plan of more is almost surely a typo in a step)
 MAX_PLAN_POINTS = 200_000
@@ -32,32 +33,6 @@ MAX_AVERAGES = 100_000
 MAX_RAYS = 10**15
 #: the most series (specimen x collector x incidence/geometry) one sweep may hold
 MAX_SWEEP_SERIES = 100_000
-
-
-def _finite_number(v: Any) -> Any:
-    if isinstance(v, bool):
-        raise ValueError("expected a number, got a boolean")
-    if isinstance(v, (int, float)) and not math.isfinite(float(v)):
-        raise ValueError(f"expected a finite number, got {v!r}")
-    return v
-
-
-def _whole_number(v: Any) -> Any:
-    if isinstance(v, bool):
-        raise ValueError("expected an integer, got a boolean")
-    if isinstance(v, float):
-        if not math.isfinite(v) or v != int(v):
-            raise ValueError(f"expected an integer, got {v!r}")
-        return int(v)
-    return v
-
-
-Finite = Annotated[float, BeforeValidator(_finite_number)]
-Whole = Annotated[int, BeforeValidator(_whole_number)]
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=False, frozen=True)
 
 
 def _range(v: Any) -> Any:
@@ -99,37 +74,37 @@ CollectorSpec = Annotated[str, BeforeValidator(_collector)]
 Wavelengths = Annotated[Any, BeforeValidator(_wavelengths)]
 
 
-class SpectralTable(_Strict):
+class SpectralTable(Table):
     geometries: Annotated[list[str], Field(min_length=1)]
     phi_i: Finite = 0.0
 
 
-class InPlaneTable(_Strict):
+class InPlaneTable(Table):
     theta_i: Range = [30.0]
     theta_r: Range = {"start": -80, "stop": 80, "step": 10}
     phi_i: Finite = 0.0
 
 
-class HemisphericalTable(_Strict):
+class HemisphericalTable(Table):
     theta_i: Range = [30.0]
     theta_r: Range = {"start": 0, "stop": 80, "step": 10}
     phi_r: Range = {"start": 0, "stop": 345, "step": 15}
     phi_i: Finite = 0.0
 
 
-class HalfVectorTable(_Strict):
+class HalfVectorTable(Table):
     theta_h: Range = [0.0, 10.0, 20.0]
     theta_d: Range = [10.0, 30.0]
     phi_d: Range = [90.0]
     phi_h: Finite = 90.0
 
 
-class ListTable(_Strict):
+class ListTable(Table):
     points: Annotated[list[Annotated[list[Finite], Field(min_length=4, max_length=4)]],
                       Field(min_length=1, max_length=MAX_PLAN_POINTS)]
 
 
-class PlanFile(_Strict):
+class PlanFile(Table):
     """A plan file: common keys and the table of its ``kind``."""
 
     name: str = "plan"
@@ -149,14 +124,14 @@ class PlanFile(_Strict):
     list_table: ListTable | None = Field(None, alias="list")
 
 
-class GeometryTable(_Strict):
+class GeometryTable(Table):
     theta_i: Finite
     phi_i: Finite = 0.0
     theta_r: Finite
     phi_r: Finite = 0.0
 
 
-class WhiteTable(_Strict):
+class WhiteTable(Table):
     name: str = ""
     reflectance_factor: Union[Annotated[Finite, Field(gt=0, le=1.5)],
                               Annotated[list[list[Finite]], Field(min_length=2, max_length=2)]] = 0.99
@@ -167,11 +142,11 @@ class WhiteTable(_Strict):
     date: str = ""
 
 
-class SpecimenTable(_Strict):
+class SpecimenTable(Table):
     spec: str
 
 
-class VirtualTable(_Strict):
+class VirtualTable(Table):
     """``[virtual]``: the virtual goniophotometer's settings (virtual.goniophotometer)."""
 
     collector: CollectorSpec = "equal-psa:9x36"
@@ -184,7 +159,7 @@ class VirtualTable(_Strict):
     gain: Annotated[Finite, Field(gt=0)] = 1.0e4
 
 
-class EmulatedTable(_Strict):
+class EmulatedTable(Table):
     """``[emulated]``: how the wire emulators behave."""
 
     time_scale: Annotated[Finite, Field(gt=0, le=1e6)] = 20.0
@@ -194,9 +169,14 @@ class EmulatedTable(_Strict):
     seed: Annotated[Whole, Field(ge=0, lt=2**63)] | None = None
 
 
-class BandsTable(_Strict):
+class BandsTable(Table):
     centres: Wavelengths
     bandwidth_nm: Annotated[Finite, Field(gt=0, le=1000)] = 10.0
+
+
+#: the bodies a bench description may be built as (``kind`` of a bench file)
+BenchKind = Literal["virtual", "emulated", "real"]
+BENCH_KINDS: tuple[str, ...] = get_args(BenchKind)
 
 
 class BenchFile(BaseModel):
@@ -206,7 +186,7 @@ class BenchFile(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: str = "bench"
-    kind: Literal["virtual", "emulated", "real"] = "virtual"
+    kind: BenchKind = "virtual"
     description: str = ""
     seed: Annotated[Whole, Field(ge=0, lt=2**63)] | None = None
     specimen: SpecimenTable | None = None
@@ -231,13 +211,13 @@ class BenchFile(BaseModel):
 Incidence = Union[Finite, Annotated[list[Finite], Field(min_length=1, max_length=2)], str]
 
 
-class _SweepCommon(_Strict):
+class _SweepCommon(Table):
     wavelengths: Wavelengths | None = None
     rays: Annotated[Whole, Field(ge=1, le=MAX_RAYS)] | None = None
     uncertainty: Annotated[Finite, Field(gt=0, lt=1)] | None = None
     delta: Annotated[Finite, Field(gt=0, lt=1)] = 0.01
     method: Literal["auto", "rays", "fast"] | None = None
-    beam: str = "collimated"
+    beam: Literal["collimated", "conical"] = "collimated"
     cone_deg: Annotated[Finite, Field(gt=0, lt=90)] | None = None
 
 
@@ -269,7 +249,7 @@ class TaskTable(_SweepCommon):
     collector: CollectorSpec | None = None
 
 
-class SweepFile(_Strict):
+class SweepFile(Table):
     """A sweep file: ``[sweep]`` and optional ``[[task]]`` entries."""
 
     sweep: SweepTable
@@ -282,62 +262,113 @@ _Frac = Annotated[Finite, Field(ge=0, le=1)]
 _Pos = Annotated[Finite, Field(gt=0)]
 
 
-class ApertureEffect(_Strict):
-    half_angle_deg: Annotated[Finite, Field(gt=0, le=90)] = 2.0
-    views: Annotated[list[Annotated[list[Finite], Field(min_length=1, max_length=2)]],
-                     Field(min_length=1, max_length=10_000)] = [[0.0, 0.0]]
+class SceneEffect(Table):
+    """One ``[effects.NAME]`` table: the settings (with their ranges) a declared effect takes;
+    :mod:`virtual.scene` subclasses each to add what the effect does."""
+
+    effect_name: ClassVar[str] = ""
+
+
+def _view(v: Any) -> Any:
+    """``[theta_r]`` or ``[theta_r, phi_r]`` (deg) -> ``(theta_r, phi_r)``, phi_r defaulting to 0."""
+    if isinstance(v, (list, tuple)) and len(v) == 1:
+        return (v[0], 0.0)
+    return v
+
+
+class ApertureEffect(SceneEffect):
+    effect_name: ClassVar[str] = "aperture"
+    half_angle_deg: Annotated[Finite, Field(gt=0, lt=45)] = 2.0
+    views: Annotated[tuple[Annotated[tuple[Finite, Finite], BeforeValidator(_view)], ...],
+                     Field(min_length=1, max_length=10_000)] = ((0.0, 0.0),)
     distance_mm: _Pos | None = None
 
+    @model_validator(mode="after")
+    def _above_the_horizon(self) -> "ApertureEffect":
+        for t, _ in self.views:
+            if not 0.0 <= t + self.half_angle_deg < 90.0:
+                raise ValueError(f"views: a detector at theta_r = {t!r} deg with half_angle_deg = "
+                                 f"{self.half_angle_deg!r} reaches the horizon")
+        return self
 
-class NoiseEffect(_Strict):
+
+class NoiseEffect(SceneEffect):
+    effect_name: ClassVar[str] = "noise"
     uncertainty: _Frac = 0.002
     relative: StrictBool | None = None
 
 
-class StrayLightEffect(_Strict):
-    fraction: _Frac = 0.001
+class StrayLightEffect(SceneEffect):
+    effect_name: ClassVar[str] = "stray_light"
+    fraction: Annotated[Finite, Field(ge=0, lt=1)] = 0.001
 
 
-class SphereEffect(_Strict):
-    wall_reflectance: _Frac = 0.98
-    port_fraction: _Frac = 0.05
-    detector_port: _Frac = 0.01
-    specimen_port: _Frac = 0.02
-    reference_reflectance: _Frac = 0.99
+class SphereEffect(SceneEffect):
+    """Wall reflectance 0.970-0.985 and ports of at most 10 % of the sphere's area (detector and
+    specimen ports included): the range the single-beam substitution model holds in."""
+
+    effect_name: ClassVar[str] = "sphere"
+    wall_reflectance: Annotated[Finite, Field(ge=0.970, le=0.985)] = 0.98
+    port_fraction: Annotated[Finite, Field(gt=0, le=0.10)] = 0.05
+    detector_port: _Pos = 0.01
+    specimen_port: Annotated[Finite, Field(ge=0)] = 0.02
+    reference_reflectance: Annotated[Finite, Field(gt=0, le=1)] = 0.99
+
+    @model_validator(mode="after")
+    def _ports_fit(self) -> "SphereEffect":
+        if self.detector_port + self.specimen_port > self.port_fraction:
+            raise ValueError(f"detector_port + specimen_port ({self.detector_port!r} + {self.specimen_port!r}) must "
+                             f"fit in port_fraction ({self.port_fraction!r})")
+        return self
 
 
-class GlossTrapEffect(_Strict):
+class GlossTrapEffect(SceneEffect):
+    effect_name: ClassVar[str] = "gloss_trap"
     specular: Literal["excluded", "included"] = "excluded"
-    half_angle_deg: Annotated[Finite, Field(gt=0, le=90)] = 4.0
+    half_angle_deg: Annotated[Finite, Field(gt=0, lt=45)] = 4.0
 
 
-class BandpassEffect(_Strict):
+def _odd(v: int) -> int:
+    if v % 2 == 0:
+        raise ValueError(f"expected an odd number of nodes, got {v}")
+    return v
+
+
+class BandpassEffect(SceneEffect):
+    effect_name: ClassVar[str] = "bandpass"
     fwhm_nm: _Pos = 10.0
-    nodes: Annotated[Whole, Field(ge=1, le=1001)] = 9
+    nodes: Annotated[Whole, Field(ge=3, le=257), AfterValidator(_odd)] = 9
 
 
-class SpecimenEffect(_Strict):
-    uniform: StrictBool = True
+class SpecimenEffect(SceneEffect):
+    """A non-uniform specimen (declaring the table means a pattern unless ``uniform = true``)."""
+
+    effect_name: ClassVar[str] = "specimen"
+    uniform: StrictBool = False
     period_mm: _Pos = 5.0
     contrast: _Frac = 0.5
     spot_radius_mm: _Pos = 10.0
+
+
+#: every effect a scene may declare, by its ``[effects.NAME]`` key (the order effects are listed in)
+EFFECT_SCHEMAS: dict[str, type[SceneEffect]] = {m.effect_name: m for m in (
+    ApertureEffect, NoiseEffect, StrayLightEffect, SphereEffect, GlossTrapEffect, BandpassEffect, SpecimenEffect)}
 
 
 def _effect(model: Any) -> Any:
     return Union[StrictBool, model] | None  # true: the defaults, false: not declared
 
 
-class EffectsTable(_Strict):
-    aperture: _effect(ApertureEffect) = None
-    noise: _effect(NoiseEffect) = None
-    stray_light: _effect(StrayLightEffect) = None
-    sphere: _effect(SphereEffect) = None
-    gloss_trap: _effect(GlossTrapEffect) = None
-    bandpass: _effect(BandpassEffect) = None
-    specimen: _effect(SpecimenEffect) = None
+def _effects_table(schemas: Mapping[str, type[SceneEffect]]) -> type[BaseModel]:
+    return create_model("EffectsTable", __base__=Table,
+                        **{name: (_effect(model), None) for name, model in schemas.items()})
 
 
-class SceneBeam(_Strict):
+#: ``[effects]``: one optional table per declared effect (``true``: its defaults, ``false``: absent)
+EffectsTable = _effects_table(EFFECT_SCHEMAS)
+
+
+class SceneBeam(Table):
     kind: Literal["collimated", "conical"] = "collimated"
     emitter_radius_mm: _Pos = 5.0
     specimen_radius_mm: _Pos = 12.5
@@ -345,12 +376,12 @@ class SceneBeam(_Strict):
     disk_sampling: str = "auto"
 
 
-class SceneCollector(_Strict):
+class SceneCollector(Table):
     spec: CollectorSpec = "equal-psa:9x36"
     method: Literal["auto", "rays", "fast"] = "auto"
 
 
-class TradeoffTable(_Strict):
+class TradeoffTable(Table):
     rays: Annotated[list[Annotated[Whole, Field(ge=1, le=10**12)]], Field(min_length=1, max_length=50)] | None = None
     budgets: Annotated[list[str], Field(min_length=1, max_length=20)] | None = None
     repeats: Annotated[Whole, Field(ge=1, le=1000)] = 1
@@ -359,7 +390,7 @@ class TradeoffTable(_Strict):
     fast: StrictBool = True
 
 
-class PhysicalTable(_Strict):
+class PhysicalTable(Table):
     theta_i: Union[Annotated[Finite, Field(ge=0, lt=90)],
                    Annotated[list[Annotated[Finite, Field(ge=0, lt=90)]], Field(min_length=1, max_length=90)]] = [30.0]
     theta_r: Annotated[list[Annotated[Finite, Field(ge=-90, le=90)]], Field(min_length=2, max_length=2)] = [-75.0, 75.0]
@@ -372,7 +403,7 @@ class PhysicalTable(_Strict):
     relative_noise_per_reading: Annotated[Finite, Field(ge=0, le=10)] = 0.01
 
 
-class SceneFile(_Strict):
+class SceneFile(Table):
     """A scene file (:mod:`virtual.scene`): instrument, specimen, beam, collector, budget, effects,
     and the ``[tradeoff]``/``[physical]`` tables of ``bench tradeoff``."""
 
@@ -395,71 +426,34 @@ class SceneFile(_Strict):
     physical: PhysicalTable = PhysicalTable()
 
 
-def _loc(loc: tuple[Any, ...]) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif isinstance(part, str) and part[:1].isupper():
-            continue  # a union branch named by its model class (our keys are lower case)
-        elif part in ("float", "int", "str", "list[float]", "RangeTable", "function-before[_finite_number(), float]",
-                      "function-before[_whole_number(), int]") or "[" in str(part) or str(part).startswith("function"):
-            continue  # union branch labels pydantic adds to the location
-        else:
-            out += ("." if out else "") + str(part)
-    return out
+# --- effects added by installed packages (entry point group goniobench.effects) -------------------
+
+#: effects of installed plugins, by their ``[effects.NAME]`` key (filled by :func:`plugin_effects`)
+_PLUGIN_EFFECTS: dict[str, type[SceneEffect]] = {}
+_SCENE_SCHEMA: dict[tuple[str, ...], type[SceneFile]] = {}
 
 
-def _value_at(data: Any, loc: tuple[Any, ...]) -> tuple[bool, Any]:
-    cur = data
-    for part in loc:
-        if isinstance(cur, Mapping) and part in cur:
-            cur = cur[part]
-        elif isinstance(cur, list) and isinstance(part, int) and 0 <= part < len(cur):
-            cur = cur[part]
-        else:
-            continue
-    return True, cur
+def _register_effect(entry: str, obj: Any) -> None:
+    if not (isinstance(obj, type) and issubclass(obj, SceneEffect) and obj.effect_name):
+        raise ConfigError(f"expected a bench.core.schemas.SceneEffect subclass with an effect_name, got {obj!r}")
+    if obj.effect_name in EFFECT_SCHEMAS or obj.effect_name in _PLUGIN_EFFECTS:
+        raise ConfigError(f"effect name {obj.effect_name!r} is already taken")
+    _PLUGIN_EFFECTS[obj.effect_name] = obj
 
 
-def _known_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
-    """The keys accepted at the table holding ``loc``'s last part (for "did you mean")."""
-    current: Any = model
-    for part in loc[:-1]:
-        fields = getattr(current, "model_fields", None)
-        if not fields or part not in fields:
-            return []
-        ann = fields[part].annotation
-        current = next((a for a in getattr(ann, "__args__", (ann,)) if hasattr(a, "model_fields")), None)
-        if current is None:
-            return []
-    return sorted(getattr(current, "model_fields", {}))
+def plugin_effects() -> dict[str, type[SceneEffect]]:
+    """The effects installed ``goniobench.effects`` entry points add (loaded once)."""
+    load_plugins(EFFECT_GROUP, _register_effect)
+    return dict(_PLUGIN_EFFECTS)
 
 
-def validate_document(model: type[BaseModel], data: Mapping[str, Any], source: str) -> BaseModel:
-    """Validate ``data`` (a parsed file) against ``model``; the first problem becomes one
-    :class:`ConfigError` line: ``SOURCE: key a.b: problem (got VALUE)``."""
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"{source}: expected a table of keys, got {type(data).__name__}")
-    try:
-        return model.model_validate(dict(data))
-    except ValidationError as exc:
-        errors = exc.errors(include_url=False)
-        # a union reports one error per branch: the one reaching deepest names the real problem
-        err = max(errors, key=lambda e: (e["type"] == "extra_forbidden", len(e.get("loc", ()))))
-        loc = tuple(err.get("loc", ()))
-        where = _loc(loc) or "(top level)"
-        if err["type"] == "extra_forbidden":
-            key = str(loc[-1]) if loc else where
-            known = [k for k in _known_keys(model, loc)]
-            near = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
-            hint = f"; did you mean {near[0]!r}?" if near else (f"; accepted: {', '.join(known)}" if known else "")
-            raise ConfigError(f"{source}: unknown key {where!r}{hint}") from None
-        value = err.get("input")
-        msg = str(err.get("msg", "invalid"))
-        if msg.startswith("Value error, "):  # our own validators already name the value
-            raise ConfigError(f"{source}: key {where}: {msg.removeprefix('Value error, ')}") from None
-        shown = repr(value)
-        if len(shown) > 60:
-            shown = shown[:57] + "..."
-        raise ConfigError(f"{source}: key {where}: {msg[:1].lower() + msg[1:]} (got {shown})") from None
+def scene_schema() -> type[SceneFile]:
+    """The scene file's schema: :class:`SceneFile`, its ``[effects]`` extended by the installed
+    plugins' effects (every reader of a scene file validates with this)."""
+    extra = plugin_effects()
+    key = tuple(extra)
+    if key not in _SCENE_SCHEMA:
+        table = _effects_table({**EFFECT_SCHEMAS, **extra})
+        _SCENE_SCHEMA[key] = SceneFile if not extra else create_model(
+            "SceneFile", __base__=SceneFile, __doc__=SceneFile.__doc__, effects=(table, table()))
+    return _SCENE_SCHEMA[key]

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from bench.core.errors import InputError
+from bench.core.plugins import FORMAT_GROUP, load_plugins
 from bench.core.records import BSDFRecord, with_keys
 from bench.core.roles import Spectrum
 from bench.io.astm import read_astm, record_to_astm
@@ -54,9 +55,24 @@ def register_format(fmt: FileFormat) -> None:
     _REGISTRY[fmt.name] = fmt
 
 
+def _register_plugin(entry: str, obj: Any) -> None:
+    """A ``goniobench.formats`` entry point: a :class:`FileFormat`."""
+    if not isinstance(obj, FileFormat):
+        raise InputError(f"expected a bench.io.registry.FileFormat, got {obj!r}")
+    if obj.name in _REGISTRY:
+        raise InputError(f"format name {obj.name!r} is already taken")
+    register_format(obj)
+
+
+def _registry() -> dict[str, FileFormat]:
+    """The registered formats, those of installed ``goniobench.formats`` plugins included."""
+    load_plugins(FORMAT_GROUP, _register_plugin)
+    return _REGISTRY
+
+
 def formats(*, readable: bool | None = None, writable: bool | None = None) -> tuple[str, ...]:
     """Names of the registered formats (optionally only those with a reader / a writer)."""
-    return tuple(n for n, f in _REGISTRY.items()
+    return tuple(n for n, f in _registry().items()
                  if (readable is None or (f.reader is not None) == readable)
                  and (writable is None or (f.writer is not None) == writable))
 
@@ -75,21 +91,22 @@ register_format(FileFormat("zemax", (".bsdf",), read_zemax, record_to_zemax,
                            lambda l: l.startswith(("# goniobench Zemax", "Source ", "Source\t"))))
 register_format(FileFormat("spectrum-csv", (".spectrum.csv",), read_spectrum_csv, None, _spectrum_header))
 
-#: the formats ``bench export`` writes (a record of a run)
-FORMATS = ("csv", "parquet", "astm", "zemax")
+#: the project's own formats that write a record of a run (``bench export --format`` also offers
+#: those of installed plugins: :func:`formats` with ``writable=True``)
+FORMATS = tuple(n for n, f in _REGISTRY.items() if f.writer is not None)
 
 
 def default_suffix(fmt: str) -> str:
     """The suffix a file of ``fmt`` gets when the user names none (``astm`` -> ``.astm.csv``)."""
-    if fmt not in _REGISTRY:
-        raise InputError(f"unknown format {fmt!r}; known: {', '.join(_REGISTRY)}")
-    return _REGISTRY[fmt].suffixes[0]
+    if fmt not in _registry():
+        raise InputError(f"unknown format {fmt!r}; known: {', '.join(_registry())}")
+    return _registry()[fmt].suffixes[0]
 
 
 def _by_suffix(path: Path) -> str | None:
     name = path.name.lower()
     best: tuple[int, str] | None = None
-    for f in _REGISTRY.values():
+    for f in _registry().values():
         for suf in f.suffixes:
             if name.endswith(suf) and (best is None or len(suf) > best[0]):
                 best = (len(suf), f.name)
@@ -119,19 +136,19 @@ def infer_format(path: str | Path, *, reading: bool = False) -> str:
     if reading and p.is_file():
         line = _first_line(p)
         if line is not None:
-            for f in _REGISTRY.values():
+            for f in _registry().values():
                 if f.reader is not None and f.magic is not None and f.magic(line):
                     return f.name
     fmt = _by_suffix(p)
     if fmt is None:
-        known = ", ".join(s for f in _REGISTRY.values() for s in f.suffixes)
+        known = ", ".join(s for f in _registry().values() for s in f.suffixes)
         raise InputError(f"cannot tell the {'import' if reading else 'export'} format from {p.name!r}; pass fmt= "
-                         f"one of {', '.join(_REGISTRY)} ({known})")
+                         f"one of {', '.join(_registry())} ({known})")
     return fmt
 
 
 def _lookup(fmt: str, *, reading: bool) -> FileFormat:
-    f = _REGISTRY.get(fmt)
+    f = _registry().get(fmt)
     if f is None or (f.reader if reading else f.writer) is None:
         known = formats(readable=True) if reading else formats(writable=True)
         raise InputError(f"unknown {'import' if reading else 'export'} format {fmt!r}; known: {', '.join(known)}")

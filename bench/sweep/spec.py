@@ -12,14 +12,14 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, get_args
 
 import numpy as np
 
 from bench.core.errors import ConfigError, InputError
 from bench.core.geometry import cie_geometry
 from bench.core.parsing import parse_wavelengths, read_toml
-from bench.core.schemas import MAX_SWEEP_SERIES, SweepFile, validate_document
+from bench.core.schemas import MAX_SWEEP_SERIES, SweepFile, SweepTable, TaskTable, validate_document
 from virtual.beam import Beam
 from virtual.bounds import hoeffding_rays
 from virtual.collector import parse_collector
@@ -30,14 +30,10 @@ from virtual.spectrophotometer import fresh_seed
 __all__ = ["SweepSpec", "SweepTask", "load_sweep", "sweep_from_dict", "task_key", "series_seed", "task_table",
            "INSTRUMENTS", "TASK_COLUMNS", "RUN_COLUMNS"]
 
-INSTRUMENTS = ("gonio", "spectro")
-_METHODS = ("auto", "rays", "fast")
-_BEAMS = ("collimated", "conical")
-_SWEEP_KEYS = {"name", "seed", "instrument", "specimens", "incidences", "geometries", "collectors", "wavelengths",
-               "wavelengths_per_task", "rays", "uncertainty", "delta", "method", "beam", "cone_deg",
-               "common_random_numbers"}
-_TASK_KEYS = {"specimen", "incidence", "geometry", "collector", "wavelengths", "rays", "uncertainty", "delta",
-              "method", "beam", "cone_deg"}
+#: the instruments a sweep may name (declared by the sweep schema)
+INSTRUMENTS: tuple[str, ...] = get_args(SweepTable.model_fields["instrument"].annotation)
+#: the keys a ``[[task]]`` may give, any of which it takes from ``[sweep]`` when it does not
+_TASK_KEYS = frozenset(TaskTable.model_fields)
 #: per-task columns of :func:`sweep_readings` that differ between executions (who ran it, how long)
 RUN_COLUMNS = ("worker", "compute_s")
 #: per-task columns fixed by the spec (stored once, in the run's meta, at creation)
@@ -130,15 +126,10 @@ def _incidence(v: Any, where: str) -> tuple[float, float]:
     return round(theta, 6), round(phi % 360.0, 6)
 
 
-def _list(d: Mapping[str, Any], key: str, where: str) -> list[Any]:
+def _list(d: Mapping[str, Any], key: str) -> list[Any]:
+    """A one-or-many setting as a list (the schema checked it is a value or a non-empty list)."""
     v = d.get(key)
-    if v is None:
-        return []
-    if isinstance(v, (str, int, float)):
-        return [v]
-    if not isinstance(v, list) or not v:
-        raise ConfigError(f"{where}: {key} must be a non-empty list")
-    return list(v)
+    return [] if v is None else list(v) if isinstance(v, list) else [v]
 
 
 def load_sweep(path: str | Path) -> SweepSpec:
@@ -176,61 +167,35 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: s
     ConfigError
         Unknown keys, bad values, specimens that lack a wavelength, duplicate series.
     """
-    if not isinstance(d, Mapping) or not isinstance(d.get("sweep"), Mapping):
-        raise ConfigError(f"{source}: a sweep needs a [sweep] table")
-    # the declared shape first (bench.core.schemas.SweepFile): unknown keys with "did you mean",
-    # types, non-finite and out-of-range numbers, bounded rays, collectors and wavelengths
-    validate_document(SweepFile, d, source)
-    top_unknown = set(d) - {"sweep", "task"}
-    if top_unknown:
-        raise ConfigError(f"sweep: unknown top-level key(s) {', '.join(sorted(top_unknown))}; "
-                          f"expected [sweep] and optional [[task]]")
-    s = dict(d["sweep"])
-    unknown = set(s) - _SWEEP_KEYS
-    if unknown:
-        raise ConfigError(f"[sweep]: unknown key(s) {', '.join(sorted(unknown))}; known: "
-                          f"{', '.join(sorted(_SWEEP_KEYS))}")
-    instrument = str(s.get("instrument", "gonio"))
-    if instrument not in INSTRUMENTS:
-        raise ConfigError(f"[sweep]: instrument must be one of {', '.join(INSTRUMENTS)}, got {instrument!r}")
-    seed = s.get("seed")
-    if seed is None:
-        seed = fresh_seed()
-    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
-        raise ConfigError(f"[sweep]: seed must be an integer >= 0, got {seed!r}")
-    s["seed"] = seed
-    crn = s.get("common_random_numbers", False)
-    if not isinstance(crn, bool):
-        raise ConfigError(f"[sweep]: common_random_numbers must be true or false, got {crn!r}")
-    name = str(s.get("name", default_name))
+    # the declared shape (bench.core.schemas.SweepFile), checked once: unknown keys with "did you
+    # mean", types, non-finite and out-of-range numbers, bounded rays, collectors and wavelengths;
+    # what follows reads the validated tables (only the keys the file gave)
+    doc: SweepFile = validate_document(SweepFile, d, source)  # type: ignore[assignment]
+    s = doc.sweep.model_dump(exclude_unset=True)
+    instrument = doc.sweep.instrument
+    seed = s["seed"] = fresh_seed() if doc.sweep.seed is None else doc.sweep.seed
+    crn = doc.sweep.common_random_numbers
+    name = doc.sweep.name if "name" in s else default_name
     # default: a whole spectrum per task -- a goniophotometer's Lambertian or GGX counts its
     # wavelengths in one spectral batch (31 cost 1-3x one), which tasks of one wavelength would forgo
-    per_task = s.get("wavelengths_per_task", 0)
-    if not isinstance(per_task, int) or isinstance(per_task, bool) or per_task < 0:
-        raise ConfigError(f"[sweep]: wavelengths_per_task must be an integer >= 0, got {per_task!r}")
+    per_task = doc.sweep.wavelengths_per_task or 0
 
-    entries = d.get("task")
+    entries = None if doc.task is None else [t.model_dump(exclude_unset=True) for t in doc.task]
     if entries is not None:
-        if not isinstance(entries, list) or not entries or not all(isinstance(e, Mapping) for e in entries):
-            raise ConfigError("[[task]] must be a non-empty array of tables")
         series = []
         for j, e in enumerate(entries):
-            bad = set(e) - _TASK_KEYS
-            if bad:
-                raise ConfigError(f"[[task]] {j}: unknown key(s) {', '.join(sorted(bad))}; known: "
-                                  f"{', '.join(sorted(_TASK_KEYS))}")
             series.append(({**{k: v for k, v in s.items() if k in _TASK_KEYS}, **e}, f"[[task]] {j}"))
         # a [[task]] may leave specimen/incidence to [sweep] singletons
         for e, where in series:
             for one, many in (("specimen", "specimens"), ("incidence", "incidences"), ("geometry", "geometries"),
                               ("collector", "collectors")):
                 if one not in e and many in s:
-                    vals = _list(s, many, "[sweep]")
+                    vals = _list(s, many)
                     if len(vals) != 1:
                         raise ConfigError(f"{where}: no {one}, and [sweep] {many} has {len(vals)} values")
                     e[one] = vals[0]
     else:
-        specimens = _list(s, "specimens", "[sweep]")
+        specimens = _list(s, "specimens")
         if not specimens:
             raise ConfigError("[sweep]: specimens is required (or give an explicit [[task]] list)")
         series = []
@@ -238,8 +203,8 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: s
             if "geometries" in s:
                 raise ConfigError("[sweep]: geometries are for instrument = 'spectro'; a goniophotometer "
                                   "sweep takes incidences")
-            incidences = _list(s, "incidences", "[sweep]") or [0.0]
-            collectors = _list(s, "collectors", "[sweep]") or ["equal-psa:9x36"]
+            incidences = _list(s, "incidences") or [0.0]
+            collectors = _list(s, "collectors") or ["equal-psa:9x36"]
             n = len(specimens) * len(collectors) * len(incidences)
             if n > MAX_SWEEP_SERIES:
                 raise ConfigError(f"{source}: {len(specimens)} specimens x {len(collectors)} collectors x "
@@ -253,7 +218,7 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: s
             if "incidences" in s or "collectors" in s:
                 raise ConfigError("[sweep]: a spectrophotometer sweep takes geometries (CIE names), not "
                                   "incidences or collectors")
-            geometries = _list(s, "geometries", "[sweep]") or ["8/d"]
+            geometries = _list(s, "geometries") or ["8/d"]
             if len(specimens) * len(geometries) > MAX_SWEEP_SERIES:
                 raise ConfigError(f"{source}: {len(specimens)} specimens x {len(geometries)} geometries, more "
                                   f"than the limit of {MAX_SWEEP_SERIES:,} series")
@@ -302,12 +267,8 @@ def _series(instrument: str, e: Mapping[str, Any], where: str, parse_wavelengths
         raise ConfigError(f"{where}: {exc}") from None
     if len(set(wl.tolist())) != wl.size:
         raise ConfigError(f"{where}: wavelengths repeat")
-    beam = str(e.get("beam", "collimated"))
-    if beam not in _BEAMS:
-        raise ConfigError(f"{where}: beam must be one of {', '.join(_BEAMS)}, got {beam!r}")
-    delta = float(e.get("delta", 0.01))  # a number: the schema checked it
-    if not 0.0 < delta < 1.0:
-        raise ConfigError(f"{where}: delta must lie in (0, 1), got {delta}")
+    beam = e.get("beam", "collimated")
+    delta = float(e.get("delta", 0.01))
     try:
         spec = checked.get(("specimen", specimen))
         if spec is None:
@@ -326,9 +287,7 @@ def _series(instrument: str, e: Mapping[str, Any], where: str, parse_wavelengths
         except InputError as exc:
             raise ConfigError(f"{where}: {exc}") from None
         params["collector"] = str(col)
-        method = str(e.get("method", "auto"))
-        if method not in _METHODS:
-            raise ConfigError(f"{where}: method must be one of {', '.join(_METHODS)}, got {method!r}")
+        method = e.get("method") or "auto"
         if method == "fast" and not spec.has_density:
             raise ConfigError(f"{where}: method 'fast' needs a specimen with a density; {specimen} has none")
         if rays is None:
@@ -349,16 +308,9 @@ def _series(instrument: str, e: Mapping[str, Any], where: str, parse_wavelengths
             raise ConfigError(f"{where}: {exc}") from None
         params["geometry"] = g.name
         params["theta_i"] = float(g.reciprocal_directional.theta_i)
-        cone = e.get("cone_deg")
-        if cone is not None:
-            cone = float(cone)
-            if not 0.0 < cone < 90.0:
-                raise ConfigError(f"{where}: cone_deg must lie in (0, 90), got {cone}")
-        params["cone_deg"] = cone
+        params["cone_deg"] = None if e.get("cone_deg") is None else float(e["cone_deg"])
         if rays is None:
             rays = hoeffding_rays(float(e.get("uncertainty", 0.005)), delta)
-    if not isinstance(rays, (int, np.integer)) or isinstance(rays, bool) or rays < 1:
-        raise ConfigError(f"{where}: rays must be a positive integer, got {rays!r}")
     params["rays"] = int(rays)
     params["delta"] = delta
     return params, wl

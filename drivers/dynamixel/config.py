@@ -7,9 +7,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Annotated, Any, ClassVar, Literal, Mapping
+
+from pydantic import Field, StrictInt, field_validator
 
 from bench.core.errors import ConfigError
+from bench.core.validation import Finite, Settings
 from drivers.kinematics import JOINTS, KinematicsConfig
 
 ADDR = {"model_number": 0, "operating_mode": 11, "max_position": 48, "min_position": 52,
@@ -48,65 +51,40 @@ def _le(value: int, size: int) -> list[int]:
 # --- configuration -------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class AxisConfig:
-    """One joint on one servo.
+class AxisConfig(Settings):
+    """One joint on one servo, each setting declared once with its range (validated by
+    pydantic, :class:`bench.core.schemas.Settings`).
 
     ``ticks = zero_offset + direction * round(joint_deg * gear_ratio * 4096 / 360)``.
     """
 
-    joint: str
-    id: int
-    zero_offset: int = 2048
-    direction: int = 1
-    gear_ratio: float = 1.0
-    operating_mode: int = 3
-    limits: tuple[float, float] | None = None
-    profile_velocity: int = 0
-    profile_acceleration: int = 0
+    settings_of: ClassVar[str] = "axes"
 
-    _KEYS = ("id", "zero_offset", "direction", "gear_ratio", "operating_mode", "limits",
-             "profile_velocity", "profile_acceleration")
+    joint: Literal[JOINTS]  # type: ignore[valid-type]
+    id: Annotated[StrictInt, Field(ge=0, le=252)]
+    zero_offset: StrictInt = 2048
+    direction: Literal[1, -1] = 1
+    gear_ratio: Annotated[Finite, Field(gt=0)] = 1.0
+    operating_mode: Literal[3, 4] = 3  # 3: position, 4: extended position
+    limits: tuple[Finite, Finite] | None = None
+    profile_velocity: Annotated[StrictInt, Field(ge=0)] = 0
+    profile_acceleration: Annotated[StrictInt, Field(ge=0)] = 0
 
-    def __post_init__(self) -> None:
-        where = f"axes.{self.joint}"
-        if self.joint not in JOINTS:
-            raise ConfigError(f"{where}: unknown joint; joints are {', '.join(JOINTS)}")
-        if not isinstance(self.id, int) or not 0 <= self.id <= 252:
-            raise ConfigError(f"{where}.id must be an integer 0..252, got {self.id!r}")
-        if self.direction not in (1, -1):
-            raise ConfigError(f"{where}.direction must be 1 or -1, got {self.direction!r}")
-        if not (isinstance(self.gear_ratio, (int, float)) and math.isfinite(self.gear_ratio)
-                and self.gear_ratio > 0):
-            raise ConfigError(f"{where}.gear_ratio must be > 0, got {self.gear_ratio!r}")
-        if self.operating_mode not in (3, 4):
-            raise ConfigError(f"{where}.operating_mode must be 3 (position) or 4 (extended "
-                              f"position), got {self.operating_mode!r}")
-        for k in ("zero_offset", "profile_velocity", "profile_acceleration"):
-            if not isinstance(getattr(self, k), int):
-                raise ConfigError(f"{where}.{k} must be an integer, got {getattr(self, k)!r}")
-        if self.profile_velocity < 0 or self.profile_acceleration < 0:
-            raise ConfigError(f"{where}: profile velocity/acceleration must be >= 0")
-        if self.limits is not None:
-            try:
-                lo, hi = (float(x) for x in self.limits)
-            except (TypeError, ValueError):
-                raise ConfigError(f"{where}.limits must be [lo, hi] degrees, got {self.limits!r}") from None
-            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
-                raise ConfigError(f"{where}.limits = {self.limits!r} is not [lo, hi] with lo <= hi")
-            object.__setattr__(self, "limits", (lo, hi))
+    @field_validator("limits")
+    @classmethod
+    def _ordered(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
+        if v is not None and not v[0] <= v[1]:
+            raise ValueError(f"expected [lo, hi] degrees with lo <= hi, got {list(v)!r}")
+        return v
 
     @classmethod
-    def from_dict(cls, joint: str, d: Mapping[str, Any]) -> "AxisConfig":
-        extra = set(d) - set(cls._KEYS)
-        if extra:
-            raise ConfigError(f"axes.{joint}: unknown key(s) {sorted(extra)}; known: {list(cls._KEYS)}")
-        if "id" not in d:
-            raise ConfigError(f"axes.{joint}: needs an id")
-        kw = dict(d)
-        if "limits" in kw and kw["limits"] is not None:
-            kw["limits"] = tuple(kw["limits"])
-        return cls(joint=joint, **kw)
+    def from_dict(cls, joint: str, d: Mapping[str, Any]) -> "AxisConfig":  # type: ignore[override]
+        """The axis of ``joint`` from its ``[axes.JOINT]`` table (errors name ``axes.JOINT``)."""
+        if not isinstance(d, Mapping):
+            raise ConfigError(f"axes.{joint}: expected a table of keys, got {type(d).__name__}")
+        if "joint" in d:
+            raise ConfigError(f"axes.{joint}: unknown key 'joint'")
+        return cls(_source=f"axes.{joint}", joint=joint, **{str(k): v for k, v in d.items()})
 
     @property
     def ticks_per_degree(self) -> float:

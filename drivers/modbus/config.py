@@ -4,12 +4,14 @@ Modbus exception names, and :class:`AxisConfig` (mechanics, motion, communicatio
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields
-from typing import Any, Mapping, Protocol, runtime_checkable
+from typing import Annotated, ClassVar, Literal, Protocol, runtime_checkable
 
-from bench.core.errors import ConfigError
+from pydantic import Field, StrictInt, field_validator
+
 from bench.core.roles import InstrumentInfo
+from bench.core.validation import Finite, Settings
+
+_Positive = Annotated[Finite, Field(gt=0)]
 
 MODBUS_EXCEPTIONS = {
     1: "ILLEGAL FUNCTION", 2: "ILLEGAL DATA ADDRESS", 3: "ILLEGAL DATA VALUE",
@@ -44,9 +46,9 @@ class StageAxis(Protocol):
     def close(self) -> None: ...
 
 
-@dataclass(frozen=True)
-class AxisConfig:
-    """Mechanics, motion and communication settings of one axis (all keys optional).
+class AxisConfig(Settings):
+    """Mechanics, motion and communication settings of one axis (all keys optional), each
+    declared once with its range (validated by pydantic, :class:`bench.core.schemas.Settings`).
 
     Attributes
     ----------
@@ -93,65 +95,39 @@ class AxisConfig:
         Name in ``drivers/registers`` or a TOML path.
     """
 
-    steps_per_rev: int = 1000
-    gear_ratio: float = 1.0
-    units_per_rev: float = 360.0
+    settings_of: ClassVar[str] = "stage axis config"
+
+    steps_per_rev: Annotated[StrictInt, Field(gt=0)] = 1000
+    gear_ratio: _Positive = 1.0
+    units_per_rev: _Positive = 360.0
     unit: str = "deg"
-    zero_offset: float = 0.0
-    limits: tuple[float, float] = (-180.0, 180.0)
-    speed: float = 30.0
-    accel: int = 1000
-    decel: int = 1000
-    current: int = 1000
-    tolerance: float = 0.05
-    move_timeout_s: float | None = None
-    settle_s: float = 0.5
-    home_timeout_s: float = 60.0
-    poll_interval_s: float = 0.01
-    timeout_s: float = 0.5
-    retries: int = 2
-    retry_delay_s: float = 0.05
-    device_id: int = 1
+    zero_offset: Finite = 0.0
+    limits: tuple[Finite, Finite] = (-180.0, 180.0)
+    speed: _Positive = 30.0
+    accel: Annotated[int, Field(ge=0)] = 1000
+    decel: Annotated[int, Field(ge=0)] = 1000
+    current: Annotated[int, Field(ge=0, le=1000)] = 1000
+    tolerance: _Positive = 0.05
+    move_timeout_s: Finite | None = None
+    settle_s: Finite = 0.5
+    home_timeout_s: _Positive = 60.0
+    poll_interval_s: _Positive = 0.01
+    timeout_s: _Positive = 0.5
+    retries: Annotated[int, Field(ge=0)] = 2
+    retry_delay_s: Finite = 0.05
+    device_id: Annotated[int, Field(ge=1, le=247)] = 1
     baudrate: int = 115200
-    parity: str = "E"
+    parity: Literal["N", "E", "O"] = "E"
     stopbits: int = 1
     bytesize: int = 8
     register_map: str = "oriental_az"
 
-    def __post_init__(self) -> None:
-        def bad(msg: str) -> None:
-            raise ConfigError(f"stage axis config: {msg}")
-
-        if not (isinstance(self.steps_per_rev, int) and self.steps_per_rev > 0):
-            bad(f"steps_per_rev must be a positive integer, got {self.steps_per_rev!r}")
-        for name in ("gear_ratio", "units_per_rev", "speed", "tolerance", "timeout_s",
-                     "poll_interval_s", "home_timeout_s"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                bad(f"{name} must be a finite number > 0, got {v!r}")
-        lo, hi = self.limits
-        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            bad(f"limits must be finite (lo, hi) with lo < hi, got {self.limits!r}")
-        if not 1 <= self.device_id <= 247:
-            bad(f"device_id must be 1..247, got {self.device_id}")
-        if self.retries < 0:
-            bad("retries must be >= 0")
-        if not 0 <= self.current <= 1000:
-            bad(f"current must be 0..1000 (0.1 % units), got {self.current}")
-        if self.parity not in ("N", "E", "O"):
-            bad(f"parity must be N, E or O, got {self.parity!r}")
-
+    @field_validator("limits")
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "AxisConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"stage axis config: unknown key(s) {', '.join(unknown)}; "
-                              f"known: {', '.join(sorted(known))}")
-        kw = dict(d)
-        if "limits" in kw:
-            kw["limits"] = tuple(float(x) for x in kw["limits"])
-        return cls(**kw)
+    def _ordered(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not v[0] < v[1]:
+            raise ValueError(f"expected (lo, hi) with lo < hi, got {v!r}")
+        return v
 
     @property
     def steps_per_unit(self) -> float:

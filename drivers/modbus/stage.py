@@ -8,7 +8,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -88,7 +88,7 @@ class ModbusStageAxis(HomingMixin):
             overrides["speed"] = overrides.pop("speed_deg_s")
         base = config if isinstance(config, AxisConfig) else AxisConfig.from_dict(config or {})
         if overrides:
-            merged = {f.name: getattr(base, f.name) for f in fields(AxisConfig)}
+            merged = base.model_dump()
             unknown = sorted(set(overrides) - set(merged))
             if unknown:
                 raise ConfigError(f"stage axis: unknown setting(s) {', '.join(unknown)}")

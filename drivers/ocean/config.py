@@ -4,11 +4,12 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields, replace
-from typing import Any, Mapping
+from typing import Annotated, Any, ClassVar, Literal
+
+from pydantic import Field, StrictInt, field_validator
 
 from bench.core.errors import ConfigError
+from bench.core.validation import Finite, Settings
 
 #: Per-model defaults: pixel count and the half-open index range of optically masked pixels
 #: (electrical dark). Values as python-seabreeze uses them; confirm against the unit in hand.
@@ -20,9 +21,9 @@ MODELS: dict[str, dict[str, Any]] = {
 }
 
 
-@dataclass(frozen=True)
-class OceanConfig:
-    """Settings of one spectrometer (keys of a bench-config table; all optional).
+class OceanConfig(Settings):
+    """Settings of one spectrometer (keys of a bench-config table; all optional), each declared
+    once with its range (validated by pydantic, :class:`bench.core.schemas.Settings`).
 
     Attributes
     ----------
@@ -64,69 +65,44 @@ class OceanConfig:
         first frame where they differ; ``describe()`` reports it).
     """
 
+    settings_of: ClassVar[str] = "spectrometer config"
+
     model: str = "USB2000+"
-    pixels: int | None = None
+    pixels: Annotated[StrictInt, Field(gt=0)] | None = None
     dark_pixels: tuple[int, int] | None = None
-    mode: str = "binary"
+    mode: Literal["binary", "ascii"] = "binary"
     checksum: bool = True
     compression: bool = False
-    trigger_mode: int = 0
+    trigger_mode: Literal[0, 1, 2, 3, 4] = 0
     accumulate_on_device: bool = False
     subtract_electrical_dark: bool = False
     nonlinearity: bool = False
-    nonlinearity_bounds: tuple[float, float] = (0.5, 2.0)
+    nonlinearity_bounds: tuple[Finite, Finite] = (0.5, 2.0)
     wavelength_limits_nm: tuple[float, float] = (150.0, 1200.0)
-    timeout_s: float = 1.0
-    retries: int = 2
+    timeout_s: Annotated[Finite, Field(gt=0)] = 1.0
+    retries: Annotated[int, Field(ge=0)] = 2
     baudrate: int = 115200
-    dword_checksum: str = "auto"
+    dword_checksum: Literal["auto", "pixels", "words"] = "auto"
+
+    @field_validator("nonlinearity_bounds")
+    @classmethod
+    def _around_one(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not 0 < v[0] < 1 < v[1]:
+            raise ValueError(f"expected 0 < lo < 1 < hi, got {v!r}")
+        return v
 
     def resolved(self) -> "OceanConfig":
+        """These settings with the model's pixel count and masked pixels filled in, checked
+        against each other (the checks that need the model's table)."""
         spec = MODELS.get(self.model.upper(), {})
         pixels = self.pixels if self.pixels is not None else spec.get("pixels")
         dark = self.dark_pixels if self.dark_pixels is not None else spec.get("dark_pixels")
         if pixels is None:
             raise ConfigError(f"unknown spectrometer model {self.model!r} (known: "
                               f"{', '.join(MODELS)}); give pixels= and dark_pixels=")
-        cfg = replace(self, pixels=int(pixels),
-                      dark_pixels=tuple(dark) if dark is not None else (0, 0))
-        cfg.validate()
-        return cfg
-
-    def validate(self) -> None:
-        def bad(msg: str) -> None:
-            raise ConfigError(f"spectrometer config: {msg}")
-
-        if self.mode not in ("binary", "ascii"):
-            bad(f"mode must be 'binary' or 'ascii', got {self.mode!r}")
-        if not (isinstance(self.pixels, int) and self.pixels > 0):
-            bad(f"pixels must be a positive integer, got {self.pixels!r}")
-        lo, hi = self.dark_pixels or (0, 0)
-        if not 0 <= lo <= hi <= (self.pixels or 0):
-            bad(f"dark_pixels {self.dark_pixels} is not a range inside 0..{self.pixels}")
+        lo, hi = dark or (0, 0)
+        if not 0 <= lo <= hi <= pixels:
+            raise ConfigError(f"{self.settings_of}: dark_pixels {dark} is not a range inside 0..{pixels}")
         if self.subtract_electrical_dark and hi <= lo:
-            bad("subtract_electrical_dark needs a non-empty dark_pixels range")
-        if self.trigger_mode not in (0, 1, 2, 3, 4):
-            bad(f"trigger_mode must be 0..4, got {self.trigger_mode!r}")
-        if not (self.timeout_s > 0 and math.isfinite(self.timeout_s)):
-            bad("timeout_s must be > 0")
-        if self.dword_checksum not in ("auto", "pixels", "words"):
-            bad(f"dword_checksum must be 'auto', 'pixels' or 'words', got {self.dword_checksum!r}")
-        if self.retries < 0:
-            bad("retries must be >= 0")
-        b0, b1 = self.nonlinearity_bounds
-        if not 0 < b0 < 1 < b1:
-            bad(f"nonlinearity_bounds must satisfy 0 < lo < 1 < hi, got {self.nonlinearity_bounds}")
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "OceanConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"spectrometer config: unknown key(s) {', '.join(unknown)}; "
-                              f"known: {', '.join(sorted(known))}")
-        kw = dict(d)
-        for k in ("dark_pixels", "nonlinearity_bounds", "wavelength_limits_nm"):
-            if k in kw and kw[k] is not None:
-                kw[k] = tuple(kw[k])
-        return cls(**kw)
+            raise ConfigError(f"{self.settings_of}: subtract_electrical_dark needs a non-empty dark_pixels range")
+        return self.model_copy(update={"pixels": int(pixels), "dark_pixels": (lo, hi)})

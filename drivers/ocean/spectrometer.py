@@ -9,7 +9,6 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import fields
 from typing import Any, Mapping
 
 import numpy as np
@@ -66,7 +65,7 @@ class OceanSpectrometer:
                  name: str = "spectrometer", **overrides: Any) -> None:
         base = config if isinstance(config, OceanConfig) else OceanConfig.from_dict(config or {})
         if overrides:
-            merged = {f.name: getattr(base, f.name) for f in fields(OceanConfig)}
+            merged = base.model_dump()
             unknown = sorted(set(overrides) - set(merged))
             if unknown:
                 raise ConfigError(f"spectrometer: unknown setting(s) {', '.join(unknown)}")

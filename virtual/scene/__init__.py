@@ -41,6 +41,8 @@ TOML (``fixtures/scenes/*.toml``)::
     [effects.gloss_trap]   specular = "excluded" | "included", half_angle_deg
     [effects.bandpass]     fwhm_nm, nodes (triangular slit function)
     [effects.specimen]     uniform = false, period_mm, contrast, spot_radius_mm
+    [effects.NAME]         an effect an installed package adds (entry points "goniobench.effects":
+                           a :class:`ReadingEffect` acting on the readings, like noise)
     [tradeoff]             see :mod:`virtual.tradeoff`
     [physical]             see :mod:`virtual.tradeoff` (scan duration vs step and averaging)
 
@@ -52,13 +54,13 @@ Modules: :mod:`~virtual.scene.declared` (the effects' tables), :mod:`~virtual.sc
 from __future__ import annotations
 
 from virtual.scene.costs import effect_costs
-from virtual.scene.declared import (EFFECT_NAMES, Aperture, Bandpass, Effects, GlossTrap, Noise, SpecimenPattern,
-                                    Sphere, StrayLight)
+from virtual.scene.declared import (EFFECT_NAMES, Aperture, Bandpass, Effects, GlossTrap, Noise, ReadingEffect,
+                                    SpecimenPattern, Sphere, StrayLight)
 from virtual.scene.loading import load_scene, scene_from_dict
 from virtual.scene.simulate import INSTRUMENTS, OBSERVABLES, Scene, SceneResult, cone_probability
 
 __all__ = [
     "Aperture", "Noise", "StrayLight", "Sphere", "GlossTrap", "Bandpass", "SpecimenPattern", "Effects",
     "Scene", "SceneResult", "load_scene", "scene_from_dict", "effect_costs", "cone_probability",
-    "EFFECT_NAMES", "INSTRUMENTS", "OBSERVABLES",
+    "EFFECT_NAMES", "INSTRUMENTS", "OBSERVABLES", "ReadingEffect",
 ]

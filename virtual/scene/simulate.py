@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import math
 import time
+import zlib
 from dataclasses import dataclass, field, replace
-from typing import Any, Mapping
+from typing import Any, Mapping, get_args
 
 import numpy as np
 
 from bench.core.errors import ConfigError, InputError
 from bench.core.geometry import direction
+from bench.core.schemas import SceneFile
 from virtual import effects as fx
 from virtual import engine
 from virtual.beam import Beam, check_incidence
@@ -29,8 +31,9 @@ from virtual.specimens import Lambertian, Specimen
 
 __all__ = ["Scene", "SceneResult", "cone_probability", "INSTRUMENTS", "OBSERVABLES"]
 
-INSTRUMENTS = ("spectrophotometer", "goniophotometer", "physical")
-OBSERVABLES = ("reflectance", "transmittance", "missed")
+#: the instruments and observables a scene may name (declared by its schema, bench.core.schemas)
+INSTRUMENTS: tuple[str, ...] = get_args(SceneFile.model_fields["instrument"].annotation)
+OBSERVABLES: tuple[str, ...] = get_args(SceneFile.model_fields["observable"].annotation)
 
 
 @dataclass
@@ -326,6 +329,9 @@ class Scene:
             values = values + sd * rng.standard_normal(values.shape)
             z = float(norm.isf(self.delta / 2.0))
             ci = np.stack([values - np.hypot(below, z * sd), values + np.hypot(above, z * sd)], axis=-1)
+        for effect in e.extra:  # installed plugins' effects on readings, each on its own stream
+            stream = np.random.SeedSequence(seed, spawn_key=(0x504C47, zlib.crc32(effect.effect_name.encode())))
+            values, ci = effect.apply_to_readings(values, ci, np.random.default_rng(stream), self.instrument)
         return values, ci, np.array(hits_all, dtype=np.int64)
 
     def _detector_psa(self) -> np.ndarray:
@@ -366,7 +372,14 @@ class Scene:
             exact = False
         if e.sphere is not None and not lambert:
             exact = False
-        return np.array(out, dtype=float), exact
+        ref = np.array(out, dtype=float)
+        for effect in e.extra:
+            expected = effect.expected(ref)
+            if expected is None:
+                exact = False
+            else:
+                ref = np.asarray(expected, dtype=float)
+        return ref, exact
 
     def _modulation(self) -> float:
         sp = self.effects.specimen

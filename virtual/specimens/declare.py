@@ -39,9 +39,10 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from bench.core.errors import SpecimenError
+from bench.core.plugins import SPECIMEN_GROUP, load_plugins
 
 __all__ = ["Spectral", "Param", "Specimen", "DeclaredSpecimen", "register_specimen", "specimen_family",
-           "SPECIMENS", "RESERVED_NAMES", "specimen_families", "specimen_table_markdown"]
+           "SPECIMENS", "RESERVED_NAMES", "load_specimen_plugins", "specimen_families", "specimen_table_markdown"]
 
 #: Names parsed by :func:`virtual.specimens.parse_specimen` itself (not declared families).
 RESERVED_NAMES = ("colorchecker", "mitsuba")
@@ -334,16 +335,41 @@ def register_specimen(cls: type[DeclaredSpecimen]) -> type[DeclaredSpecimen]:
     return cls
 
 
+def _register_plugin(entry: str, obj: Any) -> None:
+    """A ``goniobench.specimens`` entry point: a family (registered here unless its module's
+    decorator did) or a module whose import registered its families."""
+    if isinstance(obj, types.ModuleType):
+        return
+    if not (isinstance(obj, type) and issubclass(obj, DeclaredSpecimen)):
+        raise SpecimenError(f"expected a DeclaredSpecimen subclass or a module, got {obj!r}")
+    if _REGISTRY.get(str(getattr(obj, "name", "")).strip().lower()) is not obj:
+        register_specimen(obj)
+
+
+def load_specimen_plugins() -> None:
+    """Register the families of every installed ``goniobench.specimens`` entry point (once)."""
+    load_plugins(SPECIMEN_GROUP, _register_plugin)
+
+
 def specimen_family(name: str) -> type[DeclaredSpecimen] | None:
-    """The registered family called ``name`` (case-insensitive), or None."""
-    return _REGISTRY.get(name.strip().lower())
+    """The registered family called ``name`` (case-insensitive; installed plugins are looked at
+    on the first miss), or None."""
+    key = name.strip().lower()
+    if key not in _REGISTRY:
+        load_specimen_plugins()
+    return _REGISTRY.get(key)
 
 
-def specimen_families() -> list[dict[str, Any]]:
-    """Every registered family with its parameters (for ``bench specimens`` and docs)."""
+def specimen_families(builtin_only: bool = False) -> list[dict[str, Any]]:
+    """Every registered family with its parameters (for ``bench specimens`` and docs): the
+    project's own and, unless ``builtin_only``, the installed plugins' and any registered since."""
+    if not builtin_only:
+        load_specimen_plugins()
     out = []
     for name in sorted(_REGISTRY):
         cls = _REGISTRY[name]
+        if builtin_only and not cls.__module__.startswith(f"{__package__}."):
+            continue
         out.append({
             "name": name, "class": f"{cls.__module__}.{cls.__qualname__}", "model": int(cls.model),
             "doc": (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else "",
@@ -355,12 +381,12 @@ def specimen_families() -> list[dict[str, Any]]:
     return out
 
 
-def specimen_table_markdown() -> str:
-    """The README table of specimen families: one row per parameter, the family's convention
-    (which published definition it follows) on its first row."""
+def specimen_table_markdown(builtin_only: bool = False) -> str:
+    """The table of specimen families (the README's with ``builtin_only``): one row per
+    parameter, the family's convention (which published definition it follows) on its first row."""
     rows = ["| specimen | convention | parameter | range | unit | default | meaning |",
             "|---|---|---|---|---|---|---|"]
-    for fam in specimen_families():
+    for fam in specimen_families(builtin_only):
         for i, p in enumerate(fam["parameters"]):
             key = p["name"] + (f" ({', '.join(p['aliases'])})" if p["aliases"] else "")
             lo, hi = p["range"]

@@ -14,7 +14,8 @@ import numpy as np
 
 from bench.core.errors import SpecimenError
 from virtual.specimens.mitsuba import parse_mitsuba
-from virtual.specimens.declare import RESERVED_NAMES, SPECIMENS, Specimen, Spectral
+from virtual.specimens.declare import (RESERVED_NAMES, SPECIMENS, Specimen, Spectral, load_specimen_plugins,
+                                       specimen_family)
 from virtual.specimens.diffuse import Lambertian
 
 __all__ = ["parse_specimen", "known_specimen_names"]
@@ -54,7 +55,8 @@ def _kwargs(text: str, spec: str) -> dict[str, float | str]:
 
 
 def known_specimen_names() -> list[str]:
-    """Every name a specimen string may start with."""
+    """Every name a specimen string may start with (installed plugins' families included)."""
+    load_specimen_plugins()
     return sorted([*SPECIMENS, *RESERVED_NAMES])
 
 
@@ -70,7 +72,7 @@ def parse_specimen(spec: str | Specimen) -> Specimen:
         return _colorchecker(patch, chart) if chart else _colorchecker(patch)
     if name == "mitsuba":  # optional extra: mitsuba:{json BSDF dict}
         return parse_mitsuba(rest, text)
-    family = SPECIMENS.get(name)
+    family = specimen_family(name)
     if family is None:
         raise SpecimenError(f"unknown specimen {name!r}; known: {', '.join(known_specimen_names())}")
     first, _, more = rest.partition(",")
