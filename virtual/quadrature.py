@@ -42,7 +42,7 @@ from virtual.collector import Collector
 from virtual.cubature import adaptive_rectangle
 from virtual.specimens import Specimen
 
-__all__ = ["PatchIntegrals", "integrate_patches", "patch_integrals", "directional_albedo",
+__all__ = ["PatchIntegrals", "integrate_patches",
            "certified_patch_integrals", "reference_albedo", "CERTIFY_TOL"]
 
 #: Bound on the patch probabilities' total error (absolute probability) for the fast path to be
@@ -142,11 +142,6 @@ def _children(cells: np.ndarray) -> np.ndarray:
         np.column_stack([tm, t1, pm, p1, side]),
     ], axis=1)
     return kids.reshape(-1, 5)
-
-
-def _psa(cells: np.ndarray) -> np.ndarray:
-    t0, t1, p0, p1 = cells[:, 0], cells[:, 1], cells[:, 2], cells[:, 3]
-    return 0.5 * (p1 - p0) * np.abs(np.sin(t1) ** 2 - np.sin(t0) ** 2)
 
 
 def _halve(cells: np.ndarray, axis: int) -> np.ndarray:
@@ -298,22 +293,6 @@ def integrate_patches(specimen: Specimen, wi: np.ndarray, collector: Collector, 
     down = p[collector.n_patches:].sum()
     return PatchIntegrals(p=p, albedo=float(up + down), reflectance=float(up if lit_side > 0 else down),
                           transmittance=float(down if lit_side > 0 else up), error=err, n_evals=n_evals)
-
-
-def patch_integrals(specimen: Specimen, wi: np.ndarray, collector: Collector, wavelength_nm: float,
-                    order: int = 5, rtol: float = 1e-7, atol: float = 1e-9) -> np.ndarray:
-    """``(n_bins,)`` probability of each collector bin (see :func:`integrate_patches`).
-
-    ``1 - result.sum()`` is the absorbed fraction.
-    """
-    return integrate_patches(specimen, wi, collector, wavelength_nm, order=order, rtol=rtol, atol=atol).p
-
-
-def directional_albedo(specimen: Specimen, wi: np.ndarray, wavelength_nm: float,
-                       collector: Collector | None = None) -> float:
-    """Directional-hemispherical albedo (reflected + transmitted) by the same quadrature."""
-    col = collector or Collector("equal-psa", 9, 12)
-    return integrate_patches(specimen, wi, col, wavelength_nm).albedo
 
 
 def _hemisphere_albedo(specimen: Specimen, wi: np.ndarray, wl: float) -> tuple[float, float]:

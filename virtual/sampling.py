@@ -33,7 +33,6 @@ __all__ = [
     "uniforms",
     "sample_disk",
     "sample_triangle",
-    "sample_quad",
     "warp_cosine_hemisphere",
     "sample_cosine_hemisphere",
 ]
@@ -116,21 +115,5 @@ def sample_triangle(n: int, q0, q1, q2, strategy: str = "random",
     bary = np.empty((n, 2))
     _warp_triangle_array(uniforms(n, strategy, seed), bary)
     return q0 + bary[:, :1] * (q1 - q0) + bary[:, 1:] * (q2 - q0)
-
-
-def sample_quad(n: int, half_width: float, seed: int | np.random.Generator | None = None) -> np.ndarray:
-    """A square specimen of side ``2*half_width`` as the seed's pair of triangles (eq. 3.10).
-
-    Each point picks one of the two equal-area triangles by a fair coin.
-    """
-    rng = _rng(seed)
-    h = float(half_width)
-    a, b, c, d = (-h, -h), (h, -h), (h, h), (-h, h)
-    first = rng.random(n) < 0.5
-    n1 = int(first.sum())
-    out = np.empty((n, 2))
-    out[first] = sample_triangle(n1, a, b, c, seed=rng)
-    out[~first] = sample_triangle(n - n1, a, c, d, seed=rng)
-    return out
 
 

@@ -15,7 +15,7 @@ from typing import Any, Callable, Sequence
 
 from bench.core.errors import InputError
 
-__all__ = ["DEFAULT_STORE", "emit_json", "positive_int", "number", "hms", "open_store", "report_run",
+__all__ = ["DEFAULT_STORE", "emit_json", "number", "hms", "open_store", "report_run",
            "output_file", "output_dir", "check_output", "PLOT_SUFFIXES", "announce_compilation", "stop_announcing"]
 
 #: image formats matplotlib writes (checked before any work, so a typo does not cost the run)
@@ -31,17 +31,6 @@ def emit_json(obj: Any) -> None:
     from bench.core.records import json_default
 
     print(json.dumps(obj, indent=None, sort_keys=False, default=json_default))
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (``1e7`` accepted)."""
-    try:
-        v = int(float(text)) if "e" in text.lower() else int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return v
 
 
 def number(text: str) -> float:

@@ -410,18 +410,6 @@ def _loc(loc: tuple[Any, ...]) -> str:
     return out
 
 
-def _value_at(data: Any, loc: tuple[Any, ...]) -> tuple[bool, Any]:
-    cur = data
-    for part in loc:
-        if isinstance(cur, Mapping) and part in cur:
-            cur = cur[part]
-        elif isinstance(cur, list) and isinstance(part, int) and 0 <= part < len(cur):
-            cur = cur[part]
-        else:
-            continue
-    return True, cur
-
-
 def _known_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
     """The keys accepted at the table holding ``loc``'s last part (for "did you mean")."""
     current: Any = model

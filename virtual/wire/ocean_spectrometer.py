@@ -54,7 +54,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["SpectrometerConfig", "SpectrometerModel", "SpectrometerEmulator",
            "constant_response", "cosine_response", "file_geometry_source", "encode_frame",
-           "compress", "start_spectrometer_emulator"]
+           "compress"]
 
 
 
@@ -192,11 +192,6 @@ class SpectrometerEmulator(PipeEmulator):
 
     def __repr__(self) -> str:
         return f"SpectrometerEmulator({self.port}, pid={self._proc.pid})"
-
-
-def start_spectrometer_emulator(**kwargs: Any) -> SpectrometerEmulator:
-    """Start a spectrometer emulator process; the handle's ``port`` is what the driver opens."""
-    return SpectrometerEmulator.start(**kwargs)
 
 
 def main(argv: list[str] | None = None) -> int:
