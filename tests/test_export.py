@@ -422,14 +422,6 @@ def test_zemax_from_in_plane_point_samples(tmp_path):
     assert back.meta["symmetry"] == "Asymmetrical" and len(back.table) > 0
 
 
-def test_old_paths_re_export_bench_io():
-    import bench.export
-    import bench.importers
-    import bench.io
-
-    assert bench.export.export_record is bench.io.export_record and bench.importers.read_record is bench.io.read_record
-
-
 # --- exports read by others (issue 15): parsers written here from the formats' descriptions ----
 # (/work/shared/reference/brdf-formats-and-conventions.md), not our importers
 

@@ -1,4 +1,4 @@
-"""Mitsuba 3 BSDFs as specimens, measured by our devices (virtual.mitsuba, virtual.python_engine).
+"""Mitsuba 3 BSDFs as specimens, measured by our devices (virtual.specimens.mitsuba, virtual.python_engine).
 
 Statistical tests use fixed seeds (deterministic) and state their significance: a test fails
 when the p-value is below ALPHA = 1e-3.

@@ -16,7 +16,7 @@ from tests.test_engine import _two_sample_p  # noqa: E402
 from virtual.beam import Beam  # noqa: E402
 from virtual.collector import Collector  # noqa: E402
 from virtual.engine import measurement_seed  # noqa: E402
-from virtual.mitsuba import MitsubaSpecimen  # noqa: E402
+from virtual.specimens.mitsuba import MitsubaSpecimen  # noqa: E402
 from virtual.mitsuba_llvm import llvm_library, llvm_status  # noqa: E402
 from virtual.python_engine import gonio_counts_python  # noqa: E402
 

@@ -1,6 +1,6 @@
 """Mitsuba specimens sampled in wavefronts on Dr.Jit's LLVM back end (issue 18).
 
-:class:`virtual.mitsuba.MitsubaSpecimen` calls ``bsdf.sample`` once per ray in a scalar variant
+:class:`virtual.specimens.mitsuba.MitsubaSpecimen` calls ``bsdf.sample`` once per ray in a scalar variant
 (about 1e6 rays/s). When an LLVM variant can run -- ``mitsuba`` installed and a libLLVM shared
 object found (:func:`llvm_library`: ``DRJIT_LIBLLVM_PATH``, else Debian's ``libllvm19``) --
 :class:`WavefrontSampler` hands the whole batch to the LLVM twin of the scalar variant
