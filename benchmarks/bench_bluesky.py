@@ -20,7 +20,8 @@ import time
 from pathlib import Path
 
 from benchmarks.common import table
-from bench.config import load_bench, read_toml
+from bench.config import load_bench
+from bench.core.parsing import read_toml
 from bench.plans import load_plan, plan_from_dict
 from bench.runner import run_scan
 from bench.store import RunStore

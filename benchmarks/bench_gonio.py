@@ -45,7 +45,8 @@ from virtual.engine import float32_suits, gonio_counts, gonio_counts_spectral, g
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.kernels import jit
 from virtual.kernels.rng import fill_uniforms32
-from virtual.rng import LANES, fill_uniforms, lane_states, lane_states32, next_double, stream_states
+from virtual.kernels.rng import LANES, fill_uniforms, next_double
+from virtual.rng import lane_states, lane_states32, stream_states
 from virtual.specimens import parse_specimen
 
 N_RAYS = 100_000_000

@@ -14,7 +14,8 @@ import time
 from pathlib import Path
 
 from benchmarks.common import table
-from bench.config import load_bench, read_toml
+from bench.config import load_bench
+from bench.core.parsing import read_toml
 from bench.plans import plan_from_dict
 from bench.runner import point_rows, run_scan
 from bench.store import RunStore

@@ -22,7 +22,7 @@ from bench.core.errors import BenchError
 from drivers.dynamixel.link import Request, decode_status
 from drivers.modbus.client import decode_rtu_reply
 from drivers.ocean.codec import NeedMore, decode_version, parse_ascii_frame, parse_binary_frame
-from virtual.wire.dynamixel_bus import decode_packet, encode_status
+from virtual.wire.dxl_codec import decode_packet, encode_status
 from virtual.wire.ocean_codec import compress
 
 FUZZ = settings(max_examples=300, deadline=None, derandomize=True,

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from virtual.kernels import jit
 
 from bench.core.errors import InputError
-from virtual.collector import ATAN_MAX_ERROR, SCHEMES, Collector, _approx_phi, guess_bin, parse_collector, patch_of
+from virtual.kernels.collector import ATAN_MAX_ERROR, _approx_phi, guess_bin, patch_of
+from virtual.collector import SCHEMES, Collector, parse_collector
 
 
 # --- geometry -----------------------------------------------------------------------------------

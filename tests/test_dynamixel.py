@@ -37,20 +37,10 @@ from drivers.transport import (
     TransportPortHandler,
     load_fixture,
 )
-from virtual.wire.dynamixel_bus import (
-    BusControl,
-    BusTransport,
-    DynamixelBus,
-    PacketError,
-    PacketParser,
-    crc16,
-    decode_packet,
-    encode_instruction,
-    encode_status,
-    start_bus,
-    stuff,
-    unstuff,
-)
+from virtual.wire.dynamixel_bus import BusControl, start_bus
+from virtual.wire.dxl_bus import BusTransport, DynamixelBus
+from virtual.wire.dxl_codec import (PacketError, PacketParser, crc16, decode_packet, encode_instruction,
+                                    encode_status, stuff, unstuff)
 
 ROOT = Path(__file__).resolve().parents[1]
 SESSION_FIXTURE = ROOT / "fixtures" / "dynamixel" / "move_session.jsonl"
@@ -628,7 +618,7 @@ def test_record_against_the_emulator_then_replay(emulator: Any, tmp_path: Path) 
 
 
 def test_thread_mode_pty() -> None:
-    from virtual.wire.dynamixel_bus import PtyBusThread
+    from virtual.wire.dxl_bus import PtyBusThread
 
     with PtyBusThread(DynamixelBus((1, 2, 3, 4), time_scale=20.0, axes=EMU_AXES)) as srv:
         arm = DynamixelArm(arm_config(srv.port))

@@ -29,13 +29,8 @@ from bench.core.conformance import angular_distance_deg
 from drivers.dynamixel import DynamixelArm
 from drivers.dynamixel.link import DxlLink, Request, check_status, decode_status
 from drivers.transport import ScriptedTransport, TransportPortHandler
-from virtual.wire.dynamixel_bus import (
-    INST,
-    BusTransport,
-    DynamixelBus,
-    encode_instruction,
-    encode_status,
-)
+from virtual.wire.dxl_codec import INST, encode_instruction, encode_status
+from virtual.wire.dxl_bus import BusTransport, DynamixelBus
 
 AXES = {"turntable": {"id": 1, "limits": [-170, 170]}, "source": {"id": 2, "limits": [0, 85]},
         "detector_azimuth": {"id": 3, "zero_offset": 0, "limits": [0, 359.9]},

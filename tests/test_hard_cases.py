@@ -279,7 +279,7 @@ def test_calibration_with_a_reference_at_or_below_dark_on_a_virtual_bench():
     assert c.masked.all() and set(c.mask_reason) == {"white reference at or below dark"}
     assert not np.isinf(c.brdf).any() and not (c.brdf < 0).any()
     # 2. a reference whose middle pixel lies below its dark: only that one is masked
-    from bench.core.roles import Reading
+    from bench.core.records import Reading
 
     wd = Reading(wavelengths=white.wavelengths, signal=np.array([0.0, white.signal[1] * 1.01, 0.0]),
                  saturated=np.zeros(3, bool), integration_s=0.1, averages=1, dark=True, std=np.zeros(3))

@@ -31,7 +31,8 @@ from bench.core.errors import (  # noqa: E402
     ProtocolError,
     TransportMismatchError,
 )
-from bench.core.roles import Reading, Spectrometer  # noqa: E402
+from bench.core.records import Reading
+from bench.core.roles import Spectrometer  # noqa: E402
 from bench.core.conformance import check_conformance  # noqa: E402
 from drivers.ocean import (  # noqa: E402
     OceanSpectrometer,
@@ -46,12 +47,9 @@ from drivers.transport import (  # noqa: E402
     SerialTransport,
     load_fixture,
 )
-from virtual.wire.ocean_spectrometer import (  # noqa: E402
-    SpectrometerEmulator,
-    compress,
-    cosine_response,
-    file_geometry_source,
-)
+from virtual.wire.ocean_spectrometer import SpectrometerEmulator
+from virtual.wire.ocean_codec import compress
+from virtual.wire.ocean_model import cosine_response, file_geometry_source
 
 FIX = ROOT / "fixtures" / "ocean"
 ACK, NAK, STX, ETX = b"\x06", b"\x15", b"\x02", b"\x03"

@@ -4,7 +4,8 @@ import numpy as np
 from virtual.kernels import jit
 from scipy import stats
 
-from virtual.rng import LANES, fill_uniforms, lane_states, next_double, next_uint64, stream_states
+from virtual.kernels.rng import LANES, fill_uniforms, next_double, next_uint64
+from virtual.rng import lane_states, stream_states
 
 MASK = (1 << 64) - 1
 

@@ -21,7 +21,7 @@ from drivers.transport import (
     load_fixture,
     save_fixture,
 )
-from virtual.wire.dynamixel_bus import encode_status
+from virtual.wire.dxl_codec import encode_status
 from virtual.wire.pty import open_pty
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "dynamixel"

@@ -56,23 +56,11 @@ from typing import Any
 import numpy as np
 
 from bench.core.errors import InputError
-from virtual.kernels.collector import (ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA,  # noqa: F401
-                                       SCHEME_EQUAL_SOLID_ANGLE, _approx_phi, index_many, guess_bin, patch_of)
+from virtual.kernels.collector import (ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA,
+                                       SCHEME_EQUAL_SOLID_ANGLE, index_many)
 from virtual.kernels.f32 import ATAN32_MAX_ERROR
 
-__all__ = [
-    "SCHEMES",
-    "SCHEME_EQUAL_ANGLE",
-    "SCHEME_EQUAL_SOLID_ANGLE",
-    "SCHEME_EQUAL_PSA",
-    "Collector",
-    "patch_of",
-    "guess_bin",
-    "guess_margins",
-    "guess_margins32",
-    "ATAN_MAX_ERROR",
-    "parse_collector",
-]
+__all__ = ["SCHEMES", "Collector", "guess_margins", "guess_margins32", "parse_collector"]
 
 #: scheme name -> integer code passed to :func:`patch_of`
 SCHEMES: dict[str, int] = {

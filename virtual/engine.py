@@ -14,11 +14,11 @@ Two kernel shapes:
   disk sampling; a scene's per-ray effects (:mod:`virtual.effects`) set flags in the same kernels;
 * block (``gonio_block_kernel``), the goniophotometer's fast path: rays go through in blocks of
   :data:`BLOCK_RAYS`. The block's uniforms are drawn first, 64 xoshiro lanes side by side
-  (:func:`~virtual.rng.fill_uniforms`); then one branch-free loop emits (polar disks), scatters
-  (:func:`~virtual.specimens.scatter_given`) and bins (:func:`~virtual.collector.guess_bin`)
+  (:func:`~virtual.kernels.rng.fill_uniforms`); then one branch-free loop emits (polar disks), scatters
+  (:func:`~virtual.specimens.scatter_given`) and bins (:func:`~virtual.kernels.collector.guess_bin`)
   every ray, which LLVM compiles to AVX-512/AVX2 code; then a short scalar loop adds the bins
   to the histogram, settling the rare uncertain bin with the exact
-  :func:`~virtual.collector.patch_of`. Only the surviving rays are binned (compacted first).
+  :func:`~virtual.kernels.collector.patch_of`. Only the surviving rays are binned (compacted first).
   It serves the :data:`~virtual.kernels.engine.BLOCK_MODELS` (Lambertian, GGX, anisotropic GGX
   with three uniforms per ray; Phong, Oren-Nayar, rough dielectric with four; the rough plastic
   with seven and one attempt of its diffuse rejection loop, the rare rejected ray finishing

@@ -15,9 +15,9 @@ advance the states are :mod:`virtual.kernels.rng` (``next_double``, ``next_uint6
 from __future__ import annotations
 
 import numpy as np
-from virtual.kernels.rng import LANES, fill_uniforms, next_double, next_uint64  # noqa: F401 (re-exported)
+from virtual.kernels.rng import LANES
 
-__all__ = ["stream_states", "next_double", "next_uint64", "LANES", "lane_states", "lane_states32", "fill_uniforms"]
+__all__ = ["stream_states", "lane_states", "lane_states32"]
 
 
 def lane_states(seed: int | np.random.SeedSequence, n_streams: int, lanes: int = LANES,

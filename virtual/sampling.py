@@ -21,21 +21,9 @@ from typing import Literal
 import numpy as np
 
 from bench.core.errors import InputError
-from virtual.kernels.sampling import (_warp_polar_array, _warp_triangle_array, sample_cosine_hemisphere,  # noqa: F401
-                                      sincos_2pi, warp_cosine_hemisphere, warp_polar, warp_square, warp_triangle)
+from virtual.kernels.sampling import _warp_polar_array, _warp_triangle_array
 
-__all__ = [
-    "DISK_STRATEGIES",
-    "warp_square",
-    "warp_polar",
-    "sincos_2pi",
-    "warp_triangle",
-    "uniforms",
-    "sample_disk",
-    "sample_triangle",
-    "warp_cosine_hemisphere",
-    "sample_cosine_hemisphere",
-]
+__all__ = ["DISK_STRATEGIES", "uniforms", "sample_disk", "sample_triangle"]
 
 DiskStrategy = Literal["rejection", "polar", "jittered", "sobol"]
 DISK_STRATEGIES: tuple[str, ...] = ("rejection", "polar", "jittered", "sobol")

@@ -331,7 +331,7 @@ def scatter_given(model, p, wx, wy, wz, u0, u1, u2):
     drawn, and no branch: the same distribution of ``(ox, oy, oz, alive)``.
 
     u0 decides survival (and reflection against transmission); (u1, u2) is a polar disk point
-    (:func:`~virtual.sampling.warp_polar`): the Lambertian's cosine-weighted direction
+    (:func:`~virtual.kernels.sampling.warp_polar`): the Lambertian's cosine-weighted direction
     (Malley), GGX's visible-normal cap point. Callers only read the direction when ``alive``.
     """
     if model == MODEL_LAMBERT:

@@ -65,22 +65,11 @@ from typing import Any, Mapping, Sequence
 
 from bench.core.errors import DeviceError
 
-from virtual.wire.dxl_bus import BusTransport, DynamixelBus, Faults, PtyBusThread, _write_all  # noqa: F401
-from virtual.wire.dxl_codec import (
-    BROADCAST_ID, ERR, ERRBIT_ALERT, HW_ERROR_BITS, INST, Packet, PacketError, PacketParser, crc16,
-    decode_packet, encode_instruction, encode_status, stuff, unstuff,
-)
-from virtual.wire.dxl_servo import ADDR, Servo
+from virtual.wire.dxl_bus import DynamixelBus, _write_all
 from virtual.wire.pty import EmulatorProcess, open_pty
 
 
-__all__ = [
-    "crc16", "stuff", "unstuff", "encode_instruction", "encode_status", "decode_packet",
-    "Packet", "PacketParser", "PacketError",
-    "Servo", "DynamixelBus", "BusTransport", "PtyBusThread", "BusControl", "start_bus", "serve",
-    "main",
-    "INST", "ERR", "ERRBIT_ALERT", "BROADCAST_ID", "HW_ERROR_BITS", "ADDR",
-]
+__all__ = ["BusControl", "start_bus", "serve", "main"]
 
 log = logging.getLogger(__name__)
 

@@ -41,20 +41,16 @@ import sys
 import threading
 from typing import Any
 
-from virtual.wire.ocean_codec import compress, encode_frame, encode_frame_ascii  # noqa: F401
-from virtual.wire.ocean_device import _Device, _Faults  # noqa: F401
-from virtual.wire.ocean_model import (  # noqa: F401
-    Settings, SpectrometerConfig, SpectrometerModel, constant_response, cosine_response,
-    file_geometry_source,
+from virtual.wire.ocean_device import _Device, _Faults
+from virtual.wire.ocean_model import (
+    SpectrometerConfig, SpectrometerModel,
 )
 from virtual.wire.pty import PipeEmulator, open_raw_pty
 
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SpectrometerConfig", "SpectrometerModel", "SpectrometerEmulator",
-           "constant_response", "cosine_response", "file_geometry_source", "encode_frame",
-           "compress"]
+__all__ = ["SpectrometerEmulator"]
 
 
 
