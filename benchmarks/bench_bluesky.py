@@ -1,4 +1,4 @@
-"""Overhead per point of the Bluesky path against ``bench scan`` (issue 17).
+"""Overhead per point of the Bluesky path against ``bench scan``.
 
 The same 200-point plan (one geometry visited again and again, 1 ms integration, so nothing moves
 and the emulated detector integrates 1 ms / time_scale) runs on the emulated bench three ways:

@@ -1,4 +1,4 @@
-"""Per-point overhead of a scan beyond motion and integration (issues 4 and 5).
+"""Per-point overhead of a scan beyond motion and integration.
 
 The plan visits one geometry many times with a 1 ms integration, so nothing moves and the
 emulated detector integrates for 1 ms / time_scale: what remains per point is the overhead of

@@ -1,4 +1,4 @@
-"""Virtual spectrophotometer throughput against the random-number limit (issue 2)."""
+"""Virtual spectrophotometer throughput against the random-number limit."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The anchor of the goniophotometer benchmark (issue 18): the measurement written the way a
+"""The anchor of the goniophotometer benchmark: the measurement written the way a
 Mitsuba 3 user would write it, vectorized on Dr.Jit's LLVM back end.
 
 ``llvm_ad_rgb``, wavefronts of 10^7 rays: the conical beam (uniform points on the emitter disk

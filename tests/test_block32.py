@@ -1,4 +1,4 @@
-"""The float32 block kernel (issue 18): its generator against the published xoshiro128+, its bin
+"""The float32 block kernel: its generator against the published xoshiro128+, its bin
 guess against the exact float64 lookup, its counts against the float64 ray-by-ray kernel's, and
 the rule that sends a specimen to float32 only when float32 resolves it.
 

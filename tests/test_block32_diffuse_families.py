@@ -1,4 +1,4 @@
-"""The float32 block kernel's Phong and Oren-Nayar (issue 18) count the same distribution as the
+"""The float32 block kernel's Phong and Oren-Nayar count the same distribution as the
 float64 ray-by-ray kernel, and the test can tell a slightly different specimen apart.
 
 Each comparison is a two-sample chi-square over the collector bins plus absorbed and missed

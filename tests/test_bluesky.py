@@ -1,4 +1,4 @@
-"""Every bench as Bluesky / ophyd-async devices (issue 17), on the virtual bench: protocols,
+"""Every bench as Bluesky / ophyd-async devices, on the virtual bench: protocols,
 standard plans, our plans, documents into our store, equivalence with ``bench scan``, refusals
 and faults. The emulated bench's tests are in test_bluesky_emulated.py.
 """

@@ -1,4 +1,4 @@
-"""Reply-frame fuzz of the three driver codecs (issue 14): random and mutated reply frames are
+"""Reply-frame fuzz of the three driver codecs: random and mutated reply frames are
 fed to the pure decode functions the drivers use. Whatever the bytes, only project errors
 (:class:`bench.core.errors.BenchError` subclasses) come out (plus the Ocean parser's internal
 "need more bytes" signal, which the live reader turns into a timeout), and a frame is never

@@ -1,4 +1,4 @@
-"""Selectable conventions validated against Mitsuba 3's own ``eval`` (issue 16, item 3).
+"""Selectable conventions validated against Mitsuba 3's own ``eval``.
 
 ``masking=separable`` GGX conductor / dielectric and the ``roughplastic`` specimen are measured
 by counting rays (our samplers) and compared, by Pearson chi-square goodness of fit, with the

@@ -369,7 +369,7 @@ def test_hardware_error_at_connect(bus: DynamixelBus) -> None:
 
 
 def test_move_that_never_starts_is_reported_within_100_ms(bus: DynamixelBus) -> None:
-    """Issue 14 cause 2: a servo that takes its goal but never moves (torque silently off) is
+    """A servo that takes its goal but never moves (torque silently off) is
     reported by the start window (~100 ms), not after the whole settle timeout."""
     arm, _ = make_arm(bus, settle_timeout_s=20.0)
     bus.servos[3].table[64] = 0  # torque silently off: the axis will never arrive

@@ -422,8 +422,8 @@ def test_zemax_from_in_plane_point_samples(tmp_path):
     assert back.meta["symmetry"] == "Asymmetrical" and len(back.table) > 0
 
 
-# --- exports read by others (issue 15): parsers written here from the formats' descriptions ----
-# (/work/shared/reference/brdf-formats-and-conventions.md), not our importers
+# --- exports read by others: parsers written here from the formats' public descriptions (ASTM
+# E2387 CSV as libbsdf reads it; Zemax OpticStudio tabular BSDF), not our importers
 
 
 def _parse_astm(text):

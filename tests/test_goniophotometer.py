@@ -1,4 +1,4 @@
-"""The virtual goniophotometer: issue 3's Lambertian acceptance, roles, records, fast path."""
+"""The virtual goniophotometer: a Lambertian in its binomial intervals, roles, records, fast path."""
 
 import math
 
@@ -87,7 +87,7 @@ def test_fast_path_matches_counting_rays_in_distribution():
 
 def test_record_says_which_kernel_counted():
     g = VirtualGoniophotometer("phong:exponent=20", rays=1000, seed=1, method="rays")
-    assert g.kernel() == "block32"  # Phong has a float32 form (issue 18)
+    assert g.kernel() == "block32"  # Phong has a float32 form
     g = VirtualGoniophotometer("phong:exponent=1e5,ks=0.4", rays=1000, seed=1, method="rays")
     assert g.kernel() == "block"  # a lobe narrower than float32 resolves: the float64 block kernel
     g = VirtualGoniophotometer("ggx:alpha=0.3", beam=Beam("conical", disk_sampling="rejection"), rays=1000, seed=1)

@@ -1,4 +1,4 @@
-"""Issue 14, items 4-5 on the application side: ``bench home`` and plans with ``home = true``
+"""Homing and motion on the application side: ``bench home`` and plans with ``home = true``
 (homing end to end on the emulated bench), ``bench plan`` motion estimates of real and emulated
 benches from the configured speeds and ramps, white reference files (round trip, bad files) and
 a HIL run on a ``kind = "real"`` bench with no terminal (stdin closed)."""

@@ -1,4 +1,4 @@
-"""The leaf specimen (issue 19): PROSPECT-D's R and T at 8 deg, energy per ray, reciprocity, the
+"""The leaf specimen: PROSPECT-D's R and T at 8 deg, energy per ray, reciprocity, the
 cuticle's specular peak, extreme parameters, the fast path against ray counting, colour and compare.
 
 Statistical tests use fixed seeds; each states its false-alarm rate, and the power of the

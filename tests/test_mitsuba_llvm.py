@@ -1,4 +1,4 @@
-"""Mitsuba specimens in wavefronts on the LLVM back end (:mod:`virtual.mitsuba_llvm`, issue 18)
+"""Mitsuba specimens in wavefronts on the LLVM back end (:mod:`virtual.mitsuba_llvm`)
 against the scalar loop: the same uniforms give the same directions and weights (to single
 precision), and independent runs give the same count distribution (two-sample chi-square:
 p > 1e-3 fails a correct sampler once in 1000; seeds fixed), with power shown by a perturbed

@@ -1,5 +1,6 @@
 """AZ stage: homing via ZHOME / HOME-END, the accurate cause of a pty refusing even parity, and
-replies matched to their request (issue 14). Facts: ``/work/shared/reference/oriental-az-modbus.md``.
+replies matched to their request. Facts: Oriental Motor AZ Series Function Edition manual
+(Modbus RTU), Oriental Motor FAQ 0331.
 """
 
 from __future__ import annotations

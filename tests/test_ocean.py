@@ -193,7 +193,7 @@ def test_missing_reply_is_a_timeout_without_waiting() -> None:
 
 
 def test_device_left_in_ascii_mode_is_brought_back() -> None:
-    """Issue 14 cause 4: a bare ``bB``; in ASCII mode each byte is echoed, then ACK (binary).
+    """Back to binary mode with a bare ``bB``; in ASCII mode each byte is echoed, then ACK (binary).
     No CR follows (a stray CR would be NAKed by the then binary device)."""
     pairs = [(b"b", b"b"), (b"B", b"B" + ACK)] + open_pairs()[1:]
     spec = OceanSpectrometer(ScriptedTransport(pairs), **SMALL)

@@ -1,4 +1,4 @@
-"""The declared schemas of plan and bench files refuse what the issue tracker found accepted:
+"""The declared schemas of plan and bench files refuse what they once let through:
 unknown keys (with "did you mean"), wrong types, non-finite and out-of-range numbers, empty and
 oversized ranges -- one line naming file, key and value."""
 

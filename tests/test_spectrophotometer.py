@@ -1,4 +1,4 @@
-"""The virtual spectrophotometer: issue 2's acceptance and the instrument contract."""
+"""The virtual spectrophotometer: a Lambertian within eq. 3.5's bound, and the instrument contract."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""Mitsuba specimens sampled in wavefronts on Dr.Jit's LLVM back end (issue 18).
+"""Mitsuba specimens sampled in wavefronts on Dr.Jit's LLVM back end.
 
 :class:`virtual.specimens.mitsuba.MitsubaSpecimen` calls ``bsdf.sample`` once per ray in a scalar variant
 (about 1e6 rays/s). When an LLVM variant can run -- ``mitsuba`` installed and a libLLVM shared

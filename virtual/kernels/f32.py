@@ -1,4 +1,4 @@
-"""Float32 twins of the scalar helpers, for the block kernel's 16-lane path (issue 18).
+"""Float32 twins of the scalar helpers, for the block kernel's 16-lane path.
 
 An AVX-512 register holds 16 float32 lanes against 8 float64 ones, so the block kernel's
 branch-free loops run about twice as fast in float32 (:mod:`virtual.kernels.block32`). numba

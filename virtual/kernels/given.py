@@ -131,7 +131,7 @@ def scatter_given4(model, p, wx, wy, wz, u0, u1, u2, u3):
     return _dielectric_given(p, wx, wy, wz, u0, u1, u2, u3)
 
 
-# --- rough plastic for the block kernel (issue 18) ------------------------------------------------
+# --- rough plastic for the block kernel (float32 and float64) --------------------------------------
 #: Uniforms :func:`plastic_given` consumes per ray.
 PLASTIC_UNIFORMS = 7
 

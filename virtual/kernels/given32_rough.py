@@ -1,5 +1,5 @@
 """Float32 forms of the rough dielectric and the rough plastic for the 16-lane block kernel
-(:mod:`virtual.kernels.block32`, issue 18).
+(:mod:`virtual.kernels.block32`).
 
 Each is its float64 given form (:func:`~virtual.kernels.given._dielectric_given`,
 :func:`~virtual.kernels.given.plastic_given`) with the same uniforms in the same roles, written

@@ -341,7 +341,7 @@ def scatter_given(model, p, wx, wy, wz, u0, u1, u2):
     return _ggx_given(p, wx, wy, wz, ca, sa, u1, u0)
 
 
-# --- four-uniform given forms (issue 18): the block kernel's Phong, Oren-Nayar, rough dielectric -----
+# --- four-uniform given forms, for the block kernel: its Phong, Oren-Nayar, rough dielectric -----
 # Same contract as `scatter_given`, with four uniforms: u0 picks the lobe (or absorption), (u1, u2)
 # is a polar disk point standing for the ray-by-ray branch's rejection-sampled `unit_disk`
 # (the same uniform distribution: direction sincos_2pi(u1), squared radius u2), u3 is the

@@ -1,4 +1,4 @@
-"""Float32 spectral batches (issue 18): the Lambertian and one-roughness GGX at many wavelengths
+"""Float32 spectral batches: the Lambertian and one-roughness GGX at many wavelengths
 at once on float32 vectors (as many lanes as the machine's hold), like :mod:`virtual.kernels.block32`.
 
 * Lambertian (:func:`lambert_spectral32_chunk`): each hit ray's cosine-distributed direction

@@ -1,6 +1,7 @@
 """An Ocean-Optics-style RS-232 spectrometer, emulated on a pseudo-terminal in its own process.
 
-It speaks the protocol of ``/work/shared/reference/ocean-rs232.md`` as pinned down in
+It speaks the protocol of the Ocean Optics Flame-S manual (chapter "Firmware and Advanced
+Communications") as pinned down in
 :mod:`drivers.ocean` (binary and ASCII modes, ACK/NAK, checksum mode, compression, scans to
 add, trigger mode, ``?x`` calibration slots) and produces
 
