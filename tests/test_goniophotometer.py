@@ -61,7 +61,10 @@ def test_equal_psa_gives_equal_relative_error_unlike_equal_angle():
     # equal angles put tiny PSA at the pole ring (relative error much larger there).
     _, psa = _lambert_record(10**6, 4, "equal-psa:9x36")
     _, ang = _lambert_record(10**6, 4, "equal-angle:9x36")
-    rel = lambda t: (t["std"] / t["value"]).to_numpy()
+
+    def rel(t):
+        return (t["std"] / t["value"]).to_numpy()
+
     up_psa, up_ang = psa.reflection().table, ang.reflection().table
     assert np.ptp(up_psa.psa) < 1e-15
     # equal angles, 10 deg rings: PSA(40-50 deg) / PSA(0-10 deg) = 0.1736 / 0.0302 = 5.75, so the

@@ -31,7 +31,7 @@ from bench.core.errors import (  # noqa: E402
     ProtocolError,
     TransportMismatchError,
 )
-from bench.core.records import Reading
+from bench.core.records import Reading  # noqa: E402
 from bench.core.roles import Spectrometer  # noqa: E402
 from bench.core.conformance import check_conformance  # noqa: E402
 from drivers.ocean import (  # noqa: E402
@@ -47,9 +47,9 @@ from drivers.transport import (  # noqa: E402
     SerialTransport,
     load_fixture,
 )
-from virtual.wire.ocean_spectrometer import SpectrometerEmulator
-from virtual.wire.ocean_codec import compress
-from virtual.wire.ocean_model import cosine_response, file_geometry_source
+from virtual.wire.ocean_codec import compress  # noqa: E402
+from virtual.wire.ocean_model import cosine_response, file_geometry_source  # noqa: E402
+from virtual.wire.ocean_spectrometer import SpectrometerEmulator  # noqa: E402
 
 FIX = ROOT / "fixtures" / "ocean"
 ACK, NAK, STX, ETX = b"\x06", b"\x15", b"\x02", b"\x03"

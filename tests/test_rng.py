@@ -17,7 +17,11 @@ def _reference_xoshiro256plus(state, n):
     for _ in range(n):
         r = (s[0] + s[3]) & MASK
         t = (s[1] << 17) & MASK
-        s[2] ^= s[0]; s[3] ^= s[1]; s[1] ^= s[2]; s[0] ^= s[3]; s[2] ^= t
+        s[2] ^= s[0]
+        s[3] ^= s[1]
+        s[1] ^= s[2]
+        s[0] ^= s[3]
+        s[2] ^= t
         s[3] = ((s[3] << 45) | (s[3] >> 19)) & MASK
         out.append(r)
     return out

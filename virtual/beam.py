@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.core.errors import GeometryError, InputError
-from virtual.kernels.beam import (BEAM_COLLIMATED, BEAM_CONICAL, DISK_AUTO, DISK_POLAR, DISK_REJECTION, emit,  # noqa: F401
+from virtual.kernels.beam import (BEAM_COLLIMATED, BEAM_CONICAL, DISK_AUTO, DISK_POLAR, DISK_REJECTION, emit,
                                   emit_given)
 
 __all__ = ["Beam", "BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "emit",

@@ -393,7 +393,7 @@ def float32_lanes() -> int:
         from llvmlite import binding
 
         features = binding.get_host_cpu_features()
-    except Exception:  # noqa: BLE001 -- an unknown CPU: the narrowest vector
+    except Exception:  # an unknown CPU: the narrowest vector
         return 4
     return 16 if features.get("avx512f") else (8 if features.get("avx") else 4)
 

@@ -290,7 +290,7 @@ def _warm_workers(client: Any, instrument: str) -> None:
         except ModuleNotFoundError as exc:
             raise SimulationError(f"Dask worker {a} cannot import {exc.name!r}: install goniobench (the same "
                                   f"version) in every worker's environment") from None
-        except Exception as exc:  # noqa: BLE001 - a worker lost during warm-up: its tasks go elsewhere
+        except Exception as exc:  # a worker lost during warm-up: its tasks go elsewhere
             log.warning("warm-up on worker %s failed: %s: %s", a, type(exc).__name__, exc)
         finally:
             f.release()

@@ -58,7 +58,7 @@ __all__ = ["jit", "FASTMATH", "KernelSourceLocator", "kernel_dependencies", "dep
 MARK = "__goniobench_kernel__"
 KERNELS_DIR = Path(__file__).resolve().parent
 
-_CacheImpl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
+_CacheImpl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
 
 
 #: The fastmath flags every kernel is compiled with: those that cannot change a finite result

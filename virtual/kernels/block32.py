@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 
 from virtual.kernels import jit
-from virtual.kernels.beam import beam_tuple
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
 from virtual.kernels.f32 import ZERO, emit_given32, emit_side32, guess_bin32
 from virtual.kernels.given import GIVEN4_UNIFORMS, plastic_diffuse_redo

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from virtual.kernels import jit
-from virtual.kernels.beam import BEAM_CONICAL, beam_tuple, emit_given
+from virtual.kernels.beam import BEAM_CONICAL, emit_given
 from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
 from virtual.kernels.rng import LANES, fill_uniforms
 from virtual.kernels.microfacet import fresnel_conductor_ratio

@@ -20,7 +20,6 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
-from virtual.kernels.beam import beam_tuple
 from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32
 from virtual.kernels.collector import patch_of
 from virtual.kernels.f32 import (ONE, emit_given32, emit_side32, fresnel_conductor_ratio32, sincos_2pi32,
