@@ -33,13 +33,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
 from bench.core.errors import InputError, SimulationError
 from virtual.collector import Collector
-from virtual.cubature import adaptive_rectangle
+from virtual.cubature import adaptive_rectangle, gauss_rule
 from virtual.specimens import Specimen
 
 __all__ = ["PatchIntegrals", "integrate_patches",
@@ -97,16 +96,6 @@ class PatchIntegrals:
         return max(self.error, abs(self.albedo - self.reference) + self.reference_error)
 
 
-@lru_cache(maxsize=16)
-def _rule(order: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Tensor Gauss-Legendre nodes on [0,1]^2 (u, v) and weights."""
-    x, w = np.polynomial.legendre.leggauss(order)
-    x = 0.5 * (x + 1.0)
-    w = 0.5 * w
-    u, v = np.meshgrid(x, x, indexing="ij")
-    return u.ravel(), v.ravel(), np.outer(w, w).ravel()
-
-
 def _cell_integrals(specimen: Specimen, wi: np.ndarray, wl: float, cells: np.ndarray,
                     order: int, chunk: int = 20_000) -> np.ndarray:
     """In chunks of ``chunk`` cells (bounded memory): see :func:`_cell_integrals_once`."""
@@ -120,7 +109,7 @@ def _cell_integrals_once(specimen: Specimen, wi: np.ndarray, wl: float, cells: n
                          order: int) -> np.ndarray:
     """Gauss-Legendre estimate of int f |cos| d omega over each cell (t0, t1, p0, p1) (radians,
     theta measured from the pole of the cell's own hemisphere; column 4 is +1 above, -1 below)."""
-    u, v, w = _rule(order)
+    u, v, w = gauss_rule(order)
     t0, t1, p0, p1, side = (cells[:, i:i + 1] for i in range(5))
     t = t0 + (t1 - t0) * u
     ph = p0 + (p1 - p0) * v
