@@ -65,8 +65,8 @@ from typing import Any, Mapping, Sequence
 
 from bench.core.errors import DeviceError
 
-from virtual.wire.dxl_bus import DynamixelBus, _write_all
-from virtual.wire.pty import EmulatorProcess, open_pty
+from virtual.wire.dxl_bus import DynamixelBus
+from virtual.wire.pty import EmulatorProcess, open_pty, write_all
 
 
 __all__ = ["BusControl", "start_bus", "serve", "main"]
@@ -117,7 +117,7 @@ def serve(bus: DynamixelBus, master_fd: int, server: socket.socket,
                                 max(0.0, min(0.5, due - time.monotonic())))
         late = bus.take_due()
         if late:
-            _write_all(master_fd, late)
+            write_all(master_fd, late)
         for s in r:
             if s == master_fd:
                 try:
@@ -131,7 +131,7 @@ def serve(bus: DynamixelBus, master_fd: int, server: socket.socket,
                 if reply:
                     if bus.faults.delay_s:
                         time.sleep(bus.faults.delay_s)
-                    _write_all(master_fd, reply)
+                    write_all(master_fd, reply)
             elif s is server:
                 conn, _ = server.accept()
                 clients[conn] = bytearray()

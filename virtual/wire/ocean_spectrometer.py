@@ -46,7 +46,7 @@ from virtual.wire.ocean_device import _Device, _Faults
 from virtual.wire.ocean_model import (
     SpectrometerConfig, SpectrometerModel,
 )
-from virtual.wire.pty import PipeEmulator, open_raw_pty
+from virtual.wire.pty import PipeEmulator, open_raw_pty, write_all
 
 
 log = logging.getLogger(__name__)
@@ -68,15 +68,10 @@ def _child_main(cfg: dict[str, Any], geometry_source: Any, response: Any, conn: 
         raise
 
     def write(data: bytes) -> None:
-        view = memoryview(data)
-        while view:
-            try:
-                n = os.write(master, view)
-                view = view[n:]
-            except BlockingIOError:
-                select.select([], [master], [], 0.05)
-            except OSError:
-                return
+        try:
+            write_all(master, data)
+        except OSError:  # the host closed its end: the reply has nowhere to go
+            return
 
     os.set_blocking(master, False)
     dev = _Device(model, write)
