@@ -16,27 +16,14 @@ from dynamixel_sdk import COMM_SUCCESS, GroupBulkRead, GroupSyncRead, PacketHand
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.core.errors import (
-    ChecksumError,
-    ConfigError,
-    DeviceTimeoutError,
-    FaultLatchedError,
-    GeometryError,
-    HardwareError,
-    PortGoneError,
-    ProtocolError,
-)
+from bench.core.errors import (ChecksumError, ConfigError, DeviceTimeoutError, FaultLatchedError,
+                               GeometryError, HardwareError, PortGoneError, ProtocolError)
 from bench.core.geometry import Geometry
 from bench.core.conformance import angular_distance_deg, check_conformance
 from drivers.dynamixel import ArmConfig, AxisConfig, DynamixelArm, decode_hardware_error
 from drivers.kinematics import JOINTS
-from drivers.transport import (
-    RecordingTransport,
-    ScriptedTransport,
-    SerialTransport,
-    TransportPortHandler,
-    load_fixture,
-)
+from drivers.transport import (RecordingTransport, ScriptedTransport, SerialTransport, TransportPortHandler,
+                               load_fixture)
 from virtual.wire.dynamixel_bus import BusControl, start_bus
 from virtual.wire.dxl_bus import BusTransport, DynamixelBus
 from virtual.wire.dxl_codec import (PacketError, PacketParser, crc16, decode_packet, encode_instruction,

@@ -21,32 +21,14 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # for `python tests/test_ocean.py --record`
     sys.path.insert(0, str(ROOT))
 
-from bench.core.errors import (  # noqa: E402
-    CalibrationError,
-    ChecksumError,
-    ConfigError,
-    DeviceTimeoutError,
-    InputError,
-    PortGoneError,
-    ProtocolError,
-    TransportMismatchError,
-)
+from bench.core.errors import (CalibrationError, ChecksumError, ConfigError, DeviceTimeoutError, InputError,  # noqa: E402
+                               PortGoneError, ProtocolError, TransportMismatchError)
 from bench.core.records import Reading  # noqa: E402
 from bench.core.roles import Spectrometer  # noqa: E402
 from bench.core.conformance import check_conformance  # noqa: E402
-from drivers.ocean import (  # noqa: E402
-    OceanSpectrometer,
-    decode_compressed,
-    nonlinearity_factor,
-    validate_nonlinearity,
-    wavelength_polynomial,
-)
-from drivers.transport import (  # noqa: E402
-    RecordingTransport,
-    ScriptedTransport,
-    SerialTransport,
-    load_fixture,
-)
+from drivers.ocean import (OceanSpectrometer, decode_compressed, nonlinearity_factor, validate_nonlinearity,  # noqa: E402
+                           wavelength_polynomial)
+from drivers.transport import RecordingTransport, ScriptedTransport, SerialTransport, load_fixture  # noqa: E402
 from virtual.wire.ocean_codec import compress  # noqa: E402
 from virtual.wire.ocean_model import cosine_response, file_geometry_source  # noqa: E402
 from virtual.wire.ocean_spectrometer import SpectrometerEmulator  # noqa: E402

@@ -5,11 +5,12 @@ Modbus exception names, and :class:`AxisConfig` (mechanics, motion, communicatio
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, Mapping, Protocol, runtime_checkable
 
 from bench.core.errors import ConfigError
 from bench.core.roles import InstrumentInfo
+from drivers.settings import settings_from_mapping
 
 MODBUS_EXCEPTIONS = {
     1: "ILLEGAL FUNCTION", 2: "ILLEGAL DATA ADDRESS", 3: "ILLEGAL DATA VALUE",
@@ -143,15 +144,7 @@ class AxisConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "AxisConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"stage axis config: unknown key(s) {', '.join(unknown)}; "
-                              f"known: {', '.join(sorted(known))}")
-        kw = dict(d)
-        if "limits" in kw:
-            kw["limits"] = tuple(float(x) for x in kw["limits"])
-        return cls(**kw)
+        return settings_from_mapping(cls, d, "stage axis config", tuples={"limits": float})
 
     @property
     def steps_per_unit(self) -> float:

@@ -5,10 +5,11 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
 from bench.core.errors import ConfigError
+from drivers.settings import settings_from_mapping
 
 #: Per-model defaults: pixel count and the half-open index range of optically masked pixels
 #: (electrical dark). Values as python-seabreeze uses them; confirm against the unit in hand.
@@ -120,13 +121,5 @@ class OceanConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "OceanConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"spectrometer config: unknown key(s) {', '.join(unknown)}; "
-                              f"known: {', '.join(sorted(known))}")
-        kw = dict(d)
-        for k in ("dark_pixels", "nonlinearity_bounds", "wavelength_limits_nm"):
-            if k in kw and kw[k] is not None:
-                kw[k] = tuple(kw[k])
-        return cls(**kw)
+        return settings_from_mapping(cls, d, "spectrometer config",
+                                     tuples=dict.fromkeys(("dark_pixels", "nonlinearity_bounds", "wavelength_limits_nm")))
