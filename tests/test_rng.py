@@ -17,10 +17,8 @@ def _reference_xoshiro256plus(state, n):
     for _ in range(n):
         r = (s[0] + s[3]) & MASK
         t = (s[1] << 17) & MASK
-        s[2] ^= s[0]
-        s[3] ^= s[1]
-        s[1] ^= s[2]
-        s[0] ^= s[3]
+        s[2], s[3] = s[2] ^ s[0], s[3] ^ s[1]
+        s[1], s[0] = s[1] ^ s[2], s[0] ^ s[3]  # with the new s[2], s[3], as in the C source
         s[2] ^= t
         s[3] = ((s[3] << 45) | (s[3] >> 19)) & MASK
         out.append(r)

@@ -82,27 +82,27 @@ def check_output(path: str | Path, *, directory: bool = False, suffixes: Sequenc
     return p
 
 
-def output_file(suffixes: Sequence[str] | None = None) -> Callable[[str], str]:
-    """argparse type: a file path that can be written (see :func:`check_output`)."""
+def _output_type(name: str, **check: Any) -> Callable[[str], str]:
+    """argparse type: the text unchanged once :func:`check_output` (with ``check``) accepts it."""
 
     def parse(text: str) -> str:
         try:
-            check_output(text, suffixes=suffixes)
+            check_output(text, **check)
         except InputError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
         return text
 
-    parse.__name__ = "output file"
+    parse.__name__ = name
     return parse
 
 
-def output_dir(text: str) -> str:
-    """argparse type: a folder that can be created or written (see :func:`check_output`)."""
-    try:
-        check_output(text, directory=True)
-    except InputError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
+def output_file(suffixes: Sequence[str] | None = None) -> Callable[[str], str]:
+    """argparse type: a file path that can be written (see :func:`check_output`)."""
+    return _output_type("output file", suffixes=suffixes)
+
+
+#: argparse type: a folder that can be created or written (see :func:`check_output`)
+output_dir = _output_type("output folder", directory=True)
 
 
 _ANNOUNCED: list = []  # the command's open compile_progress context, if any
