@@ -87,7 +87,8 @@ class Beam:
         return math.degrees(math.atan2(self.emitter_radius_mm + self.specimen_radius_mm, self.distance_mm))
 
     def kernel_args(self, theta_i: float, phi_i: float) -> np.ndarray:
-        """Float vector the kernels read: rotation (9), r1, r2, D, axis (3)."""
+        """Float vector the kernels read: rotation (9), r1, r2, D, axis (3) (indices ``B_*`` of
+        :mod:`virtual.kernels.beam`)."""
         check_incidence(theta_i)
         rot = rotation_to(theta_i, phi_i)
         return np.concatenate([rot.ravel(), [self.emitter_radius_mm, self.specimen_radius_mm,

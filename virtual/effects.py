@@ -5,7 +5,8 @@ bare kernels of :mod:`virtual.engine` at their full speed. A scene that declares
 :func:`spectro_effect_counts` / :func:`gonio_effect_counts`, whose loop is the bare loop --
 :func:`~virtual.beam.emit`, :func:`~virtual.specimens.scatter`, :func:`~virtual.kernels.collector.patch_of`,
 reused, not copied -- plus one predictable branch per *declared* effect (an undeclared effect
-costs a bit test per ray and draws no random number). Effects handled per ray (bit flags):
+costs a bit test per ray and draws no random number). Effects handled per ray (bit flags; the
+parameter vector ``e`` is read through the named indices ``E_*`` of :mod:`virtual.kernels.effects`):
 
 ``FX_STRAY``       stray light: with probability ``e[0]`` a ray reaches the detector without
                    meeting the specimen (spectro: counted in the ``stray`` column; gonio: a
@@ -50,8 +51,9 @@ from bench.core.errors import InputError
 
 from virtual.engine import chunking
 from virtual.chunked import gonio_fx_kernel, spectro_fx_kernel, spectro_points_kernel
-from virtual.kernels.effects import (N_EFFECT_ARGS, FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE,
-                                     FX_STRAY)
+from virtual.kernels.beam import B_SPECIMEN_RADIUS
+from virtual.kernels.effects import (E_NEAR_DISTANCE, E_NEAR_RADIUS, E_PATTERN_PERIOD, E_SPOT_RADIUS, N_EFFECT_ARGS,
+                                     FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE, FX_STRAY)
 from virtual.rng import stream_states
 
 __all__ = [
@@ -66,7 +68,7 @@ def pinpoint_beam_args(beam_args: np.ndarray) -> np.ndarray:
     """Beam arguments whose specimen disk is a point (radius 1e-150): :func:`emit` then returns
     the unit vector toward the emitter point itself (its target is the origin to ~1e-150 mm)."""
     b = np.array(beam_args, dtype=np.float64, copy=True)
-    b[10] = 1e-150
+    b[B_SPECIMEN_RADIUS] = 1e-150
     return b
 
 
@@ -82,10 +84,11 @@ def _effect_vector(e: np.ndarray | None, flags: int) -> np.ndarray:
     out = np.zeros(N_EFFECT_ARGS)
     if e is not None:
         out[: len(e)] = np.asarray(e, dtype=np.float64)
-    out[5] = out[5] if out[5] > 0 else 1.0
-    if flags & FX_POSITIONS and not (math.isfinite(out[7]) and out[7] > 0):
-        raise InputError(f"effects that sample positions need a spot radius e[7] > 0, got {out[7]!r}")
-    if flags & FX_NEAR and not (out[8] > 0 and out[9] > 0):
+    out[E_PATTERN_PERIOD] = out[E_PATTERN_PERIOD] if out[E_PATTERN_PERIOD] > 0 else 1.0
+    spot = out[E_SPOT_RADIUS]
+    if flags & FX_POSITIONS and not (math.isfinite(spot) and spot > 0):
+        raise InputError(f"effects that sample positions need a spot radius e[7] > 0, got {spot!r}")
+    if flags & FX_NEAR and not (out[E_NEAR_DISTANCE] > 0 and out[E_NEAR_RADIUS] > 0):
         raise InputError("near-field detectors need a distance e[8] > 0 and a radius e[9] > 0")
     return out
 

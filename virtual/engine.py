@@ -40,7 +40,7 @@ import numpy as np
 from virtual.collector import guess_margins, guess_margins32
 from virtual.chunked import (ggx_spectral32_kernel, ggx_spectral_kernel, gonio_block32_kernel, gonio_block_kernel,
                              gonio_fx_kernel, lambert_spectral32_kernel, lambert_spectral_kernel, spectro_fx_kernel)
-from virtual.kernels.beam import BEAM_CONICAL
+from virtual.kernels.beam import B_AXIS_Z, BEAM_CONICAL
 from virtual.kernels.block32 import BLOCK32_MODELS
 from virtual.kernels.f32 import MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA
 from virtual.kernels.beam import DISK_REJECTION
@@ -345,7 +345,7 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
         missed += int(m)
     # each cell's fate per wavelength, judged at the cell's lower end (a value u0 takes in it)
     lower = np.concatenate([[0.0], thr])
-    source_above = b[14] > 0.0  # every hit ray comes from the axis' side (collimated: the axis)
+    source_above = b[B_AXIS_Z] > 0.0  # every hit ray comes from the axis' side (collimated: the axis)
     out = np.zeros((len(rows), n_bins + 2), dtype=np.int64)
     per_cell = cells.sum(axis=1)
     for w in range(len(rows)):

@@ -23,6 +23,7 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
+from virtual.kernels.beam import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS, B_SPECIMEN_RADIUS
 from virtual.kernels.collector import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
 
 __all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
@@ -100,9 +101,9 @@ def warp_cosine_hemisphere32(u1, u2):
 @jit(inline="always")
 def emit_given32(conical, b, u1, u2, u3, u4):
     """:func:`~virtual.kernels.beam.emit_given` in float32 (``b`` a tuple of float32)."""
-    x1, y1 = warp_polar32(u1, u2, b[9])
-    x2, y2 = warp_polar32(u3, u4, b[10])
-    d = b[11]
+    x1, y1 = warp_polar32(u1, u2, b[B_EMITTER_RADIUS])
+    x2, y2 = warp_polar32(u3, u4, b[B_SPECIMEN_RADIUS])
+    d = b[B_DISTANCE]
     ox = b[0] * x1 + b[1] * y1 + b[2] * d - x2
     oy = b[3] * x1 + b[4] * y1 + b[5] * d - y2
     oz = b[6] * x1 + b[7] * y1 + b[8] * d
@@ -110,8 +111,8 @@ def emit_given32(conical, b, u1, u2, u3, u4):
     wx = ox * inv
     wy = oy * inv
     wz = oz * inv
-    hit = wz * b[14] > ZERO
-    return (wx if conical else b[12]), (wy if conical else b[13]), (wz if conical else b[14]), (hit if conical else True)
+    hit = wz * b[B_AXIS_Z] > ZERO
+    return (wx if conical else b[B_AXIS_X]), (wy if conical else b[B_AXIS_Y]), (wz if conical else b[B_AXIS_Z]), (hit if conical else True)
 
 
 @jit(inline="always")
@@ -120,9 +121,9 @@ def emit_side32(conical, b, u1, u2):
     before normalization (the sign of its ``wz``: the normalization is by a positive factor) and
     whether the ray hits -- the same decisions, without the second disk point (z of the specimen
     point is 0), the square root and the division. u3, u4 are drawn all the same."""
-    x1, y1 = warp_polar32(u1, u2, b[9])
-    oz = b[6] * x1 + b[7] * y1 + b[8] * b[11]
-    return (oz if conical else b[14]), ((oz * b[14] > ZERO) if conical else True)
+    x1, y1 = warp_polar32(u1, u2, b[B_EMITTER_RADIUS])
+    oz = b[6] * x1 + b[7] * y1 + b[8] * b[B_DISTANCE]
+    return (oz if conical else b[B_AXIS_Z]), ((oz * b[B_AXIS_Z] > ZERO) if conical else True)
 
 
 @jit(inline="always")
