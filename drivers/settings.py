@@ -8,7 +8,7 @@ from typing import Any, Callable, Mapping, TypeVar
 
 from bench.core.errors import ConfigError
 
-__all__ = ["settings_from_mapping", "port_and_name"]
+__all__ = ["settings_from_mapping", "settings_with_overrides", "port_and_name"]
 
 T = TypeVar("T")
 
@@ -26,6 +26,20 @@ def settings_from_mapping(cls: type[T], d: Mapping[str, Any], what: str,
         if kw.get(key) is not None:
             kw[key] = tuple(kw[key]) if item is None else tuple(item(x) for x in kw[key])
     return cls(**kw)
+
+
+def settings_with_overrides(cls: Any, config: Any, overrides: Mapping[str, Any], what: str) -> Any:
+    """``config`` (an instance of the settings class ``cls``, a mapping or None) with the keyword
+    ``overrides`` a device constructor was given; an override ``cls`` does not declare is refused."""
+    base = config if isinstance(config, cls) else cls.from_dict(config or {})
+    if not overrides:
+        return base
+    merged = {f.name: getattr(base, f.name) for f in fields(cls)}
+    unknown = sorted(set(overrides) - set(merged))
+    if unknown:
+        raise ConfigError(f"{what}: unknown setting(s) {', '.join(unknown)}")
+    merged.update(overrides)
+    return cls.from_dict(merged)
 
 
 def port_and_name(cfg: Mapping[str, Any], what: str, default_name: str) -> tuple[str, str, dict[str, Any]]:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -18,7 +18,7 @@ from pymodbus.framer import FramerType
 from bench.core.errors import (ChecksumError, ConfigError, DeviceError, DeviceTimeoutError, FaultLatchedError,
                                GeometryError, HardwareError, InputError, PortGoneError, ProtocolError)
 from bench.core.roles import InstrumentBase, InstrumentInfo
-from drivers.settings import port_and_name
+from drivers.settings import port_and_name, settings_with_overrides
 from drivers.registers import RegisterMap, load_register_map
 from drivers.modbus.client import (
     TransportModbusClient, check_reply, port_open_hint, probe_serial_open,
@@ -77,14 +77,7 @@ class ModbusStageAxis(HomingMixin, InstrumentBase):
             overrides["limits"] = overrides.pop("limits_deg")
         if "speed_deg_s" in overrides:
             overrides["speed"] = overrides.pop("speed_deg_s")
-        base = config if isinstance(config, AxisConfig) else AxisConfig.from_dict(config or {})
-        if overrides:
-            merged = {f.name: getattr(base, f.name) for f in fields(AxisConfig)}
-            unknown = sorted(set(overrides) - set(merged))
-            if unknown:
-                raise ConfigError(f"stage axis: unknown setting(s) {', '.join(unknown)}")
-            merged.update(overrides)
-            base = AxisConfig.from_dict(merged)
+        base = settings_with_overrides(AxisConfig, config, overrides, "stage axis")
         self.config: AxisConfig = base
         self.rmap: RegisterMap = load_register_map(base.register_map)
         self.name = name

@@ -9,7 +9,6 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import fields
 from typing import Any, Mapping
 
 import numpy as np
@@ -17,12 +16,11 @@ import numpy as np
 from bench.core.errors import (
     CalibrationError,
     ChecksumError,
-    ConfigError,
     InputError,
     ProtocolError,
 )
 from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
-from drivers.settings import port_and_name
+from drivers.settings import port_and_name, settings_with_overrides
 from drivers.ocean.calibration import nonlinearity_factor, validate_nonlinearity, wavelength_polynomial
 from drivers.ocean.codec import (
     ETX, FULL_SCALE, NAK, STX, Frame, FrameLayoutError, NeedMore, decode_version, encode_ascii,
@@ -65,14 +63,7 @@ class OceanSpectrometer(InstrumentBase):
 
     def __init__(self, transport: Any, *, config: OceanConfig | Mapping[str, Any] | None = None,
                  name: str = "spectrometer", **overrides: Any) -> None:
-        base = config if isinstance(config, OceanConfig) else OceanConfig.from_dict(config or {})
-        if overrides:
-            merged = {f.name: getattr(base, f.name) for f in fields(OceanConfig)}
-            unknown = sorted(set(overrides) - set(merged))
-            if unknown:
-                raise ConfigError(f"spectrometer: unknown setting(s) {', '.join(unknown)}")
-            merged.update(overrides)
-            base = OceanConfig.from_dict(merged)
+        base = settings_with_overrides(OceanConfig, config, overrides, "spectrometer")
         self.config: OceanConfig = base.resolved()
         self.name = name
         if isinstance(transport, str):
