@@ -17,7 +17,7 @@ from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import gonio_kernel_for
 from virtual.kernels.f32 import MAX_PHONG_EXPONENT
-from virtual.kernels.given32 import phong_lobe_omc32
+from virtual.kernels.branchfree32 import phong_lobe_omc32
 from virtual.specimens import parse_specimen
 
 N = 400_000

@@ -4,7 +4,7 @@ import numpy as np
 from virtual.kernels import jit
 from scipy import stats
 
-from virtual.kernels.rng import LANES, fill_uniforms, next_double, next_uint64
+from virtual.kernels.xoshiro import LANES, fill_uniforms, next_double, next_uint64
 from virtual.rng import lane_states, stream_states
 
 MASK = (1 << 64) - 1

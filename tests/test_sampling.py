@@ -25,7 +25,7 @@ from scipy import stats
 
 from bench.core.errors import InputError
 from virtual.sampling import DISK_STRATEGIES, sample_disk, sample_triangle, uniforms
-from virtual.kernels.sampling import sincos_2pi
+from virtual.kernels.warps import sincos_2pi
 
 ALPHA = 1e-3
 N = 16384  # 2^14: a power of two keeps Sobol's balance properties; 256 per cell below

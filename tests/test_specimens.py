@@ -18,7 +18,7 @@ from scipy.stats import chi2 as chi2_dist
 from bench.core.errors import SpecimenError
 from bench.core.geometry import direction
 from virtual.collector import Collector
-from virtual.kernels.collector import patch_of
+from virtual.kernels.patch_lookup import patch_of
 from virtual.kernels import jit
 from virtual.quadrature import integrate_patches
 from virtual.rng import stream_states

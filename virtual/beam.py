@@ -1,4 +1,4 @@
-"""Incidence: collimated or conical beams (the kernel that emits a ray is :mod:`virtual.kernels.beam`;
+"""Incidence: collimated or conical beams (the kernel that emits a ray is :mod:`virtual.kernels.emit`;
 ``emit``, ``emit_given`` and the ``BEAM_*``/``DISK_*`` codes are re-exported here for older callers).
 
 Collimated (directional-hemispherical): every ray arrives from the same direction; positions on
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.core.errors import GeometryError, InputError
-from virtual.kernels.beam import (BEAM_COLLIMATED, BEAM_CONICAL, DISK_AUTO, DISK_POLAR, DISK_REJECTION, emit,
+from virtual.kernels.emit import (BEAM_COLLIMATED, BEAM_CONICAL, DISK_AUTO, DISK_POLAR, DISK_REJECTION, emit,
                                   emit_given)
 
 __all__ = ["Beam", "BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "emit",
@@ -88,7 +88,7 @@ class Beam:
 
     def kernel_args(self, theta_i: float, phi_i: float) -> np.ndarray:
         """Float vector the kernels read: rotation (9), r1, r2, D, axis (3) (indices ``B_*`` of
-        :mod:`virtual.kernels.beam`)."""
+        :mod:`virtual.kernels.emit`)."""
         check_incidence(theta_i)
         rot = rotation_to(theta_i, phi_i)
         return np.concatenate([rot.ravel(), [self.emitter_radius_mm, self.specimen_radius_mm,

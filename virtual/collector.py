@@ -40,7 +40,7 @@ Lookup rules (exact, never NaN, never out of range):
   (``(inf, 1, 1)`` is the direction (1, 0, 0)).
 
 Kernels use :func:`patch_of` inline; :meth:`Collector.kernel_args` gives its trailing arguments.
-The lookup kernels live in :mod:`virtual.kernels.collector` (``patch_of``, ``guess_bin``,
+The lookup kernels live in :mod:`virtual.kernels.patch_lookup` (``patch_of``, ``guess_bin``,
 ``ATAN_MAX_ERROR`` and the ``SCHEME_*`` codes are re-exported here for older callers).
 Note: kernels are compiled with ``nnan`` (:data:`virtual.kernels.FASTMATH`), which lets LLVM assume
 there are no NaNs and may drop the NaN rule above (the other rules do not depend on it).
@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 
 from bench.core.errors import InputError
-from virtual.kernels.collector import (ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA,
+from virtual.kernels.patch_lookup import (ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA,
                                        SCHEME_EQUAL_SOLID_ANGLE, index_many)
 from virtual.kernels.f32 import ATAN32_MAX_ERROR
 

@@ -1,12 +1,12 @@
-"""Effects: counting with a scene's declared effects (the kernels are :mod:`virtual.kernels.effects`).
+"""Effects: counting with a scene's declared effects (the kernels are :mod:`virtual.kernels.ray_loop`).
 
 A scene (:mod:`virtual.scene`) that declares no per-ray effect never comes here: it runs the
 bare kernels of :mod:`virtual.engine` at their full speed. A scene that declares some runs
 :func:`spectro_effect_counts` / :func:`gonio_effect_counts`, whose loop is the bare loop --
-:func:`~virtual.beam.emit`, :func:`~virtual.specimens.scatter`, :func:`~virtual.kernels.collector.patch_of`,
+:func:`~virtual.beam.emit`, :func:`~virtual.specimens.scatter`, :func:`~virtual.kernels.patch_lookup.patch_of`,
 reused, not copied -- plus one predictable branch per *declared* effect (an undeclared effect
 costs a bit test per ray and draws no random number). Effects handled per ray (bit flags; the
-parameter vector ``e`` is read through the named indices ``E_*`` of :mod:`virtual.kernels.effects`):
+parameter vector ``e`` is read through the named indices ``E_*`` of :mod:`virtual.kernels.ray_loop`):
 
 ``FX_STRAY``       stray light: with probability ``e[0]`` a ray reaches the detector without
                    meeting the specimen (spectro: counted in the ``stray`` column; gonio: a
@@ -51,8 +51,8 @@ from bench.core.errors import InputError
 
 from virtual.engine import chunking
 from virtual.chunked import gonio_fx_kernel, spectro_fx_kernel, spectro_points_kernel
-from virtual.kernels.beam import B_SPECIMEN_RADIUS
-from virtual.kernels.effects import (E_NEAR_DISTANCE, E_NEAR_RADIUS, E_PATTERN_PERIOD, E_SPOT_RADIUS, N_EFFECT_ARGS,
+from virtual.kernels.emit import B_SPECIMEN_RADIUS
+from virtual.kernels.ray_loop import (E_NEAR_DISTANCE, E_NEAR_RADIUS, E_PATTERN_PERIOD, E_SPOT_RADIUS, N_EFFECT_ARGS,
                                      FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE, FX_STRAY)
 from virtual.rng import stream_states
 
@@ -137,7 +137,7 @@ def spectro_point_counts(model: int, params: np.ndarray, beam_args: np.ndarray, 
     rotation to the incidence) to specimen points ``points[:, 2:]``: the jittered and Sobol
     strategies of the accuracy-versus-time study. Memory O(N) (the points); scattering draws
     from per-chunk xoshiro streams as in the bare kernel. The direction is
-    :func:`virtual.kernels.beam.toward_source`, the formula :func:`~virtual.kernels.beam.emit` uses
+    :func:`virtual.kernels.emit.toward_source`, the formula :func:`~virtual.kernels.emit.emit` uses
     (emit draws its own points).
     """
     pts = np.ascontiguousarray(points, dtype=np.float64)

@@ -1,5 +1,5 @@
 """The ray-counting engine: chunking, seeding and the choice of kernel (the kernels themselves are
-:mod:`virtual.kernels.engine`); int64 counts, one random stream per chunk.
+:mod:`virtual.kernels.block64`); int64 counts, one random stream per chunk.
 
 A measurement of ``N`` rays is split into a number of chunks that depends only on ``N``; chunk
 ``c`` draws from its own xoshiro stream(s), children of the measurement's ``SeedSequence``. Chunks
@@ -9,17 +9,17 @@ identical for a given seed whatever the thread count, and memory does not grow w
 
 Two kernel shapes:
 
-* ray by ray (``spectro_fx_kernel``, ``gonio_fx_kernel`` of :mod:`virtual.kernels.effects`, with
+* ray by ray (``spectro_fx_kernel``, ``gonio_fx_kernel`` of :mod:`virtual.kernels.ray_loop`, with
   no effect flag): each ray is emitted, scattered and counted before the next; any specimen, any
   disk sampling; a scene's per-ray effects (:mod:`virtual.effects`) set flags in the same kernels;
 * block (``gonio_block_kernel``), the goniophotometer's fast path: rays go through in blocks of
   :data:`BLOCK_RAYS`. The block's uniforms are drawn first, 64 xoshiro lanes side by side
-  (:func:`~virtual.kernels.rng.fill_uniforms`); then one branch-free loop emits (polar disks), scatters
-  (:func:`~virtual.specimens.scatter_given`) and bins (:func:`~virtual.kernels.collector.guess_bin`)
+  (:func:`~virtual.kernels.xoshiro.fill_uniforms`); then one branch-free loop emits (polar disks), scatters
+  (:func:`~virtual.specimens.scatter_given`) and bins (:func:`~virtual.kernels.patch_lookup.guess_bin`)
   every ray, which LLVM compiles to AVX-512/AVX2 code; then a short scalar loop adds the bins
   to the histogram, settling the rare uncertain bin with the exact
-  :func:`~virtual.kernels.collector.patch_of`. Only the surviving rays are binned (compacted first).
-  It serves the :data:`~virtual.kernels.engine.BLOCK_MODELS` (Lambertian, GGX, anisotropic GGX
+  :func:`~virtual.kernels.patch_lookup.patch_of`. Only the surviving rays are binned (compacted first).
+  It serves the :data:`~virtual.kernels.block64.BLOCK_MODELS` (Lambertian, GGX, anisotropic GGX
   with three uniforms per ray; Phong, Oren-Nayar, rough dielectric with four; the rough plastic
   with seven and one attempt of its diffuse rejection loop, the rare rejected ray finishing
   the loop on a scalar stream), 2-5x the ray-by-ray kernel's throughput.
@@ -40,12 +40,12 @@ import numpy as np
 from virtual.collector import guess_margins, guess_margins32
 from virtual.chunked import (ggx_spectral32_kernel, ggx_spectral_kernel, gonio_block32_kernel, gonio_block_kernel,
                              gonio_fx_kernel, lambert_spectral32_kernel, lambert_spectral_kernel, spectro_fx_kernel)
-from virtual.kernels.beam import B_AXIS_Z, BEAM_CONICAL
+from virtual.kernels.emit import B_AXIS_Z, BEAM_CONICAL
 from virtual.kernels.block32 import BLOCK32_MODELS
 from virtual.kernels.f32 import MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA
-from virtual.kernels.beam import DISK_REJECTION
-from virtual.kernels.effects import N_EFFECT_ARGS
-from virtual.kernels.engine import BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS  # noqa: F401
+from virtual.kernels.emit import DISK_REJECTION
+from virtual.kernels.ray_loop import N_EFFECT_ARGS
+from virtual.kernels.block64 import BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS  # noqa: F401
 from virtual.kernels.spectral32 import FRESNEL_CELLS, FRESNEL_SAMPLES, fresnel_bounds
 from virtual.kernels.scatter import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG,
                                      MODEL_PLASTIC)
@@ -409,7 +409,7 @@ def _padded_wavelengths(w: int) -> int:
 def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray, collector_args: tuple,
                   n_rays: int, seq: np.random.SeedSequence, f32: bool) -> np.ndarray:
     """:func:`gonio_counts_spectral` for GGX with one roughness (see there): the float64 batch
-    (:func:`~virtual.kernels.engine.ggx_spectral_kernel`) or, for specimens :func:`float32_suits`
+    (:func:`~virtual.kernels.block64.ggx_spectral_kernel`) or, for specimens :func:`float32_suits`
     at every wavelength, the float32 one (:func:`~virtual.kernels.spectral32.ggx_spectral32_kernel`,
     the law of ``gonio_counts``'s block32)."""
     n_theta, n_phi = int(collector_args[1]), int(collector_args[2])

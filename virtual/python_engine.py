@@ -27,7 +27,7 @@ import numpy as np
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import NO_CONE, SpectroTally, chunking
-from virtual.kernels.beam import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS, B_SPECIMEN_RADIUS
+from virtual.kernels.emit import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS, B_SPECIMEN_RADIUS
 from virtual.sampling import sample_disk
 
 __all__ = ["gonio_counts_python", "spectro_counts_python", "incidence"]

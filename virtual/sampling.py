@@ -2,7 +2,7 @@
 
 Two layers, one formula each:
 
-* scalar warps (kernels of :mod:`virtual.kernels.sampling`, re-exported here) that turn uniforms
+* scalar warps (kernels of :mod:`virtual.kernels.warps`, re-exported here) that turn uniforms
   in [0, 1) into points; the ray kernels call them inline, and
 * array samplers for analysis, plotting and tests, which draw the uniforms by a *strategy*
   (independent random, jittered/stratified, scrambled Sobol) and apply the same warps.
@@ -21,7 +21,7 @@ from typing import Literal
 import numpy as np
 
 from bench.core.errors import InputError
-from virtual.kernels.sampling import _warp_polar_array, _warp_triangle_array
+from virtual.kernels.warps import _warp_polar_array, _warp_triangle_array
 
 __all__ = ["DISK_STRATEGIES", "uniforms", "sample_disk", "sample_triangle"]
 

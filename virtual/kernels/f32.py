@@ -12,7 +12,7 @@ probability -- far below what any count of rays can detect, but not nothing. So 
 well-conditioned specimens take this path (GGX-like roughness >= :data:`MIN_ALPHA`, Phong
 exponents <= :data:`MAX_PHONG_EXPONENT`, the same lobe width, dielectric indices within
 :data:`MAX_ETA`); the bin of each computed direction is exact (a guess with margins, the float64
-:func:`~virtual.kernels.collector.patch_of` near an edge).
+:func:`~virtual.kernels.patch_lookup.patch_of` near an edge).
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
-from virtual.kernels.beam import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS, B_SPECIMEN_RADIUS
-from virtual.kernels.collector import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
+from virtual.kernels.emit import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS, B_SPECIMEN_RADIUS
+from virtual.kernels.patch_lookup import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
 
 __all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
            "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "emit_side32", "guess_bin32",
@@ -47,7 +47,7 @@ _HUGE2 = F(1e30)    # |v|^2 above: may overflow -> exact lookup
 MIN_ALPHA = 0.01
 #: Largest Phong exponent the float32 path takes: the lobe as narrow as GGX's at MIN_ALPHA (n = 2/alpha^2,
 #: width sqrt(2/(n+1)) = alpha). Its 1 - cos(alpha) is computed to a relative 3e-7 at any n
-#: (:func:`~virtual.kernels.given32.phong_lobe_omc32`), not as 1 - cos, which float32 cannot resolve.
+#: (:func:`~virtual.kernels.branchfree32.phong_lobe_omc32`), not as 1 - cos, which float32 cannot resolve.
 MAX_PHONG_EXPONENT = 2.0 / MIN_ALPHA ** 2
 #: Dielectric indices (rough dielectric, plastic coat) the float32 path takes: 1/MAX_ETA <= eta <= MAX_ETA,
 #: the specimens' declared range, where the Fresnel terms and the refracted direction stay well scaled.
@@ -67,7 +67,7 @@ ATAN32_MAX_ERROR = 4e-7
 @jit(inline="always")
 def sincos_2pi32(u):
     """``(cos 2 pi u, sin 2 pi u)`` in float32 for u in [0, 1): the float64
-    :func:`~virtual.kernels.sampling.sincos_2pi` with float32 polynomials (error < 2e-7)."""
+    :func:`~virtual.kernels.warps.sincos_2pi` with float32 polynomials (error < 2e-7)."""
     t = FOUR * u
     q = np.floor(t + HALF)
     x = (t - q) * HALF_PI
@@ -100,7 +100,7 @@ def warp_cosine_hemisphere32(u1, u2):
 
 @jit(inline="always")
 def emit_given32(conical, b, u1, u2, u3, u4):
-    """:func:`~virtual.kernels.beam.emit_given` in float32 (``b`` a tuple of float32)."""
+    """:func:`~virtual.kernels.emit.emit_given` in float32 (``b`` a tuple of float32)."""
     x1, y1 = warp_polar32(u1, u2, b[B_EMITTER_RADIUS])
     x2, y2 = warp_polar32(u3, u4, b[B_SPECIMEN_RADIUS])
     d = b[B_DISTANCE]
@@ -144,7 +144,7 @@ def _phi32(x, y):
 
 @jit(inline="always")
 def guess_bin32(x, y, z, scheme_code, n_theta, n_phi, ring_margin, sector_margin):
-    """:func:`~virtual.kernels.collector.guess_bin` in float32: the bin of (x, y, z), or -1 when
+    """:func:`~virtual.kernels.patch_lookup.guess_bin` in float32: the bin of (x, y, z), or -1 when
     it lies within the margins (:func:`virtual.collector.guess_margins32`) of an edge, at the
     pole or with badly scaled squares -- then the float64 ``patch_of`` decides."""
     rho2 = x * x + y * y

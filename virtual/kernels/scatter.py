@@ -24,8 +24,8 @@ from virtual.kernels import jit
 from virtual.kernels.microfacet import (disk_direction, fresnel_conductor_ratio, fresnel_dielectric, frame,
                                         g2_over_g1, g2_over_g1_masked, g2_over_g1_masked_ratio, ggx_n, ggx_vndf, ggx_vndf_given,
                                         unit_disk)
-from virtual.kernels.rng import next_double
-from virtual.kernels.sampling import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
+from virtual.kernels.xoshiro import next_double
+from virtual.kernels.warps import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
 # Model ids: one branch each in `scatter`; they live in a numba-free module (specimens declare them).
 from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_LEAF,
                                MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON)
@@ -35,7 +35,7 @@ __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MOD
            "scatter", "scatter_given", "ggx_given_parts"]
 
 #: Models with a branch-free form taking their uniforms as arguments (:func:`scatter_given`):
-#: the vectorized block kernel of :mod:`virtual.kernels.engine` runs them.
+#: the vectorized block kernel of :mod:`virtual.kernels.block64` runs them.
 GIVEN_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX)
 #: Uniforms :func:`scatter_given` consumes per ray.
 GIVEN_UNIFORMS = 3
@@ -331,7 +331,7 @@ def scatter_given(model, p, wx, wy, wz, u0, u1, u2):
     drawn, and no branch: the same distribution of ``(ox, oy, oz, alive)``.
 
     u0 decides survival (and reflection against transmission); (u1, u2) is a polar disk point
-    (:func:`~virtual.kernels.sampling.warp_polar`): the Lambertian's cosine-weighted direction
+    (:func:`~virtual.kernels.warps.warp_polar`): the Lambertian's cosine-weighted direction
     (Malley), GGX's visible-normal cap point. Callers only read the direction when ``alive``.
     """
     if model == MODEL_LAMBERT:

@@ -4,7 +4,7 @@ at once on float32 vectors (as many lanes as the machine's hold), like :mod:`vir
 * Lambertian (:func:`lambert_spectral32_chunk`): each hit ray's cosine-distributed direction
   is drawn and binned once; its survival uniform u0 is located among the sorted float32
   thresholds (every wavelength's R and R + T, rounded as the single-wavelength
-  :func:`~virtual.kernels.given32.lambert_given32` rounds them) -- counts by (cell of u0, patch).
+  :func:`~virtual.kernels.branchfree32.lambert_given32` rounds them) -- counts by (cell of u0, patch).
 * GGX (:func:`ggx_spectral32_chunk`): the direction, the microfacet cosine c and the masking
   ratio g_num / g_den are drawn once; wavelength w survives when u g_den < F_w(c) g_num. F_w is
   bracketed by a table of rigorous bounds over cells of c (:func:`fresnel_bounds`), laid out
@@ -21,12 +21,12 @@ from numba import int32
 
 from virtual.kernels import jit
 from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32
-from virtual.kernels.collector import patch_of
+from virtual.kernels.patch_lookup import patch_of
 from virtual.kernels.f32 import (ONE, emit_given32, emit_side32, fresnel_conductor_ratio32, sincos_2pi32,
                                  warp_cosine_hemisphere32)
-from virtual.kernels.given32 import ggx_given_parts32
+from virtual.kernels.branchfree32 import ggx_given_parts32
 from virtual.kernels.microfacet import fresnel_conductor_ratio
-from virtual.kernels.rng import LANES, fill_uniforms32
+from virtual.kernels.xoshiro import LANES, fill_uniforms32
 
 __all__ = ["FRESNEL_CELLS", "fresnel_bounds", "lambert_spectral32_chunk", "ggx_spectral32_chunk"]
 

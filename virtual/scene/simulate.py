@@ -21,7 +21,7 @@ from virtual import engine
 from virtual.beam import Beam, check_incidence
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.collector import Collector
-from virtual.kernels.effects import (E_DETECTOR_PORT, E_NEAR_DISTANCE, E_NEAR_RADIUS, E_PATTERN_CONTRAST, E_PATTERN_PERIOD,
+from virtual.kernels.ray_loop import (E_DETECTOR_PORT, E_NEAR_DISTANCE, E_NEAR_RADIUS, E_PATTERN_CONTRAST, E_PATTERN_PERIOD,
                                      E_PORT_FRACTION, E_SPECIMEN_PORT, E_SPOT_RADIUS, E_STRAY_FRACTION, E_WALL_REFLECTANCE,
                                      N_EFFECT_ARGS)
 from virtual.engine import NO_CONE, measurement_seed, multinomial_counts

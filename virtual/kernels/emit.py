@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.rng import next_double
-from virtual.kernels.sampling import warp_polar, warp_square
+from virtual.kernels.xoshiro import next_double
+from virtual.kernels.warps import warp_polar, warp_square
 
 __all__ = ["beam_tuple", "BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "emit",
            "emit_given", "toward_source", "B_EMITTER_RADIUS", "B_SPECIMEN_RADIUS",

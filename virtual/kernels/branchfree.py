@@ -16,8 +16,8 @@ import math
 from virtual.kernels import jit
 from virtual.kernels.microfacet import (fresnel_dielectric, g2_over_g1_masked_ratio, g2_over_g1_ratio, ggx_n,
                                         ggx_vndf_given, unit_disk)
-from virtual.kernels.rng import next_double
-from virtual.kernels.sampling import sincos_2pi, warp_cosine_hemisphere
+from virtual.kernels.xoshiro import next_double
+from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.scatter import MODEL_DIELECTRIC, MODEL_OREN_NAYAR, MODEL_PHONG, frame
 
 __all__ = ["GIVEN4_MODELS", "GIVEN4_UNIFORMS", "scatter_given4", "PLASTIC_UNIFORMS", "plastic_given",

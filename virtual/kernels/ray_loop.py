@@ -1,8 +1,8 @@
 """The ray-by-ray counting kernels, with a scene's per-ray effects (bit flags, see
 :mod:`virtual.effects` for what each effect does; with none set they are the bare kernels, which
 :func:`virtual.engine.spectro_counts` and the ``ray`` shape of :func:`virtual.engine.gonio_counts`
-run), and the spectrophotometer fed with given disk points. They reuse :func:`~virtual.kernels.beam.emit`,
-:func:`~virtual.kernels.scatter.scatter` and :func:`~virtual.kernels.collector.patch_of`.
+run), and the spectrophotometer fed with given disk points. They reuse :func:`~virtual.kernels.emit.emit`,
+:func:`~virtual.kernels.scatter.scatter` and :func:`~virtual.kernels.patch_lookup.patch_of`.
 """
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ import math
 import numpy as np
 
 from virtual.kernels import jit
-from virtual.kernels.beam import (B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_SPECIMEN_RADIUS, BEAM_COLLIMATED, emit,
+from virtual.kernels.emit import (B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_SPECIMEN_RADIUS, BEAM_COLLIMATED, emit,
                                   toward_source)
-from virtual.kernels.collector import patch_of
-from virtual.kernels.rng import next_double
-from virtual.kernels.sampling import sample_cosine_hemisphere, warp_square
+from virtual.kernels.patch_lookup import patch_of
+from virtual.kernels.xoshiro import next_double
+from virtual.kernels.warps import sample_cosine_hemisphere, warp_square
 from virtual.kernels.scatter import scatter
 
 __all__ = ["N_EFFECT_ARGS", "E_STRAY_FRACTION", "E_WALL_REFLECTANCE", "E_DETECTOR_PORT", "E_SPECIMEN_PORT",
