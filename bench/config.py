@@ -41,7 +41,7 @@ from bench.core.schemas import BENCH_KINDS, BenchFile, validate_document
 from bench.core.roles import Goniometer, LightSource, Reading, Spectrometer
 from bench.plans import MotionProfile
 
-__all__ = ["Bench", "load_bench", "read_toml", "BUILDERS"]
+__all__ = ["Bench", "load_bench", "BUILDERS"]
 
 #: kind -> "module:function" building a Bench from (config dict, seed): one builder module per
 #: kind the bench schema declares (bench.builders.KIND:build_KIND_bench)

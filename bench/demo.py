@@ -174,7 +174,7 @@ def _compare_demo(out: Path, runs: dict[str, Any], seed: int = 20261122) -> tupl
                            for n in summary["candidates"]}}, lines
 
 
-# --- leaves (issue 19) ----------------------------------------------------------------------
+# --- leaves ---------------------------------------------------------------------------------
 
 LEAF = "leaf:healthy"
 

@@ -192,10 +192,8 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
                 on_point(k, idx)
     except KeyboardInterrupt:
         store.set_status(run_id, "interrupted", "interrupted by the user (Ctrl-C)")
-        err = RunInterrupted(f"run {run_id} interrupted by the user after {k} of {len(order)} points; "
-                             f"finish it with: bench resume {run_id}")
-        err.by_user = True  # type: ignore[attr-defined]  # the CLI exits 130 for Ctrl-C
-        raise err from None
+        raise RunInterrupted.by_the_user(f"run {run_id} interrupted by the user after {k} of {len(order)} points; "
+                                         f"finish it with: bench resume {run_id}") from None
     except DeviceError as exc:
         _safe_stop(bench)
         store.set_status(run_id, "interrupted", f"{type(exc).__name__}: {exc}")

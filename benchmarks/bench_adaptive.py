@@ -1,4 +1,4 @@
-"""Adaptive ray budgets against eq. 3.5 (issue 7): rays used by the adaptive stopping rule of the
+"""Adaptive ray budgets against eq. 3.5: rays used by the adaptive stopping rule of the
 CLI measurements (adaptive_measure) for several reflectances, same (v, delta) guarantee."""
 
 from __future__ import annotations

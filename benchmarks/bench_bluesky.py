@@ -1,4 +1,4 @@
-"""Overhead per point of the Bluesky path against ``bench scan`` (issue 17).
+"""Overhead per point of the Bluesky path against ``bench scan``.
 
 The same 200-point plan (one geometry visited again and again, 1 ms integration, so nothing moves
 and the emulated detector integrates 1 ms / time_scale) runs on the emulated bench three ways:
@@ -20,7 +20,8 @@ import time
 from pathlib import Path
 
 from benchmarks.common import table
-from bench.config import load_bench, read_toml
+from bench.config import load_bench
+from bench.core.parsing import read_toml
 from bench.plans import load_plan, plan_from_dict
 from bench.runner import run_scan
 from bench.store import RunStore

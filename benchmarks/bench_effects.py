@@ -1,5 +1,5 @@
-"""Scene effects: a scene with no effect against the bare kernel, and each declared effect's cost
-(issue 7). Ratios are measured in one run, interleaved, best of several."""
+"""Scene effects: a scene with no effect against the bare kernel, and each declared effect's cost.
+Ratios are measured in one run, interleaved, best of several."""
 
 from __future__ import annotations
 

@@ -44,9 +44,8 @@ from virtual.collector import Collector
 from virtual.engine import float32_suits, gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.kernels import jit
-from virtual.kernels.rng import fill_uniforms32
-from virtual.kernel_codes import LANES
-from virtual.kernels.rng import fill_uniforms, next_double
+from virtual.kernels.xoshiro import fill_uniforms32
+from virtual.kernels.xoshiro import LANES, fill_uniforms, next_double
 from virtual.rng import lane_states, lane_states32, stream_states
 from virtual.specimens import parse_specimen
 

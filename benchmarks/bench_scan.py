@@ -1,4 +1,4 @@
-"""Per-point overhead of a scan beyond motion and integration (issues 4 and 5).
+"""Per-point overhead of a scan beyond motion and integration.
 
 The plan visits one geometry many times with a 1 ms integration, so nothing moves and the
 emulated detector integrates for 1 ms / time_scale: what remains per point is the overhead of
@@ -14,7 +14,8 @@ import time
 from pathlib import Path
 
 from benchmarks.common import table
-from bench.config import load_bench, read_toml
+from bench.config import load_bench
+from bench.core.parsing import read_toml
 from bench.plans import plan_from_dict
 from bench.runner import point_rows, run_scan
 from bench.store import RunStore

@@ -1,9 +1,8 @@
-"""Virtual spectrophotometer throughput against the random-number limit (issue 2)."""
+"""Virtual spectrophotometer throughput against the random-number limit."""
 
 from __future__ import annotations
 
 import math
-import time
 
 import numba
 import numpy as np

@@ -1,4 +1,4 @@
-"""Sweeps on Dask (issue 8): speed-up of a CPU-bound sweep from 1 to 2 local worker processes,
+"""Sweeps on Dask: speed-up of a CPU-bound sweep from 1 to 2 local worker processes,
 and the per-task overhead of the executors.
 
 Both cluster sizes run numba single-threaded per task (one task per worker thread), workers

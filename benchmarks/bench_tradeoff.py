@@ -1,4 +1,4 @@
-"""Accuracy versus time on the fixture scenes (issue 7): the `bench tradeoff` tables, with the
+"""Accuracy versus time on the fixture scenes: the `bench tradeoff` tables, with the
 Pareto-optimal configurations and the plots written next to the working directory."""
 
 from __future__ import annotations

@@ -42,7 +42,7 @@ def cpu_info() -> dict[str, Any]:
         from llvmlite import binding
 
         llvm_cpu = binding.get_host_cpu_name()
-    except Exception:  # noqa: BLE001 -- informative only
+    except Exception:  # informative only
         llvm_cpu = "unknown"
     return {"model": model, "vector_isa": isa, "fma": "fma" in flags, "llvm_cpu": llvm_cpu}
 

@@ -128,6 +128,15 @@ def _pair_z(f1: np.ndarray, s1: np.ndarray, f2: np.ndarray, s2: np.ndarray, u_re
         return np.where((u > 0) & ~both0, (f1 - f2) / np.where(u > 0, u, 1.0), np.nan)
 
 
+def _pairs_with_z(rows: list[dict[str, Any]], first: str, second: str, u_rel: float) -> pd.DataFrame:
+    """The pairs as a frame with the z-score of ``f_<first>`` against ``f_<second>``."""
+    ev = pd.DataFrame(rows)
+    if not ev.empty:
+        ev["z"] = _pair_z(*(ev[f"{q}_{side}"].to_numpy(float) for side in (first, second) for q in ("f", "std")),
+                          u_rel)
+    return ev
+
+
 def reciprocity(record: Any, *, angle_tol_deg: float = 1.0, alpha: float = 0.01, k_offend: float = 3.0,
                 instrument_uncertainty: float | None = None) -> CheckResult:
     """Helmholtz reciprocity between every pair of incidences (same wavelength, reflection).
@@ -162,10 +171,7 @@ def reciprocity(record: Any, *, angle_tol_deg: float = 1.0, alpha: float = 0.01,
                 rows.append({"wavelength_nm": w, "theta_1": i1[0], "phi_1": i1[1], "theta_2": i2[0], "phi_2": i2[1],
                              "f_12": r12.value, "std_12": r12["std"], "view_12": (r12.theta_r, r12.phi_r),
                              "f_21": r21.value, "std_21": r21["std"], "view_21": (r21.theta_r, r21.phi_r)})
-    ev = pd.DataFrame(rows)
-    if not ev.empty:
-        ev["z"] = _pair_z(ev.f_12.to_numpy(float), ev.std_12.to_numpy(float), ev.f_21.to_numpy(float),
-                          ev.std_21.to_numpy(float), u_rel)
+    ev = _pairs_with_z(rows, "12", "21", u_rel)
     return _pair_result("reciprocity", ev, alpha, k_offend, "reciprocal pairs",
                         "no reciprocal pairs (needs records at two or more incidences whose swapped "
                         "geometries are both present)")
@@ -269,10 +275,7 @@ def isotropy(record: Any, *, angle_tol_deg: float = 1.0, alpha: float = 0.01, k_
                              "phi_i_1": p, "phi_i_2": p, "theta_r": a.theta_r, "phi_r_1": a.phi_r,
                              "phi_r_2": b.phi_r, "f_1": a.value, "std_1": a["std"], "f_2": b.value,
                              "std_2": b["std"]})
-    ev = pd.DataFrame(rows)
-    if not ev.empty:
-        ev["z"] = _pair_z(ev.f_1.to_numpy(float), ev.std_1.to_numpy(float), ev.f_2.to_numpy(float),
-                          ev.std_2.to_numpy(float), u_rel)
+    ev = _pairs_with_z(rows, "1", "2", u_rel)
     return _pair_result("isotropy", ev, alpha, k_offend, "symmetric pairs",
                         "no symmetric pairs (needs patches mirrored about the plane of incidence, or the same "
                         "theta_i at several phi_i)")

@@ -55,12 +55,7 @@ def plot_spectrum(s: Spectrum, path: str | Path, title: str | None = None) -> Pa
     as_text = f" (measured as {measured})" if measured and str(measured) != str(s.geometry) else ""
     ax.set_title(title or f"{s.meta.get('specimen', '')} at {s.geometry}{as_text}, N = {n_text} rays/wavelength",
                  fontsize=10)
-    fig.tight_layout()
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(p)
-    plt.close(fig)
-    return p
+    return _save(fig, path)
 
 
 def plot_bsdf_polar(record, path: str | Path, wavelength_nm: float | None = None, title: str | None = None,
@@ -114,12 +109,7 @@ def plot_bsdf_polar(record, path: str | Path, wavelength_nm: float | None = None
     meta = record.meta
     fig.suptitle(title or f"{meta.get('specimen', '')}\ntheta_i = {ti:g} deg, {wavelength_nm:g} nm, "
                  f"{meta.get('rays', 0):,} rays ({meta.get('method', '')})", fontsize=10)
-    fig.tight_layout()
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(p)
-    plt.close(fig)
-    return p
+    return _save(fig, path)
 
 
 def plot_in_plane(curves, path: str | Path, title: str = "In-plane BRDF") -> Path:
@@ -137,12 +127,7 @@ def plot_in_plane(curves, path: str | Path, title: str = "In-plane BRDF") -> Pat
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
     ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(p)
-    plt.close(fig)
-    return p
+    return _save(fig, path)
 
 
 # --- report figures -------------------------------------------------------------------------
@@ -169,12 +154,14 @@ def figure_ids(kind: str, names: Sequence[str]) -> list[str]:
 _COLOURS = ["tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan"]
 
 
-def _save(fig: Any, path: Path) -> Path:
-    plt = pyplot()
+def _save(fig: Any, path: str | Path) -> Path:
+    """Lay out, write (creating the folder) and close ``fig``; the path written."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    fig.savefig(p)
+    pyplot().close(fig)
+    return p
 
 
 def _fig(fid: str, path: Path, alt: str, caption: str, group: str | None = None) -> dict[str, Any]:

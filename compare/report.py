@@ -37,12 +37,12 @@ from bench.core.roles import Spectrum
 
 from compare.align import AlignmentError, as_record, record_kind, record_meta, record_quantity
 from compare.checks import run_checks
-from compare.figures import figure_ids, report_figures, slug
+from compare.figures import report_figures, slug
 from compare.stats import (DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, Comparison, compare, nominal_fraction,
                            group_keys, rank)
 from compare.verdict import Criterion, group_verdicts, model_verdict
 
-__all__ = ["compare_records", "figure_ids", "slug"]
+__all__ = ["compare_records"]
 
 def _json_safe(o: Any) -> Any:
     """Strict JSON values for ``summary.json``: non-finite floats become null; numpy values and

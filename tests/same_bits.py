@@ -21,12 +21,12 @@ import numpy as np
 if __package__ in (None, ""):  # run as a script: the repository's packages first
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from virtual.beam import Beam  # noqa: E402
-from virtual.collector import Collector  # noqa: E402
-from virtual.effects import gonio_effect_counts  # noqa: E402
-from virtual.engine import gonio_counts, gonio_counts_spectral, measurement_seed, spectro_counts  # noqa: E402
-from virtual.goniophotometer import VirtualGoniophotometer  # noqa: E402
-from virtual.specimens import parse_specimen  # noqa: E402
+from virtual.beam import Beam
+from virtual.collector import Collector
+from virtual.effects import gonio_effect_counts
+from virtual.engine import gonio_counts, gonio_counts_spectral, measurement_seed, spectro_counts
+from virtual.goniophotometer import VirtualGoniophotometer
+from virtual.specimens import parse_specimen
 
 N_RAYS = 400_000
 COLLECTOR = Collector("equal-psa", 9, 36)

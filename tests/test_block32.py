@@ -1,4 +1,4 @@
-"""The float32 block kernel (issue 18): its generator against the published xoshiro128+, its bin
+"""The float32 block kernel: its generator against the published xoshiro128+, its bin
 guess against the exact float64 lookup, its counts against the float64 ray-by-ray kernel's, and
 the rule that sends a specimen to float32 only when float32 resolves it.
 
@@ -19,9 +19,9 @@ from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import float32_suits, gonio_kernel_for
 from virtual.kernels import jit
-from virtual.kernels.collector import patch_of
+from virtual.kernels.patch_lookup import patch_of
 from virtual.kernels.f32 import ATAN32_MAX_ERROR, _atan_first_quadrant32, guess_bin32
-from virtual.kernels.rng import fill_uniforms32
+from virtual.kernels.xoshiro import fill_uniforms32
 from virtual.rng import lane_states32
 from virtual.specimens import parse_specimen
 

@@ -1,4 +1,4 @@
-"""The float32 block kernel's Phong and Oren-Nayar (issue 18) count the same distribution as the
+"""The float32 block kernel's Phong and Oren-Nayar count the same distribution as the
 float64 ray-by-ray kernel, and the test can tell a slightly different specimen apart.
 
 Each comparison is a two-sample chi-square over the collector bins plus absorbed and missed
@@ -17,7 +17,7 @@ from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import gonio_kernel_for
 from virtual.kernels.f32 import MAX_PHONG_EXPONENT
-from virtual.kernels.given32 import phong_lobe_omc32
+from virtual.kernels.branchfree32 import phong_lobe_omc32
 from virtual.specimens import parse_specimen
 
 N = 400_000

@@ -1,4 +1,4 @@
-"""The float32 block kernel's rough dielectric and rough plastic (issue 18) count the same
+"""The float32 block kernel's rough dielectric and rough plastic count the same
 distribution as the float64 ray-by-ray kernel, the test can tell a slightly different specimen
 apart, and the plastic's float64 fallback stream keeps the counts independent of the thread count.
 

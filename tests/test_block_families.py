@@ -1,5 +1,5 @@
 """The block kernel's four-uniform families (Phong, Oren-Nayar, rough dielectric) and the rough
-plastic (seven uniforms and a rejection fallback; issue 18) count
+plastic (seven uniforms and a rejection fallback) count
 the same distribution as the ray-by-ray kernel, and the test can tell a slightly different
 specimen apart.
 

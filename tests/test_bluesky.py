@@ -1,4 +1,4 @@
-"""Every bench as Bluesky / ophyd-async devices (issue 17), on the virtual bench: protocols,
+"""Every bench as Bluesky / ophyd-async devices, on the virtual bench: protocols,
 standard plans, our plans, documents into our store, equivalence with ``bench scan``, refusals
 and faults. The emulated bench's tests are in test_bluesky_emulated.py.
 """
@@ -233,7 +233,7 @@ def test_bluesky_runs_are_listed_shown_and_exported_by_the_cli(RE, virtual, tmp_
     out = tmp_path / "r.csv"
     assert bench_cli(["export", rid, "--store", str(db), "--format", "csv", "--out", str(out)]) == 0
     capsys.readouterr()
-    assert len([l for l in out.read_text().splitlines() if l and not l.startswith("#")]) == 1 + 3 * 3
+    assert len([line for line in out.read_text().splitlines() if line and not line.startswith("#")]) == 1 + 3 * 3
 
 
 def test_a_faulting_goniometer_fails_the_run_with_its_message_and_is_stopped(RE, virtual, tmp_path):

@@ -1,4 +1,4 @@
-"""Issue 13's named regression cases: every bad input the tracker listed is refused with ONE line
+"""Named regression cases at the boundaries: every bad input named here is refused with ONE line
 and the exit status of the policy (2 bad input, 1 a run that failed on its own, 130 Ctrl-C, 70
 internal error with a saved traceback), readers never change a store, and a run whose process was
 killed is shown as gone and can be resumed."""

@@ -8,7 +8,7 @@ import pytest
 from bench.core.calibration import Calibration, WhiteStandard
 from bench.core.errors import CalibrationError
 from bench.core.geometry import Geometry
-from bench.core.roles import Reading
+from bench.core.records import Reading
 
 WL = np.array([450.0, 550.0, 650.0])
 

@@ -1,7 +1,6 @@
 """The CLI contract: outputs later checks rely on, JSON keys, exit status 2 for bad input."""
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path

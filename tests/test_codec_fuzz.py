@@ -1,4 +1,4 @@
-"""Reply-frame fuzz of the three driver codecs (issue 14): random and mutated reply frames are
+"""Reply-frame fuzz of the three driver codecs: random and mutated reply frames are
 fed to the pure decode functions the drivers use. Whatever the bytes, only project errors
 (:class:`bench.core.errors.BenchError` subclasses) come out (plus the Ocean parser's internal
 "need more bytes" signal, which the live reader turns into a timeout), and a frame is never
@@ -22,7 +22,7 @@ from bench.core.errors import BenchError
 from drivers.dynamixel.link import Request, decode_status
 from drivers.modbus.client import decode_rtu_reply
 from drivers.ocean.codec import NeedMore, decode_version, parse_ascii_frame, parse_binary_frame
-from virtual.wire.dynamixel_bus import decode_packet, encode_status
+from virtual.wire.dxl_codec import decode_packet, encode_status
 from virtual.wire.ocean_codec import compress
 
 FUZZ = settings(max_examples=300, deadline=None, derandomize=True,

@@ -11,9 +11,8 @@ from hypothesis import strategies as st
 from virtual.kernels import jit
 
 from bench.core.errors import InputError
+from virtual.kernels.patch_lookup import ATAN_MAX_ERROR, _approx_phi, guess_bin, patch_of
 from virtual.collector import SCHEMES, Collector, parse_collector
-from virtual.kernel_codes import ATAN_MAX_ERROR
-from virtual.kernels.collector import _approx_phi, guess_bin, patch_of
 
 
 # --- geometry -----------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ import pytest
 from scipy import stats as sps
 
 from bench.core.errors import InputError
-from bench.core.roles import Spectrum
+from bench.core.records import Spectrum
 from bench.core.records import BSDF_COLUMNS, BSDFRecord
 from compare.align import NoOverlapError, QuantityMismatchError, align
 from compare.checks import energy_conservation, isotropy, reciprocity

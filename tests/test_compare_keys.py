@@ -1,4 +1,4 @@
-"""Issue 15 acceptance: records carry their keys and the report decides.
+"""Records carry their keys and the report decides.
 
 * comparing a record with itself, or with a re-run under another seed, is judged consistent
   (verdict ``accept``) for scans, sweeps, spectra (CSV, spectro sweeps, spectral scans) and the

@@ -1,4 +1,4 @@
-"""Selectable conventions validated against Mitsuba 3's own ``eval`` (issue 16, item 3).
+"""Selectable conventions validated against Mitsuba 3's own ``eval``.
 
 ``masking=separable`` GGX conductor / dielectric and the ``roughplastic`` specimen are measured
 by counting rays (our samplers) and compared, by Pearson chi-square goodness of fit, with the
@@ -16,13 +16,13 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from scipy import stats  # noqa: E402
+from scipy import stats
 
-from bench.core.geometry import Geometry  # noqa: E402
-from virtual.goniophotometer import VirtualGoniophotometer  # noqa: E402
-from virtual.specimens.mitsuba import MitsubaSpecimen  # noqa: E402
-from virtual.quadrature import integrate_patches  # noqa: E402
-from virtual.specimens import parse_specimen  # noqa: E402
+from bench.core.geometry import Geometry
+from virtual.goniophotometer import VirtualGoniophotometer
+from virtual.specimens.mitsuba import MitsubaSpecimen
+from virtual.quadrature import integrate_patches
+from virtual.specimens import parse_specimen
 
 ALPHA = 1e-3
 RAYS = 400_000

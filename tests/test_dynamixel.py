@@ -16,41 +16,18 @@ from dynamixel_sdk import COMM_SUCCESS, GroupBulkRead, GroupSyncRead, PacketHand
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.core.errors import (
-    ChecksumError,
-    ConfigError,
-    DeviceTimeoutError,
-    FaultLatchedError,
-    GeometryError,
-    HardwareError,
-    PortGoneError,
-    ProtocolError,
-)
+from bench.core.errors import (ChecksumError, ConfigError, DeviceTimeoutError, FaultLatchedError,
+                               GeometryError, HardwareError, PortGoneError, ProtocolError)
 from bench.core.geometry import Geometry
 from bench.core.conformance import angular_distance_deg, check_conformance
 from drivers.dynamixel import ArmConfig, AxisConfig, DynamixelArm, decode_hardware_error
 from drivers.kinematics import JOINTS
-from drivers.transport import (
-    RecordingTransport,
-    ScriptedTransport,
-    SerialTransport,
-    TransportPortHandler,
-    load_fixture,
-)
-from virtual.wire.dynamixel_bus import (
-    BusControl,
-    BusTransport,
-    DynamixelBus,
-    PacketError,
-    PacketParser,
-    crc16,
-    decode_packet,
-    encode_instruction,
-    encode_status,
-    start_bus,
-    stuff,
-    unstuff,
-)
+from drivers.transport import (RecordingTransport, ScriptedTransport, SerialTransport, TransportPortHandler,
+                               load_fixture)
+from virtual.wire.dynamixel_bus import BusControl, start_bus
+from virtual.wire.dxl_bus import BusTransport, DynamixelBus
+from virtual.wire.dxl_codec import (PacketError, PacketParser, crc16, decode_packet, encode_instruction,
+                                    encode_status, stuff, unstuff)
 
 ROOT = Path(__file__).resolve().parents[1]
 SESSION_FIXTURE = ROOT / "fixtures" / "dynamixel" / "move_session.jsonl"
@@ -379,7 +356,7 @@ def test_hardware_error_at_connect(bus: DynamixelBus) -> None:
 
 
 def test_move_that_never_starts_is_reported_within_100_ms(bus: DynamixelBus) -> None:
-    """Issue 14 cause 2: a servo that takes its goal but never moves (torque silently off) is
+    """A servo that takes its goal but never moves (torque silently off) is
     reported by the start window (~100 ms), not after the whole settle timeout."""
     arm, _ = make_arm(bus, settle_timeout_s=20.0)
     bus.servos[3].table[64] = 0  # torque silently off: the axis will never arrive
@@ -628,7 +605,7 @@ def test_record_against_the_emulator_then_replay(emulator: Any, tmp_path: Path) 
 
 
 def test_thread_mode_pty() -> None:
-    from virtual.wire.dynamixel_bus import PtyBusThread
+    from virtual.wire.dxl_bus import PtyBusThread
 
     with PtyBusThread(DynamixelBus((1, 2, 3, 4), time_scale=20.0, axes=EMU_AXES)) as srv:
         arm = DynamixelArm(arm_config(srv.port))

@@ -1,6 +1,6 @@
-"""Request/reply discipline of the Dynamixel driver (issue 14, causes 1 and 2).
+"""Request/reply discipline of the Dynamixel driver: late or corrupt statuses, verified motion.
 
-Held to the manual's packet rules (``/work/shared/reference/dynamixel-x-series.md``), not to our
+Held to the manual's packet rules (ROBOTIS e-Manual, DYNAMIXEL Protocol 2.0), not to our
 emulator: a status answers one request (id, instruction 0x55, parameter length, the ids of a
 sync read); late statuses of an aborted SYNC_READ must never be taken for later answers; a
 Hardware Error Status is acted on only when two clean reads confirm it; a lost SYNC_WRITE
@@ -29,13 +29,8 @@ from bench.core.conformance import angular_distance_deg
 from drivers.dynamixel import DynamixelArm
 from drivers.dynamixel.link import DxlLink, Request, check_status, decode_status
 from drivers.transport import ScriptedTransport, TransportPortHandler
-from virtual.wire.dynamixel_bus import (
-    INST,
-    BusTransport,
-    DynamixelBus,
-    encode_instruction,
-    encode_status,
-)
+from virtual.wire.dxl_codec import INST, encode_instruction, encode_status
+from virtual.wire.dxl_bus import BusTransport, DynamixelBus
 
 AXES = {"turntable": {"id": 1, "limits": [-170, 170]}, "source": {"id": 2, "limits": [0, 85]},
         "detector_azimuth": {"id": 3, "zero_offset": 0, "limits": [0, 359.9]},
@@ -141,7 +136,7 @@ def test_sync_read_statuses_must_come_from_the_listed_ids_in_order() -> None:
 
 
 def test_late_replies_after_a_corrupt_sync_read_status_never_answer_later_requests() -> None:
-    """Issue 14 cause 1 reproduced: 20 % corrupt statuses, the rest of an aborted SYNC_READ
+    """A noisy bus reproduced: 20 % corrupt statuses, the rest of an aborted SYNC_READ
     arriving 3 ms late. Every call ends in success or a typed error, every reached geometry is
     right, no healthy servo is rebooted and no hardware error is invented."""
     bus = DynamixelBus((1, 2, 3, 4), time_scale=50.0, seed=3)
@@ -206,7 +201,7 @@ def test_confirmed_hardware_error_reads_twice_then_acts() -> None:
     arm.close()
 
 
-# --- verified motion (issue 14 cause 2) ------------------------------------------------------------
+# --- verified motion: a goal taken but never reached -----------------------------------------------
 
 
 def test_lost_sync_write_is_read_back_and_resent_once() -> None:

@@ -1,6 +1,5 @@
 """The same plan on the virtual and on the emulated bench (real drivers over emulators)."""
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +10,7 @@ from bench.config import load_bench
 from bench.builders.emulated import DEFAULT_EMULATED_CONFIG
 from bench.core.parsing import read_toml
 from bench.core.errors import PlanError, RunInterrupted
-from bench.plans import load_plan, plan_from_dict
+from bench.plans import plan_from_dict
 from bench.runner import resume_scan, run_scan
 from bench.store import RunStore
 

@@ -107,7 +107,7 @@ def test_export_run_from_the_store_and_dispatch_by_suffix(tmp_path, lambert):
 def test_astm_layout_and_round_trip_to_printed_precision(tmp_path, lambert):
     path = record_to_astm(lambert, tmp_path / "r.astm", digits=7)
     lines = path.read_text().splitlines()
-    head = {l.split(" ", 1)[0]: l.split(" ", 1)[1] for l in lines[:8]}
+    head = dict(line.split(" ", 1) for line in lines[:8])
     assert head["SAMPLE_NAME"] == '"lambert:reflectance=0.6,transmittance=0.2"'
     assert re.fullmatch(r"\d{4}-\d\d-\d\d", head["MEAS_DATE"])
     n_geo = len(lambert.table) // 2
@@ -115,7 +115,7 @@ def test_astm_layout_and_round_trip_to_printed_precision(tmp_path, lambert):
     assert lines[8] == "VARS theta_i,phi_i,theta_s,phi_s,450nm,550nm"
     first = [float(x) for x in lines[9].split(",")]
     assert first[0] == pytest.approx(math.radians(30.0), abs=1e-15)  # radians in the file
-    assert max(float(l.split(",")[2]) for l in lines[9:]) <= math.pi
+    assert max(float(line.split(",")[2]) for line in lines[9:]) <= math.pi
     back = read_astm(path).table
     key = ["theta_i", "phi_i", "theta_r", "phi_r", "wavelength_nm"]
     a = lambert.table.sort_values(key).reset_index(drop=True)
@@ -342,7 +342,7 @@ def test_zemax_reader_accepts_a_hand_written_file(tmp_path):
 def test_malformed_zemax_names_file_line_and_expectation(tmp_path, old, new, line, what):
     p = tmp_path / "bad.bsdf"
     p.write_text(ZEMAX_OK.replace(old, new, 1))
-    with pytest.raises(InputError, match=rf"bad\.bsdf:\d+: ") as e:
+    with pytest.raises(InputError, match=r"bad\.bsdf:\d+: ") as e:
         read_zemax(p)
     assert re.search(what, str(e.value)), str(e.value)
     assert f"bad.bsdf:{line}:" in str(e.value), str(e.value)
@@ -422,16 +422,8 @@ def test_zemax_from_in_plane_point_samples(tmp_path):
     assert back.meta["symmetry"] == "Asymmetrical" and len(back.table) > 0
 
 
-def test_old_paths_re_export_bench_io():
-    import bench.export
-    import bench.importers
-    import bench.io
-
-    assert bench.export.export_record is bench.io.export_record and bench.importers.read_record is bench.io.read_record
-
-
-# --- exports read by others (issue 15): parsers written here from the formats' descriptions ----
-# (/work/shared/reference/brdf-formats-and-conventions.md), not our importers
+# --- exports read by others: parsers written here from the formats' public descriptions (ASTM
+# E2387 CSV as libbsdf reads it; Zemax OpticStudio tabular BSDF), not our importers
 
 
 def _parse_astm(text):
@@ -453,7 +445,7 @@ def _parse_zemax(text):
     """Zemax tabular BSDF: keyword lines (``Key value`` or ``Key n`` + a line of n values), a blank
     line, ``Monochrome``, ``DataBegin``, per (rotation, incidence) ``TIS v`` and an azimuth x radial
     block, ``DataEnd``. Comment lines start with #."""
-    lines = [l for l in text.splitlines() if not l.startswith("#")]
+    lines = [line for line in text.splitlines() if not line.startswith("#")]
     head, lists, i = {}, {}, 0
     while lines[i].strip():
         key, value = lines[i].split(None, 1)
@@ -493,7 +485,7 @@ def test_every_export_is_readable_by_an_independent_parser_and_by_others(tmp_pat
     import csv as csv_module
 
     csv = record_to_csv(lambert, tmp_path / "r.csv")
-    body = [l for l in csv.read_text().splitlines() if not l.startswith("#")]
+    body = [line for line in csv.read_text().splitlines() if not line.startswith("#")]
     table = list(csv_module.DictReader(body))
     assert len(table) == len(lambert.table)
     assert [float(r["value"]) for r in table] == lambert.table.value.tolist()

@@ -1,4 +1,4 @@
-"""Property test (issue 16, item 2): for random valid specimens and incidences, the exact fast
+"""Property test: for random valid specimens and incidences, the exact fast
 path and ray counting are statistically indistinguishable, densities and samplers agreeing
 everywhere -- including the limits (Oren-Nayar sigma 0, alpha at both ends, eta -> 1, k large,
 Phong exponent 0), which are pinned as explicit examples.

@@ -1,4 +1,4 @@
-"""Fuzzing the boundaries (issue 13): Hypothesis generates malformed CLI argument vectors, plan
+"""Fuzzing the boundaries: Hypothesis generates malformed CLI argument vectors, plan
 files, bench configs, sweeps and run ids, runs ``bench`` in-process (``bench.cli.main``), and
 asserts the policy: exit 2 for bad input (1 only for a run that failed on its own), ONE line on
 stderr, never a traceback, never a hang (an alarm per case), and no store changed (hashed).
@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import io
-import math
 import signal
 import sqlite3
 import tomllib

@@ -1,4 +1,4 @@
-"""The virtual goniophotometer: issue 3's Lambertian acceptance, roles, records, fast path."""
+"""The virtual goniophotometer: a Lambertian in its binomial intervals, roles, records, fast path."""
 
 import math
 
@@ -61,7 +61,10 @@ def test_equal_psa_gives_equal_relative_error_unlike_equal_angle():
     # equal angles put tiny PSA at the pole ring (relative error much larger there).
     _, psa = _lambert_record(10**6, 4, "equal-psa:9x36")
     _, ang = _lambert_record(10**6, 4, "equal-angle:9x36")
-    rel = lambda t: (t["std"] / t["value"]).to_numpy()
+
+    def rel(t):
+        return (t["std"] / t["value"]).to_numpy()
+
     up_psa, up_ang = psa.reflection().table, ang.reflection().table
     assert np.ptp(up_psa.psa) < 1e-15
     # equal angles, 10 deg rings: PSA(40-50 deg) / PSA(0-10 deg) = 0.1736 / 0.0302 = 5.75, so the
@@ -87,7 +90,7 @@ def test_fast_path_matches_counting_rays_in_distribution():
 
 def test_record_says_which_kernel_counted():
     g = VirtualGoniophotometer("phong:exponent=20", rays=1000, seed=1, method="rays")
-    assert g.kernel() == "block32"  # Phong has a float32 form (issue 18)
+    assert g.kernel() == "block32"  # Phong has a float32 form
     g = VirtualGoniophotometer("phong:exponent=1e5,ks=0.4", rays=1000, seed=1, method="rays")
     assert g.kernel() == "block"  # a lobe narrower than float32 resolves: the float64 block kernel
     g = VirtualGoniophotometer("ggx:alpha=0.3", beam=Beam("conical", disk_sampling="rejection"), rays=1000, seed=1)

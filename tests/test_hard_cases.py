@@ -1,4 +1,4 @@
-"""The hard-case suite of issue 7: every case named, asserted through the public API.
+"""The hard-case suite: every case named, asserted through the public API.
 
 Each test says which naive implementation it catches. Statistical assertions use fixed seeds and
 tolerances from theory (binomial intervals, stated error bounds), never tuned to pass.
@@ -279,7 +279,7 @@ def test_calibration_with_a_reference_at_or_below_dark_on_a_virtual_bench():
     assert c.masked.all() and set(c.mask_reason) == {"white reference at or below dark"}
     assert not np.isinf(c.brdf).any() and not (c.brdf < 0).any()
     # 2. a reference whose middle pixel lies below its dark: only that one is masked
-    from bench.core.roles import Reading
+    from bench.core.records import Reading
 
     wd = Reading(wavelengths=white.wavelengths, signal=np.array([0.0, white.signal[1] * 1.01, 0.0]),
                  saturated=np.zeros(3, bool), integration_s=0.1, averages=1, dark=True, std=np.zeros(3))
@@ -292,7 +292,7 @@ def test_calibration_with_a_reference_at_or_below_dark_on_a_virtual_bench():
     del dark
 
 
-# --- Phong with exponent 0 (issue 16, item 2) ------------------------------------------------------
+# --- Phong with exponent 0 (a flat lobe) ------------------------------------------------------------
 
 
 class _NaivePhong(Phong):
@@ -333,7 +333,7 @@ def test_phong_exponent_zero_density_agrees_with_its_sampler(theta):
     assert not _cp_contains(k_r, n, float(bad[:m].sum()))
 
 
-# --- certified fast path (issue 16, items 1 and 5) -------------------------------------------------
+# --- certified fast path (it must not lose a lobe) -------------------------------------------------
 
 
 class _NaiveWidthDielectric(RoughDielectric):
@@ -352,7 +352,7 @@ class _NaiveWidthDielectric(RoughDielectric):
                                               (1.000001, 30.0, 0.9967), (1.000001, 60.0, 0.9725),
                                               (1.000001, 89.0, 0.5436)])
 def test_narrow_refracted_lobe_near_eta_one_is_found_and_certified(eta, theta, t_true):
-    """Catches the fast path that lost the refracted lobe (issue 16: T = 0.00000 at eta = 1.0001,
+    """Catches the fast path that lost the refracted lobe (it reported T = 0.00000 at eta = 1.0001,
     60 deg, with 999,999 rays absorbed and no warning): the naive 2 alpha width hint integrates
     T ~ 0 and fails the independent-albedo check, so ``auto`` counts rays and ``fast`` is
     refused; the model-derived width finds the lobe and certifies it. True values: the issue's
@@ -424,7 +424,7 @@ def _naive_fbar(wi, alpha, eta):
 
 @pytest.mark.parametrize("theta", [60.0, 89.0, 89.9])
 def test_rough_plastic_entry_fresnel_near_grazing_is_converged(theta):
-    """Catches the fixed 48 x 48 rule for Fbar(wi) (issue 16: off by up to -1.9e-4 at 89.9 deg,
+    """Catches the fixed 48 x 48 rule for Fbar(wi) (it was off by up to -1.9e-4 at 89.9 deg,
     z = +5.5 at 2e6 rays): the adaptive mean matches a 2000 x 2000 midpoint sum on the smooth
     map (error ~ 1e-8) to 1e-7; the naive rule misses it by more than 1e-5 near grazing."""
     t = math.radians(theta)

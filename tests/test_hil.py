@@ -1,7 +1,6 @@
 """Hardware-in-the-loop tests: they run on `pytest --bench-config my-lab.toml` (a real bench)
 and, without it, on the embedded emulated bench (real drivers over wire-level emulators)."""
 
-import math
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Issue 14, items 4-5 on the application side: ``bench home`` and plans with ``home = true``
+"""Homing and motion on the application side: ``bench home`` and plans with ``home = true``
 (homing end to end on the emulated bench), ``bench plan`` motion estimates of real and emulated
 benches from the configured speeds and ramps, white reference files (round trip, bad files) and
 a HIL run on a ``kind = "real"`` bench with no terminal (stdin closed)."""
@@ -21,7 +21,7 @@ from bench.core.calibration import Calibration, WhiteStandard
 from bench.core.errors import CalibrationError, ConfigError, HardwareError, InputError
 from bench.core.geometry import Geometry
 from bench.core.parsing import read_toml
-from bench.core.roles import Reading
+from bench.core.records import Reading
 from bench.core.schemas import BenchFile, PlanFile, validate_document
 from bench.builders.homing import home_axis, homeable_axes
 from bench.io.white import WhiteReference, read_white_reference, write_white_reference

@@ -1,7 +1,7 @@
 """The kernel cache policy of :mod:`virtual.kernels` never serves machine code of an old source.
 
 A copy of the package is made in a temporary directory; a probe kernel calls a kernel of another
-file (``virtual/kernels/sampling.py``). Fresh processes share one ``NUMBA_CACHE_DIR``: after the
+file (``virtual/kernels/warps.py``). Fresh processes share one ``NUMBA_CACHE_DIR``: after the
 called kernel's source is edited, the kernel compiled with :func:`virtual.kernels.jit` returns
 the new result, while a plain ``numba.njit(cache=True)`` twin in the same process still serves
 the stale one -- what the policy exists to prevent, and proof that the test can fail. An edit of
@@ -28,7 +28,7 @@ PROBE = '''
 import json
 from numba import njit
 from virtual.kernels import jit
-from virtual.kernels.sampling import warp_square
+from virtual.kernels.warps import warp_square
 
 @jit
 def with_policy():
@@ -76,7 +76,7 @@ def test_editing_a_called_kernel_recompiles_its_callers(tmp_path):
     again = _run(where, cache)  # unchanged sources: both served from the cache
     assert again == {"policy": 0.5, "plain": 0.5, "policy_hits": 1, "plain_hits": 1}
 
-    src = where / "virtual" / "kernels" / "sampling.py"
+    src = where / "virtual" / "kernels" / "warps.py"
     text = src.read_text()
     assert text.count(OLD) == 1
     src.write_text(text.replace(OLD, NEW))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -163,8 +164,8 @@ def test_config_from_dict() -> None:
         KinematicsConfig.from_dict({"limits": {"source": [10, 0]}})
     with pytest.raises(ConfigError, match=">= 0"):
         KinematicsConfig.from_dict({"arm_clearance_deg": -1})
-    with pytest.raises(Exception):
-        cfg.min_retro_deg = 1.0  # frozen
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.min_retro_deg = 1.0
 
 
 def test_periodic_joint_outside_limits() -> None:

@@ -1,4 +1,4 @@
-"""Issue 15 items 5 and 7: what ``bench gonio --uncertainty`` means, and the tradeoff picture.
+"""What ``bench gonio --uncertainty`` means, and the tradeoff picture.
 
 * ``--uncertainty V`` is a relative uncertainty of each patch's BSDF: the achieved relative
   half-width of the brightest and the dimmest patch of interest is about V (below 1.2 V), and a

@@ -1,4 +1,4 @@
-"""Mitsuba 3 BSDFs as specimens, measured by our devices (virtual.mitsuba, virtual.python_engine).
+"""Mitsuba 3 BSDFs as specimens, measured by our devices (virtual.specimens.mitsuba, virtual.python_engine).
 
 Statistical tests use fixed seeds (deterministic) and state their significance: a test fails
 when the p-value is below ALPHA = 1e-3.
@@ -14,13 +14,13 @@ import pytest
 # Optional extra `goniobench[mitsuba]`; `make test` installs it, elsewhere these tests are skipped.
 pytest.importorskip("mitsuba")
 
-from scipy import stats  # noqa: E402
+from scipy import stats
 
-from bench.core.errors import SpecimenError  # noqa: E402
-from virtual.goniophotometer import VirtualGoniophotometer  # noqa: E402
-from virtual.specimens.mitsuba import MitsubaSpecimen  # noqa: E402
-from virtual.specimens import MODEL_PYTHON, Lambertian, parse_specimen  # noqa: E402
-from virtual.spectrophotometer import VirtualSpectrophotometer  # noqa: E402
+from bench.core.errors import SpecimenError
+from virtual.goniophotometer import VirtualGoniophotometer
+from virtual.specimens.mitsuba import MitsubaSpecimen
+from virtual.specimens import MODEL_PYTHON, Lambertian, parse_specimen
+from virtual.spectrophotometer import VirtualSpectrophotometer
 
 ALPHA = 1e-3
 RAYS = 200_000

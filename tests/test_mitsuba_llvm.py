@@ -1,4 +1,4 @@
-"""Mitsuba specimens in wavefronts on the LLVM back end (:mod:`virtual.mitsuba_llvm`, issue 18)
+"""Mitsuba specimens in wavefronts on the LLVM back end (:mod:`virtual.mitsuba_llvm`)
 against the scalar loop: the same uniforms give the same directions and weights (to single
 precision), and independent runs give the same count distribution (two-sample chi-square:
 p > 1e-3 fails a correct sampler once in 1000; seeds fixed), with power shown by a perturbed
@@ -12,13 +12,13 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from tests.test_engine import _two_sample_p  # noqa: E402
-from virtual.beam import Beam  # noqa: E402
-from virtual.collector import Collector  # noqa: E402
-from virtual.engine import measurement_seed  # noqa: E402
-from virtual.mitsuba import MitsubaSpecimen  # noqa: E402
-from virtual.mitsuba_llvm import llvm_library, llvm_status  # noqa: E402
-from virtual.python_engine import gonio_counts_python  # noqa: E402
+from tests.test_engine import _two_sample_p
+from virtual.beam import Beam
+from virtual.collector import Collector
+from virtual.engine import measurement_seed
+from virtual.specimens.mitsuba import MitsubaSpecimen
+from virtual.mitsuba_llvm import llvm_library, llvm_status
+from virtual.python_engine import gonio_counts_python
 
 llvm_library()  # exports DRJIT_LIBLLVM_PATH when Debian's libLLVM is there, before Dr.Jit starts LLVM
 WHY = llvm_status("llvm_ad_rgb")

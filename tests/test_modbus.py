@@ -21,36 +21,15 @@ if str(ROOT) not in sys.path:  # for `python tests/test_modbus.py --record`
 from pymodbus.client import ModbusSerialClient  # noqa: E402
 from pymodbus.framer import FramerRTU  # noqa: E402
 from pymodbus.pdu import DecodePDU  # noqa: E402
-from pymodbus.pdu.register_message import (  # noqa: E402
-    ReadHoldingRegistersRequest,
-    WriteMultipleRegistersRequest,
-)
+from pymodbus.pdu.register_message import ReadHoldingRegistersRequest, WriteMultipleRegistersRequest  # noqa: E402
 
-from bench.core.errors import (  # noqa: E402
-    ChecksumError,
-    ConfigError,
-    DeviceTimeoutError,
-    FaultLatchedError,
-    GeometryError,
-    HardwareError,
-    PortGoneError,
-    ProtocolError,
-    TransportMismatchError,
-)
+from bench.core.errors import (ChecksumError, ConfigError, DeviceTimeoutError, FaultLatchedError,  # noqa: E402
+                               GeometryError, HardwareError, PortGoneError, ProtocolError,
+                               TransportMismatchError)
 from bench.core.conformance import check_conformance  # noqa: E402
-from drivers.modbus import (  # noqa: E402
-    AxisConfig,
-    ModbusStageAxis,
-    StageAxis,
-    TransportModbusClient,
-)
+from drivers.modbus import AxisConfig, ModbusStageAxis, StageAxis, TransportModbusClient  # noqa: E402
 from drivers.registers import load_register_map  # noqa: E402
-from drivers.transport import (  # noqa: E402
-    RecordingTransport,
-    ScriptedTransport,
-    SerialTransport,
-    load_fixture,
-)
+from drivers.transport import RecordingTransport, ScriptedTransport, SerialTransport, load_fixture  # noqa: E402
 from virtual.wire.modbus_stage import StageEmulator  # noqa: E402
 
 FIX = ROOT / "fixtures" / "modbus"

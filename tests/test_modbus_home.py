@@ -1,5 +1,6 @@
 """AZ stage: homing via ZHOME / HOME-END, the accurate cause of a pty refusing even parity, and
-replies matched to their request (issue 14). Facts: ``/work/shared/reference/oriental-az-modbus.md``.
+replies matched to their request. Facts: Oriental Motor AZ Series Function Edition manual
+(Modbus RTU), Oriental Motor FAQ 0331.
 """
 
 from __future__ import annotations
@@ -11,9 +12,9 @@ import pytest
 
 pytest.importorskip("pymodbus")
 
-from pymodbus.framer import FramerRTU  # noqa: E402
+from pymodbus.framer import FramerRTU
 
-from bench.core.errors import (  # noqa: E402
+from bench.core.errors import (
     ChecksumError,
     DeviceTimeoutError,
     FaultLatchedError,
@@ -21,10 +22,10 @@ from bench.core.errors import (  # noqa: E402
     PortGoneError,
     ProtocolError,
 )
-from drivers.modbus import ModbusStageAxis  # noqa: E402
-from drivers.modbus.client import decode_rtu_reply, port_open_hint  # noqa: E402
-from drivers.transport import ScriptedTransport  # noqa: E402
-from virtual.wire.modbus_stage import StageEmulator  # noqa: E402
+from drivers.modbus import ModbusStageAxis
+from drivers.modbus.client import decode_rtu_reply, port_open_hint
+from drivers.transport import ScriptedTransport
+from virtual.wire.modbus_stage import StageEmulator
 
 AXIS = dict(steps_per_rev=1000, gear_ratio=10.0, speed=720.0, limits=(-170.0, 170.0),
             timeout_s=0.3, retries=1, poll_interval_s=0.005, parity="N")

@@ -21,37 +21,17 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # for `python tests/test_ocean.py --record`
     sys.path.insert(0, str(ROOT))
 
-from bench.core.errors import (  # noqa: E402
-    CalibrationError,
-    ChecksumError,
-    ConfigError,
-    DeviceTimeoutError,
-    InputError,
-    PortGoneError,
-    ProtocolError,
-    TransportMismatchError,
-)
-from bench.core.roles import Reading, Spectrometer  # noqa: E402
+from bench.core.errors import (CalibrationError, ChecksumError, ConfigError, DeviceTimeoutError, InputError,  # noqa: E402
+                               PortGoneError, ProtocolError, TransportMismatchError)
+from bench.core.records import Reading  # noqa: E402
+from bench.core.roles import Spectrometer  # noqa: E402
 from bench.core.conformance import check_conformance  # noqa: E402
-from drivers.ocean import (  # noqa: E402
-    OceanSpectrometer,
-    decode_compressed,
-    nonlinearity_factor,
-    validate_nonlinearity,
-    wavelength_polynomial,
-)
-from drivers.transport import (  # noqa: E402
-    RecordingTransport,
-    ScriptedTransport,
-    SerialTransport,
-    load_fixture,
-)
-from virtual.wire.ocean_spectrometer import (  # noqa: E402
-    SpectrometerEmulator,
-    compress,
-    cosine_response,
-    file_geometry_source,
-)
+from drivers.ocean import (OceanSpectrometer, decode_compressed, nonlinearity_factor, validate_nonlinearity,  # noqa: E402
+                           wavelength_polynomial)
+from drivers.transport import RecordingTransport, ScriptedTransport, SerialTransport, load_fixture  # noqa: E402
+from virtual.wire.ocean_codec import compress  # noqa: E402
+from virtual.wire.ocean_model import cosine_response, file_geometry_source  # noqa: E402
+from virtual.wire.ocean_spectrometer import SpectrometerEmulator  # noqa: E402
 
 FIX = ROOT / "fixtures" / "ocean"
 ACK, NAK, STX, ETX = b"\x06", b"\x15", b"\x02", b"\x03"
@@ -195,7 +175,7 @@ def test_missing_reply_is_a_timeout_without_waiting() -> None:
 
 
 def test_device_left_in_ascii_mode_is_brought_back() -> None:
-    """Issue 14 cause 4: a bare ``bB``; in ASCII mode each byte is echoed, then ACK (binary).
+    """Back to binary mode with a bare ``bB``; in ASCII mode each byte is echoed, then ACK (binary).
     No CR follows (a stray CR would be NAKed by the then binary device)."""
     pairs = [(b"b", b"b"), (b"B", b"B" + ACK)] + open_pairs()[1:]
     spec = OceanSpectrometer(ScriptedTransport(pairs), **SMALL)

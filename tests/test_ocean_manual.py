@@ -1,6 +1,7 @@
-"""The Ocean driver held to the manual (issue 14, causes 3-6), against hand-made byte scripts and
-the in-process emulator configured as the less-travelled real units behave (no ``G``; left in
-ASCII mode; the other DWORD checksum reading). Facts: ``/work/shared/reference/ocean-rs232.md``.
+"""The Ocean driver held to the manual (optional commands, ASCII framing, the version word,
+calibration strings, checksums), against hand-made byte scripts and the in-process emulator
+configured as the less-travelled real units behave (no ``G``; left in ASCII mode; the other DWORD
+checksum reading). Facts: the Ocean Optics Flame-S manual, "Firmware and Advanced Communications".
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def spec_on(t: Tap, **kw: Any) -> OceanSpectrometer:
                                    "timeout_s": 0.3, "retries": 1, **kw})
 
 
-# --- cause 3: a command the device does not need is never fatal ----------------------------------
+# --- a command the device does not need is never fatal ----------------------------------
 
 
 def test_g0_is_not_sent_when_it_changes_nothing() -> None:
@@ -86,7 +87,7 @@ def test_scripted_nak_to_optional_g_is_recorded_byte_exactly() -> None:
     s.close()
 
 
-# --- cause 4: ASCII framing per the manual; a unit left in ASCII mode -----------------------------
+# --- ASCII framing per the manual; a unit left in ASCII mode -----------------------------
 
 
 def test_ascii_commands_are_framed_per_manual_byte_by_byte() -> None:
@@ -128,7 +129,7 @@ def test_next_open_after_an_ascii_session_succeeds() -> None:
     b.close()
 
 
-# --- cause 5: the version word --------------------------------------------------------------------
+# --- the version word --------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("word,text", [(1000, "1.00.0"), (3001, "3.00.1"), (1210, "1.21.0"),
@@ -167,7 +168,7 @@ def test_calibration_strings_ending_with_cr_alone_are_accepted() -> None:
     s.close()
 
 
-# --- cause 6: the DWORD checksum convention ------------------------------------------------------------
+# --- the DWORD checksum convention ------------------------------------------------------------
 
 
 def test_the_two_dword_readings_differ_only_above_16_bits() -> None:

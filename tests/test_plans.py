@@ -6,7 +6,6 @@ from pathlib import Path
 import pytest
 
 from bench.core.errors import ConfigError, GeometryError, PlanError
-from bench.core.geometry import Geometry
 from bench.plans import (MotionProfile, estimate, half_vector_to_geometry, load_plan, order_for_travel,
                          plan_from_dict, validate)
 

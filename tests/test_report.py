@@ -16,7 +16,8 @@ import pytest
 
 from bench.core.records import BSDFRecord
 from compare.align import QuantityMismatchError
-from compare.report import compare_records, figure_ids, slug
+from compare.report import compare_records
+from compare.figures import figure_ids, slug
 from compare.stats import SUMMARY_KEYS
 
 CHROMIUM = Path("/usr/bin/chromium")

@@ -4,8 +4,7 @@ import numpy as np
 from virtual.kernels import jit
 from scipy import stats
 
-from virtual.kernel_codes import LANES
-from virtual.kernels.rng import fill_uniforms, next_double, next_uint64
+from virtual.kernels.xoshiro import LANES, fill_uniforms, next_double, next_uint64
 from virtual.rng import lane_states, stream_states
 
 MASK = (1 << 64) - 1
@@ -18,7 +17,9 @@ def _reference_xoshiro256plus(state, n):
     for _ in range(n):
         r = (s[0] + s[3]) & MASK
         t = (s[1] << 17) & MASK
-        s[2] ^= s[0]; s[3] ^= s[1]; s[1] ^= s[2]; s[0] ^= s[3]; s[2] ^= t
+        s[2], s[3] = s[2] ^ s[0], s[3] ^ s[1]
+        s[1], s[0] = s[1] ^ s[2], s[0] ^ s[3]  # with the new s[2], s[3], as in the C source
+        s[2] ^= t
         s[3] = ((s[3] << 45) | (s[3] >> 19)) & MASK
         out.append(r)
     return out

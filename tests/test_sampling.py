@@ -24,14 +24,8 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from bench.core.errors import InputError
-from virtual.sampling import (
-    DISK_STRATEGIES,
-    sample_disk,
-    sample_quad,
-    sample_triangle,
-    sincos_2pi,
-    uniforms,
-)
+from virtual.sampling import DISK_STRATEGIES, sample_disk, sample_triangle, uniforms
+from virtual.kernels.warps import sincos_2pi
 
 ALPHA = 1e-3
 N = 16384  # 2^14: a power of two keeps Sobol's balance properties; 256 per cell below
@@ -252,18 +246,6 @@ def test_subtriangle_test_rejects_the_naive_triangle_warp():
     st_ = _barycentric(pts, *TRIANGLE)
     assert np.all(st_ >= -1e-12) and np.all(st_.sum(axis=1) <= 1 + 1e-12)  # inside, but ...
     assert _gof_pvalue(_subtriangle_cells(st_, 1)) < 1e-100  # ... the q1 corner gets 1/2, not 1/4
-
-
-def test_quad_is_uniform_over_the_square():
-    h = 0.75
-    pts = sample_quad(N, h, seed=31)
-    assert pts.shape == (N, 2) and np.all(np.abs(pts) <= h * (1 + ULPS))
-    g = 8
-    ij = np.minimum(np.floor((pts + h) / (2 * h) * g).astype(int), g - 1)
-    counts = np.bincount(ij[:, 0] * g + ij[:, 1], minlength=g * g)
-    assert _gof_pvalue(counts) > ALPHA
-    # the two triangles of the seed's pair (split by the diagonal y = x) are equally likely
-    assert stats.binomtest(int((pts[:, 1] < pts[:, 0]).sum()), N).pvalue > ALPHA
 
 
 def test_bad_arguments_raise_input_errors():

@@ -1,4 +1,4 @@
-"""The declared schemas of plan and bench files refuse what the issue tracker found accepted:
+"""The declared schemas of plan and bench files refuse what they once let through:
 unknown keys (with "did you mean"), wrong types, non-finite and out-of-range numbers, empty and
 oversized ranges -- one line naming file, key and value."""
 
@@ -156,7 +156,7 @@ def test_the_sweep_loader_refuses_through_the_schema(tmp_path):
     p.write_text('[sweep]\nspecimens = ["lambert:albedo=0.5"]\ndelta = "abc"\n')
     with pytest.raises(ConfigError, match=r"s.toml: key sweep.delta"):
         load_sweep(p)
-    p.write_text('[sweep]\nspecimens = ["lambert:albedo=0.5"]\nincidences = ' + str(list(range(0, 80))) + "\n"
+    p.write_text('[sweep]\nspecimens = ["lambert:albedo=0.5"]\nincidences = ' + str(list(range(80))) + "\n"
                  'collectors = [' + ", ".join(f'"equal-psa:{i}x{j}"' for i in range(1, 41) for j in range(1, 41)) + "]\n")
     with pytest.raises(ConfigError, match="series, more than the limit"):
         load_sweep(p)

@@ -18,9 +18,9 @@ from scipy.stats import chi2 as chi2_dist
 from bench.core.errors import SpecimenError
 from bench.core.geometry import direction
 from virtual.collector import Collector
-from virtual.kernels.collector import patch_of
+from virtual.kernels.patch_lookup import patch_of
 from virtual.kernels import jit
-from virtual.quadrature import integrate_patches, patch_integrals
+from virtual.quadrature import integrate_patches
 from virtual.rng import stream_states
 from virtual.specimens import (
     GGX,
@@ -170,7 +170,7 @@ def test_quadrature_against_closed_forms(spec, th, expected):
 
 
 def test_lambertian_patch_probabilities_exact():
-    p = patch_integrals(Lambertian(reflectance=0.5, transmittance=0.25), direction(35.0, 10.0), COL, WL)
+    p = integrate_patches(Lambertian(reflectance=0.5, transmittance=0.25), direction(35.0, 10.0), COL, WL).p
     np.testing.assert_allclose(p[: COL.n_patches], 0.5 * COL.psa[: COL.n_patches] / math.pi, rtol=1e-12)
     np.testing.assert_allclose(p[COL.n_patches:], 0.25 * COL.psa[COL.n_patches:] / math.pi, rtol=1e-12)
 

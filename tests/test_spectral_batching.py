@@ -23,7 +23,7 @@ from tests.test_engine import _two_sample_p, on_one_and_all_threads
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import gonio_counts, gonio_counts_spectral, measurement_seed
-from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG
+from virtual.model_ids import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG
 from virtual.specimens import parse_specimen
 
 COL = Collector("equal-psa", 9, 24)

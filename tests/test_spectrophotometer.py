@@ -1,4 +1,4 @@
-"""The virtual spectrophotometer: issue 2's acceptance and the instrument contract."""
+"""The virtual spectrophotometer: a Lambertian within eq. 3.5's bound, and the instrument contract."""
 
 import math
 
@@ -9,7 +9,8 @@ from scipy import stats
 from bench.core.errors import GeometryError, InputError, SpecimenError
 from bench.core.conformance import check_conformance
 from virtual.bounds import hoeffding_rays
-from virtual.spectrophotometer import VirtualSpectrophotometer, parse_wavelengths
+from virtual.spectrophotometer import VirtualSpectrophotometer
+from bench.core.parsing import parse_wavelengths
 
 
 def test_passes_the_conformance_checker():

@@ -1,5 +1,5 @@
 """Random streams per specimen, common random numbers on request, and what the output says about
-the method that ran (issue 16, items 1 and 4)."""
+the method that ran."""
 
 from __future__ import annotations
 
@@ -69,7 +69,7 @@ def test_cli_states_the_method_the_quadrature_error_and_the_streams(capsys):
     out = capsys.readouterr().out
     assert "method fast" in out and "[fast, quadrature error <= " in out and "streams per specimen" in out
     t = float(out.split("transmittance ")[1].split()[0])
-    assert abs(t - 0.97247) < 5 * (0.97 * 0.03 / 1e5) ** 0.5  # the lost lobe of issue 16 is found
+    assert abs(t - 0.97247) < 5 * (0.97 * 0.03 / 1e5) ** 0.5  # the refracted lobe a naive fast path lost is found
     assert main(["gonio", "--specimen", "lambert", "--rays", "1000", "--seed", "1", "--common-random-numbers",
                  "--json"]) == 0
     js = json.loads(capsys.readouterr().out)

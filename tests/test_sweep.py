@@ -206,7 +206,7 @@ def test_cli_runs_a_sweep_and_resumes_by_run_id(tmp_path, capsys):
     assert code == 0
     d = json.loads(out)
     assert d["status"] == "completed" and d["tasks_done"] == d["tasks_planned"] == 3 and d["executor"] == "in-process"
-    # resuming a completed run is a mistake the user can fix: exit 2 (issue 13 policy)
+    # resuming a completed run is a mistake the user can fix: exit 2 (the exit-status policy)
     assert main(["sweep", "--resume", d["run_id"], "--store", str(store)]) == 2
     assert main(["sweep", str(SWEEPS / "missing.toml"), "--store", str(store)]) == 2
     assert main(["sweep", "--store", str(store)]) == 2

@@ -21,12 +21,12 @@ from drivers.transport import (
     load_fixture,
     save_fixture,
 )
-from virtual.wire.dynamixel_bus import encode_status
+from virtual.wire.dxl_codec import encode_status
 from virtual.wire.pty import open_pty
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "dynamixel"
 
-# The four test vectors of reference/dynamixel-x-series.md (ID 1), spelled as there.
+# The four packet examples of the ROBOTIS e-Manual, DYNAMIXEL Protocol 2.0 (ID 1), spelled as there.
 PING = bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")
 WRITE_GOAL_512 = bytes.fromhex("FF FF FD 00 01 09 00 03 74 00 00 02 00 00 CA 89")
 READ_PRESENT = bytes.fromhex("FF FF FD 00 01 07 00 02 84 00 04 00 1D 15")

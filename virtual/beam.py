@@ -1,4 +1,4 @@
-"""Incidence: collimated or conical beams (the kernel that emits a ray is :mod:`virtual.kernels.beam`;
+"""Incidence: collimated or conical beams (the kernel that emits a ray is :mod:`virtual.kernels.emit`;
 the ``BEAM_*``/``DISK_*`` codes are in :mod:`virtual.kernel_codes`, which does not load numba).
 
 Collimated (directional-hemispherical): every ray arrives from the same direction; positions on
@@ -85,7 +85,8 @@ class Beam:
         return math.degrees(math.atan2(self.emitter_radius_mm + self.specimen_radius_mm, self.distance_mm))
 
     def kernel_args(self, theta_i: float, phi_i: float) -> np.ndarray:
-        """Float vector the kernels read: rotation (9), r1, r2, D, axis (3)."""
+        """Float vector the kernels read: rotation (9), r1, r2, D, axis (3) (indices ``B_*`` of
+        :mod:`virtual.kernels.emit`)."""
         check_incidence(theta_i)
         rot = rotation_to(theta_i, phi_i)
         return np.concatenate([rot.ravel(), [self.emitter_radius_mm, self.specimen_radius_mm,

@@ -19,8 +19,8 @@ import numba
 import numpy as np
 
 from virtual.kernels.block32 import gonio_block32_chunk
-from virtual.kernels.effects import gonio_fx_chunk, spectro_fx_chunk, spectro_points_chunk
-from virtual.kernels.engine import ggx_spectral_chunk, gonio_block_chunk, lambert_spectral_chunk
+from virtual.kernels.ray_loop import gonio_fx_chunk, spectro_fx_chunk, spectro_points_chunk
+from virtual.kernels.block64 import ggx_spectral_chunk, gonio_block_chunk, lambert_spectral_chunk
 from virtual.kernels.spectral32 import ggx_spectral32_chunk, lambert_spectral32_chunk
 
 __all__ = ["run_chunks", "gonio_block32_kernel", "gonio_block_kernel", "lambert_spectral_kernel",

@@ -40,7 +40,7 @@ Lookup rules (exact, never NaN, never out of range):
   (``(inf, 1, 1)`` is the direction (1, 0, 0)).
 
 Kernels use :func:`patch_of` inline; :meth:`Collector.kernel_args` gives its trailing arguments.
-The lookup kernels live in :mod:`virtual.kernels.collector` (``patch_of``, ``guess_bin``), the
+The lookup kernels live in :mod:`virtual.kernels.patch_lookup` (``patch_of``, ``guess_bin``), the
 ``SCHEME_*`` codes and the atan error bounds in :mod:`virtual.kernel_codes` (which does not load
 numba: listing, parsing and the fast path's quadrature never need a kernel).
 Note: kernels are compiled with ``nnan`` (:data:`virtual.kernels.FASTMATH`), which lets LLVM assume
@@ -60,13 +60,7 @@ from bench.core.errors import InputError
 from virtual.kernel_codes import (ATAN32_MAX_ERROR, ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA,
                                   SCHEME_EQUAL_SOLID_ANGLE)
 
-__all__ = [
-    "SCHEMES",
-    "Collector",
-    "guess_margins",
-    "guess_margins32",
-    "parse_collector",
-]
+__all__ = ["SCHEMES", "Collector", "guess_margins", "guess_margins32", "parse_collector"]
 
 #: scheme name -> integer code passed to :func:`patch_of`
 SCHEMES: dict[str, int] = {
@@ -299,7 +293,7 @@ class Collector:
         d = np.ascontiguousarray(np.atleast_2d(np.asarray(dirs, dtype=np.float64)))
         if d.ndim != 2 or d.shape[1] != 3:
             raise InputError(f"directions must have shape (n, 3), got {np.shape(dirs)}")
-        from virtual.kernels.collector import index_many  # numba only when rays are binned
+        from virtual.kernels.patch_lookup import index_many  # numba only when rays are binned
 
         out = np.empty(d.shape[0], dtype=np.int64)
         index_many(d, *self.kernel_args(), out)

@@ -1,11 +1,12 @@
-"""Effects: counting with a scene's declared effects (the kernels are :mod:`virtual.kernels.effects`).
+"""Effects: counting with a scene's declared effects (the kernels are :mod:`virtual.kernels.ray_loop`).
 
 A scene (:mod:`virtual.scene`) that declares no per-ray effect never comes here: it runs the
 bare kernels of :mod:`virtual.engine` at their full speed. A scene that declares some runs
 :func:`spectro_effect_counts` / :func:`gonio_effect_counts`, whose loop is the bare loop --
-:func:`~virtual.beam.emit`, :func:`~virtual.specimens.scatter`, :func:`~virtual.collector.patch_of`,
+:func:`~virtual.beam.emit`, :func:`~virtual.specimens.scatter`, :func:`~virtual.kernels.patch_lookup.patch_of`,
 reused, not copied -- plus one predictable branch per *declared* effect (an undeclared effect
-costs a bit test per ray and draws no random number). Effects handled per ray (bit flags):
+costs a bit test per ray and draws no random number). Effects handled per ray (bit flags; the
+parameter vector ``e`` is read through the named indices ``E_*`` of :mod:`virtual.kernels.ray_loop`):
 
 ``FX_STRAY``       stray light: with probability ``e[0]`` a ray reaches the detector without
                    meeting the specimen (spectro: counted in the ``stray`` column; gonio: a
@@ -50,8 +51,9 @@ from bench.core.errors import InputError
 
 from virtual.engine import chunking
 from virtual.chunked import gonio_fx_kernel, spectro_fx_kernel, spectro_points_kernel
-from virtual.kernels.effects import (N_EFFECT_ARGS, FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE,
-                                     FX_STRAY)
+from virtual.kernel_codes import B_SPECIMEN_RADIUS
+from virtual.kernels.ray_loop import (E_NEAR_DISTANCE, E_NEAR_RADIUS, E_PATTERN_PERIOD, E_SPOT_RADIUS, N_EFFECT_ARGS,
+                                     FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE, FX_STRAY)
 from virtual.rng import stream_states
 
 __all__ = [
@@ -66,7 +68,7 @@ def pinpoint_beam_args(beam_args: np.ndarray) -> np.ndarray:
     """Beam arguments whose specimen disk is a point (radius 1e-150): :func:`emit` then returns
     the unit vector toward the emitter point itself (its target is the origin to ~1e-150 mm)."""
     b = np.array(beam_args, dtype=np.float64, copy=True)
-    b[10] = 1e-150
+    b[B_SPECIMEN_RADIUS] = 1e-150
     return b
 
 
@@ -82,10 +84,11 @@ def _effect_vector(e: np.ndarray | None, flags: int) -> np.ndarray:
     out = np.zeros(N_EFFECT_ARGS)
     if e is not None:
         out[: len(e)] = np.asarray(e, dtype=np.float64)
-    out[5] = out[5] if out[5] > 0 else 1.0
-    if flags & FX_POSITIONS and not (math.isfinite(out[7]) and out[7] > 0):
-        raise InputError(f"effects that sample positions need a spot radius e[7] > 0, got {out[7]!r}")
-    if flags & FX_NEAR and not (out[8] > 0 and out[9] > 0):
+    out[E_PATTERN_PERIOD] = out[E_PATTERN_PERIOD] if out[E_PATTERN_PERIOD] > 0 else 1.0
+    spot = out[E_SPOT_RADIUS]
+    if flags & FX_POSITIONS and not (math.isfinite(spot) and spot > 0):
+        raise InputError(f"effects that sample positions need a spot radius e[7] > 0, got {spot!r}")
+    if flags & FX_NEAR and not (out[E_NEAR_DISTANCE] > 0 and out[E_NEAR_RADIUS] > 0):
         raise InputError("near-field detectors need a distance e[8] > 0 and a radius e[9] > 0")
     return out
 
@@ -134,7 +137,7 @@ def spectro_point_counts(model: int, params: np.ndarray, beam_args: np.ndarray, 
     rotation to the incidence) to specimen points ``points[:, 2:]``: the jittered and Sobol
     strategies of the accuracy-versus-time study. Memory O(N) (the points); scattering draws
     from per-chunk xoshiro streams as in the bare kernel. The direction is
-    :func:`virtual.kernels.beam.toward_source`, the formula :func:`~virtual.kernels.beam.emit` uses
+    :func:`virtual.kernels.emit.toward_source`, the formula :func:`~virtual.kernels.emit.emit` uses
     (emit draws its own points).
     """
     pts = np.ascontiguousarray(points, dtype=np.float64)

@@ -1,5 +1,5 @@
 """The ray-counting engine: chunking, seeding and the choice of kernel (the kernels themselves are
-:mod:`virtual.kernels.engine`); int64 counts, one random stream per chunk.
+:mod:`virtual.kernels.block64`); int64 counts, one random stream per chunk.
 
 A measurement of ``N`` rays is split into a number of chunks that depends only on ``N``; chunk
 ``c`` draws from its own xoshiro stream(s), children of the measurement's ``SeedSequence``. Chunks
@@ -9,17 +9,17 @@ identical for a given seed whatever the thread count, and memory does not grow w
 
 Two kernel shapes:
 
-* ray by ray (``spectro_fx_kernel``, ``gonio_fx_kernel`` of :mod:`virtual.kernels.effects`, with
+* ray by ray (``spectro_fx_kernel``, ``gonio_fx_kernel`` of :mod:`virtual.kernels.ray_loop`, with
   no effect flag): each ray is emitted, scattered and counted before the next; any specimen, any
   disk sampling; a scene's per-ray effects (:mod:`virtual.effects`) set flags in the same kernels;
 * block (``gonio_block_kernel``), the goniophotometer's fast path: rays go through in blocks of
   :data:`BLOCK_RAYS`. The block's uniforms are drawn first, 64 xoshiro lanes side by side
-  (:func:`~virtual.rng.fill_uniforms`); then one branch-free loop emits (polar disks), scatters
-  (:func:`~virtual.specimens.scatter_given`) and bins (:func:`~virtual.collector.guess_bin`)
+  (:func:`~virtual.kernels.xoshiro.fill_uniforms`); then one branch-free loop emits (polar disks), scatters
+  (:func:`~virtual.specimens.scatter_given`) and bins (:func:`~virtual.kernels.patch_lookup.guess_bin`)
   every ray, which LLVM compiles to AVX-512/AVX2 code; then a short scalar loop adds the bins
   to the histogram, settling the rare uncertain bin with the exact
-  :func:`~virtual.collector.patch_of`. Only the surviving rays are binned (compacted first).
-  It serves the :data:`~virtual.kernels.engine.BLOCK_MODELS` (Lambertian, GGX, anisotropic GGX
+  :func:`~virtual.kernels.patch_lookup.patch_of`. Only the surviving rays are binned (compacted first).
+  It serves the :data:`~virtual.kernels.block64.BLOCK_MODELS` (Lambertian, GGX, anisotropic GGX
   with three uniforms per ray; Phong, Oren-Nayar, rough dielectric with four; the rough plastic
   with seven and one attempt of its diffuse rejection loop, the rare rejected ray finishing
   the loop on a scalar stream), 2-5x the ray-by-ray kernel's throughput.
@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from virtual.collector import guess_margins, guess_margins32
-from virtual.kernel_codes import (BEAM_CONICAL, BLOCK32_MODELS, BLOCK_MODELS, BLOCK_PARAMS, DISK_REJECTION,
+from virtual.kernel_codes import (B_AXIS_Z, BEAM_CONICAL, BLOCK32_MODELS, BLOCK_MODELS, BLOCK_PARAMS, DISK_REJECTION,
                                   FRESNEL_CELLS, FRESNEL_SAMPLES, MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA, N_EFFECT_ARGS)
 from virtual.model_ids import MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG, MODEL_PLASTIC
 from virtual.rng import lane_states, lane_states32, stream_states
@@ -346,7 +346,7 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
         missed += int(m)
     # each cell's fate per wavelength, judged at the cell's lower end (a value u0 takes in it)
     lower = np.concatenate([[0.0], thr])
-    source_above = b[14] > 0.0  # every hit ray comes from the axis' side (collimated: the axis)
+    source_above = b[B_AXIS_Z] > 0.0  # every hit ray comes from the axis' side (collimated: the axis)
     out = np.zeros((len(rows), n_bins + 2), dtype=np.int64)
     per_cell = cells.sum(axis=1)
     for w in range(len(rows)):
@@ -394,7 +394,7 @@ def float32_lanes() -> int:
         from llvmlite import binding
 
         features = binding.get_host_cpu_features()
-    except Exception:  # noqa: BLE001 -- an unknown CPU: the narrowest vector
+    except Exception:  # an unknown CPU: the narrowest vector
         return 4
     return 16 if features.get("avx512f") else (8 if features.get("avx") else 4)
 
@@ -410,7 +410,7 @@ def _padded_wavelengths(w: int) -> int:
 def _ggx_spectral(rows: list[np.ndarray], beam_kind: int, beam_args: np.ndarray, collector_args: tuple,
                   n_rays: int, seq: np.random.SeedSequence, f32: bool) -> np.ndarray:
     """:func:`gonio_counts_spectral` for GGX with one roughness (see there): the float64 batch
-    (:func:`~virtual.kernels.engine.ggx_spectral_kernel`) or, for specimens :func:`float32_suits`
+    (:func:`~virtual.kernels.block64.ggx_spectral_kernel`) or, for specimens :func:`float32_suits`
     at every wavelength, the float32 one (:func:`~virtual.kernels.spectral32.ggx_spectral32_kernel`,
     the law of ``gonio_counts``'s block32)."""
     from virtual.chunked import ggx_spectral32_kernel, ggx_spectral_kernel

@@ -10,25 +10,35 @@ editing a value recompiles the kernels that use it). Specimen model ids are in
 from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR,
                                MODEL_PHONG, MODEL_PLASTIC)
 
-__all__ = ["BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO",
+__all__ = ["BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "B_EMITTER_RADIUS",
+           "B_SPECIMEN_RADIUS", "B_DISTANCE", "B_AXIS_X", "B_AXIS_Y", "B_AXIS_Z", "N_BEAM_ARGS",
            "SCHEME_EQUAL_ANGLE", "SCHEME_EQUAL_SOLID_ANGLE", "SCHEME_EQUAL_PSA", "ATAN_MAX_ERROR", "ATAN32_MAX_ERROR",
            "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN",
            "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS", "N_EFFECT_ARGS", "GIVEN_MODELS", "GIVEN_UNIFORMS",
            "GIVEN4_MODELS", "GIVEN4_UNIFORMS", "BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS",
            "BLOCK32_MODELS", "BLOCK32_RAYS", "FRESNEL_CELLS", "FRESNEL_SAMPLES", "LANES"]
 
-# beams (virtual.kernels.beam)
+# beams (virtual.kernels.emit)
 BEAM_COLLIMATED = 0
 BEAM_CONICAL = 1
 DISK_POLAR = 0
 DISK_REJECTION = 1
 DISK_AUTO = 2
+# Indices into the beam vector ``b`` (after the 3x3 rotation, row-major at 0..8)
+B_EMITTER_RADIUS = 9
+B_SPECIMEN_RADIUS = 10
+B_DISTANCE = 11
+B_AXIS_X = 12
+B_AXIS_Y = 13
+B_AXIS_Z = 14
+#: length of the beam vector
+N_BEAM_ARGS = 15
 
-# collector schemes (virtual.kernels.collector)
+# collector schemes (virtual.kernels.patch_lookup)
 SCHEME_EQUAL_ANGLE = 0
 SCHEME_EQUAL_SOLID_ANGLE = 1
 SCHEME_EQUAL_PSA = 2
-#: Largest error (rad) of the float64 first-quadrant atan of :mod:`virtual.kernels.collector`
+#: Largest error (rad) of the float64 first-quadrant atan of :mod:`virtual.kernels.patch_lookup`
 #: (1.35e-8 measured on a 2e6-point grid, tested): the margin of its ``guess_bin`` is built on it.
 ATAN_MAX_ERROR = 1.4e-8
 #: Largest error (rad) of the float32 polynomial atan2 of :mod:`virtual.kernels.f32`, with its
@@ -40,13 +50,13 @@ ATAN32_MAX_ERROR = 4e-7
 MIN_ALPHA = 0.01
 #: Largest Phong exponent the float32 path takes: the lobe as narrow as GGX's at MIN_ALPHA (n = 2/alpha^2,
 #: width sqrt(2/(n+1)) = alpha). Its 1 - cos(alpha) is computed to a relative 3e-7 at any n
-#: (:func:`~virtual.kernels.given32.phong_lobe_omc32`), not as 1 - cos, which float32 cannot resolve.
+#: (:func:`~virtual.kernels.branchfree32.phong_lobe_omc32`), not as 1 - cos, which float32 cannot resolve.
 MAX_PHONG_EXPONENT = 2.0 / MIN_ALPHA ** 2
 #: Dielectric indices (rough dielectric, plastic coat) the float32 path takes: 1/MAX_ETA <= eta <= MAX_ETA,
 #: the specimens' declared range, where the Fresnel terms and the refracted direction stay well scaled.
 MAX_ETA = 10.0
 
-# scene effects (virtual.kernels.effects)
+# scene effects (virtual.kernels.ray_loop)
 FX_STRAY = 1
 FX_BANDPASS = 2
 FX_SPHERE = 4
@@ -58,7 +68,7 @@ FX_POSITIONS = FX_PATTERN | FX_NEAR
 #: length of the effect parameter vector ``e`` (see :mod:`virtual.effects`)
 N_EFFECT_ARGS = 10
 
-# block kernels (virtual.kernels.scatter, given, engine, block32)
+# block kernels (virtual.kernels.scatter, branchfree, block64, block32)
 #: Models with a branch-free form taking their uniforms as arguments (``scatter_given``).
 GIVEN_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX)
 #: Uniforms ``scatter_given`` consumes per ray.
@@ -86,7 +96,7 @@ FRESNEL_CELLS = 512
 #: Samples per cell (float64) from which its bounds are taken.
 FRESNEL_SAMPLES = 64
 
-# random streams (virtual.kernels.rng)
+# random streams (virtual.kernels.xoshiro)
 #: Independent xoshiro streams advanced side by side by ``fill_uniforms`` (one SIMD register
 #: holds 8 of them; 64 keeps the vectorized loop free of a scalar remainder).
 LANES = 64

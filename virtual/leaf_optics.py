@@ -67,7 +67,7 @@ import numpy as np
 from bench.core.errors import SpecimenError
 
 __all__ = ["prospect_d", "LeafTables", "leaf_tables", "CuticleAlbedo", "cuticle_albedo", "cuticle_integrals",
-           "INCIDENCE_CALIBRATION_DEG", "PROSPECT_RANGE_NM", "calibration_direction"]
+           "INCIDENCE_CALIBRATION_DEG", "PROSPECT_RANGE_NM"]
 
 #: the incidence at which the leaf's R and T equal PROSPECT-D's (LOPEX93's, Hosgood et al. 1995)
 INCIDENCE_CALIBRATION_DEG = 8.0
@@ -313,7 +313,3 @@ def leaf_tables(prospect: tuple[np.ndarray, np.ndarray, np.ndarray], es8: float,
     return LeafTables(wl, rp, tp, rb, tb, ks, float(es8), float(fbar8))
 
 
-def calibration_direction() -> np.ndarray:
-    """The unit vector toward the source at the calibration incidence (phi = 0)."""
-    t = math.radians(INCIDENCE_CALIBRATION_DEG)
-    return np.array([math.sin(t), 0.0, math.cos(t)])

@@ -1,6 +1,6 @@
-"""Mitsuba specimens sampled in wavefronts on Dr.Jit's LLVM back end (issue 18).
+"""Mitsuba specimens sampled in wavefronts on Dr.Jit's LLVM back end.
 
-:class:`virtual.mitsuba.MitsubaSpecimen` calls ``bsdf.sample`` once per ray in a scalar variant
+:class:`virtual.specimens.mitsuba.MitsubaSpecimen` calls ``bsdf.sample`` once per ray in a scalar variant
 (about 1e6 rays/s). When an LLVM variant can run -- ``mitsuba`` installed and a libLLVM shared
 object found (:func:`llvm_library`: ``DRJIT_LIBLLVM_PATH``, else Debian's ``libllvm19``) --
 :class:`WavefrontSampler` hands the whole batch to the LLVM twin of the scalar variant
@@ -84,7 +84,7 @@ def llvm_status(variant: str = "llvm_ad_rgb") -> str:
     try:
         with _in_variant(variant):
             dr.eval(dr.arange(mi.Float, 4) + 1)  # starts the LLVM back end
-    except Exception as exc:  # noqa: BLE001 -- any failure of the back end means "not usable"
+    except Exception as exc:  # any failure of the back end means "not usable"
         return f"{variant} failed: {type(exc).__name__}: {exc}"
     return ""
 

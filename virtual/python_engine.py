@@ -27,6 +27,7 @@ import numpy as np
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import NO_CONE, SpectroTally, chunking
+from virtual.kernel_codes import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS, B_SPECIMEN_RADIUS
 
 __all__ = ["gonio_counts_python", "spectro_counts_python", "incidence"]
 
@@ -39,13 +40,13 @@ def incidence(beam: Beam, theta_i: float, phi_i: float, n: int,
     """``n`` incident rays: unit vectors toward their sources, shape (3,) for a collimated beam
     (the axis, shared by all rays) or (n, 3) for a conical beam, and ``hit`` (n,) bool."""
     b = beam.kernel_args(theta_i, phi_i)  # validates the incidence; rotation (9), r1, r2, D, axis (3)
-    axis = b[12:15]
+    axis = b[[B_AXIS_X, B_AXIS_Y, B_AXIS_Z]]
     if beam.kind == "collimated":
         return axis.copy(), np.ones(n, dtype=bool)
     from virtual.sampling import sample_disk  # its warps are kernels: numba only for conical rays
 
     rot = b[:9].reshape(3, 3)
-    r1, r2, d = b[9], b[10], b[11]
+    r1, r2, d = b[B_EMITTER_RADIUS], b[B_SPECIMEN_RADIUS], b[B_DISTANCE]
     strategy = "rejection" if beam.disk_sampling == "auto" else beam.disk_sampling
     p1 = sample_disk(n, r1, strategy, rng)
     p2 = sample_disk(n, r2, strategy, rng)

@@ -33,16 +33,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
 from bench.core.errors import InputError, SimulationError
 from virtual.collector import Collector
-from virtual.cubature import adaptive_rectangle
+from virtual.cubature import adaptive_rectangle, gauss_rule
 from virtual.specimens import Specimen
 
-__all__ = ["PatchIntegrals", "integrate_patches", "patch_integrals", "directional_albedo",
+__all__ = ["PatchIntegrals", "integrate_patches",
            "certified_patch_integrals", "reference_albedo", "CERTIFY_TOL"]
 
 #: Bound on the patch probabilities' total error (absolute probability) for the fast path to be
@@ -97,16 +96,6 @@ class PatchIntegrals:
         return max(self.error, abs(self.albedo - self.reference) + self.reference_error)
 
 
-@lru_cache(maxsize=16)
-def _rule(order: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Tensor Gauss-Legendre nodes on [0,1]^2 (u, v) and weights."""
-    x, w = np.polynomial.legendre.leggauss(order)
-    x = 0.5 * (x + 1.0)
-    w = 0.5 * w
-    u, v = np.meshgrid(x, x, indexing="ij")
-    return u.ravel(), v.ravel(), np.outer(w, w).ravel()
-
-
 def _cell_integrals(specimen: Specimen, wi: np.ndarray, wl: float, cells: np.ndarray,
                     order: int, chunk: int = 20_000) -> np.ndarray:
     """In chunks of ``chunk`` cells (bounded memory): see :func:`_cell_integrals_once`."""
@@ -120,7 +109,7 @@ def _cell_integrals_once(specimen: Specimen, wi: np.ndarray, wl: float, cells: n
                          order: int) -> np.ndarray:
     """Gauss-Legendre estimate of int f |cos| d omega over each cell (t0, t1, p0, p1) (radians,
     theta measured from the pole of the cell's own hemisphere; column 4 is +1 above, -1 below)."""
-    u, v, w = _rule(order)
+    u, v, w = gauss_rule(order)
     t0, t1, p0, p1, side = (cells[:, i:i + 1] for i in range(5))
     t = t0 + (t1 - t0) * u
     ph = p0 + (p1 - p0) * v
@@ -142,11 +131,6 @@ def _children(cells: np.ndarray) -> np.ndarray:
         np.column_stack([tm, t1, pm, p1, side]),
     ], axis=1)
     return kids.reshape(-1, 5)
-
-
-def _psa(cells: np.ndarray) -> np.ndarray:
-    t0, t1, p0, p1 = cells[:, 0], cells[:, 1], cells[:, 2], cells[:, 3]
-    return 0.5 * (p1 - p0) * np.abs(np.sin(t1) ** 2 - np.sin(t0) ** 2)
 
 
 def _halve(cells: np.ndarray, axis: int) -> np.ndarray:
@@ -298,22 +282,6 @@ def integrate_patches(specimen: Specimen, wi: np.ndarray, collector: Collector, 
     down = p[collector.n_patches:].sum()
     return PatchIntegrals(p=p, albedo=float(up + down), reflectance=float(up if lit_side > 0 else down),
                           transmittance=float(down if lit_side > 0 else up), error=err, n_evals=n_evals)
-
-
-def patch_integrals(specimen: Specimen, wi: np.ndarray, collector: Collector, wavelength_nm: float,
-                    order: int = 5, rtol: float = 1e-7, atol: float = 1e-9) -> np.ndarray:
-    """``(n_bins,)`` probability of each collector bin (see :func:`integrate_patches`).
-
-    ``1 - result.sum()`` is the absorbed fraction.
-    """
-    return integrate_patches(specimen, wi, collector, wavelength_nm, order=order, rtol=rtol, atol=atol).p
-
-
-def directional_albedo(specimen: Specimen, wi: np.ndarray, wavelength_nm: float,
-                       collector: Collector | None = None) -> float:
-    """Directional-hemispherical albedo (reflected + transmitted) by the same quadrature."""
-    col = collector or Collector("equal-psa", 9, 12)
-    return integrate_patches(specimen, wi, col, wavelength_nm).albedo
 
 
 def _hemisphere_albedo(specimen: Specimen, wi: np.ndarray, wl: float) -> tuple[float, float]:

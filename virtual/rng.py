@@ -8,7 +8,7 @@ split per chunk, and numpy's bit generators cannot be inlined into a kernel. A r
 depends on the seed and the chunking, never on the thread count.
 
 This module owns the seeding (:func:`stream_states`, :func:`lane_states`); the kernels that
-advance the states are :mod:`virtual.kernels.rng` (``next_double``, ``next_uint64``,
+advance the states are :mod:`virtual.kernels.xoshiro` (``next_double``, ``next_uint64``,
 ``fill_uniforms``); ``LANES`` is in :mod:`virtual.kernel_codes`. Seeding needs no numba.
 """
 
@@ -39,7 +39,7 @@ def lane_states(seed: int | np.random.SeedSequence, n_streams: int, lanes: int =
 
 def lane_states32(seed: int | np.random.SeedSequence, n_streams: int, lanes: int = LANES) -> np.ndarray:
     """``(n_streams, 4, lanes)`` uint32 xoshiro128+ states for the float32 block kernel
-    (:func:`virtual.kernels.rng.fill_uniforms32`), seeded like :func:`lane_states`."""
+    (:func:`virtual.kernels.xoshiro.fill_uniforms32`), seeded like :func:`lane_states`."""
     return lane_states(seed, n_streams, lanes, np.uint32)
 
 

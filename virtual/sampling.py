@@ -2,7 +2,7 @@
 
 Two layers, one formula each:
 
-* scalar warps (kernels of :mod:`virtual.kernels.sampling`, re-exported here) that turn uniforms
+* scalar warps (kernels of :mod:`virtual.kernels.warps`, re-exported here) that turn uniforms
   in [0, 1) into points; the ray kernels call them inline, and
 * array samplers for analysis, plotting and tests, which draw the uniforms by a *strategy*
   (independent random, jittered/stratified, scrambled Sobol) and apply the same warps.
@@ -21,22 +21,9 @@ from typing import Literal
 import numpy as np
 
 from bench.core.errors import InputError
-from virtual.kernels.sampling import (_warp_polar_array, _warp_triangle_array, sample_cosine_hemisphere,  # noqa: F401
-                                      sincos_2pi, warp_cosine_hemisphere, warp_polar, warp_square, warp_triangle)
+from virtual.kernels.warps import _warp_polar_array, _warp_triangle_array
 
-__all__ = [
-    "DISK_STRATEGIES",
-    "warp_square",
-    "warp_polar",
-    "sincos_2pi",
-    "warp_triangle",
-    "uniforms",
-    "sample_disk",
-    "sample_triangle",
-    "sample_quad",
-    "warp_cosine_hemisphere",
-    "sample_cosine_hemisphere",
-]
+__all__ = ["DISK_STRATEGIES", "uniforms", "sample_disk", "sample_triangle"]
 
 DiskStrategy = Literal["rejection", "polar", "jittered", "sobol"]
 DISK_STRATEGIES: tuple[str, ...] = ("rejection", "polar", "jittered", "sobol")
@@ -116,21 +103,5 @@ def sample_triangle(n: int, q0, q1, q2, strategy: str = "random",
     bary = np.empty((n, 2))
     _warp_triangle_array(uniforms(n, strategy, seed), bary)
     return q0 + bary[:, :1] * (q1 - q0) + bary[:, 1:] * (q2 - q0)
-
-
-def sample_quad(n: int, half_width: float, seed: int | np.random.Generator | None = None) -> np.ndarray:
-    """A square specimen of side ``2*half_width`` as the seed's pair of triangles (eq. 3.10).
-
-    Each point picks one of the two equal-area triangles by a fair coin.
-    """
-    rng = _rng(seed)
-    h = float(half_width)
-    a, b, c, d = (-h, -h), (h, -h), (h, h), (-h, h)
-    first = rng.random(n) < 0.5
-    n1 = int(first.sum())
-    out = np.empty((n, 2))
-    out[first] = sample_triangle(n1, a, b, c, seed=rng)
-    out[~first] = sample_triangle(n - n1, a, c, d, seed=rng)
-    return out
 
 

@@ -18,7 +18,7 @@ Intervals are two-sided at confidence ``1 - delta`` (Clopper-Pearson on the coun
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Iterable
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -32,7 +32,7 @@ from virtual.engine import NO_CONE, SpectroTally, measurement_seed, specimen_str
 from virtual.python_engine import spectro_counts_python
 from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
 
-__all__ = ["VirtualSpectrophotometer", "parse_wavelengths", "fresh_seed"]
+__all__ = ["VirtualSpectrophotometer", "fresh_seed"]
 
 
 def fresh_seed() -> int:

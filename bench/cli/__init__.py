@@ -182,7 +182,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         why = getattr(exc, "strerror", None) or _one_line(exc)
         print(f"bench {command}: error: {name + ': ' if name else ''}{why}", file=sys.stderr)
         return 2
-    except Exception as exc:  # noqa: BLE001 - the last resort: never a raw traceback
+    except Exception as exc:  # the last resort: never a raw traceback
         path = _save_traceback(command)
         print(f"bench {command}: internal error: {type(exc).__name__}: {_one_line(exc)[:300]} "
               f"(traceback saved to {path}; please report it)", file=sys.stderr)

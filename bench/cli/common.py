@@ -9,13 +9,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from bench.core.errors import InputError
 
-__all__ = ["DEFAULT_STORE", "emit_json", "positive_int", "number", "hms", "open_store", "report_run",
+__all__ = ["DEFAULT_STORE", "emit_json", "number", "hms", "open_store", "report_run",
            "output_file", "output_dir", "check_output", "PLOT_SUFFIXES", "announce_compilation", "stop_announcing"]
 
 #: image formats matplotlib writes (checked before any work, so a typo does not cost the run)
@@ -31,17 +30,6 @@ def emit_json(obj: Any) -> None:
     from bench.core.records import json_default
 
     print(json.dumps(obj, indent=None, sort_keys=False, default=json_default))
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (``1e7`` accepted)."""
-    try:
-        v = int(float(text)) if "e" in text.lower() else int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return v
 
 
 def number(text: str) -> float:
@@ -94,27 +82,27 @@ def check_output(path: str | Path, *, directory: bool = False, suffixes: Sequenc
     return p
 
 
-def output_file(suffixes: Sequence[str] | None = None) -> Callable[[str], str]:
-    """argparse type: a file path that can be written (see :func:`check_output`)."""
+def _output_type(name: str, **check: Any) -> Callable[[str], str]:
+    """argparse type: the text unchanged once :func:`check_output` (with ``check``) accepts it."""
 
     def parse(text: str) -> str:
         try:
-            check_output(text, suffixes=suffixes)
+            check_output(text, **check)
         except InputError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
         return text
 
-    parse.__name__ = "output file"
+    parse.__name__ = name
     return parse
 
 
-def output_dir(text: str) -> str:
-    """argparse type: a folder that can be created or written (see :func:`check_output`)."""
-    try:
-        check_output(text, directory=True)
-    except InputError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
+def output_file(suffixes: Sequence[str] | None = None) -> Callable[[str], str]:
+    """argparse type: a file path that can be written (see :func:`check_output`)."""
+    return _output_type("output file", suffixes=suffixes)
+
+
+#: argparse type: a folder that can be created or written (see :func:`check_output`)
+output_dir = _output_type("output folder", directory=True)
 
 
 _ANNOUNCED: list = []  # the command's open compile_progress context, if any

@@ -130,6 +130,16 @@ class StoreError(BenchError):
 class RunInterrupted(BenchError):
     """A run ended early (Ctrl-C or device fault); the reason is stored with the run."""
 
+    #: True when the user stopped it (Ctrl-C): the CLI then exits 130
+    by_user: bool = False
+
+    @classmethod
+    def by_the_user(cls, message: str) -> "RunInterrupted":
+        """The interruption of a run the user stopped with Ctrl-C."""
+        err = cls(message)
+        err.by_user = True
+        return err
+
 
 class SimulationError(BenchError):
     """A simulation could not be carried out as specified."""

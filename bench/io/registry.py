@@ -82,13 +82,13 @@ def _spectrum_header(line: str) -> bool:
     return cols[:len(SPECTRUM_COLUMNS)] == list(SPECTRUM_COLUMNS)
 
 
-register_format(FileFormat("csv", (".csv",), read_tidy_csv, record_to_csv, lambda l: l.startswith(CSV_MAGIC)))
+register_format(FileFormat("csv", (".csv",), read_tidy_csv, record_to_csv, lambda line: line.startswith(CSV_MAGIC)))
 register_format(FileFormat("parquet", (".parquet", ".pq"), read_parquet, record_to_parquet,
-                           lambda l: l.startswith("PAR1")))
+                           lambda line: line.startswith("PAR1")))
 register_format(FileFormat("astm", (".astm.csv", ".astm"), read_astm, record_to_astm,
-                           lambda l: re.match(r"^(VARS|[A-Z][A-Z0-9_]*) \S", l) is not None))  # KEYWORD value
+                           lambda line: re.match(r"^(VARS|[A-Z][A-Z0-9_]*) \S", line) is not None))  # KEYWORD value
 register_format(FileFormat("zemax", (".bsdf",), read_zemax, record_to_zemax,
-                           lambda l: l.startswith(("# goniobench Zemax", "Source ", "Source\t"))))
+                           lambda line: line.startswith(("# goniobench Zemax", "Source ", "Source\t"))))
 register_format(FileFormat("spectrum-csv", (".spectrum.csv",), read_spectrum_csv, None, _spectrum_header))
 
 #: the project's own formats that write a record of a run (``bench export --format`` also offers

@@ -283,7 +283,7 @@ class RunStore(RunReader):
         fields = (kind, "running", None, iso, t, iso, t, _dumps(plan), _dumps(bench),
                   _dumps(package_versions()), None if seed is None else int(seed), _dumps(calibration),
                   _dumps(dict(meta or {})), None if n_planned is None else int(n_planned))
-        for attempt in range(20):
+        for _attempt in range(20):
             rid = run_id if run_id is not None else new_run_id(t)
             try:
                 with self._transaction() as db:

@@ -252,10 +252,8 @@ def _execute(spec: SweepSpec, store: Any, run_id: str, done: set[int], client: A
                      retries)
     except KeyboardInterrupt:
         store.set_status(run_id, "interrupted", "interrupted by the user (Ctrl-C)")
-        err = RunInterrupted(f"sweep run {run_id} interrupted by the user after {len(done)} of {len(spec)} "
-                             f"tasks; finish it with: bench sweep --resume {run_id}")
-        err.by_user = True  # type: ignore[attr-defined]  # the CLI exits 130 for Ctrl-C
-        raise err from None
+        raise RunInterrupted.by_the_user(f"sweep run {run_id} interrupted by the user after {len(done)} of "
+                                         f"{len(spec)} tasks; finish it with: bench sweep --resume {run_id}") from None
     except _TaskFailed as exc:
         store.set_status(run_id, "interrupted", str(exc))
         raise RunInterrupted(f"sweep run {run_id} interrupted after {len(done)} of {len(spec)} tasks: {exc}; "
@@ -290,7 +288,7 @@ def _warm_workers(client: Any, instrument: str) -> None:
         except ModuleNotFoundError as exc:
             raise SimulationError(f"Dask worker {a} cannot import {exc.name!r}: install goniobench (the same "
                                   f"version) in every worker's environment") from None
-        except Exception as exc:  # noqa: BLE001 - a worker lost during warm-up: its tasks go elsewhere
+        except Exception as exc:  # a worker lost during warm-up: its tasks go elsewhere
             log.warning("warm-up on worker %s failed: %s: %s", a, type(exc).__name__, exc)
         finally:
             f.release()

@@ -128,8 +128,8 @@ def _spectro_rows(task: SweepTask) -> Any:
         k_r = np.array([c["reflected"] for c in counts], dtype=np.int64) - (0 if measured.specular_included else cone)
     k_t = np.array([c["transmitted"] for c in counts], dtype=np.int64)
     out = []
-    for hemi, value, ci, k, q in (("R", s.reflectance, s.reflectance_ci, k_r, s.meta.get("quantity", "reflectance")),
-                                  ("T", s.transmittance, s.transmittance_ci, k_t, "transmittance")):
+    for hemi, value, ci, k in (("R", s.reflectance, s.reflectance_ci, k_r),
+                               ("T", s.transmittance, s.transmittance_ci, k_t)):
         p = k / n
         # value = scale * p, so std = scale * sqrt(p (1 - p) / n) = value * sqrt((1 - p) / (p n))
         std = np.where(k > 0, value * np.sqrt((1.0 - p) / np.maximum(p * n, 1e-300)), 0.0)

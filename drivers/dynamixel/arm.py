@@ -11,25 +11,14 @@ import math
 import time
 from typing import Any, Callable, Mapping, Sequence
 
-from bench.core.errors import (
-    BenchError,
-    CommunicationError,
-    ConfigError,
-    DeviceError,
-    DeviceTimeoutError,
-    FaultLatchedError,
-    GeometryError,
-    HardwareError,
-    PortGoneError,
-    ProtocolError,
-)
+from bench.core.errors import (BenchError, CommunicationError, ConfigError, DeviceError, DeviceTimeoutError,
+                               FaultLatchedError, GeometryError, HardwareError, PortGoneError, ProtocolError)
 from bench.core.geometry import Geometry
 from bench.core.roles import InstrumentBase, InstrumentInfo
 from drivers import kinematics as kin
-from drivers.dynamixel.config import (
-    _BLOCK_ADDR, _BLOCK_LEN, _OFF_GOAL, _OFF_MOVING, _OFF_PRESENT, ADDR, ERRBIT_ALERT,
-    STATUS_ERRORS, TICKS_PER_REV, ArmConfig, _le, _s32, decode_hardware_error,
-)
+from drivers.dynamixel.config import (_BLOCK_ADDR, _BLOCK_LEN, _OFF_GOAL, _OFF_MOVING, _OFF_PRESENT, ADDR,
+                                      ERRBIT_ALERT, STATUS_ERRORS, TICKS_PER_REV, ArmConfig, _le, _s32,
+                                      decode_hardware_error)
 from drivers.dynamixel.link import DxlLink
 from drivers.kinematics import Joints
 from drivers.transport import SerialTransport, Transport, TransportPortHandler

@@ -2,7 +2,7 @@
 
 dynamixel-sdk builds, stuffs, checksums and frames the packets (``PacketHandler.txPacket`` /
 ``rxPacket``); this module decides which received status is the answer to which request, as the
-manual's packet rules require (``/work/shared/reference/dynamixel-x-series.md``):
+manual's packet rules require (ROBOTIS e-Manual, DYNAMIXEL Protocol 2.0):
 
 - every status is checked against its request: the id (and, for a sync read, each listed id in
   order, each exactly once), the status instruction 0x55, and the parameter length (a READ of

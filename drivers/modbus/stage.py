@@ -15,19 +15,10 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from pymodbus.framer import FramerType
 
-from bench.core.errors import (
-    ChecksumError,
-    ConfigError,
-    DeviceError,
-    DeviceTimeoutError,
-    FaultLatchedError,
-    GeometryError,
-    HardwareError,
-    InputError,
-    PortGoneError,
-    ProtocolError,
-)
-from bench.core.roles import InstrumentInfo
+from bench.core.errors import (ChecksumError, ConfigError, DeviceError, DeviceTimeoutError, FaultLatchedError,
+                               GeometryError, HardwareError, InputError, PortGoneError, ProtocolError)
+from bench.core.roles import InstrumentBase, InstrumentInfo
+from drivers.settings import port_and_name, settings_with_overrides
 from drivers.registers import RegisterMap, load_register_map
 from drivers.modbus.client import (
     TransportModbusClient, check_reply, port_open_hint, probe_serial_open,
@@ -46,7 +37,7 @@ class _Fault:
     flags: list[str] = field(default_factory=list)
 
 
-class ModbusStageAxis(HomingMixin):
+class ModbusStageAxis(HomingMixin, InstrumentBase):
     """A single stage axis (rotary or linear) on a Modbus drive in direct data operation.
 
     Deliberately *not* a ``Goniometer`` (no ``check``/``move_to``/``position`` taking a
@@ -86,14 +77,7 @@ class ModbusStageAxis(HomingMixin):
             overrides["limits"] = overrides.pop("limits_deg")
         if "speed_deg_s" in overrides:
             overrides["speed"] = overrides.pop("speed_deg_s")
-        base = config if isinstance(config, AxisConfig) else AxisConfig.from_dict(config or {})
-        if overrides:
-            merged = base.model_dump()
-            unknown = sorted(set(overrides) - set(merged))
-            if unknown:
-                raise ConfigError(f"stage axis: unknown setting(s) {', '.join(unknown)}")
-            merged.update(overrides)
-            base = AxisConfig.from_dict(merged)
+        base = settings_with_overrides(AxisConfig, config, overrides, "stage axis")
         self.config: AxisConfig = base
         self.rmap: RegisterMap = load_register_map(base.register_map)
         self.name = name
@@ -132,11 +116,7 @@ class ModbusStageAxis(HomingMixin):
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any]) -> "ModbusStageAxis":
         """Build from a bench-config table: ``port`` (required), ``name`` and AxisConfig keys."""
-        d = dict(cfg)
-        if "port" not in d:
-            raise ConfigError("stage axis config needs 'port'")
-        port = str(d.pop("port"))
-        name = str(d.pop("name", "stage"))
+        port, name, d = port_and_name(cfg, "stage axis config", "stage")
         return cls(port, name=name, **d)
 
     # --- unit conversion ----------------------------------------------------------------------
@@ -436,12 +416,6 @@ class ModbusStageAxis(HomingMixin):
             self._safe_close_client()
             if self._transport is not None:
                 self._transport.close()
-
-    def __enter__(self) -> "ModbusStageAxis":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"ModbusStageAxis({self.name!r}, {self.port!r}, device {self.config.device_id})"

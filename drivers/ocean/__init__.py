@@ -1,7 +1,8 @@
 """An Ocean-Optics-style RS-232 spectrometer (USB2000+/USB4000/Flame-S family) through a Transport.
 
-Protocol as implemented here (facts: ``/work/shared/reference/ocean-rs232.md``, the authority;
-where the manual is silent the driver copes with every reasonable reading, marked *open*):
+Protocol as implemented here (facts: the Ocean Optics Flame-S manual, chapter "Firmware and Advanced
+Communications", the authority; where the manual is silent the driver copes with every reasonable
+reading, marked *open*):
 
 Binary mode (power-up default)
     One ASCII letter per command; a data word follows as 16 bits, most significant byte first.

@@ -1,5 +1,5 @@
 """Wire codecs of the Ocean driver (pure, no I/O), from the Flame-S manual's "Firmware and
-Advanced Communications" chapter (``/work/shared/reference/ocean-rs232.md``):
+Advanced Communications" chapter:
 
 - byte codes (ACK, NAK, STX, ETX, CR, LF) and command encoding in binary mode (letter + 16-bit
   words, MSB first) and ASCII mode (letter, then each data value in decimal ending with CR; a

@@ -1,7 +1,7 @@
 """Byte-level I/O of the Ocean driver: deadlines, ACK/NAK, ASCII echo, lines, mode switching.
 
 Owns :class:`OceanLink`, the half of the driver that talks to the transport, per the manual
-(``/work/shared/reference/ocean-rs232.md``):
+(Ocean Optics Flame-S manual, "Firmware and Advanced Communications"):
 
 - every read has a deadline; a short read is a retryable :class:`DeviceTimeoutError`;
 - ASCII mode: the device echoes each byte it receives, so each byte is written and its echo read

@@ -16,11 +16,11 @@ import numpy as np
 from bench.core.errors import (
     CalibrationError,
     ChecksumError,
-    ConfigError,
     InputError,
     ProtocolError,
 )
-from bench.core.roles import InstrumentInfo, Reading
+from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
+from drivers.settings import port_and_name, settings_with_overrides
 from drivers.ocean.calibration import nonlinearity_factor, validate_nonlinearity, wavelength_polynomial
 from drivers.ocean.codec import (
     ETX, FULL_SCALE, NAK, STX, Frame, FrameLayoutError, NeedMore, decode_version, encode_ascii,
@@ -39,7 +39,7 @@ POWER_UP = {"T": 0, "G": 0, "k": 0}
 OPTIONAL = {"G", "k"}
 
 
-class OceanSpectrometer:
+class OceanSpectrometer(InstrumentBase):
     """An Ocean-Optics-style RS-232 spectrometer in the ``Spectrometer`` role.
 
     Parameters
@@ -63,14 +63,7 @@ class OceanSpectrometer:
 
     def __init__(self, transport: Any, *, config: OceanConfig | Mapping[str, Any] | None = None,
                  name: str = "spectrometer", **overrides: Any) -> None:
-        base = config if isinstance(config, OceanConfig) else OceanConfig.from_dict(config or {})
-        if overrides:
-            merged = base.model_dump()
-            unknown = sorted(set(overrides) - set(merged))
-            if unknown:
-                raise ConfigError(f"spectrometer: unknown setting(s) {', '.join(unknown)}")
-            merged.update(overrides)
-            base = OceanConfig.from_dict(merged)
+        base = settings_with_overrides(OceanConfig, config, overrides, "spectrometer")
         self.config: OceanConfig = base.resolved()
         self.name = name
         if isinstance(transport, str):
@@ -110,11 +103,7 @@ class OceanSpectrometer:
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any]) -> "OceanSpectrometer":
         """Build from a bench-config table: ``port`` (required), ``name`` and OceanConfig keys."""
-        d = dict(cfg)
-        if "port" not in d:
-            raise ConfigError("spectrometer config needs 'port'")
-        port = str(d.pop("port"))
-        name = str(d.pop("name", "spectrometer"))
+        port, name, d = port_and_name(cfg, "spectrometer config", "spectrometer")
         return cls(port, name=name, **d)
 
     # --- commands -----------------------------------------------------------------------------
@@ -161,6 +150,14 @@ class OceanSpectrometer:
         text = text.decode("ascii", "replace").strip()
         self.slots[n] = text
         return text
+
+    def read_number_slot(self, n: int, what: str) -> float:
+        """``?x<n>`` read as a number; :class:`CalibrationError` naming ``what`` if it is not one."""
+        text = self.read_slot(n)
+        try:
+            return float(text)
+        except ValueError:
+            raise CalibrationError(f"{self.name}: {what} ?x{n} = {text!r} is not a number") from None
 
     def version(self) -> int:
         """``v``: the firmware version word (its decimal digits are the version)."""
@@ -227,15 +224,7 @@ class OceanSpectrometer:
         self.version_word = self.version()
         self.firmware = decode_version(self.version_word)
         self.serial = self.read_slot(0)
-        coeffs = []
-        for n in (1, 2, 3, 4):
-            text = self.read_slot(n)
-            try:
-                coeffs.append(float(text))
-            except ValueError:
-                raise CalibrationError(f"{self.name}: wavelength coefficient ?x{n} = {text!r} "
-                                       f"is not a number") from None
-        self.wavelength_coeffs = coeffs
+        self.wavelength_coeffs = coeffs = [self.read_number_slot(n, "wavelength coefficient") for n in (1, 2, 3, 4)]
         wl = wavelength_polynomial(coeffs, cfg.pixels or 0)
         lo, hi = cfg.wavelength_limits_nm
         if not np.all(np.isfinite(wl)) or not np.all(np.diff(wl) > 0):
@@ -274,14 +263,7 @@ class OceanSpectrometer:
             raise CalibrationError(f"{self.name}: non-linearity order ?x14 = {order_text!r}") from None
         if not 0 <= order <= 7:
             raise CalibrationError(f"{self.name}: non-linearity order {order} outside 0..7")
-        ks = []
-        for n in range(6, 7 + order):
-            text = self.read_slot(n)
-            try:
-                ks.append(float(text))
-            except ValueError:
-                raise CalibrationError(f"{self.name}: non-linearity coefficient ?x{n} = "
-                                       f"{text!r} is not a number") from None
+        ks = [self.read_number_slot(n, "non-linearity coefficient") for n in range(6, 7 + order)]
         self._nl = validate_nonlinearity(ks, self.config.nonlinearity_bounds)
 
     def disable_nonlinearity(self) -> None:
@@ -448,12 +430,6 @@ class OceanSpectrometer:
             self._closed = True
             self.link.closed = True
             self.t.close()
-
-    def __enter__(self) -> "OceanSpectrometer":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"OceanSpectrometer({self.name!r}, {self.port!r})"

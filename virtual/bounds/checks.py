@@ -8,7 +8,7 @@ import operator
 
 from bench.core.errors import BudgetError
 
-__all__ = ["real", "check_uncertainty", "check_delta", "check_patches"]
+__all__ = ["real", "whole", "check_uncertainty", "check_delta", "check_patches"]
 
 
 def real(value: object, name: str) -> float:
@@ -31,14 +31,20 @@ def check_delta(delta: object, name: str = "delta") -> float:
     return d
 
 
-def check_patches(patches: object) -> int:
-    if isinstance(patches, bool):
-        raise BudgetError(f"patches must be an integer >= 1, got {patches!r}")
+def whole(value: object, name: str, minimum: int) -> int:
+    """``value`` as an int >= ``minimum`` (any integer type, never a bool or a float)."""
+    bad = BudgetError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    if isinstance(value, bool):
+        raise bad
     try:
-        m = operator.index(patches)  # type: ignore[arg-type]
+        n = operator.index(value)  # type: ignore[arg-type]
     except TypeError:
-        raise BudgetError(f"patches must be an integer >= 1, got {patches!r}") from None
-    if m < 1:
-        raise BudgetError(f"patches must be an integer >= 1, got {patches!r}")
-    return m
+        raise bad from None
+    if n < minimum:
+        raise bad
+    return n
+
+
+def check_patches(patches: object) -> int:
+    return whole(patches, "patches", 1)
 

@@ -4,11 +4,10 @@ time a budget takes (:func:`budget_report`)."""
 from __future__ import annotations
 
 import math
-import operator
 from decimal import ROUND_CEILING, Decimal, localcontext
 
 from bench.core.errors import BudgetError
-from virtual.bounds.checks import check_delta, check_patches, check_uncertainty, real
+from virtual.bounds.checks import check_delta, check_patches, check_uncertainty, real, whole
 
 __all__ = ["hoeffding_rays", "hoeffding_per_patch", "estimate_time", "budget_report"]
 
@@ -77,14 +76,7 @@ def estimate_time(n_rays: int, rays_per_second: float) -> float:
     BudgetError
         For a negative or non-integer ray count, or a rate that is not finite and > 0.
     """
-    if isinstance(n_rays, bool):
-        raise BudgetError(f"n_rays must be an integer >= 0, got {n_rays!r}")
-    try:
-        n = operator.index(n_rays)  # type: ignore[arg-type]
-    except TypeError:
-        raise BudgetError(f"n_rays must be an integer >= 0, got {n_rays!r}") from None
-    if n < 0:
-        raise BudgetError(f"n_rays must be an integer >= 0, got {n_rays!r}")
+    n = whole(n_rays, "n_rays", 0)
     rate = real(rays_per_second, "rays_per_second")
     if not (math.isfinite(rate) and rate > 0.0):
         raise BudgetError(f"rays_per_second must be finite and > 0, got {rays_per_second!r}")

@@ -2,20 +2,22 @@
 
 Modules (each owns one kind of kernel; none holds Python-side objects):
 
-``rng``         xoshiro256+ streams advanced in place (scalar and 64 lanes side by side), and
+``xoshiro``     xoshiro256+ streams advanced in place (scalar and 64 lanes side by side), and
                 64 xoshiro128+ lanes of float32 uniforms
-``sampling``    scalar warps of uniforms into points of disks, triangles, the hemisphere
-``beam``        emitting one incident ray (collimated or conical beam)
-``collector``   the exact and the vectorizable patch lookup of the collector sphere
+``warps``       scalar warps of uniforms into points of disks, triangles, the hemisphere
+``emit``        emitting one incident ray (collimated or conical beam); the beam vector's indices
+``patch_lookup`` the exact and the vectorizable patch lookup of the collector sphere
 ``microfacet``  Fresnel factors, GGX visible normals, masking ratios, frames
 ``scatter``     the specimen model ids and the ``scatter`` dispatch, one branch per model
-``engine``      the vectorized float64 block kernel and the spectral batches
+``branchfree``  branch-free float64 forms of the specimens that need four or more uniforms per ray
+``block64``     the vectorized float64 block kernel and the spectral batches
 ``f32``         float32 twins of the scalar helpers (warps, beam, bin guess, microfacet terms)
-``given32``     float32 forms of the specimens (Lambertian, GGX, Phong, Oren-Nayar)
-``given32_rough`` float32 forms of the rough dielectric and the rough plastic
+``branchfree32`` float32 forms of the specimens (Lambertian, GGX, Phong, Oren-Nayar)
+``branchfree32_rough`` float32 forms of the rough dielectric and the rough plastic
 ``block32``     the float32 block kernel (as many lanes as the machine's vectors hold), the default fast path
-``effects``     the ray-by-ray counting kernels (a scene's per-ray effects by flag; none: the bare
-                kernels), and the spectrophotometer on given disk points
+``spectral32``  the float32 spectral batches
+``ray_loop``    the ray-by-ray counting kernels (a scene's per-ray effects by flag; none: the bare
+                kernels), and the spectrophotometer on given disk points; the effect vector's indices
 
 The floating-point policy (:data:`FASTMATH`): the same seed gives the same counts on every
 x86-64 CPU. numba's ``fastmath=True`` lets LLVM replace a division or square root by the
@@ -58,7 +60,7 @@ __all__ = ["jit", "FASTMATH", "KernelSourceLocator", "kernel_dependencies", "dep
 MARK = "__goniobench_kernel__"
 KERNELS_DIR = Path(__file__).resolve().parent
 
-_CacheImpl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
+_CacheImpl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
 
 
 #: The fastmath flags every kernel is compiled with: those that cannot change a finite result

@@ -1,11 +1,11 @@
-"""The float32 block kernel: :func:`~virtual.kernels.engine.gonio_block_chunk` on float32
+"""The float32 block kernel: :func:`~virtual.kernels.block64.gonio_block_chunk` on float32
 vectors (as many lanes as the machine's hold: twice the float64 kernel's).
 
 Same shape as the float64 block kernel -- a block's uniforms first (64 xoshiro128+ lanes,
-:func:`~virtual.kernels.rng.fill_uniforms32`), one branch-free loop that emits, scatters and
+:func:`~virtual.kernels.xoshiro.fill_uniforms32`), one branch-free loop that emits, scatters and
 marks every ray, compaction of the survivors, a vectorized guess of their bins
 (:func:`~virtual.kernels.f32.guess_bin32`) and the exact float64
-:func:`~virtual.kernels.collector.patch_of` for the few near an edge -- with twice the lanes
+:func:`~virtual.kernels.patch_lookup.patch_of` for the few near an edge -- with twice the lanes
 per instruction and half the generator's work per uniform. :func:`virtual.engine.gonio_kernel_for`
 sends a specimen here only when float32 suffices for it (:mod:`virtual.kernels.f32`).
 """
@@ -15,18 +15,18 @@ from __future__ import annotations
 import numpy as np
 
 from virtual.kernels import jit
-from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
+from virtual.kernels.patch_lookup import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
 from virtual.kernels.f32 import ZERO, emit_given32, emit_side32, guess_bin32
-from virtual.kernels.given import GIVEN4_UNIFORMS, plastic_diffuse_redo
-from virtual.kernels.given32 import ggx_given32, lambert_given32, oren_nayar_given32, phong_given32, phong_lobe_omc32
-from virtual.kernels.given32_rough import DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_given32, plastic_given32
-from virtual.kernels.rng import LANES, fill_uniforms32
+from virtual.kernels.branchfree import GIVEN4_UNIFORMS, plastic_diffuse_redo
+from virtual.kernels.branchfree32 import ggx_given32, lambert_given32, oren_nayar_given32, phong_given32, phong_lobe_omc32
+from virtual.kernels.branchfree32_rough import DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_given32, plastic_given32
+from virtual.kernels.xoshiro import LANES, fill_uniforms32
 from virtual.kernels.scatter import (MODEL_DIELECTRIC, MODEL_LAMBERT, MODEL_OREN_NAYAR,
                                      MODEL_PHONG, MODEL_PLASTIC)
 
 __all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "gonio_block32_chunk"]
 
-from virtual.kernel_codes import BLOCK32_MODELS, BLOCK32_RAYS  # noqa: E402
+from virtual.kernel_codes import BLOCK32_MODELS, BLOCK32_RAYS
 _BEAM_UNIFORMS = 4
 
 
@@ -51,7 +51,7 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
     """One chunk: ``n_rays`` rays from the xoshiro128+ lanes ``lane`` (advanced in place) added
     to ``hist``; ``s`` is a scalar float64 xoshiro stream for the plastic's rare rejected
     diffuse rays. Compiled on its own for the reasons given on the float64
-    :func:`~virtual.kernels.engine.gonio_block_chunk`."""
+    :func:`~virtual.kernels.block64.gonio_block_chunk`."""
     nb = BLOCK32_RAYS
     n_beam = _BEAM_UNIFORMS if conical else 0
     n_scat = 3

@@ -1,4 +1,4 @@
-"""Float32 twins of the scalar helpers, for the block kernel's 16-lane path (issue 18).
+"""Float32 twins of the scalar helpers, for the block kernel's 16-lane path.
 
 An AVX-512 register holds 16 float32 lanes against 8 float64 ones, so the block kernel's
 branch-free loops run about twice as fast in float32 (:mod:`virtual.kernels.block32`). numba
@@ -12,7 +12,7 @@ probability -- far below what any count of rays can detect, but not nothing. So 
 well-conditioned specimens take this path (GGX-like roughness >= :data:`MIN_ALPHA`, Phong
 exponents <= :data:`MAX_PHONG_EXPONENT`, the same lobe width, dielectric indices within
 :data:`MAX_ETA`); the bin of each computed direction is exact (a guess with margins, the float64
-:func:`~virtual.kernels.collector.patch_of` near an edge).
+:func:`~virtual.kernels.patch_lookup.patch_of` near an edge).
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
-from virtual.kernels.collector import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
+from virtual.kernels.emit import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS, B_SPECIMEN_RADIUS
+from virtual.kernels.patch_lookup import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
 
 __all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
            "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "emit_side32", "guess_bin32",
@@ -57,7 +58,7 @@ _A4, _A5, _A6, _A7 = F(0.09967909753322601), F(-0.06021890789270401), F(0.024756
 @jit(inline="always")
 def sincos_2pi32(u):
     """``(cos 2 pi u, sin 2 pi u)`` in float32 for u in [0, 1): the float64
-    :func:`~virtual.kernels.sampling.sincos_2pi` with float32 polynomials (error < 2e-7)."""
+    :func:`~virtual.kernels.warps.sincos_2pi` with float32 polynomials (error < 2e-7)."""
     t = FOUR * u
     q = np.floor(t + HALF)
     x = (t - q) * HALF_PI
@@ -90,10 +91,10 @@ def warp_cosine_hemisphere32(u1, u2):
 
 @jit(inline="always")
 def emit_given32(conical, b, u1, u2, u3, u4):
-    """:func:`~virtual.kernels.beam.emit_given` in float32 (``b`` a tuple of float32)."""
-    x1, y1 = warp_polar32(u1, u2, b[9])
-    x2, y2 = warp_polar32(u3, u4, b[10])
-    d = b[11]
+    """:func:`~virtual.kernels.emit.emit_given` in float32 (``b`` a tuple of float32)."""
+    x1, y1 = warp_polar32(u1, u2, b[B_EMITTER_RADIUS])
+    x2, y2 = warp_polar32(u3, u4, b[B_SPECIMEN_RADIUS])
+    d = b[B_DISTANCE]
     ox = b[0] * x1 + b[1] * y1 + b[2] * d - x2
     oy = b[3] * x1 + b[4] * y1 + b[5] * d - y2
     oz = b[6] * x1 + b[7] * y1 + b[8] * d
@@ -101,8 +102,8 @@ def emit_given32(conical, b, u1, u2, u3, u4):
     wx = ox * inv
     wy = oy * inv
     wz = oz * inv
-    hit = wz * b[14] > ZERO
-    return (wx if conical else b[12]), (wy if conical else b[13]), (wz if conical else b[14]), (hit if conical else True)
+    hit = wz * b[B_AXIS_Z] > ZERO
+    return (wx if conical else b[B_AXIS_X]), (wy if conical else b[B_AXIS_Y]), (wz if conical else b[B_AXIS_Z]), (hit if conical else True)
 
 
 @jit(inline="always")
@@ -111,9 +112,9 @@ def emit_side32(conical, b, u1, u2):
     before normalization (the sign of its ``wz``: the normalization is by a positive factor) and
     whether the ray hits -- the same decisions, without the second disk point (z of the specimen
     point is 0), the square root and the division. u3, u4 are drawn all the same."""
-    x1, y1 = warp_polar32(u1, u2, b[9])
-    oz = b[6] * x1 + b[7] * y1 + b[8] * b[11]
-    return (oz if conical else b[14]), ((oz * b[14] > ZERO) if conical else True)
+    x1, y1 = warp_polar32(u1, u2, b[B_EMITTER_RADIUS])
+    oz = b[6] * x1 + b[7] * y1 + b[8] * b[B_DISTANCE]
+    return (oz if conical else b[B_AXIS_Z]), ((oz * b[B_AXIS_Z] > ZERO) if conical else True)
 
 
 @jit(inline="always")
@@ -134,7 +135,7 @@ def _phi32(x, y):
 
 @jit(inline="always")
 def guess_bin32(x, y, z, scheme_code, n_theta, n_phi, ring_margin, sector_margin):
-    """:func:`~virtual.kernels.collector.guess_bin` in float32: the bin of (x, y, z), or -1 when
+    """:func:`~virtual.kernels.patch_lookup.guess_bin` in float32: the bin of (x, y, z), or -1 when
     it lies within the margins (:func:`virtual.collector.guess_margins32`) of an edge, at the
     pole or with badly scaled squares -- then the float64 ``patch_of`` decides."""
     rho2 = x * x + y * y

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.rng import next_double
+from virtual.kernels.xoshiro import next_double
 
 __all__ = ["unit_disk", "disk_direction", "fresnel_conductor_ratio", "fresnel_dielectric", "ggx_n",
            "ggx_vndf_given", "ggx_vndf", "g2_over_g1_ratio", "g2_over_g1", "frame"]

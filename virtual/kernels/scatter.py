@@ -24,8 +24,8 @@ from virtual.kernels import jit
 from virtual.kernels.microfacet import (disk_direction, fresnel_conductor_ratio, fresnel_dielectric, frame,
                                         g2_over_g1, g2_over_g1_masked, g2_over_g1_masked_ratio, ggx_n, ggx_vndf, ggx_vndf_given,
                                         unit_disk)
-from virtual.kernels.rng import next_double
-from virtual.kernels.sampling import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
+from virtual.kernels.xoshiro import next_double
+from virtual.kernels.warps import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
 # Model ids: one branch each in `scatter`; they live in a numba-free module (specimens declare them).
 from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_LEAF,
                                MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON)
@@ -34,7 +34,7 @@ __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MOD
            "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
            "scatter", "scatter_given", "ggx_given_parts"]
 
-from virtual.kernel_codes import GIVEN_MODELS, GIVEN_UNIFORMS  # noqa: E402
+from virtual.kernel_codes import GIVEN_MODELS, GIVEN_UNIFORMS
 
 _DEAD = (0.0, 0.0, 0.0, False)
 
@@ -327,7 +327,7 @@ def scatter_given(model, p, wx, wy, wz, u0, u1, u2):
     drawn, and no branch: the same distribution of ``(ox, oy, oz, alive)``.
 
     u0 decides survival (and reflection against transmission); (u1, u2) is a polar disk point
-    (:func:`~virtual.sampling.warp_polar`): the Lambertian's cosine-weighted direction
+    (:func:`~virtual.kernels.warps.warp_polar`): the Lambertian's cosine-weighted direction
     (Malley), GGX's visible-normal cap point. Callers only read the direction when ``alive``.
     """
     if model == MODEL_LAMBERT:
@@ -337,7 +337,7 @@ def scatter_given(model, p, wx, wy, wz, u0, u1, u2):
     return _ggx_given(p, wx, wy, wz, ca, sa, u1, u0)
 
 
-# --- four-uniform given forms (issue 18): the block kernel's Phong, Oren-Nayar, rough dielectric -----
+# --- four-uniform given forms, for the block kernel: its Phong, Oren-Nayar, rough dielectric -----
 # Same contract as `scatter_given`, with four uniforms: u0 picks the lobe (or absorption), (u1, u2)
 # is a polar disk point standing for the ray-by-ray branch's rejection-sampled `unit_disk`
 # (the same uniform distribution: direction sincos_2pi(u1), squared radius u2), u3 is the

@@ -1,10 +1,10 @@
-"""Float32 spectral batches (issue 18): the Lambertian and one-roughness GGX at many wavelengths
+"""Float32 spectral batches: the Lambertian and one-roughness GGX at many wavelengths
 at once on float32 vectors (as many lanes as the machine's hold), like :mod:`virtual.kernels.block32`.
 
 * Lambertian (:func:`lambert_spectral32_chunk`): each hit ray's cosine-distributed direction
   is drawn and binned once; its survival uniform u0 is located among the sorted float32
   thresholds (every wavelength's R and R + T, rounded as the single-wavelength
-  :func:`~virtual.kernels.given32.lambert_given32` rounds them) -- counts by (cell of u0, patch).
+  :func:`~virtual.kernels.branchfree32.lambert_given32` rounds them) -- counts by (cell of u0, patch).
 * GGX (:func:`ggx_spectral32_chunk`): the direction, the microfacet cosine c and the masking
   ratio g_num / g_den are drawn once; wavelength w survives when u g_den < F_w(c) g_num. F_w is
   bracketed by a table of rigorous bounds over cells of c (:func:`fresnel_bounds`), laid out
@@ -21,16 +21,16 @@ from numba import int32
 
 from virtual.kernels import jit
 from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32
-from virtual.kernels.collector import patch_of
+from virtual.kernels.patch_lookup import patch_of
 from virtual.kernels.f32 import (ONE, emit_given32, emit_side32, fresnel_conductor_ratio32, sincos_2pi32,
                                  warp_cosine_hemisphere32)
-from virtual.kernels.given32 import ggx_given_parts32
+from virtual.kernels.branchfree32 import ggx_given_parts32
 from virtual.kernels.microfacet import fresnel_conductor_ratio
-from virtual.kernels.rng import LANES, fill_uniforms32
+from virtual.kernels.xoshiro import LANES, fill_uniforms32
 
 __all__ = ["FRESNEL_CELLS", "fresnel_bounds", "lambert_spectral32_chunk", "ggx_spectral32_chunk"]
 
-from virtual.kernel_codes import FRESNEL_CELLS  # noqa: E402
+from virtual.kernel_codes import FRESNEL_CELLS
 #: Absolute padding of the bounds: covers the float32 evaluation of F (a few 1e-7) and of the
 #: products u g_den, F g_num (a few ulp), with a wide margin.
 FRESNEL_PAD = 1e-5

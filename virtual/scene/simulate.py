@@ -23,7 +23,9 @@ from virtual import engine
 from virtual.beam import Beam, check_incidence
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.collector import Collector
-from virtual.effects import N_EFFECT_ARGS
+from virtual.kernels.ray_loop import (E_DETECTOR_PORT, E_NEAR_DISTANCE, E_NEAR_RADIUS, E_PATTERN_CONTRAST, E_PATTERN_PERIOD,
+                                     E_PORT_FRACTION, E_SPECIMEN_PORT, E_SPOT_RADIUS, E_STRAY_FRACTION, E_WALL_REFLECTANCE,
+                                     N_EFFECT_ARGS)
 from virtual.engine import NO_CONE, measurement_seed, multinomial_counts
 from virtual.quadrature import integrate_patches
 from virtual.scene.declared import Effects
@@ -194,18 +196,20 @@ class Scene:
         e = self.effects
         v = np.zeros(N_EFFECT_ARGS)
         if e.stray_light is not None:
-            v[0] = e.stray_light.fraction
+            v[E_STRAY_FRACTION] = e.stray_light.fraction
         if e.sphere is not None:
             s = e.sphere
-            v[1:5] = [s.wall_reflectance, s.detector_port, s.specimen_port, s.port_fraction]
-        v[5] = 1.0
+            v[E_WALL_REFLECTANCE], v[E_DETECTOR_PORT] = s.wall_reflectance, s.detector_port
+            v[E_SPECIMEN_PORT], v[E_PORT_FRACTION] = s.specimen_port, s.port_fraction
+        v[E_PATTERN_PERIOD] = 1.0
         # the illuminated spot (positions of a collimated beam): the specimen disk by default
-        v[7] = self.beam.specimen_radius_mm
+        v[E_SPOT_RADIUS] = self.beam.specimen_radius_mm
         if e.specimen is not None:
-            v[5], v[6], v[7] = e.specimen.period_mm, e.specimen.contrast, e.specimen.spot_radius_mm
+            v[E_PATTERN_PERIOD], v[E_PATTERN_CONTRAST] = e.specimen.period_mm, e.specimen.contrast
+            v[E_SPOT_RADIUS] = e.specimen.spot_radius_mm
         if e.aperture is not None and e.aperture.near:
             d = float(e.aperture.distance_mm)  # type: ignore[arg-type]
-            v[8], v[9] = d, d * math.tan(math.radians(e.aperture.half_angle_deg))
+            v[E_NEAR_DISTANCE], v[E_NEAR_RADIUS] = d, d * math.tan(math.radians(e.aperture.half_angle_deg))
         return v
 
     def _ptab(self, wl: float) -> tuple[np.ndarray, np.ndarray | None]:

@@ -137,7 +137,7 @@ class Param:
     def check(self, v: float) -> float:
         """``v`` as a float, or :class:`SpecimenError` naming the parameter and its range."""
         v = float(v)
-        if self.choices and not (v in range(len(self.choices))):
+        if self.choices and v not in range(len(self.choices)):
             raise SpecimenError(f"{self.name} must be one of {', '.join(self.choices)}, got {v:g}")
         if not (math.isfinite(v) and self.lo <= v <= self.hi):
             u = f" {self.unit}" if self.unit else ""

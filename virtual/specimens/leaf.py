@@ -23,7 +23,7 @@ from virtual.leaf_optics import (INCIDENCE_CALIBRATION_DEG, PROSPECT_RANGE_NM, L
 from virtual.specimens.declare import DeclaredSpecimen, Param, Spectral, register_specimen
 from virtual.specimens.physics import local, mirror, np_fresnel_dielectric, np_ggx_reflection
 
-__all__ = ["Leaf", "LEAF_LIBRARY", "leaf_library"]
+__all__ = ["Leaf", "LEAF_LIBRARY"]
 
 #: the named leaves (``leaf:NAME``)
 LEAF_LIBRARY = Path(__file__).resolve().parents[2] / "fixtures" / "specimens" / "leaves.toml"
@@ -36,11 +36,6 @@ def _library(path: str) -> dict[str, dict[str, Any]]:
     if not isinstance(leaves, dict) or not leaves:
         raise SpecimenError(f"leaf library {path}: no [leaf.NAME] tables")
     return leaves
-
-
-def leaf_library(path: str | Path = LEAF_LIBRARY) -> dict[str, dict[str, Any]]:
-    """The named leaves: name -> {parameters..., description, source}."""
-    return {k: dict(v) for k, v in _library(str(path)).items()}
 
 
 @lru_cache(maxsize=64)

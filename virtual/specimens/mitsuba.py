@@ -67,7 +67,7 @@ def _mitsuba(variant: str) -> Any:
     if mi.variant() != variant:
         try:
             mi.set_variant(variant)
-        except Exception as exc:  # noqa: BLE001 - mitsuba raises plain errors
+        except Exception as exc:  # mitsuba raises plain errors
             raise SpecimenError(f"Mitsuba variant {variant!r} is not available: {exc}") from None
     return mi
 
@@ -109,7 +109,7 @@ class MitsubaSpecimen(Specimen):
         mi = _mitsuba(self.variant)
         try:
             obj = mi.load_dict(self.definition)
-        except Exception as exc:  # noqa: BLE001 - mitsuba raises RuntimeError with its message
+        except Exception as exc:  # mitsuba raises RuntimeError with its message
             raise SpecimenError(f"Mitsuba could not load {self.definition!r}: {exc}") from None
         if not isinstance(obj, mi.BSDF):
             raise SpecimenError(f"Mitsuba object of type {self.definition['type']!r} is not a BSDF")

@@ -16,7 +16,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from virtual.wire.dxl_codec import BROADCAST_ID, ERR, INST, Packet, PacketParser, encode_status
 from virtual.wire.dxl_servo import TICKS_PER_REV, Servo
-from virtual.wire.pty import open_pty
+from virtual.wire.pty import open_pty, write_all
 
 
 
@@ -321,7 +321,7 @@ class PtyBusThread:
                     with self._lock:
                         late = self.bus.take_due()
                     if late:
-                        _write_all(self._master, late)
+                        write_all(self._master, late)
                     continue
                 data = os.read(self._master, 4096)
             except BlockingIOError:
@@ -334,7 +334,7 @@ class PtyBusThread:
                 if self.bus.faults.delay_s:
                     time.sleep(self.bus.faults.delay_s)
                 try:
-                    _write_all(self._master, reply)
+                    write_all(self._master, reply)
                 except OSError:
                     return
 
@@ -359,13 +359,3 @@ class PtyBusThread:
 
     def __exit__(self, *exc: object) -> None:
         self.kill()
-
-
-def _write_all(fd: int, data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        try:
-            n = os.write(fd, view)
-            view = view[n:]
-        except BlockingIOError:
-            select.select([], [fd], [], 0.1)

@@ -65,22 +65,11 @@ from typing import Any, Mapping, Sequence
 
 from bench.core.errors import DeviceError
 
-from virtual.wire.dxl_bus import BusTransport, DynamixelBus, Faults, PtyBusThread, _write_all  # noqa: F401
-from virtual.wire.dxl_codec import (
-    BROADCAST_ID, ERR, ERRBIT_ALERT, HW_ERROR_BITS, INST, Packet, PacketError, PacketParser, crc16,
-    decode_packet, encode_instruction, encode_status, stuff, unstuff,
-)
-from virtual.wire.dxl_servo import ADDR, Servo
-from virtual.wire.pty import EmulatorProcess, open_pty
+from virtual.wire.dxl_bus import DynamixelBus
+from virtual.wire.pty import EmulatorProcess, open_pty, write_all
 
 
-__all__ = [
-    "crc16", "stuff", "unstuff", "encode_instruction", "encode_status", "decode_packet",
-    "Packet", "PacketParser", "PacketError",
-    "Servo", "DynamixelBus", "BusTransport", "PtyBusThread", "BusControl", "start_bus", "serve",
-    "main",
-    "INST", "ERR", "ERRBIT_ALERT", "BROADCAST_ID", "HW_ERROR_BITS", "ADDR",
-]
+__all__ = ["BusControl", "start_bus", "serve", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +117,7 @@ def serve(bus: DynamixelBus, master_fd: int, server: socket.socket,
                                 max(0.0, min(0.5, due - time.monotonic())))
         late = bus.take_due()
         if late:
-            _write_all(master_fd, late)
+            write_all(master_fd, late)
         for s in r:
             if s == master_fd:
                 try:
@@ -142,7 +131,7 @@ def serve(bus: DynamixelBus, master_fd: int, server: socket.socket,
                 if reply:
                     if bus.faults.delay_s:
                         time.sleep(bus.faults.delay_s)
-                    _write_all(master_fd, reply)
+                    write_all(master_fd, reply)
             elif s is server:
                 conn, _ = server.accept()
                 clients[conn] = bytearray()

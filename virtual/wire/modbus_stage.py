@@ -56,7 +56,7 @@ from virtual.wire.pty import PipeEmulator, open_raw_pty
 
 log = logging.getLogger(__name__)
 
-__all__ = ["StageConfig", "StageModel", "StageEmulator", "start_stage_emulator", "read_feedback_steps"]
+__all__ = ["StageConfig", "StageModel", "StageEmulator", "read_feedback_steps"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -327,11 +327,6 @@ class StageEmulator(PipeEmulator):
 
     def __repr__(self) -> str:
         return f"StageEmulator({self.transport}, {self.url}, pid={self._proc.pid})"
-
-
-def start_stage_emulator(transport: str = "tcp", **config: Any) -> StageEmulator:
-    """Start a stage emulator process; the handle's ``url`` is what the driver opens."""
-    return StageEmulator.start(transport, **config)
 
 
 def main(argv: list[str] | None = None) -> int:

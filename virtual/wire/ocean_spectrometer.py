@@ -1,6 +1,7 @@
 """An Ocean-Optics-style RS-232 spectrometer, emulated on a pseudo-terminal in its own process.
 
-It speaks the protocol of ``/work/shared/reference/ocean-rs232.md`` as pinned down in
+It speaks the protocol of the Ocean Optics Flame-S manual (chapter "Firmware and Advanced
+Communications") as pinned down in
 :mod:`drivers.ocean` (binary and ASCII modes, ACK/NAK, checksum mode, compression, scans to
 add, trigger mode, ``?x`` calibration slots) and produces
 
@@ -41,20 +42,16 @@ import sys
 import threading
 from typing import Any
 
-from virtual.wire.ocean_codec import compress, encode_frame, encode_frame_ascii  # noqa: F401
-from virtual.wire.ocean_device import _Device, _Faults  # noqa: F401
-from virtual.wire.ocean_model import (  # noqa: F401
-    Settings, SpectrometerConfig, SpectrometerModel, constant_response, cosine_response,
-    file_geometry_source,
+from virtual.wire.ocean_device import _Device, _Faults
+from virtual.wire.ocean_model import (
+    SpectrometerConfig, SpectrometerModel,
 )
-from virtual.wire.pty import PipeEmulator, open_raw_pty
+from virtual.wire.pty import PipeEmulator, open_raw_pty, write_all
 
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SpectrometerConfig", "SpectrometerModel", "SpectrometerEmulator",
-           "constant_response", "cosine_response", "file_geometry_source", "encode_frame",
-           "compress", "start_spectrometer_emulator"]
+__all__ = ["SpectrometerEmulator"]
 
 
 
@@ -71,15 +68,10 @@ def _child_main(cfg: dict[str, Any], geometry_source: Any, response: Any, conn: 
         raise
 
     def write(data: bytes) -> None:
-        view = memoryview(data)
-        while view:
-            try:
-                n = os.write(master, view)
-                view = view[n:]
-            except BlockingIOError:
-                select.select([], [master], [], 0.05)
-            except OSError:
-                return
+        try:
+            write_all(master, data)
+        except OSError:  # the host closed its end: the reply has nowhere to go
+            return
 
     os.set_blocking(master, False)
     dev = _Device(model, write)
@@ -192,11 +184,6 @@ class SpectrometerEmulator(PipeEmulator):
 
     def __repr__(self) -> str:
         return f"SpectrometerEmulator({self.port}, pid={self._proc.pid})"
-
-
-def start_spectrometer_emulator(**kwargs: Any) -> SpectrometerEmulator:
-    """Start a spectrometer emulator process; the handle's ``port`` is what the driver opens."""
-    return SpectrometerEmulator.start(**kwargs)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 from bench.core.errors import DeviceError, PortGoneError
 
-__all__ = ["open_pty", "open_raw_pty", "EmulatorProcess", "EmulatorStartError", "PipeEmulator"]
+__all__ = ["open_pty", "open_raw_pty", "write_all", "EmulatorProcess", "EmulatorStartError", "PipeEmulator"]
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +46,17 @@ def open_pty() -> tuple[int, int, str]:
     tty.setraw(slave)
     os.set_blocking(master, False)
     return master, slave, os.ttyname(slave)
+
+
+def write_all(fd: int, data: bytes) -> None:
+    """Write every byte of ``data`` to a non-blocking ``fd``, waiting while it is full."""
+    view = memoryview(data)
+    while view:
+        try:
+            n = os.write(fd, view)
+            view = view[n:]
+        except BlockingIOError:
+            select.select([], [fd], [], 0.1)
 
 
 def open_raw_pty() -> tuple[int, int, str]:

@@ -1,8 +1,8 @@
 """The ray-by-ray counting kernels, with a scene's per-ray effects (bit flags, see
 :mod:`virtual.effects` for what each effect does; with none set they are the bare kernels, which
 :func:`virtual.engine.spectro_counts` and the ``ray`` shape of :func:`virtual.engine.gonio_counts`
-run), and the spectrophotometer fed with given disk points. They reuse :func:`~virtual.kernels.beam.emit`,
-:func:`~virtual.kernels.scatter.scatter` and :func:`~virtual.kernels.collector.patch_of`.
+run), and the spectrophotometer fed with given disk points. They reuse :func:`~virtual.kernels.emit.emit`,
+:func:`~virtual.kernels.scatter.scatter` and :func:`~virtual.kernels.patch_lookup.patch_of`.
 """
 
 from __future__ import annotations
@@ -12,17 +12,31 @@ import math
 import numpy as np
 
 from virtual.kernels import jit
-from virtual.kernels.beam import BEAM_COLLIMATED, emit, toward_source
-from virtual.kernels.collector import patch_of
-from virtual.kernels.rng import next_double
-from virtual.kernels.sampling import sample_cosine_hemisphere, warp_square
+from virtual.kernels.emit import (B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_SPECIMEN_RADIUS, BEAM_COLLIMATED, emit,
+                                  toward_source)
+from virtual.kernels.patch_lookup import patch_of
+from virtual.kernels.xoshiro import next_double
+from virtual.kernels.warps import sample_cosine_hemisphere, warp_square
 from virtual.kernels.scatter import scatter
 
-__all__ = ["N_EFFECT_ARGS", "FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN", "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS",
+__all__ = ["N_EFFECT_ARGS", "E_STRAY_FRACTION", "E_WALL_REFLECTANCE", "E_DETECTOR_PORT", "E_SPECIMEN_PORT",
+           "E_PORT_FRACTION", "E_PATTERN_PERIOD", "E_PATTERN_CONTRAST", "E_SPOT_RADIUS", "E_NEAR_DISTANCE",
+           "E_NEAR_RADIUS", "FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN", "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS",
            "spectro_fx_chunk", "gonio_fx_chunk", "spectro_points_chunk"]
 
-from virtual.kernel_codes import (FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE,  # noqa: E402
+from virtual.kernel_codes import (FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE,
                                   FX_STRAY, N_EFFECT_ARGS)
+# Indices into the effect vector ``e`` (see :mod:`virtual.effects`; numba compiles them as constants)
+E_STRAY_FRACTION = 0
+E_WALL_REFLECTANCE = 1
+E_DETECTOR_PORT = 2
+E_SPECIMEN_PORT = 3
+E_PORT_FRACTION = 4
+E_PATTERN_PERIOD = 5
+E_PATTERN_CONTRAST = 6
+E_SPOT_RADIUS = 7
+E_NEAR_DISTANCE = 8
+E_NEAR_RADIUS = 9
 
 _TWO_PI = 2.0 * math.pi
 
@@ -44,16 +58,16 @@ def _emit_at(kind, disk, b, bp, spot_r, s):
         wx, wy, wz, hit = emit(kind, disk, b, s)
         x, y = _spot(spot_r, s)
         return wx, wy, wz, hit, x, y
-    x, y = _spot(b[10], s)
+    x, y = _spot(b[B_SPECIMEN_RADIUS], s)
     ux, uy, uz, _ = emit(kind, disk, bp, s)  # toward the emitter point seen from the centre
     # the emitter point O satisfies O . axis = D, so O = u D / (u . axis)
-    t = bp[11] / (ux * b[12] + uy * b[13] + uz * b[14])
+    t = bp[B_DISTANCE] / (ux * b[B_AXIS_X] + uy * b[B_AXIS_Y] + uz * b[B_AXIS_Z])
     ox = ux * t - x
     oy = uy * t - y
     oz = uz * t
     inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
     wx, wy, wz = ox * inv, oy * inv, oz * inv
-    return wx, wy, wz, wz * b[14] > 0.0, x, y
+    return wx, wy, wz, wz * b[B_AXIS_Z] > 0.0, x, y
 
 
 
@@ -82,11 +96,11 @@ def spectro_fx_chunk(model, ptab, cdf, beam_kind, disk, b, bp, cone, flags, e, n
     detected = np.int64(0)
     stray = np.int64(0)
     for _ in range(n_rays):
-        if (flags & FX_STRAY) != 0 and next_double(s) < e[0]:
+        if (flags & FX_STRAY) != 0 and next_double(s) < e[E_STRAY_FRACTION]:
             stray += 1
             continue
         if positions:
-            wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[7], s)
+            wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[E_SPOT_RADIUS], s)
         else:
             wx, wy, wz, hit = emit(beam_kind, disk, b, s)
             px = 0.0
@@ -94,7 +108,7 @@ def spectro_fx_chunk(model, ptab, cdf, beam_kind, disk, b, bp, cone, flags, e, n
             missed += 1
             continue
         if (flags & FX_PATTERN) != 0:
-            m = 1.0 - e[6] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[5]))
+            m = 1.0 - e[E_PATTERN_CONTRAST] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[E_PATTERN_PERIOD]))
             if next_double(s) >= m:
                 absorbed += 1
                 continue
@@ -115,22 +129,22 @@ def spectro_fx_chunk(model, ptab, cdf, beam_kind, disk, b, bp, cone, flags, e, n
             side = 1.0 if wz > 0.0 else -1.0
             while True:  # strikes on the sphere surface; ends w.p. 1 (wall reflectance < 1)
                 u = next_double(s)
-                if u < e[2]:
+                if u < e[E_DETECTOR_PORT]:
                     detected += 1
                     break
-                u -= e[2]
-                if u < e[3]:  # back on the specimen: diffuse illumination from the sphere
+                u -= e[E_DETECTOR_PORT]
+                if u < e[E_SPECIMEN_PORT]:  # back on the specimen: diffuse illumination from the sphere
                     dx, dy, dz = sample_cosine_hemisphere(s)
                     dz = dz * side
                     qx, qy, qz, ok = scatter(model, p, dx, dy, dz, s)
                     if not ok or qz * dz <= 0.0:
                         break
                     continue
-                u -= e[3]
-                if u < e[4] - e[2] - e[3]:  # another port: lost
+                u -= e[E_SPECIMEN_PORT]
+                if u < e[E_PORT_FRACTION] - e[E_DETECTOR_PORT] - e[E_SPECIMEN_PORT]:  # another port: lost
                     break
-                u -= e[4] - e[2] - e[3]
-                if u >= (1.0 - e[4]) * e[1]:  # absorbed by the wall
+                u -= e[E_PORT_FRACTION] - e[E_DETECTOR_PORT] - e[E_SPECIMEN_PORT]
+                if u >= (1.0 - e[E_PORT_FRACTION]) * e[E_WALL_REFLECTANCE]:  # absorbed by the wall
                     break
     out[0] += refl
     out[1] += trans
@@ -151,18 +165,18 @@ def gonio_fx_chunk(model, ptab, cdf, beam_kind, disk, b, bp, cargs, n_bins, flag
     for _ in range(n_rays):
         px = 0.0
         py = 0.0
-        if (flags & FX_STRAY) != 0 and next_double(s) < e[0]:
+        if (flags & FX_STRAY) != 0 and next_double(s) < e[E_STRAY_FRACTION]:
             ox, oy, oz = sample_cosine_hemisphere(s)
         else:
             if positions:
-                wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[7], s)
+                wx, wy, wz, hit, px, py = _emit_at(beam_kind, disk, b, bp, e[E_SPOT_RADIUS], s)
             else:
                 wx, wy, wz, hit = emit(beam_kind, disk, b, s)
             if not hit:
                 hist[n_bins + 1] += 1
                 continue
             if (flags & FX_PATTERN) != 0:
-                m = 1.0 - e[6] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[5]))
+                m = 1.0 - e[E_PATTERN_CONTRAST] * 0.5 * (1.0 + math.cos(_TWO_PI * px / e[E_PATTERN_PERIOD]))
                 if next_double(s) >= m:
                     hist[n_bins] += 1
                     continue
@@ -177,11 +191,11 @@ def gonio_fx_chunk(model, ptab, cdf, beam_kind, disk, b, bp, cargs, n_bins, flag
                 cv = ox * det[j, 0] + oy * det[j, 1] + oz * det[j, 2]
                 if near:
                     if cv > 0.0:
-                        t = (e[8] - (px * det[j, 0] + py * det[j, 1])) / cv
-                        hx = px + t * ox - e[8] * det[j, 0]
-                        hy = py + t * oy - e[8] * det[j, 1]
-                        hz = t * oz - e[8] * det[j, 2]
-                        if hx * hx + hy * hy + hz * hz <= e[9] * e[9]:
+                        t = (e[E_NEAR_DISTANCE] - (px * det[j, 0] + py * det[j, 1])) / cv
+                        hx = px + t * ox - e[E_NEAR_DISTANCE] * det[j, 0]
+                        hy = py + t * oy - e[E_NEAR_DISTANCE] * det[j, 1]
+                        hz = t * oz - e[E_NEAR_DISTANCE] * det[j, 2]
+                        if hx * hx + hy * hy + hz * hz <= e[E_NEAR_RADIUS] * e[E_NEAR_RADIUS]:
                             hist[n_bins + 2 + j] += 1
                 elif cv >= det[j, 3]:
                     hist[n_bins + 2 + j] += 1

@@ -1,14 +1,14 @@
 """The block counting kernels: every chunk draws its own stream and writes only its own row.
 
 (The ray-by-ray kernels, which emit, scatter and count each ray before the next, for any specimen
-and any disk sampling, are :mod:`virtual.kernels.effects`'s: with no effect flag set they are the
+and any disk sampling, are :mod:`virtual.kernels.ray_loop`'s: with no effect flag set they are the
 bare kernels, drawing exactly the same numbers -- one compiled kernel per instrument, not two.)
 
 * block (``gonio_block_chunk``): rays go through in blocks of :data:`BLOCK_RAYS`; the block's
   uniforms are drawn first, 64 lanes side by side, then one branch-free loop emits (polar
   disks), scatters (:func:`~virtual.kernels.scatter.scatter_given`) and bins
-  (:func:`~virtual.kernels.collector.guess_bin`) every ray, then a short scalar loop settles
-  the rare uncertain bin with the exact :func:`~virtual.kernels.collector.patch_of`.
+  (:func:`~virtual.kernels.patch_lookup.guess_bin`) every ray, then a short scalar loop settles
+  the rare uncertain bin with the exact :func:`~virtual.kernels.patch_lookup.patch_of`.
 
 The Python wrappers (chunking, seeding, choosing a kernel) are :mod:`virtual.engine`.
 """
@@ -18,12 +18,12 @@ from __future__ import annotations
 import numpy as np
 
 from virtual.kernels import jit
-from virtual.kernels.beam import BEAM_CONICAL, emit_given
-from virtual.kernels.collector import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
-from virtual.kernels.rng import LANES, fill_uniforms
+from virtual.kernels.emit import BEAM_CONICAL, emit_given
+from virtual.kernels.patch_lookup import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
+from virtual.kernels.xoshiro import LANES, fill_uniforms
 from virtual.kernels.microfacet import fresnel_conductor_ratio
-from virtual.kernels.sampling import sincos_2pi, warp_cosine_hemisphere
-from virtual.kernels.given import (GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, phong_given, phong_lobe_cos,
+from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
+from virtual.kernels.branchfree import (GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, phong_given, phong_lobe_cos,
                                    plastic_diffuse_redo, plastic_given, scatter_given4)
 from virtual.kernels.scatter import (GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT,
                                      MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, ggx_given_parts, scatter_given)
@@ -31,7 +31,7 @@ from virtual.kernels.scatter import (GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX
 __all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "gonio_block_chunk", "lambert_spectral_chunk",
            "ggx_spectral_chunk"]
 
-from virtual.kernel_codes import BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS  # noqa: E402
+from virtual.kernel_codes import BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS
 
 
 @jit(inline="always")

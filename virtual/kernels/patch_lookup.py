@@ -16,7 +16,7 @@ from virtual.kernels import jit
 __all__ = ["SCHEME_EQUAL_ANGLE", "SCHEME_EQUAL_SOLID_ANGLE", "SCHEME_EQUAL_PSA", "ATAN_MAX_ERROR",
            "patch_of", "guess_bin"]
 
-from virtual.kernel_codes import ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE  # noqa: E402
+from virtual.kernel_codes import ATAN_MAX_ERROR, SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
 
 _TWO_PI = 2.0 * math.pi
 _SCALE_UP = 2.0 ** 600     # brings any tiny component (>= 2^-1074) to >= 2^-474: squares stay normal

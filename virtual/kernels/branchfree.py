@@ -16,15 +16,15 @@ import math
 from virtual.kernels import jit
 from virtual.kernels.microfacet import (fresnel_dielectric, g2_over_g1_masked_ratio, g2_over_g1_ratio, ggx_n,
                                         ggx_vndf_given, unit_disk)
-from virtual.kernels.rng import next_double
-from virtual.kernels.sampling import sincos_2pi, warp_cosine_hemisphere
+from virtual.kernels.xoshiro import next_double
+from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.scatter import MODEL_OREN_NAYAR, MODEL_PHONG, frame
 
 __all__ = ["GIVEN4_MODELS", "GIVEN4_UNIFORMS", "scatter_given4", "PLASTIC_UNIFORMS", "plastic_given",
            "plastic_diffuse_redo", "phong_given", "phong_lobe_cos"]
 
 
-from virtual.kernel_codes import GIVEN4_MODELS, GIVEN4_UNIFORMS  # noqa: E402
+from virtual.kernel_codes import GIVEN4_MODELS, GIVEN4_UNIFORMS
 
 
 @jit(inline="always")
@@ -128,7 +128,7 @@ def scatter_given4(model, p, wx, wy, wz, u0, u1, u2, u3):
     return _dielectric_given(p, wx, wy, wz, u0, u1, u2, u3)
 
 
-# --- rough plastic for the block kernel (issue 18) ------------------------------------------------
+# --- rough plastic for the block kernel (float32 and float64) --------------------------------------
 #: Uniforms :func:`plastic_given` consumes per ray.
 PLASTIC_UNIFORMS = 7
 

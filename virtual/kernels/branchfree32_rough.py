@@ -1,14 +1,14 @@
 """Float32 forms of the rough dielectric and the rough plastic for the 16-lane block kernel
-(:mod:`virtual.kernels.block32`, issue 18).
+(:mod:`virtual.kernels.block32`).
 
-Each is its float64 given form (:func:`~virtual.kernels.given._dielectric_given`,
-:func:`~virtual.kernels.given.plastic_given`) with the same uniforms in the same roles, written
+Each is its float64 given form (:func:`~virtual.kernels.branchfree._dielectric_given`,
+:func:`~virtual.kernels.branchfree.plastic_given`) with the same uniforms in the same roles, written
 with the float32 helpers of :mod:`virtual.kernels.f32` (the branch-free
 :func:`~virtual.kernels.f32.fresnel_dielectric32` among them): the same law of the outputs up to
 float32 rounding, tested against the float64 ray-by-ray kernel by two-sample chi-square
 (tests/test_block32_rough_families.py). Parameters ``p`` are a tuple of float32. The plastic's
 rare rejected diffuse rays are finished in float64 by
-:func:`~virtual.kernels.given.plastic_diffuse_redo`, as in the float64 block kernel.
+:func:`~virtual.kernels.branchfree.plastic_diffuse_redo`, as in the float64 block kernel.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ from virtual.kernels import jit
 
 __all__ = ["LANES", "next_uint64", "next_double", "fill_uniforms", "fill_uniforms32"]
 
-from virtual.kernel_codes import LANES  # noqa: E402
+from virtual.kernel_codes import LANES
 
 _TO_DOUBLE = 1.0 / 9007199254740992.0  # 2**-53
 

@@ -1,7 +1,8 @@
 """Emitting one incident ray: the unit vector toward its source and whether it hits the front.
 
-``b`` is :meth:`virtual.beam.Beam.kernel_args`: the rotation to the incidence (b[0:9]), the
-emitter and specimen disk radii (b[9], b[10]), the distance D (b[11]) and the axis (b[12:15]).
+``b`` is :meth:`virtual.beam.Beam.kernel_args`, read through the ``B_*`` indices: the rotation to
+the incidence (row-major, ``b[0:9]``), the emitter and specimen disk radii, the distance D and the
+axis (the rotation's third column).
 :func:`toward_source` is the one formula of a conical ray's direction.
 """
 
@@ -10,13 +11,16 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.rng import next_double
-from virtual.kernels.sampling import warp_polar, warp_square
+from virtual.kernels.xoshiro import next_double
+from virtual.kernels.warps import warp_polar, warp_square
 
 __all__ = ["beam_tuple", "BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "emit",
-           "emit_given", "toward_source"]
+           "emit_given", "toward_source", "B_EMITTER_RADIUS", "B_SPECIMEN_RADIUS",
+           "B_DISTANCE", "B_AXIS_X", "B_AXIS_Y", "B_AXIS_Z", "N_BEAM_ARGS"]
 
-from virtual.kernel_codes import BEAM_COLLIMATED, BEAM_CONICAL, DISK_AUTO, DISK_POLAR, DISK_REJECTION  # noqa: E402
+from virtual.kernel_codes import (B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS,
+                                  B_SPECIMEN_RADIUS, BEAM_COLLIMATED, BEAM_CONICAL, DISK_AUTO, DISK_POLAR,
+                                  DISK_REJECTION, N_BEAM_ARGS)
 
 
 @jit(inline="always")
@@ -39,9 +43,9 @@ def emit(kind, disk, b, s):
     ``b`` is :meth:`Beam.kernel_args`. Returns ``(wx, wy, wz, hit)``.
     """
     if kind == BEAM_COLLIMATED:
-        return b[12], b[13], b[14], True
-    x1, y1 = _disk(next_double(s), next_double(s), b[9], disk, s)
-    x2, y2 = _disk(next_double(s), next_double(s), b[10], disk, s)
+        return b[B_AXIS_X], b[B_AXIS_Y], b[B_AXIS_Z], True
+    x1, y1 = _disk(next_double(s), next_double(s), b[B_EMITTER_RADIUS], disk, s)
+    x2, y2 = _disk(next_double(s), next_double(s), b[B_SPECIMEN_RADIUS], disk, s)
     return toward_source(b, x1, y1, x2, y2)
 
 
@@ -50,13 +54,13 @@ def emit(kind, disk, b, s):
 def toward_source(b, x1, y1, x2, y2):
     """Unit vector from the target (x2, y2, 0) to the emitter point R (x1, y1, D), and whether
     it arrives on the front face (the side the beam axis comes from)."""
-    d = b[11]
+    d = b[B_DISTANCE]
     ox = b[0] * x1 + b[1] * y1 + b[2] * d - x2
     oy = b[3] * x1 + b[4] * y1 + b[5] * d - y2
     oz = b[6] * x1 + b[7] * y1 + b[8] * d
     inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
     wx, wy, wz = ox * inv, oy * inv, oz * inv
-    return wx, wy, wz, wz * b[14] > 0.0
+    return wx, wy, wz, wz * b[B_AXIS_Z] > 0.0
 
 
 
@@ -64,11 +68,11 @@ def toward_source(b, x1, y1, x2, y2):
 def emit_given(kind, b, u1, u2, u3, u4):
     """:func:`emit` with both disks drawn by the polar warp from the given uniforms (none are
     read for a collimated beam): branch-free, for the vectorized block kernel."""
-    x1, y1 = warp_polar(u1, u2, b[9])
-    x2, y2 = warp_polar(u3, u4, b[10])
+    x1, y1 = warp_polar(u1, u2, b[B_EMITTER_RADIUS])
+    x2, y2 = warp_polar(u3, u4, b[B_SPECIMEN_RADIUS])
     wx, wy, wz, hit = toward_source(b, x1, y1, x2, y2)
     col = kind == BEAM_COLLIMATED
-    return (b[12] if col else wx), (b[13] if col else wy), (b[14] if col else wz), (True if col else hit)
+    return (b[B_AXIS_X] if col else wx), (b[B_AXIS_Y] if col else wy), (b[B_AXIS_Z] if col else wz), (True if col else hit)
 
 
 @jit(inline="always")

@@ -1,7 +1,7 @@
 """Float32 forms of the specimens for the 16-lane block kernel (:mod:`virtual.kernels.block32`).
 
 Each is the float64 given form (:func:`~virtual.kernels.scatter.scatter_given`,
-:mod:`virtual.kernels.given`) with the same uniforms in the same roles, written with the
+:mod:`virtual.kernels.branchfree`) with the same uniforms in the same roles, written with the
 float32 helpers of :mod:`virtual.kernels.f32`: the same law of ``(ox, oy, oz, alive)`` up to
 float32 rounding (tested against the float64 ray-by-ray kernel by two-sample chi-square,
 tests/test_block32_diffuse_families.py). Parameters ``p`` are a tuple of float32.
@@ -113,7 +113,7 @@ def phong_lobe_omc32(p, u, ibuf, out):
 
 @jit(inline="always")
 def phong_given32(p, wx, wy, wz, u0, u1, u2, u3, omc):
-    """:func:`~virtual.kernels.given.phong_given` in float32: diffuse when u0 < kd (Malley from
+    """:func:`~virtual.kernels.branchfree.phong_given` in float32: diffuse when u0 < kd (Malley from
     (u1, u2)), the cos^n lobe when u0 < kd + lobe share (1 - cos(alpha) = ``omc`` from
     :func:`phong_lobe_omc32` (u2), azimuth 2 pi u1, surviving with probability cos(theta_o) by u3)."""
     flip = wz < ZERO
@@ -140,7 +140,7 @@ def phong_given32(p, wx, wy, wz, u0, u1, u2, u3, omc):
 
 @jit(inline="always")
 def oren_nayar_given32(p, wx, wy, wz, u0, u1, u2, u3):
-    """:func:`~virtual.kernels.given._oren_nayar_given` in float32: the cosine lobe (Malley from
+    """:func:`~virtual.kernels.branchfree._oren_nayar_given` in float32: the cosine lobe (Malley from
     (u1, u2)) when u0 < albedo A, else uniform in cos(theta_o) (1 - u1) with azimuth density
     cos(dphi)/2 (sin dphi = 2 u2 - 1) when u0 < albedo (A + 2 B / pi), surviving by u3."""
     flip = wz < ZERO

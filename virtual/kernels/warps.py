@@ -11,7 +11,7 @@ import math
 from numba import int64
 
 from virtual.kernels import jit
-from virtual.kernels.rng import next_double
+from virtual.kernels.xoshiro import next_double
 
 __all__ = ["warp_square", "sincos_2pi", "warp_polar", "warp_triangle", "warp_cosine_hemisphere",
            "sample_cosine_hemisphere"]
