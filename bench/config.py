@@ -73,6 +73,10 @@ class Bench:
     config: dict[str, Any] = field(default_factory=dict)
     closers: list[Callable[[], None]] = field(default_factory=list)
     parts: dict[str, Any] = field(default_factory=dict)  # builder-specific handles (e.g. emulators)
+    #: the white standard is mounted by a person (a real bench): unattended runs need a stored
+    #: reading or ``operator_confirmed`` (``bench white --yes``: the operator says it is mounted)
+    white_needs_operator: bool = False
+    operator_confirmed: bool = False
 
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {"name": self.name, "kind": self.kind}

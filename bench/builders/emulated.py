@@ -45,7 +45,8 @@ from bench.config import Bench
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import ConfigError
 from bench.core.parsing import parse_wavelengths
-from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
+from bench.core.roles import Reading
+from bench.builders.light import LAMP_LINE, LampLine
 from bench.builders.motion import motion_profile
 from drivers.dynamixel import DynamixelArm
 from drivers.kinematics import Joints, geometry_to_joints, joints_to_geometry
@@ -77,22 +78,6 @@ DEFAULT_EMULATED_CONFIG: dict[str, Any] = {
     "white": {"reflectance_factor": 0.99, "uncertainty": 0.005, "geometry": [0, 0, 45, 180]},
     "emulated": {"time_scale": 50, "bands": "450:650:100", "bandwidth_nm": 10, "aperture_deg": 1.0, "seed": 7},
 }
-
-
-class LampLine(InstrumentBase):
-    """The LightSource role through the spectrometer's lamp-enable line (command ``J``)."""
-
-    def __init__(self, spectrometer: Any) -> None:
-        self.spectrometer = spectrometer
-
-    def describe(self) -> InstrumentInfo:
-        return InstrumentInfo(kind="light source", model="lamp on the spectrometer's lamp-enable line")
-
-    def on(self) -> None:
-        self.spectrometer.command("J", 1)
-
-    def off(self) -> None:
-        self.spectrometer.command("J", 0)
 
 
 # --- physics inside the spectrometer emulator process ------------------------------------------------
@@ -196,6 +181,7 @@ class Emulators:
         if not spec:
             raise ConfigError("emulated bench: [specimen] spec = \"...\" is required")
         parse_specimen(spec)  # a bad specimen fails here, before any process starts
+        self.specimen = str(spec)
         e = dict(d.get("emulated", {}))
         self.options = e
         self.time_scale = float(e.get("time_scale", 20.0))
@@ -246,6 +232,8 @@ class Emulators:
         """A ``kind = "real"`` bench config whose ports are these emulators."""
         arm = {k: v for k, v in self.arm_config.items()}
         return {"name": "emulators", "kind": "real", "arm": arm,
+                "specimen": {"name": f"emulated {self.specimen}", "spec": self.specimen},
+                "light": {"kind": LAMP_LINE},  # the emulated spectrometer's lamp-enable line: darks
                 "turntable": {"port": self.stage.url, **self.turntable_config},
                 "spectrometer": {"port": self.spectrometer.port},
                 "bands": {"centres": self.options.get("bands", "450:650:100"),

@@ -116,6 +116,10 @@ def cmd_show(args: argparse.Namespace) -> int:
         print(f"  {k:8s} {lo} .. {hi} deg")
     v = s["value"]
     print(f"  value {v['min']} .. {v['max']} ({v['n']} values, {v['n_missing']} masked), saturated {s['saturated']}")
+    steps = s.get("calibration_steps")
+    if steps:
+        print(f"  calibration: dark {steps['dark']}, white {steps['white']} ({steps['white_source']}), "
+              f"integration {steps['integration_s']} s, averages {steps['averages']}")
     t = s["timing"]
     print(f"  created {t['created_utc']}, finished {t['finished_utc']}, elapsed {t['elapsed_s']} s, "
           f"mean per point {t['mean_point_s']} s")

@@ -169,6 +169,7 @@ class WhiteTable(_Strict):
 
 class SpecimenTable(_Strict):
     spec: str
+    name: str = ""  # what the records call the mounted specimen (default: its spec)
 
 
 class VirtualTable(_Strict):

@@ -175,6 +175,7 @@ class RunReader:
                        "max_point_s": t_max},
             "value": {"min": vmin, "max": vmax, "n": n_val, "n_missing": n_read - n_val},
             "saturated": n_sat, "seed": info["seed"],
+            "calibration_steps": (info.get("meta") or {}).get("calibration_steps"),
         }
 
 
