@@ -106,21 +106,22 @@ class Bench:
         self.close()
 
 
-def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None) -> Bench:
+def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None, body: str | None = None) -> Bench:
     """Build the bench a config describes (a TOML path or its dict).
 
     The config goes through the declared schema (:class:`bench.core.schemas.BenchFile`) first,
     so a typo, a wrong type or an out-of-range value is one :class:`ConfigError` naming the file
-    and key before any device is built or emulator started.
+    and key before any device is built or emulator started. ``body`` (``virtual``, ``emulated``
+    or ``real``) picks what executes the description; default: its ``kind``.
     """
     if isinstance(config, Mapping):
         d, source = dict(config), "bench config"
     else:
         d, source = read_toml(config, "bench config"), f"bench config {config}"
     validate_document(BenchFile, d, source)
-    kind = str(d.get("kind", "virtual"))
+    kind = str(body or d.get("kind", "virtual"))  # the body executing the description (default: its kind)
     if kind not in BUILDERS:
-        raise ConfigError(f"bench kind must be one of {', '.join(BUILDERS)}, got {kind!r}")
+        raise ConfigError(f"bench body must be one of {', '.join(BUILDERS)}, got {kind!r}")
     module, func = BUILDERS[kind].split(":")
     builder = getattr(importlib.import_module(module), func)
     return builder(d, seed)

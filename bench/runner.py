@@ -123,8 +123,10 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     ``on_point(k, idx)`` is called after point number ``k`` (plan index ``idx``) is committed
     (tests use it to inject faults).
     """
-    validate(plan, bench.goniometer.check)  # refuse the whole plan before any motion
+    refused = validate(plan, bench.goniometer.check)  # refuse the whole plan before any motion, or skip
+    skipped = {r.index for r in refused}
     order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))
+    order = [i for i in order if i not in skipped]
     ref = stored_white(bench) if plan.white != "none" else None  # a bad file fails before any motion
     check_calibration_steps(bench, plan, ref)  # and so does a calibration step the bench cannot take
     stored_cal = ref.calibration(bench.white) if ref is not None else None
@@ -134,9 +136,10 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
             "homed": homed, "white_reference": None if ref is None else ref.provenance(),
             "source": "virtual" if bench.kind == "virtual" else "measured",
             "specimen": _specimen_name(bench), "plan_name": plan.name,
-            "calibration_steps": calibration_record(plan, ref)}
+            "calibration_steps": calibration_record(plan, ref),
+            "skipped": [r.as_dict() for r in refused]}  # unreachable = "skip": what was not measured, and why
     run_id = store.create_run(kind="scan", plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
-                              n_planned=len(plan.points), calibration=None if cal is None else cal.as_dict())
+                              n_planned=len(order), calibration=None if cal is None else cal.as_dict())
     return _execute(bench, plan, store, run_id, order, cal, set(), progress, on_point)
 
 

@@ -28,6 +28,10 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     unknown = set(v) - _VIRTUAL_KEYS
     if unknown:
         raise ConfigError(f"virtual bench: unknown [virtual] key(s) {sorted(unknown)}; known: {sorted(_VIRTUAL_KEYS)}")
+    if "virtual" not in d:  # the virtual body of an emulated or real description: its bands
+        bands = (d.get("bands") or {}).get("centres") or (d.get("emulated") or {}).get("bands")
+        if bands is not None:
+            v["wavelengths"] = bands
     if seed is not None:
         v["seed"] = seed
     elif "seed" in d:
@@ -47,7 +51,15 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
         standard.move_to(white.geometry)
         return standard.acquire(integration_s, averages)
 
-    return Bench(name=str(d.get("name", "virtual")), kind="virtual", goniometer=gonio, spectrometer=gonio,
-                 light=gonio, white=white, measure_white=measure_white, config=dict(d),
+    goniometer: Any = gonio
+    motion = joints = None
+    if str(d.get("kind", "virtual")) != "virtual" or "arm" in d:  # a physical bench's description: its rules
+        from bench.builders.twin import KinematicGoniometer, physical_rules
+
+        rules = physical_rules(d)
+        if rules is not None:
+            goniometer, motion, joints = KinematicGoniometer(gonio, rules.kinematics), rules.motion, rules.joints
+    return Bench(name=str(d.get("name", "virtual")), kind="virtual", goniometer=goniometer, spectrometer=gonio,
+                 light=gonio, white=white, measure_white=measure_white, config=dict(d), motion=motion, joints=joints,
                  closers=[gonio.close, standard.close])
 

@@ -13,7 +13,7 @@ import argparse
 
 from bench.cli.argtypes import count, real, run_id
 from bench.cli.commands import command_help
-from bench.cli.common import DEFAULT_STORE, emit_json, open_store, output_file
+from bench.cli.common import DEFAULT_STORE, add_bench_options, emit_json, open_store, output_file
 from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_white"]
@@ -28,7 +28,7 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
         raise InputError(f"--integration-s must be > 0 s, got {args.integration_s:g}")
     plan = Plan(name="white", kind="list", points=(), integration_s=args.integration_s, averages=args.averages,
                 dark=args.dark, white="once")
-    with load_bench(args.bench) as bench:
+    with load_bench(args.bench, body=args.body) as bench:
         bench.operator_confirmed = args.yes
         cal = measure_calibration(bench, plan, use_reference_file=False)
         return cal, bench.name
@@ -66,7 +66,7 @@ def cmd_white(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``white`` to the subcommands."""
     w = sub.add_parser("white", help=command_help("white"))
-    w.add_argument("--bench", metavar="BENCH.toml", help="measure the white standard on this bench now (default: none)")
+    add_bench_options(w, "measure the white standard on this bench now (default: none)", required=False)
     w.add_argument("--from-run", type=run_id, metavar="RUN",
                    help="take the white reference of this completed run (default: none)")
     w.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",

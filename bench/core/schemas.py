@@ -140,6 +140,7 @@ class PlanFile(_Strict):
     white: Literal["none", "once"] = "once"
     order: Literal["travel", "as-given"] = "travel"
     home: StrictBool = False  # return the turntable to home before the first point
+    unreachable: Literal["refuse", "skip"] = "refuse"  # skip: measure the reachable points, record the others
     description: str = ""
     spectral: SpectralTable | None = None
     in_plane: InPlaneTable | None = None
