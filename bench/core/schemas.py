@@ -220,8 +220,9 @@ class BenchFile(BaseModel):
     turntable: dict[str, Any] | None = None
     spectrometer: dict[str, Any] | None = None
     light: dict[str, Any] | None = None
+    instrument: dict[str, Any] | None = None  # declared effects of the virtual body (bench.builders.instrument)
 
-    @field_validator("arm", "turntable", "spectrometer", "light", mode="before")
+    @field_validator("arm", "turntable", "spectrometer", "light", "instrument", mode="before")
     @classmethod
     def _table(cls, v: Any) -> Any:
         if not isinstance(v, Mapping):
