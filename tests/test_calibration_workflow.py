@@ -107,6 +107,8 @@ def test_real_bench_workflow_is_right_or_refused(emulators, tmp_path, capsys):
     assert code == 2 and "darks per incidence" in out and "declares no switchable light" in out
     assert 'dark = "none"' in out and len(out.strip().splitlines()) == 1
     assert not (tmp_path / "refused.sqlite").exists() or not RunStore(tmp_path / "refused.sqlite").runs()
+    assert main(["plan", str(IN_PLANE), "--bench", str(dark_lab), "--json"]) == 2  # bench plan says so too
+    assert "darks per incidence" in json.loads(capsys.readouterr().out)["calibration_refused"]
 
     # a white that does not match the plan (another integration time) is refused
     other = tmp_path / "white-0.05.csv"
@@ -140,7 +142,7 @@ def test_without_darks_only_when_the_plan_says_so(emulators, tmp_path, capsys):
     code, out = _scan(plan_file, lab, store, capsys)
     assert code == 0, out
     run = json.loads(out)["run_id"]
-    z, df = _z(store, run)
+    z, _ = _z(store, run)
     with RunStore(store) as s:
         assert s.run(run)["meta"]["calibration_steps"]["dark"] == "none"
     capsys.readouterr()

@@ -15,13 +15,13 @@ import bluesky.plans as bp
 import numpy as np
 import pytest
 from bluesky import RunEngine
+from bluesky_support import reset_reflectance, run
 
 from bench.bluesky import connect
 from bench.config import load_bench
 from bench.plans import plan_from_dict
 from bench.runner import run_scan
 from bench.store import RunStore
-from bluesky_support import reset_reflectance, run
 
 EMULATED = Path(__file__).parent.parent / "fixtures" / "benches" / "emulated.toml"
 THETA_R = [-20.0, 10.0, 40.0, 70.0]  # signed, as a plan file writes them

@@ -32,13 +32,21 @@ def _plan_and_bench(args: argparse.Namespace):
 def cmd_plan(args: argparse.Namespace) -> int:
     """Check and time a plan on a bench: JSON keys ``points`` (all of the plan's), ``refused``
     (each with theta_i, phi_i, theta_r, phi_r, rule, message), ``seconds`` and ``motion_s`` (of the
-    reachable points). A plan ``bench scan`` would refuse exits 2 (its JSON still printed)."""
-    from bench.core.errors import PlanError
+    reachable points), ``calibration_refused`` (a calibration step the bench cannot take, or null).
+    A plan ``bench scan`` would refuse exits 2 (its JSON still printed)."""
+    from bench.core.errors import CalibrationRefused, PlanError
     from bench.plans import MotionProfile, estimate, order_for_travel, refusal_message, refusals
+    from bench.preflight import check_calibration_steps
+    from bench.runner import stored_white
 
     plan, bench = _plan_and_bench(args)
     with bench:
         refused = refusals(plan, bench.goniometer.check)
+        calibration = None  # what `bench scan` would refuse about the calibration steps, if anything
+        try:
+            check_calibration_steps(bench, plan, stored_white(bench) if plan.white != "none" else None)
+        except CalibrationRefused as exc:
+            calibration = str(exc)
         skipped = {r.index for r in refused}
         profile = bench.motion or MotionProfile.instantaneous()
         kw = {"joints": bench.joints} if bench.joints is not None else {}
@@ -48,15 +56,17 @@ def cmd_plan(args: argparse.Namespace) -> int:
         given = estimate(plan, profile, given_order, **kw)
     out = {"plan": plan.name, "kind": plan.kind, "bench": bench.name, "bench_kind": bench.kind, **est,
            "points": len(plan.points), "reachable": len(order), "unreachable": plan.unreachable,
-           "refused": [r.as_dict() for r in refused],
+           "refused": [r.as_dict() for r in refused], "calibration_refused": calibration,
            "seconds_in_given_order": given["seconds"], "integration_s": plan.integration_s,
            "averages": plan.averages}
     refuse = bool(refused) and plan.unreachable != "skip"
     if args.json:
         emit_json(out)
-        return 2 if refuse else 0
+        return 2 if refuse or calibration else 0
     if refuse:
         raise PlanError(refusal_message(plan, refused))
+    if calibration:
+        raise CalibrationRefused(calibration)
     head = (f"all {est['points']} points reachable" if not refused else
             f"{len(order)} of {len(plan.points)} points reachable, {len(refused)} skipped "
             f"({', '.join(sorted({r.rule for r in refused}))})")
