@@ -132,10 +132,12 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     stored_cal = ref.calibration(bench.white) if ref is not None else None
     homed = _home(bench, plan)
     cal = stored_cal if stored_cal is not None else measure_calibration(bench, plan, use_reference_file=False)
+    specimen = bench.config.get("specimen") or {}
     meta = {"order": order, "bench_description": bench.describe(), "bench_kind": bench.kind,
             "homed": homed, "white_reference": None if ref is None else ref.provenance(),
             "source": "virtual" if bench.kind == "virtual" else "measured",
-            "specimen": _specimen_name(bench), "plan_name": plan.name,
+            "specimen": specimen.get("spec") or specimen.get("name"),  # the key compare aligns on: the model
+            "specimen_name": specimen.get("name") or specimen.get("spec"), "plan_name": plan.name,
             "calibration_steps": calibration_record(plan, ref),
             "skipped": [r.as_dict() for r in refused]}  # unreachable = "skip": what was not measured, and why
     run_id = store.create_run(kind="scan", plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
@@ -159,12 +161,6 @@ def resume_scan(bench: Bench, store: Any, run_id: str, progress: bool = False,
     done = set(store.done_indices(run_id))
     store.set_status(run_id, "running", None)
     return _execute(bench, plan, store, run_id, order, cal, done, progress, on_point)
-
-
-def _specimen_name(bench: Bench) -> str | None:
-    """What the records call the mounted specimen: ``[specimen] name``, else its spec."""
-    table = bench.config.get("specimen") or {}
-    return table.get("name") or table.get("spec")
 
 
 def _home(bench: Bench, plan: Plan) -> dict[str, float] | None:

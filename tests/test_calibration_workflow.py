@@ -98,7 +98,7 @@ def test_real_bench_workflow_is_right_or_refused(emulators, tmp_path, capsys):
     with RunStore(store) as s:
         meta = s.run(run)["meta"]
     assert meta["calibration_steps"]["dark"] == "per-incidence" and meta["calibration_steps"]["white_source"] == "file"
-    assert meta["specimen"] == config["specimen"]["name"]
+    assert meta["specimen"] == "lambert:albedo=0.8" and meta["specimen_name"] == config["specimen"]["name"]
 
     # the lamp undeclared: the plan's darks are refused before motion, one line, exit 2
     no_lamp = {k: v for k, v in config.items() if k != "light"}
