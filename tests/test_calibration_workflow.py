@@ -84,6 +84,9 @@ def test_real_bench_workflow_is_right_or_refused(emulators, tmp_path, capsys):
 
     config = emulators.real_bench_config()
     lab = _write(tmp_path / "lab.toml", config)
+    # no stored white and no terminal (pytest's stdin): refused before motion, naming the way out
+    code, out = _scan(IN_PLANE, lab, tmp_path / "no-white.sqlite", capsys)
+    assert code == 2 and "asks for a white reference" in out and "--yes --integration-s 0.02 --averages 2" in out
     white = tmp_path / "white.csv"
     assert _store_white(emulators, lab, white) == 0
     lab = _write(tmp_path / "lab.toml", {**config, "white": {**config["white"], "reference_file": str(white)}})
