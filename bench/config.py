@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from bench.core.calibration import WhiteStandard
-from bench.core.errors import BenchError
+from bench.core.errors import BenchError, ConfigError
 from bench.core.parsing import read_toml
 from bench.core.schemas import BENCH_KINDS, BenchFile, validate_document
 from bench.core.roles import Goniometer, LightSource, Reading, Spectrometer
@@ -70,6 +70,10 @@ class Bench:
     config: dict[str, Any] = field(default_factory=dict)
     closers: list[Callable[[], None]] = field(default_factory=list)
     parts: dict[str, Any] = field(default_factory=dict)  # builder-specific handles (e.g. emulators)
+    #: the white standard is mounted by a person (a real bench): unattended runs need a stored
+    #: reading or ``operator_confirmed`` (``bench white --yes``: the operator says it is mounted)
+    white_needs_operator: bool = False
+    operator_confirmed: bool = False
 
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {"name": self.name, "kind": self.kind}
@@ -99,18 +103,22 @@ class Bench:
         self.close()
 
 
-def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None) -> Bench:
+def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None, body: str | None = None) -> Bench:
     """Build the bench a config describes (a TOML path or its dict).
 
     The config goes through the declared schema (:class:`bench.core.schemas.BenchFile`) first,
     so a typo, a wrong type or an out-of-range value is one :class:`ConfigError` naming the file
-    and key before any device is built or emulator started.
+    and key before any device is built or emulator started. ``body`` (``virtual``, ``emulated``
+    or ``real``) picks what executes the description; default: its ``kind``.
     """
     if isinstance(config, Mapping):
         d, source = dict(config), "bench config"
     else:
         d, source = read_toml(config, "bench config"), f"bench config {config}"
-    kind = validate_document(BenchFile, d, source).kind  # type: ignore[attr-defined]
+    described = validate_document(BenchFile, d, source).kind  # type: ignore[attr-defined]
+    kind = str(body or described)  # the body executing the description (default: its kind)
+    if kind not in BUILDERS:
+        raise ConfigError(f"bench body must be one of {', '.join(BUILDERS)}, got {kind!r}")
     module, func = BUILDERS[kind].split(":")
     builder = getattr(importlib.import_module(module), func)
     return builder(d, seed)

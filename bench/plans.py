@@ -24,6 +24,7 @@ velocity and acceleration, settle time, integration x averages and references.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -40,6 +41,9 @@ __all__ = [
     "load_plan",
     "plan_from_dict",
     "validate",
+    "refusals",
+    "refusal_message",
+    "Refusal",
     "order_for_travel",
     "MotionProfile",
     "estimate",
@@ -65,6 +69,7 @@ class Plan:
     order: str = "travel"
     home: bool = False
     source: Mapping[str, Any] = field(default_factory=dict)
+    unreachable: str = "refuse"  # "skip": measure the reachable points, record the others as skipped
 
     def __len__(self) -> int:
         return len(self.points)
@@ -200,7 +205,8 @@ def plan_from_dict(d: Mapping[str, Any], name: str = "plan", source: str | None 
         raise ConfigError(f"plan home must be true or false, got {home!r}")
     pts = _points(kind, table)
     return Plan(name=str(d.get("name", name)), kind=kind, points=tuple(pts), integration_s=integration,
-                averages=averages, dark=dark, white=white, order=order, home=home, source=d)
+                averages=averages, dark=dark, white=white, order=order, home=home, source=d,
+                unreachable=str(d.get("unreachable", "refuse")))
 
 
 def load_plan(path: str | Path) -> Plan:
@@ -213,23 +219,56 @@ def load_plan(path: str | Path) -> Plan:
 # --- validation ---------------------------------------------------------------------------------
 
 
-def validate(plan: Plan, check: Callable[[Geometry], Any]) -> None:
-    """Run ``check`` (the bench goniometer's) on every point; refuse the plan whole.
+#: refused points a refusal message shows (``bench plan --json`` lists them all)
+SHOWN_REFUSALS = 3
+_RULE = re.compile(r"^([a-z][a-z_]*): ")
 
-    Raises :class:`PlanError` listing every offending point as ``point i (geometry): reason``.
-    Nothing moves: call this before the first motion.
-    """
-    problems = []
+
+@dataclass(frozen=True)
+class Refusal:
+    """A plan point the bench refuses: its index, geometry, the rule broken and the bench's words."""
+
+    index: int
+    geometry: Geometry
+    rule: str
+    message: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"index": self.index, **self.geometry.as_dict(), "rule": self.rule, "message": self.message}
+
+
+def refusals(plan: Plan, check: Callable[[Geometry], Any]) -> list[Refusal]:
+    """Run ``check`` (the bench goniometer's) on every point; the points it refuses, with the rule
+    each breaks (the message's leading ``rule:``, as :mod:`drivers.kinematics` and the virtual
+    goniometer name them; ``unreachable`` when a check names none)."""
+    out = []
     for i, g in enumerate(plan.points):
         try:
             check(g)
         except GeometryError as exc:
-            problems.append((i, g, str(exc)))
-    if problems:
-        shown = "; ".join(f"point {i} {g}: {why}" for i, g, why in problems[:10])
-        more = f" (and {len(problems) - 10} more)" if len(problems) > 10 else ""
-        raise PlanError(f"plan {plan.name!r} refused, {len(problems)} of {len(plan.points)} points "
-                        f"cannot be measured: {shown}{more}", problems)
+            m = _RULE.match(str(exc))
+            out.append(Refusal(i, g, m.group(1) if m else "unreachable", str(exc)))
+    return out
+
+
+def refusal_message(plan: Plan, refused: Sequence[Refusal]) -> str:
+    """One line: how many points are refused, the first few with their rule, and how many more."""
+    shown = "; ".join(f"point {r.index} {r.geometry}: {r.rule}" for r in refused[:SHOWN_REFUSALS])
+    more = (f"; and {len(refused) - SHOWN_REFUSALS} more (bench plan --json lists them all)"
+            if len(refused) > SHOWN_REFUSALS else "")
+    rules = ", ".join(sorted({r.rule for r in refused}))
+    return (f"plan {plan.name!r} refused, {len(refused)} of {len(plan.points)} points cannot be measured "
+            f"({rules}): {shown}{more}; or set unreachable = \"skip\" in the plan to measure the others")
+
+
+def validate(plan: Plan, check: Callable[[Geometry], Any]) -> list[Refusal]:
+    """Check every point before the first motion. A plan with refused points is refused whole
+    (:class:`PlanError`, one line: :func:`refusal_message`) unless it says ``unreachable =
+    "skip"``; then the refused points are returned (the run skips and records them)."""
+    refused = refusals(plan, check)
+    if refused and plan.unreachable != "skip":
+        raise PlanError(refusal_message(plan, refused), [(r.index, r.geometry, r.message) for r in refused])
+    return refused
 
 
 # --- ordering and time ----------------------------------------------------------------------------

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -31,6 +31,7 @@ from bench.core.roles import Reading
 from bench.builders.homing import HOME_AXIS, home_axis, homeable_axes
 from bench.io.white import WhiteReference, read_white_reference
 from bench.plans import Plan, order_for_travel, plan_from_dict, validate
+from bench.preflight import calibration_record, check_calibration_steps, no_light
 
 log = logging.getLogger(__name__)
 
@@ -74,9 +75,11 @@ def point_rows(reading: Reading, cal: Calibration | None, geometry: Geometry, da
     return rows
 
 
-def acquire_dark(bench: Bench, plan: Plan) -> Reading | None:
+def acquire_dark(bench: Bench, plan: Plan) -> Reading:
+    """A reading with the light off (never silently skipped: a bench without a switchable light
+    cannot take one, and says so)."""
     if bench.light is None:
-        return None
+        raise no_light(bench, plan)
     bench.light.off()
     try:
         return bench.spectrometer.acquire(plan.integration_s, plan.averages)
@@ -98,6 +101,7 @@ def measure_calibration(bench: Bench, plan: Plan, use_reference_file: bool = Tru
     if plan.white == "none":
         return None
     ref = stored_white(bench) if use_reference_file else None
+    check_calibration_steps(bench, plan, ref)
     if ref is not None:
         return ref.calibration(bench.white)
     dark = acquire_dark(bench, plan) if plan.dark != "none" else None
@@ -119,18 +123,25 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     ``on_point(k, idx)`` is called after point number ``k`` (plan index ``idx``) is committed
     (tests use it to inject faults).
     """
-    validate(plan, bench.goniometer.check)  # refuse the whole plan before any motion
+    refused = validate(plan, bench.goniometer.check)  # refuse the whole plan before any motion, or skip
+    skipped = {r.index for r in refused}
     order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))
+    order = [i for i in order if i not in skipped]
     ref = stored_white(bench) if plan.white != "none" else None  # a bad file fails before any motion
+    check_calibration_steps(bench, plan, ref)  # and so does a calibration step the bench cannot take
     stored_cal = ref.calibration(bench.white) if ref is not None else None
     homed = _home(bench, plan)
     cal = stored_cal if stored_cal is not None else measure_calibration(bench, plan, use_reference_file=False)
+    specimen = bench.config.get("specimen") or {}
     meta = {"order": order, "bench_description": bench.describe(), "bench_kind": bench.kind,
             "homed": homed, "white_reference": None if ref is None else ref.provenance(),
             "source": "virtual" if bench.kind == "virtual" else "measured",
-            "specimen": (bench.config.get("specimen") or {}).get("spec"), "plan_name": plan.name}
+            "specimen": specimen.get("spec") or specimen.get("name"),  # the key compare aligns on: the model
+            "specimen_name": specimen.get("name") or specimen.get("spec"), "plan_name": plan.name,
+            "calibration_steps": calibration_record(plan, ref),
+            "skipped": [r.as_dict() for r in refused]}  # unreachable = "skip": what was not measured, and why
     run_id = store.create_run(kind="scan", plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
-                              n_planned=len(plan.points), calibration=None if cal is None else cal.as_dict())
+                              n_planned=len(order), calibration=None if cal is None else cal.as_dict())
     return _execute(bench, plan, store, run_id, order, cal, set(), progress, on_point)
 
 
@@ -145,6 +156,7 @@ def resume_scan(bench: Bench, store: Any, run_id: str, progress: bool = False,
     order = [int(i) for i in meta.get("order", range(len(plan.points)))]
     cal = Calibration.from_dict(info["calibration"]) if info.get("calibration") else None
     validate(plan, bench.goniometer.check)
+    check_calibration_steps(bench, replace(plan, white="none") if cal is not None else plan, None)
     _home(bench, plan)
     done = set(store.done_indices(run_id))
     store.set_status(run_id, "running", None)

@@ -192,6 +192,9 @@ def _describe(rec: Any) -> dict[str, Any]:
     d = {"kind": record_kind(rec), "quantity": record_quantity(rec), "specimen": m.get("specimen"),
          "source": m.get("source", "virtual" if isinstance(rec, Spectrum) and np.any(rec.N > 0) else None),
          "seed": m.get("seed", getattr(rec, "seed", None))}
+    steps = m.get("calibration_steps")
+    if isinstance(steps, Mapping):  # a bench run says which calibration steps it took, "none" included
+        d["calibration"] = f"dark {steps.get('dark')}, white {steps.get('white')} ({steps.get('white_source')})"
     if isinstance(rec, Spectrum):
         d.update({"geometry": rec.geometry, "n_wavelengths": int(rec.wavelengths.size)})
     else:

@@ -278,13 +278,14 @@ def test_hil_run_on_a_real_bench_with_no_terminal(tmp_path):
                 with pytest.raises(CalibrationError, match="reference_file"):
                     measure_calibration(real, plan_from_dict(SHORT))
             emu.mount_white(True)
+            real.operator_confirmed = True  # what `bench white --yes` says: the standard is mounted
             try:
-                real.goniometer.move_to(real.white.geometry)
-                white = real.spectrometer.acquire(0.02, 2)
+                cal = measure_calibration(real, plan_from_dict(SHORT))
             finally:
                 emu.mount_white(False)
+        assert cal.white_dark is not None  # the emulators' real-bench config declares the lamp: a dark
         ref = tmp_path / "white-2026-11-30.csv"
-        write_white_reference(ref, WhiteReference(white, None, "2026-11-30T09:00:00Z", "emulated bench day"))
+        write_white_reference(ref, WhiteReference.from_calibration(cal, "emulated bench day", date="2026-11-30T09:00:00Z"))
         config["white"] = {**config["white"], "reference_file": str(ref)}
         validate_document(BenchFile, config, "bench config")
         import tomli_w

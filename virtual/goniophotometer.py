@@ -178,8 +178,8 @@ class VirtualGoniophotometer(InstrumentBase):
         if not isinstance(geometry, Geometry):
             raise GeometryError(f"expected a Geometry, got {type(geometry).__name__}", geometry)
         if geometry.theta_i >= 90.0:
-            raise GeometryError(f"{geometry}: the virtual source arm illuminates from above "
-                                f"(theta_i < 90 deg)", geometry)
+            raise GeometryError(f"source_hemisphere: {geometry} refused: the virtual source arm illuminates "
+                                f"from above (theta_i < 90 deg)", geometry)
 
     def move_to(self, geometry: Geometry) -> Geometry:
         self.check(geometry)

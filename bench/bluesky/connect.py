@@ -114,7 +114,7 @@ def _in_loop(loop: asyncio.AbstractEventLoop, coro: Any, timeout: float) -> Any:
 
 
 def connect(config: str | Path | Mapping[str, Any], run_engine: Any = None, *, seed: int | None = None,
-            timeout: float = 10.0) -> Devices:
+            timeout: float = 10.0, body: str | None = None) -> Devices:
     """Build the bench ``config`` names and return its devices, connected in the RunEngine's loop.
 
     Parameters
@@ -127,6 +127,9 @@ def connect(config: str | Path | Mapping[str, Any], run_engine: Any = None, *, s
         Without it, the loop of the RunEngine created last is used.
     seed : int, optional
         Root seed of a virtual bench (as ``bench scan --seed``).
+    body : str, optional
+        ``virtual``, ``emulated`` or ``real``: what executes the description (as ``--body``;
+        default: its ``kind``).
     timeout : float
         Seconds to wait for the devices to connect.
 
@@ -137,7 +140,7 @@ def connect(config: str | Path | Mapping[str, Any], run_engine: Any = None, *, s
         ``reflectance`` and ``light`` (or ``None``).
     """
     loop = _loop_of(run_engine)
-    bench = load_bench(config, seed=seed)
+    bench = load_bench(config, seed=seed, body=body)
     worker = BenchWorker(bench.name)
     try:
         start = worker.call(bench.goniometer.position)

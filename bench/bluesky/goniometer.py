@@ -18,8 +18,10 @@ rule, before any byte is sent, and the requested geometry stays the last accepte
 
 ``theta_r`` is signed in the detector plane set by ``phi_r``: ``theta_r = -40`` views at 40 deg
 on the other side of the normal (``phi_r + 180``), so an in-plane record is one ``scan`` of
-``theta_r`` from -60 to 60. With ``phi_r = phi_i + 180`` the sign is ``Geometry.in_plane``'s
-(> 0 on the specular side).
+``theta_r`` from -60 to 60. With ``phi_r = phi_i + 180`` the sign is ``Geometry.in_plane``'s and
+the plan files' (> 0 on the specular side) -- and that is the plane a detector at the zenith
+(where ``phi_r`` is undefined) starts in, so ``scan(theta_r, -20, 80, 6)`` measures the points of
+an in-plane plan with ``theta_r`` from -20 to 80 (one sign convention, README "Angles").
 """
 
 from __future__ import annotations
@@ -69,6 +71,8 @@ class Mover:
         self.worker = worker
         self.reached = start
         self.target = dict(start.as_dict())
+        if start.theta_r == 0.0:  # azimuth undefined at the zenith: the specular plane, as in plan files
+            self.target["phi_r"] = (start.phi_i + 180.0) % 360.0
         self._pending: dict[str, float] = {}
         self._batch: asyncio.Task | None = None
         self._listeners: list[Callable[[dict[str, float]], None]] = []

@@ -45,7 +45,8 @@ from bench.config import Bench
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import ConfigError
 from bench.core.parsing import parse_wavelengths
-from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
+from bench.core.roles import Reading
+from bench.builders.light import LAMP_LINE, LampLine
 from bench.builders.motion import motion_profile
 from drivers.dynamixel import DynamixelArm
 from drivers.kinematics import Joints, geometry_to_joints, joints_to_geometry
@@ -60,7 +61,8 @@ from virtual.wire.ocean_spectrometer import SpectrometerEmulator
 log = logging.getLogger(__name__)
 
 __all__ = ["build_emulated_bench", "Emulators", "DEFAULT_EMULATED_CONFIG", "emulated_geometry",
-           "emulated_response", "LampLine", "ARM_IDS"]
+           "emulated_response", "LampLine", "ARM_IDS", "emulated_arm_config", "emulated_turntable_config",
+           "emulated_motion"]
 
 #: servo ids of the arm joints on the emulated bus (the turntable is on the Modbus stage)
 ARM_IDS = {"source": 1, "detector_azimuth": 2, "detector_elevation": 3}
@@ -77,22 +79,6 @@ DEFAULT_EMULATED_CONFIG: dict[str, Any] = {
     "white": {"reflectance_factor": 0.99, "uncertainty": 0.005, "geometry": [0, 0, 45, 180]},
     "emulated": {"time_scale": 50, "bands": "450:650:100", "bandwidth_nm": 10, "aperture_deg": 1.0, "seed": 7},
 }
-
-
-class LampLine(InstrumentBase):
-    """The LightSource role through the spectrometer's lamp-enable line (command ``J``)."""
-
-    def __init__(self, spectrometer: Any) -> None:
-        self.spectrometer = spectrometer
-
-    def describe(self) -> InstrumentInfo:
-        return InstrumentInfo(kind="light source", model="lamp on the spectrometer's lamp-enable line")
-
-    def on(self) -> None:
-        self.spectrometer.command("J", 1)
-
-    def off(self) -> None:
-        self.spectrometer.command("J", 0)
 
 
 # --- physics inside the spectrometer emulator process ------------------------------------------------
@@ -180,12 +166,26 @@ def _write_mount(path: Path, mounted: str) -> None:
 # --- builders ----------------------------------------------------------------------------------------
 
 
-def _arm_config(d: Mapping[str, Any], port: str) -> dict[str, Any]:
+def emulated_arm_config(d: Mapping[str, Any], port: str) -> dict[str, Any]:
     arm = {"port": port, "name": "emulated-arm", "external": ["turntable"], "tolerance_deg": 0.2,
            "settle_timeout_s": 10.0, "poll_interval_s": 0.002,
            "axes": {j: {"id": i, "operating_mode": 4, "profile_velocity": 60} for j, i in ARM_IDS.items()}}
     arm.update({k: v for k, v in d.get("arm", {}).items() if k != "port"})
     return arm
+
+
+def emulated_turntable_config(d: Mapping[str, Any]) -> dict[str, Any]:
+    """The emulated turntable's driver settings: the description's ``[turntable]`` over defaults."""
+    return {"gear_ratio": TURNTABLE_GEAR, "steps_per_rev": STEPS_PER_REV, "speed": 30.0, "tolerance": 0.05,
+            "settle_s": 0.2, "poll_interval_s": 0.002, **d.get("turntable", {})}
+
+
+def emulated_motion(d: Mapping[str, Any]) -> Any:
+    """The emulated bench's time model (constant-speed moves ``time_scale`` times faster than the
+    configured drives): the emulated body's, and the virtual body's of the same description."""
+    scale = float(d.get("emulated", {}).get("time_scale", 20.0))
+    return motion_profile(emulated_arm_config(d, ""), emulated_turntable_config(d), scale, ramps=False, settle_s=0.01,
+                          overhead_s=0.002)
 
 
 class Emulators:
@@ -196,6 +196,7 @@ class Emulators:
         if not spec:
             raise ConfigError("emulated bench: [specimen] spec = \"...\" is required")
         parse_specimen(spec)  # a bad specimen fails here, before any process starts
+        self.specimen = str(spec)
         e = dict(d.get("emulated", {}))
         self.options = e
         self.time_scale = float(e.get("time_scale", 20.0))
@@ -215,9 +216,7 @@ class Emulators:
             self._closers.append(self.bus.close)
             self.stage = StageEmulator.start("tcp", time_scale=self.time_scale)
             self._closers.append(self.stage.stop)
-            self.turntable_config = {"gear_ratio": TURNTABLE_GEAR, "steps_per_rev": STEPS_PER_REV, "speed": 30.0,
-                                     "tolerance": 0.05, "settle_s": 0.2, "poll_interval_s": 0.002,
-                                     **d.get("turntable", {})}
+            self.turntable_config = emulated_turntable_config(d)
             steps_per_deg = self.turntable_config["steps_per_rev"] * self.turntable_config["gear_ratio"] / 360.0
             self.spectrometer = SpectrometerEmulator.start(
                 geometry_source=functools.partial(emulated_geometry, f"{self.bus.control[0]}:{self.bus.control[1]}",
@@ -231,7 +230,7 @@ class Emulators:
         except BaseException:
             self.close()
             raise
-        self.arm_config = _arm_config(d, self.bus.port)
+        self.arm_config = emulated_arm_config(d, self.bus.port)
 
     def mount_white(self, white: bool) -> None:
         """Put the white standard (or the specimen) on the emulated turntable."""
@@ -246,6 +245,8 @@ class Emulators:
         """A ``kind = "real"`` bench config whose ports are these emulators."""
         arm = {k: v for k, v in self.arm_config.items()}
         return {"name": "emulators", "kind": "real", "arm": arm,
+                "specimen": {"name": f"emulated {self.specimen}", "spec": self.specimen},
+                "light": {"kind": LAMP_LINE},  # the emulated spectrometer's lamp-enable line: darks
                 "turntable": {"port": self.stage.url, **self.turntable_config},
                 "spectrometer": {"port": self.spectrometer.port},
                 "bands": {"centres": self.options.get("bands", "450:650:100"),
@@ -293,7 +294,6 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
     kin = arm.config.kinematics
     return Bench(name=str(d.get("name", "emulated")), kind="emulated", goniometer=arm, spectrometer=bands,
                  white=white, measure_white=measure_white, light=lamp,
-                 motion=motion_profile(emu.arm_config, emu.turntable_config, emu.time_scale, ramps=False,
-                                       settle_s=0.01, overhead_s=0.002),
+                 motion=emulated_motion(d),
                  joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers,
                  parts={"emulators": emu, "arm": arm, "turntable": turntable, "spectrometer": ocean})

@@ -6,6 +6,7 @@ Config::
     [turntable]      # optional: drivers.modbus AxisConfig keys, port = "/dev/ttyUSB1" or "tcp://host:port"
     [spectrometer]   # drivers.ocean OceanConfig keys, with port
     [bands]          # optional: centres = "450:650:100", bandwidth_nm = 10
+    [light]          # optional: kind = "spectrometer-lamp" (bench.builders.light): darks need it
     [white]          # the standard the operator mounts when a run asks for it, or
                      #   reference_file = "white-2026-11-30.csv" (bench white): no operator needed
 
@@ -14,20 +15,24 @@ Config::
 
 from __future__ import annotations
 
+import logging
 import sys
 from typing import Any, Mapping
 
 from bench.bands import SpectralBands
+from bench.builders.light import build_light, light_settings
 from bench.builders.motion import motion_profile
 from bench.config import Bench
 from bench.core.calibration import WhiteStandard
-from bench.core.errors import CalibrationError, ConfigError
+from bench.core.errors import CalibrationRefused, ConfigError
 from bench.core.parsing import parse_wavelengths
 from bench.core.roles import Reading
 from drivers.dynamixel import DynamixelArm
 from drivers.kinematics import geometry_to_joints
 from drivers.modbus import ModbusStageAxis
 from drivers.ocean import OceanSpectrometer
+
+log = logging.getLogger(__name__)
 
 __all__ = ["build_real_bench"]
 
@@ -41,6 +46,7 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
         if "port" not in d.get(table, {}):
             raise ConfigError(f"real bench: [{table}] port = \"...\" is required")
     motion = motion_profile(d.get("arm"), d.get("turntable"))  # from the config, before any port opens
+    lamp = light_settings(d.get("light"))
     closers: list[Any] = []
     try:
         external = {}
@@ -55,6 +61,7 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
         b = d.get("bands")
         spectrometer = SpectralBands(ocean, parse_wavelengths(b["centres"]), float(b.get("bandwidth_nm", 10))) \
             if b else ocean
+        light = build_light(lamp, ocean)
     except BaseException:
         for c in reversed(closers):
             c()
@@ -62,11 +69,16 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     white = WhiteStandard.from_dict(d.get("white", {}))
 
     def measure_white(integration_s: float, averages: int) -> Reading:
-        if not sys.stdin.isatty():
-            raise CalibrationError("mount the white standard: this run needs an operator at the bench "
-                                   "(run interactively, name a stored reading in [white] reference_file "
-                                   "(bench white --bench B --out FILE), or use white = \"none\" in the plan)")
+        confirmed = bench.operator_confirmed
+        if not confirmed and not sys.stdin.isatty():
+            raise CalibrationRefused(
+                f"white reference: bench {bench.name!r} needs the operator to mount the standard and no one "
+                "can confirm it (no terminal): mount it and run `bench white --bench B --out FILE --yes`, then "
+                "name FILE in [white] reference_file; or use white = \"none\" in the plan")
         arm.move_to(white.geometry)
+        if confirmed:
+            log.info("white standard %s: mounted, as the operator confirmed (--yes)", white.name)
+            return spectrometer.acquire(integration_s, averages)
         input(f"Mount the white standard ({white.name}) and press Enter... ")
         try:
             return spectrometer.acquire(integration_s, averages)
@@ -74,9 +86,10 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
             input("Mount the specimen again and press Enter... ")
 
     kin = arm.config.kinematics
-    return Bench(name=str(d.get("name", "real")), kind="real", goniometer=arm, spectrometer=spectrometer,
-                 white=white, measure_white=measure_white, light=None,
-                 motion=motion,
-                 joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers,
-                 parts={"arm": arm, "spectrometer": ocean, **external})
+    bench = Bench(name=str(d.get("name", "real")), kind="real", goniometer=arm, spectrometer=spectrometer,
+                  white=white, measure_white=measure_white, light=light,
+                  motion=motion, white_needs_operator=True,
+                  joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers,
+                  parts={"arm": arm, "spectrometer": ocean, **external})
+    return bench
 

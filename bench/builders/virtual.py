@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
+from bench.builders.instrument import DetectorEffects, EffectsSpectrometer, PositioningError, instrument_effects
 from bench.config import Bench
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import ConfigError
@@ -28,6 +29,10 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     unknown = set(v) - _VIRTUAL_KEYS
     if unknown:
         raise ConfigError(f"virtual bench: unknown [virtual] key(s) {sorted(unknown)}; known: {sorted(_VIRTUAL_KEYS)}")
+    if "virtual" not in d:  # the virtual body of an emulated or real description: its bands
+        bands = (d.get("bands") or {}).get("centres") or (d.get("emulated") or {}).get("bands")
+        if bands is not None:
+            v["wavelengths"] = bands
     if seed is not None:
         v["seed"] = seed
     elif "seed" in d:
@@ -43,11 +48,26 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     # thousand times the rays cost nothing; counting rays, ten times.
     standard.rays = gonio.rays * (1000 if standard.uses_fast_path() else 10)
 
+    effects = instrument_effects(d.get("instrument"))  # declared effects only; none: the bare instrument
+    detector = DetectorEffects(effects, stream=1) if effects is not None else None
+    spectrometer: Any = EffectsSpectrometer(gonio, detector) if detector is not None else gonio
+
     def measure_white(integration_s: float, averages: int) -> Reading:
         standard.move_to(white.geometry)
-        return standard.acquire(integration_s, averages)
+        reading = standard.acquire(integration_s, averages)
+        return detector.apply(reading) if detector is not None else reading  # the same detector reads it
 
-    return Bench(name=str(d.get("name", "virtual")), kind="virtual", goniometer=gonio, spectrometer=gonio,
-                 light=gonio, white=white, measure_white=measure_white, config=dict(d),
+    goniometer: Any = gonio
+    motion = joints = None
+    if str(d.get("kind", "virtual")) != "virtual" or "arm" in d:  # a physical bench's description: its rules
+        from bench.builders.twin import KinematicGoniometer, physical_rules
+
+        rules = physical_rules(d)
+        if rules is not None:
+            goniometer, motion, joints = KinematicGoniometer(gonio, rules.kinematics), rules.motion, rules.joints
+    if effects is not None and effects.positioning_error_deg > 0:
+        goniometer = PositioningError(goniometer, effects)
+    return Bench(name=str(d.get("name", "virtual")), kind="virtual", goniometer=goniometer, spectrometer=spectrometer,
+                 light=gonio, white=white, measure_white=measure_white, config=dict(d), motion=motion, joints=joints,
                  closers=[gonio.close, standard.close])
 

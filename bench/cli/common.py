@@ -134,3 +134,14 @@ def report_run(result: Any, as_json: bool) -> int:
     else:
         print(result.run_id)
     return 0
+
+
+#: what may execute a bench description (``--body``); default: the file's ``kind``
+BODIES = ("virtual", "emulated", "real")
+
+
+def add_bench_options(parser: argparse.ArgumentParser, help: str, required: bool = True) -> None:
+    """``--bench FILE`` and ``--body virtual|emulated|real``: one description, three bodies."""
+    parser.add_argument("--bench", required=required, metavar="BENCH.toml", help=help)
+    parser.add_argument("--body", choices=BODIES, default=None,
+                        help="what executes the bench description (default: the file's kind)")

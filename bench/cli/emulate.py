@@ -1,4 +1,6 @@
-"""``bench emulate BENCH.toml``: start the wire-level emulators of a bench and print their ports."""
+"""``bench emulate BENCH.toml``: start the wire-level emulators of a bench and print their ports,
+then a ``kind = "real"`` bench config for them as TOML (comments above it name the ports), so the
+output saved to a file is a bench file; ``--json`` prints both as one JSON object."""
 
 from __future__ import annotations
 
@@ -7,6 +9,8 @@ import json
 import signal
 import sys
 import time
+
+import tomli_w
 
 from bench.cli.argtypes import real, seed
 from bench.cli.commands import command_help
@@ -24,11 +28,11 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps({"ports": emu.ports(), "real_bench": emu.real_bench_config()}), flush=True)
         else:
-            print("emulators running (Ctrl-C stops them):")
+            print("# emulators running (Ctrl-C stops them):")
             for name, port in emu.ports().items():
-                print(f"  {name:18s} {port}")
-            print("a bench config for the real drivers on these ports (kind = \"real\"):")
-            print("  " + json.dumps(emu.real_bench_config()), flush=True)
+                print(f"#   {name:18s} {port}")
+            print("# a bench config for the real drivers on these ports: save it as a .toml file")
+            print(tomli_w.dumps(emu.real_bench_config()), flush=True)
         if args.seconds is not None:
             time.sleep(args.seconds)
         else:
@@ -47,5 +51,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("bench", metavar="BENCH.toml", help="an emulated bench config (see fixtures/benches/)")
     p.add_argument("--seed", type=seed, help="emulator seed, integer 0..2^63-1 (default: the config's, else 7)")
     p.add_argument("--seconds", type=real(0.0, 1e7), help="stop after this many seconds (default: until Ctrl-C)")
-    p.add_argument("--json", action="store_true", help="ports and a real-bench config as one JSON object")
+    p.add_argument("--json", action="store_true", help="ports and the real-bench config as one JSON object (default: TOML)")
     p.set_defaults(func=cmd_emulate)

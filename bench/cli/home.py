@@ -12,7 +12,7 @@ import argparse
 
 from bench.cli.argtypes import real
 from bench.cli.commands import command_help
-from bench.cli.common import emit_json
+from bench.cli.common import add_bench_options, emit_json
 from bench.core.errors import ConfigError
 
 __all__ = ["register", "cmd_home"]
@@ -24,12 +24,12 @@ def cmd_home(args: argparse.Namespace) -> int:
     from bench.builders.homing import home_axis
 
     config = read_toml(args.bench, "bench config")
-    kind = str(config.get("kind", "virtual"))
+    kind = str(args.body or config.get("kind", "virtual"))
     if kind == "virtual":
         raise ConfigError(f"{args.bench}: a virtual bench has no axis to home (nothing to do)")
     if args.timeout is not None and not args.timeout > 0:
         raise ConfigError(f"--timeout must be > 0 s, got {args.timeout:g}")
-    with load_bench(config) as bench:
+    with load_bench(config, body=args.body) as bench:
         position = home_axis(bench, args.axis, timeout_s=args.timeout)
         name, kind = bench.name, bench.kind
     if args.json:
@@ -42,7 +42,7 @@ def cmd_home(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``home`` to the subcommands."""
     h = sub.add_parser("home", help=command_help("home"))
-    h.add_argument("--bench", required=True, metavar="BENCH.toml", help="the bench config (required)")
+    add_bench_options(h, "the bench config (required)")
     h.add_argument("--axis", default="turntable", help="the axis to home (default: turntable)")
     h.add_argument("--timeout", type=real(0.0, 3600.0, lo_open=True), metavar="S",
                    help="longest wait for HOME-END, seconds in (0, 3600] (default: the axis' home_timeout_s)")

@@ -12,7 +12,8 @@ import sys
 
 from bench.cli.argtypes import RegistryChoices, real, run_id, seed
 from bench.cli.commands import command_help
-from bench.cli.common import DEFAULT_STORE, announce_compilation, check_output, emit_json, hms, open_store, report_run
+from bench.cli.common import (DEFAULT_STORE, add_bench_options, announce_compilation, check_output, emit_json, hms,
+                               open_store, report_run)
 from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_plan", "cmd_scan", "cmd_resume", "cmd_runs", "cmd_show", "cmd_export"]
@@ -23,29 +24,52 @@ def _plan_and_bench(args: argparse.Namespace):
     from bench.plans import load_plan
 
     plan = load_plan(args.plan)
-    bench = load_bench(args.bench, seed=getattr(args, "seed", None))
+    bench = load_bench(args.bench, seed=getattr(args, "seed", None), body=args.body)
     return plan, bench
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from bench.plans import MotionProfile, estimate, order_for_travel, validate
+    """Check and time a plan on a bench: JSON keys ``points`` (all of the plan's), ``refused``
+    (each with theta_i, phi_i, theta_r, phi_r, rule, message), ``seconds`` and ``motion_s`` (of the
+    reachable points), ``calibration_refused`` (a calibration step the bench cannot take, or null).
+    A plan ``bench scan`` would refuse exits 2 (its JSON still printed)."""
+    from bench.core.errors import CalibrationRefused, PlanError
+    from bench.plans import MotionProfile, estimate, order_for_travel, refusal_message, refusals
+    from bench.preflight import check_calibration_steps
+    from bench.runner import stored_white
 
     plan, bench = _plan_and_bench(args)
     with bench:
-        validate(plan, bench.goniometer.check)
+        refused = refusals(plan, bench.goniometer.check)
+        calibration = None  # what `bench scan` would refuse about the calibration steps, if anything
+        try:
+            check_calibration_steps(bench, plan, stored_white(bench) if plan.white != "none" else None)
+        except CalibrationRefused as exc:
+            calibration = str(exc)
+        skipped = {r.index for r in refused}
         profile = bench.motion or MotionProfile.instantaneous()
         kw = {"joints": bench.joints} if bench.joints is not None else {}
-        order = order_for_travel(plan.points) if plan.order == "travel" else None
+        given_order = [i for i in range(len(plan.points)) if i not in skipped]
+        order = [i for i in order_for_travel(plan.points) if i not in skipped] if plan.order == "travel" else given_order
         est = estimate(plan, profile, order, **kw)
-        given = estimate(plan, profile, None, **kw)
+        given = estimate(plan, profile, given_order, **kw)
     out = {"plan": plan.name, "kind": plan.kind, "bench": bench.name, "bench_kind": bench.kind, **est,
+           "points": len(plan.points), "reachable": len(order), "unreachable": plan.unreachable,
+           "refused": [r.as_dict() for r in refused], "calibration_refused": calibration,
            "seconds_in_given_order": given["seconds"], "integration_s": plan.integration_s,
            "averages": plan.averages}
+    refuse = bool(refused) and plan.unreachable != "skip"
     if args.json:
         emit_json(out)
-        return 0
-    print(f"plan {plan.name} ({plan.kind}) on bench {bench.name} ({bench.kind}): all {est['points']} points "
-          f"reachable, {est['incidences']} incidences")
+        return 2 if refuse or calibration else 0
+    if refuse:
+        raise PlanError(refusal_message(plan, refused))
+    if calibration:
+        raise CalibrationRefused(calibration)
+    head = (f"all {est['points']} points reachable" if not refused else
+            f"{len(order)} of {len(plan.points)} points reachable, {len(refused)} skipped "
+            f"({', '.join(sorted({r.rule for r in refused}))})")
+    print(f"plan {plan.name} ({plan.kind}) on bench {bench.name} ({bench.kind}): {head}, {est['incidences']} incidences")
     print(f"  estimated duration {hms(est['seconds'])}: motion {hms(est['motion_s'])}, acquisition "
           f"{hms(est['acquisition_s'])}, references {hms(est['references_s'])}"
           f"  (in the order given: {hms(given['seconds'])})")
@@ -79,7 +103,8 @@ def cmd_resume(args: argparse.Namespace) -> int:
     with open_store(args.store, create=False) as store:
         info = store.run(args.run)
         config = args.bench if args.bench else info["bench"]
-        bench = load_bench(config, seed=info.get("seed"))
+        body = args.body or (info.get("meta") or {}).get("bench_kind")  # the body the run started on
+        bench = load_bench(config, seed=info.get("seed"), body=body)
         with bench:
             result = resume_scan(bench, store, args.run, progress=not args.quiet and sys.stderr.isatty())
     return report_run(result, args.json)
@@ -115,6 +140,10 @@ def cmd_show(args: argparse.Namespace) -> int:
         print(f"  {k:8s} {lo} .. {hi} deg")
     v = s["value"]
     print(f"  value {v['min']} .. {v['max']} ({v['n']} values, {v['n_missing']} masked), saturated {s['saturated']}")
+    steps = s.get("calibration_steps")
+    if steps:
+        print(f"  calibration: dark {steps['dark']}, white {steps['white']} ({steps['white_source']}), "
+              f"integration {steps['integration_s']} s, averages {steps['averages']}")
     t = s["timing"]
     print(f"  created {t['created_utc']}, finished {t['finished_utc']}, elapsed {t['elapsed_s']} s, "
           f"mean per point {t['mean_point_s']} s")
@@ -151,13 +180,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     store_help = "the run store, an SQLite file (default %(default)s)"
     pl = sub.add_parser("plan", help=command_help("plan"))
     pl.add_argument("plan", metavar="PLAN.toml", help="the plan file (see fixtures/plans/)")
-    pl.add_argument("--bench", required=True, metavar="BENCH.toml", help="the bench config (required)")
+    add_bench_options(pl, "the bench config (required)")
     pl.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     pl.set_defaults(func=cmd_plan)
 
     sc = sub.add_parser("scan", help=command_help("scan"))
     sc.add_argument("plan", metavar="PLAN.toml", help="the plan file (see fixtures/plans/)")
-    sc.add_argument("--bench", required=True, metavar="BENCH.toml", help="the bench config (required)")
+    add_bench_options(sc, "the bench config (required)")
     sc.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     sc.add_argument("--seed", type=seed, help="root seed of virtual devices, integer 0..2^63-1 (default: the "
                     "bench's, else a fresh one)")
@@ -168,7 +197,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     rs = sub.add_parser("resume", help=command_help("resume"))
     rs.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
     rs.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
-    rs.add_argument("--bench", metavar="BENCH.toml", help="bench config (default: the one stored with the run)")
+    add_bench_options(rs, "bench config (default: the one stored with the run)", required=False)
     rs.add_argument("--quiet", "-q", action="store_true", help="no progress bar (shown only on a terminal)")
     rs.add_argument("--json", action="store_true", help="the run result as one JSON object")
     rs.set_defaults(func=cmd_resume)

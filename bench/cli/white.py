@@ -1,7 +1,8 @@
 """``bench white``: save a white reference file (:mod:`bench.io.white`).
 
-Either measure the white standard now (``--bench B``: on a real bench the operator mounts it,
-at a terminal; a dark is taken with it when the bench can switch its light off), or take the
+Either measure the white standard now (``--bench B``: on a real bench the operator mounts it and
+confirms at a terminal, or beforehand with ``--yes``; a dark is taken with it unless ``--dark
+none``, and a bench that cannot switch its light off refuses a dark rather than skip it), or take the
 white reference a completed run was calibrated with (``--from-run RUN --store S``). A bench
 config then names the file (``[white] reference_file = "..."``) and its runs need no operator.
 """
@@ -12,7 +13,7 @@ import argparse
 
 from bench.cli.argtypes import count, real, run_id
 from bench.cli.commands import command_help
-from bench.cli.common import DEFAULT_STORE, emit_json, open_store, output_file
+from bench.cli.common import DEFAULT_STORE, add_bench_options, emit_json, open_store, output_file
 from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_white"]
@@ -26,8 +27,9 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
     if not args.integration_s > 0:
         raise InputError(f"--integration-s must be > 0 s, got {args.integration_s:g}")
     plan = Plan(name="white", kind="list", points=(), integration_s=args.integration_s, averages=args.averages,
-                dark="once", white="once")
-    with load_bench(args.bench) as bench:
+                dark=args.dark, white="once")
+    with load_bench(args.bench, body=args.body) as bench:
+        bench.operator_confirmed = args.yes
         cal = measure_calibration(bench, plan, use_reference_file=False)
         return cal, bench.name
 
@@ -64,7 +66,7 @@ def cmd_white(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``white`` to the subcommands."""
     w = sub.add_parser("white", help=command_help("white"))
-    w.add_argument("--bench", metavar="BENCH.toml", help="measure the white standard on this bench now (default: none)")
+    add_bench_options(w, "measure the white standard on this bench now (default: none)", required=False)
     w.add_argument("--from-run", type=run_id, metavar="RUN",
                    help="take the white reference of this completed run (default: none)")
     w.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",
@@ -75,5 +77,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     w.add_argument("--integration-s", type=real(0.0, 3600.0, lo_open=True), default=0.1, metavar="S",
                    help="integration time, seconds (default %(default)s)")
     w.add_argument("--averages", type=count(1, 100_000), default=1, help="scans averaged, 1..100000 (default %(default)s)")
+    w.add_argument("--dark", choices=("once", "none"), default="once",
+                   help="take a dark with the light off (once), or none (the file records it; runs whose plan "
+                        "takes darks then refuse it) (default %(default)s)")
+    w.add_argument("--yes", action="store_true",
+                   help="the white standard is mounted (the operator confirms it): measure without asking at a "
+                        "terminal (default: ask)")
     w.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     w.set_defaults(func=cmd_white)

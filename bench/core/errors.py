@@ -27,6 +27,7 @@ __all__ = [
     "FaultLatchedError",
     "TransportMismatchError",
     "CalibrationError",
+    "CalibrationRefused",
     "StoreError",
     "RunInterrupted",
     "SimulationError",
@@ -121,6 +122,11 @@ class TransportMismatchError(DeviceError, AssertionError):
 
 class CalibrationError(BenchError):
     """Calibration impossible (reference at or below dark, saturated, non-positive)."""
+
+
+class CalibrationRefused(CalibrationError, InputError):
+    """A calibration step the plan asks for that the bench cannot take (a dark without a
+    switchable light, a stored white that does not match): refused before any motion (exit 2)."""
 
 
 class StoreError(BenchError):

@@ -115,6 +115,7 @@ class PlanFile(Table):
     white: Literal["none", "once"] = "once"
     order: Literal["travel", "as-given"] = "travel"
     home: StrictBool = False  # return the turntable to home before the first point
+    unreachable: Literal["refuse", "skip"] = "refuse"  # skip: measure the reachable points, record the others
     description: str = ""
     spectral: SpectralTable | None = None
     in_plane: InPlaneTable | None = None
@@ -144,6 +145,7 @@ class WhiteTable(Table):
 
 class SpecimenTable(Table):
     spec: str
+    name: str = ""  # what the records call the mounted specimen (default: its spec)
 
 
 class VirtualTable(Table):
@@ -198,8 +200,9 @@ class BenchFile(BaseModel):
     turntable: dict[str, Any] | None = None
     spectrometer: dict[str, Any] | None = None
     light: dict[str, Any] | None = None
+    instrument: dict[str, Any] | None = None  # declared effects of the virtual body (bench.builders.instrument)
 
-    @field_validator("arm", "turntable", "spectrometer", "light", mode="before")
+    @field_validator("arm", "turntable", "spectrometer", "light", "instrument", mode="before")
     @classmethod
     def _table(cls, v: Any) -> Any:
         if not isinstance(v, Mapping):

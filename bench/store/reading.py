@@ -157,7 +157,8 @@ class RunReader:
         missing = None
         if info["n_planned"] is not None:
             done = self.done_indices(run_id)
-            missing = sorted(set(range(info["n_planned"])) - done)
+            planned = (info.get("meta") or {}).get("order")  # a plan that skips unreachable points lists the rest
+            missing = sorted(set(planned if planned is not None else range(info["n_planned"])) - done)
         end = info["finished_epoch"] if info["finished_epoch"] is not None else last
         return {
             "run_id": run_id, "kind": info["kind"], "status": info["status"], "reason": info["reason"],
@@ -175,6 +176,7 @@ class RunReader:
                        "max_point_s": t_max},
             "value": {"min": vmin, "max": vmax, "n": n_val, "n_missing": n_read - n_val},
             "saturated": n_sat, "seed": info["seed"],
+            "calibration_steps": (info.get("meta") or {}).get("calibration_steps"),
         }
 
 

@@ -1,0 +1,92 @@
+"""Calibration preflight: every calibration step a plan asks for is possible on the bench, or
+the run is refused before any motion, in one line naming the step and what is missing.
+
+The steps: darks (``dark = "once" | "per-incidence" | "per-point"``) need a light the bench can
+switch off (``[light]``, :mod:`bench.builders.light`); a white reference (``white = "once"``)
+needs either a stored reading that matches the plan (same standard geometry, integration time,
+averages and dark treatment: :func:`check_white_reference`) or a bench that can measure its
+standard now (a virtual or emulated bench mounts it itself; a real one needs an operator at a
+terminal, or ``bench white --yes``). ``dark = "none"`` is taken only when the plan says so, and
+the run records it.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from typing import Any, Mapping
+
+from bench.config import Bench
+from bench.core.errors import CalibrationRefused
+from bench.io.white import WhiteReference
+from bench.plans import Plan
+
+__all__ = ["check_calibration_steps", "check_white_reference", "dark_step", "calibration_record", "no_light"]
+
+_DARK_STEP = {"once": "a dark", "per-incidence": "darks per incidence", "per-point": "darks per point"}
+_GEOMETRY_KEYS = ("theta_i", "phi_i", "theta_r", "phi_r")
+
+
+def dark_step(dark: str) -> str:
+    """How a refusal names the plan's dark step."""
+    return _DARK_STEP.get(dark, f"dark = {dark!r}")
+
+
+def no_light(bench: Bench, plan: Plan) -> CalibrationRefused:
+    """The refusal of a plan's darks on a bench that cannot switch its light off."""
+    return CalibrationRefused(
+        f"plan {plan.name!r} asks for {dark_step(plan.dark)}; bench {bench.name!r} declares no switchable "
+        f"light or shutter: add [light] kind = \"spectrometer-lamp\" to the bench file, or set dark = \"none\" "
+        f"in the plan")
+
+
+def check_white_reference(ref: WhiteReference, bench: Bench, integration_s: float, averages: int,
+                          dark: str) -> None:
+    """Refuse a stored white reading that does not match the run: taken at another geometry than
+    the bench's ``[white]`` standard, with another integration time or number of averages, or with
+    a dark where the plan takes none (or none where it takes darks)."""
+    where = f"white reference {ref.path or '(stored reading)'}"
+    g = ref.standard.get("geometry") if isinstance(ref.standard, Mapping) else None
+    if not isinstance(g, Mapping) or any(k not in g for k in _GEOMETRY_KEYS):
+        raise CalibrationRefused(f"{where} records no geometry: take it again with `bench white`")
+    want = bench.white.geometry.as_dict()
+    for k in _GEOMETRY_KEYS:
+        if abs(float(g[k]) - float(want[k])) > 1e-6:
+            raise CalibrationRefused(f"{where} was taken at {k} = {float(g[k]):g} deg; bench {bench.name!r} "
+                                   f"[white] geometry has {k} = {float(want[k]):g} deg")
+    if not math.isclose(ref.white.integration_s, integration_s, rel_tol=1e-9):
+        raise CalibrationRefused(f"{where} was taken with integration_s = {ref.white.integration_s:g} s; the plan "
+                               f"integrates {integration_s:g} s: take it again with --integration-s {integration_s:g}")
+    if ref.white.averages != averages:
+        raise CalibrationRefused(f"{where} averages {ref.white.averages} scans; the plan averages {averages}: "
+                               f"take it again with --averages {averages}")
+    if dark != "none" and ref.dark is None:
+        raise CalibrationRefused(f"{where} has no dark; the plan asks for {dark_step(dark)}: take it again on a bench "
+                               f"with a switchable light, or set dark = \"none\" in the plan")
+    if dark == "none" and ref.dark is not None:
+        raise CalibrationRefused(f"{where} is dark-subtracted; the plan takes no dark (dark = \"none\"): "
+                               f"take it again with `bench white --dark none`, or ask the plan for darks")
+
+
+def check_calibration_steps(bench: Bench, plan: Plan, ref: WhiteReference | None) -> None:
+    """Raise :class:`CalibrationRefused` (one line) unless every calibration step of ``plan`` can be
+    taken on ``bench``, with ``ref`` the bench's stored white reading (or None). Call it before
+    any motion."""
+    if plan.dark != "none" and bench.light is None:
+        raise no_light(bench, plan)
+    if plan.white == "none":
+        return
+    if ref is not None:
+        check_white_reference(ref, bench, plan.integration_s, plan.averages, plan.dark)
+    elif bench.white_needs_operator and not bench.operator_confirmed and not sys.stdin.isatty():
+        raise CalibrationRefused(
+            f"plan {plan.name!r} asks for a white reference; bench {bench.name!r} names no stored reading "
+            f"([white] reference_file) and no operator at a terminal can mount the standard: mount it, run "
+            f"`bench white --bench B --out FILE --yes --integration-s {plan.integration_s:g} --averages "
+            f"{plan.averages}`, then set [white] reference_file = \"FILE\"; or set white = \"none\" in the plan")
+
+
+def calibration_record(plan: Plan, ref: WhiteReference | None) -> dict[str, Any]:
+    """What a run records about the calibration steps it took (also when it took none)."""
+    return {"dark": plan.dark, "white": plan.white, "averages": plan.averages, "integration_s": plan.integration_s,
+            "white_source": "none" if plan.white == "none" else ("file" if ref is not None else "measured")}
