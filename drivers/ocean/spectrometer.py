@@ -10,7 +10,7 @@ import logging
 import math
 import time
 from dataclasses import fields
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -52,6 +52,8 @@ class OceanSpectrometer:
         Settings; keyword arguments override single keys.
     name : str
         Name used in messages.
+    clock : callable, optional
+        Time source of the link's deadlines (default wall time; tests pass a fake one).
 
     Raises
     ------
@@ -63,7 +65,8 @@ class OceanSpectrometer:
     """
 
     def __init__(self, transport: Any, *, config: OceanConfig | Mapping[str, Any] | None = None,
-                 name: str = "spectrometer", **overrides: Any) -> None:
+                 name: str = "spectrometer", clock: Callable[[], float] = time.monotonic,
+                 **overrides: Any) -> None:
         base = config if isinstance(config, OceanConfig) else OceanConfig.from_dict(config or {})
         if overrides:
             merged = {f.name: getattr(base, f.name) for f in fields(OceanConfig)}
@@ -80,7 +83,7 @@ class OceanSpectrometer:
         else:
             self.port = repr(transport)
             t = transport
-        self.link = OceanLink(t, name, self.config.timeout_s, self.config.retries)
+        self.link = OceanLink(t, name, self.config.timeout_s, self.config.retries, clock)
         self._closed = False
         self._state: dict[str, int] = dict(POWER_UP)
         self._sent: set[str] = set()          # letters actually sent this session
