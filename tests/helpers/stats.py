@@ -41,6 +41,22 @@ def two_sample_p(a, b) -> float:
     return float(stats.chi2_contingency(table, correction=False).pvalue)
 
 
+def goodness_of_fit(observed, expected) -> tuple[float, float, int]:
+    """Pearson's chi-square of counts against expected counts (``scipy.stats.chisquare``):
+    (statistic, p-value, degrees of freedom). The same pooling rule as :func:`two_sample_p`:
+    bins expected below :data:`MIN_EXPECTED` are summed into one (dropped if it expects
+    nothing); the expected counts are rescaled to the observed total."""
+    observed, expected = np.asarray(observed, float), np.asarray(expected, float)
+    small = expected < MIN_EXPECTED
+    obs = np.append(observed[~small], observed[small].sum())
+    exp = np.append(expected[~small], expected[small].sum())
+    if exp[-1] == 0.0:
+        obs, exp = obs[:-1], exp[:-1]
+    exp = exp * obs.sum() / exp.sum()
+    chi2, p = stats.chisquare(obs, exp)
+    return float(chi2), float(p), len(obs) - 1
+
+
 def family_rate(alpha: float, comparisons: int) -> float:
     """Probability that at least one of ``comparisons`` independent tests, each false-alarming
     with probability ``alpha``, false-alarms: ``1 - (1 - alpha)^m`` (below Bonferroni's
