@@ -31,7 +31,7 @@ def _failure_rate(n: int) -> float:
     return stats.binom.cdf(math.ceil(n * (R - V)) - 1, n, R) + stats.binom.sf(math.floor(n * (R + V)), n, R)
 
 
-def _spread_p(errors: np.ndarray, n: int) -> float:
+def _spread_p(errors: np.ndarray, n: float) -> float:
     """Smaller tail of the chi-square (df = RUNS) of the errors standardized by the binomial
     standard error of n rays: both tails are checked at SPREAD_TAIL."""
     chi2 = np.sum((errors / math.sqrt(R * (1 - R) / n)) ** 2)
@@ -50,7 +50,7 @@ def test_lambertian_within_v_in_99_percent_of_200_seeded_runs():
     #    P(Binomial(200, 7.7e-4) > 2) = 5.4e-4. It would pass a rule failing at exactly delta
     #    68 % of the time: 200 runs cannot tell such a rule apart, so the power is in 2.
     # 2. the spread: the chi-square of the 200 standardized errors, each tail at 1e-3 (2e-3).
-    # Family-wise: 5.4e-4 + 2e-3 = 2.5e-3 (computed below). Power: next test.
+    # Family-wise: 5.4e-4 + 2e-3 = 2.5e-3 (computed below).
     n = hoeffding_rays(V, DELTA)
     assert n == 105967
     f0 = _failure_rate(n)
@@ -60,13 +60,11 @@ def test_lambertian_within_v_in_99_percent_of_200_seeded_runs():
     errors = _errors(n)
     assert np.sum(errors > V) <= 2
     assert _spread_p(errors, n) > SPREAD_TAIL
-
-
-def test_the_spread_check_rejects_a_rule_failing_at_delta():
-    # N_AT_DELTA = 62,203 rays fail |R_hat - R| > v at exactly delta (1.0e-2, exact binomial):
-    # their errors are sqrt(105967 / 62203) = 1.31 times wider, chi-square ~ 341 on 200 df
+    # power: a rule failing at exactly delta (N_AT_DELTA = 62,203 rays, exact rate 1.0e-2) has
+    # errors sqrt(n / N_AT_DELTA) = 1.31 times wider -- the same errors judged as if they came
+    # from n * 1.70 rays -- and check 2 rejects it (chi-square ~ 340 on 200 df)
     assert _failure_rate(N_AT_DELTA) == pytest.approx(DELTA, rel=0.01)
-    assert stats.chi2.cdf(np.sum((_errors(N_AT_DELTA) / math.sqrt(R * (1 - R) / 105967)) ** 2), RUNS) > 1 - SPREAD_TAIL
+    assert _spread_p(errors, n * n / N_AT_DELTA) < SPREAD_TAIL
 
 
 def test_collimated_and_conical_beams_give_the_same_lambertian_reflectance():
