@@ -16,17 +16,12 @@ from pathlib import Path
 import pytest
 
 from bench.cli import main
+from tests.helpers.cli import run_main
 
 ROOT = Path(__file__).resolve().parents[1]
 FIX = ROOT / "fixtures"
 VIRTUAL = str(FIX / "benches" / "virtual.toml")
 SMALL_PLAN = 'name = "small"\nkind = "in-plane"\n[in_plane]\ntheta_i = [30]\ntheta_r = [-40, 0, 40]\n'
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def one_line(err: str) -> bool:
@@ -81,7 +76,7 @@ BAD_ARGS = {
 @pytest.mark.parametrize("name", sorted(BAD_ARGS))
 def test_bad_arguments_exit_2_naming_the_option(capsys, name):
     argv, needle = BAD_ARGS[name]
-    code, out, err = run(capsys, *argv)
+    code, out, err = run_main(capsys, *argv)
     assert code == 2, err
     assert one_line(err) and needle in err, err
     assert out == ""
@@ -97,7 +92,7 @@ def test_the_cli_collector_bound_is_the_core_one():
 def test_scan_with_a_refused_seed_leaves_no_run(capsys, tmp_path, store):
     _, _, plan = store
     db = tmp_path / "s.sqlite"
-    code, _, err = run(capsys, "scan", plan, "--bench", VIRTUAL, "--store", db, "--seed", "-1")
+    code, _, err = run_main(capsys, "scan", plan, "--bench", VIRTUAL, "--store", db, "--seed", "-1")
     assert code == 2 and one_line(err)
     assert not db.exists()  # validated before the store was even opened: no run stuck at "running 0/N"
 
@@ -122,7 +117,7 @@ def _inputs(tmp: Path) -> dict[str, Path]:
                                   "averages inf"])
 def test_unreadable_or_malformed_plans_exit_2(capsys, tmp_path, case):
     path = _inputs(tmp_path)[case]
-    code, _, err = run(capsys, "plan", path, "--bench", VIRTUAL)
+    code, _, err = run_main(capsys, "plan", path, "--bench", VIRTUAL)
     assert code == 2 and one_line(err), err
     assert str(path.name) in err or "avrages" in err
 
@@ -130,7 +125,7 @@ def test_unreadable_or_malformed_plans_exit_2(capsys, tmp_path, case):
 def test_a_bench_config_with_white_as_a_string_exits_2(capsys, tmp_path, store):
     _inputs(tmp_path)
     _, _, plan = store
-    code, _, err = run(capsys, "plan", plan, "--bench", tmp_path / "white.toml")
+    code, _, err = run_main(capsys, "plan", plan, "--bench", tmp_path / "white.toml")
     assert code == 2 and one_line(err) and "key white" in err
 
 
@@ -140,7 +135,7 @@ def test_outputs_that_cannot_be_written_exit_2_before_any_work(capsys, tmp_path,
     (tmp_path / "afile").write_text("x")
     (tmp_path / "adir").mkdir()
     out = tmp_path / ("afile/x.csv" if where == "under a file" else "adir")
-    code, _, err = run(capsys, "export", rid, "--store", db, "--out", out)
+    code, _, err = run_main(capsys, "export", rid, "--store", db, "--out", out)
     assert code == 2 and one_line(err), err
 
 
@@ -150,7 +145,7 @@ def test_readers_never_change_the_store(capsys, tmp_path, store):
     db, rid, _ = store
     before = digest(db)
     for argv in (["runs"], ["show", rid], ["export", rid, "--out", tmp_path / "r.csv"], ["runs", "--json"]):
-        code, _, err = run(capsys, *argv, "--store", db)
+        code, _, err = run_main(capsys, *argv, "--store", db)
         assert code == 0, err
     assert digest(db) == before
 
@@ -162,7 +157,7 @@ def test_a_foreign_sqlite_file_is_refused_before_anything_is_written(capsys, tmp
         c.execute("CREATE TABLE t (x)")
     before = digest(db)
     for argv in (["runs", "--store", db], ["scan", plan, "--bench", VIRTUAL, "--store", db]):
-        code, _, err = run(capsys, *argv)
+        code, _, err = run_main(capsys, *argv)
         assert code == 2 and one_line(err) and "not a goniobench run store" in err
     assert digest(db) == before
     with sqlite3.connect(db) as c:
@@ -187,7 +182,7 @@ def test_damaged_or_missing_stores_exit_2(capsys, tmp_path, store, damage):
                 f.seek(4096)
                 f.write(b"\x07" * 4096 * 3)
     for argv in (["runs"], ["show", rid], ["export", rid, "--out", tmp_path / "x.csv"]):
-        code, _, err = run(capsys, *argv, "--store", db)
+        code, _, err = run_main(capsys, *argv, "--store", db)
         assert code == 2 and one_line(err), (argv, err)
 
 
@@ -195,13 +190,13 @@ def test_damaged_or_missing_stores_exit_2(capsys, tmp_path, store, damage):
                                   ["show", "x\udcff"]])
 def test_unknown_or_malformed_run_ids_exit_2(capsys, store, argv):
     db, _, _ = store
-    code, _, err = run(capsys, *argv, "--store", db)
+    code, _, err = run_main(capsys, *argv, "--store", db)
     assert code == 2 and one_line(err), err
 
 
 def test_resuming_a_completed_run_exits_2(capsys, store):
     db, rid, _ = store
-    code, _, err = run(capsys, "resume", rid, "--store", db)
+    code, _, err = run_main(capsys, "resume", rid, "--store", db)
     assert code == 2 and one_line(err) and "completed" in err
 
 
@@ -220,13 +215,13 @@ def test_a_killed_run_shows_process_gone_and_resumes(capsys, tmp_path, store):
     rid = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                          timeout=120).stdout.strip()
     assert rid
-    c, out, err = run(capsys, "runs", "--store", db)
+    c, out, err = run_main(capsys, "runs", "--store", db)
     assert c == 0 and "interrupted" in out and "process gone" in out, out
-    c, out, _ = run(capsys, "runs", "--store", db, "--json")
+    c, out, _ = run_main(capsys, "runs", "--store", db, "--json")
     assert json.loads(out)[0]["process_gone"] is True
-    c, out, err = run(capsys, "resume", rid, "--store", db, "-q")
+    c, out, err = run_main(capsys, "resume", rid, "--store", db, "-q")
     assert c == 0, err
-    c, out, _ = run(capsys, "runs", "--store", db, "--json")
+    c, out, _ = run_main(capsys, "runs", "--store", db, "--json")
     row = json.loads(out)[0]
     assert row["status"] == "completed" and row["points_done"] == 3 and row["process_gone"] is False
 
@@ -248,7 +243,7 @@ def test_an_internal_error_is_one_line_naming_a_saved_traceback(capsys, monkeypa
         raise ZeroDivisionError("a bug")
 
     monkeypatch.setattr(measure, "cmd_rays", boom)
-    code, _, err = run(capsys, "rays", "-u", "0.1", "-d", "0.1")
+    code, _, err = run_main(capsys, "rays", "-u", "0.1", "-d", "0.1")
     assert code == 70 and one_line(err) and "ZeroDivisionError" in err
     path = err.split("traceback saved to ")[1].split(";")[0]
     assert "ZeroDivisionError: a bug" in Path(path).read_text()
@@ -262,7 +257,7 @@ def test_ctrl_c_exits_130(capsys, monkeypatch):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(measure, "cmd_rays", interrupted)
-    code, _, err = run(capsys, "rays", "-u", "0.1", "-d", "0.1")
+    code, _, err = run_main(capsys, "rays", "-u", "0.1", "-d", "0.1")
     assert code == 130 and one_line(err)
 
 
@@ -274,7 +269,7 @@ def test_a_device_fault_exits_1(capsys, monkeypatch):
         raise HardwareError("overload on axis 2")
 
     monkeypatch.setattr(measure, "cmd_rays", fault)
-    code, _, err = run(capsys, "rays", "-u", "0.1", "-d", "0.1")
+    code, _, err = run_main(capsys, "rays", "-u", "0.1", "-d", "0.1")
     assert code == 1 and one_line(err) and "overload" in err
 
 
@@ -291,13 +286,13 @@ def test_a_broken_pipe_exits_quietly():
 
 
 def test_help_lists_every_command_with_a_description_and_version(capsys):
-    code, out, _ = run(capsys, "--help")
+    code, out, _ = run_main(capsys, "--help")
     assert code == 0 and "exit status" in out
     for cmd in ("rays", "spectro", "gonio", "plan", "scan", "resume", "runs", "show", "export", "demo", "compare",
                 "tradeoff", "sweep", "emulate", "specimens"):
         line = next(ln for ln in out.splitlines() if ln.strip().startswith(cmd + " "))
         assert len(line.split(None, 1)[1]) > 10
-    code, out, _ = run(capsys, "--version")
+    code, out, _ = run_main(capsys, "--version")
     assert code == 0 and out.startswith("bench (goniobench) ")
 
 
@@ -353,15 +348,15 @@ def test_bench_specimens_lists_every_family_and_parameter(capsys):
     from virtual.specimens import specimen_families
 
     fams = specimen_families()
-    code, out, err = run(capsys, "specimens")
+    code, out, err = run_main(capsys, "specimens")
     assert code == 0 and err == ""
     for fam in fams:
         assert f"{fam['name']}:" in out
         for p in fam["parameters"]:
             assert f"  {p['name']}" in out
-    code, out, _ = run(capsys, "specimens", "--json")
+    code, out, _ = run_main(capsys, "specimens", "--json")
     assert code == 0 and [f["name"] for f in json.loads(out)] == [f["name"] for f in fams]
-    code, out, _ = run(capsys, "specimens", "--markdown")
+    code, out, _ = run_main(capsys, "specimens", "--markdown")
     from virtual.specimens import specimen_table_markdown
 
     assert code == 0 and out.strip() == specimen_table_markdown().strip()
@@ -382,11 +377,11 @@ def test_ctrl_c_during_a_scan_exits_130_and_the_run_resumes(capsys, tmp_path, st
         return real_rows(*a, **kw)
 
     monkeypatch.setattr(runner, "point_rows", rows_then_ctrl_c)
-    code, _, err = run(capsys, "scan", plan, "--bench", VIRTUAL, "--store", db, "-q", "--seed", "2")
+    code, _, err = run_main(capsys, "scan", plan, "--bench", VIRTUAL, "--store", db, "-q", "--seed", "2")
     assert code == 130 and one_line(err) and "bench resume" in err
     monkeypatch.undo()
     rid = err.split("bench resume ")[1].split()[0]
-    code, out, err = run(capsys, "resume", rid, "--store", db, "-q")
+    code, out, err = run_main(capsys, "resume", rid, "--store", db, "-q")
     assert code == 0, err
 
 

@@ -1,4 +1,4 @@
-"""Issue 25 item 4: calibration that cannot be silently wrong, on the lab's own workflow.
+"""Calibration that cannot be silently wrong, on the lab's own workflow.
 
 The real-bench config ``bench emulate`` prints for the emulators (the real drivers, a
 ``kind = "real"`` bench), a white stored non-interactively (``bench white --yes``), then the

@@ -7,19 +7,13 @@ from pathlib import Path
 
 import pytest
 
-from bench.cli import main
-
-
-def run(capsys, *argv):
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
+from tests.helpers.cli import run_main
 
 
 def test_rays_prints_eq_3_5_and_eq_3_12(capsys):
-    assert run(capsys, "rays", "--uncertainty", "0.005", "--delta", "0.01") == (0, "105967\n", "")
-    assert run(capsys, "rays", "--uncertainty", "0.005", "--delta", "0.01", "--patches", "900")[1] == "95370300\n"
-    code, out, _ = run(capsys, "rays", "-u", "0.005", "-d", "0.01", "--json")
+    assert run_main(capsys, "rays", "--uncertainty", "0.005", "--delta", "0.01") == (0, "105967\n", "")
+    assert run_main(capsys, "rays", "--uncertainty", "0.005", "--delta", "0.01", "--patches", "900")[1] == "95370300\n"
+    code, out, _ = run_main(capsys, "rays", "-u", "0.005", "-d", "0.01", "--json")
     assert code == 0 and json.loads(out)["N"] == 105967
 
 
@@ -34,13 +28,13 @@ def test_rays_prints_eq_3_5_and_eq_3_12(capsys):
     (["spectro", "--specimen", "lambert:reflectance=0.5", "--uncertainty", "0", "--delta", "0.01"], "uncertainty"),
 ])
 def test_bad_input_exits_2_with_a_one_line_message(capsys, argv, needle):
-    code, out, err = run(capsys, *argv)
+    code, out, err = run_main(capsys, *argv)
     assert code == 2
     assert needle in err and err.count("\n") == 1
 
 
 def test_spectro_json_has_the_contract_keys(capsys):
-    code, out, _ = run(capsys, "spectro", "--specimen", "lambert:reflectance=0.5,transmittance=0.3",
+    code, out, _ = run_main(capsys, "spectro", "--specimen", "lambert:reflectance=0.5,transmittance=0.3",
                        "--geometry", "8/d", "--wavelengths", "400:700:150", "--rays", "20000", "--seed", "7", "--json")
     assert code == 0
     d = json.loads(out)
@@ -53,7 +47,7 @@ def test_spectro_json_has_the_contract_keys(capsys):
 
 def test_spectro_writes_csv_and_plot(capsys, tmp_path):
     csv, png = tmp_path / "s.csv", tmp_path / "s.png"
-    code, out, _ = run(capsys, "spectro", "--specimen", "colorchecker:dark skin", "--wavelengths", "400:700:20",
+    code, out, _ = run_main(capsys, "spectro", "--specimen", "colorchecker:dark skin", "--wavelengths", "400:700:20",
                        "--rays", "5000", "--seed", "1", "--csv", str(csv), "--plot", str(png))
     assert code == 0 and "dark skin" in out
     assert csv.read_text().splitlines()[0].startswith("wavelength_nm,reflectance")
@@ -86,7 +80,7 @@ def _small_run(tmp_path, capsys, wavelengths="550"):
                     'white = "once"\n[in_plane]\ntheta_i = [30]\ntheta_r = { start = -60, stop = 60, step = 20 }\n'
                     'phi_i = 0\n')
     store = tmp_path / "runs.sqlite"
-    code, out, err = run(capsys, "scan", str(plan), "--bench", str(bench), "--store", str(store), "--seed", "5", "-q")
+    code, out, err = run_main(capsys, "scan", str(plan), "--bench", str(bench), "--store", str(store), "--seed", "5", "-q")
     assert code == 0, err
     return store, out.strip()
 
@@ -97,12 +91,12 @@ def test_bench_compare_reads_every_export_format_of_a_run(tmp_path, capsys):
     lossless formats; the Zemax grid (resampled) compares with itself."""
     store, run_id = _small_run(tmp_path, capsys)
     for fmt in ("csv", "parquet", "astm", "zemax"):
-        code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", fmt,
+        code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--format", fmt,
                              "--out", str(tmp_path / f"r.{fmt}.out"))
         assert code == 0, err
         path = out.strip()
         other = f"same={path}" if fmt == "zemax" else f"run={run_id}"
-        code, out, err = run(capsys, "compare", f"file={path}", other, "--store", str(store), "--json",
+        code, out, err = run_main(capsys, "compare", f"file={path}", other, "--store", str(store), "--json",
                              "--report", str(tmp_path / f"report-{fmt}"))
         assert code == 0, (fmt, err)
         s = json.loads(out)["candidates"]["same" if fmt == "zemax" else "run"]
@@ -113,10 +107,10 @@ def test_bench_compare_reads_every_export_format_of_a_run(tmp_path, capsys):
 
 def test_bench_compare_reads_a_spectro_csv(tmp_path, capsys):
     csv = tmp_path / "s.csv"
-    code, _, err = run(capsys, "spectro", "--specimen", "lambert:reflectance=0.5", "--wavelengths", "400:700:50",
+    code, _, err = run_main(capsys, "spectro", "--specimen", "lambert:reflectance=0.5", "--wavelengths", "400:700:50",
                        "--rays", "20000", "--seed", "2", "--csv", str(csv))
     assert code == 0, err
-    code, out, err = run(capsys, "compare", str(csv), f"again={csv}", "--json", "--report", str(tmp_path / "rep"))
+    code, out, err = run_main(capsys, "compare", str(csv), f"again={csv}", "--json", "--report", str(tmp_path / "rep"))
     assert code == 0, err
     d = json.loads(out)
     assert d["kind"] == "spectrum" and d["candidates"]["again"]["n_points"] == 7
@@ -124,13 +118,13 @@ def test_bench_compare_reads_a_spectro_csv(tmp_path, capsys):
 
 def test_export_zemax_one_file_per_wavelength_or_the_one_asked_for(tmp_path, capsys):
     store, run_id = _small_run(tmp_path, capsys, wavelengths="450,550")
-    code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", "zemax",
+    code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--format", "zemax",
                          "--out", str(tmp_path / "z.bsdf"))
     assert code == 0, err
     assert [Path(p).name for p in out.split()] == ["z-450nm.bsdf", "z-550nm.bsdf"]
-    code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", "zemax", "--wavelength", "550",
+    code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--format", "zemax", "--wavelength", "550",
                          "--out", str(tmp_path / "one.bsdf"))
     assert code == 0 and out.split() == [str(tmp_path / "one.bsdf")]
     assert "# wavelength_nm 550" in (tmp_path / "one.bsdf").read_text()
-    code, out, err = run(capsys, "export", run_id, "--store", str(store), "--format", "csv", "--wavelength", "550")
+    code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--format", "csv", "--wavelength", "550")
     assert code == 2 and "--wavelength" in err and err.count("\n") == 1

@@ -29,6 +29,7 @@ from bench.sweep import run_sweep, sweep_from_dict
 from compare.align import NoOverlapError, align
 from compare.report import compare_records
 from compare.verdict import Criterion
+from tests.helpers.cli import run_bench
 
 CHROMIUM = Path("/usr/bin/chromium")
 
@@ -126,27 +127,20 @@ def test_spectro_sweeps_compare_as_spectra_with_ciede2000(sweeps, tmp_path):
     assert len(s["breakdown"]["model"]["by_wavelength"]) == 16  # per-wavelength statistics
 
 
-def _bench(*args, cwd):
-    import sys
-
-    return subprocess.run([sys.executable, "-m", "bench.cli", *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=600)
-
-
 def test_cli_compares_spectrum_csvs_and_spectro_sweeps(sweeps, tmp_path):
     store, ids, d = sweeps
     for seed in (1, 2):
-        r = _bench("spectro", "--specimen", "colorchecker:dark skin", "--geometry", "8/d", "--wavelengths",
+        r = run_bench("spectro", "--specimen", "colorchecker:dark skin", "--geometry", "8/d", "--wavelengths",
                    "400:700:20", "--rays", "20000", "--seed", str(seed), "--csv", f"s{seed}.csv", cwd=tmp_path)
         assert r.returncode == 0, r.stderr
-    r = _bench("compare", "s1.csv", "s1.csv", "--report", "self", "--json", cwd=tmp_path)
+    r = run_bench("compare", "s1.csv", "s1.csv", "--report", "self", "--json", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     js = json.loads(r.stdout)
     assert js["verdicts"]["s1"]["verdict"] == "accept" and js["candidates"]["s1"]["delta_e2000_mean"] == 0
-    r = _bench("compare", "s1.csv", "s2.csv", "--report", "re", cwd=tmp_path)
+    r = run_bench("compare", "s1.csv", "s2.csv", "--report", "re", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert re.search(r"#1 s2: ACCEPT", r.stdout) and "delta_e2000_mean" in r.stdout
-    r = _bench("compare", ids["s"], ids["t"], "--store", str(d / "runs.sqlite"), "--report", "sw", "--json",
+    r = run_bench("compare", ids["s"], ids["t"], "--store", str(d / "runs.sqlite"), "--report", "sw", "--json",
                cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     js = json.loads(r.stdout)
@@ -288,13 +282,14 @@ def test_criterion_from_a_config_file_and_flags(tmp_path, virtual_pair):
     export_record(b, tmp_path / "b.csv")
     cfg = tmp_path / "compare.toml"
     cfg.write_text("[criterion]\nalpha = 0.05\ntolerance = 0.03\n[compare]\nmetric = \"rmse\"\n")
-    r = _bench("compare", "a.csv", "b.csv", "--config", str(cfg), "--k", "3", "--json", "--report", "r", cwd=tmp_path)
+    r = run_bench("compare", "a.csv", "b.csv", "--config", str(cfg), "--k", "3", "--json", "--report", "r",
+                  cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     js = json.loads(r.stdout)
     assert js["criterion"]["alpha"] == 0.05 and js["criterion"]["tolerance"] == 0.03 and js["criterion"]["k"] == 3
     assert js["primary_metric"] == "rmse" and "alpha = 0.05" in js["criterion"]["statement"]
     cfg.write_text("[criterion]\nalfa = 0.05\n")
-    r = _bench("compare", "a.csv", "b.csv", "--config", str(cfg), cwd=tmp_path)
+    r = run_bench("compare", "a.csv", "b.csv", "--config", str(cfg), cwd=tmp_path)
     assert r.returncode == 2 and "unknown criterion key(s) ['alfa']" in r.stderr
-    r = _bench("compare", "a.csv", "b.csv", "--alpha", "1.5", cwd=tmp_path)
+    r = run_bench("compare", "a.csv", "b.csv", "--alpha", "1.5", cwd=tmp_path)
     assert r.returncode == 2 and "argument --alpha" in r.stderr and "'1.5'" in r.stderr

@@ -16,9 +16,9 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from scipy import stats
 
 from bench.core.geometry import Geometry
+from tests.helpers.stats import goodness_of_fit
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.specimens.mitsuba import MitsubaSpecimen
 from virtual.quadrature import integrate_patches
@@ -40,19 +40,6 @@ CASES = {
 }
 
 
-def _gof(observed: np.ndarray, expected_p: np.ndarray) -> tuple[float, float, int]:
-    """Pearson chi-square of counts against probabilities, bins of expected count < 5 pooled."""
-    expected = expected_p * observed.sum()
-    small = expected < 5.0
-    obs = np.append(observed[~small], observed[small].sum())
-    exp = np.append(expected[~small], expected[small].sum())
-    if exp[-1] == 0.0:
-        obs, exp = obs[:-1], exp[:-1]
-    exp = exp * obs.sum() / exp.sum()
-    chi2, p = stats.chisquare(obs, exp)
-    return float(chi2), float(p), len(obs) - 1
-
-
 def _ours_vs_mitsuba(ours: str, definition: dict, theta: float, seed: int,
                      rays: int = RAYS) -> tuple[float, float, int]:
     g = VirtualGoniophotometer(parse_specimen(ours), collector=COLLECTOR, rays=rays, method="rays", seed=seed)
@@ -62,7 +49,7 @@ def _ours_vs_mitsuba(ours: str, definition: dict, theta: float, seed: int,
     q = integrate_patches(MitsubaSpecimen(definition), Geometry(theta, 0.0, 0.0, 0.0).incident, g.collector,
                           550.0, rtol=1e-5, atol=1e-7)
     p = np.append(q.p, max(0.0, 1.0 - q.p.sum()))
-    return _gof(counts, p)
+    return goodness_of_fit(counts, p * counts.sum())
 
 
 @pytest.mark.parametrize("theta", [0.0, 30.0, 60.0])

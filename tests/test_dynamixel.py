@@ -22,8 +22,14 @@ from bench.core.geometry import Geometry
 from bench.core.conformance import angular_distance_deg, check_conformance
 from drivers.dynamixel import ArmConfig, AxisConfig, DynamixelArm, decode_hardware_error
 from drivers.kinematics import JOINTS
-from drivers.transport import (RecordingTransport, ScriptedTransport, SerialTransport, TransportPortHandler,
-                               load_fixture)
+from drivers.transport import (
+    RecordingTransport,
+    ScriptedTransport,
+    SerialTransport,
+    TransportPortHandler,
+    load_fixture,
+)
+from tests.helpers.clock import FakeClock, WaitingTransport
 from virtual.wire.dynamixel_bus import BusControl, start_bus
 from virtual.wire.dxl_bus import BusTransport, DynamixelBus
 from virtual.wire.dxl_codec import (PacketError, PacketParser, crc16, decode_packet, encode_instruction,
@@ -125,14 +131,6 @@ def test_decode_rejects_bad_packets() -> None:
 # --- emulator model (in process, through the real SDK) --------------------------------------
 
 
-class FakeClock:
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
 def sdk_on(bus: DynamixelBus) -> tuple[TransportPortHandler, Any]:
     return TransportPortHandler(BusTransport(bus)), PacketHandler(2.0)
 
@@ -158,12 +156,12 @@ def test_emulator_finite_speed_motion_and_moving_flag() -> None:
     pk.write4ByteTxRx(port, 1, 112, 100)  # 22.9 rpm = 1563.3 ticks/s
     pk.write1ByteTxRx(port, 1, 64, 1)
     pk.write4ByteTxRx(port, 1, 116, 3048)
-    clock.t += 0.5
+    clock.sleep(0.5)
     pos, _, _ = pk.read4ByteTxRx(port, 1, 132)
     assert pos == round(2048 + 0.5 * 100 * 0.229 / 60 * 4096)
     assert pk.read1ByteTxRx(port, 1, 122)[0] == 1
     assert pk.read1ByteTxRx(port, 1, 123)[0] & 0x02
-    clock.t += 1.0
+    clock.sleep(1.0)
     assert pk.read4ByteTxRx(port, 1, 132)[0] == 3048
     assert pk.read1ByteTxRx(port, 1, 122)[0] == 0
     assert pk.read1ByteTxRx(port, 1, 123)[0] & 0x01
@@ -292,13 +290,20 @@ def test_dropped_reply_is_retried(bus: DynamixelBus) -> None:
     arm.close()
 
 
-def test_no_reply_is_a_timeout_then_latched(bus: DynamixelBus) -> None:
-    arm, spy = make_arm(bus, retries=2)
+def test_no_reply_is_a_timeout_then_latched() -> None:
+    clock = FakeClock()
+    bus = DynamixelBus((1, 2, 3, 4), clock=clock, time_scale=50.0, axes=EMU_AXES)
+    wire = WaitingTransport(BusTransport(bus), clock)  # a silent line waits out each read's timeout
+    spy = Spy(wire)
+    arm = DynamixelArm(arm_config(retries=2), transport=spy, clock=clock, sleep=clock.sleep)
     bus.set_faults(hang=True)
-    t0 = time.monotonic()
+    start = clock.now
     with pytest.raises(DeviceTimeoutError, match="after 3 attempt"):
         arm.move_to(REACHABLE[0])
-    assert time.monotonic() - t0 < 2.0
+    # three attempts, each waiting out the SDK's packet timeout of the sync read (35.24 ms at
+    # 1 Mbaud) and then one quiet-bus window (17.74 ms): bounded, and nothing else waited for
+    assert wire.waits == pytest.approx([0.03524, 0.01774] * 3)
+    assert clock.now - start == pytest.approx(sum(wire.waits))
     n = len(spy.written)
     with pytest.raises(FaultLatchedError, match="reset"):
         arm.move_to(REACHABLE[1])
@@ -355,26 +360,31 @@ def test_hardware_error_at_connect(bus: DynamixelBus) -> None:
     arm.close()
 
 
-def test_move_that_never_starts_is_reported_within_100_ms(bus: DynamixelBus) -> None:
+def _faked(**kw: Any) -> tuple[DynamixelBus, DynamixelArm, FakeClock]:
+    """Bus and arm on one fake clock: the servos move, and the arm waits, only in its time."""
+    clock = FakeClock()
+    bus = DynamixelBus((1, 2, 3, 4), clock=clock, time_scale=50.0, axes=EMU_AXES)
+    return bus, DynamixelArm(arm_config(**kw), transport=BusTransport(bus), clock=clock, sleep=clock.sleep), clock
+
+
+def test_move_that_never_starts_is_reported_within_100_ms() -> None:
     """A servo that takes its goal but never moves (torque silently off) is
     reported by the start window (~100 ms), not after the whole settle timeout."""
-    arm, _ = make_arm(bus, settle_timeout_s=20.0)
+    bus, arm, clock = _faked(settle_timeout_s=20.0)
     bus.servos[3].table[64] = 0  # torque silently off: the axis will never arrive
-    t0 = time.monotonic()
     with pytest.raises(DeviceTimeoutError, match=r"servo\(s\) 3 \(detector_azimuth\) did not start"):
         arm.move_to(REACHABLE[2])  # needs the detector azimuth (servo 3) to move
-    assert time.monotonic() - t0 < 0.5
+    assert 0.1 < clock.elapsed <= 0.1 + arm.config.poll_interval_s + 1e-9  # the window and one poll
     arm.close()
 
 
-def test_settle_timeout(bus: DynamixelBus) -> None:
-    arm, _ = make_arm(bus, settle_timeout_s=0.2)
+def test_settle_timeout() -> None:
+    bus, arm, clock = _faked(settle_timeout_s=0.2)
     bus.servos[3].put("profile_velocity", 1)  # moves, but far too slowly to arrive in time
     bus.servos[3].time_scale = 1.0
-    t0 = time.monotonic()
     with pytest.raises(DeviceTimeoutError, match="did not settle"):
         arm.move_to(REACHABLE[2])
-    assert 0.2 <= time.monotonic() - t0 < 2.0
+    assert 0.2 < clock.elapsed <= 0.2 + arm.config.poll_interval_s + 1e-9  # the timeout and one poll
     arm.close()
 
 

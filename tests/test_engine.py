@@ -2,33 +2,20 @@
 
 import math
 
-import numba
 import numpy as np
 import pytest
 
 from bench.core.errors import GeometryError, InputError
 from virtual.beam import Beam, rotation_to
 from virtual.engine import chunking, measurement_seed, spectro_counts
+from tests.helpers.kernels import kernel_counts, on_one_and_all_threads
+from tests.helpers.stats import family_rate, two_sample_p, z_two_sided
 from virtual.specimens import Lambertian
 
 
 def _count(specimen, beam, n, seed=1, theta=8.0, wl=550.0):
     return spectro_counts(specimen.model, specimen.params(wl), beam.code, beam.disk_code,
                           beam.kernel_args(theta, 0.0), n, measurement_seed(seed))
-
-
-def on_one_and_all_threads(run):
-    """``run()`` on one numba thread, then on all of them: both results (the thread count is
-    restored). A result that depends on the thread count differs between the two."""
-    before = numba.get_num_threads()
-    try:
-        numba.set_num_threads(1)
-        one = run()
-        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        many = run()
-    finally:
-        numba.set_num_threads(before)
-    return one, many
 
 
 def test_chunking_depends_on_n_only_and_sums_to_n():
@@ -52,16 +39,32 @@ def test_result_is_identical_whatever_the_thread_count():
     assert _count(spec, beam, n, seed=100) != one
 
 
-def test_collimated_and_conical_lambertian_agree_statistically():
-    # Two independent binomial estimates of the same R: the difference over its standard
-    # error is N(0, 1); |z| < 3.29 fails with probability 1e-3 when the beams agree.
-    spec, n = Lambertian(0.375, 0.25), 2_000_000
+def _beam_z(spec, n):
+    """|z| of collimated against conical for R and T: two independent binomial estimates of the
+    same fraction, their difference over its standard error (at spec's R and T) is N(0, 1)."""
     a = _count(spec, Beam("collimated"), n, seed=5)
     b = _count(spec, Beam("conical"), n, seed=6)
+    z = []
     for field, p in (("reflected", 0.375), ("transmitted", 0.25)):
         pa, pb = getattr(a, field) / a.hits, getattr(b, field) / b.hits
-        se = math.sqrt(p * (1 - p) * (1 / a.hits + 1 / b.hits))
-        assert abs(pa - pb) / se < 3.29, field
+        z.append(abs(pa - pb) / math.sqrt(p * (1 - p) * (1 / a.hits + 1 / b.hits)))
+    return z
+
+
+# two z tests (R and T share the rays): family-wise false-alarm rate at most 2 x 5e-4 = 1e-3
+BEAM_ALPHA = 5e-4
+
+
+def test_collimated_and_conical_lambertian_agree_statistically():
+    assert max(_beam_z(Lambertian(0.375, 0.25), 2_000_000)) < z_two_sided(BEAM_ALPHA)  # 3.48
+
+
+def test_the_beam_comparison_has_power_against_a_reflectance_off_by_0_003():
+    # a beam whose specimen reflects 0.378 instead of 0.375: |z| ~ 6 at these N
+    a = _count(Lambertian(0.375, 0.25), Beam("collimated"), 2_000_000, seed=5)
+    b = _count(Lambertian(0.378, 0.25), Beam("conical"), 2_000_000, seed=6)
+    z = abs(a.reflected / a.hits - b.reflected / b.hits) / math.sqrt(0.375 * 0.625 * (1 / a.hits + 1 / b.hits))
+    assert z > z_two_sided(BEAM_ALPHA)
 
 
 @pytest.mark.parametrize("disk", ["polar", "rejection"])
@@ -73,6 +76,7 @@ def test_wide_conical_beam_near_grazing_misses_some_rays_but_never_nans(disk):
     assert 0 < t.missed < t.N
     assert t.reflected + t.absorbed + t.missed == t.N
     # the rays that did hit behave like any Lambertian: R = 0.8 within 4 binomial sigma
+    # (false-alarm rate 2 * Phi(-4) = 6.3e-5 per case)
     assert abs(t.reflected / t.hits - 0.8) < 4 * math.sqrt(0.16 / t.hits)
 
 
@@ -102,70 +106,11 @@ def test_bad_beams_are_refused():
         Beam("laser")
 
 
-# --- the block kernel against the ray-by-ray kernel --------------------------------------------------
-
-from scipy import stats  # noqa: E402
+# --- the block kernel against the ray-by-ray kernel (every family: tests/test_block_families.py) ----
 
 from virtual.collector import Collector  # noqa: E402
-from virtual.engine import gonio_counts, gonio_kernel_for  # noqa: E402
+from virtual.engine import gonio_kernel_for  # noqa: E402
 from virtual.specimens import parse_specimen  # noqa: E402
-
-
-def _gonio(spec, beam, col, n, seed, kernel, theta=35.0, phi=20.0):
-    sp = parse_specimen(spec)
-    return gonio_counts(sp.model, sp.params(550.0), beam.code, beam.disk_code, beam.kernel_args(theta, phi),
-                        col.kernel_args(), n, measurement_seed(seed), kernel=kernel)
-
-
-def _two_sample_p(a, b):
-    """p-value of the two-sample chi-square for equal totals: sum (a - b)^2 / (a + b) over bins,
-    bins with a + b < 20 pooled into one, df = bins - 1."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    assert a.sum() == b.sum()
-    small = (a + b) < 20
-    a = np.append(a[~small], a[small].sum())
-    b = np.append(b[~small], b[small].sum())
-    keep = (a + b) > 0
-    a, b = a[keep], b[keep]
-    x2 = float(np.sum((a - b) ** 2 / (a + b)))
-    return stats.chi2.sf(x2, len(a) - 1)
-
-
-BLOCK_CASES = [
-    ("lambert:reflectance=0.6,transmittance=0.3", Beam("conical"), Collector("equal-psa", 9, 24)),
-    ("lambert:reflectance=0.6,transmittance=0.3", Beam("collimated"), Collector("equal-angle", 6, 12)),
-    ("ggx:alpha=0.2,eta=0.2,k=3", Beam("conical"), Collector("equal-psa", 9, 24)),
-    ("ggx:alpha=0.05,eta=1.5,k=0", Beam("collimated"), Collector("equal-solid-angle", 12, 16)),
-    ("aniso-ggx:alpha_x=0.4,alpha_y=0.1,eta=1.5,k=0", Beam("conical", disk_sampling="polar"),
-     Collector("equal-psa", 9, 24)),
-]
-
-
-@pytest.mark.parametrize("spec, beam, col", BLOCK_CASES)
-def test_block_and_ray_kernels_count_the_same_distribution(spec, beam, col):
-    # Two independent multinomial samples of the same bin probabilities (plus absorbed and
-    # missed): the two-sample chi-square's p-value is uniform, so p < 1e-3 fails one correct case
-    # in 1000 (these seeds are fixed, so the outcome is too).
-    n = 400_000
-    a = _gonio(spec, beam, col, n, 11, "block")
-    b = _gonio(spec, beam, col, n, 12, "ray")
-    assert a.sum() == n and b.sum() == n
-    assert _two_sample_p(a, b) > 1e-3
-
-
-def test_the_two_sample_test_has_power_against_a_slightly_different_lobe():
-    # GGX alpha 0.2 against 0.22 at the same N: the test must tell them apart (p < 1e-6).
-    col, beam = Collector("equal-psa", 9, 24), Beam("conical")
-    a = _gonio("ggx:alpha=0.2,eta=0.2,k=3", beam, col, 400_000, 11, "block")
-    b = _gonio("ggx:alpha=0.22,eta=0.2,k=3", beam, col, 400_000, 12, "ray")
-    assert _two_sample_p(a, b) < 1e-6
-
-
-def test_block_kernel_result_is_identical_whatever_the_thread_count():
-    col, beam, n = Collector("equal-psa", 9, 24), Beam("conical"), 3 * (1 << 20) + 5
-    one, many = on_one_and_all_threads(lambda: _gonio("ggx:alpha=0.3", beam, col, n, 3, "block"))
-    np.testing.assert_array_equal(one, many)
-    assert not np.array_equal(_gonio("ggx:alpha=0.3", beam, col, n, 4, "block"), one)
 
 
 def test_kernel_choice_follows_the_model_and_the_disk_sampling():
@@ -180,15 +125,32 @@ def test_kernel_choice_follows_the_model_and_the_disk_sampling():
         gonio_kernel_for(lam.model, Beam("conical").disk_code, "simd")
 
 
-@pytest.mark.parametrize("theta", [0.0, 89.5, 180.0])
+MIRROR_THETAS = [0.0, 89.5, 180.0]
+MIRROR_ALPHA = -np.expm1(np.log1p(-1e-3) / len(MIRROR_THETAS))  # Sidak: family-wise 1e-3
+
+
+def test_the_near_mirror_family_rate_is_1e_3():
+    assert family_rate(MIRROR_ALPHA, len(MIRROR_THETAS)) == pytest.approx(1e-3, rel=1e-9)
+
+
+@pytest.mark.parametrize("theta", MIRROR_THETAS)
 def test_block_kernel_on_a_near_mirror_at_the_pole_and_at_grazing(theta):
     # alpha = 1e-3: nearly every ray lands in one or two patches -- at the pole (theta 0 and 180,
     # where the bin guess always declines and the exact lookup decides) or at the horizon. The
-    # counts still match the ray-by-ray kernel's (two-sample chi-square, p > 1e-3).
+    # counts still match the ray-by-ray kernel's: three two-sample chi-squares at MIRROR_ALPHA,
+    # family-wise 1e-3; power: the same comparison rejects a slightly darker conductor.
     col, beam = Collector("equal-psa", 9, 24), Beam("collimated")
-    a = _gonio("ggx:alpha=0.001,eta=0.2,k=3", beam, col, 200_000, 21, "block", theta=theta, phi=0.0)
-    b = _gonio("ggx:alpha=0.001,eta=0.2,k=3", beam, col, 200_000, 22, "ray", theta=theta, phi=0.0)
+    a = kernel_counts("ggx:alpha=0.001,eta=0.2,k=3", beam, col, 200_000, 21, "block", theta=theta, phi=0.0)
+    b = kernel_counts("ggx:alpha=0.001,eta=0.2,k=3", beam, col, 200_000, 22, "ray", theta=theta, phi=0.0)
     assert a.sum() == b.sum() == 200_000 and a.min() >= 0
-    assert _two_sample_p(a, b) > 1e-3
+    assert two_sample_p(a, b) > MIRROR_ALPHA
     rings = a[:-2].reshape(2, 9, 24).sum(axis=2)
     assert rings.max() > 0.9 * rings.sum()  # the lobe really is that narrow: one ring (pole cap or horizon)
+
+
+def test_the_near_mirror_comparison_has_power_against_a_slightly_darker_conductor():
+    # k = 2.5 instead of 3: normal reflectance 0.896 instead of 0.923 (more rays absorbed)
+    col, beam = Collector("equal-psa", 9, 24), Beam("collimated")
+    a = kernel_counts("ggx:alpha=0.001,eta=0.2,k=3", beam, col, 200_000, 21, "block", theta=0.0, phi=0.0)
+    b = kernel_counts("ggx:alpha=0.001,eta=0.2,k=2.5", beam, col, 200_000, 22, "ray", theta=0.0, phi=0.0)
+    assert two_sample_p(a, b) < 1e-6

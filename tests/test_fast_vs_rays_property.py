@@ -3,8 +3,8 @@ path and ray counting are statistically indistinguishable, densities and sampler
 everywhere -- including the limits (Oren-Nayar sigma 0, alpha at both ends, eta -> 1, k large,
 Phong exponent 0), which are pinned as explicit examples.
 
-Each example draws N rays' counts both ways (independent streams) and runs a two-sample
-chi-square test of homogeneity (bins with fewer than 10 counts in total pooled). Hypothesis is
+Each example draws N rays' counts both ways (independent streams) and runs the suite's
+two-sample chi-square test of homogeneity (tests/helpers/stats.py, one pooling rule). Hypothesis is
 derandomized (fixed examples) and bounded; the false-alarm rate is ALPHA_FAMILY = 1e-3 for the
 whole test, Bonferroni over its examples (each example at ALPHA_FAMILY / N_EXAMPLES). Where the
 fast path's quadrature is not certified, the goniophotometer does not use it: the example then
@@ -16,11 +16,10 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
-from scipy import stats
 
+from tests.helpers.stats import two_sample_p
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.specimens import parse_specimen
 
@@ -31,7 +30,7 @@ LIMITS = ("oren-nayar:sigma=0,albedo=0.9", "ggx:alpha=0.0001,eta=1.5", "ggx:alph
           "dielectric:alpha=0.3,eta=1.5,masking=separable")
 N_EXAMPLES = MAX_EXAMPLES + len(LIMITS)
 ALPHA_FAMILY = 1e-3
-ALPHA = ALPHA_FAMILY / N_EXAMPLES
+ALPHA = -math.expm1(math.log1p(-ALPHA_FAMILY) / N_EXAMPLES)
 RAYS = 200_000
 COLLECTOR = "equal-psa:6x12"
 
@@ -71,17 +70,6 @@ def specimens(draw: st.DrawFn) -> str:
     return f"dielectric:alpha={alpha:.6g},eta={eta:.8g},masking={masking}"
 
 
-def _two_sample_p(a: np.ndarray, b: np.ndarray) -> float:
-    table = np.vstack([a, b]).astype(float)
-    tot = table.sum(axis=0)
-    big = tot >= 10
-    table = np.column_stack([table[:, big], table[:, ~big].sum(axis=1)])
-    table = table[:, table.sum(axis=0) > 0]
-    if table.shape[1] < 2:
-        return 1.0
-    return float(stats.chi2_contingency(table)[1])
-
-
 def _fast_and_rays(spec: str, theta: float, seed: int, spec_rays: str | None = None):
     fast = VirtualGoniophotometer(spec, collector=COLLECTOR, rays=RAYS, method="auto", seed=seed)
     rays = VirtualGoniophotometer(spec_rays or spec, collector=COLLECTOR, rays=RAYS, method="rays", seed=seed + 1)
@@ -108,7 +96,7 @@ def test_property_fast_path_and_ray_counting_are_indistinguishable(spec: str, th
     q = fast.quadrature(theta, phi, 550.0)
     if not q.certified:  # the fast path was not used: auto counted rays, and says why
         assert fast.method_ran(theta, phi, 550.0) == "rays" and q.reason
-    p = _two_sample_p(a, b)
+    p = two_sample_p(a, b)
     assert p > ALPHA, f"{spec} at ({theta}, {phi}): two-sample p = {p:.2e} <= {ALPHA:.1e}"
 
 
@@ -117,5 +105,5 @@ def test_power_a_lobe_25_percent_wider_is_rejected() -> None:
     rays against alpha 0.2 by the fast path."""
     fast, rays = _fast_and_rays("ggx:alpha=0.2", 30.0, seed=17, spec_rays="ggx:alpha=0.25")
     assert parse_specimen("ggx:alpha=0.2").params(550.0)[0] == 0.2
-    p = _two_sample_p(fast.simulate(30.0, 0.0, 550.0), rays.simulate(30.0, 0.0, 550.0))
+    p = two_sample_p(fast.simulate(30.0, 0.0, 550.0), rays.simulate(30.0, 0.0, 550.0))
     assert p < ALPHA, f"p = {p:.2e}"

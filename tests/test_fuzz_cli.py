@@ -1,17 +1,17 @@
 """Fuzzing the boundaries: Hypothesis generates malformed CLI argument vectors, plan
-files, bench configs, sweeps and run ids, runs ``bench`` in-process (``bench.cli.main``), and
-asserts the policy: exit 2 for bad input (1 only for a run that failed on its own), ONE line on
-stderr, never a traceback, never a hang (an alarm per case), and no store changed (hashed).
+files, bench configs, sweeps and run ids, runs ``bench`` (``bench.cli.main``) in a guarded child
+process, and asserts the policy: exit 2 for bad input (1 only for a run that failed on its own), ONE line on
+stderr, never a traceback, never a hang, and no store changed (hashed).
 
-About 800 cases per run, each bounded in time; the whole file takes well under a minute.
+The hang guard: the cases run in one long-lived child process (tests/helpers/cli.py
+GuardedWorker), which is killed when a case outlives CASE_SECONDS -- a signal alarm cannot
+interrupt compiled numba code, a killed process always stops. About 800 cases per run; the whole
+file takes well under a minute.
 """
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import io
-import signal
 import sqlite3
 import tomllib
 from pathlib import Path
@@ -23,6 +23,7 @@ from hypothesis import strategies as st
 
 from bench.cli import main
 from bench.core.errors import ConfigError, InputError
+from tests.helpers.cli import GuardedWorker
 
 ROOT = Path(__file__).resolve().parents[1]
 FIX = ROOT / "fixtures"
@@ -34,26 +35,29 @@ FUZZ = settings(deadline=None, suppress_health_check=[HealthCheck.function_scope
 TALLY: dict[str, dict[str, int]] = {}
 
 
-class Hang(Exception):
-    pass
+WORKER = GuardedWorker(CASE_SECONDS)
 
 
-def _alarm(signum, frame):
-    raise Hang(f"a case ran longer than {CASE_SECONDS} s")
+@pytest.fixture(scope="module", autouse=True)
+def _stop_the_worker():
+    yield
+    WORKER.close()
 
 
 def bench(*argv: object) -> tuple[int, str, str]:
-    """``bench ARGV`` in-process with captured stdout/stderr and a per-case alarm."""
-    out, err = io.StringIO(), io.StringIO()
-    old = signal.signal(signal.SIGALRM, _alarm)
-    signal.alarm(CASE_SECONDS)
+    """``bench ARGV`` in the guarded child, with captured stdout/stderr."""
+    return WORKER.bench(*argv)
+
+
+def sweep_outcome(path: str) -> tuple[str, object]:
+    """``load_sweep(path)`` as ``bench sweep`` loads it: ("accepted", number of tasks) or
+    ("refused", message) -- run in the guarded child."""
+    from bench.sweep import load_sweep
+
     try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            code = main([str(a) for a in argv])
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
-    return code, out.getvalue(), err.getvalue()
+        return "accepted", len(load_sweep(path))
+    except (ConfigError, InputError) as exc:
+        return "refused", str(exc)
 
 
 def check_policy(code: int, err: str, allowed: tuple[int, ...], family: str) -> None:
@@ -293,23 +297,18 @@ SWEEP = st.one_of(SWEEP_RANDOM, MUTATED_SWEEP)
 @settings(FUZZ, max_examples=120)
 @given(doc=SWEEP)
 def test_fuzzed_sweeps_are_accepted_or_refused_in_one_line(tmp_path, doc):
-    from bench.sweep import load_sweep
-
     path = tmp_path / "fuzz-sweep.toml"
     path.write_text(_toml(doc), encoding="utf-8")
     fam = TALLY.setdefault("sweep files", {"cases": 0, "refused": 0, "accepted": 0})
     fam["cases"] += 1
-    signal.signal(signal.SIGALRM, _alarm)
-    signal.alarm(CASE_SECONDS)
-    try:
-        spec = load_sweep(path)
-        fam["accepted"] += 1
-        assert len(spec) >= 1
-    except (ConfigError, InputError) as exc:
-        fam["refused"] += 1
-        assert "\n" not in str(exc)
-    finally:
-        signal.alarm(0)
+    status, result, _, _ = WORKER.call("tests.test_fuzz_cli:sweep_outcome", str(path))
+    assert status == "ok", result  # anything but a project error is a failure, with its traceback
+    verdict, detail = result
+    fam[verdict] += 1
+    if verdict == "accepted":
+        assert detail >= 1
+    else:
+        assert "\n" not in detail
 
 
 # --- 6. malformed scenes: refused by `bench tradeoff` in one line, or accepted by the scene too ------

@@ -1,4 +1,4 @@
-"""Issue 25 item 5: instrument effects of the virtual body are declared, never implicit.
+"""Instrument effects of the virtual body are declared, never implicit.
 
 Each effect is off by default (bit-identical readings without ``[instrument]`` or with every
 effect at its default) and, when declared, changes the readings as stated. Variance checks are

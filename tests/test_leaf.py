@@ -14,10 +14,10 @@ import tomllib
 import numpy as np
 import prosail
 import pytest
-from scipy import stats
 
 from bench.cli import main
 from bench.core.errors import SpecimenError
+from tests.helpers.stats import two_sample_p
 from virtual.bounds import binomial_ci, hoeffding_rays
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.leaf_optics import cuticle_integrals
@@ -256,20 +256,15 @@ def _bins(spec: str, method: str, seed: int) -> np.ndarray:
     return g.simulate(40.0, 0.0, 680.0)[:-1]  # R patches, T patches, absorbed (missed = 0)
 
 
-def _two_sample_p(a: np.ndarray, b: np.ndarray) -> float:
-    keep = (a + b) > 0
-    return float(stats.chi2_contingency(np.vstack([a[keep], b[keep]]))[1])
-
-
 def test_fast_path_matches_ray_counting_and_the_test_has_power():
-    # two-sample chi-square of homogeneity over 648 patches + absorbed: a correct fast path fails
-    # with probability 1e-3 (fixed seeds: the outcome is fixed too)
+    # the suite's two-sample chi-square over 648 patches + absorbed, one comparison: a correct
+    # fast path fails with probability 1e-3 (fixed seeds: the outcome is fixed too)
     rays = _bins("leaf:healthy", "rays", 21)
     fast = _bins("leaf:healthy", "fast", 22)
     assert rays.sum() == fast.sum() == 2_000_000
-    assert _two_sample_p(rays, fast) > 1e-3
+    assert two_sample_p(rays, fast) > 1e-3
     # power: the fast path of a slightly smoother cuticle (alpha 0.3 -> 0.26) is told apart
-    assert _two_sample_p(rays, _bins("leaf:healthy,roughness=0.26", "fast", 22)) < 1e-6
+    assert two_sample_p(rays, _bins("leaf:healthy,roughness=0.26", "fast", 22)) < 1e-6
 
 
 # --- colour and compare ---------------------------------------------------------------------------

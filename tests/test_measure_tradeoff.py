@@ -12,18 +12,17 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
+
+from tests.helpers.cli import run_bench
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def _bench(*args):
-    r = subprocess.run([sys.executable, "-m", "bench.cli", *args], capture_output=True, text=True, timeout=600,
-                       cwd=ROOT)
+    r = run_bench(*args, cwd=ROOT)
     assert r.returncode == 0, r.stderr
     return r.stdout
 

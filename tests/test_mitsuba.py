@@ -14,9 +14,9 @@ import pytest
 # Optional extra `goniobench[mitsuba]`; `make test` installs it, elsewhere these tests are skipped.
 pytest.importorskip("mitsuba")
 
-from scipy import stats
 
 from bench.core.errors import SpecimenError
+from tests.helpers.stats import goodness_of_fit, two_sample_p
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.specimens.mitsuba import MitsubaSpecimen
 from virtual.specimens import MODEL_PYTHON, Lambertian, parse_specimen
@@ -40,24 +40,10 @@ def test_mitsuba_diffuse_agrees_with_our_lambertian() -> None:
     for spec in (MitsubaSpecimen(DIFFUSE), Lambertian(reflectance=0.5)):
         g = VirtualGoniophotometer(spec, collector=COLLECTOR, rays=RAYS, method="rays", seed=11)
         counts.append(_used(g.simulate(30.0, 0.0, 550.0), 2 * g.collector.n_patches))
-    table = np.array(counts)
-    table = table[:, table.sum(axis=0) > 0]  # the empty transmission patches carry no information
-    chi2, p, dof, _ = stats.chi2_contingency(table)
-    assert p > ALPHA, f"two-sample chi-square {chi2:.1f} on {dof} dof, p = {p:.2e}"
-    albedo = 1.0 - table[0, -1] / RAYS
+    p = two_sample_p(*counts)  # the empty transmission patches are dropped by its pooling rule
+    assert p > ALPHA, f"two-sample chi-square p = {p:.2e}"
+    albedo = 1.0 - counts[0][-1] / RAYS
     assert abs(albedo - 0.5) < 4.0 * np.sqrt(0.25 / RAYS)
-
-
-def _goodness_of_fit(observed: np.ndarray, expected: np.ndarray) -> tuple[float, float, int]:
-    """Pearson chi-square with bins of expected count < 5 pooled into one."""
-    small = expected < 5.0
-    obs = np.append(observed[~small], observed[small].sum())
-    exp = np.append(expected[~small], expected[small].sum())
-    if exp[-1] == 0.0:
-        obs, exp = obs[:-1], exp[:-1]
-    exp = exp * obs.sum() / exp.sum()
-    chi2, p = stats.chisquare(obs, exp)
-    return float(chi2), float(p), len(obs) - 1
 
 
 @pytest.mark.slow  # 2.5 minutes per incidence, warm (make test-all and CI run it, make test does not)
@@ -70,7 +56,7 @@ def test_mitsuba_ggx_sampling_matches_its_own_eval(theta_i: float) -> None:
     observed = _used(g.simulate(theta_i, 0.0, 550.0), n_bins)
     p = g.bin_probabilities(theta_i, 0.0, 550.0)[: n_bins + 1]  # quadrature of spec.bsdf (Mitsuba eval)
     assert 0.7 < 1.0 - p[-1] < 0.95  # a perfect-mirror GGX loses only shadowed/masked light
-    chi2, pval, dof = _goodness_of_fit(observed, RAYS * p)
+    chi2, pval, dof = goodness_of_fit(observed, RAYS * p)
     assert pval > ALPHA, f"chi-square {chi2:.1f} on {dof} dof, p = {pval:.2e}"
     assert spec.clamped == 0
 

@@ -1,7 +1,7 @@
 """Mitsuba specimens in wavefronts on the LLVM back end (:mod:`virtual.mitsuba_llvm`)
 against the scalar loop: the same uniforms give the same directions and weights (to single
-precision), and independent runs give the same count distribution (two-sample chi-square:
-p > 1e-3 fails a correct sampler once in 1000; seeds fixed), with power shown by a perturbed
+precision), and independent runs give the same count distribution (the suite's two-sample
+chi-square, one comparison: p > 1e-3 fails a correct sampler once in 1000; seeds fixed), with power shown by a perturbed
 roughness (p < 1e-6). Skipped, saying why, where no LLVM variant runs (``make test`` installs
 Debian's libllvm19 where apt-get works)."""
 
@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from tests.test_engine import _two_sample_p
+from tests.helpers.stats import two_sample_p
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import measurement_seed
@@ -63,10 +63,10 @@ def test_wavefront_counts_have_the_scalar_distribution_and_the_test_has_power():
     a = gonio_counts_python(wave, 550.0, beam, 30.0, 0.0, col, n, measurement_seed(1))
     b = gonio_counts_python(scalar, 550.0, beam, 30.0, 0.0, col, n, measurement_seed(2))
     assert a.sum() == b.sum() == n
-    assert _two_sample_p(a, b) > 1e-3
+    assert two_sample_p(a, b) > 1e-3
     rougher = MitsubaSpecimen({**GGX, "alpha": 0.24})
     c = gonio_counts_python(rougher, 550.0, beam, 30.0, 0.0, col, n, measurement_seed(3))
-    assert _two_sample_p(a, c) < 1e-6
+    assert two_sample_p(a, c) < 1e-6
 
 
 def test_the_global_variant_is_left_alone_and_the_specimen_pickles():

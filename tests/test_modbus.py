@@ -29,7 +29,13 @@ from bench.core.errors import (ChecksumError, ConfigError, DeviceTimeoutError, F
 from bench.core.conformance import check_conformance  # noqa: E402
 from drivers.modbus import AxisConfig, ModbusStageAxis, StageAxis, TransportModbusClient  # noqa: E402
 from drivers.registers import load_register_map  # noqa: E402
-from drivers.transport import RecordingTransport, ScriptedTransport, SerialTransport, load_fixture  # noqa: E402
+from drivers.transport import (  # noqa: E402
+    RecordingTransport,
+    ScriptedTransport,
+    SerialTransport,
+    load_fixture,
+)
+from tests.helpers.clock import FakeClock, WaitingTransport  # noqa: E402
 from virtual.wire.modbus_stage import StageEmulator  # noqa: E402
 
 FIX = ROOT / "fixtures" / "modbus"
@@ -104,12 +110,12 @@ def test_exception_response_names_function_address_and_code() -> None:
 
 
 def test_missing_reply_is_a_bounded_timeout() -> None:
-    script = ScriptedTransport([(READ_FEEDBACK, b""), (READ_FEEDBACK, b"")])
-    axis = ModbusStageAxis(transport=script, retries=1, timeout_s=0.2, retry_delay_s=0.0)
-    t0 = time.monotonic()
+    clock = FakeClock()  # a silent line: each read waits out its whole timeout, in fake time
+    line = WaitingTransport(ScriptedTransport([(READ_FEEDBACK, b""), (READ_FEEDBACK, b"")]), clock)
+    axis = ModbusStageAxis(transport=line, retries=1, timeout_s=0.2, retry_delay_s=0.0)
     with pytest.raises(DeviceTimeoutError, match="2 attempt"):
         axis.position_deg()
-    assert time.monotonic() - t0 < 1.0
+    assert line.waits == [0.2, 0.2]  # two attempts, each waiting the configured timeout once
     axis.close()
 
 

@@ -26,9 +26,20 @@ from bench.core.errors import (CalibrationError, ChecksumError, ConfigError, Dev
 from bench.core.records import Reading  # noqa: E402
 from bench.core.roles import Spectrometer  # noqa: E402
 from bench.core.conformance import check_conformance  # noqa: E402
-from drivers.ocean import (OceanSpectrometer, decode_compressed, nonlinearity_factor, validate_nonlinearity,  # noqa: E402
-                           wavelength_polynomial)
-from drivers.transport import RecordingTransport, ScriptedTransport, SerialTransport, load_fixture  # noqa: E402
+from drivers.ocean import (  # noqa: E402
+    OceanSpectrometer,
+    decode_compressed,
+    nonlinearity_factor,
+    validate_nonlinearity,
+    wavelength_polynomial,
+)
+from drivers.transport import (  # noqa: E402
+    RecordingTransport,
+    ScriptedTransport,
+    SerialTransport,
+    load_fixture,
+)
+from tests.helpers.clock import FakeClock, WaitingTransport  # noqa: E402
 from virtual.wire.ocean_codec import compress  # noqa: E402
 from virtual.wire.ocean_model import cosine_response, file_geometry_source  # noqa: E402
 from virtual.wire.ocean_spectrometer import SpectrometerEmulator  # noqa: E402
@@ -166,11 +177,19 @@ def test_bad_checksum_is_retried_then_refused() -> None:
 
 def test_missing_reply_is_a_timeout_without_waiting() -> None:
     pairs = open_pairs() + acquire_pairs([])[:3] + [(b"S", b""), (b"S", b"")]
-    spec = OceanSpectrometer(ScriptedTransport(pairs), **SMALL)
-    t0 = time.monotonic()
+    clock = FakeClock()
+    line = WaitingTransport(ScriptedTransport(pairs), clock)  # each short read waits out its timeout
+    spec = OceanSpectrometer(line, clock=clock, **SMALL)
+    start, opened = clock.now, len(line.waits)
     with pytest.raises(DeviceTimeoutError, match="2 attempt"):
         spec.acquire(0.01, 1)
-    assert time.monotonic() - t0 < 1.0
+    waits = line.waits[opened:]
+    # two attempts (retries=1), each waiting once for the reply: the timeout plus the
+    # acquisition's own time (integration and transfer, 27 ms here); the rest are short
+    # quiet-line waits; all in all about half a second of the line's time, not a hang
+    long = [w for w in waits if w > 0.1]
+    assert len(long) == 2 and all(w <= SMALL["timeout_s"] + 0.03 for w in long)
+    assert clock.now - start == pytest.approx(sum(waits)) and clock.now - start < 0.6
     spec.close()
 
 

@@ -1,4 +1,4 @@
-"""Issue 25 item 3: one sign convention for the detector's theta_r.
+"""One sign convention for the detector's theta_r.
 
 theta_r > 0 views toward the azimuth phi_r; plan files' in-plane records and a Bluesky goniometer
 whose detector starts at the zenith both use the specular plane phi_r = phi_i + 180 (> 0 on the

@@ -2,10 +2,11 @@
 (:func:`virtual.engine.gonio_counts_spectral`) gives, per wavelength, exactly the
 single-wavelength count distribution.
 
-Each wavelength's row is compared with an independent single-wavelength run by the two-sample
-chi-square (bins + absorbed + missed): p > 1e-3 fails a correct kernel once in 1000 per
-comparison (fixed seeds, so fixed outcomes). Power: a row against a single run whose reflectance
-differs by 0.02 gives p < 1e-6.
+Each wavelength's row is compared with an independent single-wavelength run by the suite's
+two-sample chi-square (tests/helpers/stats.py; bins + absorbed + missed). The module runs
+COMPARISONS such comparisons, each at EACH (Sidak), so a correct kernel fails it with
+probability FAMILY = 1e-3 (fixed seeds, so fixed outcomes). Power: a row against a single run
+whose reflectance differs by 0.02, or whose eta or k differs by 10 %, gives p < 1e-6.
 
 The stream rule of the product (:mod:`virtual.goniophotometer`): rays counted for a specimen
 whose wavelengths share the angular part draw one stream per (specimen, incidence), and a
@@ -19,7 +20,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.test_engine import _two_sample_p, on_one_and_all_threads
+from tests.helpers.kernels import on_one_and_all_threads
+from tests.helpers.stats import family_rate, two_sample_p
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import gonio_counts, gonio_counts_spectral, measurement_seed
@@ -28,6 +30,10 @@ from virtual.specimens import parse_specimen
 
 COL = Collector("equal-psa", 9, 24)
 N = 400_000
+# agreement comparisons: Lambert 2 x 4, GGX 2 x (3 + 2), float32 Lambert 2 x 3, float32 GGX 2 x 4, narrow 2
+COMPARISONS = 8 + 10 + 6 + 8 + 2
+FAMILY = 1e-3
+EACH = -np.expm1(np.log1p(-FAMILY) / COMPARISONS)  # about 2.9e-5
 # (R, T) per wavelength: reflecting and transmitting, opaque, a 50/50 split, a near-white one
 RT = [(0.6, 0.3), (0.2, 0.0), (0.5, 0.5), (0.9, 0.05), (0.6, 0.3)]
 
@@ -42,18 +48,22 @@ def _spectral(rows, beam, theta, seed, n=N):
                                  beam.kernel_args(theta, 20.0), COL.kernel_args(), n, measurement_seed(seed))
 
 
+def test_the_stated_family_wise_rate_is_the_one_run():
+    assert family_rate(EACH, COMPARISONS) == pytest.approx(FAMILY, rel=1e-9)
+
+
 @pytest.mark.parametrize("beam, theta", [(Beam("conical"), 35.0), (Beam("collimated"), 150.0)])
 def test_every_wavelength_has_the_single_wavelength_distribution(beam, theta):
     many = _spectral(RT, beam, theta, 1)
     assert many.shape == (len(RT), 2 * COL.n_patches + 2) and (many.sum(axis=1) == N).all()
     np.testing.assert_array_equal(many[0], many[-1])  # equal parameters, shared rays: equal rows
     for w, p in enumerate(RT[:-1]):
-        assert _two_sample_p(many[w], _single(p, beam, theta, 10 + w)) > 1e-3, w
+        assert two_sample_p(many[w], _single(p, beam, theta, 10 + w)) > EACH, w
 
 
 def test_the_comparison_has_power_against_a_slightly_different_reflectance():
     many = _spectral(RT, Beam("conical"), 35.0, 1)
-    assert _two_sample_p(many[0], _single((0.62, 0.3), Beam("conical"), 35.0, 10)) < 1e-6
+    assert two_sample_p(many[0], _single((0.62, 0.3), Beam("conical"), 35.0, 10)) < 1e-6
 
 
 def test_spectral_counts_do_not_depend_on_the_thread_count():
@@ -96,16 +106,16 @@ def test_ggx_wavelengths_each_have_the_single_wavelength_distribution(beam, thet
     many = _ggx_spectral(GGX_ROWS, beam, theta, 1)
     assert (many.sum(axis=1) == N).all()
     for w, p in enumerate(GGX_ROWS):
-        assert _two_sample_p(many[w], _ggx_single(p, beam, theta, 20 + w)) > 1e-3, w
+        assert two_sample_p(many[w], _ggx_single(p, beam, theta, 20 + w)) > EACH, w
     aniso = [(0.4, 0.1, 1.5, 0.0), (0.4, 0.1, 0.2, 3.0)]
     many = _ggx_spectral(aniso, beam, theta, 2, MODEL_ANISO_GGX)
     for w, p in enumerate(aniso):
-        assert _two_sample_p(many[w], _ggx_single(p, beam, theta, 30 + w, MODEL_ANISO_GGX)) > 1e-3, w
+        assert two_sample_p(many[w], _ggx_single(p, beam, theta, 30 + w, MODEL_ANISO_GGX)) > EACH, w
 
 
 def test_ggx_batch_has_power_against_a_slightly_different_fresnel():
     many = _ggx_spectral(GGX_ROWS, Beam("conical"), 35.0, 1)
-    assert _two_sample_p(many[1], _ggx_single((0.2, 0.2, 0.2, 3.3), Beam("conical"), 35.0, 20)) < 1e-6
+    assert two_sample_p(many[1], _ggx_single((0.2, 0.2, 0.2, 3.3), Beam("conical"), 35.0, 20)) < 1e-6
 
 
 def test_ggx_with_a_spectral_roughness_falls_back_to_one_measurement_per_wavelength():
@@ -118,7 +128,7 @@ def test_ggx_with_a_spectral_roughness_falls_back_to_one_measurement_per_wavelen
 
 
 # --- the float32 batches (virtual.kernels.spectral32), against the float64 ray-by-ray kernel --------------------
-# Same two-sample chi-square, p > 1e-3 per comparison (false alarm 1e-3 each, fixed seeds); power: a perturbed
+# Same two-sample chi-square at EACH per comparison (counted in COMPARISONS); power: a perturbed
 # parameter gives p < 1e-6. GGX rows: conductors, a dielectric and total internal reflection (eta < 1, k = 0).
 GGX32_ROWS = [(0.2, 0.2, 0.2, 3.0), (0.2, 0.2, 1.5, 0.0), (0.2, 0.2, 0.6, 0.0), (0.2, 0.2, 2.5, 8.0)]
 
@@ -144,7 +154,7 @@ def test_float32_lambert_batch_matches_the_ray_kernel(monkeypatch, beam, theta):
     many = _spectral(RT, beam, theta, 5)
     assert calls and (many.sum(axis=1) == N).all()
     for w in (0, 2, 3):
-        assert _two_sample_p(many[w], _ray(MODEL_LAMBERT, RT[w], beam, theta, 40 + w)) > 1e-3, w
+        assert two_sample_p(many[w], _ray(MODEL_LAMBERT, RT[w], beam, theta, 40 + w)) > EACH, w
 
 
 @pytest.mark.parametrize("beam, theta", [(Beam("conical"), 35.0), (Beam("collimated"), 150.0)])
@@ -153,16 +163,16 @@ def test_float32_ggx_batch_matches_the_ray_kernel(monkeypatch, beam, theta):
     many = _ggx_spectral(GGX32_ROWS, beam, theta, 6)
     assert calls and (many.sum(axis=1) == N).all()
     for w in range(len(GGX32_ROWS)):
-        assert _two_sample_p(many[w], _ray(MODEL_GGX, GGX32_ROWS[w], beam, theta, 50 + w)) > 1e-3, w
+        assert two_sample_p(many[w], _ray(MODEL_GGX, GGX32_ROWS[w], beam, theta, 50 + w)) > EACH, w
 
 
 def test_float32_batches_have_power_against_a_perturbed_parameter():
     beam = Beam("conical")
     many = _ggx_spectral(GGX32_ROWS, beam, 35.0, 6)
-    assert _two_sample_p(many[0], _ray(MODEL_GGX, (0.2, 0.2, 0.2, 3.3), beam, 35.0, 50)) < 1e-6
-    assert _two_sample_p(many[2], _ray(MODEL_GGX, (0.2, 0.2, 0.66, 0.0), beam, 35.0, 52)) < 1e-6
+    assert two_sample_p(many[0], _ray(MODEL_GGX, (0.2, 0.2, 0.2, 3.3), beam, 35.0, 50)) < 1e-6
+    assert two_sample_p(many[2], _ray(MODEL_GGX, (0.2, 0.2, 0.66, 0.0), beam, 35.0, 52)) < 1e-6
     lam = _spectral(RT, beam, 35.0, 5)
-    assert _two_sample_p(lam[0], _ray(MODEL_LAMBERT, (0.62, 0.3), beam, 35.0, 40)) < 1e-6
+    assert two_sample_p(lam[0], _ray(MODEL_LAMBERT, (0.62, 0.3), beam, 35.0, 40)) < 1e-6
 
 
 def test_fresnel_bounds_bracket_the_fresnel_factor():
@@ -213,7 +223,7 @@ def test_narrow_ggx_lobes_keep_the_float64_batch(monkeypatch):
     many = _ggx_spectral(rows, Beam("conical"), 35.0, 8)
     assert calls and (many.sum(axis=1) == N).all()
     for w, p in enumerate(rows):
-        assert _two_sample_p(many[w], _ggx_single(p, Beam("conical"), 35.0, 60 + w)) > 1e-3, w
+        assert two_sample_p(many[w], _ggx_single(p, Beam("conical"), 35.0, 60 + w)) > EACH, w
 
 
 def test_float32_ggx_batch_does_not_depend_on_the_thread_count():

@@ -21,6 +21,7 @@ from drivers.transport import (
     load_fixture,
     save_fixture,
 )
+from tests.helpers.clock import FakeClock
 from virtual.wire.dxl_codec import encode_status
 from virtual.wire.pty import open_pty
 
@@ -127,12 +128,13 @@ def test_recording_transport_captures_pairs(tmp_path: Path) -> None:
 
 
 def test_serial_loop_exact_reads_and_deadline() -> None:
-    t = SerialTransport("loop://")
+    clock = FakeClock()
+    t = SerialTransport("loop://", clock=clock, sleep=clock.sleep)
     t.write(b"abcdef")
     assert t.read(4, 1.0) == b"abcd"
-    t0 = time.monotonic()
-    assert t.read(4, 0.05) == b"ef"  # short: the deadline passed
-    assert 0.04 <= time.monotonic() - t0 < 1.0
+    assert clock.elapsed == 0.0  # the bytes were there: no wait
+    assert t.read(4, 0.05) == b"ef"  # short: the deadline passed, and no later than one poll after it
+    assert 0.05 - 1e-9 <= clock.elapsed <= 0.05 + t.poll_s  # (1e-9: rounding of the summed polls)
     t.write(b"xyz")
     t.reset_input()
     assert t.read(1, 0.0) == b""
@@ -216,11 +218,14 @@ def test_reference_vector_replies_match_the_codec() -> None:
 
 
 def test_sdk_timeout_is_instant_and_deterministic_on_a_script() -> None:
-    st, port, pk = _sdk([(PING, b"")] * 50)
-    t0 = time.monotonic()
+    reads: list[int] = []  # a milliseconds clock that ticks 1 ms each time it is read
+    st = ScriptedTransport([(PING, b"")] * 50)
+    port, pk = TransportPortHandler(st, clock=lambda: float(reads.append(0) or len(reads))), \
+        PacketHandler(2.0)
     for _ in range(50):
         assert pk.ping(port, 1) == (0, COMM_RX_TIMEOUT, 0)
-    assert time.monotonic() - t0 < 1.0  # 50 busy-waits of 34 ms would take 1.7 s
+    # a busy-wait for the SDK's 34 ms packet timeout would read this clock 34 times per ping (it reads it twice)
+    assert len(reads) < 50 * 5
     st.close()
 
 
@@ -236,12 +241,12 @@ def test_sdk_corrupt_and_truncated_replies() -> None:
 
 def test_port_handler_reads_through_a_real_deadline() -> None:
     """On a live transport a missing reply costs the SDK's own packet timeout, no more."""
-    t = SerialTransport("loop://")
-    port, pk = TransportPortHandler(t), PacketHandler(2.0)
-    t0 = time.monotonic()
+    clock = FakeClock()  # the port's deadline and the SDK's packet timeout in one fake time
+    t = SerialTransport("loop://", clock=clock, sleep=clock.sleep)
+    port, pk = TransportPortHandler(t, clock=lambda: clock() * 1000.0), PacketHandler(2.0)
     # loop:// echoes the instruction; the SDK skips it (not a status packet) and times out
     _, comm, _ = pk.ping(port, 1)
-    dt = time.monotonic() - t0
     assert comm in (COMM_RX_TIMEOUT, COMM_RX_CORRUPT)
-    assert 0.02 <= dt < 1.0
+    # the SDK's packet timeout (34.11 ms for a ping status at 1 Mbaud) and at most one poll more
+    assert 0.0341 <= clock.elapsed <= 0.03411 + t.poll_s
     port.closePort()

@@ -1,4 +1,4 @@
-"""Issue 25 items 1-2: one bench description, three bodies; the virtual body refuses what the
+"""One bench description, three bodies; the virtual body refuses what the
 real body refuses (same rule names, same geometries) and times a plan with the same motion
 profiles; refusals list a few points and say how many more; ``unreachable = "skip"``."""
 

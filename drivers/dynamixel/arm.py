@@ -43,8 +43,9 @@ class DynamixelArm(InstrumentBase):
     connect
         Ping the servos, apply the settings and enable torque now (default). With ``False``
         call :meth:`connect` (or :meth:`reset`) yourself.
-    sleep
-        Sleep function used between settle polls (tests may pass a no-op).
+    sleep, clock
+        Sleep between polls and the time source of the start and settle windows (default wall
+        time; tests pass a fake clock whose sleep advances it).
     external_axes
         ``{joint: axis}`` for the joints of ``config.external`` driven by another drive (e.g. a
         turntable on a Modbus stage, :class:`drivers.modbus.ModbusStageAxis`): objects with
@@ -54,6 +55,7 @@ class DynamixelArm(InstrumentBase):
 
     def __init__(self, config: ArmConfig | Mapping[str, Any], transport: Transport | None = None,
                  *, connect: bool = True, sleep: Callable[[float], None] = time.sleep,
+                 clock: Callable[[], float] = time.monotonic,
                  external_axes: Mapping[str, Any] | None = None) -> None:
         self.config = config if isinstance(config, ArmConfig) else ArmConfig.from_dict(config)
         self._external = dict(external_axes or {})
@@ -67,10 +69,12 @@ class DynamixelArm(InstrumentBase):
             transport = SerialTransport(self.config.port, self.config.baudrate)
         self.transport = transport
         self._port = TransportPortHandler(transport, baudrate=self.config.baudrate
-                                          if self.config.baudrate in _SDK_BAUDS else 1_000_000)
+                                          if self.config.baudrate in _SDK_BAUDS else 1_000_000,
+                                          clock=lambda: clock() * 1000.0)
         self._link = DxlLink(self._port, self.config.baudrate, self.config.retries,
-                             self.config.return_delay_s, self.config.latency_s, self.config.name)
-        self._sleep = sleep
+                             self.config.return_delay_s, self.config.latency_s, self.config.name,
+                             clock=clock, sleep=sleep)
+        self._sleep, self._clock = sleep, clock
         self._axes = self.config.axis_list()
         self._ids = [a.id for a in self._axes]
         self._fault: BaseException | None = None
@@ -286,13 +290,13 @@ class DynamixelArm(InstrumentBase):
             raise
 
     def _wait_ping(self, dxl_id: int, timeout: float = 3.0) -> None:
-        deadline = time.monotonic() + timeout
+        deadline = self._clock() + timeout
         while True:
             try:
                 self._link.ping(dxl_id, f"ping servo {dxl_id} after reboot")
                 return
             except DeviceTimeoutError:
-                if time.monotonic() > deadline:
+                if self._clock() > deadline:
                     raise
                 self._sleep(0.05)
 
@@ -365,7 +369,7 @@ class DynamixelArm(InstrumentBase):
                for a in self._axes}
         self._sync_write_goals(goals, what)
         sent = 1
-        t0 = time.monotonic()
+        t0 = self._clock()
         deadline = t0 + cfg.settle_timeout_s
         first: dict[int, int] | None = None   # present ticks at the first confirmed poll
         started: set[int] = set()
@@ -382,7 +386,7 @@ class DynamixelArm(InstrumentBase):
                             "re-sending the sync write", cfg.name, what, sorted(lost), lost)
                 self._sync_write_goals(goals, what)
                 sent += 1
-                t0 = time.monotonic()
+                t0 = self._clock()
                 continue
             present = {i: _field(block[i], _OFF_PRESENT, 4) for i in goals}
             if first is None:
@@ -397,7 +401,7 @@ class DynamixelArm(InstrumentBase):
             if settled:
                 self._joints = self._joints_from(block)
                 return self._geometry(self._joints)
-            now = time.monotonic()
+            now = self._clock()
             idle = [i for i, goal in goals.items() if i not in started
                     and abs(first[i] - goal) > tol[i]]
             if idle and now - t0 > cfg.start_timeout_s:

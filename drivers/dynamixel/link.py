@@ -147,12 +147,16 @@ class DxlLink:
         up to its latency timer: 16 ms on an FTDI by default, the SDK's own figure).
     name
         Used in messages.
+    clock, sleep
+        Time source and sleep of the quiet-bus wait (default wall time; tests pass fake ones).
     """
 
     def __init__(self, port: TransportPortHandler, baudrate: int, retries: int,
                  return_delay_s: float = 500e-6, latency_s: float = 0.016,
-                 name: str = "dynamixel") -> None:
+                 name: str = "dynamixel", *, clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
         self.port = port
+        self._clock, self._sleep = clock, sleep
         self.ph = _PH
         self.byte_s = 10.0 / float(baudrate)
         self.retries = retries
@@ -163,10 +167,10 @@ class DxlLink:
         self.recoveries = 0      # quiet-and-flush recoveries done
 
     # -- quiet bus ---------------------------------------------------------------------------
-    def quiet(self, outstanding_bytes: int, clock: Callable[[], float] = time.monotonic) -> None:
+    def quiet(self, outstanding_bytes: int) -> None:
         """Wait until nothing has arrived for return delay + the outstanding statuses' transmit
         time + the host latency (bounded), swallow what came, then flush the input."""
-        t = self.port.transport
+        t, clock = self.port.transport, self._clock
         window = self.return_delay_s + outstanding_bytes * self.byte_s + self.latency_s
         give_up = clock() + 10 * window + 0.2  # a babbling line still ends the wait
         last = clock()
@@ -180,7 +184,7 @@ class DxlLink:
                 self.discarded += len(got)
                 last = clock()
             elif clock() - now < left / 2:  # a transport that never waits (scripted replay)
-                time.sleep(min(left, 0.0005))
+                self._sleep(min(left, 0.0005))
         t.reset_input()
         self.recoveries += 1
 

@@ -47,10 +47,13 @@ class Nak(ProtocolError):
 
 
 class OceanLink:
-    """Reads, writes and retries on one transport (see the module docstring)."""
+    """Reads, writes and retries on one transport (see the module docstring); ``clock`` is the
+    time source of every deadline (default wall time; tests pass a fake one)."""
 
-    def __init__(self, transport: Any, name: str, timeout_s: float, retries: int) -> None:
+    def __init__(self, transport: Any, name: str, timeout_s: float, retries: int,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.t = transport
+        self._clock = clock
         self.name = name
         self.timeout_s = timeout_s
         self.retries = retries
@@ -61,13 +64,13 @@ class OceanLink:
 
     # -- reads -------------------------------------------------------------------------------
     def deadline(self, extra_s: float = 0.0) -> float:
-        return time.monotonic() + self.timeout_s + extra_s
+        return self._clock() + self.timeout_s + extra_s
 
     def read_exact(self, n: int, deadline: float, what: str) -> bytes:
         data = bytes(self._rx[:n])
         del self._rx[:n]
         if len(data) < n:
-            data += self.t.read(n - len(data), max(0.0, deadline - time.monotonic()))
+            data += self.t.read(n - len(data), max(0.0, deadline - self._clock()))
         if len(data) < n:
             raise Retry(DeviceTimeoutError(
                 f"{self.name}: {what}: got {len(data)} of {n} byte(s) before the deadline"
@@ -76,7 +79,7 @@ class OceanLink:
 
     def _fill(self, deadline: float, what: str) -> None:
         avail = int(getattr(self.t, "in_waiting", 0) or 0)
-        chunk = self.t.read(max(1, avail), max(0.0, deadline - time.monotonic()))
+        chunk = self.t.read(max(1, avail), max(0.0, deadline - self._clock()))
         if not chunk:
             raise Retry(DeviceTimeoutError(f"{self.name}: {what}: no complete reply before the "
                                            f"deadline"))
@@ -95,7 +98,7 @@ class OceanLink:
         del self._rx[:i + 1]
         if not self._rx and self._lf is not False:
             # CR LF is the manual's ending: wait for the LF (briefly while unsure)
-            wait = deadline if self._lf else min(deadline, time.monotonic() + 0.05)
+            wait = deadline if self._lf else min(deadline, self._clock() + 0.05)
             try:
                 self._fill(wait, what)
             except Retry:
@@ -112,14 +115,14 @@ class OceanLink:
         """Swallow what is still arriving until the line is quiet; flush; return what came."""
         got = bytearray(self._rx)
         self._rx.clear()
-        end = time.monotonic() + limit_s
-        last = time.monotonic()
-        while time.monotonic() < end and time.monotonic() - last < quiet_s:
+        end = self._clock() + limit_s
+        last = self._clock()
+        while self._clock() < end and self._clock() - last < quiet_s:
             n = int(getattr(self.t, "in_waiting", 0) or 0)
-            chunk = self.t.read(max(1, n), min(quiet_s, max(0.0, end - time.monotonic())))
+            chunk = self.t.read(max(1, n), min(quiet_s, max(0.0, end - self._clock())))
             if chunk:
                 got += chunk
-                last = time.monotonic()
+                last = self._clock()
         self.t.reset_input()
         if got:
             log.debug("%s: drained %d byte(s): %s", self.name, len(got), bytes(got[:32]).hex(" "))
@@ -206,8 +209,8 @@ class OceanLink:
         device stays silent until the command is complete."""
         if self._rx:
             return True
-        wait = min(deadline, time.monotonic() + 0.05)
-        chunk = self.t.read(1, max(0.0, wait - time.monotonic()))
+        wait = min(deadline, self._clock() + 0.05)
+        chunk = self.t.read(1, max(0.0, wait - self._clock()))
         self._rx += chunk
         return bool(chunk)
 

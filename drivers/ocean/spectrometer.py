@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -51,6 +51,8 @@ class OceanSpectrometer(InstrumentBase):
         Settings; keyword arguments override single keys.
     name : str
         Name used in messages.
+    clock : callable, optional
+        Time source of the link's deadlines (default wall time; tests pass a fake one).
 
     Raises
     ------
@@ -62,7 +64,8 @@ class OceanSpectrometer(InstrumentBase):
     """
 
     def __init__(self, transport: Any, *, config: OceanConfig | Mapping[str, Any] | None = None,
-                 name: str = "spectrometer", **overrides: Any) -> None:
+                 name: str = "spectrometer", clock: Callable[[], float] = time.monotonic,
+                 **overrides: Any) -> None:
         base = settings_with_overrides(OceanConfig, config, overrides, "spectrometer")
         self.config: OceanConfig = base.resolved()
         self.name = name
@@ -72,7 +75,7 @@ class OceanSpectrometer(InstrumentBase):
         else:
             self.port = repr(transport)
             t = transport
-        self.link = OceanLink(t, name, self.config.timeout_s, self.config.retries)
+        self.link = OceanLink(t, name, self.config.timeout_s, self.config.retries, clock)
         self._closed = False
         self._state: dict[str, int] = dict(POWER_UP)
         self._sent: set[str] = set()          # letters actually sent this session

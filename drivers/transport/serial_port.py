@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import select
 import time
+from typing import Callable
 
 import serial
 
@@ -26,6 +27,8 @@ class SerialTransport:
         Line rate (a pty ignores it).
     poll_s
         Poll interval for ports without a selectable file descriptor (``loop://``).
+    clock, sleep
+        Time source and sleep of the read deadline on such ports (tests pass fake ones).
 
     Raises
     ------
@@ -33,9 +36,11 @@ class SerialTransport:
         When the port cannot be opened or vanishes later (read, write, reset).
     """
 
-    def __init__(self, url: str, baudrate: int = 1_000_000, poll_s: float = 0.0005) -> None:
+    def __init__(self, url: str, baudrate: int = 1_000_000, poll_s: float = 0.0005, *,
+                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
         self.url = url
         self.poll_s = poll_s
+        self._clock, self._sleep = clock, sleep
         try:
             self._ser = serial.serial_for_url(url, baudrate=baudrate, timeout=0, write_timeout=2.0)
         except _GONE as exc:
@@ -74,7 +79,7 @@ class SerialTransport:
             raise PortGoneError(f"port {self.url!r} is closed")
         if n <= 0:
             return b""
-        deadline = time.monotonic() + max(0.0, timeout)
+        deadline = self._clock() + max(0.0, timeout)
         buf = bytearray()
         try:
             while True:
@@ -83,7 +88,7 @@ class SerialTransport:
                     buf += chunk
                     if len(buf) >= n:
                         return bytes(buf)
-                remaining = deadline - time.monotonic()
+                remaining = deadline - self._clock()
                 if remaining <= 0:
                     return bytes(buf)
                 if self._fd is not None:
@@ -91,7 +96,7 @@ class SerialTransport:
                     if not r:
                         return bytes(buf)
                 else:
-                    time.sleep(min(self.poll_s, remaining))
+                    self._sleep(min(self.poll_s, remaining))
         except _GONE as exc:
             raise self._gone("read", exc) from exc
 
