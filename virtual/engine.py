@@ -229,9 +229,9 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     p = np.ascontiguousarray(params, dtype=np.float64)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     if shape == "block32":
-        p32 = np.zeros(max(BLOCK_PARAMS, p.size), dtype=np.float32)
-        p32[:p.size] = p
-        out = gonio_block32_kernel(np.int64(model), p32, int(beam_kind) == BEAM_CONICAL, b.astype(np.float32),
+        p6 = np.zeros(max(BLOCK_PARAMS, p.size))
+        p6[:p.size] = p
+        out = gonio_block32_kernel(np.int64(model), p6, int(beam_kind) == BEAM_CONICAL, b,
                                    tuple(collector_args), guess_margins32(n_theta, n_phi), np.int64(n_bins), sizes,
                                    lane_states32(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
     elif shape == "block":
@@ -280,7 +280,8 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
 
     When :func:`float32_suits` every wavelength's parameters (so that ``gonio_counts`` would run
     the float32 block kernel), both batches run in float32 (:mod:`virtual.kernels.spectral32`):
-    the Lambertian's thresholds rounded as the float32 kernel rounds them, the GGX's Fresnel
+    the Lambertian's u0 located among the float64 thresholds (refined to 53 bits in a threshold's
+    grid cell), the GGX's Fresnel
     factors bracketed by a per-wavelength table of bounds over cos(theta_m) and computed exactly
     only between them -- the same decisions, at a fraction of the cost per wavelength.
 
@@ -313,12 +314,8 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
 
         return np.stack([gonio_counts(model, p, beam_kind, disk, beam_args, collector_args, n_rays, same(seq))
                          for p in rows])
-    if f32:  # thresholds rounded as lambert_given32 rounds them (u0 < R, u0 < R + T in float32)
-        r32 = np.array([p[0] for p in rows], dtype=np.float32)
-        r, rt = r32.astype(np.float64), (r32 + np.array([p[1] for p in rows], dtype=np.float32)).astype(np.float64)
-    else:
-        r = np.array([p[0] for p in rows])
-        rt = np.minimum(r + np.array([p[1] for p in rows]), 1.0)
+    r = np.array([p[0] for p in rows])
+    rt = np.minimum(r + np.array([p[1] for p in rows]), 1.0)
     thr = np.unique(np.concatenate([r, rt]))
     sizes = chunking(n_rays)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
@@ -333,7 +330,7 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
         sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
         if f32:
-            c, m = lambert_spectral32_kernel(thr.astype(np.float32), int(beam_kind) == BEAM_CONICAL,
+            c, m = lambert_spectral32_kernel(thr, int(beam_kind) == BEAM_CONICAL,
                                              b.astype(np.float32), tuple(collector_args), margins,
                                              np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
                                              np.ascontiguousarray(lanes[sl]))
