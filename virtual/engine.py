@@ -42,14 +42,13 @@ from virtual.chunked import (ggx_spectral32_kernel, ggx_spectral_kernel, gonio_b
                              gonio_fx_kernel, lambert_spectral32_kernel, lambert_spectral_kernel, spectro_fx_kernel)
 from virtual.kernels.beam import BEAM_CONICAL
 from virtual.kernels.block32 import BLOCK32_MODELS
-from virtual.kernels.f32 import MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA
 from virtual.kernels.beam import DISK_REJECTION
 from virtual.kernels.effects import N_EFFECT_ARGS
 from virtual.kernels.engine import BEAM_UNIFORMS, BLOCK_MODELS, BLOCK_PARAMS, BLOCK_RAYS  # noqa: F401
 from virtual.kernels.spectral32 import FRESNEL_CELLS, FRESNEL_SAMPLES, fresnel_bounds
-from virtual.kernels.scatter import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG,
-                                     MODEL_PLASTIC)
+from virtual.kernels.scatter import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
 from virtual.rng import lane_states, lane_states32, stream_states
+from virtual.routing import within_float32_limits
 
 __all__ = [
     "chunking",
@@ -175,21 +174,12 @@ GONIO_KERNELS = ("auto", "block32", "block", "ray")
 
 def float32_suits(model: int, params: np.ndarray) -> bool:
     """Whether float32 resolves this specimen (:mod:`virtual.kernels.f32`): a model with a
-    float32 form, roughness >= ``MIN_ALPHA``, a Phong exponent <= ``MAX_PHONG_EXPONENT``, a
-    dielectric index within ``MAX_ETA`` (``1/MAX_ETA <= eta <= MAX_ETA``), and
-    every parameter finite and of moderate size (no float32 overflow in the Fresnel terms)."""
-    p = np.asarray(params, dtype=np.float64)
-    if int(model) not in BLOCK32_MODELS or not np.isfinite(p).all():
-        return False
-    if int(model) == MODEL_PHONG:  # [kd, ks, n, lobe share]: n alone may be large, and enters as 1/(n+1)
-        return p[2] <= MAX_PHONG_EXPONENT
-    if np.abs(p).max(initial=0.0) > 100.0:
-        return False
-    if int(model) in (MODEL_GGX, MODEL_ANISO_GGX):
-        return min(p[0], p[1]) >= MIN_ALPHA
-    if int(model) in (MODEL_DIELECTRIC, MODEL_PLASTIC):
-        return p[0] >= MIN_ALPHA and 1.0 / MAX_ETA <= p[1] <= MAX_ETA
-    return True
+    float32 form and parameters within its :data:`~virtual.routing.FLOAT32_LIMITS` (roughness
+    >= ``MIN_ALPHA``, a Phong exponent <= ``MAX_PHONG_EXPONENT``, a dielectric or plastic coat's
+    index within ``1/MAX_ETA <= eta <= MAX_ETA``, every other parameter of moderate size: no
+    float32 overflow in the Fresnel terms), all finite. The README's routing table states it
+    (:func:`virtual.routing.routing_table`)."""
+    return within_float32_limits(model, params)
 
 
 def gonio_kernel_for(model: int, disk: int, kernel: str = "auto", params: np.ndarray | None = None) -> str:
