@@ -38,7 +38,7 @@ PINNED = {
     "block32/phong": "39618ec700c8be260fc678d1fd89104f86d1662d1bdfbf32e52e80a651c0c7b0",
     "block32/oren-nayar": "1d37564eba0b4d7c35a69cf6e4328caf19aa545ac08dff6a18592df8a89e6482",
     "block32/dielectric": "fad527fcc0df5a15fad3cae144f71de975ac79e811226981974369af214ca3e9",
-    "block32/plastic": "c9022caa2d21d4ae863789035c33b4388a523706f356232f8e0f284a26a0480f",
+    "block32/plastic": "9caaa2d435a415dc961b1c21a8a5d8ffd0d0d73fc4a58845aec14495e29824d5",
     "spectral32/lambert": "da9420c5038ae8e75a68198534b04e72f58daeb7d06bf95c8c4913feb2b8c9f2",
     "spectral32/conductor": "3e1bb62bedbe1c0034d5b2ec7bc6b4d0b0eedc5e45d3d0e0b2d5b35bab20d374",
     "spectral/conductor-narrow": "a4342cc9c3ecb1810765a3c967417eed0ec1df989d2fb59cfeb636e212873849",

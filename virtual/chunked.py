@@ -50,13 +50,15 @@ def _tuple(a: np.ndarray) -> tuple:
 def gonio_block32_kernel(model: Any, params: np.ndarray, conical: bool, beam_args: np.ndarray, cargs: tuple,
                          margins: np.ndarray, n_bins: Any, sizes: np.ndarray, lanes: np.ndarray,
                          states: np.ndarray) -> np.ndarray:
-    """Counts per chunk of the float32 block kernel (rows summed by the caller): float32 ``params``
-    (6) and ``beam_args`` (15), float32 ``margins``, uint32 ``lanes``, uint64 ``states``."""
+    """Counts per chunk of the float32 block kernel (rows summed by the caller): float64 ``params``
+    (6) and ``beam_args`` (15), passed in float32 and, for the rays the kernel decides again, in
+    float64; float32 ``margins``, uint32 ``lanes``, uint64 ``states``."""
     out = np.zeros((sizes.shape[0], int(n_bins) + 2), dtype=np.int64)
-    p, b = _tuple(params[:6]), _tuple(beam_args)
+    p64, b64 = _tuple(np.asarray(params[:6], dtype=np.float64)), _tuple(np.asarray(beam_args, dtype=np.float64))
+    p, b = _tuple(np.asarray(params[:6], dtype=np.float32)), _tuple(np.asarray(beam_args, dtype=np.float32))
     run_chunks(gonio_block32_chunk, sizes.shape[0],
-               lambda c: (model, p, bool(conical), b, cargs, margins[0], margins[1], n_bins, sizes[c], lanes[c].copy(),
-                          states[c].copy(), out[c]))
+               lambda c: (model, p, p64, bool(conical), b, b64, cargs, margins[0], margins[1], n_bins, sizes[c],
+                          lanes[c].copy(), states[c].copy(), out[c]))
     return out
 
 
@@ -102,18 +104,26 @@ def ggx_spectral_kernel(ax: float, ay: float, separable: float, etas: np.ndarray
     return hist.sum(axis=0), tallies.sum(axis=0)
 
 
+def chunk_key(lanes: np.ndarray) -> np.uint64:
+    """A chunk's 64-bit key for :func:`~virtual.kernels.refine.ray_bits`: two words of its
+    first xoshiro128+ lane's initial state (seeded per chunk by the SeedSequence)."""
+    return np.uint64((int(lanes[0, 0]) << 32) | int(lanes[1, 0]))
+
+
 def lambert_spectral32_kernel(thr: np.ndarray, conical: bool, beam_args: np.ndarray, cargs: tuple,
                               margins: np.ndarray, n_patches: Any, sizes: np.ndarray,
                               lanes: np.ndarray) -> tuple[np.ndarray, int]:
-    """The float32 Lambertian batch (float32 ``thr``, ``beam_args``, ``margins``; uint32 ``lanes``):
-    counts ``(n_thr + 1, n_patches)`` and the missed rays, summed over chunks."""
+    """The float32 Lambertian batch (float64 sorted ``thr``; float32 ``beam_args``, ``margins``;
+    uint32 ``lanes``): counts ``(n_thr + 1, n_patches)`` and the missed rays, summed over chunks."""
     n, n_cells = sizes.shape[0], thr.shape[0] + 1
     cells = np.zeros((n, n_cells * int(n_patches)), dtype=np.int32)  # <= 2^20 rays per chunk: no overflow
     tallies = np.zeros((n, 1), dtype=np.int64)
     b = _tuple(beam_args)
+    thr = np.ascontiguousarray(thr, dtype=np.float64)
+    floors = (np.floor(thr * 2.0 ** 24) * 2.0 ** -24).astype(np.float32)  # exact: multiples of 2^-24 up to 1
     run_chunks(lambert_spectral32_chunk, n,
-               lambda c: (thr, bool(conical), b, cargs, margins[0], margins[1], n_patches, sizes[c], lanes[c].copy(),
-                          cells[c], tallies[c]))
+               lambda c: (thr, floors, bool(conical), b, cargs, margins[0], margins[1], n_patches, sizes[c],
+                          lanes[c].copy(), chunk_key(lanes[c]), cells[c], tallies[c]))
     return cells.sum(axis=0, dtype=np.int64).reshape(n_cells, int(n_patches)), int(tallies.sum())
 
 
@@ -128,7 +138,7 @@ def ggx_spectral32_kernel(params: np.ndarray, etas: np.ndarray, ks: np.ndarray, 
     p, b = _tuple(params[:3]), _tuple(beam_args)
     run_chunks(ggx_spectral32_chunk, n,
                lambda c: (p, etas, ks, lo, hi, bool(conical), b, cargs, margins[0], margins[1], sizes[c],
-                          lanes[c].copy(), hist[c], tallies[c]))
+                          lanes[c].copy(), chunk_key(lanes[c]), hist[c], tallies[c]))
     return hist.sum(axis=0, dtype=np.int64).reshape(int(n_bins), wp), tallies.sum(axis=0)
 
 

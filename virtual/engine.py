@@ -39,9 +39,10 @@ import numpy as np
 
 from virtual.collector import guess_margins, guess_margins32
 from virtual.kernel_codes import (B_AXIS_Z, BEAM_CONICAL, BLOCK32_MODELS, BLOCK_MODELS, BLOCK_PARAMS, DISK_REJECTION,
-                                  FRESNEL_CELLS, FRESNEL_SAMPLES, MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA, N_EFFECT_ARGS)
-from virtual.model_ids import MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG, MODEL_PLASTIC
+                                  FRESNEL_CELLS, FRESNEL_SAMPLES, N_EFFECT_ARGS)
+from virtual.model_ids import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
 from virtual.rng import lane_states, lane_states32, stream_states
+from virtual.routing import within_float32_limits
 
 # The compiled kernels (virtual.chunked, which loads numba) are imported where rays are counted,
 # not here: routing, seeding and the certified fast path's multinomial draw never need them.
@@ -172,21 +173,12 @@ GONIO_KERNELS = ("auto", "block32", "block", "ray")
 
 def float32_suits(model: int, params: np.ndarray) -> bool:
     """Whether float32 resolves this specimen (:mod:`virtual.kernels.f32`): a model with a
-    float32 form, roughness >= ``MIN_ALPHA``, a Phong exponent <= ``MAX_PHONG_EXPONENT``, a
-    dielectric index within ``MAX_ETA`` (``1/MAX_ETA <= eta <= MAX_ETA``), and
-    every parameter finite and of moderate size (no float32 overflow in the Fresnel terms)."""
-    p = np.asarray(params, dtype=np.float64)
-    if int(model) not in BLOCK32_MODELS or not np.isfinite(p).all():
-        return False
-    if int(model) == MODEL_PHONG:  # [kd, ks, n, lobe share]: n alone may be large, and enters as 1/(n+1)
-        return p[2] <= MAX_PHONG_EXPONENT
-    if np.abs(p).max(initial=0.0) > 100.0:
-        return False
-    if int(model) in (MODEL_GGX, MODEL_ANISO_GGX):
-        return min(p[0], p[1]) >= MIN_ALPHA
-    if int(model) in (MODEL_DIELECTRIC, MODEL_PLASTIC):
-        return p[0] >= MIN_ALPHA and 1.0 / MAX_ETA <= p[1] <= MAX_ETA
-    return True
+    float32 form and parameters within its :data:`~virtual.routing.FLOAT32_LIMITS` (roughness
+    >= ``MIN_ALPHA``, a Phong exponent <= ``MAX_PHONG_EXPONENT``, a dielectric or plastic coat's
+    index within ``1/MAX_ETA <= eta <= MAX_ETA``, every other parameter of moderate size: no
+    float32 overflow in the Fresnel terms), all finite. The README's routing table states it
+    (:func:`virtual.routing.routing_table`)."""
+    return within_float32_limits(model, params)
 
 
 def gonio_kernel_for(model: int, disk: int, kernel: str = "auto", params: np.ndarray | None = None) -> str:
@@ -228,9 +220,9 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     p = np.ascontiguousarray(params, dtype=np.float64)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     if shape == "block32":
-        p32 = np.zeros(max(BLOCK_PARAMS, p.size), dtype=np.float32)
-        p32[:p.size] = p
-        out = gonio_block32_kernel(np.int64(model), p32, int(beam_kind) == BEAM_CONICAL, b.astype(np.float32),
+        p6 = np.zeros(max(BLOCK_PARAMS, p.size))
+        p6[:p.size] = p
+        out = gonio_block32_kernel(np.int64(model), p6, int(beam_kind) == BEAM_CONICAL, b,
                                    tuple(collector_args), guess_margins32(n_theta, n_phi), np.int64(n_bins), sizes,
                                    lane_states32(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
     elif shape == "block":
@@ -279,7 +271,8 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
 
     When :func:`float32_suits` every wavelength's parameters (so that ``gonio_counts`` would run
     the float32 block kernel), both batches run in float32 (:mod:`virtual.kernels.spectral32`):
-    the Lambertian's thresholds rounded as the float32 kernel rounds them, the GGX's Fresnel
+    the Lambertian's u0 located among the float64 thresholds (refined to 53 bits in a threshold's
+    grid cell), the GGX's Fresnel
     factors bracketed by a per-wavelength table of bounds over cos(theta_m) and computed exactly
     only between them -- the same decisions, at a fraction of the cost per wavelength.
 
@@ -312,14 +305,9 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
 
         return np.stack([gonio_counts(model, p, beam_kind, disk, beam_args, collector_args, n_rays, same(seq))
                          for p in rows])
-    if f32:  # thresholds rounded as lambert_given32 rounds them (u0 < R, u0 < R + T in float32)
-        r32 = np.array([p[0] for p in rows], dtype=np.float32)
-        r, rt = r32.astype(np.float64), (r32 + np.array([p[1] for p in rows], dtype=np.float32)).astype(np.float64)
-    else:
-        r = np.array([p[0] for p in rows])
-        rt = np.minimum(r + np.array([p[1] for p in rows]), 1.0)
+    r = np.array([p[0] for p in rows])
+    rt = np.minimum(r + np.array([p[1] for p in rows]), 1.0)
     from virtual.chunked import lambert_spectral32_kernel, lambert_spectral_kernel
-
     thr = np.unique(np.concatenate([r, rt]))
     sizes = chunking(n_rays)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
@@ -334,7 +322,7 @@ def gonio_counts_spectral(model: int, params: list[np.ndarray] | np.ndarray, bea
     for g in range(0, sizes.shape[0], SPECTRAL_CHUNK_GROUP):
         sl = slice(g, g + SPECTRAL_CHUNK_GROUP)
         if f32:
-            c, m = lambert_spectral32_kernel(thr.astype(np.float32), int(beam_kind) == BEAM_CONICAL,
+            c, m = lambert_spectral32_kernel(thr, int(beam_kind) == BEAM_CONICAL,
                                              b.astype(np.float32), tuple(collector_args), margins,
                                              np.int64(n_patches), np.ascontiguousarray(sizes[sl]),
                                              np.ascontiguousarray(lanes[sl]))

@@ -15,9 +15,11 @@ from __future__ import annotations
 import numpy as np
 
 from virtual.kernels import jit
+from virtual.kernels.emit import BEAM_COLLIMATED, BEAM_CONICAL
 from virtual.kernels.patch_lookup import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
 from virtual.kernels.f32 import ZERO, emit_given32, emit_side32, guess_bin32
 from virtual.kernels.branchfree import GIVEN4_UNIFORMS, plastic_diffuse_redo
+from virtual.kernels.refine import redo_ray64
 from virtual.kernels.branchfree32 import ggx_given32, lambert_given32, oren_nayar_given32, phong_given32, phong_lobe_omc32
 from virtual.kernels.branchfree32_rough import DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_given32, plastic_given32
 from virtual.kernels.xoshiro import LANES, fill_uniforms32
@@ -47,10 +49,14 @@ def guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_m
 
 
 @jit(nogil=True, error_model="numpy")
-def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
+def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s,
+                        hist):
     """One chunk: ``n_rays`` rays from the xoshiro128+ lanes ``lane`` (advanced in place) added
-    to ``hist``; ``s`` is a scalar float64 xoshiro stream for the plastic's rare rejected
-    diffuse rays. Compiled on its own for the reasons given on the float64
+    to ``hist``. ``p`` and ``b`` are the float32 parameters and beam, ``p64`` and ``b64`` the
+    same in float64 for the rays in doubt (code 4: a decision within a few 2^-24 of its
+    threshold), which :func:`~virtual.kernels.refine.redo_ray64` decides again; ``s`` is a
+    scalar float64 xoshiro stream for those rays and the plastic's rare rejected diffuse rays.
+    Compiled on its own for the reasons given on the float64
     :func:`~virtual.kernels.block64.gonio_block_chunk`."""
     nb = BLOCK32_RAYS
     n_beam = _BEAM_UNIFORMS if conical else 0
@@ -82,38 +88,38 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
         if model == MODEL_LAMBERT:
             for i in range(nb):
                 wz, hit = emit_side32(conical, b, u[i], u[bo + i])
-                vx[i], vy[i], vz[i], alive = lambert_given32(p, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i])
-                code[i] = 1 if (alive & hit) else (0 if hit else 2)  # survivor, absorbed, missed
+                vx[i], vy[i], vz[i], alive, doubt = lambert_given32(p, wz, u[s0 + i], u[s0 + nb + i],
+                                                                    u[s0 + 2 * nb + i])
+                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))  # 1 survivor, 0 absorbed, 2 missed
         elif model == MODEL_PHONG:
             phong_lobe_omc32(p, u[s0 + 2 * nb:s0 + 3 * nb], code, vx)  # code: int32 scratch until written below
             for i in range(nb):
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive = phong_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                vx[i], vy[i], vz[i], alive, doubt = phong_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
                                                            u[s0 + 2 * nb + i], u[s0 + 3 * nb + i], vx[i])
-                code[i] = 1 if (alive & hit) else (0 if hit else 2)
+                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
         elif model == MODEL_OREN_NAYAR:
             for i in range(nb):
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive = oren_nayar_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                vx[i], vy[i], vz[i], alive, doubt = oren_nayar_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
                                                                 u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
-                code[i] = 1 if (alive & hit) else (0 if hit else 2)
+                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
         elif model == MODEL_DIELECTRIC:
             for i in range(nb):
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive = dielectric_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                vx[i], vy[i], vz[i], alive, doubt = dielectric_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
                                                                 u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
-                code[i] = 1 if (alive & hit) else (0 if hit else 2)  # survivor, absorbed, missed
+                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))  # survivor, absorbed, missed
         elif model == MODEL_PLASTIC:
             for i in range(nb):
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive, redo = plastic_given32(
+                vx[i], vy[i], vz[i], alive, redo, doubt = plastic_given32(
                     p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i],
                     u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i])
-                code[i] = 1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2))  # 3: redo
-            eta = np.float64(p[1])
+                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2)))
             for i in range(m):  # the diffuse rays whose one attempt was rejected: the loop continues in float64
                 if code[i] == 3:
-                    ox, oy, oz = plastic_diffuse_redo(eta, s)
+                    ox, oy, oz = plastic_diffuse_redo(p64[1], s)
                     vx[i] = ox
                     vy[i] = oy
                     vz[i] = oz if vz[i] > ZERO else -oz
@@ -121,15 +127,27 @@ def gonio_block32_chunk(model, p, conical, b, cargs, ring_margin, sector_margin,
         elif p[0] == p[1] and p[3] == ZERO and p[4] == ZERO:  # isotropic, height-correlated, k = 0
             for i in range(nb):
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive = ggx_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                vx[i], vy[i], vz[i], alive, doubt = ggx_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
                                                          u[s0 + 2 * nb + i], True)
-                code[i] = 1 if (alive & hit) else (0 if hit else 2)
+                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
         else:  # GGX, anisotropic GGX
             for i in range(nb):
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive = ggx_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
+                vx[i], vy[i], vz[i], alive, doubt = ggx_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
                                                          u[s0 + 2 * nb + i], False)
-                code[i] = 1 if (alive & hit) else (0 if hit else 2)
+                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
+        n_doubt = 0
+        for i in range(m):  # a vectorized count of the rays in doubt first (about one in 10^6)
+            n_doubt += code[i] == 4
+        if n_doubt > 0:  # decided again in float64
+            kind = BEAM_CONICAL if conical else BEAM_COLLIMATED
+            for i in range(m):
+                if code[i] == 4:
+                    ox, oy, oz, alive, hit = redo_ray64(model, p64, kind, b64, u, i, nb, bo, s0, s)
+                    vx[i] = ox
+                    vy[i] = oy
+                    vz[i] = oz
+                    code[i] = 1 if (alive & hit) else (0 if hit else 2)
         n_live = 0
         n_missed = 0
         for i in range(m):  # a vectorized tally first

@@ -3,8 +3,10 @@
 Each is the float64 given form (:func:`~virtual.kernels.scatter.scatter_given`,
 :mod:`virtual.kernels.branchfree`) with the same uniforms in the same roles, written with the
 float32 helpers of :mod:`virtual.kernels.f32`: the same law of ``(ox, oy, oz, alive)`` up to
-float32 rounding (tested against the float64 ray-by-ray kernel by two-sample chi-square,
-tests/test_block32_diffuse_families.py). Parameters ``p`` are a tuple of float32.
+float32 rounding -- each also returns ``doubt``, whether one of its decisions is too near its
+threshold for a grid uniform (:func:`~virtual.kernels.f32.in_doubt32`; the block kernel then
+decides the ray again in float64) (tested against the float64 ray-by-ray kernel by two-sample chi-square,
+tests/test_block_families.py). Parameters ``p`` are a tuple of float32.
 """
 
 from __future__ import annotations
@@ -15,8 +17,8 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
-from virtual.kernels.f32 import (F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32, frame32, g2_over_g1_masked_ratio32,
-                                 ggx_n32, ggx_vndf_given32, sincos_2pi32, warp_cosine_hemisphere32)
+from virtual.kernels.f32 import (DOUBT, F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32, frame32, g2_over_g1_masked_ratio32,
+                                 ggx_n32, ggx_vndf_given32, in_doubt32, sincos_2pi32, warp_cosine_hemisphere32)
 
 __all__ = ["lambert_given32", "ggx_given_parts32", "ggx_given32", "phong_lobe_omc32", "phong_given32",
            "oren_nayar_given32"]
@@ -37,7 +39,8 @@ def lambert_given32(p, wz, u0, u1, u2):
     Malley's from (u1, u2)."""
     x, y, z = warp_cosine_hemisphere32(u2, u1)
     up = (wz >= ZERO) != (u0 >= p[0])
-    return x, y, (z if up else -z), u0 < p[0] + p[1]
+    rt = p[0] + p[1]
+    return x, y, (z if up else -z), u0 < rt, in_doubt32(u0, p[0], ONE) | in_doubt32(u0, rt, ONE)
 
 
 @jit(inline="always")
@@ -74,7 +77,9 @@ def ggx_given32(p, wx, wy, wz, u0, u1, u2, plain):
     ca, sa = sincos_2pi32(u2)
     ox, oy, oz, c, g_num, g_den, valid = ggx_given_parts32(p[0], p[1], p[4], wx, wy, wz, ca, sa, u1, plain)
     f_num, f_den = fresnel_conductor_ratio32(c, p[2], p[3], plain)
-    return ox, oy, oz, valid & (u0 * f_den * g_den < f_num * g_num)
+    den = f_den * g_den
+    excess = u0 * den - f_num * g_num  # < 0: survives; within DOUBT den of 0: in doubt (in_doubt32)
+    return ox, oy, oz, valid & (excess < ZERO), abs(excess) <= DOUBT * den
 
 
 @jit(error_model="numpy")
@@ -130,12 +135,14 @@ def phong_given32(p, wx, wy, wz, u0, u1, u2, u3, omc):
     ly = ta * t1y + tb * t2y - ca * wy
     lz = ta * t1z + tb * t2z + ca * wz
     diffuse = u0 < p[0]
-    lobe_ok = (u0 < p[0] + p[3]) & (lz > ZERO) & (u3 < lz)
+    lobe = p[0] + p[3]
+    lobe_ok = (u0 < lobe) & (lz > ZERO) & (u3 < lz)
     ox = rho * c1 if diffuse else lx
     oy = rho * s1 if diffuse else ly
     oz = dz if diffuse else lz
     alive = (wz > ZERO) & (diffuse | lobe_ok)
-    return ox, oy, (-oz if flip else oz), alive
+    doubt = in_doubt32(u0, p[0], ONE) | in_doubt32(u0, lobe, ONE) | in_doubt32(u3, lz, ONE)
+    return ox, oy, (-oz if flip else oz), alive, doubt
 
 
 @jit(inline="always")
@@ -166,5 +173,7 @@ def oren_nayar_given32(p, wx, wy, wz, u0, u1, u2, u3):
     c_term = d_ref / math.sqrt(so2 if pos else ONE) if pos else ZERO
     den = p[1] * oz + p[2] * c_term
     num = p[1] * oz + p[2] * max(ox * wx + oy * wy, ZERO) * oz / max(oz, wz)
-    alive = (wz > ZERO) & (u0 < p[3] + p[4]) & (u3 * den < num)
-    return ox, oy, (-oz if flip else oz), alive
+    total = p[3] + p[4]
+    alive = (wz > ZERO) & (u0 < total) & (u3 * den < num)
+    doubt = in_doubt32(u0, p[3], ONE) | in_doubt32(u0, total, ONE) | in_doubt32(u3, num, den)
+    return ox, oy, (-oz if flip else oz), alive, doubt

@@ -6,7 +6,8 @@ Each is its float64 given form (:func:`~virtual.kernels.branchfree._dielectric_g
 with the float32 helpers of :mod:`virtual.kernels.f32` (the branch-free
 :func:`~virtual.kernels.f32.fresnel_dielectric32` among them): the same law of the outputs up to
 float32 rounding, tested against the float64 ray-by-ray kernel by two-sample chi-square
-(tests/test_block32_rough_families.py). Parameters ``p`` are a tuple of float32. The plastic's
+(tests/test_block_families.py), each with the ``doubt`` flag of :mod:`virtual.kernels.branchfree32`.
+Parameters ``p`` are a tuple of float32. The plastic's
 rare rejected diffuse rays are finished in float64 by
 :func:`~virtual.kernels.branchfree.plastic_diffuse_redo`, as in the float64 block kernel.
 """
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 from virtual.kernels import jit
 from virtual.kernels.f32 import (ONE, TWO, ZERO, fresnel_dielectric32, g2_over_g1_masked_ratio32, ggx_n32,
-                                 ggx_vndf_given32, sincos_2pi32, warp_cosine_hemisphere32)
+                                 ggx_vndf_given32, in_doubt32, sincos_2pi32, warp_cosine_hemisphere32)
 
 __all__ = ["DIELECTRIC32_UNIFORMS", "PLASTIC32_UNIFORMS", "dielectric_given32", "plastic_given32"]
 
@@ -48,13 +49,14 @@ def dielectric_given32(p, wx, wy, wz, u0, u1, u2, u3):
     az = oz if refl else -oz  # the cosine on the side the ray leaves to
     g_num, g_den = g2_over_g1_masked_ratio32(wz, ni, az, ggx_n32(ox, oy, az, a, a), p[2])
     alive = (wz > ZERO) & (az > ZERO) & (u3 * g_den < g_num)
-    return ox, oy, (-oz if flip else oz), alive
+    doubt = in_doubt32(u0, f, ONE) | in_doubt32(u3, g_num, g_den)
+    return ox, oy, (-oz if flip else oz), alive, doubt
 
 
 @jit(inline="always")
 def plastic_given32(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
     """Rough plastic (``p`` = alpha, eta, kd), two-sided, one attempt of the diffuse lobe's
-    rejection loop: ``(ox, oy, oz, alive, redo)``, ``redo`` marking a rejected diffuse ray
+    rejection loop: ``(ox, oy, oz, alive, redo, doubt)``, ``redo`` marking a rejected diffuse ray
     (``oz`` then only its side, +-1) whose direction the float64 ``plastic_diffuse_redo`` draws.
     u0 < F: specular (visible normal from (u1, u2), G2/G1 by u3); else u0 - F < kd (1 - F) is
     the diffuse survival; the attempt is Malley's direction from (u4, u5), kept when
@@ -84,4 +86,6 @@ def plastic_given32(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
     ok = wz > ZERO
     alive = ok & ((spec & spec_ok) | (diffuse & accepted))
     redo = ok & diffuse & (u6 < fo)
-    return ox, oy, (-oz if flip else oz), alive, redo
+    doubt = (in_doubt32(u0, f, ONE) | in_doubt32(u0, f + p[2] * (ONE - f), ONE) | in_doubt32(u3, g_num, g_den)
+             | in_doubt32(u6, fo, ONE))
+    return ox, oy, (-oz if flip else oz), alive, redo, doubt

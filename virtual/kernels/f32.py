@@ -8,7 +8,10 @@ returns float32: one float64 literal in a loop would silently turn it back into 
 
 What float32 costs, and where it stops (:func:`virtual.engine.gonio_kernel_for` decides): each
 direction carries a relative error of a few 1e-7 and each survival test a few 1e-7 of its
-probability -- far below what any count of rays can detect, but not nothing. So only
+probability -- far below what any count of rays can detect, but not nothing. The uniforms'
+2^-24 grid alone would put a floor under every decision (``u < p`` happening with probability
+ceil(p 2^24) 2^-24); :func:`in_doubt32` hands the rays near a threshold to float64
+(:mod:`virtual.kernels.refine`), so no probability is floored. So only
 well-conditioned specimens take this path (GGX-like roughness >= :data:`MIN_ALPHA`, Phong
 exponents <= :data:`MAX_PHONG_EXPONENT`, the same lobe width, dielectric indices within
 :data:`MAX_ETA`); the bin of each computed direction is exact (a guess with margins, the float64
@@ -27,7 +30,7 @@ from virtual.kernels.emit import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMI
 from virtual.kernels.patch_lookup import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
 
 __all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
-           "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "emit_side32", "guess_bin32",
+           "GRID", "DOUBT", "in_doubt32", "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "emit_side32", "guess_bin32",
            "ggx_n32", "ggx_vndf_given32", "g2_over_g1_masked_ratio32", "fresnel_conductor_ratio32", "fresnel_dielectric32", "frame32"]
 
 F = np.float32
@@ -45,6 +48,14 @@ _HUGE2 = F(1e30)    # |v|^2 above: may overflow -> exact lookup
 
 from virtual.kernel_codes import ATAN32_MAX_ERROR, MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA  # noqa: E402
 
+#: The float32 uniforms' grid (:func:`~virtual.kernels.xoshiro.fill_uniforms32`: k 2^-24, k < 2^24).
+GRID = F(2.0 ** -24)
+#: Half-width of the band around a decision's threshold within which :func:`in_doubt32` defers
+#: to float64: four grid cells, covering the threshold's own float32 rounding (a sum of two
+#: rounded parameters, a product of rounded factors: a few units of 2^-24 near 1).
+DOUBT = F(4.0 * 2.0 ** -24)
+
+
 # sin and cos of x in [-pi/4, pi/4]: Taylor to x^7 and x^8, truncation below 4e-9 (float32 ulp 6e-8)
 _S3, _S5, _S7 = F(-1.0 / 6.0), F(1.0 / 120.0), F(-1.0 / 5040.0)
 _C2, _C4, _C6, _C8 = F(-0.5), F(1.0 / 24.0), F(-1.0 / 720.0), F(1.0 / 40320.0)
@@ -53,6 +64,19 @@ _C2, _C4, _C6, _C8 = F(-0.5), F(1.0 / 24.0), F(-1.0 / 720.0), F(1.0 / 40320.0)
 _A0, _A1, _A2, _A3 = F(0.9999999403953552), F(-0.33332303166389465), F(0.1997368037700653), F(-0.14040134847164154)
 _A4, _A5, _A6, _A7 = F(0.09967909753322601), F(-0.06021890789270401), F(0.02475660853087902), F(-0.004831115715205669)
 # ATAN32_MAX_ERROR (virtual.kernel_codes): the largest error of the float32 polynomial atan2 below.
+
+
+@jit(inline="always")
+def in_doubt32(u, num, den):
+    """Whether the decision ``u den < num`` (u a grid uniform, den >= 0; the probability
+    num/den) may turn on bits of u below the 2^-24 grid: num/den within :data:`DOUBT` of u.
+
+    A grid uniform resolves a probability p only to ceil(p 2^24) 2^-24 -- any p below 6e-8
+    would happen with probability 6e-8. The kernels decide such rays again in float64 with u
+    refined to 53 bits (:mod:`virtual.kernels.refine`): about 8 in 10^7 decisions, and every
+    other decision is the same for any refinement of u, so each decision happens with its
+    probability to 2^-53 (up to the float32 rounding of num/den itself, a relative few 1e-7)."""
+    return abs(u * den - num) <= DOUBT * den
 
 
 @jit(inline="always")

@@ -2,15 +2,21 @@
 at once on float32 vectors (as many lanes as the machine's hold), like :mod:`virtual.kernels.block32`.
 
 * Lambertian (:func:`lambert_spectral32_chunk`): each hit ray's cosine-distributed direction
-  is drawn and binned once; its survival uniform u0 is located among the sorted float32
-  thresholds (every wavelength's R and R + T, rounded as the single-wavelength
-  :func:`~virtual.kernels.branchfree32.lambert_given32` rounds them) -- counts by (cell of u0, patch).
+  is drawn and binned once; its survival uniform u0 is located among the sorted float64
+  thresholds (every wavelength's R and R + T) -- counts by (cell of u0, patch). The grid
+  uniform u0 is compared with each threshold's grid floor; only a u0 equal to one (the grid cell
+  holding a threshold, one ray in 2^24 per threshold) is refined to 53 bits
+  (:func:`~virtual.kernels.refine.refined_by`) and located among the float64 thresholds, so
+  each cell has its exact probability.
 * GGX (:func:`ggx_spectral32_chunk`): the direction, the microfacet cosine c and the masking
   ratio g_num / g_den are drawn once; wavelength w survives when u g_den < F_w(c) g_num. F_w is
   bracketed by a table of rigorous bounds over cells of c (:func:`fresnel_bounds`), laid out
   [cell, wavelength]: survive below the lower bound, die above the upper one, and only in
-  between (a few % of the rays) compute F exactly (:func:`~virtual.kernels.f32.fresnel_conductor_ratio32`).
-  The decision is therefore the exact-Fresnel decision; the wavelength loop is contiguous in
+  between (a few % of the rays) compute F exactly (:func:`~virtual.kernels.f32.fresnel_conductor_ratio32`),
+  the bounds tested with u moved by :data:`~virtual.kernels.f32.DOUBT` either way; where the
+  decision is in doubt for the grid uniform u (:func:`~virtual.kernels.f32.in_doubt32`), u is
+  refined to 53 bits and F computed in float64.
+  The decision is therefore the exact-Fresnel decision, with u's probability to 2^-53; the wavelength loop is contiguous in
   the table and in the histogram [patch, wavelength] (int32), so it vectorizes.
 """
 
@@ -22,10 +28,11 @@ from numba import int32
 from virtual.kernels import jit
 from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32
 from virtual.kernels.patch_lookup import patch_of
-from virtual.kernels.f32 import (ONE, emit_given32, emit_side32, fresnel_conductor_ratio32, sincos_2pi32,
+from virtual.kernels.f32 import (DOUBT, ONE, emit_given32, in_doubt32, emit_side32, fresnel_conductor_ratio32, sincos_2pi32,
                                  warp_cosine_hemisphere32)
 from virtual.kernels.branchfree32 import ggx_given_parts32
 from virtual.kernels.microfacet import fresnel_conductor_ratio
+from virtual.kernels.refine import ray_bits, refined_by
 from virtual.kernels.xoshiro import LANES, fill_uniforms32
 
 __all__ = ["FRESNEL_CELLS", "fresnel_bounds", "lambert_spectral32_chunk", "ggx_spectral32_chunk"]
@@ -74,9 +81,11 @@ def fresnel_bounds(etas, ks, n_cells, n_samples, wp):
 
 
 @jit(nogil=True, error_model="numpy")
-def lambert_spectral32_chunk(thr, conical, b, cargs, ring_margin, sector_margin, n_patches, n_rays, lane, cells, tally):
+def lambert_spectral32_chunk(thr, floors, conical, b, cargs, ring_margin, sector_margin, n_patches, n_rays, lane, key,
+                             cells, tally):
     """One chunk: hit rays counted in ``cells[cell of u0 * n_patches + patch]``, missed ones in
-    ``tally[0]``; ``thr`` the sorted float32 thresholds."""
+    ``tally[0]``; ``thr`` the sorted float64 thresholds, ``floors`` their float32 grid floors
+    (floor(thr 2^24) 2^-24); ``key`` the chunk's key for :func:`~virtual.kernels.refine.ray_bits`."""
     nb = BLOCK32_RAYS
     n_beam = _BEAM_UNIFORMS if conical else 0
     ublock = np.empty(((n_beam + 3) * nb // LANES, LANES), dtype=np.float32)
@@ -103,10 +112,19 @@ def lambert_spectral32_chunk(thr, conical, b, cargs, ring_margin, sector_margin,
             vy[i] = y
             vz[i] = z
             cell[i] = int32(0) if hit else _MISSED
-        for t in range(n_thr):  # the cell of u0: how many thresholds lie at or below it
-            th = thr[t]
+        for t in range(n_thr):  # the cell of u0: how many thresholds' grid floors lie at or below it
+            th = floors[t]
             for i in range(nb):
                 cell[i] += int32(u[s0 + i] >= th)
+        done = n_rays - left
+        for i in range(m):  # u0 in the grid cell of a threshold (u0 its floor): refined, located in float64
+            c = cell[i]
+            if c > 0 and u[s0 + i] == floors[c - 1]:
+                uf = refined_by(u[s0 + i], ray_bits(key, done + i))
+                c = 0
+                while c < n_thr and thr[c] <= uf:
+                    c += 1
+                cell[i] = c
         guess_bins32(code, vx, vy, vz, nb, scheme, n_theta, n_phi, ring_margin, sector_margin)
         for i in range(m):
             c = cell[i]
@@ -123,10 +141,11 @@ def lambert_spectral32_chunk(thr, conical, b, cargs, ring_margin, sector_margin,
 
 
 @jit(nogil=True, error_model="numpy")
-def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, sector_margin, n_rays, lane, hist,
+def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, sector_margin, n_rays, lane, key, hist,
                          tally):
     """One chunk: survivors added to ``hist[patch * wp + w]`` (int32, wp = lo.shape[1]);
-    ``tally`` = (hits, missed). ``p`` = (alpha_x, alpha_y, separable) as float32."""
+    ``tally`` = (hits, missed). ``p`` = (alpha_x, alpha_y, separable) as float32; ``key`` the
+    chunk's key for :func:`~virtual.kernels.refine.ray_bits`."""
     nb = BLOCK32_RAYS
     n_beam = _BEAM_UNIFORMS if conical else 0
     ublock = np.empty(((n_beam + 3) * nb // LANES, LANES), dtype=np.float32)
@@ -148,9 +167,12 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
     vy = np.empty(nb, dtype=np.float32)
     vz = np.empty(nb, dtype=np.float32)
     cc = np.empty(nb, dtype=np.float32)
-    xs = np.empty(nb, dtype=np.float32)  # u g_den
+    us = np.empty(nb, dtype=np.float32)  # u
+    gs = np.empty(nb, dtype=np.float32)  # g_den
     ys = np.empty(nb, dtype=np.float32)  # g_num
-    ts = np.empty(nb, dtype=np.float32)  # u g_den / g_num: survives at w when t < F_w(c)
+    ts = np.empty(nb, dtype=np.float32)  # (u + DOUBT) g_den / g_num: survives at w when below lo_w
+    tl = np.empty(nb, dtype=np.float32)  # (u - DOUBT) g_den / g_num: dies at w when at or above hi_w
+    idx = np.empty(nb, dtype=np.int64)  # the ray's index in the chunk
     hits = 0
     left = n_rays
     while left > 0:
@@ -165,13 +187,17 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
             vy[i] = oy
             vz[i] = oz
             cc[i] = c
-            xs[i] = u[s0 + i] * g_den
+            us[i] = u[s0 + i]
+            gs[i] = g_den
             ys[i] = g_num
-            ts[i] = xs[i] / (g_num if valid else ONE)  # the bounds' padding covers this division's rounding
+            scale = g_den / (g_num if valid else ONE)  # the bounds' padding covers these roundings
+            ts[i] = (u[s0 + i] + DOUBT) * scale
+            tl[i] = (u[s0 + i] - DOUBT) * scale
             cell[i] = min(int32(c * fc), last)
             code[i] = int32(1) if (valid & hit) else (int32(0) if hit else int32(2))
         j = 0
         n_hit = 0
+        done = n_rays - left
         for i in range(m):  # compaction: the valid rays below some wavelength's upper bound (the others die at all)
             k = code[i]
             ci = cell[i]
@@ -179,11 +205,14 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
             vy[j] = vy[i]
             vz[j] = vz[i]
             cc[j] = cc[i]
-            xs[j] = xs[i]
+            us[j] = us[i]
+            gs[j] = gs[i]
             ys[j] = ys[i]
             ts[j] = ts[i]
+            tl[j] = tl[i]
+            idx[j] = done + i
             cell[j] = ci
-            j += (k == 1) & (ts[i] < top[ci])
+            j += (k == 1) & (tl[i] < top[ci])
             n_hit += k != 2
         hits += n_hit
         guess_bins32(code, vx, vy, vz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
@@ -192,9 +221,9 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
             if kb < 0:
                 kb = patch_of(np.float64(vx[i]), np.float64(vy[i]), np.float64(vz[i]), scheme, n_theta, n_phi,
                               sin2_edges, phi_cs)
-            x = xs[i]
             y = ys[i]
             t = ts[i]
+            t_lo = tl[i]
             ci = cell[i]
             h0 = kb * wp
             row = hist[h0:h0 + wp]  # slices: LLVM then vectorizes the loop (indexing the whole arrays, it does not)
@@ -204,13 +233,20 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
             for w in range(wp):  # contiguous in the table and the histogram: whole vectors per ray
                 sure = t < lrow[w]
                 row[w] += _YES if sure else _NO
-                unsure |= _YES if (t < hrow[w]) != sure else _NO
+                unsure |= _YES if (t_lo < hrow[w]) != sure else _NO
             if unsure != _NO:  # between the bounds for some wavelength: the exact Fresnel factor decides
                 c = cc[i]
+                uu = us[i]
+                g_den = gs[i]
                 for w in range(n_w):
-                    if (t >= lrow[w]) & (t < hrow[w]):
+                    if (t >= lrow[w]) & (t_lo < hrow[w]):
                         f_num, f_den = fresnel_conductor_ratio32(c, etas[w], ks[w], False)
-                        row[w] += _YES if x * f_den < f_num * y else _NO
+                        if in_doubt32(uu, f_num * y, f_den * g_den):  # u refined, F in float64
+                            fn, fd = fresnel_conductor_ratio(np.float64(c), np.float64(etas[w]), np.float64(ks[w]))
+                            uf = refined_by(uu, ray_bits(key, idx[i]))
+                            row[w] += _YES if uf * fd * np.float64(g_den) < fn * np.float64(y) else _NO
+                        else:
+                            row[w] += _YES if uu * g_den * f_den < f_num * y else _NO
         left -= m
     tally[0] += hits
     tally[1] += n_rays - hits
