@@ -237,6 +237,7 @@ def glossy_report(tmp_path_factory):
     return out, compare_records(actual, cands, out)
 
 
+@pytest.mark.slow  # the glossy report: 3 x 4 incidences x 4e5 rays and its figures (~30 CPU-s)
 def test_twice_rougher_model_is_rejected_with_a_named_failing_group(glossy_report):
     out, s = glossy_report
     assert s["verdicts"]["same model"]["verdict"] == "accept", s["verdicts"]["same model"]["reason"]
@@ -247,6 +248,7 @@ def test_twice_rougher_model_is_rejected_with_a_named_failing_group(glossy_repor
     assert s["criterion"]["alpha"] == 0.01 and "alpha = 0.01" in s["criterion"]["statement"]
 
 
+@pytest.mark.slow  # the glossy report: 3 x 4 incidences x 4e5 rays and its figures (~30 CPU-s)
 def test_html_report_shows_every_incidence(glossy_report):
     out, s = glossy_report
     html = (out / "report.html").read_text()
@@ -259,6 +261,7 @@ def test_html_report_shows_every_incidence(glossy_report):
 
 
 @pytest.mark.skipif(not CHROMIUM.exists(), reason="/usr/bin/chromium is not installed (CI: apt-get install -y chromium)")
+@pytest.mark.slow  # the glossy report: 3 x 4 incidences x 4e5 rays and its figures (~30 CPU-s)
 def test_rendered_report_has_verdict_rows_and_figure_ids(glossy_report, tmp_path):
     out, s = glossy_report
     cmd = [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",

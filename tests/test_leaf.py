@@ -121,6 +121,7 @@ def _within_bonferroni(spec: str, wavelengths: str, seed: int) -> tuple[int, flo
     return wl.size, float(max(np.abs(m.reflectance - rp[idx]).max(), np.abs(m.transmittance - tp[idx]).max()))
 
 
+@pytest.mark.slow  # 421 wavelengths x 1e5 rays on the ray-by-ray leaf kernel (~25 CPU-s); make test has the 8 deg checks per leaf
 def test_bench_spectro_8d_conical_reproduces_prospect_d_at_every_wavelength(capsys):
     # the acceptance command, N of eq. 3.5, the intervals printed at the Bonferroni confidence
     n_wl = 421
