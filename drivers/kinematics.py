@@ -57,13 +57,14 @@ TOML-friendly dict by :meth:`KinematicsConfig.from_dict`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
-from typing import Any, Mapping, NamedTuple
+from typing import Annotated, Any, ClassVar, Literal, Mapping, NamedTuple
 
 import numpy as np
+from pydantic import Field, field_validator
 
-from bench.core.errors import ConfigError, GeometryError
+from bench.core.errors import GeometryError
 from bench.core.geometry import Geometry, direction
+from bench.core.validation import Finite, Settings
 
 __all__ = [
     "JOINTS",
@@ -97,9 +98,9 @@ def _default_limits() -> dict[str, tuple[float, float]]:
             "detector_azimuth": (-180.0, 180.0), "detector_elevation": (0.0, 85.0)}
 
 
-@dataclass(frozen=True)
-class KinematicsConfig:
-    """Joint limits and safety margins (degrees).
+class KinematicsConfig(Settings):
+    """Joint limits and safety margins (degrees), each declared once with its range (validated by
+    pydantic, :class:`bench.core.validation.Settings`).
 
     Dict form (TOML-friendly)::
 
@@ -115,49 +116,29 @@ class KinematicsConfig:
     Every key is optional; limits not given keep their defaults.
     """
 
-    limits: Mapping[str, tuple[float, float]] = field(default_factory=_default_limits)
-    min_retro_deg: float = 5.0
-    arm_clearance_deg: float = 8.0
+    settings_of: ClassVar[str] = "kinematics"
 
-    def __post_init__(self) -> None:
-        lim = dict(_default_limits())
-        for k, v in dict(self.limits).items():
-            if k not in JOINTS:
-                raise ConfigError(f"unknown joint {k!r} in limits; joints are {', '.join(JOINTS)}")
-            try:
-                lo, hi = (float(x) for x in v)
-            except (TypeError, ValueError):
-                raise ConfigError(f"limits.{k} must be [lo, hi] degrees, got {v!r}") from None
-            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
-                raise ConfigError(f"limits.{k} = {v!r} is not a finite [lo, hi] with lo <= hi")
-            lim[k] = (lo, hi)
-        object.__setattr__(self, "limits", lim)
-        for name in ("min_retro_deg", "arm_clearance_deg"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ConfigError(f"{name} must be a finite number >= 0, got {v!r}")
-            object.__setattr__(self, name, float(v))
+    limits: dict[Literal[JOINTS], tuple[Finite, Finite]] = Field(default_factory=_default_limits)  # type: ignore[valid-type]
+    min_retro_deg: Annotated[Finite, Field(ge=0)] = 5.0
+    arm_clearance_deg: Annotated[Finite, Field(ge=0)] = 8.0
+
+    @field_validator("limits")
+    @classmethod
+    def _ordered_and_complete(cls, v: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+        for joint, (lo, hi) in v.items():
+            if not lo <= hi:
+                raise ValueError(f"{joint} = [{lo:g}, {hi:g}]: expected [lo, hi] degrees with lo <= hi")
+        return {**_default_limits(), **v}
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any] | None) -> "KinematicsConfig":
-        """Build from a dict (e.g. a TOML table); unknown keys raise :class:`ConfigError`."""
-        d = dict(d or {})
-        known = {"limits", "min_retro_deg", "arm_clearance_deg"}
-        extra = set(d) - known
-        if extra:
-            raise ConfigError(f"unknown kinematics key(s) {sorted(extra)}; known: {sorted(known)}")
-        limits = d.get("limits", {})
-        if not isinstance(limits, Mapping):
-            raise ConfigError("kinematics.limits must be a table of joint = [lo, hi]")
-        kw: dict[str, Any] = {"limits": dict(limits)}
-        for k in ("min_retro_deg", "arm_clearance_deg"):
-            if k in d:
-                kw[k] = d[k]
-        return cls(**kw)
+    def from_dict(cls, d: Mapping[str, Any] | None, source: str | None = None) -> "KinematicsConfig":
+        """Build from a dict (e.g. a TOML table; None: the defaults); unknown keys raise :class:`ConfigError`."""
+        return super().from_dict({} if d is None else d, source)
 
     def with_limits(self, **limits: tuple[float, float]) -> "KinematicsConfig":
         """A copy with some joint limits replaced."""
-        return replace(self, limits={**self.limits, **limits})
+        return type(self)(limits={**self.limits, **limits}, min_retro_deg=self.min_retro_deg,
+                          arm_clearance_deg=self.arm_clearance_deg)
 
     def as_dict(self) -> dict[str, Any]:
         return {"limits": {k: list(v) for k, v in self.limits.items()},

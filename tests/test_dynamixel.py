@@ -220,8 +220,14 @@ def test_config_from_dict_and_errors() -> None:
     assert plain.kinematics.limits["source"] == (0.0, 85.0)
     with pytest.raises(ConfigError, match="operating_mode"):
         ArmConfig.from_dict({"axes": {**AXES, "source": {"id": 2, "operating_mode": 1}}})
-    with pytest.raises(ConfigError, match="unknown arm key"):
+    with pytest.raises(ConfigError, match="arm config: unknown key 'speed'"):
         ArmConfig.from_dict({**arm_config(), "speed": 1})
+    with pytest.raises(ConfigError, match="arm config: key retries: input should be greater than or equal to 0"):
+        ArmConfig.from_dict({**arm_config(), "retries": -1})
+    with pytest.raises(ConfigError, match="arm config: key tolerance_deg: expected a finite number"):
+        ArmConfig.from_dict({**arm_config(), "tolerance_deg": float("nan")})
+    with pytest.raises(ConfigError, match=r"arm config: key external\[0\]: input should be 'turntable'"):
+        ArmConfig.from_dict({**arm_config(), "external": ["elbow"]})
     assert decode_hardware_error(0x24) == ["overheating", "overload"]
 
 

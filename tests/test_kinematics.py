@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-import dataclasses
+
+import pydantic
 import math
 
 import pytest
@@ -156,15 +157,17 @@ def test_config_from_dict() -> None:
     assert cfg.min_retro_deg == 3.0 and cfg.limits["source"] == (0.0, 80.0)
     assert cfg.limits["turntable"] == (-180.0, 180.0)
     assert KinematicsConfig.from_dict(cfg.as_dict()) == cfg
-    with pytest.raises(ConfigError, match="unknown kinematics key"):
+    with pytest.raises(ConfigError, match="kinematics: unknown key 'min_retro'; did you mean 'min_retro_deg'"):
         KinematicsConfig.from_dict({"min_retro": 3})
-    with pytest.raises(ConfigError, match="unknown joint"):
+    with pytest.raises(ConfigError, match=r"kinematics: key limits\.elbow: input should be 'turntable'"):
         KinematicsConfig.from_dict({"limits": {"elbow": [0, 1]}})
-    with pytest.raises(ConfigError, match="lo <= hi"):
+    with pytest.raises(ConfigError, match="source = \\[10, 0\\]: expected \\[lo, hi\\] degrees with lo <= hi"):
         KinematicsConfig.from_dict({"limits": {"source": [10, 0]}})
-    with pytest.raises(ConfigError, match=">= 0"):
+    with pytest.raises(ConfigError, match="key arm_clearance_deg: input should be greater than or equal to 0"):
         KinematicsConfig.from_dict({"arm_clearance_deg": -1})
-    with pytest.raises(dataclasses.FrozenInstanceError):
+    with pytest.raises(ConfigError, match="key min_retro_deg: expected a finite number"):
+        KinematicsConfig(min_retro_deg=float("inf"))
+    with pytest.raises(pydantic.ValidationError, match="frozen"):
         cfg.min_retro_deg = 1.0
 
 

@@ -144,6 +144,13 @@ def test_register_map_is_data() -> None:
     assert load_register_map(d).addr("feedback_position") == 0x200
     with pytest.raises(ConfigError, match="lacks"):
         load_register_map({"name": "x", "registers": {}, "input_bits": {}, "status_bits": {}})
+    for bad, message in (({"word_order": "middle"}, "key word_order: input should be 'big' or 'little'"),
+                         ({"input_bits": dict(rmap.input_bits, START=40)}, "less than or equal to 31 .got 40"),
+                         ({"registers": dict(rmap.registers, direct_type=7)}, "must be consecutive 32-bit slots"),
+                         ({"alarms": {"zz": "x"}}, "alarm codes are integers"),
+                         ({"wordorder": "big"}, "unknown key 'wordorder'; did you mean 'word_order'")):
+        with pytest.raises(ConfigError, match=f"^register map: .*{message}"):
+            load_register_map({**d, **bad})
     with pytest.raises(ConfigError, match="no register map"):
         load_register_map("no_such_drive")
 

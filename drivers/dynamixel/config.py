@@ -5,11 +5,9 @@ and :class:`ArmConfig` (four axes, port, kinematics, timing), validated from TOM
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
 from typing import Annotated, Any, ClassVar, Literal, Mapping
 
-from pydantic import Field, StrictInt, field_validator
+from pydantic import Field, StrictInt, field_validator, model_validator
 
 from bench.core.errors import ConfigError
 from bench.core.validation import Finite, Settings
@@ -49,6 +47,8 @@ def _le(value: int, size: int) -> list[int]:
 
 
 # --- configuration -------------------------------------------------------------------------
+
+_NonNegative = Annotated[Finite, Field(ge=0)]
 
 
 class AxisConfig(Settings):
@@ -97,50 +97,42 @@ class AxisConfig(Settings):
         return (ticks - self.zero_offset) * self.direction / self.ticks_per_degree
 
 
-@dataclass(frozen=True)
-class ArmConfig:
-    """The whole arm: four axes, port, kinematics and timing. See the module docstring."""
+class ArmConfig(Settings):
+    """The whole arm: four axes, port, kinematics and timing, each setting declared once with its
+    range (validated by pydantic, :class:`bench.core.validation.Settings`), and the rules that
+    join them (every joint on a servo or external, distinct servo ids, limits a position-mode
+    servo can reach) in one model validator. See the module docstring."""
 
-    axes: Mapping[str, AxisConfig]
+    settings_of: ClassVar[str] = "arm config"
+
+    axes: dict[str, AxisConfig]
     port: str = ""
-    baudrate: int = 1_000_000
-    kinematics: KinematicsConfig = field(default_factory=KinematicsConfig)
-    tolerance_deg: float = 0.2
-    settle_timeout_s: float = 10.0
-    poll_interval_s: float = 0.01
-    retries: int = 3
-    start_timeout_s: float = 0.1
-    return_delay_s: float = 500e-6
-    latency_s: float = 0.016
-    model_number: int | None = 1020
+    baudrate: Annotated[StrictInt, Field(gt=0)] = 1_000_000
+    kinematics: KinematicsConfig = Field(default_factory=KinematicsConfig)
+    tolerance_deg: _NonNegative = 0.2
+    settle_timeout_s: _NonNegative = 10.0
+    poll_interval_s: _NonNegative = 0.01
+    retries: Annotated[StrictInt, Field(ge=0)] = 3
+    start_timeout_s: _NonNegative = 0.1
+    return_delay_s: _NonNegative = 500e-6
+    latency_s: _NonNegative = 0.016
+    model_number: StrictInt | None = 1020
     torque_off_on_close: bool = False
     name: str = "dynamixel-arm"
-    external: tuple[str, ...] = ()
+    external: tuple[Literal[JOINTS], ...] = ()  # type: ignore[valid-type]
 
-    _KEYS = ("axes", "port", "baudrate", "kinematics", "tolerance_deg", "settle_timeout_s",
-             "poll_interval_s", "retries", "start_timeout_s", "return_delay_s", "latency_s",
-             "model_number",
-             "torque_off_on_close", "name", "external")
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "external", tuple(self.external))
+    @model_validator(mode="after")
+    def _joints_ids_and_reachable_limits(self) -> "ArmConfig":
         for j in self.external:
-            if j not in JOINTS or j in self.axes:
-                raise ConfigError(f"external joint {j!r} must be one of {list(JOINTS)} and not also a servo axis")
+            if j in self.axes:
+                raise ValueError(f"external joint {j!r} must not also be a servo axis")
         missing = [j for j in JOINTS if j not in self.axes and j not in self.external]
         if missing:
-            raise ConfigError(f"axes: missing joint(s) {missing}; need {list(JOINTS)} "
-                              f"(or name them in external = [...] and drive them with another axis)")
+            raise ValueError(f"axes: missing joint(s) {missing}; need {list(JOINTS)} "
+                             f"(or name them in external = [...] and drive them with another axis)")
         ids = [a.id for a in self.axes.values()]
         if len(set(ids)) != len(ids):
-            raise ConfigError(f"axes: servo ids must be distinct, got {ids}")
-        for name in ("tolerance_deg", "settle_timeout_s", "poll_interval_s", "start_timeout_s",
-                     "return_delay_s", "latency_s"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ConfigError(f"{name} must be a finite number >= 0, got {v!r}")
-        if not isinstance(self.retries, int) or self.retries < 0:
-            raise ConfigError(f"retries must be an integer >= 0, got {self.retries!r}")
+            raise ValueError(f"axes: servo ids must be distinct, got {ids}")
         # The joint limits actually used: the axis limits where given, else the kinematics
         # limits; in position mode 3 the latter are narrowed to what ticks 0..4095 reach.
         lim: dict[str, tuple[float, float]] = {}
@@ -151,7 +143,7 @@ class ArmConfig:
                     for deg in a.limits:
                         t = a.to_ticks(deg)
                         if not 0 <= t <= TICKS_PER_REV - 1:
-                            raise ConfigError(
+                            raise ValueError(
                                 f"axes.{a.joint}: limit {deg:g} deg is tick {t}, outside 0..4095 of "
                                 f"position mode 3 (use operating_mode = 4, or change zero_offset/limits)")
             elif a.operating_mode == 3:
@@ -159,24 +151,24 @@ class ArmConfig:
                 r = sorted((a.to_degrees(0), a.to_degrees(TICKS_PER_REV - 1)))
                 lo2, hi2 = max(lo, r[0]), min(hi, r[1])
                 if lo2 > hi2:
-                    raise ConfigError(f"axes.{a.joint}: joint limits [{lo:g}, {hi:g}] deg and the "
-                                      f"mode 3 tick range [{r[0]:g}, {r[1]:g}] deg do not overlap")
+                    raise ValueError(f"axes.{a.joint}: joint limits [{lo:g}, {hi:g}] deg and the "
+                                     f"mode 3 tick range [{r[0]:g}, {r[1]:g}] deg do not overlap")
                 lim[a.joint] = (lo2, hi2)
         object.__setattr__(self, "kinematics", self.kinematics.with_limits(**lim))
+        return self
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "ArmConfig":
+    def from_dict(cls, d: Mapping[str, Any], source: str | None = None) -> "ArmConfig":  # type: ignore[override]
         """Build from a dict (TOML table); unknown keys raise :class:`ConfigError`."""
+        if not isinstance(d, Mapping):
+            raise ConfigError(f"arm config: expected a table of keys, got {type(d).__name__}")
         d = dict(d)
-        extra = set(d) - set(cls._KEYS)
-        if extra:
-            raise ConfigError(f"unknown arm key(s) {sorted(extra)}; known: {list(cls._KEYS)}")
         axes_d = d.pop("axes", None)
         if not isinstance(axes_d, Mapping):
             raise ConfigError("arm config needs an [axes] table with one table per joint")
         axes = {j: AxisConfig.from_dict(j, a) for j, a in axes_d.items()}
         kc = KinematicsConfig.from_dict(d.pop("kinematics", None))
-        return cls(axes=axes, kinematics=kc, **d)
+        return cls(_source=source, axes=axes, kinematics=kc, **{str(k): v for k, v in d.items()})
 
     def axis_list(self) -> list[AxisConfig]:
         """Servo axes in :data:`drivers.kinematics.JOINTS` order (external joints left out)."""

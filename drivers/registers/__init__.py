@@ -27,11 +27,13 @@ required; 32-bit values occupy two registers starting at the given address)::
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Annotated, Any, ClassVar, Literal, Mapping
+
+from pydantic import Field, field_validator, model_validator
 
 from bench.core.errors import ConfigError
+from bench.core.validation import Settings, Whole
 
 __all__ = [
     "RegisterMap",
@@ -56,36 +58,50 @@ _DIRECT_ORDER = (
 )
 
 
-@dataclass(frozen=True)
-class RegisterMap:
-    """Addresses, bit numbers and codes of one drive family (see the module docstring)."""
+_Address = Annotated[Whole, Field(ge=0, le=0xFFFE)]
+_Bit = Annotated[Whole, Field(ge=0, le=31)]
+
+
+class RegisterMap(Settings):
+    """Addresses, bit numbers and codes of one drive family (see the module docstring), each
+    table declared once with its range (validated by pydantic like every settings table); the
+    required keys and the consecutive direct-data slots in one model validator."""
+
+    settings_of: ClassVar[str] = "register map"
 
     name: str
-    registers: Mapping[str, int]
-    input_bits: Mapping[str, int]
-    status_bits: Mapping[str, int]
-    values: Mapping[str, int] = field(default_factory=dict)
-    alarms: Mapping[int, str] = field(default_factory=dict)
-    word_order: str = "big"
+    registers: dict[str, _Address]
+    input_bits: dict[str, _Bit]
+    status_bits: dict[str, _Bit]
+    values: dict[str, Whole] = Field(default_factory=dict)
+    alarms: dict[int, str] = Field(default_factory=dict)
+    word_order: Literal["big", "little"] = "big"
     description: str = ""
 
-    def __post_init__(self) -> None:
+    @field_validator("alarms", mode="before")
+    @classmethod
+    def _codes(cls, v: Any) -> Any:
+        """TOML keys are strings: ``"0x30" = "overload"`` is code 0x30."""
+        if isinstance(v, Mapping):
+            try:
+                return {(int(k, 0) if isinstance(k, str) else k): a for k, a in v.items()}
+            except ValueError as exc:
+                raise ValueError(f"alarm codes are integers (\"0x30\" or 48): {exc}") from None
+        return v
+
+    @model_validator(mode="after")
+    def _required_and_consecutive(self) -> "RegisterMap":
         for what, have, need in (("registers", self.registers, REQUIRED_REGISTERS),
                                  ("input_bits", self.input_bits, REQUIRED_INPUT_BITS),
                                  ("status_bits", self.status_bits, REQUIRED_STATUS_BITS)):
             missing = [k for k in need if k not in have]
             if missing:
-                raise ConfigError(f"register map {self.name!r}: [{what}] lacks {', '.join(missing)}")
-            for k, v in have.items():
-                if not isinstance(v, int) or v < 0 or (what == "registers" and v > 0xFFFE) \
-                        or (what != "registers" and v > 31):
-                    raise ConfigError(f"register map {self.name!r}: [{what}] {k} = {v!r} is out of range")
-        if self.word_order not in ("big", "little"):
-            raise ConfigError(f"register map {self.name!r}: word_order must be 'big' or 'little'")
+                raise ValueError(f"{self.name!r}: [{what}] lacks {', '.join(missing)}")
         addrs = [self.registers[k] for k in _DIRECT_ORDER]
         if any(b - a != 2 for a, b in zip(addrs, addrs[1:])):
-            raise ConfigError(f"register map {self.name!r}: the direct data registers must be "
-                              f"consecutive 32-bit slots ({', '.join(_DIRECT_ORDER)})")
+            raise ValueError(f"{self.name!r}: the direct data registers must be consecutive 32-bit slots "
+                             f"({', '.join(_DIRECT_ORDER)})")
+        return self
 
     # --- helpers --------------------------------------------------------------------------
     def addr(self, key: str) -> int:
@@ -120,26 +136,6 @@ class RegisterMap:
             v -= 1 << 32
         return v
 
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "RegisterMap":
-        try:
-            alarms = {(int(k, 0) if isinstance(k, str) else int(k)): str(v)
-                      for k, v in dict(d.get("alarms", {})).items()}
-            return cls(
-                name=str(d["name"]),
-                registers={str(k): int(v) for k, v in dict(d["registers"]).items()},
-                input_bits={str(k): int(v) for k, v in dict(d["input_bits"]).items()},
-                status_bits={str(k): int(v) for k, v in dict(d["status_bits"]).items()},
-                values={str(k): int(v) for k, v in dict(d.get("values", {})).items()},
-                alarms=alarms,
-                word_order=str(d.get("word_order", "big")),
-                description=str(d.get("description", "")),
-            )
-        except KeyError as exc:
-            raise ConfigError(f"register map lacks the key {exc.args[0]!r}") from None
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(f"register map is malformed: {exc}") from None
-
 
 def load_register_map(spec: "str | Path | Mapping[str, Any] | RegisterMap") -> RegisterMap:
     """Load a register map from a name in this folder, a TOML path, a dict, or pass one through."""
@@ -158,4 +154,4 @@ def load_register_map(spec: "str | Path | Mapping[str, Any] | RegisterMap") -> R
             data = tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"register map {path}: {exc}") from None
-    return RegisterMap.from_dict(data)
+    return RegisterMap.from_dict(data, f"register map {path}")
