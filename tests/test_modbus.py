@@ -145,7 +145,7 @@ def test_register_map_is_data() -> None:
     with pytest.raises(ConfigError, match="lacks"):
         load_register_map({"name": "x", "registers": {}, "input_bits": {}, "status_bits": {}})
     for bad, message in (({"word_order": "middle"}, "key word_order: input should be 'big' or 'little'"),
-                         ({"input_bits": dict(rmap.input_bits, START=40)}, "less than or equal to 31 .got 40"),
+                         ({"input_bits": dict(rmap.input_bits, START=40)}, "key input_bits.START: .* less than or equal to 31 .got 40"),
                          ({"registers": dict(rmap.registers, direct_type=7)}, "must be consecutive 32-bit slots"),
                          ({"alarms": {"zz": "x"}}, "alarm codes are integers"),
                          ({"wordorder": "big"}, "unknown key 'wordorder'; did you mean 'word_order'")):

@@ -82,13 +82,27 @@ class Settings(BaseModel):
         return cls(_source=source, **{str(k): v for k, v in d.items()})
 
 
+def _model_names() -> set[str]:
+    """Class names of every pydantic model defined so far: pydantic labels a union branch in an
+    error's location with its model's class name."""
+    names: set[str] = set()
+    todo = list(BaseModel.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        if cls.__name__ not in names:
+            names.add(cls.__name__)
+            todo.extend(cls.__subclasses__())
+    return names
+
+
 def _loc(loc: tuple[Any, ...]) -> str:
     out = ""
+    models = _model_names() if any(isinstance(p, str) and p[:1].isupper() for p in loc) else set()
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
-        elif isinstance(part, str) and part[:1].isupper():
-            continue  # a union branch named by its model class (our keys are lower case)
+        elif isinstance(part, str) and part in models:
+            continue  # a union branch named by its model class (a key such as START is kept)
         elif part in ("bool", "float", "int", "str", "list[float]", "RangeTable", "function-before[_finite_number(), float]",
                       "function-before[_whole_number(), int]") or "[" in str(part) or str(part).startswith("function"):
             continue  # union branch labels pydantic adds to the location
