@@ -136,9 +136,8 @@ class KinematicsConfig(Settings):
         return super().from_dict({} if d is None else d, source)
 
     def with_limits(self, **limits: tuple[float, float]) -> "KinematicsConfig":
-        """A copy with some joint limits replaced."""
-        return type(self)(limits={**self.limits, **limits}, min_retro_deg=self.min_retro_deg,
-                          arm_clearance_deg=self.arm_clearance_deg)
+        """A copy with some joint limits replaced (validated again; every other setting kept)."""
+        return type(self)(**{**self.model_dump(), "limits": {**self.limits, **limits}})
 
     def as_dict(self) -> dict[str, Any]:
         return {"limits": {k: list(v) for k, v in self.limits.items()},
