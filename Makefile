@@ -27,7 +27,7 @@ $(BIN)/python:
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[test,scale,parquet,mitsuba,bluesky]"
+	$(BIN)/python -m pip install --quiet -e ".[test,scale,parquet,mitsuba,bluesky,tiled]"
 	touch $(STAMP)
 
 # The project with every extra its tests use, its bytecode (written even where
