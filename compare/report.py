@@ -62,7 +62,7 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
                     primary_metric: str = "chi2_per_dof", title: str | None = None, k: float = 2.0,
                     instrument_uncertainty: float | None = None, instrument_uncertainty_kind: str | None = None,
                     allow_missing_uncertainty: bool = False, illuminant: str = DEFAULT_ILLUMINANT,
-                    observer: str = DEFAULT_OBSERVER, checks: bool = True, on_error: str = "raise",
+                    observer: str = DEFAULT_OBSERVER, checks: bool = True, on_error: str = "raise", draw_figures: bool = True,
                     map_wavelength_nm: float | None = None, map_incidence: tuple[float, float] | None = None,
                     criterion: Criterion | None = None, check_records: Mapping[str, Any] | None = None,
                     **align_kwargs: Any) -> dict[str, Any]:
@@ -79,6 +79,8 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     k, instrument_uncertainty, instrument_uncertainty_kind, allow_missing_uncertainty,
     illuminant, observer : see :func:`compare.stats.compare`
     checks : run the physical checks on BSDF records (actual and candidates)
+    draw_figures : draw the report's figures (most of a report's time); ``False`` writes the
+        tables, verdicts and checks only -- batch comparisons, or when only the numbers are read
     on_error : ``"raise"`` (default) or ``"skip"``: a candidate that cannot be compared (bad
         quantity, no overlap, no uncertainty) is left out and its error listed in ``errors``
     map_wavelength_nm, map_incidence : which (wavelength, (theta_i, phi_i)) the single-incidence
@@ -154,7 +156,8 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
                            c.summary.get("delta_e2000_groups"))
         group_tables[n] = g
         verdicts[n] = {**model_verdict(g, c.summary, criterion), "groups": g.to_dict(orient="records")}
-    figures = report_figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence, group_tables)
+    figures = (report_figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence, group_tables)
+               if draw_figures else [])
     warnings = sorted({w for c in comps.values() for w in c.summary["warnings"]})
     for r in ranking:
         v = verdicts.get(r["name"])

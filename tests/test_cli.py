@@ -97,7 +97,7 @@ def test_bench_compare_reads_every_export_format_of_a_run(tmp_path, capsys):
         path = out.strip()
         other = f"same={path}" if fmt == "zemax" else f"run={run_id}"
         code, out, err = run_main(capsys, "compare", f"file={path}", other, "--store", str(store), "--json",
-                             "--report", str(tmp_path / f"report-{fmt}"))
+                             "--report", str(tmp_path / f"report-{fmt}"), "--no-figures")
         assert code == 0, (fmt, err)
         s = json.loads(out)["candidates"]["same" if fmt == "zemax" else "run"]
         assert s["n_points"] > 0, fmt

@@ -35,7 +35,8 @@ CHROMIUM = Path("/usr/bin/chromium")
 
 
 def _verdict(actual, candidate, tmp_path, name="model", **kw):
-    s = compare_records(actual, {name: candidate}, tmp_path, **kw)
+    """The verdict only: no figures drawn (tests/test_report.py checks them)."""
+    s = compare_records(actual, {name: candidate}, tmp_path, draw_figures=False, **kw)
     return s, s["verdicts"][name]
 
 
@@ -137,11 +138,11 @@ def test_cli_compares_spectrum_csvs_and_spectro_sweeps(sweeps, tmp_path):
     assert r.returncode == 0, r.stderr
     js = json.loads(r.stdout)
     assert js["verdicts"]["s1"]["verdict"] == "accept" and js["candidates"]["s1"]["delta_e2000_mean"] == 0
-    r = run_bench("compare", "s1.csv", "s2.csv", "--report", "re", cwd=tmp_path)
+    r = run_bench("compare", "s1.csv", "s2.csv", "--report", "re", "--no-figures", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert re.search(r"#1 s2: ACCEPT", r.stdout) and "delta_e2000_mean" in r.stdout
     r = run_bench("compare", ids["s"], ids["t"], "--store", str(d / "runs.sqlite"), "--report", "sw", "--json",
-               cwd=tmp_path)
+                  "--no-figures", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     js = json.loads(r.stdout)
     assert js["kind"] == "spectrum" and list(js["verdicts"].values())[0]["verdict"] == "accept"
@@ -286,7 +287,7 @@ def test_criterion_from_a_config_file_and_flags(tmp_path, virtual_pair):
     cfg = tmp_path / "compare.toml"
     cfg.write_text("[criterion]\nalpha = 0.05\ntolerance = 0.03\n[compare]\nmetric = \"rmse\"\n")
     r = run_bench("compare", "a.csv", "b.csv", "--config", str(cfg), "--k", "3", "--json", "--report", "r",
-                  cwd=tmp_path)
+                  "--no-figures", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     js = json.loads(r.stdout)
     assert js["criterion"]["alpha"] == 0.05 and js["criterion"]["tolerance"] == 0.03 and js["criterion"]["k"] == 3

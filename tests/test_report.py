@@ -113,6 +113,20 @@ def test_spectrum_summary_reports_colour_and_unmatched(spectrum_report):
     assert any("could not be matched" in w for w in s["warnings"])
 
 
+def test_a_report_without_figures_has_the_same_numbers_and_no_figure(tmp_path):
+    """``draw_figures=False`` (``bench compare --no-figures``) skips only the drawing."""
+    from virtual.spectrophotometer import VirtualSpectrophotometer
+
+    sp = VirtualSpectrophotometer("lambert:albedo=0.5", rays=20_000, seed=1)
+    actual, other = sp.measure("8/d", "400:700:50"), sp.measure("8/d", "400:700:50")
+    drawn = compare_records(actual, {"other": other}, tmp_path / "drawn")
+    bare = compare_records(actual, {"other": other}, tmp_path / "bare", draw_figures=False)
+    assert drawn["figures"] and list((tmp_path / "drawn" / "figures").iterdir())
+    assert bare["figures"] == [] and not list((tmp_path / "bare" / "figures").iterdir())
+    assert bare["verdicts"] == drawn["verdicts"] and bare["candidates"] == drawn["candidates"]
+    assert "<img" not in _html(tmp_path / "bare")
+
+
 def test_bad_candidates_raise_or_are_listed(spectrum_report, tmp_path):
     from virtual.spectrophotometer import VirtualSpectrophotometer
 

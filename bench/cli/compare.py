@@ -101,7 +101,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         align_kw = {k: float(opts[k]) for k in ("angle_tol_deg", "wavelength_tol_nm") if k in opts}
         summary = compare_records(actual, candidates, out, primary_metric=opts.get("metric", "chi2_per_dof"),
                                   title=opts.get("title") or f"{', '.join(candidates)} against {actual_name}",
-                                  on_error="skip" if args.skip_bad else "raise", criterion=criterion, **align_kw)
+                                  on_error="skip" if args.skip_bad else "raise", criterion=criterion,
+                                  draw_figures=not args.no_figures, **align_kw)
         bar.update()
     if args.json:
         print(json.dumps(summary))
@@ -150,6 +151,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    choices=("chi2_per_dof", "mean_abs_discrepancy_pct", "rmse", "abs_bias", "max_abs",
                             "delta_e2000_mean"), help="ranking metric, lower is better (default chi2_per_dof)")
     p.add_argument("--title", help="report title (default: the candidates against the actual)")
+    p.add_argument("--no-figures", action="store_true",
+                   help="write the report's tables and verdicts without drawing its figures (faster)")
     p.add_argument("--skip-bad", action="store_true", help="leave out candidates that cannot be compared")
     p.add_argument("--json", action="store_true", help="the summary as one JSON object with stable keys")
     p.set_defaults(func=cmd_compare)
