@@ -166,7 +166,8 @@ def test_list_scan_of_the_in_plane_plan_equals_bench_scan_and_compares_as_identi
     for c in key + ["signal", "dark", "white", "value", "std", "ci_lo", "ci_hi", "saturated"]:
         assert np.array_equal(a[c].to_numpy(), b[c].to_numpy(), equal_nan=True), c
     assert a["extra"].tolist() == b["extra"].tolist()  # reflectance factor, mask, integration, averages
-    code = bench_cli(["compare", scan_id, bs_id, "--store", str(db), "--report", str(tmp_path / "rep"), "--json"])
+    code = bench_cli(["compare", scan_id, bs_id, "--store", str(db), "--report", str(tmp_path / "rep"), "--json",
+                      "--no-figures"])
     summary = json.loads(capsys.readouterr().out)
     assert code == 0
     s = summary["candidates"][next(iter(summary["candidates"]))]

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -76,6 +77,7 @@ def _fast_and_rays(spec: str, theta: float, seed: int, spec_rays: str | None = N
     return fast, rays
 
 
+@pytest.mark.slow  # 19 examples x 2e5 rays both ways (~30 CPU-s); its power case stays in make test
 @settings(max_examples=MAX_EXAMPLES, derandomize=True, deadline=None, database=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(spec=specimens(), theta=st.floats(0.0, 89.9), phi=st.floats(0.0, 360.0))

@@ -65,6 +65,7 @@ def _run(where: Path, cache: Path) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # recompiles a kernel family twice (~15 CPU-s); the staleness test, run by CI
 def test_editing_a_called_kernel_recompiles_its_callers(tmp_path):
     where, cache = tmp_path / "copy", tmp_path / "numba-cache"
     _copy_package(where)

@@ -77,6 +77,7 @@ def test_the_library_by_name_with_overrides():
         parse_specimen("leaf:oak")
 
 
+@pytest.mark.slow  # the cuticle quadrature at 2 x 3 orders (~8 CPU-s)
 def test_cuticle_quadrature_is_converged_at_8_deg_and_near_grazing():
     for a in (1e-4, 0.05, 0.3, 1.0):
         for theta, tol in ((8.0, 1e-10), (60.0, 1e-8), (85.0, 3e-5), (89.9, 3e-5)):
@@ -144,7 +145,9 @@ def test_bench_spectro_8d_conical_reproduces_prospect_d_at_every_wavelength(caps
     assert col["reflectance"]["Lab"][1] < 0  # a* < 0: green
 
 
-@pytest.mark.parametrize("name, seed", [("healthy", 1), ("pale", 2), ("senescent", 3), ("dry", 4), ("red", 5)])
+# make test runs the healthy leaf; make test-slow the other four (~4 CPU-s each, the ray-by-ray kernel)
+@pytest.mark.parametrize("name, seed", [("healthy", 1), *(pytest.param(n, s, marks=pytest.mark.slow) for n, s in
+                                                          (("pale", 2), ("senescent", 3), ("dry", 4), ("red", 5)))])
 def test_every_library_leaf_matches_prospect_at_8_deg(name, seed):
     n_wl, worst = _within_bonferroni(f"leaf:{name}", "400:2500:25", seed)
     assert n_wl == 85 and worst < 0.01
@@ -174,6 +177,7 @@ def test_r_plus_t_plus_a_is_n_for_every_ray():
         assert counts.dtype == np.int64 and int(counts.sum()) == 300_001
 
 
+@pytest.mark.slow  # the leaf density at every pair of a grid (~6 CPU-s)
 def test_reciprocity_density_symmetric_to_1e_12():
     rng = np.random.default_rng(5)
     s = parse_specimen("leaf:healthy")
@@ -227,7 +231,9 @@ def test_specular_peak_in_the_mirror_direction_and_growing_toward_grazing():
 # --- extreme parameters ---------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("override", ["n=1", "n=3", "cab=0", "cw=0.05", "roughness=0.0001", "roughness=1"])
+# the two roughness limits cost ~9 CPU-s each (the cuticle quadrature's finest order): make test-slow
+@pytest.mark.parametrize("override", ["n=1", "n=3", "cab=0", "cw=0.05",
+                                      *(pytest.param(o, marks=pytest.mark.slow) for o in ("roughness=0.0001", "roughness=1"))])
 def test_extreme_parameters_stay_finite_and_in_range(override):
     s = parse_specimen(f"leaf:healthy,{override}")
     for w in (400.0, 550.0, 1450.0, 1940.0, 2500.0):

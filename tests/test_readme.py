@@ -7,7 +7,9 @@ together, through a shell for ``; echo "exit $?"`` and ``&&``) and every expecte
 line must match the printed line token for token: the text exactly, each number to 6 significant
 digits (the seeded examples are deterministic; the margin only absorbs last-digit differences of
 libm across machines). An example whose budget is too large for a test names a smaller one in a
-``# test: --rays N`` comment on its line (then only its first, header, line is compared).
+``# test: --rays N`` comment on its line (then only its first, header, line is compared); one
+that takes more than ~10 CPU-seconds says ``# test: slow`` and runs in ``make test-slow`` (CI runs
+both), compared in full.
 
 Examples that need a store, a run id or long-running emulators (``scan``, ``runs``, ``resume``,
 ``show``, ``export``, ``emulate``) are listed in :data:`NOT_RUN` with the test that covers them.
@@ -89,7 +91,7 @@ def workdir(base: Path) -> Path:
 
 def run(ex: Example, cwd: Path) -> list[str]:
     cmd = ex.command
-    if ex.small:
+    if ex.small and ex.small != "slow":
         cmd = cmd + " " + ex.small  # argparse: the later value wins
     shell = re.sub(r"(^|&& |; )bench ", lambda m: f"{m.group(1)}{sys.executable} -m bench.cli ", cmd)
     r = subprocess.run(f"( {shell} ) 2>&1", shell=True, stdout=subprocess.PIPE, text=True, cwd=cwd, timeout=900,
@@ -130,19 +132,21 @@ def scratch(tmp_path_factory):
     return workdir(tmp_path_factory.mktemp("readme"))
 
 
-@pytest.mark.parametrize("ex", EXAMPLES, ids=[f"L{e.line}:{e.command[:40]}" for e in EXAMPLES])
+@pytest.mark.parametrize("ex", [pytest.param(e, marks=[pytest.mark.slow] if e.small == "slow" else [])
+                                for e in EXAMPLES], ids=[f"L{e.line}:{e.command[:40]}" for e in EXAMPLES])
 def test_readme_example_prints_what_the_readme_says(ex, scratch):
     why = _skipped(ex)
     if why:
         pytest.skip(why)
     got = run(ex, scratch)
-    expected = ex.expected[:1] if ex.small else ex.expected
+    smaller = ex.small is not None and ex.small != "slow"  # a smaller budget than the README's
+    expected = ex.expected[:1] if smaller else ex.expected
     assert len(got) >= len(expected), f"README line {ex.line}: {ex.command}\nprinted:\n" + "\n".join(got)
     for i, line in enumerate(expected):
-        if ex.small and i == 0:
+        if smaller and i == 0:
             continue  # a smaller budget changes N in the header; the header's shape is checked below
         assert same(line, got[i]), f"README line {ex.line + 1 + i}: expected\n  {line}\nprinted\n  {got[i]}"
-    if ex.small:
+    if smaller:
         assert _tokens(expected[0])[0] == _tokens(got[0])[0]
 
 
@@ -151,7 +155,7 @@ def _update() -> None:
 
     lines = README.read_text(encoding="utf-8").splitlines()
     cwd = workdir(Path(tempfile.mkdtemp(prefix="readme-")))
-    outputs = {ex.line: run(ex, cwd) for ex in EXAMPLES if not (_skipped(ex) or ex.small)}
+    outputs = {ex.line: run(ex, cwd) for ex in EXAMPLES if not (_skipped(ex) or (ex.small and ex.small != "slow"))}
     for ex in reversed(EXAMPLES):
         if ex.line not in outputs:
             continue

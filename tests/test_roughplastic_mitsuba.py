@@ -127,6 +127,7 @@ def test_albedo_equals_mitsubas_within_what_1e9_rays_detect(theta: float, mitsub
     assert abs(ours - mitsuba_albedos[theta]) < TOL, (theta, ours, mitsuba_albedos[theta])
 
 
+@pytest.mark.slow  # the power case: the old tables at 1e8 rays (~9 CPU-s)
 def test_the_converged_tables_fail_the_same_check(mitsuba_albedos) -> None:
     t, r_int = _converged_tables(ALPHA, ETA)
     kd_eff = KD / (1.0 - r_int)

@@ -232,6 +232,7 @@ def cluster_client():
         yield client
 
 
+@pytest.mark.slow  # starts a two-process Dask cluster (~7 CPU-s)
 def test_in_process_and_a_two_process_local_cluster_store_identical_results(tmp_path, reference, cluster_client):
     spec = sweep_from_dict(SMALL)
     with RunStore(tmp_path / "s.sqlite") as store:

@@ -116,6 +116,7 @@ def test_bench_tradeoff_prints_json_and_writes_the_plot(tmp_path, capsys):
     assert main(["tradeoff", str(tmp_path / "missing.toml")]) == 2
 
 
+@pytest.mark.slow  # 1,000 seeded adaptive measurements (~12 CPU-s)
 def test_adaptive_cli_measurements_cover_at_least_one_minus_delta():
     """The adaptive budget of `bench spectro --uncertainty/--delta` (adaptive_measure): over
     1,000 seeded measurements of R = 0.3, T = 0.2 at v = 0.02, delta = 0.1, the fraction whose
