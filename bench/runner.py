@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from bench.core.budget import Budget, calibration_budgets, declared
 from bench.core.calibration import Calibration
 from bench.config import Bench
 from bench.core.errors import BenchError, DeviceError, RunInterrupted, StoreError
@@ -35,7 +36,7 @@ from bench.preflight import calibration_record, check_calibration_steps, no_ligh
 
 log = logging.getLogger(__name__)
 
-__all__ = ["run_scan", "resume_scan", "ScanResult", "point_rows", "acquire_dark", "measure_calibration",
+__all__ = ["run_scan", "resume_scan", "ScanResult", "point_rows", "point_budgets", "acquire_dark", "measure_calibration",
            "stored_white"]
 
 
@@ -49,12 +50,15 @@ class ScanResult:
 
 
 def point_rows(reading: Reading, cal: Calibration | None, geometry: Geometry, dark: Reading | None,
-               white_net: np.ndarray | None) -> list[dict[str, Any]]:
-    """The store rows of one point: one per wavelength."""
+               white_net: np.ndarray | None, budgets: list[Budget | None] | None = None) -> list[dict[str, Any]]:
+    """The store rows of one point: one per wavelength. With ``budgets`` (one per wavelength, see
+    :func:`point_budgets`) each row keeps its GUM budget and its ``std`` is the budget's u_c."""
     rows = []
     if cal is not None:
         c = cal.apply(reading, geometry, dark)
         value, std, rf, reasons = c.brdf, c.std, c.reflectance_factor, c.mask_reason
+        if budgets is not None:
+            std = np.array([s if b is None else b.combined for s, b in zip(std, budgets)])
     else:
         value = std = rf = np.full(reading.signal.shape, np.nan)
         reasons = ["no white reference"] * reading.signal.size
@@ -72,7 +76,26 @@ def point_rows(reading: Reading, cal: Calibration | None, geometry: Geometry, da
             "extra": {"reflectance_factor": None if masked else float(rf[i]), "mask": reasons[i] or None,
                       "integration_s": reading.integration_s, "averages": reading.averages},
         })
+        b = None if budgets is None or masked else budgets[i]
+        if b is not None:
+            rows[-1]["uncertainty_budget"] = b.as_dict()  # a column of its own in the store's extra JSON
     return rows
+
+
+def point_budgets(bench: Bench, cal: Calibration | None, reading: Reading, geometry: Geometry,
+                  dark: Reading | None, lit_index: int, idx: int) -> list[Budget | None] | None:
+    """The GUM budget of each wavelength of a point (:mod:`bench.core.budget`), from the bench
+    description's declared components; positioning sensitivities from its specimen model
+    (:mod:`bench.slopes`) when positioning is declared. None without a calibration."""
+    if cal is None:
+        return None
+    slopes = None
+    if declared(bench.config)["positioning_deg"] > 0:
+        from bench.slopes import model_slopes
+
+        slopes = model_slopes(bench.config, geometry, reading.wavelengths, cal.apply(reading, geometry, dark).brdf)
+    return calibration_budgets(cal, reading, geometry, dark, bench.config, lit_index=lit_index, slopes=slopes,
+                               seed_key=(idx,))
 
 
 def acquire_dark(bench: Bench, plan: Plan) -> Reading:
@@ -196,7 +219,8 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
                 dark = acquire_dark(bench, plan)
             last_incidence = incidence
             reading = bench.spectrometer.acquire(plan.integration_s, plan.averages)
-            rows = point_rows(reading, cal, reached, dark, white_net)
+            rows = point_rows(reading, cal, reached, dark, white_net,
+                              point_budgets(bench, cal, reading, reached, dark, k + 1, idx))
             store.add_point(run_id, idx, reached.as_dict(), rows, t_start=t0, t_end=time.time())
             k += 1
             bar.update(1)

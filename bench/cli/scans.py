@@ -130,6 +130,8 @@ def cmd_runs(args: argparse.Namespace) -> int:
 def cmd_show(args: argparse.Namespace) -> int:
     with open_store(args.store, create=False, readonly=True) as store:
         s = store.summary(args.run)
+        if args.json:
+            s["points"] = store.reading_budgets(args.run)  # each reading's GUM budget (bench.core.budget)
     if args.json:
         emit_json(s)
         return 0

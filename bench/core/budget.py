@@ -41,6 +41,7 @@ white standard's term once for the whole run) with ``uncertainties``.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
@@ -49,7 +50,7 @@ import numpy as np
 
 from bench.core.schemas import UncertaintyTable, validate_document
 
-__all__ = ["Input", "Component", "Budget", "UncertaintyTable", "uncertainty_table", "reading_inputs",
+__all__ = ["Input", "Component", "Budget", "UncertaintyTable", "uncertainty_table", "declared", "reading_inputs",
            "calibrated_value", "evaluate_budget", "calibration_budgets", "cosine_slopes", "linear_budget", "mc_budget", "readings_and_covariance",
            "COMPONENT_KEYS", "AXES"]
 
@@ -128,7 +129,7 @@ def uncertainty_table(description: Mapping[str, Any], source: str = "bench confi
     return validate_document(UncertaintyTable, description.get("uncertainty") or {}, f"{source} [uncertainty]")
 
 
-def _declared(description: Mapping[str, Any]) -> dict[str, float]:
+def declared(description: Mapping[str, Any]) -> dict[str, float]:
     """The budget's declared magnitudes: ``[uncertainty]`` first, else the ``[instrument]`` effect."""
     u = uncertainty_table(description)
     inst = description.get("instrument") or {}
@@ -143,7 +144,7 @@ def reading_inputs(description: Mapping[str, Any], *, signal: float, u_signal: f
                    white_rf: float, u_white_rf: float, wavelength_nm: float, lit_index: int) -> list[Input]:
     """The inputs of one reading's model as the description declares them (see the module table).
     ``u_signal`` is the reading's whole std; the declared read noise is split off it."""
-    decl = _declared(description)
+    decl = declared(description)
     u_read = decl["read_noise"] / math.sqrt(max(averages, 1))
     u_shot = math.sqrt(max(u_signal**2 - u_read**2, 0.0))
     wl = f"{wavelength_nm:g} nm"
@@ -185,7 +186,8 @@ def linear_budget(inputs: Sequence[Input], model: Callable[[Mapping[str, Any]], 
     """GUM law of propagation: sensitivities by ``uncertainties``' derivatives of ``model``."""
     from uncertainties import ufloat
 
-    xs = {i.name: ufloat(i.value, i.standard_uncertainty, i.name) for i in inputs}
+    # an input known exactly (u = 0) still gets its sensitivity: a unit std does not change a derivative
+    xs = {i.name: ufloat(i.value, i.standard_uncertainty or 1.0, i.name) for i in inputs}
     y = model(xs)
     comps = tuple(_component(i, float(y.derivatives.get(xs[i.name], 0.0))) for i in inputs)
     u = math.sqrt(sum(c.contribution**2 for c in comps))
@@ -235,7 +237,8 @@ def readings_and_covariance(record: Any) -> tuple[np.ndarray, np.ndarray]:
     t = getattr(record, "table", record)
     values = t["value"].to_numpy(float)
     std = t["std"].to_numpy(float) if "std" in t else np.full(values.shape, np.nan)
-    budgets = list(t["uncertainty_budget"]) if "uncertainty_budget" in t else [None] * len(values)
+    budgets = [json.loads(b) if isinstance(b, str) else b
+               for b in (t["uncertainty_budget"] if "uncertainty_budget" in t else [None] * len(values))]
     keep = np.isfinite(values)
     values, std = values[keep], std[keep]
     budgets = [b for b, kept in zip(budgets, keep) if kept]
