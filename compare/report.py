@@ -151,7 +151,7 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     group_tables: dict[str, pd.DataFrame] = {}
     for n, c in comps.items():
         g = group_verdicts(c.points, group_keys(c.points, c.aligned.kind), criterion, c.aligned.kind,
-                           c.summary.get("delta_e2000_groups"))
+                           c.summary.get("delta_e2000_groups"), c.covariance)
         group_tables[n] = g
         verdicts[n] = {**model_verdict(g, c.summary, criterion), "groups": g.to_dict(orient="records")}
     figures = report_figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence, group_tables)
