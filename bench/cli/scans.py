@@ -82,6 +82,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
     from bench.runner import run_scan
 
     plan, bench = _plan_and_bench(args)
+    if args.uncertainty_method:  # the run stores its description, so a resume evaluates budgets alike
+        bench.config["uncertainty"] = {**dict(bench.config.get("uncertainty") or {}), "method": args.uncertainty_method}
     if bench.kind == "virtual":
         announce_compilation()
     with bench, open_store(args.store) as store:
@@ -194,6 +196,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "bench's, else a fresh one)")
     sc.add_argument("--quiet", "-q", action="store_true", help="no progress bar (shown only on a terminal)")
     sc.add_argument("--json", action="store_true", help="the run result as one JSON object")
+    sc.add_argument("--uncertainty-method", choices=("linear", "mc"),
+                    help="each reading's GUM budget: law of propagation (linear) or Supplement 1 Monte Carlo "
+                         "(mc); default: the bench's [uncertainty] method, else linear")
     sc.set_defaults(func=cmd_scan)
 
     rs = sub.add_parser("resume", help=command_help("resume"))

@@ -52,7 +52,7 @@ from bench.core.schemas import UncertaintyTable, validate_document
 
 __all__ = ["Input", "Component", "Budget", "UncertaintyTable", "uncertainty_table", "declared", "reading_inputs",
            "calibrated_value", "evaluate_budget", "calibration_budgets", "cosine_slopes", "linear_budget", "mc_budget", "readings_and_covariance",
-           "COMPONENT_KEYS", "AXES"]
+           "budget_summary", "budget_covariance", "COMPONENT_KEYS", "AXES"]
 
 #: the keys of one component in ``bench show --json`` and the store
 COMPONENT_KEYS = ("name", "type", "standard_uncertainty", "sensitivity", "contribution")
@@ -322,3 +322,33 @@ def _bound_model(integration_s: float, cos_ratio: float, slopes: Mapping[str, fl
     def model(x: Mapping[str, Any]) -> Any:
         return calibrated_value(x, integration_s=integration_s, cos_ratio=cos_ratio, slopes=slopes)
     return model
+
+
+def budget_summary(budgets: Sequence[Any]) -> dict[str, Any] | None:
+    """A record's budgets in one table (what the compare report shows): per component, in the
+    order met, its type, what it is shared by, and over the readings the median standard
+    uncertainty, sensitivity and contribution, and the median and largest contribution relative
+    to the value (%); plus the median u_c relative to the value, ``k`` and the method(s). None
+    when no reading has a budget."""
+    parsed = [json.loads(b) if isinstance(b, str) else b for b in budgets]
+    parsed = [b for b in parsed if isinstance(b, Mapping) and b.get("components")]
+    if not parsed:
+        return None
+    rows: dict[str, dict[str, Any]] = {}
+    for b in parsed:
+        v = abs(float(b.get("value", math.nan)))
+        for c in b["components"]:
+            r = rows.setdefault(c["name"], {"name": c["name"], "type": c["type"], "shared": c.get("shared") is not None,
+                                            "u": [], "c": [], "contribution": [], "rel": []})
+            r["u"].append(float(c["standard_uncertainty"]))
+            r["c"].append(float(c["sensitivity"]))
+            r["contribution"].append(float(c["contribution"]))
+            r["rel"].append(100.0 * float(c["contribution"]) / v if v > 0 else math.nan)
+    comps = [{"name": r["name"], "type": r["type"], "shared": r["shared"], "n_readings": len(r["u"]),
+              "standard_uncertainty": float(np.median(r["u"])), "sensitivity": float(np.median(r["c"])),
+              "contribution": float(np.median(r["contribution"])), "relative_pct": float(np.nanmedian(r["rel"])),
+              "max_relative_pct": float(np.nanmax(r["rel"]))} for r in rows.values()]
+    rel_uc = [100.0 * float(b["combined"]) / abs(float(b["value"])) for b in parsed if float(b.get("value", 0.0))]
+    return {"n_readings": len(parsed), "components": comps,
+            "combined_relative_pct": float(np.median(rel_uc)) if rel_uc else None,
+            "k": sorted({float(b["k"]) for b in parsed}), "method": sorted({str(b.get("method", "linear")) for b in parsed})}
