@@ -10,6 +10,9 @@
   A bench whose ``[white]`` names a ``reference_file`` (:mod:`bench.io.white`) is calibrated
   from that stored reading instead: no operator is needed (the run records the file, its date
   and the operator's note).
+* Each calibrated reading is stored with its GUM uncertainty budget (:func:`point_budgets`,
+  :mod:`bench.core.budget`): the components the bench description declares; its ``std`` is the
+  budget's combined standard uncertainty.
 * A plan with ``home = true`` returns the turntable to home after validation, before any
   other motion (:mod:`bench.builders.homing`); a bench without one (virtual) skips it.
 """
