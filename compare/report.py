@@ -293,9 +293,9 @@ def _group_rows(summary: Mapping[str, Any], name: str) -> tuple[list[str], list[
 
 def _budget_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
     b = summary["uncertainty_budget"]
-    head = ["component", "type", "shared", "u (median)", "sensitivity (median)", "contribution (median)",
+    head = ["component", "type", "shared between readings", "u (median)", "sensitivity (median)", "contribution (median)",
             "% of value (median)", "% of value (max)"]
-    rows = [[c["name"], c["type"], "run" if c["shared"] else "", _fmt(c["standard_uncertainty"]), _fmt(c["sensitivity"]),
+    rows = [[c["name"], c["type"], "yes" if c["shared"] else "", _fmt(c["standard_uncertainty"]), _fmt(c["sensitivity"]),
              _fmt(c["contribution"]), _fmt(c["relative_pct"]), _fmt(c["max_relative_pct"])] for c in b["components"]]
     rows.append(["combined u_c", "", "", "", "", "", _fmt(b["combined_relative_pct"]), ""])
     return head, rows
