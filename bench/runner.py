@@ -22,7 +22,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, replace
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -85,20 +85,22 @@ def point_rows(reading: Reading, cal: Calibration | None, geometry: Geometry, da
     return rows
 
 
-def point_budgets(bench: Bench, cal: Calibration | None, reading: Reading, geometry: Geometry,
-                  dark: Reading | None, lit_index: int, idx: int) -> list[Budget | None] | None:
+def point_budgets(description: Mapping[str, Any], cal: Calibration | None, reading: Reading, geometry: Geometry,
+                  dark: Reading | None, lit_index: int, idx: int, dark_key: str = "dark") -> list[Budget | None] | None:
     """The GUM budget of each wavelength of a point (:mod:`bench.core.budget`), from the bench
     description's declared components; positioning sensitivities from its specimen model
-    (:mod:`bench.slopes`) when positioning is declared. None without a calibration."""
+    (:mod:`bench.slopes`) when positioning is declared. ``lit_index``: the point is the k-th lit
+    reading since the white; ``idx`` keys its Monte Carlo draws; ``dark_key`` names the dark reading
+    (readings with the same key share its noise). None without a calibration."""
     if cal is None:
         return None
     slopes = None
-    if declared(bench.config)["positioning_deg"] > 0:
+    if declared(description)["positioning_deg"] > 0:
         from bench.slopes import model_slopes
 
-        slopes = model_slopes(bench.config, geometry, reading.wavelengths, cal.apply(reading, geometry, dark).brdf)
-    return calibration_budgets(cal, reading, geometry, dark, bench.config, lit_index=lit_index, slopes=slopes,
-                               seed_key=(idx,))
+        slopes = model_slopes(description, geometry, reading.wavelengths, cal.apply(reading, geometry, dark).brdf)
+    return calibration_budgets(cal, reading, geometry, dark, description, lit_index=lit_index, slopes=slopes,
+                               seed_key=(idx,), dark_key=dark_key)
 
 
 def acquire_dark(bench: Bench, plan: Plan) -> Reading:
@@ -205,6 +207,7 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
     t_run = time.perf_counter()
     white_net = cal.reference_rate()[0] if cal is not None else None
     dark: Reading | None = None
+    dark_key = "dark once"  # which dark a reading used: readings sharing one share its noise (budgets)
     if plan.dark == "once":
         dark = acquire_dark(bench, plan)
     last_incidence: tuple[float, float] | None = None
@@ -219,11 +222,11 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
             reached = bench.goniometer.move_to(g)
             incidence = (g.theta_i, g.phi_i)
             if plan.dark == "per-point" or (plan.dark == "per-incidence" and incidence != last_incidence):
-                dark = acquire_dark(bench, plan)
+                dark, dark_key = acquire_dark(bench, plan), f"dark before point {idx}"
             last_incidence = incidence
             reading = bench.spectrometer.acquire(plan.integration_s, plan.averages)
             rows = point_rows(reading, cal, reached, dark, white_net,
-                              point_budgets(bench, cal, reading, reached, dark, k + 1, idx))
+                              point_budgets(bench.config, cal, reading, reached, dark, k + 1, idx, dark_key))
             store.add_point(run_id, idx, reached.as_dict(), rows, t_start=t0, t_end=time.time())
             k += 1
             bar.update(1)

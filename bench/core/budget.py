@@ -276,11 +276,12 @@ def budget_covariance(budgets: Sequence[Mapping[str, Any] | None], std: np.ndarr
 
 def calibration_budgets(cal: Any, reading: Any, geometry: Any, dark: Any, description: Mapping[str, Any], *,
                         lit_index: int, slopes: Sequence[Mapping[str, float]] | None = None,
-                        seed_key: Sequence[int] = ()) -> list[Budget | None]:
+                        seed_key: Sequence[int] = (), dark_key: str = "dark") -> list[Budget | None]:
     """The budget of each pixel of ``reading`` calibrated by ``cal`` (a
     :class:`~bench.core.calibration.Calibration`) at ``geometry`` with ``dark``; None where the
     calibration masks the pixel. ``lit_index``: the reading is the k-th lit one since the white;
-    ``slopes[i]``: pixel i's positioning sensitivities (default: the calibration's cosine only)."""
+    ``slopes[i]``: pixel i's positioning sensitivities (default: the calibration's cosine only);
+    ``dark_key``: which dark this is (readings of a run with the same key share its noise)."""
     from bench.core.calibration import reading_std
 
     table = uncertainty_table(description)
@@ -291,7 +292,6 @@ def calibration_budgets(cal: Any, reading: Any, geometry: Any, dark: Any, descri
     u_sig = reading_std(reading)
     d = dark.signal if dark is not None else None
     u_d = reading_std(dark) if dark is not None else None
-    dark_key = None if dark is None else f"dark {dark.timestamp!r}"
     cos_r = math.cos(math.radians(geometry.theta_r))
     cos_ratio = abs(math.cos(math.radians(cal.standard.geometry.theta_r))) / abs(cos_r)
     out: list[Budget | None] = []
