@@ -89,14 +89,14 @@ def point_budgets(description: Mapping[str, Any], cal: Calibration | None, readi
                   dark: Reading | None, lit_index: int, idx: int, dark_key: str = "dark") -> list[Budget | None] | None:
     """The GUM budget of each wavelength of a point (:mod:`bench.core.budget`), from the bench
     description's declared components; positioning sensitivities from its specimen model
-    (:mod:`bench.slopes`) when positioning is declared. ``lit_index``: the point is the k-th lit
+    (:mod:`bench.builders.slopes`) when positioning is declared. ``lit_index``: the point is the k-th lit
     reading since the white; ``idx`` keys its Monte Carlo draws; ``dark_key`` names the dark reading
     (readings with the same key share its noise). None without a calibration."""
     if cal is None:
         return None
     slopes = None
     if declared(description)["positioning_deg"] > 0:
-        from bench.slopes import model_slopes
+        from bench.builders.slopes import model_slopes
 
         slopes = model_slopes(description, geometry, reading.wavelengths, cal.apply(reading, geometry, dark).brdf)
     return calibration_budgets(cal, reading, geometry, dark, description, lit_index=lit_index, slopes=slopes,

@@ -167,3 +167,22 @@ def test_monte_carlo_agrees_with_linear_propagation_on_a_linear_model_and_not_on
     assert mb.components == lb.components  # the table is the linear one; u_c, U, k from the draws
     again = mc_budget(nonlinear, _model, samples=20_000, seed=7)
     assert again.combined == mb.combined  # a fixed seed: the same numbers
+
+
+def test_positioning_sensitivity_is_the_specimen_models_slope():
+    """A Lambertian's reading changes with the detector angle only through the cosine the
+    calibration divides by: -f tan(theta_r) per radian; with the source angle not at all. A
+    glossy lobe also moves with theta_i (its central difference, against a finer one)."""
+    from bench.builders.slopes import model_slopes
+
+    g = Geometry(30.0, 0.0, 40.0, 180.0)
+    f = 0.8 / math.pi
+    (s,) = model_slopes({"specimen": {"spec": "lambert:albedo=0.8"}}, g, np.array([550.0]), np.array([f]))
+    assert s["theta_r"] == pytest.approx(-f * math.tan(math.radians(40.0)) * math.pi / 180.0, rel=1e-5)
+    assert s["theta_i"] == pytest.approx(0.0, abs=1e-12) and s["phi_r"] == pytest.approx(0.0, abs=1e-12)
+    (glossy,) = model_slopes({"specimen": {"spec": "ggx:alpha=0.3"}}, Geometry(30.0, 0.0, 35.0, 180.0),
+                             np.array([550.0]), np.array([1.0]))
+    assert abs(glossy["theta_i"]) > 1e-3
+    # no declared specimen: the calibration's own cosine (Lambertian) slope from the reading
+    (fallback,) = model_slopes({}, g, np.array([550.0]), np.array([f]))
+    assert fallback["theta_r"] == pytest.approx(s["theta_r"], rel=1e-5)

@@ -314,8 +314,8 @@ def calibration_budgets(cal: Any, reading: Any, geometry: Any, dark: Any, descri
 def cosine_slopes(value: float, theta_r_deg: float) -> dict[str, float]:
     """Positioning sensitivities of a specimen of unknown angular shape: the calibration divides by
     ``cos theta_r`` at the read-back angle while the signal follows the true one, so
-    ``df/dtheta_r = f tan(theta_r)`` (per degree); the other axes 0."""
-    return {"theta_r": value * math.tan(math.radians(theta_r_deg)) * math.pi / 180.0}
+    ``df/dtheta_r = -f tan(theta_r)`` (per degree); the other axes 0."""
+    return {"theta_r": -value * math.tan(math.radians(theta_r_deg)) * math.pi / 180.0}
 
 
 def _bound_model(integration_s: float, cos_ratio: float, slopes: Mapping[str, float]):
