@@ -101,6 +101,10 @@ def test_two_readings_sharing_the_white_standard_covary_by_its_term_alone(calibr
     # a record without budgets: diag(std^2)
     plain = BSDFRecord(_table(b).drop(columns=["uncertainty_budget"]), {})
     np.testing.assert_allclose(readings_and_covariance(plain)[1], np.diag([bb.combined**2 for bb in b]))
+    # every row is kept, in order; a reading with no uncertainty says so (NaN), never a silent 0
+    plain.table.loc[1, ["value", "std"]] = np.nan
+    values, cov = readings_and_covariance(plain)
+    assert np.isnan(values[1]) and np.isnan(cov[1, 1]) and cov[0, 0] == pytest.approx(b[0].combined ** 2)
 
 
 def _table(budgets):

@@ -225,24 +225,24 @@ def evaluate_budget(inputs: Sequence[Input], model: Callable[[Mapping[str, Any]]
 
 
 def readings_and_covariance(record: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The values of a record's readings and their full covariance matrix.
+    """The values of a record's readings and their full covariance matrix, one row per table row
+    in table order.
 
     ``record`` is a :class:`~bench.core.records.BSDFRecord` (or a DataFrame) with ``value``,
-    ``std`` and, for calibrated scans, an ``uncertainty_budget`` column (dicts as
+    ``std`` and, for calibrated scans, an ``uncertainty_budget`` column (dicts or JSON, as
     :meth:`Budget.as_dict`). Readings with a budget are correlated through their shared inputs
     (the white standard's term enters once for the run); a reading without one contributes
-    ``std^2`` on the diagonal only. Rows with no finite value are dropped (the values returned
-    are those of the rows kept, in order).
+    ``std^2`` on the diagonal only (NaN where it has no finite std: no uncertainty to fit with).
     """
     t = getattr(record, "table", record)
     values = t["value"].to_numpy(float)
     std = t["std"].to_numpy(float) if "std" in t else np.full(values.shape, np.nan)
     budgets = [json.loads(b) if isinstance(b, str) else b
                for b in (t["uncertainty_budget"] if "uncertainty_budget" in t else [None] * len(values))]
-    keep = np.isfinite(values)
-    values, std = values[keep], std[keep]
-    budgets = [b for b, kept in zip(budgets, keep) if kept]
     cov = budget_covariance(budgets, std)
+    plain = np.array([not isinstance(b, Mapping) for b in budgets], dtype=bool)
+    missing = plain & ~np.isfinite(std)
+    cov[missing, missing] = np.nan
     return values, cov
 
 
@@ -251,18 +251,24 @@ def budget_covariance(budgets: Sequence[Mapping[str, Any] | None], std: np.ndarr
     linearised as ``y = sum_s c_s u_s X_s + e`` over its shared inputs ``X_s`` (one
     ``uncertainties`` variable per shared input of the run, unit variance) and an independent
     rest ``e`` (its other components); ``uncertainties.covariance_matrix`` does the algebra."""
+    import warnings
+
     from uncertainties import covariance_matrix, ufloat
+
+    def independent(s: float) -> Any:
+        with warnings.catch_warnings():  # an exactly known rest (u = 0) is fine here: no derivative is taken
+            warnings.simplefilter("ignore", UserWarning)
+            return ufloat(0.0, s)
 
     shared: dict[tuple[str, str], Any] = {}
     ys = []
     for j, b in enumerate(budgets):
         if not isinstance(b, Mapping) or not b.get("components"):
-            s = float(std[j]) if np.isfinite(std[j]) else 0.0
-            ys.append(ufloat(0.0, s))
+            ys.append(independent(float(std[j]) if np.isfinite(std[j]) else 0.0))
             continue
         comps = [Component.from_dict(c) for c in b["components"]]
         own2 = max(float(b["combined"]) ** 2 - sum(c.contribution**2 for c in comps if c.shared is not None), 0.0)
-        y = ufloat(0.0, math.sqrt(own2))
+        y = independent(math.sqrt(own2))
         for c in comps:
             if c.shared is None or c.contribution == 0.0:
                 continue
