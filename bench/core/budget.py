@@ -15,11 +15,11 @@ input (component name)                  type  standard uncertainty              
 ``D`` dark reading                      A     the dark reading's std (counts)             readings using that dark
 ``W`` white reference reading           A     std of the dark-corrected white rate        the run, per wavelength
 ``R_w`` white standard certificate      B     ``[white] uncertainty``                     the whole run
-``d_drift`` lamp drift                  B     ``lamp_drift * k`` (k-th lit reading since   --
-                                              the white)
+``d_drift`` lamp drift                  B     ``[instrument] lamp_drift * k`` (k-th lit      --
+                                              reading since the white)
 ``d_nonlinearity`` nonlinearity         B     ``[uncertainty] nonlinearity`` (relative)   --
 ``d_aperture`` detector solid angle     B     ``[uncertainty] aperture`` (relative)       --
-``d_a`` positioning <axis>              B     ``positioning_deg`` per axis (deg)          --
+``d_a`` positioning <axis>              B     ``[instrument] positioning_error_deg`` (deg)  --
 ======================================  ====  ==========================================  =============
 
 An input is in the budget when the description declares it (or, for the dark, when the plan
@@ -48,6 +48,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from bench.core.errors import ConfigError
 from bench.core.schemas import UncertaintyTable, validate_document
 
 __all__ = ["Input", "Component", "Budget", "UncertaintyTable", "uncertainty_table", "declared", "reading_inputs",
@@ -130,13 +131,19 @@ def uncertainty_table(description: Mapping[str, Any], source: str = "bench confi
 
 
 def declared(description: Mapping[str, Any]) -> dict[str, float]:
-    """The budget's declared magnitudes: ``[uncertainty]`` first, else the ``[instrument]`` effect."""
+    """The budget's declared magnitudes: the ``[instrument]`` effects (what the virtual body
+    simulates) and the ``[uncertainty]`` knowledge components."""
     u = uncertainty_table(description)
     inst = description.get("instrument") or {}
-    pos = u.positioning_deg if u.positioning_deg is not None else float(inst.get("positioning_error_deg", 0.0))
-    drift = u.lamp_drift if u.lamp_drift is not None else abs(float(inst.get("lamp_drift", 0.0)))
-    return {"read_noise": float(inst.get("read_noise", 0.0)), "positioning_deg": pos, "lamp_drift": drift,
-            "nonlinearity": u.nonlinearity, "aperture": u.aperture}
+
+    def effect(key: str) -> float:
+        v = inst.get(key, 0.0)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ConfigError(f"bench config [instrument]: key {key}: expected a finite number, got {v!r}")
+        return abs(float(v))
+
+    return {"read_noise": effect("read_noise"), "positioning_deg": effect("positioning_error_deg"),
+            "lamp_drift": effect("lamp_drift"), "nonlinearity": u.nonlinearity, "aperture": u.aperture}
 
 
 def reading_inputs(description: Mapping[str, Any], *, signal: float, u_signal: float, averages: int,

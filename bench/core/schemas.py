@@ -177,16 +177,15 @@ class BandsTable(Table):
 
 
 class UncertaintyTable(Table):
-    """``[uncertainty]``: the type-B components of the GUM budget a lab declares for every calibrated
-    reading (:mod:`bench.core.budget`), and how the budget is evaluated. Components that are
-    declared effects (``[instrument]`` read noise, lamp drift, positioning) default to them."""
+    """``[uncertainty]``: how the GUM budget of every calibrated reading is evaluated
+    (:mod:`bench.core.budget`), and the type-B components that are knowledge of the detector rather
+    than effects. Effects (read noise, lamp drift, positioning) are declared once, in
+    ``[instrument]``: the virtual body simulates them and every body's budget counts them."""
 
     method: Literal["linear", "mc"] = "linear"  # GUM law of propagation, or GUM-S1 Monte Carlo
     k: Annotated[Finite, Field(gt=0, le=10)] = 2.0  # coverage factor of the expanded uncertainty
     mc_samples: Annotated[Whole, Field(ge=1000, le=10_000_000)] = 20_000
     mc_seed: Annotated[Whole, Field(ge=0, lt=2**63)] = 0
-    positioning_deg: Annotated[Finite, Field(ge=0, le=10)] | None = None  # each axis (default: [instrument])
-    lamp_drift: Annotated[Finite, Field(ge=0, le=0.5)] | None = None  # relative, per lit reading
     aperture: Annotated[Finite, Field(ge=0, le=1)] = 0.0  # relative: detector solid angle / aperture
     nonlinearity: Annotated[Finite, Field(ge=0, le=1)] = 0.0  # relative: detector response
 
