@@ -69,6 +69,8 @@ def test_each_reading_of_a_scan_carries_its_budget(scanned):
 
 def test_show_json_and_the_tidy_export_carry_the_budget(scanned, tmp_path, capsys):
     path, run = scanned
+    assert main(["show", run, "--store", str(path)]) == 0
+    assert "uncertainty: GUM budgets on 9 of 9 readings (linear, k = 2)" in capsys.readouterr().out
     assert main(["show", run, "--store", str(path), "--json"]) == 0
     shown = json.loads(capsys.readouterr().out)
     b = shown["points"][0]["uncertainty_budget"]

@@ -132,8 +132,9 @@ def cmd_runs(args: argparse.Namespace) -> int:
 def cmd_show(args: argparse.Namespace) -> int:
     with open_store(args.store, create=False, readonly=True) as store:
         s = store.summary(args.run)
+        points = store.reading_budgets(args.run)  # each reading's GUM budget (bench.core.budget)
         if args.json:
-            s["points"] = store.reading_budgets(args.run)  # each reading's GUM budget (bench.core.budget)
+            s["points"] = points
     if args.json:
         emit_json(s)
         return 0
@@ -148,6 +149,12 @@ def cmd_show(args: argparse.Namespace) -> int:
     if steps:
         print(f"  calibration: dark {steps['dark']}, white {steps['white']} ({steps['white_source']}), "
               f"integration {steps['integration_s']} s, averages {steps['averages']}")
+    budgets = [p["uncertainty_budget"] for p in points if p["uncertainty_budget"]]
+    rel = sorted(100.0 * b["combined"] / abs(b["value"]) for b in budgets if b.get("value"))
+    if rel:
+        methods = ", ".join(sorted({str(b.get("method", "linear")) for b in budgets}))
+        print(f"  uncertainty: GUM budgets on {len(budgets)} of {len(points)} readings ({methods}, k = "
+              f"{budgets[0]['k']:g}), median u_c {rel[len(rel) // 2]:.3g} % of the value")
     t = s["timing"]
     print(f"  created {t['created_utc']}, finished {t['finished_utc']}, elapsed {t['elapsed_s']} s, "
           f"mean per point {t['mean_point_s']} s")
