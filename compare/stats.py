@@ -40,7 +40,6 @@ saying why, and chi-square without any uncertainty raises :class:`UncertaintyErr
 
 from __future__ import annotations
 
-import json
 import math
 import warnings as _warnings
 from dataclasses import dataclass, field
@@ -49,15 +48,16 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from bench.core.budget import budget_covariance
 from bench.core.errors import InputError
 
 from compare.align import Aligned, align
+from compare.covariance import (BUDGET_SOURCE, UncertaintyError, actual_budgets, chi_square, pair_covariance,
+                                sub_covariance)
 
 __all__ = [
     "UncertaintyError", "UncertaintyModel", "Comparison", "compare", "point_table", "summarize",
     "default_uncertainty", "nominal_fraction", "fraction_band", "bland_altman", "delta_e2000",
-    "spectrum_lab", "rank", "actual_budgets", "pair_covariance", "chi_square", "sub_covariance", "BUDGET_SOURCE", "SUMMARY_KEYS", "RANK_METRICS", "SPECTRO_UNCERTAINTY", "GONIO_UNCERTAINTY",
+    "spectrum_lab", "rank", "SUMMARY_KEYS", "RANK_METRICS", "SPECTRO_UNCERTAINTY", "GONIO_UNCERTAINTY",
     "DEFAULT_ILLUMINANT", "DEFAULT_OBSERVER",
 ]
 
@@ -72,10 +72,6 @@ SUMMARY_KEYS = ("n_points", "mean_abs_discrepancy_pct", "rmse", "bias", "max_abs
 
 #: metrics a ranking can sort by; all "lower is better" (bias by its absolute value)
 RANK_METRICS = ("chi2_per_dof", "mean_abs_discrepancy_pct", "rmse", "abs_bias", "max_abs", "delta_e2000_mean")
-
-
-class UncertaintyError(InputError):
-    """No uncertainty can be formed for a statistic that needs one (chi-square, z)."""
 
 
 @dataclass(frozen=True)
@@ -124,43 +120,6 @@ def default_uncertainty(aligned: Aligned) -> UncertaintyModel:
         return UncertaintyModel(SPECTRO_UNCERTAINTY, "absolute",
                                 "spectrophotometer default: 0.005 absolute (seed 3.1.1)")
     return UncertaintyModel(GONIO_UNCERTAINTY, "relative", "goniophotometer default: 0.5 % relative (seed 3.2.1)")
-
-
-#: where the uncertainty of an actual record with GUM budgets comes from
-BUDGET_SOURCE = ("the actual record's GUM budgets (full covariance: shared terms such as the white standard "
-                 "once for the run)")
-
-
-def actual_budgets(actual: Any, pairs: pd.DataFrame) -> list[Any] | None:
-    """The GUM budget (``uncertainty_budget``, JSON or dict) of each pair's actual reading, or None
-    when the actual record carries none."""
-    table = getattr(actual, "table", None)
-    if table is None or "uncertainty_budget" not in table or not table["uncertainty_budget"].notna().any():
-        return None
-    col = table["uncertainty_budget"].reset_index(drop=True)
-    return [col.iloc[int(i)] for i in pairs.actual_index.to_numpy()]
-
-
-def pair_covariance(points: pd.DataFrame, budgets: Sequence[Any], model: UncertaintyModel) -> np.ndarray:
-    """Covariance of the differences ``d``: the actual readings' from their budgets
-    (:func:`bench.core.budget.budget_covariance`) plus, on the diagonal, the instrument term of
-    ``model`` and the virtual std^2 (independent Monte Carlo)."""
-    parsed = [json.loads(b) if isinstance(b, str) else (b if isinstance(b, Mapping) else None) for b in budgets]
-    sa = points.actual_std.to_numpy(float)
-    cov = budget_covariance(parsed, sa) if model.use_actual_std else np.zeros((len(points), len(points)))
-    sv = np.nan_to_num(points.virtual_std.to_numpy(float), nan=0.0) if model.use_virtual_std else 0.0
-    return cov + np.diag(points.u_instrument.to_numpy(float) ** 2 + sv**2)
-
-
-def chi_square(d: np.ndarray, cov: np.ndarray) -> float:
-    """``d^T C^-1 d`` by a Cholesky solve (scipy.linalg); C must be positive definite."""
-    from scipy.linalg import LinAlgError, cho_factor, cho_solve
-
-    try:
-        factor = cho_factor(cov, lower=True)
-    except LinAlgError as exc:
-        raise UncertaintyError(f"the covariance of the differences is not positive definite ({exc})") from None
-    return float(d @ cho_solve(factor, d))
 
 
 def nominal_fraction(k: float) -> float:
@@ -312,14 +271,6 @@ def summarize(points: pd.DataFrame, k: float = 2.0, *, allow_missing_uncertainty
     if n < 2:
         w.append(f"Bland-Altman limits need at least 2 points{where}")
     return out
-
-
-def sub_covariance(points: pd.DataFrame, group: pd.DataFrame, covariance: np.ndarray | None) -> np.ndarray | None:
-    """The block of ``covariance`` (rows as ``points``) for the rows of ``group``."""
-    if covariance is None:
-        return None
-    pos = points.index.get_indexer(group.index)
-    return covariance[np.ix_(pos, pos)]
 
 
 def _grouped(points: pd.DataFrame, by: Sequence[str], k: float, covariance: np.ndarray | None = None) -> pd.DataFrame:
