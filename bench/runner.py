@@ -10,6 +10,9 @@
   A bench whose ``[white]`` names a ``reference_file`` (:mod:`bench.io.white`) is calibrated
   from that stored reading instead: no operator is needed (the run records the file, its date
   and the operator's note).
+* Each calibrated reading is stored with its GUM uncertainty budget (:func:`point_budgets`,
+  :mod:`bench.core.budget`): the components the bench description declares; its ``std`` is the
+  budget's combined standard uncertainty.
 * A plan with ``home = true`` returns the turntable to home after validation, before any
   other motion (:mod:`bench.builders.homing`); a bench without one (virtual) skips it.
 """
@@ -19,10 +22,11 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, replace
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from bench.core.budget import Budget, calibration_budgets, declared
 from bench.core.calibration import Calibration
 from bench.config import Bench
 from bench.core.errors import BenchError, DeviceError, RunInterrupted, StoreError
@@ -35,7 +39,7 @@ from bench.preflight import calibration_record, check_calibration_steps, no_ligh
 
 log = logging.getLogger(__name__)
 
-__all__ = ["run_scan", "resume_scan", "ScanResult", "point_rows", "acquire_dark", "measure_calibration",
+__all__ = ["run_scan", "resume_scan", "ScanResult", "point_rows", "point_budgets", "acquire_dark", "measure_calibration",
            "stored_white"]
 
 
@@ -49,12 +53,15 @@ class ScanResult:
 
 
 def point_rows(reading: Reading, cal: Calibration | None, geometry: Geometry, dark: Reading | None,
-               white_net: np.ndarray | None) -> list[dict[str, Any]]:
-    """The store rows of one point: one per wavelength."""
+               white_net: np.ndarray | None, budgets: list[Budget | None] | None = None) -> list[dict[str, Any]]:
+    """The store rows of one point: one per wavelength. With ``budgets`` (one per wavelength, see
+    :func:`point_budgets`) each row keeps its GUM budget and its ``std`` is the budget's u_c."""
     rows = []
     if cal is not None:
         c = cal.apply(reading, geometry, dark)
         value, std, rf, reasons = c.brdf, c.std, c.reflectance_factor, c.mask_reason
+        if budgets is not None:
+            std = np.array([s if b is None else b.combined for s, b in zip(std, budgets)])
     else:
         value = std = rf = np.full(reading.signal.shape, np.nan)
         reasons = ["no white reference"] * reading.signal.size
@@ -72,7 +79,28 @@ def point_rows(reading: Reading, cal: Calibration | None, geometry: Geometry, da
             "extra": {"reflectance_factor": None if masked else float(rf[i]), "mask": reasons[i] or None,
                       "integration_s": reading.integration_s, "averages": reading.averages},
         })
+        b = None if budgets is None or masked else budgets[i]
+        if b is not None:
+            rows[-1]["uncertainty_budget"] = b.as_dict()  # a column of its own in the store's extra JSON
     return rows
+
+
+def point_budgets(description: Mapping[str, Any], cal: Calibration | None, reading: Reading, geometry: Geometry,
+                  dark: Reading | None, lit_index: int, idx: int, dark_key: str = "dark") -> list[Budget | None] | None:
+    """The GUM budget of each wavelength of a point (:mod:`bench.core.budget`), from the bench
+    description's declared components; positioning sensitivities from its specimen model
+    (:mod:`bench.builders.slopes`) when positioning is declared. ``lit_index``: the point is the k-th lit
+    reading since the white; ``idx`` keys its Monte Carlo draws; ``dark_key`` names the dark reading
+    (readings with the same key share its noise). None without a calibration."""
+    if cal is None:
+        return None
+    slopes = None
+    if declared(description)["positioning_deg"] > 0:
+        from bench.builders.slopes import model_slopes
+
+        slopes = model_slopes(description, geometry, reading.wavelengths, cal.apply(reading, geometry, dark).brdf)
+    return calibration_budgets(cal, reading, geometry, dark, description, lit_index=lit_index, slopes=slopes,
+                               seed_key=(idx,), dark_key=dark_key)
 
 
 def acquire_dark(bench: Bench, plan: Plan) -> Reading:
@@ -179,6 +207,7 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
     t_run = time.perf_counter()
     white_net = cal.reference_rate()[0] if cal is not None else None
     dark: Reading | None = None
+    dark_key = "dark once"  # which dark a reading used: readings sharing one share its noise (budgets)
     if plan.dark == "once":
         dark = acquire_dark(bench, plan)
     last_incidence: tuple[float, float] | None = None
@@ -193,10 +222,11 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
             reached = bench.goniometer.move_to(g)
             incidence = (g.theta_i, g.phi_i)
             if plan.dark == "per-point" or (plan.dark == "per-incidence" and incidence != last_incidence):
-                dark = acquire_dark(bench, plan)
+                dark, dark_key = acquire_dark(bench, plan), f"dark before point {idx}"
             last_incidence = incidence
             reading = bench.spectrometer.acquire(plan.integration_s, plan.averages)
-            rows = point_rows(reading, cal, reached, dark, white_net)
+            rows = point_rows(reading, cal, reached, dark, white_net,
+                              point_budgets(bench.config, cal, reading, reached, dark, k + 1, idx, dark_key))
             store.add_point(run_id, idx, reached.as_dict(), rows, t_start=t0, t_end=time.time())
             k += 1
             bar.update(1)

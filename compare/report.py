@@ -40,6 +40,7 @@ from compare.checks import run_checks
 from compare.figures import report_figures, slug
 from compare.stats import (DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, Comparison, compare, nominal_fraction,
                            group_keys, rank)
+from bench.core.budget import budget_summary
 from compare.verdict import Criterion, group_verdicts, model_verdict
 
 __all__ = ["compare_records"]
@@ -153,9 +154,11 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     group_tables: dict[str, pd.DataFrame] = {}
     for n, c in comps.items():
         g = group_verdicts(c.points, group_keys(c.points, c.aligned.kind), criterion, c.aligned.kind,
-                           c.summary.get("delta_e2000_groups"))
+                           c.summary.get("delta_e2000_groups"), c.covariance)
         group_tables[n] = g
         verdicts[n] = {**model_verdict(g, c.summary, criterion), "groups": g.to_dict(orient="records")}
+    table = getattr(act, "table", None)
+    budget = None if table is None or "uncertainty_budget" not in table else budget_summary(list(table.uncertainty_budget))
     figures = (report_figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence, group_tables)
                if draw_figures else [])
     warnings = sorted({w for c in comps.values() for w in c.summary["warnings"]})
@@ -169,7 +172,7 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
         "criterion": {**criterion.as_dict(), "statement": criterion.describe(kind)}, "verdicts": verdicts,
         "checks": check_results, "unmatched": {n: int((c.aligned.unmatched.side == "actual").sum())
                                                for n, c in comps.items()},
-        "errors": errors, "warnings": warnings, "figures": [f["id"] for f in figures],
+        "errors": errors, "warnings": warnings, "figures": [f["id"] for f in figures], "uncertainty_budget": budget,
         "breakdown": {n: {"by_wavelength": c.by_wavelength.to_dict(orient="records"),
                           "by_incidence": c.by_incidence.to_dict(orient="records")} for n, c in comps.items()},
         "alignment": {n: {key: c.aligned.meta.get(key) for key in ("angle_tol_deg", "wavelength_tol_nm", "match_method",
@@ -291,6 +294,23 @@ def _group_rows(summary: Mapping[str, Any], name: str) -> tuple[list[str], list[
               _fmt(g["fraction_within"])] for g in gs])
 
 
+def _budget_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    b = summary["uncertainty_budget"]
+    head = ["component", "type", "shared between readings", "u (median)", "sensitivity (median)", "contribution (median)",
+            "% of value (median)", "% of value (max)"]
+    rows = [[c["name"], c["type"], "yes" if c["shared"] else "", _fmt(c["standard_uncertainty"]), _fmt(c["sensitivity"]),
+             _fmt(c["contribution"]), _fmt(c["relative_pct"]), _fmt(c["max_relative_pct"])] for c in b["components"]]
+    rows.append(["combined u_c", "", "", "", "", "", _fmt(b["combined_relative_pct"]), ""])
+    return head, rows
+
+
+def _budget_note(summary: Mapping[str, Any]) -> str:
+    b = summary["uncertainty_budget"]
+    return (f"GUM budget of the actual record's {b['n_readings']} readings (method {', '.join(b['method'])}, "
+            f"k = {', '.join(f'{k:g}' for k in b['k'])}); components shared by the run's readings enter the "
+            f"covariance of the comparison once, not once per point.")
+
+
 def _check_rows(check_results: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
     head = ["record", "check", "result", "statistic", "p-value", "max z", "n", "offending", "message"]
     rows = []
@@ -365,13 +385,18 @@ def _html(title: str, summary: Mapping[str, Any], comps: Mapping[str, Comparison
     parts.append("<h2 id=\"actual\">Actual record</h2>")
     parts.append(_html_table(["field", "value"], [[k_, _fmt(v)] for k_, v in summary["actual"].items()],
                              cls="metadata"))
+    if summary.get("uncertainty_budget"):
+        parts.append("<h3 id=\"budget\">Uncertainty budget</h3>")
+        parts.append(f"<p class=\"muted\">{e(_budget_note(summary))}</p>")
+        parts.append(_html_table(*_budget_rows(summary), cls="budget"))
     parts.append("<h2 id=\"ranking\">Model ranking</h2>")
     parts.append(f"<p>Ranked by <b>{e(summary['primary_metric'])}</b> (lower is better).</p>")
     parts.append(_html_table(*_ranking_rows(summary)))
     parts.append("<h2 id=\"metrics\">Metrics</h2>")
     parts.append(_html_table(*_metric_rows(summary)))
     parts.append("<p class=\"muted\">z = (virtual - actual) / u_c with u_c = sqrt(u_instrument^2 + s_virtual^2 + "
-                 "s_actual^2); chi-square = sum z^2 on dof = number of z's; p = chi2.sf(chi2, dof).</p>")
+                 "s_actual^2); chi-square = sum z^2 on dof = number of z's (d^T C^-1 d with the full covariance "
+                 "C of the differences when the actual record has GUM budgets); p = chi2.sf(chi2, dof).</p>")
     parts.append("<h2 id=\"figures\">Figures</h2>")
     group = None
     for f in figures:
@@ -426,7 +451,10 @@ def _markdown(title: str, summary: Mapping[str, Any], comps: Mapping[str, Compar
            f"{summary['nominal_fraction']:.2%}).", "", "## Acceptance criterion", "", summary["criterion"]["statement"],
            "", "## Verdicts", "", _md_table(*_verdict_rows(summary)), "", "## Model ranking", "",
            f"Ranked by **{summary['primary_metric']}** (lower is better).", "", _md_table(*_ranking_rows(summary)),
-           "", "## Metrics", "", _md_table(*_metric_rows(summary)), "", "## Figures", ""]
+           "", "## Metrics", "", _md_table(*_metric_rows(summary)), ""]
+    if summary.get("uncertainty_budget"):
+        out += ["## Uncertainty budget", "", _budget_note(summary), "", _md_table(*_budget_rows(summary)), ""]
+    out += ["## Figures", ""]
     for f in figures:
         out.append(f"![{f['alt']}](figures/{Path(f['path']).name})")
         out.append(f"*{f['caption']}*")

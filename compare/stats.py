@@ -17,7 +17,13 @@ z                         ``d / u_c``. Points where both values are exactly 0 ca
                           (``n_both_zero``); points with ``u_c = 0`` and ``d != 0`` have no z
                           (``n_no_uncertainty``, a warning).
 chi2, dof, p_value        ``sum z^2``, the number of z's (no fitted parameters),
-                          ``scipy.stats.chi2.sf(chi2, dof)``.
+                          ``scipy.stats.chi2.sf(chi2, dof)``. When the actual record carries GUM
+                          budgets (a calibrated scan, :mod:`bench.core.budget`), ``chi2 = d^T C^-1 d``
+                          with ``C`` the full covariance of the differences: the actual readings'
+                          (shared inputs such as the white standard's certificate counted once for
+                          the run, not once per point) plus the virtual std^2 on the diagonal
+                          (Cholesky solve); ``z`` stays ``d / sqrt(C_ii)``, and the instrument term
+                          is the budget itself (no default 0.5 % on top).
 fraction_within           fraction of ``|z| <= k`` (default k = 2) with its nominal value
                           ``erf(k / sqrt 2)`` for a correct uncertainty model and the
                           3-sigma binomial band around it for this many points.
@@ -45,6 +51,8 @@ import pandas as pd
 from bench.core.errors import InputError
 
 from compare.align import Aligned, align
+from compare.covariance import (BUDGET_SOURCE, UncertaintyError, actual_budgets, chi_square, pair_covariance,
+                                sub_covariance)
 
 __all__ = [
     "UncertaintyError", "UncertaintyModel", "Comparison", "compare", "point_table", "summarize",
@@ -64,10 +72,6 @@ SUMMARY_KEYS = ("n_points", "mean_abs_discrepancy_pct", "rmse", "bias", "max_abs
 
 #: metrics a ranking can sort by; all "lower is better" (bias by its absolute value)
 RANK_METRICS = ("chi2_per_dof", "mean_abs_discrepancy_pct", "rmse", "abs_bias", "max_abs", "delta_e2000_mean")
-
-
-class UncertaintyError(InputError):
-    """No uncertainty can be formed for a statistic that needs one (chi-square, z)."""
 
 
 @dataclass(frozen=True)
@@ -191,8 +195,9 @@ def bland_altman(actual: np.ndarray, virtual: np.ndarray) -> dict[str, float | N
 
 
 def summarize(points: pd.DataFrame, k: float = 2.0, *, allow_missing_uncertainty: bool = False,
-              label: str = "") -> dict[str, Any]:
-    """The stable summary (:data:`SUMMARY_KEYS`) of a per-point table from :func:`point_table`.
+              label: str = "", covariance: np.ndarray | None = None) -> dict[str, Any]:
+    """The stable summary (:data:`SUMMARY_KEYS`) of a per-point table from :func:`point_table`;
+    chi-square with ``covariance`` (of the differences, rows as ``points``) when given.
 
     Raises
     ------
@@ -250,7 +255,10 @@ def summarize(points: pd.DataFrame, k: float = 2.0, *, allow_missing_uncertainty
         else:
             w.append(msg)
     else:
-        chi2 = float(np.sum(z ** 2))
+        if covariance is None:
+            chi2 = float(np.sum(z ** 2))
+        else:
+            chi2 = chi_square(d[zmask], covariance[np.ix_(zmask, zmask)])
         from scipy.stats import chi2 as chi2_dist
 
         out["chi2"] = chi2
@@ -265,10 +273,10 @@ def summarize(points: pd.DataFrame, k: float = 2.0, *, allow_missing_uncertainty
     return out
 
 
-def _grouped(points: pd.DataFrame, by: Sequence[str], k: float) -> pd.DataFrame:
+def _grouped(points: pd.DataFrame, by: Sequence[str], k: float, covariance: np.ndarray | None = None) -> pd.DataFrame:
     rows = []
     for key, g in points.groupby(list(by), sort=True, dropna=False):
-        s = summarize(g, k, allow_missing_uncertainty=True)
+        s = summarize(g, k, allow_missing_uncertainty=True, covariance=sub_covariance(points, g, covariance))
         key = key if isinstance(key, tuple) else (key,)
         row = dict(zip(by, key))
         for name in ("n_points", "mean_abs_discrepancy_pct", "rmse", "bias", "max_abs", "chi2", "dof",
@@ -355,6 +363,8 @@ class Comparison:
     uncertainty: UncertaintyModel
     colour: dict[str, Any] = field(default_factory=dict)
     by_group: pd.DataFrame = field(default_factory=pd.DataFrame)
+    covariance: np.ndarray | None = None  # of the differences, when the actual record has GUM budgets
+    budgets: list[Any] | None = None  # the actual readings' budgets, as the points
 
 
 def compare(actual: Any, candidate: Any, *, name: str = "candidate", k: float = 2.0,
@@ -387,16 +397,18 @@ def compare(actual: Any, candidate: Any, *, name: str = "candidate", k: float = 
     if not (math.isfinite(k) and k > 0):
         raise InputError(f"k must be finite and > 0, got {k}")
     al = aligned if aligned is not None else align(actual, candidate, **align_kwargs)
-    model = default_uncertainty(al)
+    budgets = actual_budgets(actual, al.pairs)
+    model = default_uncertainty(al) if budgets is None else UncertaintyModel(0.0, "relative", BUDGET_SOURCE)
     if instrument_uncertainty is not None:
         kind = instrument_uncertainty_kind or ("absolute" if al.kind == "spectrum" else "relative")
         model = UncertaintyModel(float(instrument_uncertainty), kind, "given by the caller")
     elif instrument_uncertainty_kind is not None and instrument_uncertainty_kind != model.kind:
         raise InputError("instrument_uncertainty_kind given without instrument_uncertainty")
     pts = point_table(al, model, k)
-    summary = summarize(pts, k, allow_missing_uncertainty=allow_missing_uncertainty)
+    cov = None if budgets is None else pair_covariance(pts, budgets, model)
+    summary = summarize(pts, k, allow_missing_uncertainty=allow_missing_uncertainty, covariance=cov)
     summary["warnings"] = list(al.warnings) + summary["warnings"]
-    if model.instrument == 0 and not al.meta.get("actual_is_virtual"):
+    if model.instrument == 0 and not al.meta.get("actual_is_virtual") and budgets is None:
         summary["warnings"].append("instrument uncertainty is 0: only the records' own std enter u_c")
     summary["uncertainty_model"] = model.as_dict()
     summary["n_unmatched"] = int((al.unmatched.side == "actual").sum())
@@ -430,11 +442,12 @@ def compare(actual: Any, candidate: Any, *, name: str = "candidate", k: float = 
             summary["delta_e2000_max"] = float(np.max(list(per.values())))
             summary["delta_e2000_groups"] = per_group
             summary["colour"] = {"illuminant": illuminant, "observer": observer}
-    by_wl = _grouped(pts, ["channel", "wavelength_nm"], k)
-    by_inc = _grouped(pts, ["channel", "theta_i", "phi_i"], k) if al.kind == "bsdf" else pd.DataFrame()
-    by_group = _grouped(pts, group_keys(pts, al.kind), k)
+    summary["covariance"] = "full (GUM budgets)" if cov is not None else "diagonal"
+    by_wl = _grouped(pts, ["channel", "wavelength_nm"], k, cov)
+    by_inc = _grouped(pts, ["channel", "theta_i", "phi_i"], k, cov) if al.kind == "bsdf" else pd.DataFrame()
+    by_group = _grouped(pts, group_keys(pts, al.kind), k, cov)
     return Comparison(name=name, aligned=al, points=pts, summary=summary, by_wavelength=by_wl, by_incidence=by_inc,
-                      uncertainty=model, colour=colour_info, by_group=by_group)
+                      uncertainty=model, colour=colour_info, by_group=by_group, covariance=cov, budgets=budgets)
 
 
 def group_keys(points: pd.DataFrame, kind: str) -> list[str]:

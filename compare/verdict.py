@@ -19,7 +19,8 @@ The acceptance criterion (:class:`Criterion`) is stated before any number is loo
   verdict is *inconclusive* (not accept).
 
 Group verdict: ``reject`` when chi-square of ``z = (virtual - actual) / sqrt(u_c^2 + u_tol^2)``
-has ``p < alpha / n_groups``; ``inconclusive`` as above; else ``accept``. Model verdict:
+(with the full covariance of the differences when the actual record has GUM budgets:
+``d^T (C + diag u_tol^2)^-1 d``) has ``p < alpha / n_groups``; ``inconclusive`` as above; else ``accept``. Model verdict:
 ``reject`` naming every failing group (even when the pooled statistics look fine), else
 ``inconclusive`` when no group could decide, else ``accept`` (with the count of inconclusive
 groups).
@@ -35,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from bench.core.errors import InputError
+from compare.covariance import chi_square, sub_covariance
 
 __all__ = ["Criterion", "group_verdicts", "model_verdict", "VERDICTS"]
 
@@ -107,11 +109,12 @@ def _tol_z(p: pd.DataFrame, crit: Criterion, kind: str) -> np.ndarray:
     return np.where(ok, d / np.where(u > 0, u, 1.0), np.nan)
 
 
-def _test(p: pd.DataFrame, crit: Criterion, kind: str, alpha: float) -> dict[str, Any]:
+def _test(p: pd.DataFrame, crit: Criterion, kind: str, alpha: float, cov: np.ndarray | None = None) -> dict[str, Any]:
     from scipy.stats import chi2 as chi2_dist
 
     z = _tol_z(p, crit, kind)
-    z = z[np.isfinite(z)]
+    ok = np.isfinite(z)
+    z = z[ok]
     a = np.abs(p.actual_value.to_numpy(float))
     uc = p.u_combined.to_numpy(float)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -126,7 +129,12 @@ def _test(p: pd.DataFrame, crit: Criterion, kind: str, alpha: float) -> dict[str
     if z.size < crit.min_points:
         out.update(verdict="inconclusive", reason=f"{z.size} points with an uncertainty (< {crit.min_points})")
         return out
-    chi2 = float(np.sum(z ** 2))
+    if cov is None:
+        chi2 = float(np.sum(z ** 2))
+    else:  # the full covariance of the differences, the model tolerance on its diagonal
+        a = p.actual_value.to_numpy(float)[ok]
+        u_tol = crit.tolerance * (np.abs(a) if kind == "bsdf" else np.ones_like(a))
+        chi2 = chi_square(p["diff"].to_numpy(float)[ok], cov[np.ix_(ok, ok)] + np.diag(u_tol**2))
     pv = float(chi2_dist.sf(chi2, z.size))
     out.update(chi2=chi2, p_value=pv)
     if pv < alpha:
@@ -152,16 +160,21 @@ def _label(keys: Sequence[str], key: tuple) -> str:
 
 
 def group_verdicts(points: pd.DataFrame, keys: Sequence[str], crit: Criterion, kind: str,
-                   delta_e: Sequence[Mapping[str, Any]] | None = None) -> pd.DataFrame:
+                   delta_e: Sequence[Mapping[str, Any]] | None = None,
+                   covariance: np.ndarray | None = None) -> pd.DataFrame:
     """One row per group of ``keys``: ``group`` (a readable label), the key values, ``verdict``,
     ``reason``, ``chi2``, ``dof``, ``p_value``, ``fraction_within``, ``median_rel_uncertainty``.
-    Rows are sorted worst first (reject, then by p-value)."""
+    Rows are sorted worst first (reject, then by p-value). With ``covariance`` (of the
+    differences, rows as ``points``: :attr:`compare.stats.Comparison.covariance`) each group's
+    chi-square is ``d^T C^-1 d`` on its block (Bonferroni holds under any correlation between
+    groups)."""
     groups = list(points.groupby(list(keys), sort=True, dropna=False)) if keys else [((), points)]
     n = max(len(groups), 1)
     rows = []
     for key, g in groups:
         key = key if isinstance(key, tuple) else (key,)
-        r = {"group": _label(keys, key), **dict(zip(keys, key)), **_test(g, crit, kind, crit.alpha / n)}
+        test = _test(g, crit, kind, crit.alpha / n, sub_covariance(points, g, covariance))
+        r = {"group": _label(keys, key), **dict(zip(keys, key)), **test}
         if delta_e is not None and crit.delta_e_tolerance is not None:
             kv = dict(zip(keys, key))
             de = [d["delta_e2000"] for d in delta_e

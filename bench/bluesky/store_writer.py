@@ -40,7 +40,7 @@ from bench.bluesky.plans import PLAN_KEY
 from bench.core.calibration import Calibration
 from bench.core.geometry import Geometry
 from bench.core.roles import Reading
-from bench.runner import point_rows
+from bench.runner import point_budgets, point_rows
 from bench.store import RunStore
 
 log = logging.getLogger(__name__)
@@ -95,6 +95,7 @@ class StoreWriter(DocumentRouter):
         self._order: list[int] | None = None
         self._streams: dict[str, _Stream] = {}
         self._last_t: float | None = None
+        self._description: dict[str, Any] = {}
 
     # -- documents ---------------------------------------------------------------------------
     def start(self, doc: dict[str, Any]) -> None:
@@ -108,6 +109,7 @@ class StoreWriter(DocumentRouter):
                 "plan_name": ours.get("name") or doc.get("plan_name")}
         n_planned = ours.get("n_planned", doc.get("num_points"))
         self._store = RunStore(self.path)
+        self._description = dict(bench.get("bench") or {})  # its declared uncertainty components
         self._run = self._store.create_run(kind="bluesky", plan=jsonable(plan), bench=bench.get("bench"),
                                            seed=bench.get("seed"), meta=meta,
                                            n_planned=None if n_planned is None else int(n_planned))
@@ -150,7 +152,7 @@ class StoreWriter(DocumentRouter):
         k = int(doc["seq_num"]) - 1
         idx = self._order[k] if self._order is not None and k < len(self._order) else k
         geometry = self._geometry(s, data)
-        rows = self._rows(s, data, geometry)
+        rows = self._rows(s, data, geometry, k, idx)
         t_end = float(doc["time"])
         self._store.add_point(self._run, idx, geometry.as_dict() if geometry is not None else dict.fromkeys(AXES),
                               rows, t_start=self._last_t, t_end=t_end)
@@ -189,14 +191,17 @@ class StoreWriter(DocumentRouter):
                        saturated=sat, integration_s=float(cfg[f"{obj}-integration_s"]),
                        averages=int(cfg[f"{obj}-averages"]), std=None if np.all(np.isnan(sd)) else sd)
 
-    def _rows(self, s: _Stream, data: dict[str, Any], geometry: Geometry | None) -> list[dict[str, Any]]:
+    def _rows(self, s: _Stream, data: dict[str, Any], geometry: Geometry | None, k: int,
+              idx: int) -> list[dict[str, Any]]:
         if s.reflectance is not None:
             obj = s.reflectance
             cfg = s.config[obj]
             reading = self._reading(data, cfg, obj, "signal", "signal_std", "saturated")
             dark = self._reading(data, cfg, obj, "dark", "dark_std", None) if data[f"{obj}-has_dark"] else None
-            return point_rows(reading, s.calibration, geometry if geometry is not None else Geometry(0, 0, 0, 0),
-                              dark, s.white_net)
+            g = geometry if geometry is not None else Geometry(0, 0, 0, 0)
+            return point_rows(reading, s.calibration, g, dark, s.white_net,
+                              point_budgets(self._description, s.calibration, reading, g, dark, k + 1, idx,
+                                            f"dark at point {idx}"))
         if s.spectrometer is not None:
             obj = s.spectrometer
             reading = self._reading(data, s.config[obj], obj, "spectrum", "spectrum_std", "saturated")

@@ -8,6 +8,8 @@
   configured speeds and ramps (``bench plan``);
 * :mod:`bench.builders.homing` -- return-to-home of the axes a builder exposes in
   ``Bench.parts`` (``bench home``, plans with ``home = true``).
+* :mod:`bench.builders.slopes` -- the slope of a description's specimen model along each axis:
+  the positioning sensitivities of the readings' GUM budgets.
 
 :data:`bench.config.BUILDERS` maps each kind to its builder and :func:`bench.config.load_bench`
 imports only the one a config asks for (a virtual bench never loads the drivers).

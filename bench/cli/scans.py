@@ -82,6 +82,8 @@ def cmd_scan(args: argparse.Namespace) -> int:
     from bench.runner import run_scan
 
     plan, bench = _plan_and_bench(args)
+    if args.uncertainty_method:  # the run stores its description, so a resume evaluates budgets alike
+        bench.config["uncertainty"] = {**dict(bench.config.get("uncertainty") or {}), "method": args.uncertainty_method}
     if bench.kind == "virtual":
         announce_compilation()
     with bench, open_store(args.store) as store:
@@ -130,6 +132,9 @@ def cmd_runs(args: argparse.Namespace) -> int:
 def cmd_show(args: argparse.Namespace) -> int:
     with open_store(args.store, create=False, readonly=True) as store:
         s = store.summary(args.run)
+        points = store.reading_budgets(args.run)  # each reading's GUM budget (bench.core.budget)
+        if args.json:
+            s["points"] = points
     if args.json:
         emit_json(s)
         return 0
@@ -144,6 +149,12 @@ def cmd_show(args: argparse.Namespace) -> int:
     if steps:
         print(f"  calibration: dark {steps['dark']}, white {steps['white']} ({steps['white_source']}), "
               f"integration {steps['integration_s']} s, averages {steps['averages']}")
+    budgets = [p["uncertainty_budget"] for p in points if p["uncertainty_budget"]]
+    rel = sorted(100.0 * b["combined"] / abs(b["value"]) for b in budgets if b.get("value"))
+    if rel:
+        methods = ", ".join(sorted({str(b.get("method", "linear")) for b in budgets}))
+        print(f"  uncertainty: GUM budgets on {len(budgets)} of {len(points)} readings ({methods}, k = "
+              f"{budgets[0]['k']:g}), median u_c {rel[len(rel) // 2]:.3g} % of the value")
     t = s["timing"]
     print(f"  created {t['created_utc']}, finished {t['finished_utc']}, elapsed {t['elapsed_s']} s, "
           f"mean per point {t['mean_point_s']} s")
@@ -192,6 +203,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "bench's, else a fresh one)")
     sc.add_argument("--quiet", "-q", action="store_true", help="no progress bar (shown only on a terminal)")
     sc.add_argument("--json", action="store_true", help="the run result as one JSON object")
+    sc.add_argument("--uncertainty-method", choices=("linear", "mc"),
+                    help="each reading's GUM budget: law of propagation (linear) or Supplement 1 Monte Carlo "
+                         "(mc); default: the bench's [uncertainty] method, else linear")
     sc.set_defaults(func=cmd_scan)
 
     rs = sub.add_parser("resume", help=command_help("resume"))

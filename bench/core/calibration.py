@@ -31,7 +31,7 @@ from bench.core.errors import CalibrationError, ConfigError
 from bench.core.geometry import Geometry
 from bench.core.roles import Reading
 
-__all__ = ["WhiteStandard", "Calibration", "Calibrated"]
+__all__ = ["WhiteStandard", "Calibration", "Calibrated", "reading_std"]
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,8 @@ class Calibrated:
         return np.array([bool(r) for r in self.mask_reason])
 
 
-def _std(r: Reading) -> np.ndarray:
+def reading_std(r: Reading) -> np.ndarray:
+    """Standard uncertainty per pixel of a reading: its own std, else a shot-noise estimate."""
     if r.std is not None:
         return np.asarray(r.std, dtype=float)
     # shot-noise-like fallback: counts are Poisson-ish, averaged over `averages` scans
@@ -114,9 +115,9 @@ class Calibration:
         """Dark-corrected reference counts per second, their std, and per-pixel mask reasons."""
         w = self.white
         d = self.white_dark.signal if self.white_dark is not None else np.zeros_like(w.signal)
-        ud = _std(self.white_dark) if self.white_dark is not None else np.zeros_like(w.signal)
+        ud = reading_std(self.white_dark) if self.white_dark is not None else np.zeros_like(w.signal)
         net = (w.signal - d) / w.integration_s
-        u = np.sqrt(_std(w) ** 2 + ud**2) / w.integration_s
+        u = np.sqrt(reading_std(w) ** 2 + ud**2) / w.integration_s
         reasons = []
         for i in range(net.size):
             if w.saturated[i]:
@@ -137,9 +138,9 @@ class Calibration:
             raise CalibrationError(f"{geometry}: viewing at the horizon, BRDF is undefined (cos theta_r = 0)")
         ref, u_ref, reasons = self.reference_rate()
         d = dark.signal if dark is not None else np.zeros_like(reading.signal)
-        ud = _std(dark) if dark is not None else np.zeros_like(reading.signal)
+        ud = reading_std(dark) if dark is not None else np.zeros_like(reading.signal)
         net = (reading.signal - d) / reading.integration_s
-        u_net = np.sqrt(_std(reading) ** 2 + ud**2) / reading.integration_s
+        u_net = np.sqrt(reading_std(reading) ** 2 + ud**2) / reading.integration_s
         rf_w = self.standard.rf(np.asarray(reading.wavelengths, dtype=float))
         cos_w = abs(math.cos(math.radians(self.standard.geometry.theta_r)))
         ok = np.array([not r for r in reasons])

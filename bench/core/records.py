@@ -19,6 +19,8 @@ theta_min ...      patch bounds ``theta_min, theta_max, phi_min, phi_max`` (virt
                    a physical detector gives its aperture instead)
 psa                projected solid angle of the patch or aperture (sr)
 count, N           rays in the patch and rays that reached the specimen (virtual)
+u_c, U, k          a calibrated scan's GUM budget: combined and expanded uncertainty, coverage
+                   factor; ``uncertainty_budget`` the budget itself as JSON (bench.core.budget)
 =================  ============================================================================
 
 Keys. Besides the geometry and wavelength columns above, a record carries the *identity* key
@@ -54,7 +56,7 @@ KEY_COLUMNS = ("specimen", "collector", "geometry", "theta_i", "phi_i", "theta_r
 COLUMN_UNITS = {"wavelength_nm": "nm", "theta_i": "deg", "phi_i": "deg", "theta_r": "deg", "phi_r": "deg",
                 "theta_min": "deg", "theta_max": "deg", "phi_min": "deg", "phi_max": "deg", "psa": "sr",
                 "value": "1/sr", "std": "1/sr", "ci_lo": "1/sr", "ci_hi": "1/sr", "count": "rays", "N": "rays",
-                "hemisphere": "R|T", "specimen": "", "collector": "", "geometry": "", "quantity": ""}
+                "u_c": "1/sr", "U": "1/sr", "k": "1", "hemisphere": "R|T", "specimen": "", "collector": "", "geometry": "", "quantity": ""}
 
 
 def _label(v: Any) -> str | None:

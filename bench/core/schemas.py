@@ -20,7 +20,7 @@ from bench.core.plugins import EFFECT_GROUP, load_plugins
 from bench.core.validation import Finite, Settings, Table, Whole, validate_document, validation_message
 
 __all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "validation_message", "Settings",
-           "BENCH_KINDS", "SceneEffect", "EFFECT_SCHEMAS", "plugin_effects", "scene_schema", "MAX_PLAN_POINTS",
+           "BENCH_KINDS", "UncertaintyTable", "SceneEffect", "EFFECT_SCHEMAS", "plugin_effects", "scene_schema", "MAX_PLAN_POINTS",
            "MAX_INTEGRATION_S", "MAX_AVERAGES", "MAX_RAYS", "MAX_SWEEP_SERIES"]
 
 #: the most points one plan may expand to (a plan of more is almost surely a typo in a step)
@@ -176,6 +176,20 @@ class BandsTable(Table):
     bandwidth_nm: Annotated[Finite, Field(gt=0, le=1000)] = 10.0
 
 
+class UncertaintyTable(Table):
+    """``[uncertainty]``: how the GUM budget of every calibrated reading is evaluated
+    (:mod:`bench.core.budget`), and the type-B components that are knowledge of the detector rather
+    than effects. Effects (read noise, lamp drift, positioning) are declared once, in
+    ``[instrument]``: the virtual body simulates them and every body's budget counts them."""
+
+    method: Literal["linear", "mc"] = "linear"  # GUM law of propagation, or GUM-S1 Monte Carlo
+    k: Annotated[Finite, Field(gt=0, le=10)] = 2.0  # coverage factor of the expanded uncertainty
+    mc_samples: Annotated[Whole, Field(ge=1000, le=10_000_000)] = 20_000
+    mc_seed: Annotated[Whole, Field(ge=0, lt=2**63)] = 0
+    aperture: Annotated[Finite, Field(ge=0, le=1)] = 0.0  # relative: detector solid angle / aperture
+    nonlinearity: Annotated[Finite, Field(ge=0, le=1)] = 0.0  # relative: detector response
+
+
 #: the bodies a bench description may be built as (``kind`` of a bench file)
 BenchKind = Literal["virtual", "emulated", "real"]
 BENCH_KINDS: tuple[str, ...] = get_args(BenchKind)
@@ -201,6 +215,7 @@ class BenchFile(BaseModel):
     spectrometer: dict[str, Any] | None = None
     light: dict[str, Any] | None = None
     instrument: dict[str, Any] | None = None  # declared effects of the virtual body (bench.builders.instrument)
+    uncertainty: UncertaintyTable | None = None  # the GUM budget's declared components (bench.core.budget)
 
     @field_validator("arm", "turntable", "spectrometer", "light", "instrument", mode="before")
     @classmethod

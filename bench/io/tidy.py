@@ -47,7 +47,7 @@ def column_units(record: BSDFRecord) -> dict[str, str]:
     out = {}
     for c in record.table.columns:
         if c in COLUMN_UNITS and COLUMN_UNITS[c]:
-            out[str(c)] = value_unit if c in ("value", "std", "ci_lo", "ci_hi") else COLUMN_UNITS[c]
+            out[str(c)] = value_unit if c in ("value", "std", "ci_lo", "ci_hi", "u_c", "U") else COLUMN_UNITS[c]
     return out
 
 

@@ -123,12 +123,32 @@ class RunReader:
         for c in ("idx", "signal", "dark", "white", "saturated"):
             if c in df.columns and (c == "idx" or df[c].notna().any()):
                 out[c] = df[c]
+        if "uncertainty_budget" in df.columns and df["uncertainty_budget"].notna().any():
+            budgets = [b if isinstance(b, dict) else None for b in df["uncertainty_budget"]]
+            for col, key in (("u_c", "combined"), ("U", "expanded"), ("k", "k")):
+                out[col] = [np.nan if b is None else float(b[key]) for b in budgets]
+            out["uncertainty_budget"] = [None if b is None else json.dumps(b) for b in budgets]
         info = self._run_row(run_id)
         meta = dict(info.get("meta") or {})
         for k in ("run_id", "kind", "status", "reason", "seed", "plan", "bench", "calibration", "versions",
                   "created_utc", "finished_utc"):
             meta.setdefault(k, info.get(k))
         return BSDFRecord(out, meta)
+
+    def reading_budgets(self, run_id: str) -> list[dict[str, Any]]:
+        """Each reading's geometry, wavelength, value and ``uncertainty_budget`` (None for a reading
+        stored without one: masked, uncalibrated, or from a store older than the budgets)."""
+        self._status(run_id)
+        rows = self._db.execute(
+            "SELECT r.idx, p.theta_i, p.phi_i, COALESCE(r.theta_r, p.theta_r), COALESCE(r.phi_r, p.phi_r), "
+            "r.wavelength_nm, r.value, r.std, r.extra FROM readings r JOIN points p ON p.run_id = r.run_id "
+            "AND p.idx = r.idx WHERE r.run_id = ? ORDER BY r.idx, r.rowid", (run_id,)).fetchall()
+        out = []
+        for idx, ti, pi_, tr, pr, wl, value, std, extra in rows:
+            budget = json.loads(extra).get("uncertainty_budget") if isinstance(extra, str) else None
+            out.append({"idx": idx, "theta_i": ti, "phi_i": pi_, "theta_r": tr, "phi_r": pr, "wavelength_nm": wl,
+                        "value": value, "std": std, "uncertainty_budget": budget})
+        return out
 
     def summary(self, run_id: str) -> dict[str, Any]:
         """What ``bench show`` prints: status, reason, points done / planned, wavelengths,
