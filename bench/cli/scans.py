@@ -12,6 +12,7 @@ import sys
 
 from bench.cli.argtypes import RegistryChoices, real, run_id, seed
 from bench.cli.commands import command_help
+from bench.cli.design import add_design_options
 from bench.cli.common import (DEFAULT_STORE, add_bench_options, announce_compilation, check_output, emit_json, hms,
                                open_store, report_run)
 from bench.core.errors import InputError
@@ -33,6 +34,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
     (each with theta_i, phi_i, theta_r, phi_r, rule, message), ``seconds`` and ``motion_s`` (of the
     reachable points), ``calibration_refused`` (a calibration step the bench cannot take, or null).
     A plan ``bench scan`` would refuse exits 2 (its JSON still printed)."""
+    if args.design is not None:
+        from bench.cli.design import cmd_plan_design
+
+        return cmd_plan_design(args)
+    if args.plan is None:
+        raise InputError("give a plan file to check, or --design MODEL to write one")
     from bench.core.errors import CalibrationRefused, PlanError
     from bench.plans import MotionProfile, estimate, order_for_travel, refusal_message, refusals
     from bench.preflight import check_calibration_steps
@@ -179,9 +186,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add ``plan``, ``scan``, ``resume``, ``runs``, ``show`` and ``export`` to the subcommands."""
     store_help = "the run store, an SQLite file (default %(default)s)"
     pl = sub.add_parser("plan", help=command_help("plan"))
-    pl.add_argument("plan", metavar="PLAN.toml", help="the plan file (see fixtures/plans/)")
+    pl.add_argument("plan", metavar="PLAN.toml", nargs="?", help="the plan file (see fixtures/plans/)")
     add_bench_options(pl, "the bench config (required)")
     pl.add_argument("--json", action="store_true", help="one JSON object with stable keys")
+    add_design_options(pl)
     pl.set_defaults(func=cmd_plan)
 
     sc = sub.add_parser("scan", help=command_help("scan"))
