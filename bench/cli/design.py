@@ -11,10 +11,24 @@ import argparse
 from typing import Any
 
 from bench.cli.argtypes import real
-from bench.cli.common import check_output, emit_json, hms, output_file
+from bench.cli.common import check_output, emit_json, output_file
 from bench.core.errors import InputError
 
-__all__ = ["add_design_options", "cmd_plan_design", "open_design"]
+__all__ = ["add_design_options", "cmd_plan_design", "open_design", "DEFAULT_INTEGRATIONS"]
+
+#: integration times a design chooses from by default (s): the shipped in-plane plan's 0.02 s and
+#: shorter and longer ones (shorter buys more points, longer less noise per point)
+DEFAULT_INTEGRATIONS = "0.005,0.01,0.02,0.05"
+
+
+def _times(text: str) -> str:
+    try:
+        values = [float(t) for t in str(text).split(",") if t.strip()]
+    except ValueError:
+        values = []
+    if not values or not all(0.001 <= v <= 60.0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected integration times 0.001..60 s separated by commas, got {text!r}")
+    return text
 
 
 def add_design_options(parser: argparse.ArgumentParser) -> None:
@@ -31,14 +45,18 @@ def add_design_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--prior", metavar="p=VALUE,...", help="--design: prior guess of the free parameters "
                    "(default: the family's declared defaults)")
     g.add_argument("--like", metavar="PLAN.toml", help="--design: read every point as this plan does "
-                   "(integration, averages, dark, white; default 0.02 s x 2, darks per incidence, one white)")
+                   "(averages, dark, white; default 2 averages, darks per incidence, one white)")
+    g.add_argument("--integration-s", type=_times, default=DEFAULT_INTEGRATIONS, metavar="T[,T...]",
+                   help="--design: integration times to choose from, s (default %(default)s; the design "
+                   "takes the one that identifies best within the budget)")
     g.add_argument("--step", type=real(0.5, 45.0), default=5.0, metavar="DEG",
                    help="--design: step of the in-plane candidate grid, deg (default %(default)s)")
     g.add_argument("--compare", metavar="PLAN.toml", help="--design: also predict the interval widths of this plan")
 
 
 def open_design(args: argparse.Namespace) -> tuple[Any, Any, Any, Any]:
-    """The parsed model, the model at its prior, the reading settings and the bench of a design command."""
+    """The parsed model, the model at its prior, the reading settings to choose from and the bench
+    of a design command."""
     from bench.config import load_bench
     from bench.identify.design_io import model_point, parse_prior
     from bench.identify.model_spec import parse_model_spec
@@ -47,7 +65,10 @@ def open_design(args: argparse.Namespace) -> tuple[Any, Any, Any, Any]:
 
     spec = parse_model_spec(args.design)
     point = model_point(spec, parse_prior(args.prior))
-    settings = ReadingSettings.like(load_plan(args.like)) if args.like else ReadingSettings()
+    from bench.identify.design import integration_choices
+
+    base = ReadingSettings.like(load_plan(args.like)) if args.like else ReadingSettings()
+    settings = integration_choices(base, [float(t) for t in str(args.integration_s).split(",") if t.strip()])
     bench = load_bench(args.bench, seed=getattr(args, "seed", None), body=args.body)
     return spec, point, settings, bench
 
@@ -58,10 +79,10 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     (predicted 95 % interval widths), ``compare`` (null, or the compared plan's ``plan``,
     ``seconds``, ``points``, ``widths``)."""
     from bench.core.errors import PlanError
-    from bench.identify.design import design_plan, information, interval_widths
+    from bench.identify.design import design_for_bench, information, interval_widths
     from bench.identify.design_io import widths_text, write_design
     from bench.identify.design_noise import bench_reading_model
-    from bench.identify.time_model import bench_time_model, candidate_grid, reachable
+    from bench.identify.time_model import ReadingSettings, bench_time_model, candidate_grid, reachable
     from bench.plans import load_plan, refusal_message, refusals
 
     if args.plan is not None:
@@ -73,13 +94,11 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     spec, point, settings, bench = open_design(args)
     with bench:
         check = bench.goniometer.check
-        time = bench_time_model(bench, settings)
-        readings = bench_reading_model(bench, settings)
-        candidates = reachable(candidate_grid(args.step), check, settings)
+        candidates = reachable(candidate_grid(args.step), check, settings[0])
         if not candidates:
             raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
-        design = design_plan(point, candidates, readings, time, args.seconds, args.criterion)
-        write_design(out, design, settings, spec.text, bench.name, bench.kind, len(candidates), args.seconds)
+        design = design_for_bench(point, bench, candidates, args.seconds, settings, args.criterion)
+        write_design(out, design, spec.text, bench.name, bench.kind, len(candidates), args.seconds)
         written = load_plan(out)
         refused = refusals(written, check)
         if refused:  # the design chose only reachable points: this would be a bug, said as the validator says it
@@ -88,19 +107,23 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
         if compare is not None:
             refused = refusals(compare, check)
             pts = [g for i, g in enumerate(compare.points) if i not in {r.index for r in refused}]
-            fisher = information(point, pts, readings).total(range(len(pts)))
-            other = {"plan": compare.name, "points": len(pts), "seconds": time.seconds(pts)["seconds"],
+            like = ReadingSettings.like(compare)
+            fisher = information(point, pts, bench_reading_model(bench, like)).total(range(len(pts)))
+            other = {"plan": compare.name, "points": len(pts),
+                     "seconds": bench_time_model(bench, like).seconds(pts)["seconds"],
                      "widths": interval_widths(fisher, point.free)}
     result = {"plan": str(out), "model": spec.text, "prior": dict(point.values), "criterion": design.criterion,
               "budget_s": args.seconds, "seconds": design.seconds, "motion_s": design.estimate["motion_s"],
-              "points": len(design.points), "candidates": len(candidates), "widths": design.widths, "compare": other}
+              "points": len(design.points), "candidates": len(candidates), "integration_s": design.settings.integration_s,
+              "averages": design.settings.averages, "widths": design.widths, "compare": other}
     if args.json:
         emit_json(result)
         return 0
     print(f"wrote {out}: {len(design.points)} points ({design.criterion}-optimal for {spec.text}) of "
-          f"{len(candidates)} reachable on bench {bench.name}, estimated {hms(design.seconds)} of {hms(args.seconds)}")
+          f"{len(candidates)} reachable on bench {bench.name}, {design.settings.integration_s:g} s x "
+          f"{design.settings.averages} per point, estimated {design.seconds:.4g} s of {args.seconds:g} s")
     print(f"  predicted 95% interval widths: {widths_text(design.widths)}")
     if other is not None:
-        print(f"  plan {other['plan']}: {other['points']} points, {hms(other['seconds'])}, widths "
+        print(f"  plan {other['plan']}: {other['points']} points, {other['seconds']:.4g} s, widths "
               f"{widths_text(other['widths'])}")
     return 0

@@ -18,7 +18,7 @@ interval widths (``2 x 1.96 x se``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -26,10 +26,10 @@ import numpy as np
 from bench.core.errors import ConfigError
 from bench.core.geometry import Geometry
 from bench.identify.design_noise import ReadingModel, predicted_brdf
-from bench.identify.time_model import TimeModel
+from bench.identify.time_model import ReadingSettings, TimeModel
 
-__all__ = ["ModelPoint", "Information", "information", "criterion", "Design", "design_plan", "CRITERIA",
-           "interval_widths", "Z95"]
+__all__ = ["ModelPoint", "Information", "information", "Sensitivities", "sensitivities", "criterion", "Design", "design_plan", "CRITERIA",
+           "interval_widths", "Z95", "design_for_bench", "integration_choices"]
 
 CRITERIA = ("D", "A", "E")
 #: two-sided 95 % normal quantile: predicted interval width = 2 x Z95 x Cramer-Rao standard error
@@ -92,30 +92,47 @@ class Information:
         return a - (self.rho2 / (1.0 + self.rho2 * c))[:, None, None] * np.einsum("ni,nj->nij", b, b)
 
 
+@dataclass(frozen=True)
+class Sensitivities:
+    """The model's predicted readings ``brdf`` (points, wavelengths) at the prior and their
+    derivatives ``jacobian`` (points, wavelengths, free parameters): they do not depend on how
+    the points are read, so one computation serves every reading setting."""
+
+    brdf: np.ndarray
+    jacobian: np.ndarray
+
+
+def sensitivities(model: ModelPoint, candidates: Sequence[Geometry], wavelengths: np.ndarray,
+                  aperture_deg: float = 0.0) -> Sensitivities:
+    """Predicted readings and their central-difference derivatives at the prior."""
+    f0 = predicted_brdf(model.specimen(), candidates, wavelengths, aperture_deg)
+    jac = []
+    for k, h in model.steps().items():
+        up = dict(model.values, **{k: model.values[k] + h})
+        dn = dict(model.values, **{k: model.values[k] - h})
+        jac.append((predicted_brdf(model.specimen(up), candidates, wavelengths, aperture_deg)
+                    - predicted_brdf(model.specimen(dn), candidates, wavelengths, aperture_deg)) / (2 * h))
+    return Sensitivities(f0, np.stack(jac, axis=-1))
+
+
 def information(model: ModelPoint, candidates: Sequence[Geometry], readings: ReadingModel,
-                shared_scale: bool = True) -> Information:
+                shared_scale: bool = False, sens: Sensitivities | None = None) -> Information:
     """The per-candidate Fisher information of ``model``'s free parameters on a bench body.
 
-    ``shared_scale``: the white standard's relative uncertainty is one error common to the whole
-    record (its covariance is rank one); False counts it in each reading's own variance, as a
-    likelihood with a diagonal covariance does.
+    ``shared_scale``: count the white standard's relative uncertainty as one error common to the
+    whole record (rank-one covariance); False (default) counts it in each reading's own variance,
+    as the fit's likelihood does (:func:`bench.identify.likelihood.readings_and_covariance`: the
+    record's per-reading uncertainty, a diagonal covariance).
     """
-    wl = readings.wavelengths
-    f0 = predicted_brdf(model.specimen(), candidates, wl, readings.aperture_deg)
+    sens = sens or sensitivities(model, candidates, readings.wavelengths, readings.aperture_deg)
+    f0 = sens.brdf
     sigma, rho = readings.noise(f0, candidates)
     if not shared_scale:
         sigma, rho = np.sqrt(sigma**2 + (rho * f0) ** 2), 0.0
     ok = np.isfinite(sigma) & (sigma > 0) & np.isfinite(f0)
     w = np.where(ok, 1.0 / np.where(ok, sigma, 1.0) ** 2, 0.0)  # D^-1 (0 for a masked reading)
     f = np.where(ok, f0, 0.0)
-    jac = []
-    for k, h in model.steps().items():
-        up = dict(model.values, **{k: model.values[k] + h})
-        dn = dict(model.values, **{k: model.values[k] - h})
-        d = (predicted_brdf(model.specimen(up), candidates, wl, readings.aperture_deg)
-             - predicted_brdf(model.specimen(dn), candidates, wl, readings.aperture_deg)) / (2 * h)
-        jac.append(np.where(ok, d, 0.0))
-    j = np.stack(jac, axis=-1)  # (n, wavelengths, p)
+    j = np.where(ok[..., None], sens.jacobian, 0.0)  # (n, wavelengths, p)
     own = np.einsum("nwi,nw,nwj->nij", j, w, j)
     cross = np.einsum("nwi,nw,nw->ni", j, w, f)
     self_ = np.einsum("nw,nw,nw->n", f, w, f)
@@ -165,27 +182,27 @@ class Design:
     widths: dict[str, float]
     fisher: np.ndarray
     model: ModelPoint
-    steps: list[str] = field(default_factory=list)
+    settings: ReadingSettings
 
 
 def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: ReadingModel, time: TimeModel,
                 seconds: float, criterion_name: str = "D", seed_points: Sequence[Geometry] = (),
-                info: Information | None = None) -> Design:
+                sens: Sensitivities | None = None, shared_scale: bool = False) -> Design:
     """Choose points among ``candidates`` that maximise the criterion within ``seconds`` of bench time.
 
     ``seed_points`` are measured already (a sequential design's earlier steps): they count in the
-    information, not in the time. Raises :class:`ConfigError` when no free parameter is given,
-    or when the budget cannot buy a design that identifies every free parameter.
+    information, not in the time. ``sens``: the sensitivities of ``candidates + seed_points``
+    (computed when not given). Raises :class:`ConfigError` when no free parameter is given, or
+    when the budget cannot buy a design that identifies every free parameter.
     """
     if not model.free:
         raise ConfigError(f"model {model.spec()} has no free parameter: mark the ones to design for "
                           f"with '?', e.g. {model.family.name}:{model.family.parameters[0].name}=?")
     if criterion_name not in CRITERIA:
         raise ConfigError(f"design criterion must be one of {', '.join(CRITERIA)}, got {criterion_name!r}")
-    pool = list(candidates) + [g for g in seed_points if g not in candidates]
-    info = info or information(model, pool, readings)
-    index = {g: i for i, g in enumerate(pool)}
-    fixed = [index[g] for g in seed_points]
+    pool = list(candidates) + list(seed_points)
+    info = information(model, pool, readings, shared_scale, sens)
+    fixed = list(range(len(candidates), len(pool)))
     n_cand = len(candidates)
     p = len(model.free)
     scale = np.trace(info.own[:n_cand].mean(axis=0)) / p if n_cand else 1.0
@@ -227,7 +244,7 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
     points = [pool[i] for i in chosen]
     est = time.seconds(points)
     return Design(points, float(est["seconds"]), est, criterion_name, value,
-                  interval_widths(fisher, model.free), fisher, model)
+                  interval_widths(fisher, model.free), fisher, model, readings.settings)
 
 
 def _exchange(info: Information, pool: Sequence[Geometry], chosen: list[int], fixed: list[int], n_cand: int,
@@ -257,7 +274,36 @@ def _exchange(info: Information, pool: Sequence[Geometry], chosen: list[int], fi
     return chosen
 
 
-def uniform_information(info_fn: Callable[[Sequence[Geometry]], Information], points: Sequence[Geometry]) -> np.ndarray:
-    """Fisher information of a given plan's points (e.g. the uniform in-plane plan), for comparison."""
-    inf = info_fn(points)
-    return inf.total(np.arange(len(points)))
+def design_for_bench(model: ModelPoint, bench: Any, candidates: Sequence[Geometry], seconds: float,
+                     settings: Sequence[ReadingSettings], criterion_name: str = "D",
+                     seed_points: Sequence[Geometry] = (), shared_scale: bool = False) -> Design:
+    """The best design over several ways of reading the points (e.g. integration times): each
+    has its own noise and time per point; the one with the largest criterion wins. Raises as
+    :func:`design_plan` when none fits the budget."""
+    from bench.identify.design_noise import bench_reading_model
+    from bench.identify.time_model import bench_time_model
+
+    pool = list(candidates) + list(seed_points)
+    best: Design | None = None
+    error: ConfigError | None = None
+    sens = None
+    for s in settings:
+        readings = bench_reading_model(bench, s)
+        sens = sens or sensitivities(model, pool, readings.wavelengths, readings.aperture_deg)
+        try:
+            d = design_plan(model, candidates, readings, bench_time_model(bench, s), seconds, criterion_name,
+                            seed_points, sens, shared_scale)
+        except ConfigError as exc:
+            error = error or exc
+            continue
+        if best is None or d.value > best.value:
+            best = d
+    if best is None:
+        assert error is not None
+        raise error
+    return best
+
+
+def integration_choices(base: ReadingSettings, times: Sequence[float]) -> list[ReadingSettings]:
+    """``base`` read with each integration time of ``times``."""
+    return [replace(base, integration_s=float(t)) for t in times]

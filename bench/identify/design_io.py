@@ -17,7 +17,6 @@ import tomli_w
 
 from bench.core.errors import InputError, SpecimenError
 from bench.identify.design import Design, ModelPoint
-from bench.identify.time_model import ReadingSettings
 
 __all__ = ["model_point", "parse_prior", "design_table", "write_design", "widths_text"]
 
@@ -69,21 +68,21 @@ def widths_text(widths: Mapping[str, float]) -> str:
     return ", ".join(f"{k} {v:.3g}" for k, v in widths.items())
 
 
-def design_table(design: Design, settings: ReadingSettings, name: str, model_text: str) -> dict[str, Any]:
+def design_table(design: Design, name: str, model_text: str) -> dict[str, Any]:
     """The plan table of a design (``kind = "list"``, points in travel order by ``bench scan``)."""
     prior = ",".join(f"{k}={v:g}" for k, v in design.model.values.items())
     description = (f"{design.criterion}-optimal design for {model_text} at {prior}; "
                    f"predicted 95% interval widths (Cramer-Rao): {widths_text(design.widths)}")
-    return {"name": name, "kind": "list", "description": description, **settings.plan_table(), "order": "travel",
+    return {"name": name, "kind": "list", "description": description, **design.settings.plan_table(), "order": "travel",
             "points": [[round(g.theta_i, 9), round(g.phi_i, 9), round(g.theta_r, 9), round(g.phi_r, 9)]
                        for g in design.points]}
 
 
-def write_design(path: str | Path, design: Design, settings: ReadingSettings, model_text: str, bench_name: str,
-                 body: str, candidates: int, seconds: float) -> Path:
+def write_design(path: str | Path, design: Design, model_text: str, bench_name: str, body: str, candidates: int,
+                 seconds: float) -> Path:
     """Write the design as a plan file with a header saying how it was designed."""
     p = Path(path)
-    table = design_table(design, settings, p.stem, model_text)
+    table = design_table(design, p.stem, model_text)
     est = design.estimate
     header = [
         f"# Designed by `bench plan --design \"{model_text}\" --seconds {seconds:g} --criterion {design.criterion}`",

@@ -34,7 +34,10 @@ from bench.core.parsing import parse_wavelengths
 from bench.core.roles import Reading
 from bench.identify.time_model import ReadingSettings
 
-__all__ = ["ReadingModel", "bench_reading_model", "predicted_brdf"]
+__all__ = ["ReadingModel", "bench_reading_model", "predicted_brdf", "SATURATION_MARGIN"]
+
+#: a design avoids readings predicted above this fraction of the detector's full scale
+SATURATION_MARGIN = 0.8
 
 
 def predicted_brdf(specimen: Any, geometries: Sequence[Geometry], wavelengths: np.ndarray,
@@ -77,16 +80,23 @@ class ReadingModel:
     variance_floor: np.ndarray  # signal variance of a reading with no light (read noise)
     dark_level: np.ndarray
     relative_floor: float = 0.0  # a relative uncertainty per reading (real body: the estimator's)
+    #: a band saturates when its brightest pixel, dark included, would pass this many counts
+    saturation: np.ndarray | None = None
+    peak_ratio: np.ndarray | None = None  # brightest pixel / band mean, per band
 
-    def counts(self, brdf: np.ndarray, cos_r: float) -> tuple[np.ndarray, np.ndarray]:
+    def counts(self, brdf: np.ndarray, cos_r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Expected signal, its standard deviation and whether it saturates, per wavelength."""
         net = self.counts_per_brdf * np.maximum(brdf, 0.0) * cos_r
         var = self.variance_per_count * net + self.variance_floor + (self.relative_floor * net) ** 2
-        return self.dark_level + net, np.sqrt(var)
+        saturated = np.zeros(net.shape, dtype=bool)
+        if self.saturation is not None and self.peak_ratio is not None:
+            saturated = self.dark_level + net * self.peak_ratio >= self.saturation
+        return self.dark_level + net, np.sqrt(var), saturated
 
     def _calibration(self, with_standard: bool, with_white_noise: bool) -> Calibration:
         rf = np.asarray(self.standard.rf(self.wavelengths), dtype=float)
         cos_w = abs(math.cos(math.radians(self.standard.geometry.theta_r)))
-        signal, std = self.counts(rf / math.pi, cos_w)
+        signal, std, _ = self.counts(rf / math.pi, cos_w)
         if not with_white_noise:
             std = np.zeros_like(std)
         standard = self.standard if with_standard else replace(self.standard, uncertainty=0.0)
@@ -107,8 +117,8 @@ class ReadingModel:
         own = np.empty(brdf.shape)
         shared = []
         for k, g in enumerate(geometries):
-            signal, std = self.counts(brdf[k], abs(math.cos(math.radians(g.theta_r))))
-            r = _reading(signal, std, self.wavelengths, self.settings)
+            signal, std, saturated = self.counts(brdf[k], abs(math.cos(math.radians(g.theta_r))))
+            r = replace(_reading(signal, std, self.wavelengths, self.settings), saturated=saturated)
             a = alone.apply(r, g, dark)
             f = full.apply(r, g, dark)
             own[k] = a.std
@@ -120,6 +130,7 @@ class ReadingModel:
 
 def _emulated_model(d: Mapping[str, Any], settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
     from bench.builders.emulated import RESPONSE_GAIN
+    from drivers.ocean.codec import FULL_SCALE
     from virtual.wire.ocean_model import SpectrometerConfig, SpectrometerModel
 
     e = d.get("emulated") or {}
@@ -128,17 +139,22 @@ def _emulated_model(d: Mapping[str, Any], settings: ReadingSettings, standard: W
     centres = np.asarray(parse_wavelengths(e.get("bands", "450:650:100")), dtype=float)
     half = float(e.get("bandwidth_nm", 10.0)) / 2.0
     t_ms = round(settings.integration_s * 1000.0)
-    per_count, per_var, floor = [], [], []
+    per_count, per_var, floor, peak = [], [], [], []
     for c in centres:  # a band reads the mean of its pixels (bench.bands.SpectralBands)
         lamp = detector.lamp[np.abs(detector.wavelengths - c) <= half]
         n = lamp.size
+        peak.append(float(lamp.max() / lamp.mean()))
         per_count.append(float(lamp.mean()) * cfg.peak_counts_per_ms * t_ms * RESPONSE_GAIN)
         # mean of n pixels x averages scans: shot (counts_per_electron x signal) and read noise
         per_var.append(cfg.counts_per_electron / (n * settings.averages))
         floor.append(cfg.read_noise**2 / (n * settings.averages))
     dark = cfg.dark_counts + cfg.dark_counts_per_s * t_ms / 1000.0
+    # a band is flagged when any pixel of any scan reaches full scale: keep a margin for noise and
+    # for a prior that is only a guess
+    full = np.full(centres.size, SATURATION_MARGIN * FULL_SCALE)
     return ReadingModel("emulated", centres, settings, standard, float(e.get("aperture_deg", 1.0)),
-                        np.array(per_count), np.array(per_var), np.array(floor), np.full(centres.size, dark))
+                        np.array(per_count), np.array(per_var), np.array(floor), np.full(centres.size, dark),
+                        saturation=full, peak_ratio=np.array(peak))
 
 
 def _virtual_model(bench: Any, settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
