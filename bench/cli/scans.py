@@ -12,7 +12,7 @@ import sys
 
 from bench.cli.argtypes import RegistryChoices, real, run_id, seed
 from bench.cli.commands import command_help
-from bench.cli.design import add_design_options
+from bench.cli.design import add_adaptive_options, add_design_options
 from bench.cli.common import (DEFAULT_STORE, add_bench_options, announce_compilation, check_output, emit_json, hms,
                                open_store, report_run)
 from bench.core.errors import InputError
@@ -86,6 +86,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_scan(args: argparse.Namespace) -> int:
+    if args.adaptive is not None:
+        from bench.cli.design import cmd_scan_adaptive
+
+        return cmd_scan_adaptive(args)
+    if args.plan is None:
+        raise InputError("give a plan file to scan, or --adaptive MODEL")
     from bench.runner import run_scan
 
     plan, bench = _plan_and_bench(args)
@@ -193,13 +199,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     pl.set_defaults(func=cmd_plan)
 
     sc = sub.add_parser("scan", help=command_help("scan"))
-    sc.add_argument("plan", metavar="PLAN.toml", help="the plan file (see fixtures/plans/)")
+    sc.add_argument("plan", metavar="PLAN.toml", nargs="?", help="the plan file (see fixtures/plans/)")
     add_bench_options(sc, "the bench config (required)")
     sc.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     sc.add_argument("--seed", type=seed, help="root seed of virtual devices, integer 0..2^63-1 (default: the "
                     "bench's, else a fresh one)")
     sc.add_argument("--quiet", "-q", action="store_true", help="no progress bar (shown only on a terminal)")
     sc.add_argument("--json", action="store_true", help="the run result as one JSON object")
+    add_adaptive_options(sc)
     sc.set_defaults(func=cmd_scan)
 
     rs = sub.add_parser("resume", help=command_help("resume"))

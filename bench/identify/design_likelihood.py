@@ -7,8 +7,9 @@ information (:mod:`bench.identify.design`) also counts:
 * the prediction is the model averaged over the detector's aperture, as the bench description
   declares it (``[emulated] aperture_deg``): near a glossy peak a 1 deg aperture changes the
   reading by up to a few per cent at grazing angles, far more than the readings' noise;
-* the white standard's relative uncertainty is one error shared by every reading (its
-  covariance ``rho^2 y y^T``), not an independent error per reading.
+* optionally (``shared=True``) the white standard's relative uncertainty as one error shared by
+  every reading (covariance ``rho^2 y y^T``) rather than an independent error per reading; the
+  default keeps the fit's diagonal covariance, which the design's information matches.
 
 Readings the calibration masked (saturated, at or below dark: no value) are left out, as they
 carry no information; :func:`valid_readings` drops them from a record.
@@ -50,9 +51,10 @@ def shared_relative(record: BSDFRecord) -> float:
 
 
 class BenchReadings(GaussianReadings):
-    """Calibrated readings of a bench: aperture-averaged predictions and a shared white scale."""
+    """Calibrated readings of a bench: aperture-averaged predictions (and optionally a shared
+    white scale)."""
 
-    def __init__(self, record: BSDFRecord, aperture_deg: float = 0.0, shared: bool = True) -> None:
+    def __init__(self, record: BSDFRecord, aperture_deg: float = 0.0, shared: bool = False) -> None:
         from scipy.linalg import cholesky
 
         record = valid_readings(record)
@@ -84,5 +86,5 @@ class BenchReadings(GaussianReadings):
 
 def bench_likelihood(record: BSDFRecord, description: Any) -> BenchReadings:
     """The likelihood of a scan on the bench ``description`` describes."""
-    return BenchReadings(record, aperture_of(description), shared=True)
+    return BenchReadings(record, aperture_of(description))
 
