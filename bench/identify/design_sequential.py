@@ -31,7 +31,8 @@ from bench.identify.design import ModelPoint, design_for_bench
 from bench.identify.design_likelihood import bench_likelihood
 from bench.identify.time_model import ReadingSettings, plan_of_points
 
-__all__ = ["AdaptiveStep", "AdaptiveResult", "adaptive_scan", "parse_targets", "session_key"]
+__all__ = ["AdaptiveStep", "AdaptiveResult", "adaptive_scan", "parse_targets", "session_key", "combined_record",
+           "fit_readings"]
 
 #: share of the budget the first (prior-guess) design spends; the rest is split over later steps
 FIRST_SHARE = 0.4
@@ -93,15 +94,17 @@ def session_key(*parts: Any) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:10]
 
 
-def _combined(records: Sequence[BSDFRecord]) -> BSDFRecord:
+def combined_record(records: Sequence[BSDFRecord]) -> BSDFRecord:
+    """The readings of several runs as one record (the first run's metadata)."""
     table = pd.concat([r.table for r in records], ignore_index=True)
     return BSDFRecord(table, dict(records[0].meta))
 
 
-def _fit(spec: Any, records: Sequence[BSDFRecord], description: Mapping[str, Any]) -> Any:
+def fit_readings(spec: Any, records: Sequence[BSDFRecord], description: Mapping[str, Any]) -> Any:
+    """Fit ``spec`` to the readings of ``records`` with the bench's likelihood (Hessian intervals)."""
     from bench.identify.fit import fit_record
 
-    record = _combined(records)
+    record = combined_record(records)
     return fit_record(record, spec, interval="hessian", likelihood=bench_likelihood(record, description))
 
 
@@ -160,7 +163,7 @@ def adaptive_scan(bench: Any, store: Any, spec: Any, prior: ModelPoint, seconds:
         spent += step_seconds
         measured += list(step_points)
         records.append(store.to_record(run_id))
-        fit = _fit(spec, records, bench.config)
+        fit = fit_readings(spec, records, bench.config)
         estimates = {n: e.value for n, e in fit.parameters.items()}
         widths = {n: e.ci[1] - e.ci[0] for n, e in fit.parameters.items()}
         steps.append(AdaptiveStep(run_id, step_seconds, len(step_points), estimates, widths))
