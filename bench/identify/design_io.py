@@ -18,11 +18,11 @@ import tomli_w
 from bench.core.errors import InputError, SpecimenError
 from bench.identify.design import Design, ModelPoint
 
-__all__ = ["model_point", "parse_prior", "design_table", "write_design", "widths_text"]
+__all__ = ["model_point", "parse_prior", "parse_values", "design_table", "write_design", "widths_text"]
 
 
-def parse_prior(text: str | None) -> dict[str, float]:
-    """``p=value,q=value`` -> ``{p: value}`` (one line naming the bad token otherwise)."""
+def parse_values(text: str | None, option: str, what: str = "VALUE", positive: bool = False) -> dict[str, float]:
+    """``p=number,q=number`` -> ``{p: number}``; a bad token is one line naming ``option`` and it."""
     out: dict[str, float] = {}
     for token in (t.strip() for t in (text or "").split(",")):
         if not token:
@@ -32,12 +32,18 @@ def parse_prior(text: str | None) -> dict[str, float]:
             v = float(value)
         except ValueError:
             v = math.nan
-        if not eq or not key or not math.isfinite(v):
-            raise InputError(f"--prior token {token!r}: expected name=VALUE with a finite number")
+        if not eq or not key or not math.isfinite(v) or (positive and v <= 0):
+            raise InputError(f"{option} token {token!r}: expected name={what} with a finite number"
+                             + (" > 0" if positive else ""))
         if key in out:
-            raise InputError(f"--prior token {token!r}: {key} given twice")
+            raise InputError(f"{option} token {token!r}: {key} given twice")
         out[key] = v
     return out
+
+
+def parse_prior(text: str | None) -> dict[str, float]:
+    """``--prior p=value,...`` -> ``{p: value}``."""
+    return parse_values(text, "--prior")
 
 
 def model_point(spec: Any, prior: Mapping[str, float] | None = None) -> ModelPoint:

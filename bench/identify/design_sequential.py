@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -28,6 +27,7 @@ from bench.core.errors import InputError
 from bench.core.geometry import Geometry
 from bench.core.records import BSDFRecord
 from bench.identify.design import ModelPoint, design_for_bench
+from bench.identify.design_io import parse_values
 from bench.identify.design_likelihood import bench_likelihood
 from bench.identify.time_model import ReadingSettings, plan_of_points
 
@@ -71,21 +71,11 @@ class AdaptiveResult:
 
 
 def parse_targets(text: str | None, free: Sequence[str]) -> dict[str, float]:
-    """``p=width,...`` -> {p: width}: each a free parameter with a width > 0."""
-    out: dict[str, float] = {}
-    for token in (t.strip() for t in (text or "").split(",")):
-        if not token:
-            continue
-        key, eq, value = (s.strip() for s in token.partition("="))
-        try:
-            v = float(value)
-        except ValueError:
-            v = math.nan
-        if not eq or not (math.isfinite(v) and v > 0):
-            raise InputError(f"--target token {token!r}: expected name=WIDTH with a width > 0")
+    """``--target p=width,...`` -> {p: width}: each a free parameter with a width > 0."""
+    out = parse_values(text, "--target", "WIDTH", positive=True)
+    for key in out:
         if key not in free:
-            raise InputError(f"--target {token!r}: {key} is not a free parameter (free: {', '.join(free)})")
-        out[key] = v
+            raise InputError(f"--target {key}={out[key]:g}: {key} is not a free parameter (free: {', '.join(free)})")
     return out
 
 
