@@ -83,20 +83,28 @@ class TimeModel:
                  joints: Callable[[Geometry], Mapping[str, float]] | None = None) -> None:
         self.profile = profile
         self.settings = settings
-        self._joint_kw = {"joints": joints} if joints is not None else {}
+        self._map = joints if joints is not None else default_joints
+        self._joint_cache: dict[Geometry, Mapping[str, float]] = {}
         # one point's own cost, and a dark's: what estimate() charges per reading
         one = self.seconds([Geometry(0.0, 0.0, 30.0, 180.0)])
         self.per_reading = one["acquisition_s"]
         self.dark_s = self.per_reading if settings.dark == "per-incidence" else 0.0
-        self._joints = joints if joints is not None else default_joints
 
     def seconds(self, points: Sequence[Geometry]) -> dict[str, Any]:
         """``bench plan``'s estimate of the plan measuring ``points`` in travel order."""
         if not points:
             return {"points": 0, "seconds": 0.0, "motion_s": 0.0, "acquisition_s": 0.0, "references_s": 0.0,
                     "incidences": 0}
-        plan = plan_of_points(points, self.settings)
-        return estimate(plan, self.profile, order_for_travel(plan.points), **self._joint_kw)
+        s = self.settings
+        plan = Plan("designed", "list", tuple(points), s.integration_s, s.averages, s.dark, s.white)
+        return estimate(plan, self.profile, order_for_travel(plan.points), joints=self._joints)
+
+    def _joints(self, g: Geometry) -> Mapping[str, float]:
+        """The bench's joint map, remembered per point (a design asks for the same points often)."""
+        j = self._joint_cache.get(g)
+        if j is None:
+            j = self._joint_cache[g] = self._map(g)
+        return j
 
     def marginal(self, candidates: Sequence[Geometry], chosen: Sequence[Geometry]) -> np.ndarray:
         """Approximate extra seconds of adding each candidate to ``chosen``: its reading, the
