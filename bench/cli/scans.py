@@ -33,7 +33,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     """Check and time a plan on a bench: JSON keys ``points`` (all of the plan's), ``refused``
     (each with theta_i, phi_i, theta_r, phi_r, rule, message), ``seconds`` and ``motion_s`` (of the
     reachable points), ``calibration_refused`` (a calibration step the bench cannot take, or null).
-    A plan ``bench scan`` would refuse exits 2 (its JSON still printed)."""
+    A plan ``bench scan`` would refuse exits 2 (its JSON still printed). With ``--design MODEL``
+    it writes a designed plan instead (:func:`bench.cli.design.cmd_plan_design`)."""
     if args.design is not None:
         from bench.cli.design import cmd_plan_design
 
