@@ -37,7 +37,10 @@ __all__ = ["ParameterEstimate", "FitResult", "fit_record", "INTERVALS"]
 INTERVALS = ("profile", "hessian")
 #: relative finite-difference step of the Jacobian: well above the quadrature's ~1e-7 relative noise
 DIFF_STEP = 1e-5
-_TOL = {"xtol": 1e-10, "ftol": 1e-10, "gtol": 1e-10}
+#: tolerance of a profile's inner fits: the profile deviance to ~1e-6 of its threshold (chi2 quantile)
+PROFILE_TOL = 1e-8
+#: evaluations a local fit may take, per free parameter plus one (beyond: not converged)
+MAX_EVALUATIONS = 100
 
 log = logging.getLogger(__name__)
 
@@ -145,11 +148,12 @@ def _starts(spec: ModelSpec, starts: int, seed: int) -> list[np.ndarray]:
     return out
 
 
-def _local(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> Any:
+def _local(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+           tol: float = 1e-10) -> Any:
     from scipy.optimize import least_squares
 
     return least_squares(fun, _inside(x0, lo, hi), bounds=(lo, hi), method="trf", x_scale="jac",
-                         diff_step=DIFF_STEP, max_nfev=100 * (len(x0) + 1), **_TOL)
+                         diff_step=DIFF_STEP, max_nfev=MAX_EVALUATIONS * (len(x0) + 1), xtol=tol, ftol=tol, gtol=tol)
 
 
 def _profile_limit(obj: _Objective, xhat: np.ndarray, dev_min: float, cov: np.ndarray, i: int, side: int,
@@ -175,7 +179,7 @@ def _profile_limit(obj: _Objective, xhat: np.ndarray, dev_min: float, cov: np.nd
         def sub(xo: np.ndarray) -> np.ndarray:
             return obj(np.insert(xo, i, v))
 
-        res = _local(sub, guess, lo[others], hi[others])
+        res = _local(sub, guess, lo[others], hi[others], tol=PROFILE_TOL)
         warm["x"] = res.x
         return 2.0 * float(res.cost) - dev_min - q
 
@@ -185,7 +189,7 @@ def _profile_limit(obj: _Objective, xhat: np.ndarray, dev_min: float, cov: np.nd
     for _ in range(60):
         v = float(np.clip(xhat[i] + side * step, lo[i], hi[i]))
         if excess(v) > 0.0:
-            return float(brentq(excess, near, v, xtol=1e-4 * se + 1e-14, rtol=1e-12))
+            return float(brentq(excess, near, v, xtol=1e-3 * se + 1e-14, rtol=1e-10))
         if v == bound:
             return float(bound)
         near, step = v, 2.0 * step
