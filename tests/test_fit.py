@@ -62,13 +62,24 @@ def test_ggx_alpha_recovered_and_equal_to_an_independent_fit(ggx_record):
     assert np.allclose(hes.parameters["alpha"].ci, a.ci, rtol=0, atol=0.05 * (a.ci[1] - a.ci[0]))
 
 
-def test_plastic_alpha_and_kd_recovered_and_equal_to_an_independent_fit():
+@pytest.fixture(scope="module")
+def plastic_fit():
     template, p = gonio_template("plastic:alpha=0.2,kd=0.5")
     record = redraw(template, p, RAYS, np.random.default_rng(28))
-    res = fit_record(record, "plastic:alpha=?0.05:0.6,kd=?", confidence=CONFIDENCE, interval="hessian")
+    return record, fit_record(record, "plastic:alpha=?0.05:0.6,kd=?", confidence=CONFIDENCE, interval="hessian")
+
+
+def test_plastic_alpha_and_kd_recovered(plastic_fit):
+    _, res = plastic_fit
     for name, truth in (("alpha", 0.2), ("kd", 0.5)):
         lo, hi = res.parameters[name].ci
         assert lo < truth < hi, (name, lo, hi)
+    assert res.converged and res.dof == 58
+
+
+@pytest.mark.slow  # ~90 patch quadratures (2 CPU-s); GGX's and the leaf's independent fits run in make test
+def test_plastic_optimum_equals_an_independent_fit(plastic_fit):
+    record, res = plastic_fit
     nll0 = _gonio_nll("plastic:alpha=0.2,kd=0.5", record)
     ind = minimize(lambda x: _gonio_nll(f"plastic:alpha={float(x[0])!r},kd={float(x[1])!r}", record) - nll0, [0.21, 0.49],
                    method="Nelder-Mead", options={"xatol": 1e-7, "fatol": 1e-7})
@@ -76,6 +87,26 @@ def test_plastic_alpha_and_kd_recovered_and_equal_to_an_independent_fit():
         est = res.parameters[name]
         assert abs(est.value - ind.x[i]) <= 0.01 * WIDTH95 * est.stderr, (name, est.value, ind.x[i])
     assert -1.0 < res.correlation[0, 1] < 1.0 and res.correlation[0, 1] == res.correlation[1, 0]
+
+
+def test_calibrated_readings_fit_equals_weighted_least_squares():
+    """Gaussian readings of a Lambertian's BRDF (R / pi) with known u: the estimate and its
+    interval are the closed-form weighted mean's, the Hessian's interval exact (a linear model)."""
+    rng = np.random.default_rng(30)
+    template, _ = gonio_template("lambert:reflectance=0.6", collector="equal-psa:3x8")
+    t = template.table[template.table.hemisphere == "R"].drop(columns=["count", "N"]).reset_index(drop=True)
+    u = 0.01 * (1.0 + rng.random(len(t)))
+    t = t.assign(value=0.6 / np.pi + u * rng.standard_normal(len(t)), std=u)
+    record = type(template)(t, {})
+    w = 1.0 / (np.pi * u) ** 2
+    est = float(np.sum(w * np.pi * t.value) / np.sum(w))
+    se = float(1.0 / np.sqrt(np.sum(w)))
+    for interval in ("hessian", "profile"):
+        res = fit_record(record, "lambert:reflectance=?", interval=interval)
+        p = res.parameters["reflectance"]
+        assert res.likelihood == "gaussian" and res.dof == len(t) - 1
+        assert p.value == pytest.approx(est, abs=1e-6 * se) and p.stderr == pytest.approx(se, rel=1e-4)
+        assert p.ci == pytest.approx((est - 1.959963984540054 * se, est + 1.959963984540054 * se), abs=1e-3 * se)
 
 
 def _deviance_residuals(k: np.ndarray, n: int, p: np.ndarray) -> np.ndarray:
