@@ -144,10 +144,20 @@ def cmd_runs(args: argparse.Namespace) -> int:
 def cmd_show(args: argparse.Namespace) -> int:
     with open_store(args.store, create=False, readonly=True) as store:
         s = store.summary(args.run)
+        if s["kind"] == "fit":  # a fit has no points: its result and the record it was fitted to
+            meta = store.run(args.run).get("meta") or {}
+            s["fit"] = {k: meta.get(k) for k in ("fit", "specimen", "record", "record_run_id")}
     if args.json:
         emit_json(s)
         return 0
     print(f"run {s['run_id']} ({s['kind']}): {s['status']}" + (f" - {s['reason']}" if s["reason"] else ""))
+    if "fit" in s:
+        fit = s["fit"]["fit"] or {}
+        print(f"  record {s['fit']['record']}  model {fit.get('model')}  ({fit.get('method')})")
+        for name, p in (fit.get("parameters") or {}).items():
+            print(f"  {name:10s} {p['value']:.6g}  [{p['ci'][0]:.6g}, {p['ci'][1]:.6g}] {p['unit']}".rstrip())
+        print(f"  chi2 {fit.get('chi2')}, dof {fit.get('dof')}, p {fit.get('p_value')}, converged {fit.get('converged')}")
+        return 0
     print(f"  points {s['points_done']}/{s['points_planned']}, readings {s['readings']}, "
           f"wavelengths {s['wavelengths']['n']} ({s['wavelengths']['min']}..{s['wavelengths']['max']} nm)")
     for k, (lo, hi) in s["geometry"].items():

@@ -82,6 +82,12 @@ class Likelihood:
     kind = ""
     xlabel = ""
     groups: tuple[Group, ...] = ()
+    #: evaluate without the fast path's certificate, to be checked at the optimum (:meth:`certify`)
+    defer_certification = False
+
+    def certify(self, specimen: Specimen) -> bool:
+        """Whether what was evaluated with :attr:`defer_certification` is certified at ``specimen``."""
+        return True
 
     def residuals(self, specimen: Specimen) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -157,21 +163,57 @@ class GonioCounts(Likelihood):
             start += nb + 1
         self.groups = tuple(groups)
 
-    def probabilities(self, specimen: Specimen) -> list[np.ndarray]:
-        """Per block, the probabilities of every bin and "absorbed": certified quadrature, else
-        rays with common random numbers."""
+    def _instrument(self, specimen: Specimen, wl: float, n: int) -> Any:
         from virtual.goniophotometer import VirtualGoniophotometer
 
+        return VirtualGoniophotometer(specimen, collector=self.collector, beam=self.beam, wavelengths=(wl,),
+                                      rays=RAY_FACTOR * n, seed=CRN_SEED, common_random_numbers=True)
+
+    def _deferred(self, specimen: Specimen, ti: float, pi: float, wl: float) -> np.ndarray | None:
+        """The fast path's probabilities from the certification's first attempt, uncertified
+        (``None`` where the fast path does not apply or that attempt fails)."""
+        from bench.core.errors import SimulationError
+        from virtual.goniophotometer import bin_probabilities
+        from virtual.quadrature import CERTIFY_ATTEMPTS, integrate_patches
+
+        if not (specimen.has_density and self.beam.kind == "collimated"):
+            return None
+        try:
+            integrals = integrate_patches(specimen, Geometry(ti, pi, 0.0, 0.0).incident, self.collector, wl,
+                                          **CERTIFY_ATTEMPTS[0])
+        except SimulationError:
+            return None
+        return bin_probabilities(integrals)
+
+    def probabilities(self, specimen: Specimen) -> list[np.ndarray]:
+        """Per block, the probabilities of every bin and "absorbed": certified quadrature, else
+        rays with common random numbers. Under :attr:`defer_certification` the quadrature's
+        certificate (an independent albedo, 90 % of its cost) is skipped: :meth:`certify`
+        checks it at the optimum."""
         nb = self.collector.n_bins
         out = []
         for wl, ti, pi, _k, n in self.blocks:
-            g = VirtualGoniophotometer(specimen, collector=self.collector, beam=self.beam, wavelengths=(wl,),
-                                       rays=RAY_FACTOR * n, seed=CRN_SEED, common_random_numbers=True)
-            if g.fast_path_for(ti, pi, wl):
-                out.append(g.bin_probabilities(ti, pi, wl)[:nb + 1])
-            else:
-                out.append(g.simulate(ti, pi, wl)[:nb + 1] / float(RAY_FACTOR * n))
+            p = self._deferred(specimen, ti, pi, wl) if self.defer_certification else None
+            if p is None:
+                g = self._instrument(specimen, wl, n)
+                if g.fast_path_for(ti, pi, wl):
+                    p = g.bin_probabilities(ti, pi, wl)
+                else:
+                    p = g.simulate(ti, pi, wl) / float(RAY_FACTOR * n)
+            out.append(p[:nb + 1])
         return out
+
+    def certify(self, specimen: Specimen) -> bool:
+        """Whether the deferred probabilities at ``specimen`` are exactly the certified fast
+        path's (its first attempt certified), so a fit found with them stands."""
+        for wl, ti, pi, _k, n in self.blocks:
+            p = self._deferred(specimen, ti, pi, wl)
+            if p is None:
+                continue  # evaluated the certified way already
+            g = self._instrument(specimen, wl, n)
+            if not (g.fast_path_for(ti, pi, wl) and np.array_equal(g.bin_probabilities(ti, pi, wl), p)):
+                return False
+        return True
 
     def residuals(self, specimen: Specimen) -> np.ndarray:
         return np.concatenate([multinomial_residuals(b[3], b[4], p)
