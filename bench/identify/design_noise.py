@@ -177,26 +177,14 @@ def _virtual_model(bench: Any, settings: ReadingSettings, standard: WhiteStandar
 
 
 def _real_model(bench: Any, settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
-    from bench.plans import estimate
+    from bench.identify.time_model import plan_of_points
+    from bench.plans import MotionProfile, estimate
 
     wl = np.asarray(bench.spectrometer.wavelengths, dtype=float)
-    probe = replace_plan_settings(settings)
-    rel = float(estimate(probe, bench.motion or _instant())["relative_uncertainty"])
+    one_point = plan_of_points([Geometry(0.0, 0.0, 30.0, 180.0)], settings)
+    rel = float(estimate(one_point, MotionProfile.instantaneous())["relative_uncertainty"])
     z = np.zeros(wl.size)
     return ReadingModel("real", wl, settings, standard, 0.0, np.ones(wl.size), z, z, z, relative_floor=rel)
-
-
-def _instant() -> Any:
-    from bench.plans import MotionProfile
-
-    return MotionProfile.instantaneous()
-
-
-def replace_plan_settings(settings: ReadingSettings) -> Any:
-    """A one-point plan read with ``settings`` (what the plan estimator's noise figure needs)."""
-    from bench.identify.time_model import plan_of_points
-
-    return plan_of_points([Geometry(0.0, 0.0, 30.0, 180.0)], settings)
 
 
 def bench_reading_model(bench: Any, settings: ReadingSettings) -> ReadingModel:
