@@ -112,6 +112,14 @@ def test_design_errors_are_one_line_exit_2(argv, words, tmp_path, capsys):
     assert not (tmp_path / "x.toml").exists()
 
 
+def test_design_options_without_design_are_refused(tmp_path, capsys):
+    bench = _bench_file(tmp_path)
+    code, _, err = run_main(capsys, "plan", UNIFORM, "--bench", bench, "--seconds", "3")
+    assert code == 2 and "--seconds applies to --design MODEL only" in err
+    code, _, err = run_main(capsys, "scan", UNIFORM, "--bench", bench, "--target", "kd=0.01")
+    assert code == 2 and "--target applies to --adaptive MODEL only" in err
+
+
 def test_adaptive_errors_are_one_line_exit_2(tmp_path, capsys):
     bench = _bench_file(tmp_path)
     code, _, err = run_main(capsys, "scan", "--adaptive", MODEL, "--seconds", "3", "--target", "kd=0",

@@ -15,7 +15,7 @@ from bench.cli.argtypes import real
 from bench.cli.common import check_output, emit_json, output_file
 from bench.core.errors import InputError
 
-__all__ = ["add_design_options", "add_adaptive_options", "cmd_plan_design", "cmd_scan_adaptive", "open_design",
+__all__ = ["add_design_options", "add_adaptive_options", "refuse_unused", "cmd_plan_design", "cmd_scan_adaptive", "open_design",
            "DEFAULT_INTEGRATIONS"]
 
 #: integration times a design chooses from by default (s): the shipped in-plane plan's 0.02 s and
@@ -68,6 +68,14 @@ def add_adaptive_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--target", metavar="p=WIDTH,...", help="--adaptive: stop when each named parameter's 95%% "
                    "interval is at most this wide")
     _add_common(g, "--adaptive")
+
+
+def refuse_unused(args: argparse.Namespace, flag: str) -> None:
+    """A design option given without ``flag`` (``--design`` / ``--adaptive``) would be ignored: refuse it."""
+    given = [name for name in ("seconds", "out", "compare", "prior", "like", "target")
+             if getattr(args, name, None) is not None]
+    if given:
+        raise InputError(f"--{given[0]} applies to {flag} MODEL only")
 
 
 def _model(args: argparse.Namespace, text: str) -> tuple[Any, Any, list[Any]]:

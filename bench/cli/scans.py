@@ -12,7 +12,7 @@ import sys
 
 from bench.cli.argtypes import RegistryChoices, real, run_id, seed
 from bench.cli.commands import command_help
-from bench.cli.design import add_adaptive_options, add_design_options
+from bench.cli.design import add_adaptive_options, add_design_options, refuse_unused
 from bench.cli.common import (DEFAULT_STORE, add_bench_options, announce_compilation, check_output, emit_json, hms,
                                open_store, report_run)
 from bench.core.errors import InputError
@@ -41,6 +41,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         return cmd_plan_design(args)
     if args.plan is None:
         raise InputError("give a plan file to check, or --design MODEL to write one")
+    refuse_unused(args, "--design")
     from bench.core.errors import CalibrationRefused, PlanError
     from bench.plans import MotionProfile, estimate, order_for_travel, refusal_message, refusals
     from bench.preflight import check_calibration_steps
@@ -93,6 +94,7 @@ def cmd_scan(args: argparse.Namespace) -> int:
         return cmd_scan_adaptive(args)
     if args.plan is None:
         raise InputError("give a plan file to scan, or --adaptive MODEL")
+    refuse_unused(args, "--adaptive")
     from bench.runner import run_scan
 
     plan, bench = _plan_and_bench(args)
