@@ -137,6 +137,10 @@ class GonioCounts(Likelihood):
 
     def __init__(self, record: BSDFRecord) -> None:
         t = record.table
+        for key in ("specimen", "collector", "quantity"):  # a sweep's record holds several measurements
+            if key in t.columns and t[key].nunique(dropna=True) > 1:
+                raise InputError(f"record holds several {key} values ({', '.join(map(str, t[key].unique()[:4]))}"
+                                 f"...); fit one measurement: select its rows first")
         self.collector = _collector(record)
         self.beam = _beam(record.meta)
         col = self.collector
@@ -148,6 +152,9 @@ class GonioCounts(Likelihood):
         groups = []
         start = 0
         for (wl, ti, pi), g in t.groupby(["wavelength_nm", "theta_i", "phi_i"], sort=True):
+            if len(g) != nb:
+                raise InputError(f"record: theta_i = {ti:g} deg, {wl:g} nm has {len(g)} of the collector's {nb} "
+                                 "bins; the counts' likelihood needs the whole sphere")
             k = np.zeros(nb + 1)
             for h, tr, pr, c in zip(g.hemisphere, g.theta_r, g.phi_r, g["count"]):
                 i = index.get((str(h), round(float(tr), 3), round(float(pr), 3) % 360.0))
