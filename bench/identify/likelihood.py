@@ -84,6 +84,9 @@ class Likelihood:
     groups: tuple[Group, ...] = ()
     #: evaluate without the fast path's certificate, to be checked at the optimum (:meth:`certify`)
     defer_certification = False
+    #: set once an evaluation counted rays: the likelihood is then a step function of the
+    #: parameters at the scale of single rays (the fit differentiates over wider steps)
+    counted_rays = False
 
     def certify(self, specimen: Specimen) -> bool:
         """Whether what was evaluated with :attr:`defer_certification` is certified at ``specimen``."""
@@ -205,8 +208,10 @@ class GonioCounts(Likelihood):
                 g = self._instrument(specimen, wl, n)
                 if g.fast_path_for(ti, pi, wl):
                     p = g.bin_probabilities(ti, pi, wl)
-                else:
-                    p = g.simulate(ti, pi, wl) / float(RAY_FACTOR * n)
+                else:  # rays: the fractions of those that reached the specimen (the record's N counts only these)
+                    self.counted_rays = True
+                    c = g.simulate(ti, pi, wl)[:nb + 1].astype(float)
+                    p = c / max(c.sum(), 1.0)
             out.append(p[:nb + 1])
         return out
 
@@ -295,6 +300,7 @@ class SpectroCounts(Likelihood):
             if rt is None or any(v is None for v in rt):
                 from virtual.spectrophotometer import VirtualSpectrophotometer
 
+                self.counted_rays = True
                 rays = int(RAY_FACTOR * n.max())
                 s = VirtualSpectrophotometer(specimen, rays=rays, beam=beam, seed=CRN_SEED,
                                              common_random_numbers=True).measure(g, wl)
