@@ -12,7 +12,9 @@ maximum-likelihood estimate and differences of ``sum(r**2)`` are likelihood-rati
   one, ``sum(r**2)`` is the multinomial deviance ``2 sum k ln(k / (N p))``. The probabilities
   come from the certified fast path -- the goniophotometer's own
   :meth:`~virtual.goniophotometer.VirtualGoniophotometer.bin_probabilities` once
-  :meth:`~virtual.goniophotometer.VirtualGoniophotometer.fast_path_for` certifies them, the
+  :meth:`~virtual.goniophotometer.VirtualGoniophotometer.fast_path_for` certifies them (a fit
+  searches with the certificate deferred -- the same first quadrature attempt without its
+  independent albedo, nine tenths of the cost -- and certifies at its optimum, :meth:`certify`), the
   specimen's directional (R, T) for a spectrophotometer -- and, where that cannot be certified
   (a conical beam, a gloss trap, a density the quadrature cannot bound), from rays counted with
   common random numbers (one fixed seed for every evaluation, :data:`CRN_SEED`, and
