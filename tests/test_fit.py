@@ -3,8 +3,8 @@ independent fit written here, the leaf against ``prosail.run_prospect`` directly
 string's refusals (exit 2, one line), ``--json``'s keys and the fit kept in the store.
 
 Statistics: every record is one fixed-seed multinomial draw (tests/helpers/fit_records.py). The
-recovery checks use 99.9 % intervals: 7 parameters, a family-wise false-alarm rate of at most
-7 x 0.1 % = 0.7 %. The optimum must equal the independent fit's within 1 % of the 95 % interval
+recovery checks use 99.9 % intervals: 8 parameters, a family-wise false-alarm rate of at most
+8 x 0.1 % = 0.8 %. The optimum must equal the independent fit's within 1 % of the 95 % interval
 width (2 x 1.96 standard errors). The 200-record coverage study is tests/test_fit_coverage.py.
 """
 
@@ -107,6 +107,18 @@ def test_calibrated_readings_fit_equals_weighted_least_squares():
         assert res.likelihood == "gaussian" and res.dof == len(t) - 1
         assert p.value == pytest.approx(est, abs=1e-6 * se) and p.stderr == pytest.approx(se, rel=1e-4)
         assert p.ci == pytest.approx((est - 1.959963984540054 * se, est + 1.959963984540054 * se), abs=1e-3 * se)
+
+
+@pytest.mark.slow  # ~4 CPU-s of rays (every evaluation counts 200,000)
+def test_where_the_fast_path_cannot_certify_rays_with_common_random_numbers_recover_it():
+    """A conical beam: no fast path; each evaluation counts rays on one fixed seed. 99.9 % interval."""
+    from virtual.goniophotometer import VirtualGoniophotometer
+
+    record = VirtualGoniophotometer("lambert:reflectance=0.6", collector="equal-psa:3x8", beam="conical",
+                                    rays=20_000, seed=5).measure_bsdf(30.0, 0.0)
+    res = fit_record(record, "lambert:reflectance=?", confidence=CONFIDENCE, interval="hessian", starts=0)
+    lo, hi = res.parameters["reflectance"].ci
+    assert res.converged and lo < 0.6 < hi and hi - lo < 0.05
 
 
 def _deviance_residuals(k: np.ndarray, n: int, p: np.ndarray) -> np.ndarray:

@@ -37,6 +37,9 @@ __all__ = ["ParameterEstimate", "FitResult", "fit_record", "INTERVALS"]
 INTERVALS = ("profile", "hessian")
 #: relative finite-difference step of the Jacobian: well above the quadrature's ~1e-7 relative noise
 DIFF_STEP = 1e-5
+#: the same where rays are counted (common random numbers: the counts change in steps of single
+#: rays, so the step must span many of them)
+RAYS_DIFF_STEP = 1e-2
 #: tolerance of a profile's inner fits: the profile deviance to ~1e-6 of its threshold (chi2 quantile)
 PROFILE_TOL = 1e-8
 #: evaluations a local fit may take, per free parameter plus one (beyond: not converged)
@@ -149,11 +152,12 @@ def _starts(spec: ModelSpec, starts: int, seed: int) -> list[np.ndarray]:
 
 
 def _local(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-           tol: float = 1e-10) -> Any:
+           tol: float = 1e-10, rough: bool = False) -> Any:
     from scipy.optimize import least_squares
 
     return least_squares(fun, _inside(x0, lo, hi), bounds=(lo, hi), method="trf", x_scale="jac",
-                         diff_step=DIFF_STEP, max_nfev=MAX_EVALUATIONS * (len(x0) + 1), xtol=tol, ftol=tol, gtol=tol)
+                         diff_step=RAYS_DIFF_STEP if rough else DIFF_STEP, max_nfev=MAX_EVALUATIONS * (len(x0) + 1),
+                         xtol=tol, ftol=tol, gtol=tol)
 
 
 def _profile_limit(obj: _Objective, xhat: np.ndarray, dev_min: float, cov: np.ndarray, i: int, side: int,
@@ -179,7 +183,7 @@ def _profile_limit(obj: _Objective, xhat: np.ndarray, dev_min: float, cov: np.nd
         def sub(xo: np.ndarray) -> np.ndarray:
             return obj(np.insert(xo, i, v))
 
-        res = _local(sub, guess, lo[others], hi[others], tol=PROFILE_TOL)
+        res = _local(sub, guess, lo[others], hi[others], tol=PROFILE_TOL, rough=obj.lik.counted_rays)
         warm["x"] = res.x
         return 2.0 * float(res.cost) - dev_min - q
 
@@ -256,7 +260,7 @@ def _fit(spec: ModelSpec, lik: Likelihood, confidence: float, interval: str, sta
     lo, hi = spec.lower, spec.upper
     candidates = _starts(spec, starts, seed)
     x0 = min(candidates, key=lambda x: obj.deviance(_inside(x, lo, hi)))
-    res = _local(obj, x0, lo, hi)
+    res = _local(obj, x0, lo, hi, rough=lik.counted_rays)
     xhat = np.asarray(res.x, float)
     r = obj(xhat)
     dev_min = float(r @ r)

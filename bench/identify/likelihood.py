@@ -12,7 +12,9 @@ maximum-likelihood estimate and differences of ``sum(r**2)`` are likelihood-rati
   one, ``sum(r**2)`` is the multinomial deviance ``2 sum k ln(k / (N p))``. The probabilities
   come from the certified fast path -- the goniophotometer's own
   :meth:`~virtual.goniophotometer.VirtualGoniophotometer.bin_probabilities` once
-  :meth:`~virtual.goniophotometer.VirtualGoniophotometer.fast_path_for` certifies them, the
+  :meth:`~virtual.goniophotometer.VirtualGoniophotometer.fast_path_for` certifies them (a fit
+  searches with the certificate deferred -- the same first quadrature attempt without its
+  independent albedo, nine tenths of the cost -- and certifies at its optimum, :meth:`certify`), the
   specimen's directional (R, T) for a spectrophotometer -- and, where that cannot be certified
   (a conical beam, a gloss trap, a density the quadrature cannot bound), from rays counted with
   common random numbers (one fixed seed for every evaluation, :data:`CRN_SEED`, and
@@ -84,6 +86,9 @@ class Likelihood:
     groups: tuple[Group, ...] = ()
     #: evaluate without the fast path's certificate, to be checked at the optimum (:meth:`certify`)
     defer_certification = False
+    #: set once an evaluation counted rays: the likelihood is then a step function of the
+    #: parameters at the scale of single rays (the fit differentiates over wider steps)
+    counted_rays = False
 
     def certify(self, specimen: Specimen) -> bool:
         """Whether what was evaluated with :attr:`defer_certification` is certified at ``specimen``."""
@@ -137,6 +142,10 @@ class GonioCounts(Likelihood):
 
     def __init__(self, record: BSDFRecord) -> None:
         t = record.table
+        for key in ("specimen", "collector", "quantity"):  # a sweep's record holds several measurements
+            if key in t.columns and t[key].nunique(dropna=True) > 1:
+                raise InputError(f"record holds several {key} values ({', '.join(map(str, t[key].unique()[:4]))}"
+                                 f"...); fit one measurement: select its rows first")
         self.collector = _collector(record)
         self.beam = _beam(record.meta)
         col = self.collector
@@ -148,6 +157,9 @@ class GonioCounts(Likelihood):
         groups = []
         start = 0
         for (wl, ti, pi), g in t.groupby(["wavelength_nm", "theta_i", "phi_i"], sort=True):
+            if len(g) != nb:
+                raise InputError(f"record: theta_i = {ti:g} deg, {wl:g} nm has {len(g)} of the collector's {nb} "
+                                 "bins; the counts' likelihood needs the whole sphere")
             k = np.zeros(nb + 1)
             for h, tr, pr, c in zip(g.hemisphere, g.theta_r, g.phi_r, g["count"]):
                 i = index.get((str(h), round(float(tr), 3), round(float(pr), 3) % 360.0))
@@ -198,8 +210,10 @@ class GonioCounts(Likelihood):
                 g = self._instrument(specimen, wl, n)
                 if g.fast_path_for(ti, pi, wl):
                     p = g.bin_probabilities(ti, pi, wl)
-                else:
-                    p = g.simulate(ti, pi, wl) / float(RAY_FACTOR * n)
+                else:  # rays: the fractions of those that reached the specimen (the record's N counts only these)
+                    self.counted_rays = True
+                    c = g.simulate(ti, pi, wl)[:nb + 1].astype(float)
+                    p = c / max(c.sum(), 1.0)
             out.append(p[:nb + 1])
         return out
 
@@ -288,6 +302,7 @@ class SpectroCounts(Likelihood):
             if rt is None or any(v is None for v in rt):
                 from virtual.spectrophotometer import VirtualSpectrophotometer
 
+                self.counted_rays = True
                 rays = int(RAY_FACTOR * n.max())
                 s = VirtualSpectrophotometer(specimen, rays=rays, beam=beam, seed=CRN_SEED,
                                              common_random_numbers=True).measure(g, wl)
