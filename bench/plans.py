@@ -48,6 +48,7 @@ __all__ = [
     "MotionProfile",
     "estimate",
     "half_vector_to_geometry",
+    "default_joints",
 ]
 
 KINDS = ("spectral", "in-plane", "hemispherical", "half-vector", "list")
@@ -323,7 +324,8 @@ class MotionProfile:
         return longest + (self.settle_s if longest > 0 else 0.0)
 
 
-def _joints(g: Geometry) -> dict[str, float]:
+def default_joints(g: Geometry) -> dict[str, float]:
+    """Joint angles of ``g`` for a time estimate on a bench that declares no joint map."""
     # the kinematic map of drivers/kinematics.py (turntable = phi_i, source = theta_i,
     # detector azimuth = phi_r - phi_i, detector elevation = theta_r), in the small form a
     # time estimate needs; the bench's own map is used when it has one
@@ -332,7 +334,7 @@ def _joints(g: Geometry) -> dict[str, float]:
 
 
 def estimate(plan: Plan, profile: MotionProfile, order: Sequence[int] | None = None,
-             joints: Callable[[Geometry], Mapping[str, float]] = _joints,
+             joints: Callable[[Geometry], Mapping[str, float]] = default_joints,
              reading_overhead_s: float = 0.01, relative_noise_per_reading: float = 0.01) -> dict[str, Any]:
     """Duration and expected uncertainty of a plan on a physical bench.
 

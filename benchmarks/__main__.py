@@ -14,7 +14,7 @@ import importlib
 import json
 import sys
 
-STUDIES = ["spectro", "gonio", "store", "scan", "effects", "adaptive", "tradeoff", "sweep", "cli"]
+STUDIES = ["spectro", "gonio", "store", "scan", "effects", "adaptive", "tradeoff", "sweep", "cli", "design"]
 FLAGS = ("--json", "--check", "--accept")
 
 

@@ -77,6 +77,15 @@ def test_every_module_sits_in_a_layer():
     assert uncovered(modules, _layer_modules(), roots) == []
 
 
+def test_identification_is_an_application_package():
+    """bench.identify (fit) builds on virtual and compare, so it sits in the application layer,
+    above them: virtual, drivers, compare and bench.core cannot import it."""
+    layers = _contracts()["layers"]["layers"]
+    app = next(i for i, layer in enumerate(layers) if "bench.cli" in layer)
+    assert "bench.identify" in [m.strip() for m in layers[app].split(":")]
+    assert any("virtual" in layer for layer in layers[app + 1:])
+
+
 @pytest.mark.parametrize("module", ["bench.new_command", "benchmarks_extra", "plants.leaf"])
 def test_a_module_outside_the_layers_is_found(module):
     """Power: a module of bench/ the application list does not name, or a new package, is reported."""

@@ -75,7 +75,7 @@ from virtual.model_ids import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
 from virtual.specimens import MODEL_PYTHON, Specimen, parse_specimen
 from virtual.spectrophotometer import fresh_seed
 
-__all__ = ["VirtualGoniophotometer", "METHODS", "auto_counts_rays"]
+__all__ = ["VirtualGoniophotometer", "METHODS", "auto_counts_rays", "bin_probabilities"]
 
 METHODS = ("auto", "rays", "fast")
 DEFAULT_RAYS = 10_000_000
@@ -100,6 +100,14 @@ def auto_counts_rays(specimen: Specimen, beam: Beam, n_wavelengths: int, rays: i
         return False
     batch = float(rays) * min(w, BATCH_COST) / BATCH_RAYS_PER_SECOND
     return batch < w * QUADRATURE_SECONDS.get(int(specimen.model), 0.0)
+
+
+def bin_probabilities(integrals: PatchIntegrals) -> np.ndarray:
+    """Probabilities of every bin (R patches, T patches, absorbed, missed = 0) from a collimated
+    incidence's patch integrals: clipped to [0, 1], the patches scaled down if they exceed one."""
+    p = np.clip(np.asarray(integrals.p, float), 0.0, 1.0)
+    absorbed = max(0.0, 1.0 - p.sum())
+    return np.concatenate([p / max(1.0, p.sum()), [absorbed, 0.0]])
 
 
 class VirtualGoniophotometer(InstrumentBase):
@@ -385,9 +393,7 @@ class VirtualGoniophotometer(InstrumentBase):
         key = (round(theta_i, 9), round(phi_i % 360.0, 9), round(wavelength_nm, 9))
         if key in self._probabilities:  # a new seed or N redraws from the same integrals
             return self._probabilities[key]
-        p = np.clip(np.asarray(self.quadrature(theta_i, phi_i, wavelength_nm).p, float), 0.0, 1.0)
-        absorbed = max(0.0, 1.0 - p.sum())
-        probabilities = np.concatenate([p / max(1.0, p.sum()), [absorbed, 0.0]])
+        probabilities = bin_probabilities(self.quadrature(theta_i, phi_i, wavelength_nm))
         self._probabilities[key] = probabilities
         return probabilities
 

@@ -42,12 +42,19 @@ from virtual.cubature import adaptive_rectangle, gauss_rule
 from virtual.specimens import Specimen
 
 __all__ = ["PatchIntegrals", "integrate_patches",
-           "certified_patch_integrals", "reference_albedo", "CERTIFY_TOL"]
+           "certified_patch_integrals", "reference_albedo", "CERTIFY_TOL", "CERTIFY_ATTEMPTS"]
 
 #: Bound on the patch probabilities' total error (absolute probability) for the fast path to be
 #: used: about 1/10 of the binomial standard deviation of a total near 1/2 at 1e9 rays (3.2e-5 relative),
 #: so fast and ray counting stay statistically indistinguishable up to 1e9 rays.
 CERTIFY_TOL = 3e-6
+#: the settings of :func:`certified_patch_integrals`' attempts, in order (the second: finer lobes,
+#: finer grading, a higher order, tighter cells); the first alone is what a caller that certifies
+#: later (a fit, at its optimum) integrates with
+CERTIFY_ATTEMPTS = (
+    {"lobe_factor": 6.0, "lobe_scale": 1.0, "lobe_grade": 0.5, "order": 5, "rtol": 1e-7, "atol": 1e-9},
+    {"lobe_factor": 12.0, "lobe_scale": 0.25, "lobe_grade": 0.25, "order": 8, "rtol": 1e-8, "atol": 1e-10},
+)
 
 
 @dataclass(frozen=True)
@@ -329,13 +336,11 @@ def certified_patch_integrals(specimen: Specimen, wi: np.ndarray, collector: Col
     # the retry changes the rule's order too: a bias common to a cell and its children (seen
     # at eta = 1 + 1e-6, 60 deg, with order 5: +1.2e-5, invisible to the cells' own estimate,
     # caught by the independent albedo) does not survive a different order
-    attempts = ((6.0, 1.0, 0.5, 5, 1e-7, 1e-9), (12.0, 0.25, 0.25, 8, 1e-8, 1e-10))
     res: PatchIntegrals | None = None
     reason = ""
-    for factor, scale, grade, order, rtol, atol in attempts:
+    for attempt in CERTIFY_ATTEMPTS:
         try:
-            res = integrate_patches(specimen, wi, collector, wavelength_nm, lobe_factor=factor, lobe_scale=scale,
-                                    lobe_grade=grade, order=order, rtol=rtol, atol=atol, max_cells=max_cells)
+            res = integrate_patches(specimen, wi, collector, wavelength_nm, **attempt, max_cells=max_cells)
         except SimulationError as e:
             reason = f"patch quadrature did not converge ({e})"
             continue

@@ -61,7 +61,7 @@ from virtual.wire.ocean_spectrometer import SpectrometerEmulator
 log = logging.getLogger(__name__)
 
 __all__ = ["build_emulated_bench", "Emulators", "DEFAULT_EMULATED_CONFIG", "emulated_geometry",
-           "emulated_response", "LampLine", "ARM_IDS", "emulated_arm_config", "emulated_turntable_config",
+           "emulated_response", "aperture_directions", "LampLine", "ARM_IDS", "emulated_arm_config", "emulated_turntable_config",
            "emulated_motion"]
 
 #: servo ids of the arm joints on the emulated bus (the turntable is on the Modbus stage)
@@ -112,7 +112,7 @@ def emulated_geometry(bus_control: str, stage_url: str, steps_per_deg: float,
                                      clamp(j["detector_elevation"])))
 
 
-def _aperture_directions(view: np.ndarray, half_angle_deg: float) -> np.ndarray:
+def aperture_directions(view: np.ndarray, half_angle_deg: float) -> np.ndarray:
     """Seven directions averaging a cone of the given half-angle: its axis and a ring at the
     radius that splits the cap's area in half (a 2-point radial rule, 6 azimuths)."""
     a = math.radians(half_angle_deg)
@@ -146,7 +146,7 @@ def emulated_response(geometry: Any, wavelengths_nm: np.ndarray, specimen: str, 
         spec = _PROCESS_CACHE[key] = Lambertian(white_rf) if mounted == "white" else parse_specimen(specimen)
     g = geometry
     wi, wo = g.incident, g.view
-    dirs = _aperture_directions(wo, aperture_deg)
+    dirs = aperture_directions(wo, aperture_deg)
     wl = np.asarray(wavelengths_nm, dtype=float)
     rng = spec.wavelength_range()
     cos_r = max(math.cos(math.radians(g.theta_r)), 0.0)

@@ -11,6 +11,7 @@ One module per command group, each with ``register(subparsers)``:
 * :mod:`bench.cli.emulate` -- ``emulate``;
 * :mod:`bench.cli.home` -- ``home`` (return the turntable to home);
 * :mod:`bench.cli.white` -- ``white`` (save a white reference file);
+* :mod:`bench.cli.fit` -- ``fit`` (model parameters from a record);
 * :mod:`bench.cli.specimens` -- ``specimens``.
 
 Starts fast: a command imports only the module that registers it (the table of

@@ -35,6 +35,7 @@ COMMANDS: dict[str, Command] = {
     "emulate": Command("bench.cli.emulate", "start a bench's emulators and print their ports"),
     "home": Command("bench.cli.home", "return the turntable (or another axis) to its home position"),
     "white": Command("bench.cli.white", "save a white reference file (measured now or from a completed run)"),
+    "fit": Command("bench.cli.fit", "fit a model's parameters to a record: maximum likelihood, intervals, goodness of fit"),
     "specimens": Command("bench.cli.specimens", "list every specimen family and its parameters (range, unit, default)"),
 }
 

@@ -12,6 +12,7 @@ import sys
 
 from bench.cli.argtypes import RegistryChoices, real, run_id, seed
 from bench.cli.commands import command_help
+from bench.cli.design import add_adaptive_options, add_design_options, refuse_unused
 from bench.cli.common import (DEFAULT_STORE, add_bench_options, announce_compilation, check_output, emit_json, hms,
                                open_store, report_run)
 from bench.core.errors import InputError
@@ -32,7 +33,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
     """Check and time a plan on a bench: JSON keys ``points`` (all of the plan's), ``refused``
     (each with theta_i, phi_i, theta_r, phi_r, rule, message), ``seconds`` and ``motion_s`` (of the
     reachable points), ``calibration_refused`` (a calibration step the bench cannot take, or null).
-    A plan ``bench scan`` would refuse exits 2 (its JSON still printed)."""
+    A plan ``bench scan`` would refuse exits 2 (its JSON still printed). With ``--design MODEL``
+    it writes a designed plan instead (:func:`bench.cli.design.cmd_plan_design`)."""
+    if args.design is not None:
+        from bench.cli.design import cmd_plan_design
+
+        return cmd_plan_design(args)
+    if args.plan is None:
+        raise InputError("give a plan file to check, or --design MODEL to write one")
+    refuse_unused(args, "--design")
     from bench.core.errors import CalibrationRefused, PlanError
     from bench.plans import MotionProfile, estimate, order_for_travel, refusal_message, refusals
     from bench.preflight import check_calibration_steps
@@ -79,6 +88,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_scan(args: argparse.Namespace) -> int:
+    if args.adaptive is not None:
+        from bench.cli.design import cmd_scan_adaptive
+
+        return cmd_scan_adaptive(args)
+    if args.plan is None:
+        raise InputError("give a plan file to scan, or --adaptive MODEL")
+    refuse_unused(args, "--adaptive")
     from bench.runner import run_scan
 
     plan, bench = _plan_and_bench(args)
@@ -135,10 +151,20 @@ def cmd_show(args: argparse.Namespace) -> int:
         points = store.reading_budgets(args.run)  # each reading's GUM budget (bench.core.budget)
         if args.json:
             s["points"] = points
+        if s["kind"] == "fit":  # a fit has no points: its result and the record it was fitted to
+            meta = store.run(args.run).get("meta") or {}
+            s["fit"] = {k: meta.get(k) for k in ("fit", "specimen", "record", "record_run_id")}
     if args.json:
         emit_json(s)
         return 0
     print(f"run {s['run_id']} ({s['kind']}): {s['status']}" + (f" - {s['reason']}" if s["reason"] else ""))
+    if "fit" in s:
+        fit = s["fit"]["fit"] or {}
+        print(f"  record {s['fit']['record']}  model {fit.get('model')}  ({fit.get('method')})")
+        for name, p in (fit.get("parameters") or {}).items():
+            print(f"  {name:10s} {p['value']:.6g}  [{p['ci'][0]:.6g}, {p['ci'][1]:.6g}] {p['unit']}".rstrip())
+        print(f"  chi2 {fit.get('chi2')}, dof {fit.get('dof')}, p {fit.get('p_value')}, converged {fit.get('converged')}")
+        return 0
     print(f"  points {s['points_done']}/{s['points_planned']}, readings {s['readings']}, "
           f"wavelengths {s['wavelengths']['n']} ({s['wavelengths']['min']}..{s['wavelengths']['max']} nm)")
     for k, (lo, hi) in s["geometry"].items():
@@ -190,13 +216,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add ``plan``, ``scan``, ``resume``, ``runs``, ``show`` and ``export`` to the subcommands."""
     store_help = "the run store, an SQLite file (default %(default)s)"
     pl = sub.add_parser("plan", help=command_help("plan"))
-    pl.add_argument("plan", metavar="PLAN.toml", help="the plan file (see fixtures/plans/)")
+    pl.add_argument("plan", metavar="PLAN.toml", nargs="?", help="the plan file (see fixtures/plans/)")
     add_bench_options(pl, "the bench config (required)")
     pl.add_argument("--json", action="store_true", help="one JSON object with stable keys")
+    add_design_options(pl)
     pl.set_defaults(func=cmd_plan)
 
     sc = sub.add_parser("scan", help=command_help("scan"))
-    sc.add_argument("plan", metavar="PLAN.toml", help="the plan file (see fixtures/plans/)")
+    sc.add_argument("plan", metavar="PLAN.toml", nargs="?", help="the plan file (see fixtures/plans/)")
     add_bench_options(sc, "the bench config (required)")
     sc.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
     sc.add_argument("--seed", type=seed, help="root seed of virtual devices, integer 0..2^63-1 (default: the "
@@ -206,6 +233,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sc.add_argument("--uncertainty-method", choices=("linear", "mc"),
                     help="each reading's GUM budget: law of propagation (linear) or Supplement 1 Monte Carlo "
                          "(mc); default: the bench's [uncertainty] method, else linear")
+    add_adaptive_options(sc)
     sc.set_defaults(func=cmd_scan)
 
     rs = sub.add_parser("resume", help=command_help("resume"))

@@ -19,6 +19,7 @@ from bench.core.plugins import FORMAT_GROUP, load_plugins
 from bench.core.records import BSDFRecord, with_keys
 from bench.core.roles import Spectrum
 from bench.io.astm import read_astm, record_to_astm
+from bench.io.gonio_json import is_gonio_json, read_gonio_json
 from bench.io.tidy import (CSV_MAGIC, SPECTRUM_COLUMNS, read_parquet, read_spectrum_csv, read_tidy_csv,
                            record_to_csv, record_to_parquet)
 from bench.io.zemax import read_zemax, record_to_zemax
@@ -90,6 +91,7 @@ register_format(FileFormat("astm", (".astm.csv", ".astm"), read_astm, record_to_
 register_format(FileFormat("zemax", (".bsdf",), read_zemax, record_to_zemax,
                            lambda line: line.startswith(("# goniobench Zemax", "Source ", "Source\t"))))
 register_format(FileFormat("spectrum-csv", (".spectrum.csv",), read_spectrum_csv, None, _spectrum_header))
+register_format(FileFormat("gonio-json", (".json",), read_gonio_json, None, is_gonio_json))
 
 #: the project's own formats that write a record of a run (``bench export --format`` also offers
 #: those of installed plugins: :func:`formats` with ``writable=True``)

@@ -38,10 +38,18 @@ def _library(path: str) -> dict[str, dict[str, Any]]:
     return leaves
 
 
+@lru_cache(maxsize=256)
+def _cuticle_at(theta_rad: float, alpha: float, eta: float) -> tuple[float, float]:
+    """:func:`cuticle_integrals`, cached: a spectrum asks for the same (incidence, cuticle) at
+    every wavelength, and leaves differing only in PROSPECT's parameters (a fit) share their
+    cuticle; one evaluation costs tens of milliseconds."""
+    return cuticle_integrals(theta_rad, alpha, eta)
+
+
 @lru_cache(maxsize=64)
 def _tables(n: float, cab: float, car: float, anth: float, cbrown: float, cw: float, cm: float,
             alpha: float, eta: float) -> LeafTables:
-    es8, fbar8 = cuticle_integrals(math.radians(INCIDENCE_CALIBRATION_DEG), alpha, eta)
+    es8, fbar8 = _cuticle_at(math.radians(INCIDENCE_CALIBRATION_DEG), alpha, eta)
     return leaf_tables(prospect_d(n, cab, car, anth, cbrown, cw, cm), es8, fbar8)
 
 
@@ -115,7 +123,7 @@ class Leaf(DeclaredSpecimen):
         """The model's directional-hemispherical (R, T) at incidence ``theta_deg`` (quadrature):
         R = E + r_b (1 - E), T = t_b (1 - E), E = ks E_s(theta)."""
         a, eta, ks, rb, tb = self.params(wavelength_nm)
-        e = ks * cuticle_integrals(math.radians(abs(theta_deg)), a, eta)[0]
+        e = ks * _cuticle_at(math.radians(abs(theta_deg)), float(a), float(eta))[0]
         return e + rb * (1.0 - e), tb * (1.0 - e)
 
     # -- density -------------------------------------------------------------------------------

@@ -1,0 +1,196 @@
+"""``bench plan --design`` and ``bench scan --adaptive``: plans designed to identify a model
+within a bench-time budget, one-shot or sequential.
+
+Not a command module of its own: :mod:`bench.cli.scans` declares these options on ``bench plan``
+and ``bench scan`` and calls :func:`cmd_plan_design` / :func:`cmd_scan_adaptive` when
+``--design`` / ``--adaptive`` is given; the design code is imported only then.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from bench.cli.argtypes import real
+from bench.cli.common import check_output, emit_json, output_file
+from bench.core.errors import InputError
+
+__all__ = ["add_design_options", "add_adaptive_options", "refuse_unused", "cmd_plan_design", "cmd_scan_adaptive", "open_design",
+           "DEFAULT_INTEGRATIONS"]
+
+#: integration times a design chooses from by default (s): the shipped in-plane plan's 0.02 s and
+#: shorter and longer ones (shorter buys more points, longer less noise per point)
+DEFAULT_INTEGRATIONS = "0.005,0.01,0.02,0.05"
+
+
+def _times(text: str) -> str:
+    try:
+        values = [float(t) for t in str(text).split(",") if t.strip()]
+    except ValueError:
+        values = []
+    if not values or not all(0.001 <= v <= 60.0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected integration times 0.001..60 s separated by commas, got {text!r}")
+    return text
+
+
+def _add_common(g: argparse._ArgumentGroup, what: str) -> None:
+    g.add_argument("--seconds", type=real(0.0, 1e7, lo_open=True), metavar="S",
+                   help=f"{what}: the bench-time budget, s (as `bench plan` estimates it)")
+    g.add_argument("--criterion", choices=("D", "A", "E"), default="D",
+                   help=f"{what}: D (log det of the Fisher information, default), A (mean variance), E (worst "
+                   "direction)")
+    g.add_argument("--prior", metavar="p=VALUE,...", help=f"{what}: prior guess of the free parameters "
+                   "(default: the family's declared defaults)")
+    g.add_argument("--like", metavar="PLAN.toml", help=f"{what}: read every point as this plan does "
+                   "(averages, dark, white; default 2 averages, darks per incidence, one white)")
+    g.add_argument("--integration-s", type=_times, default=DEFAULT_INTEGRATIONS, metavar="T[,T...]",
+                   help=f"{what}: integration times to choose from, s (default %(default)s; the design "
+                   "takes the one that identifies best within the budget)")
+    g.add_argument("--step", type=real(0.5, 45.0), default=5.0, metavar="DEG",
+                   help=f"{what}: step of the in-plane candidate grid, deg (default %(default)s)")
+
+
+def add_design_options(parser: argparse.ArgumentParser) -> None:
+    """The ``bench plan --design`` options."""
+    g = parser.add_argument_group("designed plans (--design)")
+    g.add_argument("--design", metavar="MODEL", help="write a plan designed to identify MODEL, e.g. "
+                   "\"plastic:alpha=?,kd=?\" (the ? parameters), instead of checking PLAN.toml")
+    g.add_argument("--out", type=output_file((".toml",)), metavar="PLAN.toml", help="--design: the plan file to write")
+    g.add_argument("--compare", metavar="PLAN.toml", help="--design: also predict the interval widths of this plan")
+    _add_common(g, "--design")
+
+
+def add_adaptive_options(parser: argparse.ArgumentParser) -> None:
+    """The ``bench scan --adaptive`` options."""
+    g = parser.add_argument_group("sequential design (--adaptive)")
+    g.add_argument("--adaptive", metavar="MODEL", help="measure, fit and re-design until the budget or the "
+                   "target widths, for MODEL, e.g. \"plastic:alpha=?,kd=?\" (instead of PLAN.toml)")
+    g.add_argument("--target", metavar="p=WIDTH,...", help="--adaptive: stop when each named parameter's 95%% "
+                   "interval is at most this wide")
+    _add_common(g, "--adaptive")
+
+
+def refuse_unused(args: argparse.Namespace, flag: str) -> None:
+    """A design option given without ``flag`` (``--design`` / ``--adaptive``) would be ignored: refuse it."""
+    given = [name for name in ("seconds", "out", "compare", "prior", "like", "target")
+             if getattr(args, name, None) is not None]
+    if given:
+        raise InputError(f"--{given[0]} applies to {flag} MODEL only")
+
+
+def _model(args: argparse.Namespace, text: str) -> tuple[Any, Any, list[Any]]:
+    from bench.identify.design import integration_choices
+    from bench.identify.design_io import model_point, parse_prior
+    from bench.identify.model_spec import parse_model_spec
+    from bench.identify.time_model import ReadingSettings
+    from bench.plans import load_plan
+
+    spec = parse_model_spec(text)
+    point = model_point(spec, parse_prior(args.prior))
+    base = ReadingSettings.like(load_plan(args.like)) if args.like else ReadingSettings()
+    settings = integration_choices(base, [float(t) for t in str(args.integration_s).split(",") if t.strip()])
+    return spec, point, settings
+
+
+def cmd_scan_adaptive(args: argparse.Namespace) -> int:
+    """Sequential design into the store. JSON keys: ``runs`` (one per step), ``seconds`` (bench
+    seconds spent, as estimated), ``budget_s``, ``stopped`` (``budget`` or ``target``),
+    ``estimates``, ``intervals``, ``widths``, ``steps``."""
+    import sys
+
+    from bench.cli.common import open_store
+    from bench.config import load_bench
+    from bench.identify.design_sequential import adaptive_scan, parse_targets, session_key
+    from bench.identify.time_model import candidate_grid, reachable
+
+    if args.plan is not None:
+        raise InputError(f"give a plan file or --adaptive, not both (got {args.plan} and --adaptive)")
+    if args.seconds is None:
+        raise InputError("--adaptive needs --seconds S (the bench-time budget)")
+    spec, point, settings = _model(args, args.adaptive)
+    targets = parse_targets(args.target, spec.names)
+    key = session_key(spec.text, args.bench, args.body, args.seconds, args.criterion, args.prior, args.integration_s,
+                      args.like, args.step, args.target, args.seed)
+    bench = load_bench(args.bench, seed=args.seed, body=args.body)
+    with bench, open_store(args.store) as store:
+        candidates = reachable(candidate_grid(args.step), bench.goniometer.check, settings[0])
+        if not candidates:
+            raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
+        result = adaptive_scan(bench, store, spec, point, args.seconds, settings, candidates, args.criterion,
+                               targets, seed=getattr(bench.goniometer, "seed", args.seed), key=key,
+                               progress=not args.quiet and sys.stderr.isatty())
+    if args.json:
+        emit_json(result.as_dict())
+        return 0
+    for k, s in enumerate(result.steps):
+        print(f"step {k}: run {s.run_id}, {s.points} points, {s.seconds:.4g} s; "
+              + ", ".join(f"{n} = {v:.5g} (width {s.widths[n]:.3g})" for n, v in s.estimates.items()))
+    print(f"stopped at the {result.stopped} after {result.seconds:.4g} s of {result.budget_s:g} s: "
+          + ", ".join(f"{n} = {v:.5g} [{result.intervals[n][0]:.5g}, {result.intervals[n][1]:.5g}]"
+                      for n, v in result.estimates.items()))
+    return 0
+
+
+def open_design(args: argparse.Namespace) -> tuple[Any, Any, Any, Any]:
+    """The parsed model, the model at its prior, the reading settings to choose from and the bench
+    of a design command."""
+    from bench.config import load_bench
+
+    spec, point, settings = _model(args, args.design)
+    return spec, point, settings, load_bench(args.bench, body=args.body)
+
+
+def cmd_plan_design(args: argparse.Namespace) -> int:
+    """Design, write and check a plan. JSON keys: ``plan`` (path), ``model``, ``prior``,
+    ``criterion``, ``budget_s``, ``seconds``, ``motion_s``, ``points``, ``candidates``, ``widths``
+    (predicted 95 % interval widths), ``compare`` (null, or the compared plan's ``plan``,
+    ``seconds``, ``points``, ``widths``)."""
+    from bench.core.errors import PlanError
+    from bench.identify.design import design_for_bench, information, interval_widths
+    from bench.identify.design_io import widths_text, write_design
+    from bench.identify.design_noise import bench_reading_model
+    from bench.identify.time_model import ReadingSettings, bench_time_model, candidate_grid, reachable
+    from bench.plans import load_plan, refusal_message, refusals
+
+    if args.plan is not None:
+        raise InputError(f"give a plan file or --design, not both (got {args.plan} and --design)")
+    if args.seconds is None or args.out is None:
+        raise InputError("--design needs --seconds S (the bench-time budget) and --out PLAN.toml")
+    out = check_output(args.out)
+    compare = load_plan(args.compare) if args.compare else None
+    spec, point, settings, bench = open_design(args)
+    with bench:
+        check = bench.goniometer.check
+        candidates = reachable(candidate_grid(args.step), check, settings[0])
+        if not candidates:
+            raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
+        design = design_for_bench(point, bench, candidates, args.seconds, settings, args.criterion)
+        write_design(out, design, spec.text, bench.name, bench.kind, len(candidates), args.seconds)
+        written = load_plan(out)
+        refused = refusals(written, check)
+        if refused:  # the design chose only reachable points: this would be a bug, said as the validator says it
+            raise PlanError(refusal_message(written, refused))
+        other = None
+        if compare is not None:
+            refused = refusals(compare, check)
+            pts = [g for i, g in enumerate(compare.points) if i not in {r.index for r in refused}]
+            like = ReadingSettings.like(compare)
+            fisher = information(point, pts, bench_reading_model(bench, like)).total(range(len(pts)))
+            other = {"plan": compare.name, "points": len(pts),
+                     "seconds": bench_time_model(bench, like).seconds(pts)["seconds"],
+                     "widths": interval_widths(fisher, point.free)}
+    result = {"plan": str(out), "model": spec.text, "prior": dict(point.values), "criterion": design.criterion,
+              "budget_s": args.seconds, "seconds": design.seconds, "motion_s": design.estimate["motion_s"],
+              "points": len(design.points), "candidates": len(candidates), "integration_s": design.settings.integration_s,
+              "averages": design.settings.averages, "widths": design.widths, "compare": other}
+    if args.json:
+        emit_json(result)
+        return 0
+    print(f"wrote {out}: {len(design.points)} points ({design.criterion}-optimal for {spec.text}) of "
+          f"{len(candidates)} reachable on bench {bench.name}, {design.settings.integration_s:g} s x "
+          f"{design.settings.averages} per point, estimated {design.seconds:.4g} s of {args.seconds:g} s")
+    print(f"  predicted 95% interval widths: {widths_text(design.widths)}")
+    if other is not None:
+        print(f"  plan {other['plan']}: {other['points']} points, {other['seconds']:.4g} s, widths "
+              f"{widths_text(other['widths'])}")
+    return 0

@@ -1,0 +1,110 @@
+"""``bench fit RECORD --model "FAMILY:p=?,q=VALUE,r=?lo:hi"``: maximum-likelihood parameters of a
+model with intervals and a goodness of fit (:func:`bench.identify.fit_record`).
+
+RECORD is a file any registered loader reads (tidy CSV, Parquet, ASTM, Zemax, ``bench spectro
+--csv``, ``bench gonio --json``) or a run id in ``--store``. With ``--store`` the fit is kept as
+a run of kind ``fit`` whose metadata links the record (``bench runs`` / ``bench show`` list it).
+Exit 0 for a converged fit, 1 (with the best point reached) for one that did not converge, 2 for
+input the user can fix.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from bench.cli.argtypes import count, real, seed
+from bench.cli.commands import command_help
+from bench.cli.common import DEFAULT_STORE, PLOT_SUFFIXES, emit_json, open_store, output_file
+from bench.core.errors import InputError
+
+
+def _record(ref: str, store_path: str) -> tuple[Any, str | None]:
+    """(record, run id or None) for a file path or a stored run id."""
+    path = Path(ref)
+    if path.exists():
+        from bench.io import read_record
+
+        return read_record(path), None
+    if not Path(store_path).exists():
+        raise InputError(f"{ref!r} is neither a file nor a run (no store at {store_path})")
+    from bench.io import load_run
+
+    with open_store(store_path, create=False, readonly=True) as store:
+        return load_run(store, ref), ref
+
+
+def _store_fit(store_path: str, result: Any, ref: str, run_id: str | None, args: argparse.Namespace) -> str:
+    """Keep the fit as a run of kind ``fit`` linked to its record; return its id."""
+    meta = {"fit": result.to_json(), "specimen": result.specimen, "record": run_id or str(Path(ref).resolve()),
+            "record_run_id": run_id, "fit_seed": args.seed, "starts": args.starts}
+    with open_store(store_path) as store:
+        rid = store.create_run(kind="fit", meta=meta, n_planned=0)
+        store.set_status(rid, "completed" if result.converged else "failed",
+                         None if result.converged else f"fit did not converge: {result.message}")
+    return rid
+
+
+def _print(result: Any) -> None:
+    print(f"model {result.model}  ({result.method}, {result.confidence:g} confidence)")
+    for name, p in result.parameters.items():
+        unit = f" {p.unit}" if p.unit else ""
+        print(f"  {name:10s} {p.value:.6g}{unit}  [{p.ci[0]:.6g}, {p.ci[1]:.6g}]")
+    if len(result.parameters) > 1:
+        names = list(result.parameters)
+        pairs = [f"{a}/{b} {result.correlation[i, j]:+.3f}" for i, a in enumerate(names)
+                 for j, b in enumerate(names) if j > i]
+        print("  correlation: " + ", ".join(pairs))
+    p = f"{result.p_value:.3g}" if result.p_value == result.p_value else "n/a"
+    print(f"  chi2 {result.chi2:.4g}, dof {result.dof}, p {p}; "
+          + ("converged" if result.converged else f"NOT converged ({result.message})"))
+    print(f"  best-fit specimen: {result.specimen}")
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from bench.identify import fit_record, parse_model_spec
+
+    spec = parse_model_spec(args.model)  # a bad model string costs no record reading
+    record, run_id = _record(args.record, args.store or DEFAULT_STORE)
+    result = fit_record(record, spec, confidence=args.confidence, interval=args.interval, starts=args.starts,
+                        seed=args.seed)
+    if args.figure:
+        from bench.identify.figure import plot_residuals
+
+        plot_residuals(result, args.figure)
+    if args.store:
+        rid = _store_fit(args.store, result, args.record, run_id, args)
+        print(f"bench fit: stored as run {rid} in {args.store}", file=sys.stderr)
+    if args.json:
+        emit_json(result.to_json())
+    else:
+        _print(result)
+    if not result.converged:
+        print(f"bench fit: failed: the fit did not converge ({result.message}); the best point reached is "
+              f"shown", file=sys.stderr)
+        return 1
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("fit", help=command_help("fit"))
+    p.add_argument("record", metavar="RECORD", help="a record file (any format bench reads) or a run id in --store")
+    p.add_argument("--model", required=True, metavar="FAMILY:p=?,q=VALUE,r=?lo:hi",
+                   help="the model: free parameters marked ?, optional ?lo:hi bounds inside the declared range, "
+                        "others fixed or at their defaults (`bench specimens` lists them)")
+    p.add_argument("--store", metavar="FILE.sqlite",
+                   help=f"the run store: where RECORD run ids are read (default {DEFAULT_STORE}); given, the fit "
+                        "is also kept there as a run of kind fit")
+    p.add_argument("--confidence", type=real(0.0, 1.0, lo_open=True, hi_open=True), default=0.95,
+                   help="confidence of the intervals, in (0, 1) (default %(default)s)")
+    p.add_argument("--interval", choices=("profile", "hessian"), default="profile",
+                   help="profile likelihood, or the Hessian's normal approximation (fast) (default %(default)s)")
+    p.add_argument("--starts", type=count(0, 4096), default=None, metavar="N",
+                   help="Sobol points of the global step (default 4 per free parameter; 0: defaults only)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the Sobol points (default %(default)s)")
+    p.add_argument("--figure", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
+                   help="also draw the residuals per incidence/wavelength (default: none)")
+    p.add_argument("--json", action="store_true", help="one JSON object with stable keys")
+    p.set_defaults(func=cmd_fit)

@@ -1,0 +1,102 @@
+"""Inputs and outputs of a design: the prior guess of a model, and the plan file a design writes.
+
+The prior is the model string's fixed values and the family's declared defaults, overridden by
+``--prior p=value,...`` for the free parameters (each inside the bounds the model string gives
+it). The written plan is an ordinary ``kind = "list"`` plan (``bench plan`` validates it and
+``bench scan`` runs it on any body); a header comment and its ``description`` say how it was
+designed and the interval widths the Cramer-Rao bound predicts.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import tomli_w
+
+from bench.core.errors import InputError, SpecimenError
+from bench.identify.design import Design, ModelPoint
+
+__all__ = ["model_point", "parse_prior", "parse_values", "design_table", "write_design", "widths_text"]
+
+
+def parse_values(text: str | None, option: str, what: str = "VALUE", positive: bool = False) -> dict[str, float]:
+    """``p=number,q=number`` -> ``{p: number}``; a bad token is one line naming ``option`` and it."""
+    out: dict[str, float] = {}
+    for token in (t.strip() for t in (text or "").split(",")):
+        if not token:
+            continue
+        key, eq, value = (s.strip() for s in token.partition("="))
+        try:
+            v = float(value)
+        except ValueError:
+            v = math.nan
+        if not eq or not key or not math.isfinite(v) or (positive and v <= 0):
+            raise InputError(f"{option} token {token!r}: expected name={what} with a finite number"
+                             + (" > 0" if positive else ""))
+        if key in out:
+            raise InputError(f"{option} token {token!r}: {key} given twice")
+        out[key] = v
+    return out
+
+
+def parse_prior(text: str | None) -> dict[str, float]:
+    """``--prior p=value,...`` -> ``{p: value}``."""
+    return parse_values(text, "--prior")
+
+
+def model_point(spec: Any, prior: Mapping[str, float] | None = None) -> ModelPoint:
+    """The model of a parsed model string (:class:`bench.identify.model_spec.ModelSpec`) at its
+    prior guess: fixed values, declared defaults, and ``prior`` for the free parameters."""
+    family = spec.family
+    values = {p.name: float(p.default) for p in family.parameters if not p.choices}
+    values.update({k: v for k, v in spec.fixed.items()})
+    free = {p.name: p for p in spec.free}
+    values.update({p.name: float(p.start()) for p in spec.free})
+    for k, v in (prior or {}).items():
+        if k not in free:
+            raise InputError(f"--prior {k}={v:g}: {k} is not a free parameter of {spec.text!r} "
+                             f"(free: {', '.join(free)})")
+        p = free[k]
+        if not p.lo <= v <= p.hi:
+            raise InputError(f"--prior {k}={v:g}: outside the model's bounds [{p.lo:g}, {p.hi:g}] for {k}")
+        values[k] = float(v)
+    point = ModelPoint(family, values, tuple(free))
+    try:
+        point.specimen()
+    except SpecimenError as exc:
+        raise InputError(f"--prior: {exc}") from None
+    return point
+
+
+def widths_text(widths: Mapping[str, float]) -> str:
+    return ", ".join(f"{k} {v:.3g}" for k, v in widths.items())
+
+
+def design_table(design: Design, name: str, model_text: str) -> dict[str, Any]:
+    """The plan table of a design (``kind = "list"``, points in travel order by ``bench scan``)."""
+    prior = ",".join(f"{k}={v:g}" for k, v in design.model.values.items())
+    description = (f"{design.criterion}-optimal design for {model_text} at {prior}; "
+                   f"predicted 95% interval widths (Cramer-Rao): {widths_text(design.widths)}")
+    return {"name": name, "kind": "list", "description": description, **design.settings.plan_table(), "order": "travel",
+            "points": [[round(g.theta_i, 9), round(g.phi_i, 9), round(g.theta_r, 9), round(g.phi_r, 9)]
+                       for g in design.points]}
+
+
+def write_design(path: str | Path, design: Design, model_text: str, bench_name: str, body: str, candidates: int,
+                 seconds: float) -> Path:
+    """Write the design as a plan file with a header saying how it was designed."""
+    p = Path(path)
+    table = design_table(design, p.stem, model_text)
+    est = design.estimate
+    header = [
+        f"# Designed by `bench plan --design \"{model_text}\" --seconds {seconds:g} --criterion {design.criterion}`",
+        f"# on bench {bench_name!r} ({body} body): {len(design.points)} of {candidates} reachable candidate points,",
+        f"# prior {', '.join(f'{k}={v:g}' for k, v in design.model.values.items())}.",
+        f"# Estimated bench time {est['seconds']:.4g} s (motion {est['motion_s']:.3g} s, acquisition "
+        f"{est['acquisition_s']:.3g} s, references {est['references_s']:.3g} s) of a {seconds:g} s budget.",
+        f"# Predicted 95% interval widths (Cramer-Rao, 2 x 1.96 x se): {widths_text(design.widths)}.",
+    ]
+    p.write_text("\n".join(header) + "\n" + tomli_w.dumps(table), encoding="utf-8")
+    return p

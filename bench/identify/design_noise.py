@@ -1,0 +1,196 @@
+"""What a bench body would read at a geometry, and how noisy, before anything is measured.
+
+A design needs, for every candidate point, the calibrated BRDF a model predicts there and the
+covariance of the reading the bench would give. The prediction is the specimen's density
+(``Specimen.bsdf``, numpy, no kernel) averaged over the detector's aperture as the emulated
+spectrometer averages it. The noise comes from the body's own declared noise model, pushed
+through the calibration chain every run uses (:meth:`bench.core.calibration.Calibration.apply`)
+on the expected readings:
+
+* emulated body: the emulated spectrometer's detector (lamp spectrum, counts per ms, shot noise
+  per electron, read noise, dark level: :class:`virtual.wire.ocean_model.SpectrometerConfig`)
+  seen through the description's bands, with darks and the white as the plan takes them;
+* virtual body: Monte Carlo counting (binomial in the collector patch of the viewing direction,
+  ``rays`` per reading) plus the declared ``[instrument]`` read and shot noise;
+* real body: the relative uncertainty per reading the plan estimator assumes
+  (:func:`bench.plans.estimate`), for want of a declared detector.
+
+Each reading's variance splits into a part of its own (signal and dark noise) and a relative
+part shared by every reading of the record (the white standard's certificate and the white
+reading's noise): the design's Fisher information treats the shared part as one scale error.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from bench.core.calibration import Calibration, WhiteStandard
+from bench.core.geometry import Geometry
+from bench.core.parsing import parse_wavelengths
+from bench.core.roles import Reading
+from bench.identify.time_model import ReadingSettings
+
+__all__ = ["ReadingModel", "bench_reading_model", "predicted_brdf", "SATURATION_MARGIN"]
+
+#: a design avoids readings predicted above this fraction of the detector's full scale
+SATURATION_MARGIN = 0.8
+
+
+def predicted_brdf(specimen: Any, geometries: Sequence[Geometry], wavelengths: np.ndarray,
+                   aperture_deg: float = 0.0) -> np.ndarray:
+    """The specimen's BRDF (1/sr) at each geometry and wavelength, ``(points, wavelengths)``,
+    averaged over a detector aperture of half-angle ``aperture_deg`` as the emulated detector
+    averages it (:func:`bench.builders.emulated.aperture_directions`)."""
+    from bench.builders.emulated import aperture_directions
+
+    spectral = specimen.wavelength_range() is not None
+    bands = wavelengths if spectral else wavelengths[:1]  # a non-spectral density: one evaluation
+    out = np.empty((len(geometries), len(bands)))
+    for k, g in enumerate(geometries):
+        dirs = aperture_directions(g.view, aperture_deg)
+        for b, w in enumerate(bands):
+            out[k, b] = float(np.mean(specimen.bsdf(g.incident, dirs, float(w))))
+    return out if spectral else np.repeat(out, len(wavelengths), axis=1)
+
+
+def _reading(signal: np.ndarray, std: np.ndarray, wavelengths: np.ndarray, settings: ReadingSettings,
+             dark: bool = False) -> Reading:
+    return Reading(wavelengths=wavelengths, signal=np.asarray(signal, dtype=float),
+                   saturated=np.zeros(len(wavelengths), dtype=bool), integration_s=settings.integration_s,
+                   averages=settings.averages, dark=dark, std=np.asarray(std, dtype=float))
+
+
+@dataclass(frozen=True)
+class ReadingModel:
+    """Expected readings of one bench body: ``counts(f, cos_r)`` gives the expected signal and
+    its standard deviation per wavelength for a BRDF ``f`` seen at ``cos(theta_r)``; darks read
+    ``dark_level +- dark_std``; the white standard is read the same way."""
+
+    body: str
+    wavelengths: np.ndarray
+    settings: ReadingSettings
+    standard: WhiteStandard
+    aperture_deg: float
+    counts_per_brdf: np.ndarray  # expected net signal per unit of BRDF x cos(theta_r), per wavelength
+    variance_per_count: np.ndarray  # signal variance per count of net signal (shot noise)
+    variance_floor: np.ndarray  # signal variance of a reading with no light (read noise)
+    dark_level: np.ndarray
+    relative_floor: float = 0.0  # a relative uncertainty per reading (real body: the estimator's)
+    #: a band saturates when its brightest pixel, dark included, would pass this many counts
+    saturation: np.ndarray | None = None
+    peak_ratio: np.ndarray | None = None  # brightest pixel / band mean, per band
+
+    def counts(self, brdf: np.ndarray, cos_r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Expected signal, its standard deviation and whether it saturates, per wavelength."""
+        net = self.counts_per_brdf * np.maximum(brdf, 0.0) * cos_r
+        var = self.variance_per_count * net + self.variance_floor + (self.relative_floor * net) ** 2
+        saturated = np.zeros(net.shape, dtype=bool)
+        if self.saturation is not None and self.peak_ratio is not None:
+            saturated = self.dark_level + net * self.peak_ratio >= self.saturation
+        return self.dark_level + net, np.sqrt(var), saturated
+
+    def _calibration(self, with_standard: bool, with_white_noise: bool) -> Calibration:
+        rf = np.asarray(self.standard.rf(self.wavelengths), dtype=float)
+        cos_w = abs(math.cos(math.radians(self.standard.geometry.theta_r)))
+        signal, std, _ = self.counts(rf / math.pi, cos_w)
+        if not with_white_noise:
+            std = np.zeros_like(std)
+        standard = self.standard if with_standard else replace(self.standard, uncertainty=0.0)
+        dark = self._dark() if self.settings.dark != "none" else None
+        if dark is not None and not with_white_noise:
+            dark = replace(dark, std=np.zeros_like(dark.std))
+        return Calibration(standard, _reading(signal, std, self.wavelengths, self.settings), dark)
+
+    def _dark(self) -> Reading:
+        return _reading(self.dark_level, np.sqrt(self.variance_floor), self.wavelengths, self.settings, dark=True)
+
+    def noise(self, brdf: np.ndarray, geometries: Sequence[Geometry]) -> tuple[np.ndarray, float]:
+        """Standard deviation of each reading's own noise ``(points, wavelengths)`` and the relative
+        standard deviation shared by all readings (white certificate and white reading)."""
+        alone = self._calibration(with_standard=False, with_white_noise=False)
+        full = self._calibration(with_standard=True, with_white_noise=True)
+        dark = self._dark() if self.settings.dark != "none" else None
+        own = np.empty(brdf.shape)
+        shared = []
+        for k, g in enumerate(geometries):
+            signal, std, saturated = self.counts(brdf[k], abs(math.cos(math.radians(g.theta_r))))
+            r = replace(_reading(signal, std, self.wavelengths, self.settings), saturated=saturated)
+            a = alone.apply(r, g, dark)
+            f = full.apply(r, g, dark)
+            own[k] = a.std
+            with np.errstate(divide="ignore", invalid="ignore"):
+                shared.append(np.sqrt(np.maximum(f.std**2 - a.std**2, 0.0)) / f.brdf)
+        rel = np.asarray(shared)
+        return own, float(np.nanmedian(rel)) if np.isfinite(rel).any() else 0.0
+
+
+def _emulated_model(d: Mapping[str, Any], settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
+    from bench.builders.emulated import RESPONSE_GAIN
+    from drivers.ocean.codec import FULL_SCALE
+    from virtual.wire.ocean_model import SpectrometerConfig, SpectrometerModel
+
+    e = d.get("emulated") or {}
+    cfg = SpectrometerConfig()  # the emulator's detector: the emulated builder configures no other
+    detector = SpectrometerModel(cfg)
+    centres = np.asarray(parse_wavelengths(e.get("bands", "450:650:100")), dtype=float)
+    half = float(e.get("bandwidth_nm", 10.0)) / 2.0
+    t_ms = round(settings.integration_s * 1000.0)
+    per_count, per_var, floor, peak = [], [], [], []
+    for c in centres:  # a band reads the mean of its pixels (bench.bands.SpectralBands)
+        lamp = detector.lamp[np.abs(detector.wavelengths - c) <= half]
+        n = lamp.size
+        peak.append(float(lamp.max() / lamp.mean()))
+        per_count.append(float(lamp.mean()) * cfg.peak_counts_per_ms * t_ms * RESPONSE_GAIN)
+        # mean of n pixels x averages scans: shot (counts_per_electron x signal) and read noise
+        per_var.append(cfg.counts_per_electron / (n * settings.averages))
+        floor.append(cfg.read_noise**2 / (n * settings.averages))
+    dark = cfg.dark_counts + cfg.dark_counts_per_s * t_ms / 1000.0
+    # a band is flagged when any pixel of any scan reaches full scale: keep a margin for noise and
+    # for a prior that is only a guess
+    full = np.full(centres.size, SATURATION_MARGIN * FULL_SCALE)
+    return ReadingModel("emulated", centres, settings, standard, float(e.get("aperture_deg", 1.0)),
+                        np.array(per_count), np.array(per_var), np.array(floor), np.full(centres.size, dark),
+                        saturation=full, peak_ratio=np.array(peak))
+
+
+def _virtual_model(bench: Any, settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
+    from bench.builders.instrument import instrument_effects
+
+    gonio = bench.spectrometer  # the virtual goniophotometer (through any declared effects)
+    wl = np.asarray(gonio.wavelengths, dtype=float)
+    psa = float(np.median(gonio.collector.psa))
+    scale = float(gonio.gain) * settings.integration_s  # signal per unit of BRDF x cos(theta_r)
+    # binomial counting in a patch: var(f) ~ f / (rays psa) for f psa << 1
+    per_count = np.full(wl.size, scale / (float(gonio.rays) * psa))
+    floor = np.zeros(wl.size)
+    dark = np.zeros(wl.size)
+    effects = instrument_effects(bench.config.get("instrument"))
+    if effects is not None:
+        per_count = per_count + (1.0 / settings.averages if effects.shot_noise else 0.0)
+        floor = floor + effects.read_noise**2 / settings.averages
+        dark = dark + effects.dark_counts
+    return ReadingModel("virtual", wl, settings, standard, 0.0, np.full(wl.size, scale), per_count, floor, dark)
+
+
+def _real_model(bench: Any, settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
+    from bench.identify.time_model import plan_of_points
+    from bench.plans import MotionProfile, estimate
+
+    wl = np.asarray(bench.spectrometer.wavelengths, dtype=float)
+    one_point = plan_of_points([Geometry(0.0, 0.0, 30.0, 180.0)], settings)
+    rel = float(estimate(one_point, MotionProfile.instantaneous())["relative_uncertainty"])
+    z = np.zeros(wl.size)
+    return ReadingModel("real", wl, settings, standard, 0.0, np.ones(wl.size), z, z, z, relative_floor=rel)
+
+
+def bench_reading_model(bench: Any, settings: ReadingSettings) -> ReadingModel:
+    """The reading model of an open bench, by the body that executes its description."""
+    if bench.kind == "emulated":
+        return _emulated_model(bench.config, settings, bench.white)
+    if bench.kind == "virtual":
+        return _virtual_model(bench, settings, bench.white)
+    return _real_model(bench, settings, bench.white)
