@@ -1,7 +1,7 @@
 """GUM budgets of a scan: stored with each point, shown by ``bench show --json``, exported as u_c, U
 and k, read back into the full covariance; old stores still read; the Monte Carlo method from the
 command line; and the same budget structure on the virtual and the emulated body of one
-description (issue 27 item 5: the components are the declared effects, whichever body runs them).
+description (the components are the declared effects, whichever body runs them).
 """
 
 from __future__ import annotations
