@@ -59,7 +59,7 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
 
     goniometer: Any = gonio
     motion = joints = None
-    if str(d.get("kind", "virtual")) != "virtual" or "arm" in d:  # a physical bench's description: its rules
+    if str(d.get("kind", "virtual")) != "virtual" or "arm" in d or "emulated" in d:  # a physical bench's rules
         from bench.builders.twin import KinematicGoniometer, physical_rules
 
         rules = physical_rules(d)
