@@ -11,11 +11,13 @@ it (``[instrument]``; the mission: simulate only the effects a measurement calls
     seed = 11                    # the effects' random stream (default: 0)
 
 A description without ``[instrument]`` (or with every effect at its default) gives the readings
-of the bare virtual instrument, bit for bit. A declared ``[detector]`` (:mod:`bench.builders.detector`)
-is the detector of every body: its dark level and read noise are then this table's
-``dark_counts`` and ``read_noise`` (declare them in one of the two tables, not both), and a scan at
-or above its ``saturation_counts`` reads full scale, flagged saturated. The random stream is numpy's PCG64 from the seed, so
-results do not depend on the CPU. The emulated and real bodies have their own detector.
+of the bare virtual instrument, bit for bit. A declared ``[detector]``
+(:mod:`bench.builders.detector`) is the detector of every body: its dark level and read noise
+are then this table's ``dark_counts`` and ``read_noise`` (declare them in one of the two tables,
+not both), and a scan at or above its ``saturation_counts`` reads full scale, flagged saturated.
+The random stream is numpy's PCG64 from the seed, so results do not depend on the CPU. These
+effects are the virtual body's; the emulators make their own noise (with ``[detector]``'s dark
+level and read noise).
 """
 
 from __future__ import annotations
