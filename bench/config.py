@@ -21,7 +21,8 @@ Switching a scan script from virtual to emulated to real hardware is a config ch
 
 Emulated and real benches add ``[arm]`` (drivers.dynamixel), ``[turntable]`` (drivers.modbus)
 and ``[spectrometer]`` (drivers.ocean) tables; the emulated builder starts the wire emulators
-itself and points the real drivers at them (see :mod:`bench.builders`).
+itself and points the real drivers at them (see :mod:`bench.builders`). ``[detector]``
+(:mod:`bench.builders.detector`) describes the detector for every body.
 
 Builders are looked up by ``kind`` and imported lazily, so ``bench`` (the interface) does not
 depend on ``virtual`` or ``drivers`` at import time.

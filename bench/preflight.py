@@ -16,6 +16,7 @@ import math
 import sys
 from typing import Any, Mapping
 
+from bench.builders.detector import check_integration
 from bench.config import Bench
 from bench.core.errors import CalibrationRefused
 from bench.io.white import WhiteReference
@@ -70,8 +71,10 @@ def check_white_reference(ref: WhiteReference, bench: Bench, integration_s: floa
 
 def check_calibration_steps(bench: Bench, plan: Plan, ref: WhiteReference | None) -> None:
     """Raise :class:`CalibrationRefused` (one line) unless every calibration step of ``plan`` can be
-    taken on ``bench``, with ``ref`` the bench's stored white reading (or None). Call it before
-    any motion."""
+    taken on ``bench``, with ``ref`` the bench's stored white reading (or None); a
+    :class:`PlanError` when a declared ``[detector]`` cannot integrate as long as the plan asks.
+    Call it before any motion."""
+    check_integration(bench.config, plan.integration_s, f"plan {plan.name!r}")
     if plan.dark != "none" and bench.light is None:
         raise no_light(bench, plan)
     if plan.white == "none":

@@ -105,7 +105,7 @@ def check_protocols(devs: Any) -> None:
 #: standard plans: builder(devices) -> (plan, events, goniometer moves)
 STANDARD = {
     "count": lambda d: (bp.count([d.reflectance], num=2), 2, 0),
-    "scan": lambda d: (bp.scan([d.reflectance], d.goniometer.theta_r, -60, 60, 5), 5, 5),
+    "scan": lambda d: (bp.scan([d.reflectance], d.goniometer.theta_r, -20, 60, 5), 5, 5),
     "rel_scan": lambda d: (bp.rel_scan([d.spectrometer], d.goniometer.theta_r, -10, 10, 3), 3, 4),
     "list_scan": lambda d: (bp.list_scan([d.reflectance, d.spectrometer], d.goniometer.theta_i, [20, 40],
                                          d.goniometer.theta_r, [30, 50]), 2, 2),

@@ -21,7 +21,7 @@ from tests.helpers.cli import run_main
 ROOT = Path(__file__).resolve().parents[1]
 FIX = ROOT / "fixtures"
 VIRTUAL = str(FIX / "benches" / "virtual.toml")
-SMALL_PLAN = 'name = "small"\nkind = "in-plane"\n[in_plane]\ntheta_i = [30]\ntheta_r = [-40, 0, 40]\n'
+SMALL_PLAN = 'name = "small"\nkind = "in-plane"\n[in_plane]\ntheta_i = [30]\ntheta_r = [-20, 0, 40]\n'
 
 
 def one_line(err: str) -> bool:
@@ -205,7 +205,7 @@ def test_a_killed_run_shows_process_gone_and_resumes(capsys, tmp_path, store):
     word, as SIGKILL would leave it) is listed as interrupted (process gone); resume finishes it."""
     db = tmp_path / "k.sqlite"
     code = ("import sys; from bench.store import RunStore; from bench.plans import plan_from_dict\n"
-            f"plan = plan_from_dict({{'name': 'k', 'kind': 'in-plane', 'in_plane': {{'theta_i': [30], 'theta_r': [-40, 0, 40]}}}})\n"
+            f"plan = plan_from_dict({{'name': 'k', 'kind': 'in-plane', 'in_plane': {{'theta_i': [30], 'theta_r': [-20, 0, 40]}}}})\n"
             "import tomllib\n"
             f"bench = tomllib.load(open({VIRTUAL!r}, 'rb'))\n"
             f"s = RunStore({str(db)!r})\n"

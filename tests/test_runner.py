@@ -22,7 +22,7 @@ from store_probe import committed_points
 ROOT = Path(__file__).parent.parent
 BENCH = ROOT / "fixtures" / "benches" / "virtual.toml"
 PLAN = {"name": "small", "kind": "in-plane", "integration_s": 0.01, "averages": 1, "dark": "per-incidence",
-        "white": "once", "in_plane": {"theta_i": [20, 40], "theta_r": {"start": -70, "stop": 70, "step": 10}}}
+        "white": "once", "in_plane": {"theta_i": [20, 40], "theta_r": {"start": -10, "stop": 74, "step": 6}}}
 
 
 def _values(store, run_id):
@@ -105,7 +105,7 @@ def test_sigkill_mid_scan_then_resume_gives_exactly_the_uninterrupted_record(tmp
     plan_path = tmp_path / "plan.toml"
     plan_path.write_text(
         'name = "crash"\nkind = "in-plane"\nintegration_s = 0.01\ndark = "once"\nwhite = "once"\n'
-        '[in_plane]\ntheta_i = [25, 40, 55]\ntheta_r = { start = -76, stop = 76, step = 2 }\n')
+        '[in_plane]\ntheta_i = [25, 40, 55]\ntheta_r = { start = -16, stop = 84, step = 2 }\n')
     n_points = len(load_plan(plan_path))
     bench_exe = [sys.executable, "-m", "bench.cli"]
     env = dict(os.environ)

@@ -18,6 +18,8 @@ from bluesky import RunEngine
 from bluesky_support import reset_reflectance, run
 
 from bench.bluesky import connect
+from bench.cli import main
+from bench.io import read_astm, read_tidy_csv
 from bench.config import load_bench
 from bench.plans import plan_from_dict
 from bench.runner import run_scan
@@ -56,9 +58,26 @@ def test_plan_file_and_bluesky_list_scan_give_identical_records(body, tmp_path):
         assert np.allclose(a[c], b[c], rtol=0, atol=tol), c
     phi_gap = np.abs((a["phi_r"] - b["phi_r"] + 180.0) % 360.0 - 180.0)
     assert np.all(phi_gap <= max(tol, 0.0) + 1e-9)
+    _exports_state_the_convention(db, plan_run, writer.run_ids[0], tmp_path, tol)
     if body == "virtual":  # same seed, same points: the very same values
         for c in ("signal", "value", "std"):
             assert np.array_equal(a[c].to_numpy(), b[c].to_numpy(), equal_nan=True), c
     else:  # independent emulator noise: equal within the reported uncertainties
         z = (a["value"] - b["value"]) / np.hypot(a["std"], b["std"])
         assert np.all(np.abs(z) < 4.5)  # Bonferroni over 12 values, two-sided 1e-4
+
+
+def _exports_state_the_convention(db: Path, plan_run: str, bluesky_run: str, tmp_path: Path, tol: float) -> None:
+    """`bench export` (tidy CSV and ASTM CSV) of the plan's run and of the list_scan's writes
+    theta_r >= 0 with the detector's own azimuth, as the README states: the plan's signed -20
+    is theta_r = 20 at phi_r = phi_i = 0 (source side), the positive ones at phi_r = 180."""
+    want = sorted((abs(t), 0.0 if t < 0 else 180.0) for t in THETA_R)
+    for fmt, suffix, reader in (("csv", ".csv", read_tidy_csv), ("astm", ".astm.csv", read_astm)):
+        for run_id in (plan_run, bluesky_run):
+            out = tmp_path / f"{run_id}{suffix}"
+            assert main(["export", run_id, "--store", str(db), "--format", fmt, "--out", str(out)]) == 0
+            t = reader(out).table
+            got = sorted({(round(r, 6), round(p % 360.0, 6)) for r, p in zip(t["theta_r"], t["phi_r"])})
+            assert len(got) == len(want) and (t["theta_r"] >= 0).all(), (fmt, got)
+            for (r, p), (wr, wp) in zip(got, want):
+                assert abs(r - wr) <= tol + 1e-9 and abs((p - wp + 180.0) % 360.0 - 180.0) <= tol + 1e-9, (fmt, got)

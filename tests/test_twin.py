@@ -12,6 +12,7 @@ import pytest
 from bench.cli import main
 from bench.config import load_bench
 from bench.core.errors import GeometryError, PlanError
+from bench.core.parsing import read_toml
 from bench.core.geometry import Geometry
 from bench.plans import load_plan, plan_from_dict, validate
 from bench.runner import run_scan
@@ -19,13 +20,14 @@ from bench.store import RunStore
 
 ROOT = Path(__file__).parent.parent
 EMULATED = ROOT / "fixtures" / "benches" / "emulated.toml"
+VIRTUAL = ROOT / "fixtures" / "benches" / "virtual.toml"
 PLANS = sorted((ROOT / "fixtures" / "plans").glob("*.toml"))
 KEYS = ("points", "refused", "seconds", "motion_s")
 
 
-def _plan_json(plan: Path, body: str, capsys) -> tuple[int, dict]:
+def _plan_json(plan: Path, body: str, capsys, bench: Path = EMULATED) -> tuple[int, dict]:
     capsys.readouterr()
-    code = main(["plan", str(plan), "--bench", str(EMULATED), "--body", body, "--json"])
+    code = main(["plan", str(plan), "--bench", str(bench), "--body", body, "--json"])
     return code, json.loads(capsys.readouterr().out)
 
 
@@ -33,19 +35,40 @@ def _plan_json(plan: Path, body: str, capsys) -> tuple[int, dict]:
 @pytest.mark.parametrize("plan", PLANS, ids=[p.stem for p in PLANS])
 def test_shipped_plans_are_refused_or_timed_identically_on_every_body(plan, capsys):
     """Same exit, same refusals (geometry, rule, message), same seconds and motion on the
-    virtual body as on the emulated body (real drivers over the emulators) of one description."""
+    virtual body as on the emulated body (real drivers over the emulators) of one description,
+    and on the shipped virtual description (the emulated bench's twin)."""
     virtual_code, virtual = _plan_json(plan, "virtual", capsys)
     emulated_code, emulated = _plan_json(plan, "emulated", capsys)
+    twin_code, twin = _plan_json(plan, "virtual", capsys, bench=VIRTUAL)
     assert virtual["bench_kind"] == "virtual" and emulated["bench_kind"] == "emulated"
-    assert virtual_code == emulated_code
+    assert virtual_code == emulated_code == twin_code
     for key in KEYS:
-        assert virtual[key] == emulated[key], key
+        assert virtual[key] == emulated[key] == twin[key], key
     assert virtual["motion_s"] > 0  # the virtual body has a time model, not 0 s of motion
+
+
+def test_shipped_virtual_description_is_the_emulated_benchs_twin():
+    """fixtures/benches/virtual.toml declares the emulated bench's arm, kinematics and motion:
+    every body of either file applies the same rules and time model (the emulated body's are
+    computed here from the description, without starting emulators)."""
+    from bench.builders.emulated import emulated_arm_config, emulated_motion
+    from bench.builders.twin import physical_rules
+    from drivers.dynamixel import ArmConfig
+
+    virtual, emulated = read_toml(VIRTUAL), read_toml(EMULATED)
+    assert virtual["kind"] == "virtual" and "arm" in virtual
+    rules = {name: physical_rules(d) for name, d in (("virtual", virtual), ("emulated", emulated))}
+    assert rules["virtual"] == rules["emulated"]
+    for d in (virtual, emulated):  # the emulated body of each file
+        assert ArmConfig.from_dict(emulated_arm_config(d, "")).kinematics == rules["emulated"].kinematics
+        assert emulated_motion(d) == rules["emulated"].motion
 
 
 def test_hemispherical_refusal_names_rules_and_counts(capsys):
     code, out = _plan_json(ROOT / "fixtures" / "plans" / "hemispherical.toml", "virtual", capsys)
     assert code == 2 and out["points"] == 122 and len(out["refused"]) == 8
+    assert _plan_json(ROOT / "fixtures" / "plans" / "hemispherical.toml", "virtual", capsys, VIRTUAL) == (code, {
+        **out, "bench": "virtual"})  # the shipped virtual description refuses the same 8
     assert {r["rule"] for r in out["refused"]} == {"beam_block", "arm_collision"}
     assert set(out["refused"][0]) == {"index", "theta_i", "phi_i", "theta_r", "phi_r", "rule", "message"}
     assert main(["plan", str(ROOT / "fixtures" / "plans" / "hemispherical.toml"), "--bench", str(EMULATED),
@@ -57,13 +80,17 @@ def test_hemispherical_refusal_names_rules_and_counts(capsys):
 
 def test_virtual_body_moves_refuse_like_the_arm():
     """Not only plans: a move the arm refuses (a Bluesky scan through the beam) is refused on the
-    virtual body too, with the same rule name; the plain virtual description stays ideal."""
-    with load_bench(EMULATED, body="virtual") as bench:
-        with pytest.raises(GeometryError, match="^beam_block"):
-            bench.goniometer.move_to(Geometry(30, 0, 30, 0))
-        bench.goniometer.move_to(Geometry(30, 0, 20, 180))
-    with load_bench(ROOT / "fixtures" / "benches" / "virtual.toml") as bench:
+    virtual body too, with the same rule name (the shipped virtual description included); a
+    plain virtual description (no [arm], no [emulated]) stays ideal."""
+    for description in (EMULATED, VIRTUAL):
+        with load_bench(description, body="virtual") as bench:
+            with pytest.raises(GeometryError, match="^beam_block"):
+                bench.goniometer.move_to(Geometry(30, 0, 30, 0))
+            bench.goniometer.move_to(Geometry(30, 0, 20, 180))
+    plain = {k: v for k, v in read_toml(VIRTUAL).items() if k not in ("arm", "emulated", "turntable")}
+    with load_bench(plain) as bench:
         bench.goniometer.check(Geometry(30, 0, 30, 0))
+        assert bench.motion is None
 
 
 def test_unreachable_skip_measures_the_rest_and_records_the_skipped(tmp_path):

@@ -4,6 +4,8 @@
 * :mod:`bench.builders.emulated` -- the real drivers talking to the wire-level emulators of
   ``virtual/wire`` (and :class:`~bench.builders.emulated.Emulators` for ``bench emulate``);
 * :mod:`bench.builders.real` -- the real drivers on real ports;
+* :mod:`bench.builders.detector` -- the detector a description declares (``[detector]``), which
+  configures the emulated spectrometer and the virtual body's detector alike;
 * :mod:`bench.builders.motion` -- the motion profile of emulated and real benches from their
   configured speeds and ramps (``bench plan``);
 * :mod:`bench.builders.homing` -- return-to-home of the axes a builder exposes in

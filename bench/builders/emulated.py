@@ -44,16 +44,19 @@ from bench.bands import SpectralBands
 from bench.config import Bench
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import ConfigError
+from bench.core.geometry import cone_quadrature
 from bench.core.parsing import parse_wavelengths
+from bench.core.schemas import EmulatedTable
 from bench.core.roles import Reading
-from bench.builders.light import LAMP_LINE, LampLine
+from bench.builders.detector import RESPONSE_GAIN, described_bands, detector_settings, emulator_settings
+from bench.builders.light import LAMP_LINE, LampLine, LightTable, build_light, declares_light, light_settings
 from bench.builders.motion import motion_profile
-from drivers.dynamixel import DynamixelArm
+from drivers.dynamixel import ArmConfig, DynamixelArm
 from drivers.kinematics import Joints, geometry_to_joints, joints_to_geometry
 from drivers.modbus import ModbusStageAxis
 from drivers.ocean import OceanSpectrometer
 from drivers.registers import load_register_map
-from virtual.specimens import Lambertian, parse_specimen
+from virtual.specimens import parse_specimen
 from virtual.wire.dynamixel_bus import BusControl, start_bus
 from virtual.wire.modbus_stage import StageEmulator
 from virtual.wire.ocean_spectrometer import SpectrometerEmulator
@@ -61,13 +64,11 @@ from virtual.wire.ocean_spectrometer import SpectrometerEmulator
 log = logging.getLogger(__name__)
 
 __all__ = ["build_emulated_bench", "Emulators", "DEFAULT_EMULATED_CONFIG", "emulated_geometry",
-           "emulated_response", "aperture_directions", "LampLine", "ARM_IDS", "emulated_arm_config", "emulated_turntable_config",
+           "emulated_response", "LampLine", "ARM_IDS", "emulated_arm_config", "emulated_turntable_config",
            "emulated_motion"]
 
 #: servo ids of the arm joints on the emulated bus (the turntable is on the Modbus stage)
 ARM_IDS = {"source": 1, "detector_azimuth": 2, "detector_elevation": 3}
-#: detector counts per unit of (BSDF x cos theta_r): a 0.99 white at 45 deg gives ~45 % of full scale
-RESPONSE_GAIN = 2.0
 STEPS_PER_REV = 1000
 TURNTABLE_GEAR = 18.0
 
@@ -112,49 +113,42 @@ def emulated_geometry(bus_control: str, stage_url: str, steps_per_deg: float,
                                      clamp(j["detector_elevation"])))
 
 
-def aperture_directions(view: np.ndarray, half_angle_deg: float) -> np.ndarray:
-    """Seven directions averaging a cone of the given half-angle: its axis and a ring at the
-    radius that splits the cap's area in half (a 2-point radial rule, 6 azimuths)."""
-    a = math.radians(half_angle_deg)
-    if a == 0:
-        return view[None, :]
-    t = view
-    u = np.cross(t, [0.0, 0.0, 1.0] if abs(t[2]) < 0.9 else [1.0, 0.0, 0.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(t, u)
-    r = math.acos(1 - (1 - math.cos(a)) / 2)  # half of the cap's solid angle inside
-    dirs = [t]
-    for k in range(6):
-        phi = 2 * math.pi * k / 6
-        dirs.append(math.cos(r) * t + math.sin(r) * (math.cos(phi) * u + math.sin(phi) * v))
-    return np.array(dirs)
+def _white_fraction(white_rf: Any, wl: np.ndarray) -> np.ndarray:
+    """The white standard's BRDF (1/sr) per wavelength from its certificate: a number, or
+    ``[[nm...], [factor...]]`` interpolated (held at the end values outside the certificate)."""
+    if isinstance(white_rf, (int, float)):
+        return np.full(wl.shape, float(white_rf) / math.pi)
+    cert_wl, cert_rf = (np.asarray(a, dtype=float) for a in white_rf)
+    return np.interp(wl, cert_wl, cert_rf) / math.pi
 
 
-def emulated_response(geometry: Any, wavelengths_nm: np.ndarray, specimen: str, white_rf: float,
+def emulated_response(geometry: Any, wavelengths_nm: np.ndarray, specimen: str, white_rf: Any,
                       mount_file: str, aperture_deg: float) -> np.ndarray:
-    """Reflected fraction the emulated detector sees: ``GAIN * mean_aperture(f) * cos(theta_r)``
-    for the mounted specimen (the virtual specimen, or a Lambertian white standard)."""
+    """Reflected fraction the emulated detector sees: ``GAIN * mean_aperture(f cos(theta_r))``
+    for the mounted specimen (the virtual specimen, or a Lambertian white standard of the
+    certificate's reflectance factor, ``white_rf``: a number or ``[[nm...], [factor...]]``)."""
     if geometry is None:
         return np.zeros(np.shape(wavelengths_nm))
     try:
         mounted = json.loads(Path(mount_file).read_text()).get("mounted", "specimen")
     except (OSError, ValueError):
         mounted = "specimen"
-    key = f"specimen:{mounted}"
-    spec = _PROCESS_CACHE.get(key)
-    if spec is None:
-        spec = _PROCESS_CACHE[key] = Lambertian(white_rf) if mounted == "white" else parse_specimen(specimen)
     g = geometry
-    wi, wo = g.incident, g.view
-    dirs = aperture_directions(wo, aperture_deg)
     wl = np.asarray(wavelengths_nm, dtype=float)
+    dirs, weights = cone_quadrature(g.view, aperture_deg)  # the detector's cone, as the virtual body's
+    cos_r = np.clip(dirs[:, 2], 0.0, None)
+    if mounted == "white":
+        return RESPONSE_GAIN * _white_fraction(white_rf, wl) * float(weights @ cos_r)
+    spec = _PROCESS_CACHE.get("specimen")
+    if spec is None:
+        spec = _PROCESS_CACHE["specimen"] = parse_specimen(specimen)
+    wi, w_cos = g.incident, weights * cos_r
     rng = spec.wavelength_range()
-    cos_r = max(math.cos(math.radians(g.theta_r)), 0.0)
     if rng is None:  # not spectral: one evaluation serves every pixel
-        return np.full(wl.shape, RESPONSE_GAIN * float(np.mean(spec.bsdf(wi, dirs, float(wl[0])))) * cos_r)
+        return np.full(wl.shape, RESPONSE_GAIN * float(w_cos @ spec.bsdf(wi, dirs, float(wl[0]))))
     grid = np.linspace(max(wl.min(), rng[0]), min(wl.max(), rng[1]), 41)
-    f = np.array([float(np.mean(spec.bsdf(wi, dirs, float(w)))) for w in grid])
-    return RESPONSE_GAIN * np.interp(wl, grid, f) * cos_r
+    f = np.array([float(w_cos @ spec.bsdf(wi, dirs, float(w))) for w in grid])
+    return RESPONSE_GAIN * np.interp(wl, grid, f)
 
 
 def _write_mount(path: Path, mounted: str) -> None:
@@ -166,7 +160,17 @@ def _write_mount(path: Path, mounted: str) -> None:
 # --- builders ----------------------------------------------------------------------------------------
 
 
+#: keys of a description's driver tables that name its own ports: the emulators have theirs
+_PORT_KEYS = ("port", "name")
+
+
+def _without_ports(table: Mapping[str, Any] | None) -> dict[str, Any]:
+    return {k: v for k, v in (table or {}).items() if k not in _PORT_KEYS}
+
+
 def emulated_arm_config(d: Mapping[str, Any], port: str) -> dict[str, Any]:
+    """The emulated arm's driver settings: the description's ``[arm]`` (any body's: its port
+    aside) over the emulated bench's defaults."""
     arm = {"port": port, "name": "emulated-arm", "external": ["turntable"], "tolerance_deg": 0.2,
            "settle_timeout_s": 10.0, "poll_interval_s": 0.002,
            "axes": {j: {"id": i, "operating_mode": 4, "profile_velocity": 60} for j, i in ARM_IDS.items()}}
@@ -174,10 +178,17 @@ def emulated_arm_config(d: Mapping[str, Any], port: str) -> dict[str, Any]:
     return arm
 
 
+def _bus_axes(arm: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """The servos the bus emulator plays: the arm's own ids, zero offsets, directions and gear
+    ratios, so that the driver's joint angles and the emulator's agree."""
+    return {j: {"id": a.id, "zero_offset": a.zero_offset, "direction": a.direction, "gear_ratio": a.gear_ratio}
+            for j, a in ArmConfig.from_dict(arm).axes.items()}
+
+
 def emulated_turntable_config(d: Mapping[str, Any]) -> dict[str, Any]:
     """The emulated turntable's driver settings: the description's ``[turntable]`` over defaults."""
     return {"gear_ratio": TURNTABLE_GEAR, "steps_per_rev": STEPS_PER_REV, "speed": 30.0, "tolerance": 0.05,
-            "settle_s": 0.2, "poll_interval_s": 0.002, **d.get("turntable", {})}
+            "settle_s": 0.2, "poll_interval_s": 0.002, **_without_ports(d.get("turntable"))}
 
 
 def emulated_motion(d: Mapping[str, Any]) -> Any:
@@ -197,22 +208,23 @@ class Emulators:
             raise ConfigError("emulated bench: [specimen] spec = \"...\" is required")
         parse_specimen(spec)  # a bad specimen fails here, before any process starts
         self.specimen = str(spec)
+        self.description = dict(d)
         e = dict(d.get("emulated", {}))
-        self.options = e
         self.time_scale = float(e.get("time_scale", 20.0))
         emu_seed = int(e.get("seed", seed if seed is not None else 7))
         self.white = WhiteStandard.from_dict(d.get("white", {}))
-        if not isinstance(self.white.reflectance_factor, (int, float)):
-            raise ConfigError("emulated bench: [white] reflectance_factor must be a number")
+        bands = described_bands(d)  # [bands] or [emulated] bands, checked against a declared [detector]
+        self.bands = bands if bands is not None else (EmulatedTable().bands, EmulatedTable().bandwidth_nm)
+        self.detector = emulator_settings(detector_settings(d))
+        self.arm_config = emulated_arm_config(d, "")
         self.workdir = Path(tempfile.mkdtemp(prefix="goniobench-emulated-"))
         self.mount = self.workdir / "mount.json"
         _write_mount(self.mount, "specimen")
         self._closers: list[Any] = []
         try:
-            axes_map = {j: {"id": i, "zero_offset": 2048, "direction": 1, "gear_ratio": 1.0}
-                        for j, i in ARM_IDS.items()}
-            self.bus = start_bus(ids=tuple(ARM_IDS.values()), axes=axes_map, time_scale=self.time_scale,
-                                 seed=emu_seed)
+            axes_map = _bus_axes(self.arm_config)
+            self.bus = start_bus(ids=tuple(a["id"] for a in axes_map.values()), axes=axes_map,
+                                 time_scale=self.time_scale, seed=emu_seed)
             self._closers.append(self.bus.close)
             self.stage = StageEmulator.start("tcp", time_scale=self.time_scale)
             self._closers.append(self.stage.stop)
@@ -223,14 +235,15 @@ class Emulators:
                                                   self.stage.url, steps_per_deg,
                                                   str(self.turntable_config.get("register_map", "oriental_az"))),
                 response=functools.partial(emulated_response, specimen=spec,
-                                           white_rf=float(self.white.reflectance_factor), mount_file=str(self.mount),
-                                           aperture_deg=float(e.get("aperture_deg", 1.0))),
-                seed=emu_seed, time_scale=max(1.0, self.time_scale))
+                                           white_rf=self.white.as_dict()["reflectance_factor"],
+                                           mount_file=str(self.mount), aperture_deg=float(e.get("aperture_deg", 1.0))),
+                seed=emu_seed, time_scale=max(1.0, self.time_scale), **self.detector)
             self._closers.append(self.spectrometer.stop)
         except BaseException:
             self.close()
             raise
         self.arm_config = emulated_arm_config(d, self.bus.port)
+        self.light = declares_light(d)
 
     def mount_white(self, white: bool) -> None:
         """Put the white standard (or the specimen) on the emulated turntable."""
@@ -246,12 +259,16 @@ class Emulators:
         arm = {k: v for k, v in self.arm_config.items()}
         return {"name": "emulators", "kind": "real", "arm": arm,
                 "specimen": {"name": f"emulated {self.specimen}", "spec": self.specimen},
-                "light": {"kind": LAMP_LINE},  # the emulated spectrometer's lamp-enable line: darks
+                **({"light": {"kind": LAMP_LINE}} if self.light else {}),  # the lamp-enable line: darks
                 "turntable": {"port": self.stage.url, **self.turntable_config},
-                "spectrometer": {"port": self.spectrometer.port},
-                "bands": {"centres": self.options.get("bands", "450:650:100"),
-                          "bandwidth_nm": self.options.get("bandwidth_nm", 10.0)},
-                "white": self.white.as_dict()}
+                "spectrometer": {"port": self.spectrometer.port, **self.spectrometer_settings()},
+                "bands": {"centres": self.bands[0], "bandwidth_nm": self.bands[1]},
+                "white": self.white.as_dict(),
+                **({"detector": dict(self.description["detector"])} if "detector" in self.description else {})}
+
+    def spectrometer_settings(self) -> dict[str, Any]:
+        """The driver's pixel count when the declared detector is not the model's default."""
+        return {"pixels": self.detector["pixels"]} if "pixels" in self.detector else {}
 
     def close(self) -> None:
         for c in reversed(self._closers):
@@ -271,12 +288,11 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
         closers.append(turntable.close)
         arm = DynamixelArm(emu.arm_config, external_axes={"turntable": turntable})
         closers.append(arm.close)
-        ocean = OceanSpectrometer(emu.spectrometer.port, config=d.get("spectrometer", {}), name="spectrometer")
+        ocean = OceanSpectrometer(emu.spectrometer.port, name="spectrometer",
+                                  config={**_without_ports(d.get("spectrometer")), **emu.spectrometer_settings()})
         closers.append(ocean.close)
-        lamp = LampLine(ocean)
-        lamp.on()
-        bands = SpectralBands(ocean, parse_wavelengths(emu.options.get("bands", "450:650:100")),
-                              float(emu.options.get("bandwidth_nm", 10.0)))
+        lamp = build_light(light_settings(d.get("light")) or LightTable(), ocean)  # the emulator's lamp line, lit
+        bands = SpectralBands(ocean, parse_wavelengths(emu.bands[0]), float(emu.bands[1]))
     except BaseException:
         for c in reversed(closers):
             c()
@@ -293,7 +309,7 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
 
     kin = arm.config.kinematics
     return Bench(name=str(d.get("name", "emulated")), kind="emulated", goniometer=arm, spectrometer=bands,
-                 white=white, measure_white=measure_white, light=lamp,
+                 white=white, measure_white=measure_white, light=lamp if emu.light else None,
                  motion=emulated_motion(d),
                  joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers,
                  parts={"emulators": emu, "arm": arm, "turntable": turntable, "spectrometer": ocean})

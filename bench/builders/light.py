@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from bench.core.roles import InstrumentBase, InstrumentInfo
 from bench.core.schemas import Finite, validate_document
 
-__all__ = ["LampLine", "LightTable", "light_settings", "build_light", "LAMP_LINE"]
+__all__ = ["LampLine", "LightTable", "light_settings", "build_light", "declares_light", "LAMP_LINE"]
 
 #: the ``[light] kind`` of a lamp switched by the spectrometer's lamp-enable line
 LAMP_LINE = "spectrometer-lamp"
@@ -57,6 +57,14 @@ class LampLine(InstrumentBase):
 
     def off(self) -> None:
         self._switch(False)
+
+
+def declares_light(d: Mapping[str, Any]) -> bool:
+    """Whether description ``d`` has a light it can switch off, whatever body executes it: a
+    virtual or emulated description always (the virtual source, the emulator's lamp line); a
+    real one when it says so in ``[light]`` -- so its virtual and emulated bodies refuse darks
+    as the real bench does."""
+    return str(d.get("kind", "virtual")) != "real" or d.get("light") is not None
 
 
 def light_settings(table: Mapping[str, Any] | None, source: str = "bench config") -> LightTable | None:

@@ -7,6 +7,7 @@ Config::
     [spectrometer]   # drivers.ocean OceanConfig keys, with port
     [bands]          # optional: centres = "450:650:100", bandwidth_nm = 10
     [light]          # optional: kind = "spectrometer-lamp" (bench.builders.light): darks need it
+    [detector]       # optional: the unit's detector (bench.builders.detector): integration limits
     [white]          # the standard the operator mounts when a run asks for it, or
                      #   reference_file = "white-2026-11-30.csv" (bench white): no operator needed
 
@@ -20,6 +21,7 @@ import sys
 from typing import Any, Mapping
 
 from bench.bands import SpectralBands
+from bench.builders.detector import described_bands
 from bench.builders.light import build_light, light_settings
 from bench.builders.motion import motion_profile
 from bench.config import Bench
@@ -46,6 +48,7 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
         if "port" not in d.get(table, {}):
             raise ConfigError(f"real bench: [{table}] port = \"...\" is required")
     motion = motion_profile(d.get("arm"), d.get("turntable"))  # from the config, before any port opens
+    described_bands(d)  # bands on the declared [detector], before any port opens
     lamp = light_settings(d.get("light"))
     closers: list[Any] = []
     try:

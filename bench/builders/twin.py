@@ -1,11 +1,14 @@
 """The virtual body of a physical bench description: the same refusals and the same time model.
 
 A description of a physical bench (``kind = "emulated"`` or ``"real"``, or any file with an
-``[arm]`` table) declares kinematics (joint limits, beam-block and arm-collision rules) and
+``[arm]`` or ``[emulated]`` table) declares kinematics (joint limits, beam-block and arm-collision rules) and
 motion profiles. Its virtual body checks every geometry with the same rules, by the same code
 (:func:`drivers.kinematics.check` on the :class:`drivers.dynamixel.ArmConfig` the arm driver
 builds), so a plan is refused with the same rule names on every body, and estimates motion
-from the same profiles. A plain virtual description (no ``[arm]``) keeps the ideal goniometer.
+from the same profiles: the emulators' (``time_scale`` times faster drives, no ramps) for an
+emulated description or a virtual one that declares ``[emulated]`` (the twin of the emulated
+bench, as ``fixtures/benches/virtual.toml``), the drives' own for the others. A plain virtual
+description (neither ``[arm]`` nor ``[emulated]``) keeps the ideal goniometer.
 """
 
 from __future__ import annotations
@@ -36,10 +39,10 @@ class PhysicalRules:
 
 
 def physical_rules(d: Mapping[str, Any]) -> PhysicalRules | None:
-    """The rules of description ``d`` as its emulated or real body applies them, or None for a
-    plain virtual description (no ``[arm]``, ``kind = "virtual"``)."""
+    """The rules of description ``d`` as the hardware its ``kind`` names applies them, or None for
+    a plain virtual description (``kind = "virtual"``, neither ``[arm]`` nor ``[emulated]``)."""
     kind = str(d.get("kind", "virtual"))
-    if kind == "emulated":
+    if kind == "emulated" or (kind == "virtual" and "emulated" in d):  # the emulated bench or its twin
         arm = emulated_arm_config(d, "")
         return PhysicalRules(ArmConfig.from_dict(arm).kinematics, emulated_motion(d))
     if kind == "real" or "arm" in d:

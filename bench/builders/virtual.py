@@ -5,7 +5,10 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from bench.builders.instrument import DetectorEffects, EffectsSpectrometer, PositioningError, instrument_effects
+from bench.builders.detector import described_bands, detector_settings, virtual_gain
+from bench.builders.instrument import (ApertureReading, DetectorEffects, EffectsSpectrometer, PositioningError,
+                                      declared_effects)
+from bench.builders.light import declares_light
 from bench.config import Bench
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import ConfigError
@@ -29,10 +32,12 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     unknown = set(v) - _VIRTUAL_KEYS
     if unknown:
         raise ConfigError(f"virtual bench: unknown [virtual] key(s) {sorted(unknown)}; known: {sorted(_VIRTUAL_KEYS)}")
-    if "virtual" not in d:  # the virtual body of an emulated or real description: its bands
-        bands = (d.get("bands") or {}).get("centres") or (d.get("emulated") or {}).get("bands")
-        if bands is not None:
-            v["wavelengths"] = bands
+    bands = described_bands(d)  # checked against a declared [detector]
+    if "virtual" not in d and bands is not None:  # the virtual body of an emulated or real description
+        v["wavelengths"] = bands[0]
+    det = detector_settings(d)
+    if det is not None and "gain" not in v:  # the declared detector's response
+        v["gain"] = virtual_gain(det)
     if seed is not None:
         v["seed"] = seed
     elif "seed" in d:
@@ -48,18 +53,22 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     # thousand times the rays cost nothing; counting rays, ten times.
     standard.rays = gonio.rays * (1000 if standard.uses_fast_path() else 10)
 
-    effects = instrument_effects(d.get("instrument"))  # declared effects only; none: the bare instrument
-    detector = DetectorEffects(effects, stream=1) if effects is not None else None
-    spectrometer: Any = EffectsSpectrometer(gonio, detector) if detector is not None else gonio
+    effects = declared_effects(d)  # declared effects only; none: the bare instrument
+    saturation = float(det.saturation_counts) if det is not None else None
+    detector = DetectorEffects(effects, stream=1, saturation=saturation) if effects is not None else None
+    aperture = effects.aperture_deg if effects is not None else 0.0
+    seen: Any = ApertureReading(gonio, aperture) if aperture > 0 else gonio  # the detector's cone
+    white_seen: Any = ApertureReading(standard, aperture) if aperture > 0 else standard
+    spectrometer: Any = EffectsSpectrometer(seen, detector) if detector is not None else seen
 
     def measure_white(integration_s: float, averages: int) -> Reading:
         standard.move_to(white.geometry)
-        reading = standard.acquire(integration_s, averages)
+        reading = white_seen.acquire(integration_s, averages)
         return detector.apply(reading) if detector is not None else reading  # the same detector reads it
 
     goniometer: Any = gonio
     motion = joints = None
-    if str(d.get("kind", "virtual")) != "virtual" or "arm" in d:  # a physical bench's description: its rules
+    if str(d.get("kind", "virtual")) != "virtual" or "arm" in d or "emulated" in d:  # a physical bench's rules
         from bench.builders.twin import KinematicGoniometer, physical_rules
 
         rules = physical_rules(d)
@@ -68,6 +77,6 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     if effects is not None and effects.positioning_error_deg > 0:
         goniometer = PositioningError(goniometer, effects)
     return Bench(name=str(d.get("name", "virtual")), kind="virtual", goniometer=goniometer, spectrometer=spectrometer,
-                 light=gonio, white=white, measure_white=measure_white, config=dict(d), motion=motion, joints=joints,
-                 closers=[gonio.close, standard.close])
+                 light=gonio if declares_light(d) else None, white=white, measure_white=measure_white, config=dict(d),
+                 motion=motion, joints=joints, closers=[gonio.close, standard.close])
 

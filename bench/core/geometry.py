@@ -26,6 +26,7 @@ __all__ = [
     "cie_geometry",
     "direction",
     "spherical",
+    "cone_quadrature",
 ]
 
 
@@ -48,6 +49,30 @@ def spherical(v: np.ndarray) -> tuple[float, float]:
     if phi >= 360.0:  # -tiny % 360 rounds to 360
         phi = 0.0
     return theta, phi
+
+
+def cone_quadrature(axis: np.ndarray, half_angle_deg: float, rings: int = 4,
+                    azimuths: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Directions and weights (summing to 1) that average a function over the cone of
+    ``half_angle_deg`` around ``axis`` by solid angle: Gauss-Legendre in ``1 - cos`` of the angle
+    from the axis (uniform in solid angle) times the midpoint rule in azimuth. A cone of 0 deg is
+    its axis alone. What a detector of finite aperture averages."""
+    t = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    a = math.radians(half_angle_deg)
+    if a == 0:
+        return t[None, :], np.ones(1)
+    u = np.cross(t, [0.0, 0.0, 1.0] if abs(t[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(t, u)
+    x, w = np.polynomial.legendre.leggauss(rings)
+    cap = 1.0 - math.cos(a)
+    cos_off = 1.0 - (x + 1.0) / 2.0 * cap  # nodes in 1 - cos over [0, cap]
+    sin_off = np.sqrt(np.maximum(1.0 - cos_off**2, 0.0))
+    phi = 2.0 * math.pi * (np.arange(azimuths) + 0.5) / azimuths
+    dirs = (cos_off[:, None, None] * t + sin_off[:, None, None]
+            * (np.cos(phi)[None, :, None] * u + np.sin(phi)[None, :, None] * v))
+    weights = np.repeat(w / w.sum() / azimuths, azimuths)
+    return dirs.reshape(-1, 3), weights
 
 
 def _check_angle(name: str, value: float, lo: float, hi: float) -> float:

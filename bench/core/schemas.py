@@ -197,7 +197,7 @@ BENCH_KINDS: tuple[str, ...] = get_args(BenchKind)
 
 class BenchFile(BaseModel):
     """A bench config: the roles' tables. Driver tables (``arm``, ``turntable``, ``spectrometer``,
-    ``light``) are checked by the drivers' own declared settings; their presence is checked here."""
+    ``light``, ``detector``) are checked by the drivers' own declared settings; their presence is checked here."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -216,8 +216,9 @@ class BenchFile(BaseModel):
     light: dict[str, Any] | None = None
     instrument: dict[str, Any] | None = None  # declared effects of the virtual body (bench.builders.instrument)
     uncertainty: UncertaintyTable | None = None  # the GUM budget's declared components (bench.core.budget)
+    detector: dict[str, Any] | None = None  # the detector of every body (bench.builders.detector)
 
-    @field_validator("arm", "turntable", "spectrometer", "light", "instrument", mode="before")
+    @field_validator("arm", "turntable", "spectrometer", "light", "instrument", "detector", mode="before")
     @classmethod
     def _table(cls, v: Any) -> Any:
         if not isinstance(v, Mapping):

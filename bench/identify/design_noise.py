@@ -42,18 +42,21 @@ SATURATION_MARGIN = 0.8
 
 def predicted_brdf(specimen: Any, geometries: Sequence[Geometry], wavelengths: np.ndarray,
                    aperture_deg: float = 0.0) -> np.ndarray:
-    """The specimen's BRDF (1/sr) at each geometry and wavelength, ``(points, wavelengths)``,
-    averaged over a detector aperture of half-angle ``aperture_deg`` as the emulated detector
-    averages it (:func:`bench.builders.emulated.aperture_directions`)."""
-    from bench.builders.emulated import aperture_directions
+    """The specimen's BRDF (1/sr) at each geometry and wavelength, ``(points, wavelengths)``, as a
+    detector of half-angle ``aperture_deg`` reads it: the cone average of ``f cos(theta)``
+    (:func:`bench.core.geometry.cone_quadrature`, the rule of the emulator and the virtual body)
+    divided by the axis's ``cos(theta_r)``."""
+    from bench.core.geometry import cone_quadrature
 
     spectral = specimen.wavelength_range() is not None
     bands = wavelengths if spectral else wavelengths[:1]  # a non-spectral density: one evaluation
     out = np.empty((len(geometries), len(bands)))
     for k, g in enumerate(geometries):
-        dirs = aperture_directions(g.view, aperture_deg)
-        for b, w in enumerate(bands):
-            out[k, b] = float(np.mean(specimen.bsdf(g.incident, dirs, float(w))))
+        dirs, weights = cone_quadrature(g.view, aperture_deg)
+        cos_axis = float(g.view[2])
+        w = weights * np.clip(dirs[:, 2], 0.0, None) / cos_axis if cos_axis > 1e-9 else weights
+        for b, wl in enumerate(bands):
+            out[k, b] = float(w @ specimen.bsdf(g.incident, dirs, float(wl)))
     return out if spectral else np.repeat(out, len(wavelengths), axis=1)
 
 

@@ -4,7 +4,7 @@ Owns the response helpers (:func:`constant_response`, :func:`cosine_response`,
 :func:`file_geometry_source`), :class:`SpectrometerConfig` (pixels, calibration slots),
 :class:`Settings` (the device's state: mode, integration, scans, pixel mode, checksum, ...)
 and :class:`SpectrometerModel` (counts from lamp x response x integration, dark, noise,
-non-linearity, saturation).
+non-linearity, saturation at ``saturation_counts``).
 """
 
 from __future__ import annotations
@@ -86,6 +86,8 @@ class SpectrometerConfig:
     dark_counts: float = 1000.0
     dark_counts_per_s: float = 200.0
     read_noise: float = 6.0
+    #: a pixel whose counts reach this in a scan reads full scale (65535): its well is full
+    saturation_counts: int = 65535
     counts_per_electron: float = 0.1
     seed: int | None = 12345
     time_scale: float = 1.0
@@ -193,7 +195,8 @@ class SpectrometerModel:
         if self._nl is not None:
             for _ in range(8):
                 measured = true * _poly(self._nl, measured)
-        return np.clip(np.rint(measured), 0, 65535).astype(np.int64)
+        counts = np.clip(np.rint(measured), 0, 65535)
+        return np.where(counts >= cfg.saturation_counts, 65535, counts).astype(np.int64)
 
     def selected_pixels(self) -> np.ndarray:
         s, n = self.settings, self.cfg.pixels

@@ -6,7 +6,7 @@ Communications") as pinned down in
 add, trigger mode, ``?x`` calibration slots) and produces
 
     counts = lamp(lambda) * response(geometry, lambda) * integration_ms * peak_counts_per_ms
-             + dark + noise,   through a mild detector non-linearity, saturating at 65535 per scan
+             + dark + noise,   through a mild detector non-linearity, reading full scale (65535) from ``saturation_counts`` per scan
 
 where ``geometry = geometry_source()`` is asked once per acquisition (``None`` when there is no
 goniometer) and ``response(geometry, wavelengths_nm) -> np.ndarray`` is the reflected fraction
