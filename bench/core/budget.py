@@ -134,7 +134,10 @@ def declared(description: Mapping[str, Any]) -> dict[str, float]:
     """The budget's declared magnitudes: the ``[instrument]`` effects (what the virtual body
     simulates) and the ``[uncertainty]`` knowledge components."""
     u = uncertainty_table(description)
-    inst = description.get("instrument") or {}
+    # a declared [detector] carries the read noise the bodies simulate (bench.builders.detector);
+    # the builders refuse it declared in both tables
+    inst = {**{k: v for k, v in (description.get("detector") or {}).items() if k == "read_noise"},
+            **(description.get("instrument") or {})}
 
     def effect(key: str) -> float:
         v = inst.get(key, 0.0)
