@@ -1,12 +1,16 @@
 """The project's own tables: tidy CSV (records and spectra) and Parquet, writers and readers.
 
 tidy CSV (:func:`record_to_csv`)
-    One row per record row, every column of the table. Floats are written with Python's
-    shortest round-trip repr, so values read back exactly. Metadata: by default a commented
-    header — first line ``# goniobench-record 1``, then one line ``# meta: <JSON>`` and one line
-    ``# units: <JSON>`` (column -> unit, :func:`column_units`) — which
-    ``pandas.read_csv(path, comment="#")`` skips; or (``meta="sidecar"``) a JSON file next to
-    the CSV named ``<file>.json``; or none.
+    One header row of column names, then one row per record row, so plain
+    ``pandas.read_csv(path)`` reads it. Floats are written with Python's shortest round-trip repr,
+    so values read back exactly. Columns no row fills are left out; the record's identity travels
+    in every row (``specimen``, ``collector``, ``quantity``, ``geometry`` and, when the metadata
+    knows them, ``run_id``, ``bench``, ``body``, ``plan``: :func:`provenance_columns`).
+    Metadata (instrument settings, calibration, versions ...) and ``column_units`` (column ->
+    unit, :func:`column_units`) go by default into a sidecar JSON ``<file>.json`` beside the CSV;
+    ``meta="header"`` writes the older commented header instead (``# goniobench-record 1``,
+    ``# meta: <JSON>``, ``# units: <JSON>``; ``pandas.read_csv(path, comment="#")``), which
+    :func:`read_tidy_csv` still reads.
 Parquet (:func:`record_to_parquet`)
     The table via pyarrow; the metadata as JSON under the key ``goniobench.meta`` and the column
     units under ``goniobench.units`` of the schema's key-value metadata (next to pandas' own
@@ -26,12 +30,12 @@ from pathlib import Path
 from typing import Any
 
 from bench.core.errors import InputError
-from bench.core.records import BSDF_COLUMNS, COLUMN_UNITS, BSDFRecord, json_default, with_keys
+from bench.core.records import BSDF_COLUMNS, COLUMN_UNITS, KEY_COLUMNS, BSDFRecord, json_default, with_keys
 from bench.core.roles import Spectrum
 from bench.io.files import atomic_write, check_record, meta_json, write_csv, write_text
 from bench.io.reading import bad, complete, read_lines
 
-__all__ = ["CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
+__all__ = ["provenance_columns", "PROVENANCE_COLUMNS", "RAW_UNITS", "sidecar_path", "CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
            "record_to_parquet", "read_tidy_csv", "read_parquet", "SPECTRUM_COLUMNS", "read_spectrum_csv"]
 
 PARQUET_META_KEY = b"goniobench.meta"
@@ -48,7 +52,38 @@ def column_units(record: BSDFRecord) -> dict[str, str]:
     for c in record.table.columns:
         if c in COLUMN_UNITS and COLUMN_UNITS[c]:
             out[str(c)] = value_unit if c in ("value", "std", "ci_lo", "ci_hi") else COLUMN_UNITS[c]
+        elif c in RAW_UNITS:
+            out[str(c)] = RAW_UNITS[c]
     return out
+
+
+#: units of the raw columns a stored run's record carries besides :data:`COLUMN_UNITS`'
+RAW_UNITS = {"signal": "counts", "dark": "counts", "white": "counts", "saturated": "pixels", "idx": "point index"}
+#: the provenance columns every tidy export carries when the metadata knows them
+PROVENANCE_COLUMNS = ("run_id", "bench", "body", "plan")
+
+
+def provenance_columns(meta: dict[str, Any]) -> dict[str, str]:
+    """Where a record comes from, as text: ``run_id``, ``bench`` (its name), ``body`` (virtual,
+    emulated or real) and ``plan`` (its name); keys the metadata does not state are left out."""
+    bench = meta.get("bench") if isinstance(meta.get("bench"), dict) else {}
+    desc = meta.get("bench_description") if isinstance(meta.get("bench_description"), dict) else {}
+    plan = meta.get("plan") if isinstance(meta.get("plan"), dict) else {}
+    found = {"run_id": meta.get("run_id"),
+             "bench": meta.get("bench_name") or desc.get("name") or (bench or {}).get("name"),
+             "body": meta.get("body") or meta.get("bench_kind") or desc.get("kind") or (bench or {}).get("kind"),
+             "plan": meta.get("plan_name") or (plan or {}).get("name")}
+    return {k: str(v) for k, v in found.items() if v not in (None, "")}
+
+
+def _with_provenance(record: BSDFRecord) -> Any:
+    """The table with identity and provenance columns, less the columns no row fills."""
+    t = with_keys(record).table
+    t = t[[c for c in t.columns if c in KEY_COLUMNS or t[c].notna().any()]].copy()
+    for k, v in provenance_columns(record.meta).items():
+        if k not in t.columns or t[k].isna().all():
+            t[k] = v
+    return t
 
 
 def spectrum_table(s: Spectrum) -> Any:
@@ -81,25 +116,33 @@ def spectrum_to_csv(s: Spectrum, path: str | Path) -> Path:
     return write_csv(spectrum_table(s), path, float_format="%.8g")
 
 
-def record_to_csv(record: BSDFRecord, path: str | Path, *, meta: str = "header") -> Path:
-    """Write a record as tidy CSV (every column; floats as shortest round-trip repr).
+def sidecar_path(path: str | Path) -> Path:
+    """The metadata file of a tidy CSV: ``<file>.json`` beside it (``r.csv`` -> ``r.csv.json``)."""
+    return Path(str(path) + ".json")
+
+
+def record_to_csv(record: BSDFRecord, path: str | Path, *, meta: str = "sidecar") -> Path:
+    """Write a record as tidy CSV (one header row; floats as shortest round-trip repr).
 
     Parameters
     ----------
-    meta : {"header", "sidecar", "none"}
-        ``header``: ``# goniobench-record 1`` and ``# meta: <JSON>`` lines before the column
-        names; ``sidecar``: ``<path>.json`` beside the file (written atomically too).
+    meta : {"sidecar", "header", "none"}
+        ``sidecar``: the metadata and ``column_units`` as JSON in :func:`sidecar_path` (written
+        atomically too); ``header``: ``# goniobench-record 1``, ``# meta:`` and ``# units:``
+        lines before the column names (the older layout); ``none``: the table only.
     """
     check_record(record, ("wavelength_nm",))
-    record = with_keys(record)
-    table = record.table
+    table = _with_provenance(record)
+    record = BSDFRecord(table, dict(record.meta))
     if meta not in ("header", "sidecar", "none"):
         raise InputError(f"meta must be 'header', 'sidecar' or 'none', got {meta!r}")
-    header = ([CSV_MAGIC, f"# meta: {meta_json(record.meta)}", f"# units: {json.dumps(column_units(record))}"]
+    units = column_units(record)
+    header = ([CSV_MAGIC, f"# meta: {meta_json(record.meta)}", f"# units: {json.dumps(units)}"]
               if meta == "header" else [])
     out = write_csv(table, path, header_lines=header)
     if meta == "sidecar":
-        write_text(Path(str(out) + ".json"), json.dumps(record.meta, default=json_default, indent=1) + "\n")
+        side = {**record.meta, "column_units": units}
+        write_text(sidecar_path(out), json.dumps(side, default=json_default, indent=1) + "\n")
     return out
 
 
@@ -109,6 +152,9 @@ def record_to_parquet(record: BSDFRecord, path: str | Path) -> Path:
     check_record(record, ("wavelength_nm",))
     record = with_keys(record)
     table = record.table
+    for k, v in provenance_columns(record.meta).items():
+        if k not in table.columns:
+            table[k] = v
     try:
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -146,7 +192,7 @@ def read_tidy_csv(path: str | Path) -> BSDFRecord:
                 raise bad(p, skip + 1, f"expected JSON after '# units:' ({e})") from None
         skip += 1
     if skip == 0 or not lines or not lines[0].startswith(CSV_MAGIC):
-        side = Path(str(p) + ".json")
+        side = sidecar_path(p)
         if side.exists():
             try:
                 meta = json.loads(side.read_text(encoding="utf-8"))
