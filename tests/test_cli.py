@@ -91,8 +91,9 @@ def test_bench_compare_reads_every_export_format_of_a_run(tmp_path, capsys):
     lossless formats; the Zemax grid (resampled) compares with itself."""
     store, run_id = _small_run(tmp_path, capsys)
     for fmt in ("csv", "parquet", "astm", "zemax"):
+        fill = ["--fill", "nearest"] if fmt == "zemax" else []  # an in-plane run: filling is asked for
         code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--format", fmt,
-                             "--out", str(tmp_path / f"r.{fmt}.out"))
+                             "--out", str(tmp_path / f"r.{fmt}.out"), *fill)
         assert code == 0, err
         path = out.strip()
         other = f"same={path}" if fmt == "zemax" else f"run={run_id}"
@@ -118,13 +119,45 @@ def test_bench_compare_reads_a_spectro_csv(tmp_path, capsys):
 
 def test_export_zemax_one_file_per_wavelength_or_the_one_asked_for(tmp_path, capsys):
     store, run_id = _small_run(tmp_path, capsys, wavelengths="450,550")
+    # an in-plane run has no out-of-plane data: refused, with the reason and the way to opt in
+    code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--out", str(tmp_path / "z.bsdf"))
+    assert code == 2 and "in-plane" in err and "--fill nearest" in err and err.count("\n") == 1
+    assert not list(tmp_path.glob("z*.bsdf"))
     code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--format", "zemax",
-                         "--out", str(tmp_path / "z.bsdf"))
+                         "--out", str(tmp_path / "z.bsdf"), "--fill", "nearest")
     assert code == 0, err
     assert [Path(p).name for p in out.split()] == ["z-450nm.bsdf", "z-550nm.bsdf"]
     code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--format", "zemax", "--wavelength", "550",
-                         "--out", str(tmp_path / "one.bsdf"))
+                         "--out", str(tmp_path / "one.bsdf"), "--fill", "nearest")
     assert code == 0 and out.split() == [str(tmp_path / "one.bsdf")]
-    assert "# wavelength_nm 550" in (tmp_path / "one.bsdf").read_text()
+    text = (tmp_path / "one.bsdf").read_text()
+    assert "# wavelength_nm 550" in text and "# resampling fill nearest (asked for)" in text
     code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--format", "csv", "--wavelength", "550")
     assert code == 2 and "--wavelength" in err and err.count("\n") == 1
+
+
+def test_export_format_from_the_out_suffix_run_or_file_and_plain_pandas(tmp_path, capsys):
+    """--out's suffix picks the format (a .parquet is Parquet), a different --format is one line
+    (exit 2); a record file converts like a run; the CSV reads with plain pandas, identity filled."""
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    store, run_id = _small_run(tmp_path, capsys)
+    code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--out", str(tmp_path / "r.parquet"))
+    assert code == 0, err
+    assert pq.read_table(tmp_path / "r.parquet").num_rows == 7
+    code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--out", str(tmp_path / "x.parquet"),
+                              "--format", "csv")
+    assert code == 2 and "--format" in err and err.count("\n") == 1 and not (tmp_path / "x.parquet").exists()
+    code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--out", str(tmp_path / "r.csv"))
+    assert code == 0, err
+    plain = pd.read_csv(tmp_path / "r.csv")
+    assert len(plain) == 7 and plain.specimen.notna().all() and set(plain.run_id) == {run_id}
+    assert set(plain.body) == {"virtual"} and plain["bench"].notna().all() and plain["plan"].notna().all()
+    assert not [c for c in plain.columns if plain[c].isna().all() and c not in ("collector", "geometry")]
+    units = json.loads((tmp_path / "r.csv.json").read_text())["column_units"]
+    assert units["value"] == "1/sr" and units["signal"] == "counts" and units["white"] == "counts"
+    code, out, err = run_main(capsys, "export", str(tmp_path / "r.csv"), "--out", str(tmp_path / "c.astm.csv"))
+    assert code == 0, err
+    astm = (tmp_path / "c.astm.csv").read_text()
+    assert f"SAMPLE_NAME {plain.specimen[0]}" in astm.replace('"', "") and "SCATTER_TYPE BRDF" in astm

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 from bench.cli.argtypes import RegistryChoices, real, run_id, seed
 from bench.cli.commands import command_help
@@ -150,19 +151,99 @@ def cmd_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def export_format(fmt: str | None, out: str | None) -> str:
+    """The format of an export: ``--format``, else the suffix of ``--out``, else ``csv``; a
+    suffix that names another format than ``--format`` is refused (one line, exit 2)."""
+    from bench.io.registry import suffix_format
+
+    by_suffix = suffix_format(out) if out else None
+    if fmt is not None and by_suffix is not None and by_suffix != fmt:
+        raise InputError(f"--out {out} names format {by_suffix} but --format is {fmt}: drop one of them")
+    return fmt or by_suffix or "csv"
+
+
+def _run_or_file(text: str) -> str:
+    """A record file that exists, else a run id (see `bench runs`)."""
+    from pathlib import Path
+
+    return text if Path(text).is_file() else run_id(text)
+
+
+def _records_to_export(args: argparse.Namespace) -> list[tuple[str | None, Any]]:
+    """``(specimen suffix or None, record)`` to write: a record file as read, a stored run as
+    recorded, a sweep one record per specimen (a file holds one specimen)."""
+    from pathlib import Path
+
+    from bench.core.records import BSDFRecord, record_identity
+    from bench.io import load_run, read_record
+
+    if Path(args.run).is_file():
+        record = read_record(args.run)
+        if not isinstance(record, BSDFRecord):
+            raise InputError(f"{args.run}: a spectrum table; bench export converts BSDF records (csv, parquet, "
+                             f"astm, zemax)")
+        return [(None, record)]
+    with open_store(args.store, create=False, readonly=True) as store:
+        info = store.run(args.run)
+        record = load_run(store, args.run) if info["kind"] == "sweep" else store.to_record(args.run)
+        if isinstance(record, tuple):  # spectra: the rows as stored
+            record = store.to_record(args.run)
+    specimens = [s for s in dict.fromkeys(record.table.get("specimen", [])) if s is not None]
+    if len(specimens) <= 1:
+        if specimens and not record_identity(record.meta)["specimen"]:
+            record = BSDFRecord(record.table, {**record.meta, "specimen": specimens[0]})
+        return [(None, record)]
+    return [(s, BSDFRecord(record.table[record.table.specimen == s].reset_index(drop=True),
+                           {**record.meta, "specimen": s})) for s in specimens]
+
+
+def _side(record: Any, hemisphere: str, fmt: str) -> Any:
+    """The rows a BSDF file format holds: reflection unless ``--hemisphere`` asks otherwise."""
+    if fmt not in ("astm", "zemax") or hemisphere == "both":
+        return record
+    side = record.reflection() if hemisphere == "R" else record.transmission()
+    if not len(side):
+        other = "T" if hemisphere == "R" else "R"
+        raise InputError(f"the record has no {'reflection' if hemisphere == 'R' else 'transmission'} rows; "
+                         f"--hemisphere {other} exports its {'transmission' if other == 'T' else 'reflection'}")
+    return side
+
+
+def _slug(text: str) -> str:
+    import re
+
+    return re.sub(r"[^A-Za-z0-9.=]+", "_", text).strip("_")[:80] or "specimen"
+
+
 def cmd_export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from bench.io import default_suffix, export_record, record_to_zemax_files
 
-    if args.wavelength is not None and args.format != "zemax":
-        raise InputError(f"--wavelength selects the wavelength of a Zemax file; --format {args.format} "
-                         f"holds every wavelength")
-    out = check_output(args.out or f"{args.run}{default_suffix(args.format)}")  # before reading anything
-    with open_store(args.store, create=False, readonly=True) as store:
-        record = store.to_record(args.run)
-    if args.format == "zemax":  # one wavelength per file: --wavelength, or one file per wavelength
-        paths = record_to_zemax_files(record, out, wavelength_nm=args.wavelength)
-    else:
-        paths = [export_record(record, out, args.format)]
+    fmt = export_format(args.format, args.out)
+    if args.wavelength is not None and fmt != "zemax":
+        raise InputError(f"--wavelength selects the wavelength of a Zemax file; --format {fmt} holds every wavelength")
+    if args.fill is not None and fmt != "zemax":
+        raise InputError(f"--fill fills a Zemax grid; --format {fmt} holds the measured rows only")
+    if args.hemisphere == "both" and fmt == "zemax":
+        raise InputError("a Zemax file holds one side: --hemisphere R (BRDF) or T (BTDF)")
+    default_name = Path(args.run).name.split(".")[0] if Path(args.run).is_file() else args.run
+    out = check_output(args.out or f"{default_name}{default_suffix(fmt)}")  # before reading anything
+    paths = []
+    for specimen, record in _records_to_export(args):
+        target = out
+        if specimen is not None:  # one file per specimen: <stem>-<specimen><suffix>
+            suffix = default_suffix(fmt) if out.name.endswith(default_suffix(fmt)) else out.suffix
+            stem = out.name[:len(out.name) - len(suffix)] if suffix else out.name
+            target = out.with_name(f"{stem}-{_slug(specimen)}{suffix}")
+        record = _side(record, args.hemisphere, fmt)
+        if fmt == "zemax":  # one wavelength per file: --wavelength, or one file per wavelength
+            paths += record_to_zemax_files(record, target, wavelength_nm=args.wavelength, fill=args.fill,
+                                           scatter_type="BTDF" if args.hemisphere == "T" else "BRDF")
+        elif fmt == "astm":
+            paths.append(export_record(record, target, fmt, scatter_type="BTDF" if args.hemisphere == "T" else "BRDF"))
+        else:
+            paths.append(export_record(record, target, fmt))
     for path in paths:
         print(path)
     return 0
@@ -214,11 +295,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     sh.set_defaults(func=cmd_show)
 
     ex = sub.add_parser("export", help=command_help("export"))
-    ex.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
+    ex.add_argument("run", type=_run_or_file, metavar="RUN|FILE",
+                    help="the run id (see `bench runs`) or a record file to convert")
     ex.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
-    ex.add_argument("--format", choices=RegistryChoices(_export_formats), default="csv",
-                    metavar="FORMAT", help="file format: %(choices)s (default %(default)s)")
-    ex.add_argument("--out", metavar="FILE", help="output file (default: RUN plus the format's suffix)")
+    ex.add_argument("--format", choices=RegistryChoices(_export_formats), default=None,
+                    metavar="FORMAT", help="file format: %(choices)s (default: from --out's suffix, else csv; "
+                    "tidy csv writes its metadata and units to FILE.json)")
+    ex.add_argument("--out", metavar="FILE", help="output file (default: RUN plus the format's suffix); a sweep "
+                    "of several specimens writes one file per specimen, FILE-<specimen>")
+    ex.add_argument("--hemisphere", choices=("R", "T", "both"), default="R",
+                    help="astm/zemax: the side a BSDF file holds, R = BRDF (default), T = BTDF, both (astm)")
+    ex.add_argument("--fill", choices=("nearest",), default=None,
+                    help="zemax: fill grid nodes an in-plane scan did not measure from the nearest sample "
+                    "(refused otherwise; recorded in the file's header)")
     ex.add_argument("--wavelength", type=real(0.0, 1e6, lo_open=True), metavar="NM",
                     help="zemax: the wavelength to write, nm (default: one file per wavelength, FILE-<w>nm.bsdf)")
     ex.set_defaults(func=cmd_export)

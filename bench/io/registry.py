@@ -24,7 +24,7 @@ from bench.io.tidy import (CSV_MAGIC, SPECTRUM_COLUMNS, read_parquet, read_spect
 from bench.io.zemax import read_zemax, record_to_zemax
 
 __all__ = ["FileFormat", "FORMATS", "register_format", "formats", "infer_format", "read_record",
-           "export_record", "default_suffix"]
+           "export_record", "default_suffix", "suffix_format"]
 
 
 @dataclass(frozen=True)
@@ -108,6 +108,11 @@ def default_suffix(fmt: str) -> str:
     if fmt not in _registry():
         raise InputError(f"unknown format {fmt!r}; known: {', '.join(_registry())}")
     return _registry()[fmt].suffixes[0]
+
+
+def suffix_format(path: str | Path) -> str | None:
+    """The format whose suffix ``path`` ends with (longest match), None when none does."""
+    return _by_suffix(Path(path))
 
 
 def _by_suffix(path: Path) -> str | None:

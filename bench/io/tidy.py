@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.core.errors import InputError
-from bench.core.records import BSDF_COLUMNS, COLUMN_UNITS, KEY_COLUMNS, BSDFRecord, json_default, with_keys
+from bench.core.records import BSDF_COLUMNS, COLUMN_UNITS, IDENTITY_KEYS, BSDFRecord, json_default, with_keys
 from bench.core.roles import Spectrum
 from bench.io.files import atomic_write, check_record, meta_json, write_csv, write_text
 from bench.io.reading import bad, complete, read_lines
@@ -79,7 +79,8 @@ def provenance_columns(meta: dict[str, Any]) -> dict[str, str]:
 def _with_provenance(record: BSDFRecord) -> Any:
     """The table with identity and provenance columns, less the columns no row fills."""
     t = with_keys(record).table
-    t = t[[c for c in t.columns if c in KEY_COLUMNS or t[c].notna().any()]].copy()
+    keep = (*IDENTITY_KEYS, "quantity", "hemisphere")
+    t = t[[c for c in t.columns if c in keep or t[c].notna().any()]].copy()
     for k, v in provenance_columns(record.meta).items():
         if k not in t.columns or t[k].isna().all():
             t[k] = v
