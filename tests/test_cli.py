@@ -161,3 +161,27 @@ def test_export_format_from_the_out_suffix_run_or_file_and_plain_pandas(tmp_path
     assert code == 0, err
     astm = (tmp_path / "c.astm.csv").read_text()
     assert f"SAMPLE_NAME {plain.specimen[0]}" in astm.replace('"', "") and "SCATTER_TYPE BRDF" in astm
+
+
+@pytest.mark.parametrize("value,hint", [("0.55", "0.55 looks like um (550 nm)"), ("5.5e-7", "looks like metres"),
+                                        ("400:700:0.5e3", None), ("2e6", "pm or Angstrom"), ("50", "vacuum ultraviolet")])
+def test_wavelengths_outside_100_nm_to_1e5_nm_are_refused_with_the_unit_they_look_like(capsys, value, hint):
+    code, _, err = run_main(capsys, "spectro", "--specimen", "lambert:albedo=0.5", "--wavelengths", value,
+                            "--rays", "1000", "--seed", "1")
+    if hint is None:  # a valid grid passes the guard
+        assert code == 0, err
+    else:
+        assert code == 2 and hint in err and err.count("\n") == 1, err
+
+
+def test_angles_that_all_look_like_radians_are_warned_about_not_refused(capsys):
+    from bench.core.parsing import looks_like_radians
+
+    assert looks_like_radians([0.5, 1.2]) and looks_like_radians([1.2])
+    assert not looks_like_radians([0, 30, 60]) and not looks_like_radians([0, 1, 2]) and not looks_like_radians([0])
+    code, out, err = run_main(capsys, "gonio", "--specimen", "lambert:albedo=0.5", "--wavelengths", "550",
+                              "--rays", "1000", "--seed", "1", "--collector", "equal-psa:3x8", "--incidence", "1.2")
+    assert code == 0 and "warning: --incidence 1.2 taken as degrees" in err and "68.75 deg" in err
+    code, out, err = run_main(capsys, "gonio", "--specimen", "lambert:albedo=0.5", "--wavelengths", "550",
+                              "--rays", "1000", "--seed", "1", "--collector", "equal-psa:3x8", "--incidence", "30")
+    assert code == 0 and "warning" not in err

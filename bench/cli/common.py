@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -145,3 +146,15 @@ def add_bench_options(parser: argparse.ArgumentParser, help: str, required: bool
     parser.add_argument("--bench", required=required, metavar="BENCH.toml", help=help)
     parser.add_argument("--body", choices=BODIES, default=None,
                         help="what executes the bench description (default: the file's kind)")
+
+
+def warn_if_radians(what: str, angles: Sequence[float]) -> None:
+    """Warn on stderr when angles taken as degrees all look like radians (``--incidence 1.2``)."""
+    from bench.core.parsing import looks_like_radians
+
+    if looks_like_radians(angles):
+        import math
+
+        shown = ", ".join(f"{a:g}" for a in list(angles)[:4])
+        print(f"warning: {what} {shown} taken as degrees; in radians that would be "
+              f"{', '.join(f'{math.degrees(a):.4g}' for a in list(angles)[:4])} deg", file=sys.stderr)

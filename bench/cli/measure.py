@@ -22,7 +22,7 @@ from typing import Any
 from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds,
                                 incidence, rays, real, seed, stderr_is_terminal, wavelengths)
 from bench.cli.commands import command_help
-from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
+from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file, warn_if_radians
 from bench.core.errors import InputError
 
 # numpy and everything heavier are imported inside the functions that use them: `bench rays`
@@ -270,6 +270,7 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     from virtual.goniophotometer import VirtualGoniophotometer
 
     theta_i, phi_i = args.incidence
+    warn_if_radians("--incidence", [theta_i] + ([phi_i] if phi_i else []))
     announce_compilation()
     kw: dict[str, Any] = {"collector": args.collector, "beam": args.beam, "seed": args.seed, "delta": args.delta,
                           "wavelengths": args.wavelengths, "method": args.method,

@@ -14,7 +14,7 @@ from typing import Any
 from bench.cli.argtypes import RegistryChoices, real, run_id, seed
 from bench.cli.commands import command_help
 from bench.cli.common import (DEFAULT_STORE, add_bench_options, announce_compilation, check_output, emit_json, hms,
-                               open_store, report_run)
+                               open_store, report_run, warn_if_radians)
 from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_plan", "cmd_scan", "cmd_resume", "cmd_runs", "cmd_show", "cmd_export"]
@@ -25,6 +25,8 @@ def _plan_and_bench(args: argparse.Namespace):
     from bench.plans import load_plan
 
     plan = load_plan(args.plan)
+    thetas = [a for g in plan.points for a in (g.theta_i, g.theta_r)]
+    warn_if_radians(f"plan {args.plan} theta_i/theta_r", sorted(set(thetas)))
     bench = load_bench(args.bench, seed=getattr(args, "seed", None), body=args.body)
     return plan, bench
 
