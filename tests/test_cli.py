@@ -1,6 +1,7 @@
 """The CLI contract: outputs later checks rely on, JSON keys, exit status 2 for bad input."""
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -136,13 +137,24 @@ def test_export_zemax_one_file_per_wavelength_or_the_one_asked_for(tmp_path, cap
     assert code == 2 and "--wavelength" in err and err.count("\n") == 1
 
 
-def test_export_format_from_the_out_suffix_run_or_file_and_plain_pandas(tmp_path, capsys):
-    """--out's suffix picks the format (a .parquet is Parquet), a different --format is one line
-    (exit 2); a record file converts like a run; the CSV reads with plain pandas, identity filled."""
+def test_a_cli_scan_keeps_its_identity_in_runs_show_and_every_export(tmp_path, capsys):
+    """runs/show name specimen, bench, body and plan, values with their unit to the digits their
+    uncertainty supports; --out's suffix picks the export format (a .parquet is Parquet), a
+    different --format is one line (exit 2); a record file converts like a run; the CSV reads
+    with plain pandas, identity filled."""
     import pandas as pd
     import pyarrow.parquet as pq
 
     store, run_id = _small_run(tmp_path, capsys)
+    code, out, err = run_main(capsys, "runs", "--store", str(store))
+    assert code == 0 and "lambert:albedo=0.6" in out and "v (virtual)" in out and " p " in out, out
+    code, out, err = run_main(capsys, "show", run_id, "--store", str(store))
+    assert code == 0 and "specimen lambert:albedo=0.6; bench v (virtual body); plan p" in out, out
+    line = next(ln for ln in out.splitlines() if ln.strip().startswith("value "))
+    assert " 1/sr (" in line and "smallest standard uncertainty" in line
+    u = float(line.split("smallest standard uncertainty ")[1].split()[0])
+    lo = line.split()[1]
+    assert len(lo.split(".")[1]) == max(0, 1 - math.floor(math.log10(u))), line  # two digits of u
     code, out, err = run_main(capsys, "export", run_id, "--store", str(store), "--out", str(tmp_path / "r.parquet"))
     assert code == 0, err
     assert pq.read_table(tmp_path / "r.parquet").num_rows == 7
@@ -185,3 +197,20 @@ def test_angles_that_all_look_like_radians_are_warned_about_not_refused(capsys):
     code, out, err = run_main(capsys, "gonio", "--specimen", "lambert:albedo=0.5", "--wavelengths", "550",
                               "--rays", "1000", "--seed", "1", "--collector", "equal-psa:3x8", "--incidence", "30")
     assert code == 0 and "warning" not in err
+
+
+def test_bench_specimens_prints_the_readme_tables_fields_for_every_family(capsys):
+    """Generated from the declarations as the README table is: the convention (not a cut
+    docstring), choices as choices, every family and the colorchecker/mitsuba forms, no markup."""
+    from virtual.specimens import specimen_families
+    from virtual.specimens.strings import RESERVED_FORMS
+
+    code, out, _ = run_main(capsys, "specimens")
+    assert code == 0 and ":class:" not in out and "``" not in out
+    heads = [line for line in out.splitlines() if line and not line.startswith(" ") and ":" in line]
+    for fam in specimen_families():
+        assert f"{fam['name']}: {fam['convention']}" in heads
+    for name, (form, _) in RESERVED_FORMS.items():
+        assert f"{name}: {form}" in heads
+    assert "  masking: correlated | separable, default correlated" in out
+    assert "  nonlinear: false | true, default false" in out

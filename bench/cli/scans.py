@@ -113,43 +113,100 @@ def cmd_resume(args: argparse.Namespace) -> int:
     return report_run(result, args.json)
 
 
+def run_identity(info: dict[str, Any]) -> dict[str, str | None]:
+    """What a run is of and where it ran: ``specimen`` (a sweep's specimens joined by ``; ``),
+    ``bench``, ``body`` and ``plan`` (None when the run does not say)."""
+    from bench.core.records import record_identity, record_provenance
+
+    meta = {**(info.get("meta") or {}), "bench": info.get("bench"), "plan": info.get("plan")}
+    specimen = record_identity(meta)["specimen"]
+    sweep = (info.get("plan") or {}).get("sweep") or {}
+    if specimen is None and sweep.get("specimens"):
+        specimen = "; ".join(str(x) for x in sweep["specimens"])
+    prov = record_provenance(meta)
+    plan = prov.get("plan") or sweep.get("name") or (info.get("plan") or {}).get("bluesky_plan")
+    return {"specimen": specimen, "bench": prov.get("bench"), "body": prov.get("body"), "plan": plan}
+
+
+def rounded(x: float | None, u: float | None) -> str:
+    """``x`` with the decimals its standard uncertainty ``u`` supports (two significant digits of
+    ``u``); six significant digits when ``u`` is unknown."""
+    import math
+
+    if x is None:
+        return "n/a"
+    if not u or not math.isfinite(u) or u <= 0:
+        return f"{x:.6g}"
+    decimals = max(0, 1 - math.floor(math.log10(u)))
+    return f"{x:.{decimals}f}"
+
+
+def _duration(info: dict[str, Any]) -> str:
+    end, start = info.get("finished_epoch"), info.get("started_epoch")
+    return "-" if end is None or start is None else f"{end - start:.3g} s"
+
+
 def cmd_runs(args: argparse.Namespace) -> int:
     with open_store(args.store, create=False, readonly=True) as store:
         runs = store.runs()
+        infos = {r["run_id"]: store.run(r["run_id"]) for r in runs}
+    for r in runs:
+        r.update(run_identity(infos[r["run_id"]]), duration_s=None)
+        i = infos[r["run_id"]]
+        if i.get("finished_epoch") is not None and i.get("started_epoch") is not None:
+            r["duration_s"] = i["finished_epoch"] - i["started_epoch"]
     if args.json:
         emit_json(runs)
         return 0
-    print(f"{'run':<24} {'kind':<6} {'status':<12} {'points':>11}  created (UTC)")
+    print(f"{'run':<20} {'kind':<7} {'status':<11} {'points':>9} {'duration':>9}  {'specimen':<28} "
+          f"{'bench (body)':<22} {'plan':<16} created (UTC)")
     for r in runs:
         pts = f"{r['points_done']}/{r['n_planned'] if r['n_planned'] is not None else '?'}"
         status, reason = r["status"], r["reason"]
         if r.get("process_gone"):
             status, reason = "interrupted", "process gone; `bench resume` finishes it"
-        print(f"{r['run_id']:<24} {r['kind']:<6} {status:<12} {pts:>11}  {r['created_utc']}"
+        where = f"{r['bench'] or '?'} ({r['body'] or '?'})"
+        print(f"{r['run_id']:<20} {r['kind']:<7} {status:<11} {pts:>9} {_duration(infos[r['run_id']]):>9}  "
+              f"{r['specimen'] or 'n/a':<28} {where:<22} {r['plan'] or 'n/a':<16} {r['created_utc']}"
               + (f"  ({reason})" if reason else ""))
     return 0
 
 
 def cmd_show(args: argparse.Namespace) -> int:
+    from bench.core.records import value_unit
+
     with open_store(args.store, create=False, readonly=True) as store:
         s = store.summary(args.run)
+        info = store.run(args.run)
+    s["identity"] = run_identity(info)
+    s["value"]["unit"] = value_unit(info.get("meta") or {})
     if args.json:
         emit_json(s)
         return 0
+    ident = s["identity"]
     print(f"run {s['run_id']} ({s['kind']}): {s['status']}" + (f" - {s['reason']}" if s["reason"] else ""))
+    print(f"  specimen {ident['specimen'] or 'n/a'}; bench {ident['bench'] or 'n/a'} ({ident['body'] or 'n/a'} body); "
+          f"plan {ident['plan'] or 'n/a'}")
+    wl = s["wavelengths"]
+    wl_range = f"{wl['min']:g}..{wl['max']:g} nm" if wl["n"] else "none"
     print(f"  points {s['points_done']}/{s['points_planned']}, readings {s['readings']}, "
-          f"wavelengths {s['wavelengths']['n']} ({s['wavelengths']['min']}..{s['wavelengths']['max']} nm)")
+          f"wavelengths {wl['n']} ({wl_range})")
     for k, (lo, hi) in s["geometry"].items():
-        print(f"  {k:8s} {lo} .. {hi} deg")
+        if lo is not None:
+            print(f"  {k:8s} {round(lo, 3):g} .. {round(hi, 3):g} deg")
     v = s["value"]
-    print(f"  value {v['min']} .. {v['max']} ({v['n']} values, {v['n_missing']} masked), saturated {s['saturated']}")
+    u = v.get("std_min")
+    print(f"  value {rounded(v['min'], u)} .. {rounded(v['max'], u)} {v['unit']} ({v['n']} values, "
+          f"{v['n_missing']} masked; smallest standard uncertainty {'n/a' if u is None else f'{u:.2g}'} "
+          f"{v['unit']}), saturated {s['saturated']}")
     steps = s.get("calibration_steps")
     if steps:
         print(f"  calibration: dark {steps['dark']}, white {steps['white']} ({steps['white_source']}), "
-              f"integration {steps['integration_s']} s, averages {steps['averages']}")
+              f"integration {steps['integration_s']:g} s, averages {steps['averages']}")
     t = s["timing"]
-    print(f"  created {t['created_utc']}, finished {t['finished_utc']}, elapsed {t['elapsed_s']} s, "
-          f"mean per point {t['mean_point_s']} s")
+    elapsed = "n/a" if t["elapsed_s"] is None else f"{t['elapsed_s']:.3g} s"
+    mean = "n/a" if t["mean_point_s"] is None else f"{t['mean_point_s']:.3g} s"
+    print(f"  created {t['created_utc']}, finished {t['finished_utc']}, duration {elapsed}, mean per point {mean}")
     return 0
 
 
@@ -309,7 +366,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="astm/zemax: the side a BSDF file holds, R = BRDF (default), T = BTDF, both (astm)")
     ex.add_argument("--fill", choices=("nearest",), default=None,
                     help="zemax: fill grid nodes an in-plane scan did not measure from the nearest sample "
-                    "(refused otherwise; recorded in the file's header)")
+                    "(default: refused; when asked, recorded in the file's header)")
     ex.add_argument("--wavelength", type=real(0.0, 1e6, lo_open=True), metavar="NM",
                     help="zemax: the wavelength to write, nm (default: one file per wavelength, FILE-<w>nm.bsdf)")
     ex.set_defaults(func=cmd_export)

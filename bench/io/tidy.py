@@ -5,7 +5,7 @@ tidy CSV (:func:`record_to_csv`)
     ``pandas.read_csv(path)`` reads it. Floats are written with Python's shortest round-trip repr,
     so values read back exactly. Columns no row fills are left out; the record's identity travels
     in every row (``specimen``, ``collector``, ``quantity``, ``geometry`` and, when the metadata
-    knows them, ``run_id``, ``bench``, ``body``, ``plan``: :func:`provenance_columns`).
+    knows them, ``run_id``, ``bench``, ``body``, ``plan``: :func:`bench.core.records.record_provenance`).
     Metadata (instrument settings, calibration, versions ...) and ``column_units`` (column ->
     unit, :func:`column_units`) go by default into a sidecar JSON ``<file>.json`` beside the CSV;
     ``meta="header"`` writes the older commented header instead (``# goniobench-record 1``,
@@ -30,12 +30,13 @@ from pathlib import Path
 from typing import Any
 
 from bench.core.errors import InputError
-from bench.core.records import BSDF_COLUMNS, COLUMN_UNITS, IDENTITY_KEYS, BSDFRecord, json_default, with_keys
+from bench.core.records import (BSDF_COLUMNS, COLUMN_UNITS, IDENTITY_KEYS, BSDFRecord, json_default, record_provenance,
+                                 value_unit, with_keys)
 from bench.core.roles import Spectrum
 from bench.io.files import atomic_write, check_record, meta_json, write_csv, write_text
 from bench.io.reading import bad, complete, read_lines
 
-__all__ = ["provenance_columns", "PROVENANCE_COLUMNS", "RAW_UNITS", "sidecar_path", "CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
+__all__ = ["PROVENANCE_COLUMNS", "RAW_UNITS", "sidecar_path", "CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
            "record_to_parquet", "read_tidy_csv", "read_parquet", "SPECTRUM_COLUMNS", "read_spectrum_csv"]
 
 PARQUET_META_KEY = b"goniobench.meta"
@@ -46,12 +47,11 @@ CSV_MAGIC = "# goniobench-record 1"
 def column_units(record: BSDFRecord) -> dict[str, str]:
     """Unit of every column of ``record`` that has one (:data:`COLUMN_UNITS`; values and their
     uncertainties in 1/sr for a BSDF, ``1`` for a reflectance or transmittance)."""
-    q = str(record.meta.get("quantity") or "BSDF").lower()
-    value_unit = "1/sr" if q in ("bsdf", "brdf", "btdf", "1/sr") else "1"
+    unit = value_unit(record.meta)
     out = {}
     for c in record.table.columns:
         if c in COLUMN_UNITS and COLUMN_UNITS[c]:
-            out[str(c)] = value_unit if c in ("value", "std", "ci_lo", "ci_hi") else COLUMN_UNITS[c]
+            out[str(c)] = unit if c in ("value", "std", "ci_lo", "ci_hi") else COLUMN_UNITS[c]
         elif c in RAW_UNITS:
             out[str(c)] = RAW_UNITS[c]
     return out
@@ -63,25 +63,12 @@ RAW_UNITS = {"signal": "counts", "dark": "counts", "white": "counts", "saturated
 PROVENANCE_COLUMNS = ("run_id", "bench", "body", "plan")
 
 
-def provenance_columns(meta: dict[str, Any]) -> dict[str, str]:
-    """Where a record comes from, as text: ``run_id``, ``bench`` (its name), ``body`` (virtual,
-    emulated or real) and ``plan`` (its name); keys the metadata does not state are left out."""
-    bench = meta.get("bench") if isinstance(meta.get("bench"), dict) else {}
-    desc = meta.get("bench_description") if isinstance(meta.get("bench_description"), dict) else {}
-    plan = meta.get("plan") if isinstance(meta.get("plan"), dict) else {}
-    found = {"run_id": meta.get("run_id"),
-             "bench": meta.get("bench_name") or desc.get("name") or (bench or {}).get("name"),
-             "body": meta.get("body") or meta.get("bench_kind") or desc.get("kind") or (bench or {}).get("kind"),
-             "plan": meta.get("plan_name") or (plan or {}).get("name")}
-    return {k: str(v) for k, v in found.items() if v not in (None, "")}
-
-
 def _with_provenance(record: BSDFRecord) -> Any:
     """The table with identity and provenance columns, less the columns no row fills."""
     t = with_keys(record).table
     keep = (*IDENTITY_KEYS, "quantity", "hemisphere")
     t = t[[c for c in t.columns if c in keep or t[c].notna().any()]].copy()
-    for k, v in provenance_columns(record.meta).items():
+    for k, v in record_provenance(record.meta).items():
         if k not in t.columns or t[k].isna().all():
             t[k] = v
     return t
@@ -153,7 +140,7 @@ def record_to_parquet(record: BSDFRecord, path: str | Path) -> Path:
     check_record(record, ("wavelength_nm",))
     record = with_keys(record)
     table = record.table
-    for k, v in provenance_columns(record.meta).items():
+    for k, v in record_provenance(record.meta).items():
         if k not in table.columns:
             table[k] = v
     try:
