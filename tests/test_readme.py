@@ -10,7 +10,8 @@ libm across machines). An example whose budget is too large for a test names a s
 ``# test: --rays N`` comment on its line (then only its first, header, line is compared).
 
 Every ```python block is a script: it runs piped into ``python -`` in the same scratch folder
-(a non-interactive matplotlib backend) and must exit 0 printing every ``LiveTable`` field it names.
+(a non-interactive matplotlib backend) and must exit 0 printing every ``LiveTable`` field it names;
+a block opening with ``# with `bench serve ...` running`` needs a server: test_catalog.py runs its steps.
 
 Examples that need a store, a run id or long-running emulators (``scan``, ``runs``, ``resume``,
 ``show``, ``export``, ``emulate``) are listed in :data:`NOT_RUN` with the test that covers them.
@@ -157,6 +158,8 @@ def python_blocks() -> list[tuple[int, str]]:
     for n, raw in enumerate(README.read_text(encoding="utf-8").splitlines(), start=1):
         if block is None and raw.strip() == "```python":
             block, start = [], n + 1
+        elif block is not None and not block and raw.startswith("# with `bench serve"):
+            block = None  # a block that needs a running server: tests/test_catalog.py runs its steps
         elif block is not None and raw.startswith("```"):
             out.append((start, "\n".join(block) + "\n"))
             block = None

@@ -229,12 +229,12 @@ def _run_or_file(text: str) -> str:
 
 
 def _records_to_export(args: argparse.Namespace) -> list[tuple[str | None, Any]]:
-    """``(specimen suffix or None, record)`` to write: a record file as read, a stored run as
-    recorded, a sweep one record per specimen (a file holds one specimen)."""
+    """``(specimen or None, record)`` to write: a record file as read, a stored run as
+    :func:`bench.io.run_records` gives it (a sweep one record per specimen)."""
     from pathlib import Path
 
-    from bench.core.records import BSDFRecord, record_identity
-    from bench.io import load_run, read_record
+    from bench.core.records import BSDFRecord
+    from bench.io import read_record, run_records
 
     if Path(args.run).is_file():
         record = read_record(args.run)
@@ -243,17 +243,7 @@ def _records_to_export(args: argparse.Namespace) -> list[tuple[str | None, Any]]
                              f"astm, zemax)")
         return [(None, record)]
     with open_store(args.store, create=False, readonly=True) as store:
-        info = store.run(args.run)
-        record = load_run(store, args.run) if info["kind"] == "sweep" else store.to_record(args.run)
-        if isinstance(record, tuple):  # spectra: the rows as stored
-            record = store.to_record(args.run)
-    specimens = [s for s in dict.fromkeys(record.table.get("specimen", [])) if s is not None]
-    if len(specimens) <= 1:
-        if specimens and not record_identity(record.meta)["specimen"]:
-            record = BSDFRecord(record.table, {**record.meta, "specimen": specimens[0]})
-        return [(None, record)]
-    return [(s, BSDFRecord(record.table[record.table.specimen == s].reset_index(drop=True),
-                           {**record.meta, "specimen": s})) for s in specimens]
+        return run_records(store, args.run)
 
 
 def _side(record: Any, hemisphere: str, fmt: str) -> Any:

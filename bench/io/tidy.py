@@ -36,7 +36,7 @@ from bench.core.roles import Spectrum
 from bench.io.files import atomic_write, check_record, meta_json, write_csv, write_text
 from bench.io.reading import bad, complete, read_lines
 
-__all__ = ["PROVENANCE_COLUMNS", "RAW_UNITS", "sidecar_path", "CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
+__all__ = ["tidy_table", "PROVENANCE_COLUMNS", "RAW_UNITS", "sidecar_path", "CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
            "record_to_parquet", "read_tidy_csv", "read_parquet", "SPECTRUM_COLUMNS", "read_spectrum_csv"]
 
 PARQUET_META_KEY = b"goniobench.meta"
@@ -63,8 +63,9 @@ RAW_UNITS = {"signal": "counts", "dark": "counts", "white": "counts", "saturated
 PROVENANCE_COLUMNS = ("run_id", "bench", "body", "plan")
 
 
-def _with_provenance(record: BSDFRecord) -> Any:
-    """The table with identity and provenance columns, less the columns no row fills."""
+def tidy_table(record: BSDFRecord) -> Any:
+    """The table a tidy CSV holds: the record's columns less those no row fills, then its
+    identity and provenance columns (:func:`bench.core.records.record_provenance`)."""
     t = with_keys(record).table
     keep = (*IDENTITY_KEYS, "quantity", "hemisphere")
     t = t[[c for c in t.columns if c in keep or t[c].notna().any()]].copy()
@@ -120,7 +121,7 @@ def record_to_csv(record: BSDFRecord, path: str | Path, *, meta: str = "sidecar"
         lines before the column names (the older layout); ``none``: the table only.
     """
     check_record(record, ("wavelength_nm",))
-    table = _with_provenance(record)
+    table = tidy_table(record)
     record = BSDFRecord(table, dict(record.meta))
     if meta not in ("header", "sidecar", "none"):
         raise InputError(f"meta must be 'header', 'sidecar' or 'none', got {meta!r}")
