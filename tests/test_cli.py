@@ -214,3 +214,27 @@ def test_bench_specimens_prints_the_readme_tables_fields_for_every_family(capsys
         assert f"{name}: {form}" in heads
     assert "  masking: correlated | separable, default correlated" in out
     assert "  nonlinear: false | true, default false" in out
+
+
+def test_gonio_stores_its_record_and_writes_the_one_tidy_csv_and_spectro_names_its_specimen(tmp_path, capsys):
+    import pandas as pd
+
+    db, csv = tmp_path / "g.sqlite", tmp_path / "g.csv"
+    code, out, err = run_main(capsys, "gonio", "--specimen", "lambert:albedo=0.5", "--rays", "100000", "--seed", "3",
+                              "--collector", "equal-psa:3x8", "--store", str(db), "--csv", str(csv))
+    assert code == 0, err
+    rid = out.split()[1]
+    plain = pd.read_csv(csv)  # the tidy CSV, as bench export writes it: plain pandas, identity in every row
+    assert set(plain.specimen) == {"lambert:albedo=0.5"} and set(plain.body) == {"virtual"} and len(plain) == 24 * 2
+    code, out, err = run_main(capsys, "export", rid, "--store", str(db), "--out", str(tmp_path / "e.csv"))
+    assert code == 0, err
+    exported = pd.read_csv(tmp_path / "e.csv")
+    assert exported["value"].tolist() == plain["value"].tolist() and set(exported.run_id) == {rid}
+    code, out, err = run_main(capsys, "show", rid, "--store", str(db))
+    assert "specimen lambert:albedo=0.5; bench virtual-gonio (virtual body); plan gonio" in out
+    code, _, err = run_main(capsys, "spectro", "--specimen", "lambert:albedo=0.5", "--wavelengths", "500,600",
+                            "--rays", "1000", "--seed", "2", "--csv", str(tmp_path / "s.csv"))
+    assert code == 0 and set(pd.read_csv(tmp_path / "s.csv").specimen) == {"lambert:albedo=0.5"}
+    from bench.io import read_record
+
+    assert read_record(tmp_path / "s.csv").meta["specimen"] == "lambert:albedo=0.5"

@@ -310,10 +310,13 @@ def cmd_gonio(args: argparse.Namespace) -> int:
         mode = {"mode": "patch probability (eq. 3.12)", "v": args.patch_probability_uncertainty, "delta": args.delta}
     else:
         mode = {"mode": "fixed rays", "N": int(record.meta["rays"])}
-    if args.csv:
-        from bench.io import write_csv
+    record.meta.update(body="virtual", bench_name="virtual-gonio", plan_name="gonio",
+                       incidence=[theta_i, phi_i])
+    if args.csv:  # the one tidy CSV (metadata and units in FILE.json), as bench export writes it
+        from bench.io import record_to_csv
 
-        write_csv(record.table, args.csv, float_format="%.8g")
+        record_to_csv(record, args.csv)
+    stored = _store_record(args.store, record, g.seed, vars(args)) if args.store else None
     if args.plot:
         from compare.figures import plot_bsdf_polar
 
@@ -324,9 +327,12 @@ def cmd_gonio(args: argparse.Namespace) -> int:
             out["budget"] = _budget(adaptive)
         out["uncertainty"] = mode
         out["achieved"] = widths
+        out["run_id"] = stored
         emit_json(out)
         return 0
     m = record.meta
+    if stored:
+        print(f"run {stored} stored in {args.store} (bench runs / show / export / serve)")
     print(f"specimen {m['specimen']}  incidence ({theta_i:g}, {phi_i:g}) deg  collector {g.collector}  "
           f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']} ({m.get('kernel')} kernel)  seed {g.seed}  "
           f"streams {'common to every specimen' if g.common_random_numbers else 'per specimen'}")
@@ -356,6 +362,20 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     for r in top.itertuples(index=False):
         print(f"    {r.hemisphere}  {r.theta_r:6.2f} {r.phi_r:7.2f}  {r.value:.5g}  [{r.ci_lo:.5g}, {r.ci_hi:.5g}]")
     return 0
+
+
+def _store_record(path: str, record: Any, seed: int | None, options: dict[str, Any]) -> str:
+    """Store a virtual measurement as a completed run of kind ``virtual``; return its id."""
+    from bench.cli.common import open_store
+
+    plan = {"name": "gonio", "command": "bench gonio",
+            "options": {k: v for k, v in options.items() if k not in ("func", "store", "csv", "plot", "json")}}
+    with open_store(path) as store:
+        rid = store.create_run("virtual", plan=plan, seed=seed, n_planned=None,
+                               meta={k: v for k, v in record.meta.items() if k != "totals"})
+        store.add_record(rid, record, merge_meta=False)
+        store.set_status(rid, "completed")
+    return rid
 
 
 def _method_note(tot: dict[str, Any]) -> str:
@@ -445,7 +465,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --patch-probability-uncertainty: the fixed eq. 3.12 ray count instead of the "
                         "adaptive rule")
     _run_options(g)
-    g.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the record as CSV (default: none)")
+    g.add_argument("--csv", type=output_file(), metavar="FILE",
+                   help="also write the record as tidy CSV, metadata and units in FILE.json (default: none)")
+    g.add_argument("--store", metavar="FILE.sqlite", default=None,
+                   help="also store the record as a run (bench runs/show/export/serve read it; default: not stored)")
     g.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw a polar plot to this image (png, pdf, svg, ...; default: none)")
     g.set_defaults(func=cmd_gonio)

@@ -88,6 +88,7 @@ def spectrum_table(s: Spectrum) -> Any:
         "transmittance_lo": s.transmittance_ci[:, 0],
         "transmittance_hi": s.transmittance_ci[:, 1],
         "N": s.N,
+        "specimen": (s.meta or {}).get("specimen"),
         "geometry": s.geometry,
         "seed": s.seed,
         "confidence": 1.0 - s.delta,
@@ -246,10 +247,12 @@ def read_spectrum_csv(path: str | Path) -> Spectrum:
 
     seed = first("seed", None)
     conf = float(first("confidence", float("nan")))
+    specimen = first("specimen", None)
     return Spectrum(geometry=str(first("geometry", "")), wavelengths=df.wavelength_nm.to_numpy(float),
                     reflectance=df.reflectance.to_numpy(float), transmittance=df.transmittance.to_numpy(float),
                     reflectance_ci=df[["reflectance_lo", "reflectance_hi"]].to_numpy(float),
                     transmittance_ci=df[["transmittance_lo", "transmittance_hi"]].to_numpy(float),
                     N=df.N.to_numpy(np.int64), seed=None if seed is None else int(seed),
                     delta=1.0 - conf if np.isfinite(conf) else float("nan"),
-                    meta={"format": "spectrum-csv", "source_file": str(p)})
+                    meta={"format": "spectrum-csv", "source_file": str(p),
+                          **({"specimen": str(specimen)} if specimen is not None else {})})
