@@ -158,3 +158,20 @@ def warn_if_radians(what: str, angles: Sequence[float]) -> None:
         shown = ", ".join(f"{a:g}" for a in list(angles)[:4])
         print(f"warning: {what} {shown} taken as degrees; in radians that would be "
               f"{', '.join(f'{math.degrees(a):.4g}' for a in list(angles)[:4])} deg", file=sys.stderr)
+
+
+def wait_until_stopped(seconds: float | None) -> None:
+    """Block for ``seconds`` (None: until Ctrl-C or SIGTERM), for commands that keep a service
+    running (``bench emulate``, ``bench serve``); Ctrl-C returns normally."""
+    import signal
+    import time
+
+    try:
+        if seconds is not None:
+            time.sleep(seconds)
+        else:
+            signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+            while True:
+                time.sleep(3600)
+    except KeyboardInterrupt:
+        pass

@@ -10,13 +10,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
-import sys
-import time
 
 from bench.cli.argtypes import count, real
 from bench.cli.commands import command_help
-from bench.cli.common import DEFAULT_STORE, open_store
+from bench.cli.common import DEFAULT_STORE, open_store, wait_until_stopped
 
 __all__ = ["register", "cmd_serve"]
 
@@ -45,15 +42,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                       f"c[RUN]['primary'].read()")
                 print(f"  write: TiledWriter(from_uri({server.uri!r}, api_key={server.api_key!r}))")
                 print("  (Ctrl-C stops it)", flush=True)
-            try:
-                if args.seconds is not None:
-                    time.sleep(args.seconds)
-                else:
-                    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
-                    while True:
-                        time.sleep(3600)
-            except KeyboardInterrupt:
-                pass
+            wait_until_stopped(args.seconds)
     return 0
 
 
