@@ -177,6 +177,8 @@ def test_a_servo_fault_mid_plan_fails_the_run_with_the_fault_and_nothing_moves(R
     assert abs(emulated.goniometer.mover.reached.theta_r - 25) < 0.2
 
 
+@pytest.mark.slow  # ~6 CPU-s (a fresh interpreter, bluesky, three emulators); every emulated test above starts
+# its emulators through the same python -m virtual.wire.spawned path
 def test_an_emulated_bench_connects_and_scans_from_a_script_piped_into_python(tmp_path):
     """``python -`` (no ``__main__`` module file, no guard): the emulators start as ``python -m``
     subprocesses, where multiprocessing's spawn died with EOFError re-importing ``<stdin>``."""
