@@ -261,3 +261,11 @@ def test_gonio_stores_its_record_and_writes_the_one_tidy_csv_and_spectro_names_i
     from bench.io import read_record
 
     assert read_record(tmp_path / "s.csv").meta["specimen"] == "lambert:albedo=0.5"
+    code, out, err = run_main(capsys, "spectro", "--specimen", "lambert:albedo=0.5", "--wavelengths", "500,600",
+                              "--rays", "1000", "--seed", "2", "--store", str(db), "--json")
+    assert code == 0, err
+    rid = json.loads(out)["run_id"]
+    code, out, err = run_main(capsys, "export", rid, "--store", str(db), "--out", str(tmp_path / "sp.csv"))
+    spectrum = pd.read_csv(tmp_path / "sp.csv").sort_values(["hemisphere", "wavelength_nm"])
+    assert code == 0 and set(spectrum.specimen) == {"lambert:albedo=0.5"} and set(spectrum.geometry) == {"8/d"}
+    assert list(spectrum.quantity) == ["reflectance"] * 2 + ["transmittance"] * 2

@@ -133,6 +133,7 @@ def cmd_spectro(args: argparse.Namespace) -> int:
         from bench.io import spectrum_to_csv
 
         spectrum_to_csv(s, args.csv)
+    stored = _store_spectrum(args, s) if args.store else None
     if args.plot:
         from compare.figures import plot_spectrum
 
@@ -142,8 +143,11 @@ def cmd_spectro(args: argparse.Namespace) -> int:
         out["colour"] = spectrum_colour(s)
         if adaptive:
             out["budget"] = _budget(adaptive)
+        out["run_id"] = stored
         emit_json(out)
         return 0
+    if stored:
+        print(f"run {stored} stored in {args.store} (bench runs / show / export / serve)")
     n = np.broadcast_to(np.asarray(s.N), s.wavelengths.shape)
     print(f"specimen {s.meta['specimen']}  geometry {s.geometry}  beam {sp.beam.kind}  "
           f"N = {n_label(n)} rays/wavelength{'' if n.min() == n.max() else ' (per wavelength in the table)'}  "
@@ -364,14 +368,33 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     return 0
 
 
-def _store_record(path: str, record: Any, seed: int | None, options: dict[str, Any]) -> str:
+def _store_spectrum(args: argparse.Namespace, s: Any) -> str:
+    """Store a spectrum as a run: per wavelength a reflectance (R) and a transmittance (T) row,
+    as a spectrophotometric sweep stores them (:func:`bench.sweep.task.spectrum_rows`)."""
+    import numpy as np
+
+    from bench.core.geometry import cie_geometry
+    from bench.core.records import BSDFRecord
+    from bench.sweep.task import spectrum_rows
+
+    rows = spectrum_rows(s, args.geometry)
+    rows["theta_i"], rows["phi_i"] = float(cie_geometry(args.geometry).theta_i), 0.0
+    r_quantity = "reflectance factor" if s.meta.get("quantity") == "reflectance factor" else "reflectance"
+    rows["quantity"] = np.where(rows["hemisphere"] == "T", "transmittance", r_quantity)
+    meta = {"specimen": s.meta.get("specimen"), "geometry": str(s.geometry), "quantity": "reflectance",
+            "body": "virtual", "bench_name": "virtual-spectro", "plan_name": "spectro", "seed": s.seed,
+            "delta": s.delta, "instrument": "spectro"}
+    return _store_record(args.store, BSDFRecord(rows, meta), s.seed, vars(args), "spectro")
+
+
+def _store_record(path: str, record: Any, seed: int | None, options: dict[str, Any], command: str = "gonio") -> str:
     """Store a virtual measurement as a completed run of kind ``virtual``; return its id."""
     from bench.cli.common import open_store
 
-    plan = {"name": "gonio", "command": "bench gonio",
+    plan = {"name": command, "command": f"bench {command}",
             "options": {k: v for k, v in options.items() if k not in ("func", "store", "csv", "plot", "json")}}
     with open_store(path) as store:
-        rid = store.create_run("virtual", plan=plan, seed=seed, n_planned=None,
+        rid = store.create_run("virtual", plan=plan, seed=seed, n_planned=1,
                                meta={k: v for k, v in record.meta.items() if k != "totals"})
         store.add_record(rid, record, merge_meta=False)
         store.set_status(rid, "completed")
@@ -436,6 +459,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw the spectrum to this image (png, pdf, svg, ...; default: none)")
     s.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the spectrum as CSV (default: none)")
+    s.add_argument("--store", metavar="FILE.sqlite", default=None,
+                   help="also store the spectrum as a run (bench runs/show/export/serve read it; default: not stored)")
     s.set_defaults(func=cmd_spectro)
 
     g = sub.add_parser("gonio", help=command_help("gonio"))

@@ -189,7 +189,8 @@ def cmd_show(args: argparse.Namespace) -> int:
           f"plan {ident['plan'] or 'n/a'}")
     wl = s["wavelengths"]
     wl_range = f"{wl['min']:g}..{wl['max']:g} nm" if wl["n"] else "none"
-    print(f"  points {s['points_done']}/{s['points_planned']}, readings {s['readings']}, "
+    planned = "?" if s["points_planned"] is None else s["points_planned"]
+    print(f"  points {s['points_done']}/{planned}, readings {s['readings']}, "
           f"wavelengths {wl['n']} ({wl_range})")
     for k, (lo, hi) in s["geometry"].items():
         if lo is not None:

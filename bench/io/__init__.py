@@ -52,6 +52,13 @@ def run_records(store: RunStore, run_id: str) -> list[tuple[str | None, BSDFReco
     or for a sweep of several specimens ``[(specimen, its record), ...]`` (a file holds one
     specimen); the record's ``meta["specimen"]`` names it whenever its rows do."""
     record = _exportable(store, run_id)
+    t = record.table
+    if "quantity" in t.columns and "hemisphere" in t.columns:  # a spectrum's T rows are its transmittance
+        is_t = (t["hemisphere"] == "T") & t["quantity"].isin(["reflectance", "reflectance factor"])
+        if is_t.any():
+            t = t.copy()
+            t.loc[is_t, "quantity"] = "transmittance"
+            record = BSDFRecord(t, record.meta)
     specimens = [s for s in dict.fromkeys(record.table.get("specimen", [])) if s is not None]
     if len(specimens) <= 1:
         if specimens and not record_identity(record.meta)["specimen"]:
