@@ -144,9 +144,11 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     ranking = rank(summaries, primary_metric)
     check_results: dict[str, Any] = {}
     if checks and kind == "bsdf":
-        check_results["actual"] = {n: r.as_dict() for n, r in run_checks(act).items()}
-        for n, rec in {**recs, **dict(check_records or {})}.items():
-            check_results[n] = {c: r.as_dict() for c, r in run_checks(as_record(rec)).items()}
+        for n, rec in {"actual": act, **recs, **dict(check_records or {})}.items():
+            rec = as_record(rec)
+            meta = getattr(rec, "meta", {}) or {}
+            check_results[n] = {c: {**r.as_dict(), "expected": expected_failure(c, meta)}
+                                for c, r in run_checks(rec).items()}
     out = Path(report_dir)
     figdir = out / "figures"
     figdir.mkdir(parents=True, exist_ok=True)
@@ -213,9 +215,13 @@ def _describe(rec: Any) -> dict[str, Any]:
 
 _METRIC_ROWS = [("n_points", "points compared"), ("mean_abs_discrepancy_pct", "mean |discrepancy| (%)"),
                 ("rmse", "RMSE"), ("bias", "bias (virtual - actual)"), ("max_abs", "max |difference|"),
-                ("chi2", "chi-square"), ("dof", "degrees of freedom"), ("chi2_per_dof", "chi-square / dof"),
-                ("p_value", "p-value"), ("fraction_within_uncertainty", "fraction within k u_c"),
-                ("fraction_band", "nominal band (3 sigma)"), ("ba_bias", "Bland-Altman bias"),
+                ("chi2", "chi-square (all points, u_c only: criterion-free)"), ("dof", "degrees of freedom"),
+                ("chi2_per_dof", "chi-square / dof (criterion-free)"),
+                ("p_value", "p-value (all points, u_c only: criterion-free; the verdict tests each group with "
+                            "the tolerance)"),
+                ("fraction_within_uncertainty", "fraction within k u_c"),
+                ("fraction_band", "band of that fraction for a right model (nominal +- 3 binomial s.e.)"),
+                ("ba_bias", "Bland-Altman bias"),
                 ("ba_limits", "Bland-Altman 95 % limits"), ("delta_e2000_mean", "mean CIEDE2000"),
                 ("n_reference_zero", "zero references (excluded from %)"), ("n_both_zero", "zero in both"),
                 ("n_no_uncertainty", "no uncertainty"), ("n_unmatched", "unmatched actual points"),
@@ -256,9 +262,12 @@ def _metric_value(s: Mapping[str, Any], key: str) -> Any:
 def _metric_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
     names = list(summary["candidates"])
     rows = []
+    k = summary["k"]
     for key, label in _METRIC_ROWS:
         if key == "delta_e2000_mean" and summary["kind"] != "spectrum":
             continue
+        label = label.replace("k u_c", f"k u_c (k = {k:g})").replace(
+            "nominal +- 3", f"nominal {summary['nominal_fraction']:.2%} at k = {k:g}, +- 3")
         rows.append([label] + [_fmt(_metric_value(summary["candidates"][n], key)) for n in names])
     return ["metric"] + names, rows
 
@@ -276,7 +285,16 @@ def _ranking_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]
 
 def _criterion_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
     c = summary["criterion"]
-    return ["setting", "value"], [[k_, _fmt(v)] for k_, v in c.items() if k_ != "statement"]
+    rows = []
+    for key, v in c.items():
+        if key == "statement" or (key == "instrument_uncertainty_kind" and v is None):
+            continue
+        text = _fmt(v)
+        if key == "instrument_uncertainty" and v is None:  # not given: say what the metrics used instead
+            used = sorted({_metric_value(s, "u_model") for s in summary["candidates"].values()})
+            text = "not given; used " + "; ".join(used)
+        rows.append([key, text])
+    return ["setting", "value"], rows
 
 
 def _verdict_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
@@ -311,14 +329,33 @@ def _budget_note(summary: Mapping[str, Any]) -> str:
             f"covariance of the comparison once, not once per point.")
 
 
+#: a physical check -> the specimen property (record metadata) that, when declared false, makes
+#: its failure expected, and why
+_DECLARED = {"reciprocity": ("reciprocal", "not reciprocal by construction"),
+             "isotropy": ("isotropic", "anisotropic by construction")}
+
+
+def expected_failure(check: str, meta: Mapping[str, Any]) -> str | None:
+    """Why a failed ``check`` is expected from what the record's specimen declares (its
+    ``reciprocal`` / ``isotropic`` flags), or None when nothing declared explains it."""
+    prop = _DECLARED.get(check)
+    if prop is None or meta.get(prop[0]) is not False:
+        return None
+    spec = meta.get("specimen")
+    name = str(spec.get("spec", spec) if isinstance(spec, Mapping) else spec or "the specimen")
+    return f"expected: {name} declares {prop[0]} = false ({prop[1]})"
+
+
 def _check_rows(check_results: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
     head = ["record", "check", "result", "statistic", "p-value", "max z", "n", "offending", "message"]
     rows = []
     for rec, res in check_results.items():
         for name, r in res.items():
             result = ("passed" if r["passed"] else "FAILED") if r["tested"] else "not tested"
-            rows.append([rec, name, result, _fmt(r["statistic"]), _fmt(r["p_value"]), _fmt(r["max_z"]),
-                         _fmt(r["n"]), _fmt(r["n_offending"]), r["message"]])
+            why = r.get("expected") if r["tested"] and not r["passed"] else None
+            rows.append([rec, name, result + (" (expected)" if why else ""), _fmt(r["statistic"]),
+                         _fmt(r["p_value"]), _fmt(r["max_z"]), _fmt(r["n"]), _fmt(r["n_offending"]),
+                         r["message"] + (f"; {why}" if why else "")])
     return head, rows
 
 
@@ -449,7 +486,7 @@ def _markdown(title: str, summary: Mapping[str, Any], comps: Mapping[str, Compar
               check_results: Mapping[str, Any]) -> str:
     out = [f"# {title}", "", f"Quantity: {summary['quantity']}; k = {summary['k']:g} (nominal fraction within "
            f"{summary['nominal_fraction']:.2%}).", "", "## Acceptance criterion", "", summary["criterion"]["statement"],
-           "", "## Verdicts", "", _md_table(*_verdict_rows(summary)), "", "## Model ranking", "",
+           "", _md_table(*_criterion_rows(summary)), "", "## Verdicts", "", _md_table(*_verdict_rows(summary)), "", "## Model ranking", "",
            f"Ranked by **{summary['primary_metric']}** (lower is better).", "", _md_table(*_ranking_rows(summary)),
            "", "## Metrics", "", _md_table(*_metric_rows(summary)), ""]
     if summary.get("uncertainty_budget"):

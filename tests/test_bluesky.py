@@ -299,3 +299,36 @@ def test_a_slow_driver_never_blocks_the_run_engines_loop(RE, virtual):
         del gonio.move_to
     assert elapsed > 0.9 and len(lags) > 50  # the moves did take their time, the probe kept running
     assert max(lags) < 0.1
+
+
+def test_best_effort_callback_and_live_table_show_the_hinted_reflectance(RE, virtual, capsys):
+    """Fast twin of the README's live-view block (test_readme.py runs it, slow): the hints name
+    scalar value and uncertainty fields, BestEffortCallback plots them against the scanned axis,
+    and LiveTable prints them by string field name."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from bluesky.callbacks import LiveTable
+    from bluesky.callbacks.best_effort import BestEffortCallback
+
+    assert sorted(virtual.reflectance.hints["fields"]) == ["reflectance-rf_mean", "reflectance-rf_mean_std"]
+    assert sorted(virtual.spectrometer.hints["fields"]) == ["spectrometer-mean_counts", "spectrometer-peak_counts"]
+    reset_reflectance(RE, virtual)
+    bec = BestEffortCallback()
+    fields = ["goniometer-theta_r", "reflectance-rf_mean", "reflectance-rf_mean_std"]
+    tokens = [RE.subscribe(bec), RE.subscribe(LiveTable(fields))]
+    capsys.readouterr()
+    try:
+        docs, _ = run(RE, virtual, bp.scan([virtual.reflectance], virtual.goniometer.theta_r, 10, 30, 2))
+    finally:
+        for token in tokens:
+            RE.unsubscribe(token)
+    (plots,) = bec._live_plots.values()
+    assert set(plots) == {"reflectance-rf_mean", "reflectance-rf_mean_std"}
+    events = docs.of("event")
+    for ev in events:  # the scalar is the band mean of the calibrated reflectance factor
+        rf, masked = np.asarray(ev["data"]["reflectance-reflectance_factor"]), ev["data"]["reflectance-masked"]
+        assert ev["data"]["reflectance-rf_mean"] == pytest.approx(rf[~np.asarray(masked)].mean(), rel=1e-12)
+        assert 0 < ev["data"]["reflectance-rf_mean_std"] < 0.1
+    out = capsys.readouterr().out.splitlines()  # LiveTable's header has exactly our three fields
+    assert any([c.strip() for c in line.split("|")[3:6]] == fields for line in out if line.count("|") == 6), out

@@ -175,3 +175,29 @@ def test_a_servo_fault_mid_plan_fails_the_run_with_the_fault_and_nothing_moves(R
         assert info["reason"].startswith("HardwareError: emulated-arm: hardware error") and "overload" in info["reason"]
     RE(bps.mv(emulated.goniometer, Geometry(30, 0, 25, 180)))  # the bench works again after reset()
     assert abs(emulated.goniometer.mover.reached.theta_r - 25) < 0.2
+
+
+@pytest.mark.slow  # ~6 CPU-s (a fresh interpreter, bluesky, three emulators); every emulated test above starts
+# its emulators through the same python -m virtual.wire.spawned path
+def test_an_emulated_bench_connects_and_scans_from_a_script_piped_into_python(tmp_path):
+    """``python -`` (no ``__main__`` module file, no guard): the emulators start as ``python -m``
+    subprocesses, where multiprocessing's spawn died with EOFError re-importing ``<stdin>``."""
+    import os
+    import subprocess
+    import sys
+
+    from bluesky_support import ROOT
+
+    script = (
+        "from bluesky import RunEngine\n"
+        "from bluesky.plans import scan\n"
+        "from bench.bluesky import connect\n"
+        "RE = RunEngine()\n"
+        f"devs = connect({str(BENCHES / 'emulated.toml')!r}, run_engine=RE)\n"
+        "docs = []\n"
+        "RE(scan([devs.spectrometer], devs.goniometer.theta_r, 20, 40, 2), lambda n, d: docs.append(n))\n"
+        "devs.close()\n"
+        "print('events', docs.count('event'))\n")
+    r = subprocess.run([sys.executable, "-"], input=script, capture_output=True, text=True, timeout=120,
+                       cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert r.returncode == 0 and r.stdout.splitlines()[-1] == "events 2", r.stdout + r.stderr[-3000:]

@@ -72,8 +72,12 @@ def test_tidy_csv_round_trip_is_exact(tmp_path, lambert, meta_mode):
         plain = pd.read_csv(path, comment="#")  # what a user reading it with pandas gets
         assert list(plain.columns) == BSDF_COLUMNS + ["specimen", "collector", "quantity", "geometry"]
         assert len(plain) == len(lambert)
-    else:
+    else:  # the default: plain pandas reads the table; metadata and units are in <file>.json
         assert json.loads(Path(str(path) + ".json").read_text()) == back.meta
+        assert back.meta["column_units"]["value"] == "1/sr" and back.meta["column_units"]["theta_i"] == "deg"
+        plain = pd.read_csv(path)
+        assert list(plain.columns) == BSDF_COLUMNS + ["specimen", "collector", "quantity", "geometry"]
+        assert len(plain) == len(lambert) and set(plain.specimen) == {lambert.meta["specimen"]}
 
 
 def test_parquet_round_trip_keeps_types_and_meta(tmp_path, lambert):
@@ -380,7 +384,7 @@ def test_atomic_write_leaves_the_old_file_on_failure(tmp_path, lambert, monkeypa
     assert target.read_text() == "old\n"
     assert [p.name for p in tmp_path.iterdir()] == ["r.csv"]
     record_to_csv(lambert, target)
-    assert target.read_text().startswith("# goniobench-record 1")
+    assert target.read_text().startswith("wavelength_nm,") and Path(str(target) + ".json").is_file()
 
 
 def test_spectrum_to_csv_still_works(tmp_path):

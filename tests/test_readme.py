@@ -11,6 +11,10 @@ libm across machines). An example whose budget is too large for a test names a s
 that takes more than ~10 CPU-seconds says ``# test: slow`` and runs in ``make test-slow`` (CI runs
 both), compared in full.
 
+Every ```python block is a script: it runs piped into ``python -`` in the same scratch folder
+(a non-interactive matplotlib backend) and must exit 0 printing every ``LiveTable`` field it names;
+a block opening with ``# with `bench serve ...` running`` needs a server: test_catalog.py runs its steps.
+
 Examples that need a store, a run id or long-running emulators (``scan``, ``runs``, ``resume``,
 ``show``, ``export``, ``emulate``) are listed in :data:`NOT_RUN` with the test that covers them.
 
@@ -148,6 +152,42 @@ def test_readme_example_prints_what_the_readme_says(ex, scratch):
         assert same(line, got[i]), f"README line {ex.line + 1 + i}: expected\n  {line}\nprinted\n  {got[i]}"
     if smaller:
         assert _tokens(expected[0])[0] == _tokens(got[0])[0]
+
+
+def python_blocks() -> list[tuple[int, str]]:
+    """The README's ```python blocks as ``(first line number, source)``."""
+    out: list[tuple[int, str]] = []
+    block: list[str] | None = None
+    start = 0
+    for n, raw in enumerate(README.read_text(encoding="utf-8").splitlines(), start=1):
+        if block is None and raw.strip() == "```python":
+            block, start = [], n + 1
+        elif block is not None and not block and raw.startswith("# with `bench serve"):
+            block = None  # a block that needs a running server: tests/test_catalog.py runs its steps
+        elif block is not None and raw.startswith("```"):
+            out.append((start, "\n".join(block) + "\n"))
+            block = None
+        elif block is not None:
+            block.append(raw)
+    return out
+
+
+@pytest.mark.slow  # ~7-12 CPU-s a block (bluesky, matplotlib, a scan); fast twin: test_bluesky.py live views
+@pytest.mark.parametrize("start,source", python_blocks(), ids=[f"L{n}" for n, _ in python_blocks()])
+def test_readme_python_block_runs_from_stdin(start, source, scratch):
+    r = subprocess.run([sys.executable, "-"], input=source, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                       text=True, cwd=scratch, timeout=600,
+                       env={**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"})
+    assert r.returncode == 0, f"README line {start}: the block failed:\n{r.stdout[-3000:]}"
+    for fields in re.findall(r"LiveTable\(\[([^\]]*)\]", source):
+        for field in re.findall(r"\"([^\"]+)\"", fields):
+            header = [line for line in r.stdout.splitlines() if f" {field} " in line]
+            assert header, f"README line {start}: LiveTable printed no column {field!r}:\n{r.stdout[-3000:]}"
+            # the rows under the header hold numbers in that column, not blanks
+            col = header[0].split("|").index(f" {field} ") if "|" in header[0] else None
+            rows = [line.split("|") for line in r.stdout.splitlines() if re.match(r"\|\s+\d+ \|", line)]
+            assert col is not None and rows and all(re.fullmatch(r"\s*-?[\d.]+(e[-+]\d+)?\s*", row[col])
+                                                     for row in rows), f"{field}: {rows}"
 
 
 def _update() -> None:

@@ -99,6 +99,25 @@ def test_bsdf_summary_has_stable_keys_ranking_and_checks(bsdf_report):
     assert actual_checks["reciprocity"]["tested"] and actual_checks["reciprocity"]["passed"]
     assert actual_checks["energy_conservation"]["passed"] and actual_checks["isotropy"]["passed"]
     assert "Physical checks" in _html(out) and "Model ranking" in (out / "report.md").read_text()
+    md = (out / "report.md").read_text()  # one k everywhere; the criterion-free statistics say so
+    assert f"fraction within k u_c (k = {s['k']:g})" in md and "nominal band (3 sigma)" not in md
+    assert f"nominal {s['nominal_fraction']:.2%} at k = {s['k']:g}" in md and "criterion-free" in md
+    assert "| instrument_uncertainty | not given; used " in md  # what the metrics used, not n/a
+
+
+def test_an_expected_check_failure_is_explained_by_the_specimens_declared_properties():
+    from compare.report import _check_rows, expected_failure
+
+    plastic = {"specimen": "plastic:alpha=0.1", "reciprocal": False, "isotropic": True}
+    why = expected_failure("reciprocity", plastic)
+    assert why == "expected: plastic:alpha=0.1 declares reciprocal = false (not reciprocal by construction)"
+    assert expected_failure("isotropy", plastic) is None and expected_failure("energy_conservation", plastic) is None
+    assert expected_failure("reciprocity", {"specimen": "lambert", "reciprocal": True}) is None
+    assert "anisotropic by construction" in expected_failure("isotropy", {"specimen": "aniso-ggx", "isotropic": False})
+    failed = {"tested": True, "passed": False, "statistic": 9.0, "p_value": 1e-9, "max_z": 6.0, "n": 10,
+              "n_offending": 4, "message": "not reciprocal", "expected": why}
+    _, rows = _check_rows({"plastic": {"reciprocity": failed}})
+    assert rows[0][2] == "FAILED (expected)" and rows[0][-1].endswith(why)
 
 
 def test_spectrum_summary_reports_colour_and_unmatched(spectrum_report):

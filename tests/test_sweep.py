@@ -310,3 +310,27 @@ def test_common_random_numbers_share_one_stream_across_specimens():
     apart = np.std(b - a)
     # independent: sd(diff) ~ sqrt(2 N p (1-p)) ~ 100 counts; common: ~ sqrt(N 0.01) ~ 14
     assert shared < 40 < apart
+
+
+def test_a_two_specimen_sweep_exports_one_file_per_specimen_reflection_only_in_astm(tmp_path, capsys):
+    """Each file holds one specimen, named in its rows (CSV) and its SAMPLE_NAME (ASTM); the ASTM
+    BRDF holds the reflection side only (the transmission rows are there with --hemisphere T)."""
+    two = {"sweep": {**SMALL["sweep"], "rays": 200_000, "incidences": [10], "wavelengths": [500]}}
+    with RunStore(tmp_path / "s.sqlite") as store:
+        rid = run_sweep(sweep_from_dict(two), store).run_id
+    specs = two["sweep"]["specimens"]
+    assert main(["export", rid, "--store", str(tmp_path / "s.sqlite"), "--out", str(tmp_path / "w.csv")]) == 0
+    paths = capsys.readouterr().out.split()
+    assert len(paths) == 2
+    for path, spec in zip(paths, specs):
+        assert set(pd.read_csv(path).specimen) == {spec}
+    assert main(["export", rid, "--store", str(tmp_path / "s.sqlite"), "--out", str(tmp_path / "w.astm.csv")]) == 0
+    for path, spec in zip(capsys.readouterr().out.split(), specs):
+        text = Path(path).read_text()
+        assert spec in text.split("\n")[1] and "SCATTER_TYPE BRDF" in text
+        rows = [ln for ln in text.splitlines() if ln[:1].isdigit() or ln[:1] == "-"]
+        assert rows and all(float(ln.split(",")[2]) <= np.pi / 2 + 1e-9 for ln in rows)  # theta_s: reflection
+    assert main(["export", rid, "--store", str(tmp_path / "s.sqlite"), "--out", str(tmp_path / "t.astm.csv"),
+                 "--hemisphere", "T"]) == 0
+    t_paths = capsys.readouterr().out.split()
+    assert "SCATTER_TYPE BTDF" in Path(t_paths[1]).read_text()

@@ -4,12 +4,16 @@
                         configured ``integration_s`` and ``averages``; ``read()`` gives the
                         spectrum (one array DataKey, units ``counts``, ``dims`` =
                         ``["wavelength_nm"]``, the axis itself in the configuration), its
-                        standard deviation, the saturation mask and the dark flag.
+                        standard deviation, the saturation mask and the dark flag; hinted
+                        scalars ``mean_counts`` and ``peak_counts`` (and ``n_saturated``) so
+                        BestEffortCallback / LiveTable show something per point.
 ``ReflectanceDevice``   Triggerable, Readable, Configurable, Stageable: BRDF (sr^-1) and
                         reflectance factor per wavelength with standard uncertainty. ``stage()``
                         measures the white (and dark) reference exactly as ``bench scan`` does
                         (:mod:`bench.runner`); ``trigger()`` takes darks as ``dark_mode`` says
                         and calibrates with :class:`bench.core.calibration.Calibration`.
+                        Hinted scalars ``rf_mean`` / ``rf_mean_std``: the band-mean reflectance
+                        factor and its standard uncertainty (what a live table or plot shows).
 ``LightDevice``         Movable (``set(True|False|"on"|"off")``) and Readable.
 
 Every driver call goes through the bench's :class:`~bench.bluesky.worker.BenchWorker`.
@@ -43,7 +47,7 @@ from bench.core.roles import Reading
 from bench.plans import DARK_MODES, WHITE_MODES, Plan
 from bench.runner import acquire_dark, measure_calibration
 
-__all__ = ["SpectrometerDevice", "ReflectanceDevice", "LightDevice", "WAVELENGTH_DIM"]
+__all__ = ["SpectrometerDevice", "ReflectanceDevice", "LightDevice", "WAVELENGTH_DIM", "band_mean"]
 
 WAVELENGTH_DIM = "wavelength_nm"
 F64 = Array1D[np.float64]
@@ -66,6 +70,19 @@ class _SpectralReadable(StandardReadable):
         return keys
 
 
+def band_mean(values: np.ndarray, std: np.ndarray, masked: np.ndarray) -> tuple[float, float]:
+    """Mean of ``values`` over the unmasked pixels and its standard uncertainty (NaN if none).
+
+    The uncertainty is the mean of the pixels' standard uncertainties: the pixels share the white
+    standard and the reference, so they are treated as fully correlated -- an upper bound that
+    never understates the uncertainty of the mean.
+    """
+    ok = ~np.asarray(masked, dtype=bool) & np.isfinite(values)
+    if not ok.any():
+        return math.nan, math.nan
+    return float(np.mean(values[ok])), float(np.mean(np.asarray(std)[ok]))
+
+
 def _check_reading_settings(integration_s: float, averages: int) -> None:
     if not (math.isfinite(integration_s) and integration_s > 0):
         raise ConfigError(f"integration_s must be finite and > 0, got {integration_s!r}")
@@ -85,6 +102,10 @@ class SpectrometerDevice(_SpectralReadable):
             self.spectrum_std, self._set_std = _array(self._n, "counts")
             self.saturated, self._set_saturated = _array(self._n, None, np.bool_)
             self.dark, self._set_dark = soft_signal_r_and_setter(bool, False)
+            self.n_saturated, self._set_n_saturated = soft_signal_r_and_setter(int, 0)
+        with self.add_children_as_readables(Format.HINTED_UNCACHED_SIGNAL):
+            self.mean_counts, self._set_mean = soft_signal_r_and_setter(float, 0.0, units="counts")
+            self.peak_counts, self._set_peak = soft_signal_r_and_setter(float, 0.0, units="counts")
         with self.add_children_as_readables(Format.CONFIG_SIGNAL):
             self.integration_s = soft_signal_rw(float, 0.1, units="s")
             self.averages = soft_signal_rw(int, 1)
@@ -97,22 +118,28 @@ class SpectrometerDevice(_SpectralReadable):
         t, n = await self.integration_s.get_value(), await self.averages.get_value()
         _check_reading_settings(t, n)
         r: Reading = await self._worker.run(self._bench.spectrometer.acquire, float(t), int(n))
-        self._set_spectrum(np.asarray(r.signal, dtype=float))
+        signal, saturated = np.asarray(r.signal, dtype=float), np.asarray(r.saturated, dtype=bool)
+        self._set_spectrum(signal)
         self._set_std(np.full(self._n, np.nan) if r.std is None else np.asarray(r.std, dtype=float))
-        self._set_saturated(np.asarray(r.saturated, dtype=bool))
+        self._set_saturated(saturated)
         self._set_dark(bool(r.dark))
+        self._set_mean(float(signal.mean()) if signal.size else math.nan)
+        self._set_peak(float(signal.max()) if signal.size else math.nan)
+        self._set_n_saturated(int(saturated.sum()))
 
 
 class ReflectanceDevice(_SpectralReadable):
     """Calibrated BRDF and reflectance factor per wavelength, as ``bench scan`` computes them.
 
-    Readings: ``brdf`` (sr^-1), ``brdf_std``, ``reflectance_factor``, ``masked`` (pixels not
+    Readings: ``brdf`` (sr^-1), ``brdf_std``, ``reflectance_factor`` and its ``_std``, ``masked`` (pixels not
     calibrated: reference saturated or at dark, signal saturated), the raw ``signal`` /
     ``signal_std`` / ``dark`` / ``dark_std`` / ``saturated`` it was computed from, and the
     geometry reached (``theta_i`` ... ``phi_r``, unsigned, degrees). Configuration:
     ``integration_s``, ``averages``, ``dark_mode`` (none, once, per-incidence, per-point),
     ``white_mode`` (none, once), the wavelength axis and the ``calibration`` (JSON of
-    :meth:`Calibration.as_dict`, measured at ``stage()``).
+    :meth:`Calibration.as_dict`, measured at ``stage()``). Hinted: ``rf_mean`` and
+    ``rf_mean_std`` (:func:`band_mean` of the reflectance factor), the columns and plots
+    BestEffortCallback shows.
     """
 
     def __init__(self, bench: Bench, worker: BenchWorker, mover: Mover, name: str = "") -> None:
@@ -127,6 +154,7 @@ class ReflectanceDevice(_SpectralReadable):
             self.brdf, self._set_brdf = _array(self._n, "1/sr")
             self.brdf_std, self._set_brdf_std = _array(self._n, "1/sr")
             self.reflectance_factor, self._set_rf = _array(self._n, None)
+            self.reflectance_factor_std, self._set_rf_std = _array(self._n, None)
             self.masked, self._set_masked = _array(self._n, None, np.bool_)
             self.signal, self._set_signal = _array(self._n, "counts")
             self.signal_std, self._set_signal_std = _array(self._n, "counts")
@@ -139,6 +167,9 @@ class ReflectanceDevice(_SpectralReadable):
                 sig, setter = soft_signal_r_and_setter(float, 0.0, units="deg")
                 setattr(self, axis, sig)
                 self._geometry_setters[axis] = setter
+        with self.add_children_as_readables(Format.HINTED_UNCACHED_SIGNAL):
+            self.rf_mean, self._set_rf_mean = soft_signal_r_and_setter(float, math.nan, precision=4)
+            self.rf_mean_std, self._set_rf_mean_std = soft_signal_r_and_setter(float, math.nan, precision=4)
         with self.add_children_as_readables(Format.CONFIG_SIGNAL):
             self.integration_s = soft_signal_rw(float, 0.1, units="s")
             self.averages = soft_signal_rw(int, 1)
@@ -196,12 +227,18 @@ class ReflectanceDevice(_SpectralReadable):
             self._set_brdf(c.brdf)
             self._set_brdf_std(c.std)
             self._set_rf(c.reflectance_factor)
+            self._set_rf_std(c.std * math.pi)
             self._set_masked(c.masked.astype(bool))
+            mean, u = band_mean(c.reflectance_factor, c.std * math.pi, c.masked)
         else:
             self._set_brdf(nan)
             self._set_brdf_std(nan)
             self._set_rf(nan)
+            self._set_rf_std(nan)
             self._set_masked(np.ones(self._n, dtype=bool))
+            mean, u = math.nan, math.nan
+        self._set_rf_mean(mean)
+        self._set_rf_mean_std(u)
         self._set_signal(np.asarray(reading.signal, dtype=float))
         self._set_signal_std(nan if reading.std is None else np.asarray(reading.std, dtype=float))
         d = self._dark

@@ -28,6 +28,7 @@ COMMANDS: dict[str, Command] = {
     "runs": Command("bench.cli.scans", "list the runs in a store (read-only)"),
     "show": Command("bench.cli.scans", "summarize one run (read-only)"),
     "export": Command("bench.cli.scans", "export a run: csv, parquet, astm, zemax (read-only on the store)"),
+    "serve": Command("bench.cli.serve", "serve every stored run as a Bluesky run in a Tiled catalog (127.0.0.1)"),
     "demo": Command("bench.cli.demo", "end-to-end demo on the embedded default bench"),
     "compare": Command("bench.cli.compare", "compare candidate records (virtual models) with an actual one"),
     "tradeoff": Command("bench.cli.tradeoff", "accuracy versus time of a scene: table and Pareto plot"),

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -145,3 +146,32 @@ def add_bench_options(parser: argparse.ArgumentParser, help: str, required: bool
     parser.add_argument("--bench", required=required, metavar="BENCH.toml", help=help)
     parser.add_argument("--body", choices=BODIES, default=None,
                         help="what executes the bench description (default: the file's kind)")
+
+
+def warn_if_radians(what: str, angles: Sequence[float]) -> None:
+    """Warn on stderr when angles taken as degrees all look like radians (``--incidence 1.2``)."""
+    from bench.core.parsing import looks_like_radians
+
+    if looks_like_radians(angles):
+        import math
+
+        shown = ", ".join(f"{a:g}" for a in list(angles)[:4])
+        print(f"warning: {what} {shown} taken as degrees; in radians that would be "
+              f"{', '.join(f'{math.degrees(a):.4g}' for a in list(angles)[:4])} deg", file=sys.stderr)
+
+
+def wait_until_stopped(seconds: float | None) -> None:
+    """Block for ``seconds`` (None: until Ctrl-C or SIGTERM), for commands that keep a service
+    running (``bench emulate``, ``bench serve``); Ctrl-C returns normally."""
+    import signal
+    import time
+
+    try:
+        if seconds is not None:
+            time.sleep(seconds)
+        else:
+            signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+            while True:
+                time.sleep(3600)
+    except KeyboardInterrupt:
+        pass

@@ -6,14 +6,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
-import sys
-import time
 
 import tomli_w
 
 from bench.cli.argtypes import real, seed
 from bench.cli.commands import command_help
+from bench.cli.common import wait_until_stopped
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
@@ -33,13 +31,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                 print(f"#   {name:18s} {port}")
             print("# a bench config for the real drivers on these ports: save it as a .toml file")
             print(tomli_w.dumps(emu.real_bench_config()), flush=True)
-        if args.seconds is not None:
-            time.sleep(args.seconds)
-        else:
-            signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
-            while True:
-                time.sleep(3600)
-    except KeyboardInterrupt:
+        wait_until_stopped(args.seconds)
+    except KeyboardInterrupt:  # Ctrl-C while starting
         pass
     finally:
         emu.close()

@@ -22,7 +22,7 @@ from typing import Any
 from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds,
                                 incidence, rays, real, seed, stderr_is_terminal, wavelengths)
 from bench.cli.commands import command_help
-from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file
+from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file, warn_if_radians
 from bench.core.errors import InputError
 
 # numpy and everything heavier are imported inside the functions that use them: `bench rays`
@@ -133,6 +133,7 @@ def cmd_spectro(args: argparse.Namespace) -> int:
         from bench.io import spectrum_to_csv
 
         spectrum_to_csv(s, args.csv)
+    stored = _store_spectrum(args, s) if args.store else None
     if args.plot:
         from compare.figures import plot_spectrum
 
@@ -142,8 +143,11 @@ def cmd_spectro(args: argparse.Namespace) -> int:
         out["colour"] = spectrum_colour(s)
         if adaptive:
             out["budget"] = _budget(adaptive)
+        out["run_id"] = stored
         emit_json(out)
         return 0
+    if stored:
+        print(f"run {stored} stored in {args.store} (bench runs / show / export / serve)")
     n = np.broadcast_to(np.asarray(s.N), s.wavelengths.shape)
     print(f"specimen {s.meta['specimen']}  geometry {s.geometry}  beam {sp.beam.kind}  "
           f"N = {n_label(n)} rays/wavelength{'' if n.min() == n.max() else ' (per wavelength in the table)'}  "
@@ -270,6 +274,7 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     from virtual.goniophotometer import VirtualGoniophotometer
 
     theta_i, phi_i = args.incidence
+    warn_if_radians("--incidence", [theta_i] + ([phi_i] if phi_i else []))
     announce_compilation()
     kw: dict[str, Any] = {"collector": args.collector, "beam": args.beam, "seed": args.seed, "delta": args.delta,
                           "wavelengths": args.wavelengths, "method": args.method,
@@ -309,10 +314,13 @@ def cmd_gonio(args: argparse.Namespace) -> int:
         mode = {"mode": "patch probability (eq. 3.12)", "v": args.patch_probability_uncertainty, "delta": args.delta}
     else:
         mode = {"mode": "fixed rays", "N": int(record.meta["rays"])}
-    if args.csv:
-        from bench.io import write_csv
+    record.meta.update(body="virtual", bench_name="virtual-gonio", plan_name="gonio",
+                       incidence=[theta_i, phi_i])
+    if args.csv:  # the one tidy CSV (metadata and units in FILE.json), as bench export writes it
+        from bench.io import record_to_csv
 
-        write_csv(record.table, args.csv, float_format="%.8g")
+        record_to_csv(record, args.csv)
+    stored = _store_record(args.store, record, g.seed, vars(args)) if args.store else None
     if args.plot:
         from compare.figures import plot_bsdf_polar
 
@@ -323,9 +331,12 @@ def cmd_gonio(args: argparse.Namespace) -> int:
             out["budget"] = _budget(adaptive)
         out["uncertainty"] = mode
         out["achieved"] = widths
+        out["run_id"] = stored
         emit_json(out)
         return 0
     m = record.meta
+    if stored:
+        print(f"run {stored} stored in {args.store} (bench runs / show / export / serve)")
     print(f"specimen {m['specimen']}  incidence ({theta_i:g}, {phi_i:g}) deg  collector {g.collector}  "
           f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']} ({m.get('kernel')} kernel)  seed {g.seed}  "
           f"streams {'common to every specimen' if g.common_random_numbers else 'per specimen'}")
@@ -355,6 +366,39 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     for r in top.itertuples(index=False):
         print(f"    {r.hemisphere}  {r.theta_r:6.2f} {r.phi_r:7.2f}  {r.value:.5g}  [{r.ci_lo:.5g}, {r.ci_hi:.5g}]")
     return 0
+
+
+def _store_spectrum(args: argparse.Namespace, s: Any) -> str:
+    """Store a spectrum as a run: per wavelength a reflectance (R) and a transmittance (T) row,
+    as a spectrophotometric sweep stores them (:func:`bench.sweep.task.spectrum_rows`)."""
+    import numpy as np
+
+    from bench.core.geometry import cie_geometry
+    from bench.core.records import BSDFRecord
+    from bench.sweep.task import spectrum_rows
+
+    rows = spectrum_rows(s, args.geometry)
+    rows["theta_i"], rows["phi_i"] = float(cie_geometry(args.geometry).theta_i), 0.0
+    r_quantity = "reflectance factor" if s.meta.get("quantity") == "reflectance factor" else "reflectance"
+    rows["quantity"] = np.where(rows["hemisphere"] == "T", "transmittance", r_quantity)
+    meta = {"specimen": s.meta.get("specimen"), "geometry": str(s.geometry), "quantity": "reflectance",
+            "body": "virtual", "bench_name": "virtual-spectro", "plan_name": "spectro", "seed": s.seed,
+            "delta": s.delta, "instrument": "spectro"}
+    return _store_record(args.store, BSDFRecord(rows, meta), s.seed, vars(args), "spectro")
+
+
+def _store_record(path: str, record: Any, seed: int | None, options: dict[str, Any], command: str = "gonio") -> str:
+    """Store a virtual measurement as a completed run of kind ``virtual``; return its id."""
+    from bench.cli.common import open_store
+
+    plan = {"name": command, "command": f"bench {command}",
+            "options": {k: v for k, v in options.items() if k not in ("func", "store", "csv", "plot", "json")}}
+    with open_store(path) as store:
+        rid = store.create_run("virtual", plan=plan, seed=seed, n_planned=1,
+                               meta={k: v for k, v in record.meta.items() if k != "totals"})
+        store.add_record(rid, record, merge_meta=False)
+        store.set_status(rid, "completed")
+    return rid
 
 
 def _method_note(tot: dict[str, Any]) -> str:
@@ -415,6 +459,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw the spectrum to this image (png, pdf, svg, ...; default: none)")
     s.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the spectrum as CSV (default: none)")
+    s.add_argument("--store", metavar="FILE.sqlite", default=None,
+                   help="also store the spectrum as a run (bench runs/show/export/serve read it; default: not stored)")
     s.set_defaults(func=cmd_spectro)
 
     g = sub.add_parser("gonio", help=command_help("gonio"))
@@ -444,7 +490,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --patch-probability-uncertainty: the fixed eq. 3.12 ray count instead of the "
                         "adaptive rule")
     _run_options(g)
-    g.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the record as CSV (default: none)")
+    g.add_argument("--csv", type=output_file(), metavar="FILE",
+                   help="also write the record as tidy CSV, metadata and units in FILE.json (default: none)")
+    g.add_argument("--store", metavar="FILE.sqlite", default=None,
+                   help="also store the record as a run (bench runs/show/export/serve read it; default: not stored)")
     g.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw a polar plot to this image (png, pdf, svg, ...; default: none)")
     g.set_defaults(func=cmd_gonio)

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 from bench.cli.argtypes import RegistryChoices, real, run_id, seed
 from bench.cli.commands import command_help
 from bench.cli.design import add_adaptive_options, add_design_options, refuse_unused
 from bench.cli.common import (DEFAULT_STORE, add_bench_options, announce_compilation, check_output, emit_json, hms,
-                               open_store, report_run)
+                               open_store, report_run, warn_if_radians)
 from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_plan", "cmd_scan", "cmd_resume", "cmd_runs", "cmd_show", "cmd_export"]
@@ -25,6 +26,8 @@ def _plan_and_bench(args: argparse.Namespace):
     from bench.plans import load_plan
 
     plan = load_plan(args.plan)
+    thetas = [a for g in plan.points for a in (g.theta_i, g.theta_r)]
+    warn_if_radians(f"plan {args.plan} theta_i/theta_r", sorted(set(thetas)))
     bench = load_bench(args.bench, seed=getattr(args, "seed", None), body=args.body)
     return plan, bench
 
@@ -128,35 +131,83 @@ def cmd_resume(args: argparse.Namespace) -> int:
     return report_run(result, args.json)
 
 
+def run_identity(info: dict[str, Any]) -> dict[str, str | None]:
+    """What a run is of and where it ran: ``specimen`` (a sweep's specimens joined by ``; ``),
+    ``bench``, ``body`` and ``plan`` (None when the run does not say)."""
+    from bench.core.records import record_identity, record_provenance
+
+    meta = {**(info.get("meta") or {}), "bench": info.get("bench"), "plan": info.get("plan")}
+    specimen = record_identity(meta)["specimen"]
+    sweep = (info.get("plan") or {}).get("sweep") or {}
+    if specimen is None and sweep.get("specimens"):
+        specimen = "; ".join(str(x) for x in sweep["specimens"])
+    prov = record_provenance(meta)
+    plan = prov.get("plan") or sweep.get("name") or (info.get("plan") or {}).get("bluesky_plan")
+    return {"specimen": specimen, "bench": prov.get("bench"), "body": prov.get("body"), "plan": plan}
+
+
+def rounded(x: float | None, u: float | None) -> str:
+    """``x`` with the decimals its standard uncertainty ``u`` supports (two significant digits of
+    ``u``); six significant digits when ``u`` is unknown."""
+    import math
+
+    if x is None:
+        return "n/a"
+    if not u or not math.isfinite(u) or u <= 0:
+        return f"{x:.6g}"
+    decimals = max(0, 1 - math.floor(math.log10(u)))
+    return f"{x:.{decimals}f}"
+
+
+def _duration(info: dict[str, Any]) -> str:
+    end, start = info.get("finished_epoch"), info.get("started_epoch")
+    return "-" if end is None or start is None else f"{end - start:.3g} s"
+
+
 def cmd_runs(args: argparse.Namespace) -> int:
     with open_store(args.store, create=False, readonly=True) as store:
         runs = store.runs()
+        infos = {r["run_id"]: store.run(r["run_id"]) for r in runs}
+    for r in runs:
+        r.update(run_identity(infos[r["run_id"]]), duration_s=None)
+        i = infos[r["run_id"]]
+        if i.get("finished_epoch") is not None and i.get("started_epoch") is not None:
+            r["duration_s"] = i["finished_epoch"] - i["started_epoch"]
     if args.json:
         emit_json(runs)
         return 0
-    print(f"{'run':<24} {'kind':<6} {'status':<12} {'points':>11}  created (UTC)")
+    print(f"{'run':<20} {'kind':<7} {'status':<11} {'points':>9} {'duration':>9}  {'specimen':<28} "
+          f"{'bench (body)':<22} {'plan':<16} created (UTC)")
     for r in runs:
         pts = f"{r['points_done']}/{r['n_planned'] if r['n_planned'] is not None else '?'}"
         status, reason = r["status"], r["reason"]
         if r.get("process_gone"):
             status, reason = "interrupted", "process gone; `bench resume` finishes it"
-        print(f"{r['run_id']:<24} {r['kind']:<6} {status:<12} {pts:>11}  {r['created_utc']}"
+        where = f"{r['bench'] or '?'} ({r['body'] or '?'})"
+        print(f"{r['run_id']:<20} {r['kind']:<7} {status:<11} {pts:>9} {_duration(infos[r['run_id']]):>9}  "
+              f"{r['specimen'] or 'n/a':<28} {where:<22} {r['plan'] or 'n/a':<16} {r['created_utc']}"
               + (f"  ({reason})" if reason else ""))
     return 0
 
 
 def cmd_show(args: argparse.Namespace) -> int:
+    from bench.core.records import value_unit
+
     with open_store(args.store, create=False, readonly=True) as store:
         s = store.summary(args.run)
         points = store.reading_budgets(args.run)  # each reading's GUM budget (bench.core.budget)
-        if args.json:
-            s["points"] = points
-        if s["kind"] == "fit":  # a fit has no points: its result and the record it was fitted to
-            meta = store.run(args.run).get("meta") or {}
-            s["fit"] = {k: meta.get(k) for k in ("fit", "specimen", "record", "record_run_id")}
+        info = store.run(args.run)
+    if args.json:
+        s["points"] = points
+    if s["kind"] == "fit":  # a fit has no points: its result and the record it was fitted to
+        meta = info.get("meta") or {}
+        s["fit"] = {k: meta.get(k) for k in ("fit", "specimen", "record", "record_run_id")}
+    s["identity"] = run_identity(info)
+    s["value"]["unit"] = value_unit(info.get("meta") or {})
     if args.json:
         emit_json(s)
         return 0
+    ident = s["identity"]
     print(f"run {s['run_id']} ({s['kind']}): {s['status']}" + (f" - {s['reason']}" if s["reason"] else ""))
     if "fit" in s:
         fit = s["fit"]["fit"] or {}
@@ -165,16 +216,25 @@ def cmd_show(args: argparse.Namespace) -> int:
             print(f"  {name:10s} {p['value']:.6g}  [{p['ci'][0]:.6g}, {p['ci'][1]:.6g}] {p['unit']}".rstrip())
         print(f"  chi2 {fit.get('chi2')}, dof {fit.get('dof')}, p {fit.get('p_value')}, converged {fit.get('converged')}")
         return 0
-    print(f"  points {s['points_done']}/{s['points_planned']}, readings {s['readings']}, "
-          f"wavelengths {s['wavelengths']['n']} ({s['wavelengths']['min']}..{s['wavelengths']['max']} nm)")
+    print(f"  specimen {ident['specimen'] or 'n/a'}; bench {ident['bench'] or 'n/a'} ({ident['body'] or 'n/a'} body); "
+          f"plan {ident['plan'] or 'n/a'}")
+    wl = s["wavelengths"]
+    wl_range = f"{wl['min']:g}..{wl['max']:g} nm" if wl["n"] else "none"
+    planned = "?" if s["points_planned"] is None else s["points_planned"]
+    print(f"  points {s['points_done']}/{planned}, readings {s['readings']}, "
+          f"wavelengths {wl['n']} ({wl_range})")
     for k, (lo, hi) in s["geometry"].items():
-        print(f"  {k:8s} {lo} .. {hi} deg")
+        if lo is not None:
+            print(f"  {k:8s} {round(lo, 3):g} .. {round(hi, 3):g} deg")
     v = s["value"]
-    print(f"  value {v['min']} .. {v['max']} ({v['n']} values, {v['n_missing']} masked), saturated {s['saturated']}")
+    u = v.get("std_min")
+    print(f"  value {rounded(v['min'], u)} .. {rounded(v['max'], u)} {v['unit']} ({v['n']} values, "
+          f"{v['n_missing']} masked; smallest standard uncertainty {'n/a' if u is None else f'{u:.2g}'} "
+          f"{v['unit']}), saturated {s['saturated']}")
     steps = s.get("calibration_steps")
     if steps:
         print(f"  calibration: dark {steps['dark']}, white {steps['white']} ({steps['white_source']}), "
-              f"integration {steps['integration_s']} s, averages {steps['averages']}")
+              f"integration {steps['integration_s']:g} s, averages {steps['averages']}")
     budgets = [p["uncertainty_budget"] for p in points if p["uncertainty_budget"]]
     rel = sorted(100.0 * b["combined"] / abs(b["value"]) for b in budgets if b.get("value"))
     if rel:
@@ -182,24 +242,95 @@ def cmd_show(args: argparse.Namespace) -> int:
         print(f"  uncertainty: GUM budgets on {len(budgets)} of {len(points)} readings ({methods}, k = "
               f"{budgets[0]['k']:g}), median u_c {rel[len(rel) // 2]:.3g} % of the value")
     t = s["timing"]
-    print(f"  created {t['created_utc']}, finished {t['finished_utc']}, elapsed {t['elapsed_s']} s, "
-          f"mean per point {t['mean_point_s']} s")
+    elapsed = "n/a" if t["elapsed_s"] is None else f"{t['elapsed_s']:.3g} s"
+    mean = "n/a" if t["mean_point_s"] is None else f"{t['mean_point_s']:.3g} s"
+    print(f"  created {t['created_utc']}, finished {t['finished_utc']}, duration {elapsed}, mean per point {mean}")
     return 0
 
 
+def export_format(fmt: str | None, out: str | None) -> str:
+    """The format of an export: ``--format``, else the suffix of ``--out``, else ``csv``; a
+    suffix that names another format than ``--format`` is refused (one line, exit 2)."""
+    from bench.io.registry import suffix_format
+
+    by_suffix = suffix_format(out) if out else None
+    if fmt is not None and by_suffix is not None and by_suffix != fmt:
+        raise InputError(f"--out {out} names format {by_suffix} but --format is {fmt}: drop one of them")
+    return fmt or by_suffix or "csv"
+
+
+def _run_or_file(text: str) -> str:
+    """A record file that exists, else a run id (see `bench runs`)."""
+    from pathlib import Path
+
+    return text if Path(text).is_file() else run_id(text)
+
+
+def _records_to_export(args: argparse.Namespace) -> list[tuple[str | None, Any]]:
+    """``(specimen or None, record)`` to write: a record file as read, a stored run as
+    :func:`bench.io.run_records` gives it (a sweep one record per specimen)."""
+    from pathlib import Path
+
+    from bench.core.records import BSDFRecord
+    from bench.io import read_record, run_records
+
+    if Path(args.run).is_file():
+        record = read_record(args.run)
+        if not isinstance(record, BSDFRecord):
+            raise InputError(f"{args.run}: a spectrum table; bench export converts BSDF records (csv, parquet, "
+                             f"astm, zemax)")
+        return [(None, record)]
+    with open_store(args.store, create=False, readonly=True) as store:
+        return run_records(store, args.run)
+
+
+def _side(record: Any, hemisphere: str, fmt: str) -> Any:
+    """The rows a BSDF file format holds: reflection unless ``--hemisphere`` asks otherwise."""
+    if fmt not in ("astm", "zemax") or hemisphere == "both":
+        return record
+    side = record.reflection() if hemisphere == "R" else record.transmission()
+    if not len(side):
+        other = "T" if hemisphere == "R" else "R"
+        raise InputError(f"the record has no {'reflection' if hemisphere == 'R' else 'transmission'} rows; "
+                         f"--hemisphere {other} exports its {'transmission' if other == 'T' else 'reflection'}")
+    return side
+
+
+def _slug(text: str) -> str:
+    import re
+
+    return re.sub(r"[^A-Za-z0-9.=]+", "_", text).strip("_")[:80] or "specimen"
+
+
 def cmd_export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from bench.io import default_suffix, export_record, record_to_zemax_files
 
-    if args.wavelength is not None and args.format != "zemax":
-        raise InputError(f"--wavelength selects the wavelength of a Zemax file; --format {args.format} "
-                         f"holds every wavelength")
-    out = check_output(args.out or f"{args.run}{default_suffix(args.format)}")  # before reading anything
-    with open_store(args.store, create=False, readonly=True) as store:
-        record = store.to_record(args.run)
-    if args.format == "zemax":  # one wavelength per file: --wavelength, or one file per wavelength
-        paths = record_to_zemax_files(record, out, wavelength_nm=args.wavelength)
-    else:
-        paths = [export_record(record, out, args.format)]
+    fmt = export_format(args.format, args.out)
+    if args.wavelength is not None and fmt != "zemax":
+        raise InputError(f"--wavelength selects the wavelength of a Zemax file; --format {fmt} holds every wavelength")
+    if args.fill is not None and fmt != "zemax":
+        raise InputError(f"--fill fills a Zemax grid; --format {fmt} holds the measured rows only")
+    if args.hemisphere == "both" and fmt == "zemax":
+        raise InputError("a Zemax file holds one side: --hemisphere R (BRDF) or T (BTDF)")
+    default_name = Path(args.run).name.split(".")[0] if Path(args.run).is_file() else args.run
+    out = check_output(args.out or f"{default_name}{default_suffix(fmt)}")  # before reading anything
+    paths = []
+    for specimen, record in _records_to_export(args):
+        target = out
+        if specimen is not None:  # one file per specimen: <stem>-<specimen><suffix>
+            suffix = default_suffix(fmt) if out.name.endswith(default_suffix(fmt)) else out.suffix
+            stem = out.name[:len(out.name) - len(suffix)] if suffix else out.name
+            target = out.with_name(f"{stem}-{_slug(specimen)}{suffix}")
+        record = _side(record, args.hemisphere, fmt)
+        if fmt == "zemax":  # one wavelength per file: --wavelength, or one file per wavelength
+            paths += record_to_zemax_files(record, target, wavelength_nm=args.wavelength, fill=args.fill,
+                                           scatter_type="BTDF" if args.hemisphere == "T" else "BRDF")
+        elif fmt == "astm":
+            paths.append(export_record(record, target, fmt, scatter_type="BTDF" if args.hemisphere == "T" else "BRDF"))
+        else:
+            paths.append(export_record(record, target, fmt))
     for path in paths:
         print(path)
     return 0
@@ -256,11 +387,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     sh.set_defaults(func=cmd_show)
 
     ex = sub.add_parser("export", help=command_help("export"))
-    ex.add_argument("run", type=run_id, metavar="RUN", help="the run id (see `bench runs`)")
+    ex.add_argument("run", type=_run_or_file, metavar="RUN|FILE",
+                    help="the run id (see `bench runs`) or a record file to convert")
     ex.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help=store_help)
-    ex.add_argument("--format", choices=RegistryChoices(_export_formats), default="csv",
-                    metavar="FORMAT", help="file format: %(choices)s (default %(default)s)")
-    ex.add_argument("--out", metavar="FILE", help="output file (default: RUN plus the format's suffix)")
+    ex.add_argument("--format", choices=RegistryChoices(_export_formats), default=None,
+                    metavar="FORMAT", help="file format: %(choices)s (default: from --out's suffix, else csv; "
+                    "tidy csv writes its metadata and units to FILE.json)")
+    ex.add_argument("--out", metavar="FILE", help="output file (default: RUN plus the format's suffix); a sweep "
+                    "of several specimens writes one file per specimen, FILE-<specimen>")
+    ex.add_argument("--hemisphere", choices=("R", "T", "both"), default="R",
+                    help="astm/zemax: the side a BSDF file holds, R = BRDF (default), T = BTDF, both (astm)")
+    ex.add_argument("--fill", choices=("nearest",), default=None,
+                    help="zemax: fill grid nodes an in-plane scan did not measure from the nearest sample "
+                    "(default: refused; when asked, recorded in the file's header)")
     ex.add_argument("--wavelength", type=real(0.0, 1e6, lo_open=True), metavar="NM",
                     help="zemax: the wavelength to write, nm (default: one file per wavelength, FILE-<w>nm.bsdf)")
     ex.set_defaults(func=cmd_export)

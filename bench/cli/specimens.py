@@ -22,15 +22,20 @@ def cmd_specimens(args: argparse.Namespace) -> int:
     if args.markdown:
         print(specimen_table_markdown(), end="")
         return 0
-    for fam in specimen_families():
-        print(f"{fam['name']}: {fam['doc']}")
+    from virtual.specimens.strings import RESERVED_FORMS
+
+    for fam in specimen_families():  # the fields of the README table, one family a block
+        print(f"{fam['name']}: {fam['convention']}")
         for p in fam["parameters"]:
-            lo, hi = p["range"]
             aliases = f" (or {', '.join(p['aliases'])})" if p["aliases"] else ""
-            default = "" if p["default"] is None else f", default {p['default']:g}"
+            lo, hi = p["range"]
+            rng = " | ".join(p["choices"]) if p["choices"] else f"{lo:.10g} .. {hi:.10g}"
+            default = p["choices"][int(p["default"])] if p["choices"] else f"{p['default']:g}"
             unit = f" {p['unit']}" if p["unit"] else ""
-            print(f"  {p['name']}{aliases}: {lo:.10g} .. {hi:.10g}{unit}{default}  {p['doc']}".rstrip())
-    print("e.g. --specimen 'ggx:alpha=0.2,eta=1.5,k=0'")
+            print(f"  {p['name']}{aliases}: {rng}{unit}, default {default}  {p['doc']}".rstrip())
+    for name, (form, doc) in RESERVED_FORMS.items():
+        print(f"{name}: {form}\n  {doc}")
+    print("e.g. --specimen 'ggx:alpha=0.2,eta=1.5,k=0,masking=separable'")
     return 0
 
 

@@ -20,7 +20,8 @@ import numpy as np
 from bench.core.errors import ConfigError, InputError
 
 __all__ = ["read_toml", "read_text", "parse_range", "parse_wavelengths", "check_collector_spec",
-           "MAX_RANGE_POINTS", "MAX_WAVELENGTHS", "MAX_COLLECTOR_PATCHES"]
+           "MAX_RANGE_POINTS", "MAX_WAVELENGTHS", "MAX_COLLECTOR_PATCHES", "WAVELENGTH_RANGE_NM",
+           "check_wavelength_units", "looks_like_radians"]
 
 #: the most values one range may expand to (a plan axis, a wavelength grid)
 MAX_RANGE_POINTS = 100_000
@@ -131,7 +132,39 @@ def parse_wavelengths(text: Any, limit: int = MAX_WAVELENGTHS) -> np.ndarray:
         raise InputError(str(exc)) from None
     if wl.ndim != 1 or wl.size == 0 or np.any(wl <= 0):
         raise InputError(f"wavelengths must be a non-empty list of positive numbers (nm), got {text!r}")
+    check_wavelength_units(wl, where)
     return wl
+
+
+#: the wavelengths (nm) any input may name: far UV to far IR; outside is a unit slip
+WAVELENGTH_RANGE_NM = (100.0, 1e5)
+
+
+def check_wavelength_units(wl: np.ndarray, where: str) -> None:
+    """Refuse wavelengths outside :data:`WAVELENGTH_RANGE_NM` with a hint at the unit they look
+    like (``0.55`` is um, ``5.5e-7`` is m): wavelengths are in nm everywhere."""
+    lo, hi = WAVELENGTH_RANGE_NM
+    bad = wl[(wl < lo) | (wl > hi)]
+    if not bad.size:
+        return
+    x = float(bad[0])
+    if x < 1e-3:
+        hint = f"{x:g} looks like metres ({x * 1e9:g} nm)"
+    elif x <= 30:
+        hint = f"{x:g} looks like um ({x * 1e3:g} nm)"
+    elif x > hi:
+        hint = f"{x:g} is beyond the far infrared; pm or Angstrom? ({x / 1e3:g} or {x / 10:g} nm)"
+    else:
+        hint = f"{x:g} nm is below the vacuum ultraviolet"
+    raise InputError(f"{where}: wavelengths are in nm, {lo:g} to {hi:g}; {hint}")
+
+
+def looks_like_radians(angles: Any) -> bool:
+    """Whether angles meant in degrees all look like radians: every one within 2 pi, not all
+    zero, and one at least not a whole number (0.5, 1.2 ...; whole small degrees are common)."""
+    a = np.abs(np.asarray([float(x) for x in np.ravel(np.asarray(angles, dtype=object))], dtype=float))
+    a = a[np.isfinite(a)]
+    return bool(a.size and a.max() > 0 and a.max() <= 2 * np.pi and np.any(a != np.round(a)))
 
 
 def check_collector_spec(text: Any) -> tuple[str, int, int]:

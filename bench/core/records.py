@@ -42,7 +42,7 @@ from typing import Any, Mapping
 import numpy as np
 
 __all__ = ["Reading", "Spectrum", "BSDFRecord", "BSDF_COLUMNS", "json_default", "IDENTITY_KEYS", "KEY_COLUMNS",
-           "COLUMN_UNITS", "record_identity", "with_keys"]
+           "COLUMN_UNITS", "record_identity", "record_provenance", "value_unit", "with_keys"]
 
 BSDF_COLUMNS = ["wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "hemisphere", "value", "std",
                 "ci_lo", "ci_hi", "theta_min", "theta_max", "phi_min", "phi_max", "psa", "count", "N"]
@@ -83,6 +83,28 @@ def record_identity(meta: Mapping[str, Any]) -> dict[str, str | None]:
     specimen = _label(meta.get("specimen")) or _label((bench or {}).get("specimen"))
     collector = _label(meta.get("collector")) or _label((bench or {}).get("collector"))
     return {"specimen": specimen, "collector": collector, "quantity": str(meta.get("quantity") or "BSDF")}
+
+
+def record_provenance(meta: Mapping[str, Any]) -> dict[str, str]:
+    """Where a record comes from, as text: ``run_id``, ``bench`` (its name), ``body`` (virtual,
+    emulated or real) and ``plan`` (its name); keys the metadata does not state are left out."""
+    def mapping(key: str) -> Mapping[str, Any]:
+        v = meta.get(key)
+        return v if isinstance(v, Mapping) else {}
+
+    bench, desc, plan = mapping("bench"), mapping("bench_description"), mapping("plan")
+    found = {"run_id": meta.get("run_id"),
+             "bench": meta.get("bench_name") or desc.get("name") or bench.get("name"),
+             "body": meta.get("body") or meta.get("bench_kind") or desc.get("kind") or bench.get("kind"),
+             "plan": meta.get("plan_name") or plan.get("name")}
+    return {k: str(v) for k, v in found.items() if v not in (None, "")}
+
+
+def value_unit(meta: Mapping[str, Any]) -> str:
+    """The unit of a record's ``value`` (and ``std``, ``ci_*``): ``1/sr`` for a BSDF, ``1`` for a
+    reflectance or transmittance (``meta["quantity"]``, default BSDF)."""
+    q = str(meta.get("quantity") or "BSDF").lower()
+    return "1/sr" if q in ("bsdf", "brdf", "btdf", "1/sr") else "1"
 
 
 def with_keys(record: "BSDFRecord") -> "BSDFRecord":

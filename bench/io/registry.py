@@ -2,7 +2,7 @@
 
 Everything that reads or writes a record file -- ``bench export``, ``bench compare``, the Python
 API -- goes through :func:`read_record` / :func:`export_record`, which look the format up here:
-by the name given, else by the file's first line (its *magic*, e.g. ``# goniobench-record 1``
+by the name given, else by the file's first line (its *magic*, e.g. the tidy CSV's header row
 or ``SOURCE ...`` for ASTM), else by its suffix. A lab adds a format with
 :func:`register_format`.
 """
@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 from bench.core.errors import InputError
 from bench.core.plugins import FORMAT_GROUP, load_plugins
-from bench.core.records import BSDFRecord, with_keys
+from bench.core.records import BSDF_COLUMNS, BSDFRecord, with_keys
 from bench.core.roles import Spectrum
 from bench.io.astm import read_astm, record_to_astm
 from bench.io.gonio_json import is_gonio_json, read_gonio_json
@@ -25,7 +25,7 @@ from bench.io.tidy import (CSV_MAGIC, SPECTRUM_COLUMNS, read_parquet, read_spect
 from bench.io.zemax import read_zemax, record_to_zemax
 
 __all__ = ["FileFormat", "FORMATS", "register_format", "formats", "infer_format", "read_record",
-           "export_record", "default_suffix"]
+           "export_record", "default_suffix", "suffix_format"]
 
 
 @dataclass(frozen=True)
@@ -83,7 +83,14 @@ def _spectrum_header(line: str) -> bool:
     return cols[:len(SPECTRUM_COLUMNS)] == list(SPECTRUM_COLUMNS)
 
 
-register_format(FileFormat("csv", (".csv",), read_tidy_csv, record_to_csv, lambda line: line.startswith(CSV_MAGIC)))
+def _tidy_header(line: str) -> bool:
+    """Our tidy CSV: the older ``# goniobench-record`` line, or a header row that starts with
+    the columns every record has (``wavelength_nm, theta_i, phi_i, theta_r, phi_r, hemisphere, value``)."""
+    cols = [c.strip() for c in line.split(",")]
+    return line.startswith(CSV_MAGIC) or cols[:7] == BSDF_COLUMNS[:7]
+
+
+register_format(FileFormat("csv", (".csv",), read_tidy_csv, record_to_csv, _tidy_header))
 register_format(FileFormat("parquet", (".parquet", ".pq"), read_parquet, record_to_parquet,
                            lambda line: line.startswith("PAR1")))
 register_format(FileFormat("astm", (".astm.csv", ".astm"), read_astm, record_to_astm,
@@ -103,6 +110,11 @@ def default_suffix(fmt: str) -> str:
     if fmt not in _registry():
         raise InputError(f"unknown format {fmt!r}; known: {', '.join(_registry())}")
     return _registry()[fmt].suffixes[0]
+
+
+def suffix_format(path: str | Path) -> str | None:
+    """The format whose suffix ``path`` ends with (longest match), None when none does."""
+    return _by_suffix(Path(path))
 
 
 def _by_suffix(path: Path) -> str | None:

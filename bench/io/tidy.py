@@ -1,12 +1,16 @@
 """The project's own tables: tidy CSV (records and spectra) and Parquet, writers and readers.
 
 tidy CSV (:func:`record_to_csv`)
-    One row per record row, every column of the table. Floats are written with Python's
-    shortest round-trip repr, so values read back exactly. Metadata: by default a commented
-    header — first line ``# goniobench-record 1``, then one line ``# meta: <JSON>`` and one line
-    ``# units: <JSON>`` (column -> unit, :func:`column_units`) — which
-    ``pandas.read_csv(path, comment="#")`` skips; or (``meta="sidecar"``) a JSON file next to
-    the CSV named ``<file>.json``; or none.
+    One header row of column names, then one row per record row, so plain
+    ``pandas.read_csv(path)`` reads it. Floats are written with Python's shortest round-trip repr,
+    so values read back exactly. Columns no row fills are left out; the record's identity travels
+    in every row (``specimen``, ``collector``, ``quantity``, ``geometry`` and, when the metadata
+    knows them, ``run_id``, ``bench``, ``body``, ``plan``: :func:`bench.core.records.record_provenance`).
+    Metadata (instrument settings, calibration, versions ...) and ``column_units`` (column ->
+    unit, :func:`column_units`) go by default into a sidecar JSON ``<file>.json`` beside the CSV;
+    ``meta="header"`` writes the older commented header instead (``# goniobench-record 1``,
+    ``# meta: <JSON>``, ``# units: <JSON>``; ``pandas.read_csv(path, comment="#")``), which
+    :func:`read_tidy_csv` still reads.
 Parquet (:func:`record_to_parquet`)
     The table via pyarrow; the metadata as JSON under the key ``goniobench.meta`` and the column
     units under ``goniobench.units`` of the schema's key-value metadata (next to pandas' own
@@ -26,12 +30,13 @@ from pathlib import Path
 from typing import Any
 
 from bench.core.errors import InputError
-from bench.core.records import BSDF_COLUMNS, COLUMN_UNITS, BSDFRecord, json_default, with_keys
+from bench.core.records import (BSDF_COLUMNS, COLUMN_UNITS, IDENTITY_KEYS, BSDFRecord, json_default, record_provenance,
+                                 value_unit, with_keys)
 from bench.core.roles import Spectrum
 from bench.io.files import atomic_write, check_record, meta_json, write_csv, write_text
 from bench.io.reading import bad, complete, read_lines
 
-__all__ = ["CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
+__all__ = ["tidy_table", "PROVENANCE_COLUMNS", "RAW_UNITS", "sidecar_path", "CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
            "record_to_parquet", "read_tidy_csv", "read_parquet", "SPECTRUM_COLUMNS", "read_spectrum_csv"]
 
 PARQUET_META_KEY = b"goniobench.meta"
@@ -42,13 +47,32 @@ CSV_MAGIC = "# goniobench-record 1"
 def column_units(record: BSDFRecord) -> dict[str, str]:
     """Unit of every column of ``record`` that has one (:data:`COLUMN_UNITS`; values and their
     uncertainties in 1/sr for a BSDF, ``1`` for a reflectance or transmittance)."""
-    q = str(record.meta.get("quantity") or "BSDF").lower()
-    value_unit = "1/sr" if q in ("bsdf", "brdf", "btdf", "1/sr") else "1"
+    unit = value_unit(record.meta)
     out = {}
     for c in record.table.columns:
         if c in COLUMN_UNITS and COLUMN_UNITS[c]:
-            out[str(c)] = value_unit if c in ("value", "std", "ci_lo", "ci_hi", "u_c", "U") else COLUMN_UNITS[c]
+            out[str(c)] = unit if c in ("value", "std", "ci_lo", "ci_hi", "u_c", "U") else COLUMN_UNITS[c]
+        elif c in RAW_UNITS:
+            out[str(c)] = RAW_UNITS[c]
     return out
+
+
+#: units of the raw columns a stored run's record carries besides :data:`COLUMN_UNITS`'
+RAW_UNITS = {"signal": "counts", "dark": "counts", "white": "counts", "saturated": "pixels", "idx": "point index"}
+#: the provenance columns every tidy export carries when the metadata knows them
+PROVENANCE_COLUMNS = ("run_id", "bench", "body", "plan")
+
+
+def tidy_table(record: BSDFRecord) -> Any:
+    """The table a tidy CSV holds: the record's columns less those no row fills, then its
+    identity and provenance columns (:func:`bench.core.records.record_provenance`)."""
+    t = with_keys(record).table
+    keep = (*IDENTITY_KEYS, "quantity", "hemisphere")
+    t = t[[c for c in t.columns if c in keep or t[c].notna().any()]].copy()
+    for k, v in record_provenance(record.meta).items():
+        if k not in t.columns or t[k].isna().all():
+            t[k] = v
+    return t
 
 
 def spectrum_table(s: Spectrum) -> Any:
@@ -64,6 +88,7 @@ def spectrum_table(s: Spectrum) -> Any:
         "transmittance_lo": s.transmittance_ci[:, 0],
         "transmittance_hi": s.transmittance_ci[:, 1],
         "N": s.N,
+        "specimen": (s.meta or {}).get("specimen"),
         "geometry": s.geometry,
         "seed": s.seed,
         "confidence": 1.0 - s.delta,
@@ -81,25 +106,33 @@ def spectrum_to_csv(s: Spectrum, path: str | Path) -> Path:
     return write_csv(spectrum_table(s), path, float_format="%.8g")
 
 
-def record_to_csv(record: BSDFRecord, path: str | Path, *, meta: str = "header") -> Path:
-    """Write a record as tidy CSV (every column; floats as shortest round-trip repr).
+def sidecar_path(path: str | Path) -> Path:
+    """The metadata file of a tidy CSV: ``<file>.json`` beside it (``r.csv`` -> ``r.csv.json``)."""
+    return Path(str(path) + ".json")
+
+
+def record_to_csv(record: BSDFRecord, path: str | Path, *, meta: str = "sidecar") -> Path:
+    """Write a record as tidy CSV (one header row; floats as shortest round-trip repr).
 
     Parameters
     ----------
-    meta : {"header", "sidecar", "none"}
-        ``header``: ``# goniobench-record 1`` and ``# meta: <JSON>`` lines before the column
-        names; ``sidecar``: ``<path>.json`` beside the file (written atomically too).
+    meta : {"sidecar", "header", "none"}
+        ``sidecar``: the metadata and ``column_units`` as JSON in :func:`sidecar_path` (written
+        atomically too); ``header``: ``# goniobench-record 1``, ``# meta:`` and ``# units:``
+        lines before the column names (the older layout); ``none``: the table only.
     """
     check_record(record, ("wavelength_nm",))
-    record = with_keys(record)
-    table = record.table
+    table = tidy_table(record)
+    record = BSDFRecord(table, dict(record.meta))
     if meta not in ("header", "sidecar", "none"):
         raise InputError(f"meta must be 'header', 'sidecar' or 'none', got {meta!r}")
-    header = ([CSV_MAGIC, f"# meta: {meta_json(record.meta)}", f"# units: {json.dumps(column_units(record))}"]
+    units = column_units(record)
+    header = ([CSV_MAGIC, f"# meta: {meta_json(record.meta)}", f"# units: {json.dumps(units)}"]
               if meta == "header" else [])
     out = write_csv(table, path, header_lines=header)
     if meta == "sidecar":
-        write_text(Path(str(out) + ".json"), json.dumps(record.meta, default=json_default, indent=1) + "\n")
+        side = {**record.meta, "column_units": units}
+        write_text(sidecar_path(out), json.dumps(side, default=json_default, indent=1) + "\n")
     return out
 
 
@@ -109,6 +142,9 @@ def record_to_parquet(record: BSDFRecord, path: str | Path) -> Path:
     check_record(record, ("wavelength_nm",))
     record = with_keys(record)
     table = record.table
+    for k, v in record_provenance(record.meta).items():
+        if k not in table.columns:
+            table[k] = v
     try:
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -146,7 +182,7 @@ def read_tidy_csv(path: str | Path) -> BSDFRecord:
                 raise bad(p, skip + 1, f"expected JSON after '# units:' ({e})") from None
         skip += 1
     if skip == 0 or not lines or not lines[0].startswith(CSV_MAGIC):
-        side = Path(str(p) + ".json")
+        side = sidecar_path(p)
         if side.exists():
             try:
                 meta = json.loads(side.read_text(encoding="utf-8"))
@@ -211,10 +247,12 @@ def read_spectrum_csv(path: str | Path) -> Spectrum:
 
     seed = first("seed", None)
     conf = float(first("confidence", float("nan")))
+    specimen = first("specimen", None)
     return Spectrum(geometry=str(first("geometry", "")), wavelengths=df.wavelength_nm.to_numpy(float),
                     reflectance=df.reflectance.to_numpy(float), transmittance=df.transmittance.to_numpy(float),
                     reflectance_ci=df[["reflectance_lo", "reflectance_hi"]].to_numpy(float),
                     transmittance_ci=df[["transmittance_lo", "transmittance_hi"]].to_numpy(float),
                     N=df.N.to_numpy(np.int64), seed=None if seed is None else int(seed),
                     delta=1.0 - conf if np.isfinite(conf) else float("nan"),
-                    meta={"format": "spectrum-csv", "source_file": str(p)})
+                    meta={"format": "spectrum-csv", "source_file": str(p),
+                          **({"specimen": str(specimen)} if specimen is not None else {})})

@@ -101,7 +101,8 @@ def _lookup(part: Any, theta: np.ndarray, phi: np.ndarray,
 
 def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatter_type: str = "BRDF",
                symmetry: str = "Asymmetrical", azimuths: Iterable[float] | None = None,
-               radials: Iterable[float] | None = None, max_distance_deg: float | None = None) -> ZemaxGrid:
+               radials: Iterable[float] | None = None, max_distance_deg: float | None = None,
+               fill: str | None = None) -> ZemaxGrid:
     """Resample a record onto the regular specular-centred (azimuth, radial) grid of a Zemax file.
 
     Each grid node (rotation = phi_i, incidence = theta_i, azimuth, radial) is turned into a
@@ -130,6 +131,16 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
     radials : default 0..90 step 2 degrees
     max_distance_deg : float, optional
         Farthest a node may be from the sample it takes (point samples only; default: no limit).
+    fill : {None, "nearest"}
+        An in-plane record (point samples in the plane of incidence only) on a grid with nodes off
+        that plane is refused -- filling them would invent out-of-plane data -- unless
+        ``max_distance_deg`` leaves them at 0 or ``fill="nearest"`` asks for nearest-sample
+        filling (recorded in ``zemax_resampling`` and the file's header).
+
+    Raises
+    ------
+    InputError
+        For the in-plane case above, with the reason and the way out.
     """
 
     table = check_record(record)
@@ -155,6 +166,8 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
         sel = sel[(sel["theta_r"] > 90.0) == (hemi == "T")]
     if sel.empty:
         raise InputError(f"record has no {st} rows ({hemi} hemisphere) at {wavelength_nm:g} nm")
+    if fill not in (None, "nearest"):
+        raise InputError(f"fill must be None or 'nearest', got {fill!r}")
     az = np.asarray(list(azimuths) if azimuths is not None else
                     np.arange(0.0, 361.0 if symmetry == "Asymmetrical" else 181.0, 10.0), float)
     rad = np.asarray(list(radials) if radials is not None else np.arange(0.0, 91.0, 2.0), float)
@@ -172,6 +185,11 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
     groups = {k: g for k, g in sel.groupby(["phi_i", "theta_i"], sort=False)}
     bounds = ["theta_min", "theta_max", "phi_min", "phi_max"]
     patches = all(c in sel.columns for c in bounds) and bool(sel[bounds].notna().all().all())
+    off_plane_nodes = bool(np.any(np.abs((az + 90.0) % 180.0 - 90.0) > 1e-9))
+    if not patches and off_plane_nodes and fill is None and max_distance_deg is None and in_plane(sel):
+        raise InputError("an in-plane scan measured nothing off the plane of incidence; a Zemax grid there would be "
+                         "invented by nearest-neighbour filling: export it as csv/astm (what it is), or pass "
+                         "--fill nearest (fill=\"nearest\") to fill it anyway, recorded in the file's header")
     unfilled, farthest = 0, 0.0
     for k, rot in enumerate(rots):
         for j, inc in enumerate(incs):
@@ -209,7 +227,7 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
     meta = dict(record.meta)
     meta["zemax_resampling"] = {"method": "containing patch" if patches else "nearest sample",
                                 "max_nearest_distance_deg": farthest, "nodes_unfilled": unfilled,
-                                "max_distance_deg": max_distance_deg}
+                                "max_distance_deg": max_distance_deg, "fill": fill}
     return ZemaxGrid(rots, incs, az, rad, values, tis, float(wavelength_nm), st, symmetry, meta, stds, samples)
 
 
@@ -265,12 +283,21 @@ def _std_lines(g: ZemaxGrid, digits: int) -> list[str]:
     return out
 
 
+def in_plane(table: Any) -> bool:
+    """Whether every row views in its plane of incidence (``phi_r = phi_i`` or ``phi_i + 180``,
+    or the zenith): an in-plane scan."""
+    gap = np.abs((table["phi_r"].to_numpy(float) - table["phi_i"].to_numpy(float) + 90.0) % 180.0 - 90.0)
+    return bool(np.all((gap < 1e-6) | (table["theta_r"].to_numpy(float) == 0.0)))
+
+
 def _resampling_lines(r: dict[str, Any] | None) -> list[str]:
     """Header comments saying how the record was resampled onto the grid (and how far)."""
     if not r:
         return []
     limit = r.get("max_distance_deg")
-    return [f"# resampling {r['method']}: each node takes the value of the "
+    asked = (["# resampling fill nearest (asked for): nodes off the measured plane take the nearest in-plane "
+              "sample; they were not measured"] if r.get("fill") == "nearest" else [])
+    return asked + [f"# resampling {r['method']}: each node takes the value of the "
             + ("collector patch containing its direction" if r["method"] == "containing patch"
                else "angularly nearest measured direction"),
             f"# resampling farthest node from its sample {float(r['max_nearest_distance_deg']):.6g} deg; "

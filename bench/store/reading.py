@@ -152,7 +152,8 @@ class RunReader:
 
     def summary(self, run_id: str) -> dict[str, Any]:
         """What ``bench show`` prints: status, reason, points done / planned, wavelengths,
-        geometry ranges, timings and value range (all JSON-serialisable)."""
+        geometry ranges, timings and value range with its smallest standard uncertainty (all
+        JSON-serialisable)."""
         info = self._run_row(run_id)
         db = self._db
         n_pts, n_read = db.execute(
@@ -171,9 +172,9 @@ class RunReader:
             geo[k] = [lo, hi]
         wl = [r[0] for r in db.execute("SELECT DISTINCT wavelength_nm FROM readings WHERE run_id=? "
                                        "ORDER BY wavelength_nm", (run_id,))]
-        vmin, vmax, n_val, n_sat = db.execute(
-            "SELECT MIN(value), MAX(value), COUNT(value), COALESCE(SUM(saturated), 0) FROM readings "
-            "WHERE run_id=?", (run_id,)).fetchone()
+        vmin, vmax, n_val, n_sat, std_min = db.execute(
+            "SELECT MIN(value), MAX(value), COUNT(value), COALESCE(SUM(saturated), 0), MIN(NULLIF(std, 0)) "
+            "FROM readings WHERE run_id=?", (run_id,)).fetchone()
         missing = None
         if info["n_planned"] is not None:
             done = self.done_indices(run_id)
@@ -194,7 +195,7 @@ class RunReader:
                        "first_point_epoch": first, "last_point_epoch": last,
                        "mean_point_s": None if not n_pts or t_sum is None else t_sum / n_pts,
                        "max_point_s": t_max},
-            "value": {"min": vmin, "max": vmax, "n": n_val, "n_missing": n_read - n_val},
+            "value": {"min": vmin, "max": vmax, "n": n_val, "n_missing": n_read - n_val, "std_min": std_min},
             "saturated": n_sat, "seed": info["seed"],
             "calibration_steps": (info.get("meta") or {}).get("calibration_steps"),
         }

@@ -22,7 +22,7 @@ from bench.sweep.spec import SweepTask
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.spectrophotometer import VirtualSpectrophotometer
 
-__all__ = ["TaskResult", "run_task", "warm_up"]
+__all__ = ["TaskResult", "run_task", "warm_up", "spectrum_rows"]
 
 
 # --- one task (runs anywhere) ----------------------------------------------------------------
@@ -109,17 +109,21 @@ def _run_task(task: SweepTask) -> TaskResult:
 
 
 def _spectro_rows(task: SweepTask) -> Any:
-    """Store rows of a spectrophotometric task: per wavelength a reflectance ("R") and a
-    transmittance ("T") row with interval, standard uncertainty, count and N (rays that reached
-    the specimen). The reflectance row holds a reflectance factor for bidirectional geometries
-    (45/0, 0/45; ``quantity`` in :func:`sweep_readings`); its ``std`` is scaled like its value."""
-
+    """Store rows of a spectrophotometric task (:func:`spectrum_rows` of its measurement)."""
     sp = VirtualSpectrophotometer(task.specimen, rays=task.rays, beam=task.beam, seed=task.seed,
                                   delta=task.delta, cone_deg=task.cone_deg,
                                   common_random_numbers=task.common_random_numbers)
-    s = sp.measure(task.geometry, list(task.wavelengths))
+    return spectrum_rows(sp.measure(task.geometry, list(task.wavelengths)), task.geometry)
+
+
+def spectrum_rows(s: Any, geometry: str) -> Any:
+    """Store rows of a virtual spectrum measured at CIE ``geometry``: per wavelength a reflectance
+    ("R") and a transmittance ("T") row with interval, standard uncertainty, count and N (rays
+    that reached the specimen). The reflectance row holds a reflectance factor for bidirectional
+    geometries (45/0, 0/45; ``quantity`` in :func:`sweep_readings`); its ``std`` is scaled like
+    its value."""
     counts = s.meta["counts"]
-    measured = cie_geometry(task.geometry).reciprocal_directional
+    measured = cie_geometry(geometry).reciprocal_directional
     n = np.maximum(np.array([c["N"] - c["missed"] for c in counts], dtype=np.int64), 1)
     cone = np.array([c["cone"] for c in counts], dtype=np.int64)
     if measured.viewing == "directional":

@@ -18,7 +18,17 @@ from virtual.specimens.declare import (RESERVED_NAMES, SPECIMENS, Specimen, Spec
                                        specimen_family)
 from virtual.specimens.diffuse import Lambertian
 
-__all__ = ["parse_specimen", "known_specimen_names"]
+__all__ = ["parse_specimen", "known_specimen_names", "RESERVED_FORMS"]
+
+#: the specimen strings :func:`parse_specimen` reads itself (not declared families): name ->
+#: (the form, what it gives); ``bench specimens`` lists them after the families
+RESERVED_FORMS = {
+    "colorchecker": ("colorchecker:PATCH or colorchecker:CHART/PATCH",
+                     "a Lambertian with a measured ColorChecker reflectance spectrum (colour-science; default chart "
+                     "BabelColor Average), e.g. colorchecker:dark skin"),
+    "mitsuba": ("mitsuba:{JSON BSDF dict}",
+                "a Mitsuba 3 BSDF (the mitsuba extra), e.g. mitsuba:{\"type\": \"diffuse\"}"),
+}
 
 
 def _colorchecker(name: str, chart: str = "BabelColor Average") -> Lambertian:

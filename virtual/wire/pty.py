@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import pickle
 import select
 import signal
 import subprocess
@@ -69,7 +70,7 @@ def open_raw_pty() -> tuple[int, int, str]:
 
 
 class PipeEmulator:
-    """Handle on an emulator running in a spawned process, controlled over a multiprocessing pipe.
+    """Handle on an emulator in its own process, controlled over a ``multiprocessing`` connection.
 
     The child sends one announcement dict (or ``{"error": ...}``) when it is ready, then answers
     control messages ``{"cmd": ...}`` with ``{"ok": True, ...}``; ``stop`` shuts it down cleanly
@@ -89,27 +90,34 @@ class PipeEmulator:
     @classmethod
     def _spawn(cls, target: Any, head: tuple, tail: tuple, name: str,
                start_timeout: float) -> tuple[Any, Any, dict[str, Any]]:
-        """Start ``target(*head, conn, *tail)`` in a spawned process; wait for its announcement."""
-        import multiprocessing as mp
+        """Start ``target(*head, conn, *tail)`` in a new interpreter; wait for its announcement.
 
-        ctx = mp.get_context("spawn")
-        parent, child = ctx.Pipe()
-        proc = ctx.Process(target=target, args=(*head, child, *tail), daemon=True, name=name)
-        proc.start()
-        child.close()
-        if not parent.poll(start_timeout):
-            proc.kill()
-            proc.join(2)
-            raise TimeoutError(f"{cls.label} did not start within {start_timeout} s")
-        info = parent.recv()
-        if "error" in info:
-            proc.join(2)
-            raise DeviceError(f"{cls.label} failed to start: {info['error']}")
+        The child is ``python -m virtual.wire.spawned`` (see there): unlike ``multiprocessing``
+        spawn it never re-imports the caller's ``__main__``, so emulators start from a script
+        without a ``__main__`` guard, from ``python -`` and from notebooks. ``name`` labels errors.
+        """
+        import secrets
+        from multiprocessing.connection import Client
+
+        authkey = secrets.token_bytes(32)
+        proc = EmulatorProcess("virtual.wire.spawned", start_timeout=start_timeout,
+                               stdin_data=pickle.dumps((authkey, os.getcwd(), target, head, tail)))
+        try:
+            parent = Client(proc.control, authkey=authkey)
+            if not parent.poll(start_timeout):
+                raise TimeoutError(f"{cls.label} ({name}) did not start within {start_timeout} s")
+            info = parent.recv()
+            if "error" in info:
+                proc.wait(2)
+                raise DeviceError(f"{cls.label} failed to start: {info['error']}")
+        except BaseException:
+            proc.close()
+            raise
         return proc, parent, info
 
     def _call(self, msg: dict[str, Any], timeout: float = 5.0) -> dict[str, Any]:
         with self._lock:
-            if not self._proc.is_alive():
+            if not self._proc.alive():
                 raise PortGoneError("the emulator process is not running")
             self._conn.send(msg)
             if not self._conn.poll(timeout):
@@ -121,7 +129,7 @@ class PipeEmulator:
 
     @property
     def alive(self) -> bool:
-        return self._proc.is_alive()
+        return self._proc.alive()
 
     @property
     def pid(self) -> int:
@@ -137,24 +145,22 @@ class PipeEmulator:
                 self._conn.send({"cmd": "die"})
             except OSError:
                 pass
-        self._proc.join(5)
+        self._proc.wait(5)
         self.kill()
 
     def kill(self) -> None:
         """SIGKILL the process."""
-        if self._proc.is_alive():
-            self._proc.kill()
-        self._proc.join(5)
+        self._proc.kill()
 
     def stop(self, timeout: float = 3.0) -> None:
         """Shut the emulator down cleanly (kill it if it does not go)."""
-        if self._proc.is_alive():
+        if self._proc.alive():
             try:
                 self._call({"cmd": "stop"}, timeout=timeout)
             except Exception:
                 pass
-            self._proc.join(timeout)
-        self.kill()
+            self._proc.wait(timeout)
+        self._proc.close()
         self._conn.close()
 
     close = stop
@@ -194,16 +200,22 @@ class EmulatorProcess:
         The announcement (``port``, ``control``, ``pid`` ...).
     """
 
-    def __init__(self, module: str, args: Sequence[str] = (), start_timeout: float = 10.0) -> None:
+    def __init__(self, module: str, args: Sequence[str] = (), start_timeout: float = 10.0,
+                 stdin_data: bytes | None = None) -> None:
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join([str(_ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
         # stderr goes to a file, never a pipe nobody drains (a chatty emulator would block)
         self._stderr = tempfile.TemporaryFile()
         self.proc = subprocess.Popen(
             [sys.executable, "-m", module, *args], stdout=subprocess.PIPE, stderr=self._stderr,
-            stdin=subprocess.DEVNULL, env=env, cwd=str(_ROOT), start_new_session=True)
+            stdin=subprocess.DEVNULL if stdin_data is None else subprocess.PIPE, env=env, cwd=str(_ROOT),
+            start_new_session=True)
         self.info: dict[str, Any] = {}
         try:
+            if stdin_data is not None:
+                assert self.proc.stdin is not None
+                self.proc.stdin.write(stdin_data)
+                self.proc.stdin.close()
             self.info = self._read_announcement(start_timeout)
         except BaseException:
             self.close()
@@ -251,6 +263,13 @@ class EmulatorProcess:
 
     def alive(self) -> bool:
         return self.proc.poll() is None
+
+    def wait(self, timeout: float) -> None:
+        """Wait up to ``timeout`` s for the process to end on its own."""
+        try:
+            self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            pass
 
     def kill(self) -> None:
         """SIGKILL the emulator (its pty vanishes at once)."""

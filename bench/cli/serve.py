@@ -1,0 +1,61 @@
+"""``bench serve --store S [--port P]``: every stored run as a Bluesky run in a Tiled catalog.
+
+A real Tiled server (the ``tiled`` extra) on 127.0.0.1 only (:class:`bench.catalog.CatalogServer`);
+each stored run is written through ``bluesky_tiled_plugins.TiledWriter`` keyed by its run id,
+its ``primary`` stream holding the rows ``bench export`` writes. Prints the URI and the API key a
+writer (a RunEngine's ``TiledWriter``) needs, then serves until Ctrl-C or SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from bench.cli.argtypes import count, real
+from bench.cli.commands import command_help
+from bench.cli.common import DEFAULT_STORE, open_store, wait_until_stopped
+
+__all__ = ["register", "cmd_serve"]
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    from bench.catalog import CatalogServer
+    from bench.core.errors import InputError
+
+    try:
+        import bluesky_tiled_plugins  # noqa: F401
+        import tiled.server  # noqa: F401
+    except ImportError:
+        raise InputError("bench serve needs the tiled extra: pip install 'goniobench[tiled]'") from None
+
+    with open_store(args.store, create=False, readonly=True) as store:
+        store.runs()  # a missing or foreign store is refused before the server starts
+        with CatalogServer(args.port, args.catalog, args.api_key) as server:
+            written = server.add_runs(store)
+            info = {"uri": server.uri, "api_key": server.api_key, "runs": written,
+                    "catalog": str(server.directory) if args.catalog else None}
+            if args.json:
+                print(json.dumps(info), flush=True)
+            else:
+                print(f"Tiled catalog at {server.uri}: {len(written)} runs of {args.store} (keyed by run id)")
+                print(f"  read:  from tiled.client import from_uri; c = from_uri({server.uri!r}); "
+                      f"c[RUN]['primary'].read()")
+                print(f"  write: TiledWriter(from_uri({server.uri!r}, api_key={server.api_key!r}))")
+                print("  (Ctrl-C stops it)", flush=True)
+            wait_until_stopped(args.seconds)
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("serve", help=command_help("serve"))
+    p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",
+                   help="the run store to serve, read-only (default %(default)s)")
+    p.add_argument("--port", type=count(0, 65535), default=8000,
+                   help="TCP port on 127.0.0.1, 0 = any free one (default %(default)s)")
+    p.add_argument("--catalog", metavar="DIR", default=None,
+                   help="keep the Tiled catalog (and runs written into it) in DIR (default: a temporary folder)")
+    p.add_argument("--api-key", default=None,
+                   help="the API key writers pass (default: a random one, printed)")
+    p.add_argument("--seconds", type=real(0.0, 1e7), help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--json", action="store_true", help="uri, api_key and the runs served as one JSON object")
+    p.set_defaults(func=cmd_serve)

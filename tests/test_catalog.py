@@ -1,0 +1,117 @@
+"""Stored runs as Bluesky runs in a Tiled catalog (bench/catalog.py, `bench serve`).
+
+Fast: the documents of a stored run are valid event-model documents keyed by the run id, and
+their event rows are the rows `bench export` writes (values, identity, units). Slow (a real Tiled
+server: ~10 CPU-s of imports and start-up): `bench serve` on a free port, read back with
+`tiled.client.from_uri` equal to the export, and a RunEngine's TiledWriter writing into it.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from event_model import DocumentNames, schema_validators
+
+from bench.catalog import run_documents
+from bench.cli import main
+from bench.core.records import BSDFRecord
+from bench.store import RunStore
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture()
+def store(tmp_path):
+    """A store with one small run of known values (two incidences, two wavelengths, R and T rows)."""
+    rows = []
+    for ti in (20.0, 40.0):
+        for wl in (500.0, 600.0):
+            for tr, hemi in ((30.0, "R"), (150.0, "T")):
+                rows.append({"wavelength_nm": wl, "theta_i": ti, "phi_i": 0.0, "theta_r": tr, "phi_r": 180.0,
+                             "hemisphere": hemi, "value": 0.1 + ti / 1000 + wl / 1e5 + (tr > 90) * 0.01,
+                             "std": 0.001, "ci_lo": 0.09, "ci_hi": 0.11})
+    rec = BSDFRecord(pd.DataFrame(rows), {"specimen": "lambert:albedo=0.3", "plan_name": "two-incidences",
+                                          "bench_kind": "virtual"})
+    path = tmp_path / "s.sqlite"
+    with RunStore(path) as s:
+        rid = s.create_run("virtual", n_planned=2)
+        s.add_record(rid, rec)
+        s.set_status(rid, "completed")
+    return path, rid
+
+
+def test_a_stored_run_becomes_valid_bluesky_documents_with_the_exports_rows(store, tmp_path, capsys):
+    path, rid = store
+    with RunStore(path, create=False) as s:
+        docs = list(run_documents(s, rid))
+    for name, doc in docs:
+        schema_validators[DocumentNames[name]].validate(doc)
+    assert [n for n, _ in docs] == ["start", "descriptor", "event_page", "stop"]
+    start, desc, page, stop = (d for _, d in docs)
+    assert start["uid"] == rid and start["specimen"] == "lambert:albedo=0.3" and start["plan_name"] == "two-incidences"
+    assert start["body"] == "virtual" and start["column_units"]["value"] == "1/sr" and stop["exit_status"] == "success"
+    assert desc["name"] == "primary" and desc["data_keys"]["value"]["units"] == "1/sr"
+    assert main(["export", rid, "--store", str(path), "--out", str(tmp_path / "r.csv")]) == 0
+    capsys.readouterr()
+    exported = pd.read_csv(tmp_path / "r.csv")
+    assert set(page["data"]) == set(exported.columns)
+    for col in exported.columns:
+        got = page["data"][col]
+        if exported[col].isna().all():  # a key no row fills (collector, geometry): empty text
+            assert set(got) == {""}, col
+        elif exported[col].dtype.kind in "if":
+            assert np.array_equal(np.asarray(got, float), exported[col].to_numpy(float), equal_nan=True), col
+        else:
+            assert [g or None for g in got] == [None if v != v else v for v in exported[col]], col
+
+
+@pytest.mark.slow
+def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_writes_into_it(store, tmp_path):
+    from bluesky import RunEngine
+    from bluesky.plans import scan
+    from bluesky_tiled_plugins import TiledWriter
+    from tiled.client import from_uri
+
+    from bench.bluesky import connect
+
+    path, rid = store
+    assert main(["export", rid, "--store", str(path), "--out", str(tmp_path / "r.csv")]) == 0
+    exported = pd.read_csv(tmp_path / "r.csv")
+    server = subprocess.Popen([sys.executable, "-m", "bench.cli", "serve", "--store", str(path), "--port", "0",
+                               "--json", "--seconds", "300"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True, env={"PYTHONPATH": str(ROOT), **{k: v for k, v in __import__("os").environ.items()
+                                                                        if k != "PYTHONPATH"}})
+    try:
+        line = server.stdout.readline()
+        assert line, server.stderr.read()[-3000:]
+        info = json.loads(line)
+        assert info["uri"].startswith("http://127.0.0.1:") and info["runs"] == [rid]
+        client = from_uri(info["uri"])
+        run = client[rid]
+        assert run.metadata["start"]["specimen"] == "lambert:albedo=0.3"
+        table = run["primary"].read().to_dataframe()
+        for col in ("wavelength_nm", "theta_i", "theta_r", "value", "std"):
+            assert np.array_equal(table[col].to_numpy(float), exported[col].to_numpy(float)), col
+        assert list(table["hemisphere"]) == list(exported["hemisphere"])
+        # a Bluesky script writes into the same catalog with the served API key, and reads it back
+        RE = RunEngine({})
+        RE.subscribe(TiledWriter(from_uri(info["uri"], api_key=info["api_key"])))
+        with connect(ROOT / "fixtures" / "benches" / "virtual.toml", run_engine=RE, seed=1) as devs:
+            (uid,) = RE(scan([devs.reflectance], devs.goniometer.theta_r, 10, 30, 2))
+        written = from_uri(info["uri"])[uid]["primary"]
+        assert written["reflectance-rf_mean"].read().shape == (2,)
+        assert np.all(np.asarray(written["reflectance-rf_mean"].read()) > 0)
+        # without the key, writing is refused (anonymous clients only read)
+        from tiled.client.utils import ClientError
+
+        with pytest.raises(ClientError, match="401"):
+            from_uri(info["uri"]).create_container("not-allowed")
+    finally:
+        server.terminate()
+        server.wait(20)
