@@ -190,3 +190,25 @@ def test_positioning_sensitivity_is_the_specimen_models_slope():
     # no declared specimen: the calibration's own cosine (Lambertian) slope from the reading
     (fallback,) = model_slopes({}, g, np.array([550.0]), np.array([f]))
     assert fallback["theta_r"] == pytest.approx(s["theta_r"], rel=1e-5)
+
+
+def test_the_fit_of_a_calibrated_scan_uses_the_budgets_full_covariance_and_skips_masked_readings(calibration):
+    """bench fit's Gaussian likelihood divides by the budgets' covariance (the white standard's
+    term once for the run, as compare does), not by diag(u^2); a masked reading (value NaN, e.g.
+    saturated) is left out rather than refusing the record."""
+    import pandas as pd
+
+    from bench.identify.likelihood import readings_and_covariance as fit_covariance
+
+    r = reading([1500.0, 1600.0, 1700.0], [10.0, 11.0, 12.0])
+    b = calibration_budgets(calibration, r, GEOMETRY, None, {}, lit_index=1)
+    t = _table(b)
+    geometry = {"theta_i": 30.0, "phi_i": 0.0, "theta_r": 40.0, "phi_r": 180.0}
+    t = t.assign(wavelength_nm=WL, **geometry)
+    masked = t.iloc[:1].assign(value=np.nan, std=np.nan, uncertainty_budget=None)
+    record = BSDFRecord(pd.concat([masked, t], ignore_index=True), {})
+    values, cov = fit_covariance(record)
+    expect_values, expect_cov = readings_and_covariance(BSDFRecord(t, {}))
+    np.testing.assert_array_equal(values, expect_values)
+    np.testing.assert_allclose(cov, expect_cov, rtol=1e-12)
+    assert cov[0, 1] > 0  # the shared white standard: not a diagonal matrix

@@ -339,7 +339,7 @@ def reading_rows(record: Any) -> list[dict[str, Any]]:
     wavelength, value and standard uncertainty ``u``."""
     rows: list[dict[str, Any]] = []
     if isinstance(record, BSDFRecord):
-        t = record.table
+        t = _measured(record)
         u = t["std"].to_numpy(float) if "std" in t.columns else np.full(len(t), np.nan)
         for r, ui in zip(t.itertuples(index=False), u):
             rows.append({"quantity": "bsdf", "wavelength_nm": float(r.wavelength_nm), "theta_i": float(r.theta_i),
@@ -367,12 +367,21 @@ def reading_rows(record: Any) -> list[dict[str, Any]]:
     return rows
 
 
-def readings_and_covariance(record: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The readings of a calibrated record and their covariance matrix.
+def _measured(record: BSDFRecord) -> Any:
+    """The rows of a BSDF record that hold a reading: a masked reading (saturated, or refused by
+    the calibration: its value NaN) carries no information and is left out, in table order."""
+    t = record.table
+    return t[np.isfinite(t["value"].to_numpy(float))]
 
-    For now ``diag(u**2)`` from the record's per-reading standard uncertainty; the full
-    covariance of the readings' uncertainty budgets (the shared white standard as a
-    correlation) replaces this body. Order: :func:`reading_rows`.
+
+def readings_and_covariance(record: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The readings of a calibrated record and their covariance matrix, in the order of
+    :func:`reading_rows`.
+
+    A scan whose readings carry GUM budgets gets their full covariance
+    (:func:`bench.core.budget.readings_and_covariance`: the white standard's term and the other
+    inputs shared by the run's readings as correlations); other records ``diag(u**2)`` from
+    their per-reading standard uncertainty.
 
     Raises
     ------
@@ -382,13 +391,20 @@ def readings_and_covariance(record: Any) -> tuple[np.ndarray, np.ndarray]:
     rows = reading_rows(record)
     if not rows:
         raise InputError("record has no readings to fit")
-    values = np.array([r["value"] for r in rows], dtype=float)
-    u = np.array([r["u"] for r in rows], dtype=float)
-    bad = ~(np.isfinite(u) & (u > 0))
+    if isinstance(record, BSDFRecord) and "uncertainty_budget" in record.table.columns:
+        from bench.core.budget import readings_and_covariance as budget_covariance
+
+        values, cov = budget_covariance(_measured(record))
+        u2 = np.diag(cov)
+    else:
+        values = np.array([r["value"] for r in rows], dtype=float)
+        u2 = np.array([r["u"] for r in rows], dtype=float) ** 2
+        cov = np.diag(u2)
+    bad = ~(np.isfinite(u2) & (u2 > 0))
     if bad.any():
-        raise InputError(f"record has no uncertainty for a calibrated fit: {int(bad.sum())} of {len(u)} readings "
+        raise InputError(f"record has no uncertainty for a calibrated fit: {int(bad.sum())} of {len(u2)} readings "
                          "lack a finite positive standard uncertainty")
-    return values, np.diag(u ** 2)
+    return values, cov
 
 
 def _ideal_rf(specimen: Specimen, geometry: str, wavelength_nm: float) -> float:
