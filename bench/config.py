@@ -119,6 +119,9 @@ def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None, 
     kind = str(body or described)  # the body executing the description (default: its kind)
     if kind not in BUILDERS:
         raise ConfigError(f"bench body must be one of {', '.join(BUILDERS)}, got {kind!r}")
+    from bench.builders.tables import validate_driver_tables  # loads drivers only when a table needs them
+
+    validate_driver_tables(d, source)
     module, func = BUILDERS[kind].split(":")
     builder = getattr(importlib.import_module(module), func)
     return builder(d, seed)
