@@ -211,10 +211,21 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
         store.set_status(run_id, "interrupted", f"{type(exc).__name__}: {exc}")
         raise RunInterrupted(f"run {run_id} interrupted by a device fault after {k} of {len(order)} points "
                              f"({type(exc).__name__}: {exc}); fix it, then: bench resume {run_id}") from exc
+    except BaseException as exc:  # anything else (a store that lost a table, a bug): never left `running`
+        _mark_failed(store, run_id, exc)
+        raise
     finally:
         bar.close()
     store.set_status(run_id, "completed", None)
     return ScanResult(run_id, "completed", k, len(order), time.perf_counter() - t_run)
+
+
+def _mark_failed(store: Any, run_id: str, exc: BaseException) -> None:
+    """Record ``run_id`` as failed (resumable) with the error; a store too broken to take it is logged."""
+    try:
+        store.set_status(run_id, "failed", f"{type(exc).__name__}: {exc}"[:500])
+    except (BenchError, OSError) as err:
+        log.warning("run %s: could not record the failure (%s)", run_id, err)
 
 
 def _safe_stop(bench: Bench) -> None:

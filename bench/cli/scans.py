@@ -95,7 +95,13 @@ def cmd_resume(args: argparse.Namespace) -> int:
     from bench.runner import resume_scan
 
     with open_store(args.store, create=False, readonly=True) as store:
-        kind = store.run(args.run)["kind"]
+        stored = store.run(args.run)
+    kind = stored["kind"]
+    if kind == "bluesky" and "bluesky_plan" in (stored.get("plan") or {}):
+        raise InputError(f"run {args.run} was recorded by a Bluesky RunEngine from its plan "
+                         f"{stored['plan'].get('bluesky_plan')!r}: a RunEngine resumes a paused run only in the "
+                         f"process that paused it, so run that plan again (a bench plan run through the RunEngine, "
+                         f"or by `bench scan`, can be finished here)")
     if kind == "sweep":
         from bench.cli.sweep import resume_run
 
@@ -156,7 +162,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.wavelength is not None and args.format != "zemax":
         raise InputError(f"--wavelength selects the wavelength of a Zemax file; --format {args.format} "
                          f"holds every wavelength")
-    out = check_output(args.out or f"{args.run}{default_suffix(args.format)}")  # before reading anything
+    out = check_output(f"{args.run}{default_suffix(args.format)}" if args.out is None else args.out)  # before reading
     with open_store(args.store, create=False, readonly=True) as store:
         record = store.to_record(args.run)
     if args.format == "zemax":  # one wavelength per file: --wavelength, or one file per wavelength

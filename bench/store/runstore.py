@@ -103,6 +103,8 @@ class RunStore(RunReader):
         try:
             self._db.execute(f"PRAGMA busy_timeout = {int(self.timeout * 1000)}")
             self._refuse_foreign()  # before anything is written (no WAL switch on a foreign file)
+            if not create and not self._tables():  # an empty file is no store to resume from: write nothing
+                raise StoreError(f"{self.path} is not a goniobench run store (an empty file)")
             if self.readonly:
                 self._check_schema_readonly()
                 return
@@ -112,6 +114,7 @@ class RunStore(RunReader):
             self._db.execute(f"PRAGMA synchronous = {sync}")
             self._db.execute("PRAGMA foreign_keys = ON")
             self._ensure_schema()
+            self._require_tables()
             self._db.execute(_OWNERS_TABLE)
         except sqlite3.DatabaseError as e:
             self._db.close()
@@ -150,12 +153,15 @@ class RunStore(RunReader):
             raise StoreError(f"{self.path} is an SQLite file but not a goniobench run store "
                              f"(tables: {', '.join(sorted(tables))}; no schema_version)")
 
-    def _check_schema_readonly(self) -> None:
-        tables = self._tables()
-        missing = {"schema_version", "runs", "points", "readings", "run_events"} - tables
+    def _require_tables(self) -> None:
+        """Refuse a store that lost a table, before a run is created in it."""
+        missing = {"schema_version", "runs", "points", "readings", "run_events"} - self._tables()
         if missing:
             raise StoreError(f"{self.path} is not a complete goniobench run store (missing table(s) "
                              f"{', '.join(sorted(missing))})")
+
+    def _check_schema_readonly(self) -> None:
+        self._require_tables()
         version = self._db.execute("SELECT MAX(version) FROM schema_version").fetchone()[0]
         if version is None or version != SCHEMA_VERSION:
             raise StoreError(f"{self.path} has store schema version {version}; this goniobench reads "
