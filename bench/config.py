@@ -84,6 +84,17 @@ class Bench:
         out["white"] = self.white.as_dict()
         return out
 
+    def fault_counts(self) -> dict[str, int]:
+        """The transaction faults and recoveries of the devices in :attr:`parts` that count them
+        (the drivers' ``faults``), flat as ``PART.KEY`` (``arm.retries``, ``spectrometer.fault.nak``);
+        empty for a bench without such devices (virtual)."""
+        out: dict[str, int] = {}
+        for name, part in sorted(self.parts.items()):
+            snap = getattr(getattr(part, "faults", None), "snapshot", None)
+            if callable(snap):
+                out.update({f"{name}.{k}": int(v) for k, v in snap().items()})
+        return out
+
     def close(self) -> None:
         """Close every device and stop what the builder started (emulators), last first."""
         errors = []

@@ -184,12 +184,14 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
     last_incidence: tuple[float, float] | None = None
     bar = _progress(len(order), len(done), progress, f"run {run_id}")
     k = len(done)
+    faults = PointFaults(store, run_id, bench)
     try:
         for idx in order:
             if idx in done:
                 continue
             g = plan.points[idx]
             t0 = time.time()
+            faults.start()
             reached = bench.goniometer.move_to(g)
             incidence = (g.theta_i, g.phi_i)
             if plan.dark == "per-point" or (plan.dark == "per-incidence" and incidence != last_incidence):
@@ -198,6 +200,7 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
             reading = bench.spectrometer.acquire(plan.integration_s, plan.averages)
             rows = point_rows(reading, cal, reached, dark, white_net)
             store.add_point(run_id, idx, reached.as_dict(), rows, t_start=t0, t_end=time.time())
+            faults.record(idx)
             k += 1
             bar.update(1)
             if on_point is not None:
@@ -218,6 +221,33 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
         bar.close()
     store.set_status(run_id, "completed", None)
     return ScanResult(run_id, "completed", k, len(order), time.perf_counter() - t_run)
+
+
+class PointFaults:
+    """The devices' transient faults and recoveries of each point, kept in the run's meta as
+    ``device_faults``: ``{"points": {IDX: {"arm.retries": 1, ...}}, "total": {...}}`` (only points
+    that had any), written after the point's own commit; a resumed run adds to what it holds."""
+
+    def __init__(self, store: Any, run_id: str, bench: Bench) -> None:
+        self.store, self.run_id, self.bench = store, run_id, bench
+        held = (store.run(run_id).get("meta") or {}).get("device_faults") or {}
+        self.points: dict[str, dict[str, int]] = dict(held.get("points") or {})
+        self._before: dict[str, int] = {}
+
+    def start(self) -> None:
+        self._before = self.bench.fault_counts()
+
+    def record(self, idx: int) -> None:
+        after = self.bench.fault_counts()
+        delta = {k: n - self._before.get(k, 0) for k, n in after.items() if n != self._before.get(k, 0)}
+        if not delta:
+            return
+        self.points[str(idx)] = delta
+        total: dict[str, int] = {}
+        for d in self.points.values():
+            for key, n in d.items():
+                total[key] = total.get(key, 0) + n
+        self.store.update_meta(self.run_id, device_faults={"points": self.points, "total": total})
 
 
 def _mark_failed(store: Any, run_id: str, exc: BaseException) -> None:

@@ -136,6 +136,8 @@ def cmd_runs(args: argparse.Namespace) -> int:
 def cmd_show(args: argparse.Namespace) -> int:
     with open_store(args.store, create=False, readonly=True) as store:
         s = store.summary(args.run)
+        held = (store.run(args.run).get("meta") or {}).get("device_faults") or {}
+    s["device_faults"] = {"points": len(held.get("points") or {}), "total": held.get("total") or {}}
     if args.json:
         emit_json(s)
         return 0
@@ -153,7 +155,21 @@ def cmd_show(args: argparse.Namespace) -> int:
     t = s["timing"]
     print(f"  created {t['created_utc']}, finished {t['finished_utc']}, elapsed {t['elapsed_s']} s, "
           f"mean per point {t['mean_point_s']} s")
+    if s["device_faults"]["points"]:
+        print(f"  device faults: {fault_summary(s['device_faults'])}")
     return 0
+
+
+def fault_summary(faults: dict) -> str:
+    """One line from a run's ``device_faults`` summary: recovered transactions and retries per
+    device, and the fault kinds seen."""
+    total, parts = faults["total"], []
+    for dev in sorted({k.split(".", 1)[0] for k in total}):
+        kinds = ", ".join(f"{k.split('.fault.', 1)[1]} {n}" for k, n in sorted(total.items())
+                          if k.startswith(f"{dev}.fault."))
+        parts.append(f"{dev} {total.get(f'{dev}.recovered', 0)} recovered after {total.get(f'{dev}.retries', 0)} "
+                     f"retries" + (f" ({kinds})" if kinds else ""))
+    return f"{'; '.join(parts)} -- on {faults['points']} point(s)"
 
 
 def cmd_export(args: argparse.Namespace) -> int:

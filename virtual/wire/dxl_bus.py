@@ -181,7 +181,7 @@ class DynamixelBus:
                                            + bytes([s.value("firmware_version")])))
             return out
         if i == INST["read"]:
-            if not targets or not reply_ok:
+            if not targets or not reply_ok or self.servos[pkt.id].value("status_return_level") < 1:
                 return []
             s = self.servos[pkt.id]
             if len(p) != 4:
@@ -193,22 +193,24 @@ class DynamixelBus:
             out = []
             for t in targets:
                 s = self.servos[t]
+                answers = s.value("status_return_level") >= 2  # the level before this write
                 err = s.write(p[0] | p[1] << 8, p[2:]) if len(p) > 2 else ERR["data_length"]
-                if reply_ok:
+                if reply_ok and answers:
                     out.append(encode_status(t, s.status_error(err)))
             return out
         if i == INST["reboot"]:
             out = []
             for t in targets:
+                answers = self.servos[t].value("status_return_level") >= 2
                 self.servos[t].reboot()
-                if reply_ok:
+                if reply_ok and answers:
                     out.append(encode_status(t, self.servos[t].status_error()))
             return out
         if i == INST["sync_read"] and pkt.id == BROADCAST_ID and len(p) >= 4:
             addr, n = p[0] | p[1] << 8, p[2] | p[3] << 8
             out = []
             for t in p[4:]:
-                if t in self.servos:
+                if t in self.servos and self.servos[t].value("status_return_level") >= 1:
                     s = self.servos[t]
                     err, data = s.read(addr, n)
                     out.append(encode_status(t, s.status_error(err), data))
