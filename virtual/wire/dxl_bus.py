@@ -37,10 +37,14 @@ class Faults:
     #: the next n broadcast SYNC_WRITE / BULK_WRITE packets are lost on the line (no servo
     #: takes them; a broadcast has no status, so the host cannot see it)
     drop_broadcast_next: int = 0
+    #: probability that a status of an earlier request (the last one sent) reaches the host again
+    #: just before a reply: a late or foreign status the host must discard (soak)
+    stale_rate: float = 0.0
     dropped: int = 0
     corrupted: int = 0
     late: int = 0
     dropped_broadcasts: int = 0
+    stale: int = 0
 
 
 @dataclass
@@ -86,11 +90,12 @@ class DynamixelBus:
         self.axes = {k: AxisMap(**dict(v)) for k, v in (axes or {}).items()}
         self.log: list[Packet] = []  # instructions received (bounded)
         self.later: list[tuple[float, bytes]] = []  # (release time, bytes) held back by late_s
+        self._last_status = b""  # the status sent last: what a stale_rate fault sends again
 
     # -- control ----------------------------------------------------------------------------
     def set_faults(self, **kw: Any) -> None:
         for k, v in kw.items():
-            if not hasattr(self.faults, k) or k in ("dropped", "corrupted", "late", "dropped_broadcasts"):
+            if not hasattr(self.faults, k) or k in ("dropped", "corrupted", "late", "dropped_broadcasts", "stale"):
                 raise KeyError(f"unknown fault {k!r}")
             setattr(self.faults, k, type(getattr(self.faults, k))(v))
 
@@ -156,6 +161,14 @@ class DynamixelBus:
         f = self.faults
         if f.hang:
             return b""
+        stale, self._last_status = self._last_status, reply
+        if stale and f.stale_rate and self.rng.random() < f.stale_rate:
+            f.stale += 1
+            return stale + self._inject_one(reply)
+        return self._inject_one(reply)
+
+    def _inject_one(self, reply: bytes) -> bytes:
+        f = self.faults
         if f.drop_next > 0 or (f.drop_rate and self.rng.random() < f.drop_rate):
             f.drop_next = max(0, f.drop_next - 1)
             f.dropped += 1
