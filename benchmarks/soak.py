@@ -105,11 +105,10 @@ class Soak:
         from bench.builders.emulated import Emulators
         from bench.core.parsing import read_toml
 
-        self.deadline = time.monotonic() + minutes * 60.0
         self.minutes, self.seed, self.rate, self.points_per_run = minutes, seed, rate, points
         self.kill_share, self.alarm_share = kill_share, alarm_share
         self.rng = random.Random(seed)
-        self.workdir = workdir
+        self.workdir = workdir = workdir.resolve()
         self.store = workdir / "soak.sqlite"
         self.plan = workdir / "plan.toml"
         self.plan.write_text(_plan(points))
@@ -206,8 +205,9 @@ class Soak:
         self.runs.append(rec)
 
     def run(self) -> dict[str, Any]:
+        """Runs until the time is up (at least one)."""
         t0 = time.monotonic()
-        while time.monotonic() < self.deadline:
+        while not self.runs or time.monotonic() < t0 + self.minutes * 60.0:
             self.one_run()
         return self.report(time.monotonic() - t0)
 

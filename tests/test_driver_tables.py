@@ -1,6 +1,6 @@
 """Driver tables ([arm], [turntable], [spectrometer], [light]) are validated through the drivers'
 declared settings before anything starts: every key with a wrong type is one line naming the
-file, the table, the key and the value, and the CLI exits 2 (issue 30, item 4)."""
+file, the table, the key and the value, and the CLI exits 2."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""Transient faults recovered, persistent faults typed, device state established (issue 30,
-items 1 and 3): the drivers against the emulators (virtual/wire) injecting each fault kind byte
+"""Transient faults recovered, persistent faults typed, device state established: the
+drivers against the emulators (virtual/wire) injecting each fault kind byte
 by byte, and devices left in a non-default state by an earlier program.
 """
 
@@ -32,7 +32,7 @@ def arm_on(bus: DynamixelBus, **kw: Any) -> DynamixelArm:
 
 
 def test_a_late_sync_read_status_neither_fails_nor_poisons_the_retries() -> None:
-    """issue 30: a late status of an aborted SYNC_READ arrived in the retry window and every
+    """Seen in a long run: a late status of an aborted SYNC_READ arrived in the retry window and every
     retry failed on it ("status from id 2, expected id 1 after 4 attempt(s)"). The first status
     is corrupt and the rest of the reply comes 30 ms late, past the 1 ms quiet window: the late
     statuses are discarded as they arrive, and the read recovers at the first retry."""

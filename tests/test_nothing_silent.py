@@ -1,4 +1,4 @@
-"""Nothing silently wrong (issue 30, item 5): a beam the fast path does not model, a NaN in a
+"""Nothing silently wrong: a beam the fast path does not model, a NaN in a
 compared record, an empty or odd --out, a command failing on a broken store, an empty file given
 as a store, an interrupted Bluesky run and an enormous value each give one capped line, exit 2,
 and leave no `running` run and nothing written behind."""

@@ -74,7 +74,7 @@ def test_every_setting_is_sent_on_open_whatever_is_assumed() -> None:
 
 
 def test_a_unit_left_in_checksum_mode_is_turned_out_of_it() -> None:
-    """issue 30: an earlier program left checksum mode on; checksum = false must send k 0, or
+    """An earlier program left checksum mode on; checksum = false must send k 0, or
     the unit keeps appending checksums."""
     t = Tap()
     spec_on(t, checksum=True).close()
