@@ -215,7 +215,7 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
         raise RunInterrupted(f"run {run_id} interrupted by a device fault after {k} of {len(order)} points "
                              f"({type(exc).__name__}: {exc}); fix it, then: bench resume {run_id}") from exc
     except BaseException as exc:  # anything else (a store that lost a table, a bug): never left `running`
-        _mark_failed(store, run_id, exc)
+        store.record_failure(run_id, exc)
         raise
     finally:
         bar.close()
@@ -248,14 +248,6 @@ class PointFaults:
             for key, n in d.items():
                 total[key] = total.get(key, 0) + n
         self.store.update_meta(self.run_id, device_faults={"points": self.points, "total": total})
-
-
-def _mark_failed(store: Any, run_id: str, exc: BaseException) -> None:
-    """Record ``run_id`` as failed (resumable) with the error; a store too broken to take it is logged."""
-    try:
-        store.set_status(run_id, "failed", f"{type(exc).__name__}: {exc}"[:500])
-    except (BenchError, OSError) as err:
-        log.warning("run %s: could not record the failure (%s)", run_id, err)
 
 
 def _safe_stop(bench: Bench) -> None:

@@ -6,6 +6,7 @@ Reading back is :class:`bench.store.reading.RunReader`.
 from __future__ import annotations
 
 import functools
+import logging
 import math
 import os
 import sqlite3
@@ -16,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bench.core.errors import InputError, StoreError
+from bench.core.errors import BenchError, InputError, StoreError
 from bench.core.records import BSDFRecord
 from bench.store.reading import RunReader
 from bench.store.rows import _INSERT_READING, _reading_tuples
@@ -25,6 +26,8 @@ from bench.store.schema import (_GEOMETRY, _MIGRATIONS, _SCHEMA, _TRANSITIONS, R
                                 _dumps, _loads, _now, _py, new_run_id, package_versions)
 
 __all__ = ["RunStore"]
+
+log = logging.getLogger(__name__)
 
 
 def _typed_errors(cls: type) -> type:
@@ -345,6 +348,15 @@ class RunStore(RunReader):
                 db.execute("UPDATE runs SET status=?, reason=?, finished_utc=?, finished_epoch=? WHERE run_id=?",
                            (status, reason, iso, t, run_id))
             db.execute("INSERT INTO run_events VALUES (?,?,?,?,?)", (run_id, iso, t, status, reason))
+
+    def record_failure(self, run_id: str, exc: BaseException) -> None:
+        """Mark ``run_id`` failed (resumable) with ``exc`` as the reason, after an error the run's
+        own handling did not expect, so that no run stays ``running``; a store too broken to
+        take it is only logged (the error being raised matters more)."""
+        try:
+            self.set_status(run_id, "failed", f"{type(exc).__name__}: {exc}"[:500])
+        except (BenchError, sqlite3.Error, OSError) as err:
+            log.warning("run %s: could not record the failure (%s)", run_id, err)
 
     def update_meta(self, run_id: str, **fields: Any) -> None:
         """Merge keys into a run's ``meta`` JSON (one transaction)."""
