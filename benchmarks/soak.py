@@ -37,13 +37,14 @@ BENCH = ROOT / "fixtures" / "benches" / "emulated.toml"
 KILL_SHARE, ALARM_SHARE = 0.5, 0.15
 
 
-def _plan(points: int) -> str:
-    """An in-plane plan of about ``points`` points (two incidences, a 1-degree or finer step)."""
+def _plan(points: int, phi_i: float = 0.0) -> str:
+    """An in-plane plan of about ``points`` points (two incidences) at azimuth ``phi_i``: runs
+    at different azimuths move the turntable at their start (a stage alarm then shows)."""
     per = max(2, points // 2)
     step = 100.0 / (per - 1)
     return (f'name = "soak"\nkind = "in-plane"\nintegration_s = 0.002\naverages = 1\ndark = "per-incidence"\n'
             f'white = "none"\n[in_plane]\ntheta_i = [30, 45]\n'
-            f'theta_r = {{ start = -20, stop = {-20 + step * (per - 1):.6f}, step = {step:.6f} }}\nphi_i = 0\n')
+            f'theta_r = {{ start = -20, stop = {-20 + step * (per - 1):.6f}, step = {step:.6f} }}\nphi_i = {phi_i:g}\n')
 
 
 def _rss_kb(pid: int) -> int | None:
@@ -111,7 +112,6 @@ class Soak:
         self.workdir = workdir = workdir.resolve()
         self.store = workdir / "soak.sqlite"
         self.plan = workdir / "plan.toml"
-        self.plan.write_text(_plan(points))
         d = read_toml(BENCH, "bench config")
         d.setdefault("emulated", {})["seed"] = seed
         self.emu = Emulators(d, seed)
@@ -176,6 +176,7 @@ class Soak:
         kill = self.rng.random() < self.kill_share
         alarm = not kill and self.rng.random() < self.alarm_share
         expected_s = max(2.0, self.points_per_run * 0.05)
+        self.plan.write_text(_plan(self.points_per_run, self.rng.choice((0.0, 20.0, 40.0))))
         argv = ["scan", str(self.plan), "--bench", str(self.bench)]
         run_id, rec = None, {"run_id": None, "exits": [], "samples": []}
         for attempt in range(20):

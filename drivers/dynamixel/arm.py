@@ -279,10 +279,17 @@ class DynamixelArm(InstrumentBase):
                   (ADDR["profile_acceleration"], 4, a.profile_acceleration, "Profile Acceleration"),
                   (ADDR["profile_velocity"], 4, a.profile_velocity, "Profile Velocity")]
         for addr, size, value, name in checks:
-            got = self._read(a.id, addr, size, f"read back {name}")
-            if (_s32(got) if size == 4 else got) != value:
+            for attempt in range(self.config.retries + 1):
+                got = self._read(a.id, addr, size, f"read back {name}")
+                got = _s32(got) if size == 4 else got
+                if got == value:
+                    break
+                # a late status of an earlier read of the same length is indistinguishable from the
+                # answer (Protocol 2.0 has no sequence number): read again before believing it
+                self.faults.attempt_failed("foreign", attempt < self.config.retries)
+            else:
                 raise ProtocolError(f"{self.config.name}: servo {a.id} ({a.joint}) kept {name} = {got} "
-                                    f"after the driver wrote {value}")
+                                    f"after the driver wrote {value} ({self.config.retries + 1} reads)")
         self._write(a.id, ADDR["torque_enable"], 1, 1, "torque on")
 
     def reset(self) -> None:
