@@ -120,7 +120,8 @@ class Soak:
         self._faults_on()
         self.runs: list[dict[str, Any]] = []
         self.kills = self.resumes = self.alarms = 0
-        self.exits: list[str] = []
+        self.exits: list[str] = []       # exit 1: a run that failed on its own (device faults)
+        self.refusals: list[str] = []    # exit 2: refused input (none expected)
         self.rss: list[float] = []
         self.child_cpu_s = 0.0
 
@@ -187,8 +188,12 @@ class Soak:
             rec["exits"].append(code)
             if code == 0:
                 break
-            if code > 0:  # a failure the run reported itself: why
-                line = err.strip().splitlines()[-1] if err.strip() else f"exit {code}"
+            line = err.strip().splitlines()[-1] if err.strip() else f"exit {code}"
+            if code == 2 and "already completed" in line:
+                break  # killed after its last commit: the resume finds it complete
+            if code == 2:  # refused (bad input), not a device fault
+                self.refusals.append(line[:300])
+            if code > 0 and code != 2:  # a failure the run reported itself (1), or an internal error (70)
                 injected_alarm = "HardwareError" in line and "alarm 0x30" in line
                 self.exits.append(("alarm: " if injected_alarm else "") + line[:300])
                 if injected_alarm:
@@ -197,8 +202,8 @@ class Soak:
                     ax = ModbusStageAxis(self.emu.stage.url, name="turntable")
                     ax.reset_alarm()  # the operator clears the alarm
                     ax.close()
-                elif code == 2 or run_id is None:
-                    break  # refused before a run existed: nothing to resume
+            if code == 2 or (code > 0 and run_id is None):
+                break  # refused, or failed before a run existed: nothing to resume
             if run_id is None:
                 break
             argv = ["resume", run_id]
@@ -248,7 +253,7 @@ class Soak:
             "runs": len(self.runs), "runs_completed": len(self.runs) - incomplete, "points": points,
             "kills": self.kills, "resumes": self.resumes, "alarms_injected": self.alarms,
             "device_fault_exits": len(transient), "device_fault_exit_lines": transient[:10],
-            "alarm_exits": len(self.exits) - len(transient),
+            "alarm_exits": len(self.exits) - len(transient), "refusals": self.refusals[:10],
             "faults_injected": self.injected(),
             "faults_seen_by_drivers": {k: v for k, v in sorted(recovered.items()) if ".fault." in k},
             # counted per measured point (open, calibration and killed points are not in a run's record)
@@ -303,6 +308,6 @@ def main(argv: list[str]) -> int:
         return 2
     out = run_soak(a.minutes, a.seed, a.rate, a.points, a.kill_share, a.alarm_share)
     print(json.dumps(out, indent=None if a.json else 2))
-    bad = out["device_fault_exits"] or out["lost_points"] or out["duplicated_points"] or \
+    bad = out["device_fault_exits"] or out["refusals"] or out["lost_points"] or out["duplicated_points"] or \
         out["leftover_running_runs"] or out["leftover_processes"]
     return 1 if bad else 0

@@ -16,6 +16,7 @@ def test_two_minute_soak_rides_through_transient_faults(tmp_path):
     out = run_soak(2.0, seed=11, rate=0.01, points=60, workdir=tmp_path)
     assert out["runs"] >= 2 and out["runs_completed"] == out["runs"], out
     assert out["device_fault_exits"] == 0, out["device_fault_exit_lines"]
+    assert out["refusals"] == [], out["refusals"]
     assert out["lost_points"] == 0 and out["duplicated_points"] == 0
     assert out["leftover_running_runs"] == 0 and out["leftover_processes"] == 0
     injected = sum(n for dev in out["faults_injected"].values() for n in dev.values())
