@@ -58,7 +58,7 @@ Config dict (TOML-friendly)
     tolerance_deg = 0.2            # settle tolerance per joint
     settle_timeout_s = 10.0
     poll_interval_s = 0.01
-    retries = 3
+    retries = 5
     start_timeout_s = 0.1          # an axis that must move shows motion within this
     return_delay_s = 0.0005        # the servos' Return Delay Time (quiet-bus wait)
     latency_s = 0.016              # USB adapter latency timer (quiet-bus wait)

@@ -119,7 +119,7 @@ class ArmConfig(Settings):
     tolerance_deg: _NonNegative = 0.2
     settle_timeout_s: _NonNegative = 10.0
     poll_interval_s: _NonNegative = 0.01
-    retries: Annotated[StrictInt, Field(ge=0)] = 3
+    retries: Annotated[StrictInt, Field(ge=0)] = 5  # a 3-servo sync read fails ~2 % of attempts at ~1 % faults
     start_timeout_s: _NonNegative = 0.1
     return_delay_s: _NonNegative = 500e-6
     latency_s: _NonNegative = 0.016

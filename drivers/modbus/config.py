@@ -117,7 +117,7 @@ class AxisConfig(Settings):
     home_timeout_s: _Positive = 60.0
     poll_interval_s: _Positive = 0.01
     timeout_s: _Positive = 0.5
-    retries: Annotated[int, Field(ge=0)] = 2
+    retries: Annotated[int, Field(ge=0)] = 3
     retry_delay_s: Finite = 0.05
     device_id: Annotated[int, Field(ge=1, le=247)] = 1
     baudrate: int = 115200
