@@ -10,7 +10,7 @@ STAMP := $(VENV)/.goniobench-installed
 WORKERS ?= 2
 PYTEST := $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile
 
-.PHONY: install demo test test-slow test-all bench-perf llvm docs clean
+.PHONY: install demo test test-slow test-all bench-perf soak llvm docs clean
 
 # Mitsuba's LLVM variants (the benchmark's anchor, vectorized Mitsuba specimens) need a libLLVM:
 # Debian's libllvm19, installed here when missing and apt-get can (as root); never fatal --
@@ -51,6 +51,11 @@ test-all: test test-slow
 bench-perf: install llvm
 	@if [ -e "$(LIBLLVM)" ]; then export DRJIT_LIBLLVM_PATH="$${DRJIT_LIBLLVM_PATH:-$(LIBLLVM)}"; fi; \
 	$(BIN)/python -m benchmarks
+
+# Fault-injection soak on the emulated bench (benchmarks/soak.py): SOAK_MINUTES=60 by default.
+SOAK_MINUTES ?= 60
+soak: install
+	$(BIN)/python -m benchmarks soak --minutes $(SOAK_MINUTES) --json
 
 # The README's generated blocks (the specimen-family table) rewritten from the declarations.
 docs: $(STAMP)

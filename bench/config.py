@@ -85,6 +85,17 @@ class Bench:
         out["white"] = self.white.as_dict()
         return out
 
+    def fault_counts(self) -> dict[str, int]:
+        """The transaction faults and recoveries of the devices in :attr:`parts` that count them
+        (the drivers' ``faults``), flat as ``PART.KEY`` (``arm.retries``, ``spectrometer.fault.nak``);
+        empty for a bench without such devices (virtual)."""
+        out: dict[str, int] = {}
+        for name, part in sorted(self.parts.items()):
+            snap = getattr(getattr(part, "faults", None), "snapshot", None)
+            if callable(snap):
+                out.update({f"{name}.{k}": int(v) for k, v in snap().items()})
+        return out
+
     def close(self) -> None:
         """Close every device and stop what the builder started (emulators), last first."""
         errors = []
@@ -120,6 +131,9 @@ def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None, 
     kind = str(body or described)  # the body executing the description (default: its kind)
     if kind not in BUILDERS:
         raise ConfigError(f"bench body must be one of {', '.join(BUILDERS)}, got {kind!r}")
+    from bench.builders.tables import validate_driver_tables  # loads drivers only when a table needs them
+
+    validate_driver_tables(d, source)
     module, func = BUILDERS[kind].split(":")
     builder = getattr(importlib.import_module(module), func)
     return builder(d, seed)

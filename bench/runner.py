@@ -213,12 +213,14 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
     last_incidence: tuple[float, float] | None = None
     bar = _progress(len(order), len(done), progress, f"run {run_id}")
     k = len(done)
+    faults = PointFaults(store, run_id, bench)
     try:
         for idx in order:
             if idx in done:
                 continue
             g = plan.points[idx]
             t0 = time.time()
+            faults.start()
             reached = bench.goniometer.move_to(g)
             incidence = (g.theta_i, g.phi_i)
             if plan.dark == "per-point" or (plan.dark == "per-incidence" and incidence != last_incidence):
@@ -228,6 +230,7 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
             rows = point_rows(reading, cal, reached, dark, white_net,
                               point_budgets(bench.config, cal, reading, reached, dark, k + 1, idx, dark_key))
             store.add_point(run_id, idx, reached.as_dict(), rows, t_start=t0, t_end=time.time())
+            faults.record(idx)
             k += 1
             bar.update(1)
             if on_point is not None:
@@ -241,10 +244,40 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
         store.set_status(run_id, "interrupted", f"{type(exc).__name__}: {exc}")
         raise RunInterrupted(f"run {run_id} interrupted by a device fault after {k} of {len(order)} points "
                              f"({type(exc).__name__}: {exc}); fix it, then: bench resume {run_id}") from exc
+    except BaseException as exc:  # anything else (a store that lost a table, a bug): never left `running`
+        store.record_failure(run_id, exc)
+        raise
     finally:
         bar.close()
     store.set_status(run_id, "completed", None)
     return ScanResult(run_id, "completed", k, len(order), time.perf_counter() - t_run)
+
+
+class PointFaults:
+    """The devices' transient faults and recoveries of each point, kept in the run's meta as
+    ``device_faults``: ``{"points": {IDX: {"arm.retries": 1, ...}}, "total": {...}}`` (only points
+    that had any), written after the point's own commit; a resumed run adds to what it holds."""
+
+    def __init__(self, store: Any, run_id: str, bench: Bench) -> None:
+        self.store, self.run_id, self.bench = store, run_id, bench
+        held = (store.run(run_id).get("meta") or {}).get("device_faults") or {}
+        self.points: dict[str, dict[str, int]] = dict(held.get("points") or {})
+        self._before: dict[str, int] = {}
+
+    def start(self) -> None:
+        self._before = self.bench.fault_counts()
+
+    def record(self, idx: int) -> None:
+        after = self.bench.fault_counts()
+        delta = {k: n - self._before.get(k, 0) for k, n in after.items() if n != self._before.get(k, 0)}
+        if not delta:
+            return
+        self.points[str(idx)] = delta
+        total: dict[str, int] = {}
+        for d in self.points.values():
+            for key, n in d.items():
+                total[key] = total.get(key, 0) + n
+        self.store.update_meta(self.run_id, device_faults={"points": self.points, "total": total})
 
 
 def _safe_stop(bench: Bench) -> None:

@@ -6,6 +6,8 @@ command times (:func:`benchmarks.bench_cli.measure`). ``python -m benchmarks --c
 fails (exit 1) when a ratio fell by more than :data:`benchmarks.guard.TOLERANCE` against the
 accepted ones (``benchmarks/accepted_ratios.json``); ``--accept`` rewrites that file with this
 run's ratios. Neither is part of ``make test``: timings on a shared machine are noisy.
+``python -m benchmarks soak --minutes N --json`` (``make soak``) is the fault-injection soak of
+:mod:`benchmarks.soak`.
 """
 
 from __future__ import annotations
@@ -19,6 +21,10 @@ FLAGS = ("--json", "--check", "--accept")
 
 
 def main(argv: list[str]) -> int:
+    if argv[:1] == ["soak"]:  # its own options (benchmarks/soak.py); not a timing study
+        from benchmarks.soak import main as soak
+
+        return soak(argv[1:])
     flags = [a for a in argv if a.startswith("--")]
     names = [a for a in argv if not a.startswith("--")]
     bad = [f for f in flags if f not in FLAGS]

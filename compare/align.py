@@ -46,7 +46,7 @@ from bench.core.errors import InputError
 from compare.records import (_bsdf_long, _spectra_long, _unit, angular_distance_deg, as_record, is_virtual, record_kind, record_meta, record_quantity)
 
 __all__ = [
-    "AlignmentError", "QuantityMismatchError", "NoOverlapError", "Aligned", "align", "as_record",
+    "AlignmentError", "QuantityMismatchError", "NoOverlapError", "MissingValueError", "Aligned", "align", "as_record",
     "record_kind", "record_quantity", "record_meta", "is_virtual", "MATCH_KEYS", "PAIR_COLUMNS", "UNMATCHED_COLUMNS",
     "DEFAULT_ANGLE_TOL_DEG", "DEFAULT_WAVELENGTH_TOL_NM",
 ]
@@ -74,6 +74,27 @@ class QuantityMismatchError(AlignmentError):
 
 class NoOverlapError(AlignmentError):
     """No actual point has a counterpart in the candidate record."""
+
+
+class MissingValueError(AlignmentError):
+    """A matched point whose actual or candidate value is missing or not finite (NaN, a masked
+    reading): refused, since a test that left it out would accept on the rest."""
+
+
+def _refuse_missing(pairs: pd.DataFrame) -> None:
+    """Raise :class:`MissingValueError` naming how many matched values are not finite and where
+    the first one is."""
+    for side in ("actual", "virtual"):
+        bad = ~np.isfinite(pairs[f"{side}_value"].to_numpy(float))
+        if bad.any():
+            r = pairs[bad].iloc[0]
+            where = ", ".join(f"{k} {r[k]}" for k in ("specimen", "geometry", "channel") if isinstance(r[k], str))
+            angles = "" if not np.isfinite(r.theta_r) else f", theta_i/r {r.theta_i:g}/{r.theta_r:g} deg"
+            record = "actual" if side == "actual" else "candidate"
+            raise MissingValueError(
+                f"{record} record: {int(bad.sum())} matched value(s) missing or not finite (first: {where}, "
+                f"{r.wavelength_nm:g} nm{angles}, value {r[f'{side}_value']}); refused rather than left out "
+                f"of the test: drop or re-measure those points")
 
 
 @dataclass
@@ -249,6 +270,7 @@ def align(actual: Any, candidate: Any, *, angle_tol_deg: float = DEFAULT_ANGLE_T
         detail = "; ".join(f"{n} x {r}" for r, n in reasons.items()) or "the actual record is empty"
         raise NoOverlapError(f"no actual point has a counterpart in the candidate record: {detail}")
     pairs = _drop_repeats(pairs, warnings)
+    _refuse_missing(pairs)
     if (pairs.wavelength_method == "linear").any():
         warnings.append(f"{int((pairs.wavelength_method == 'linear').sum())} candidate values interpolated "
                         f"linearly in wavelength onto the actual grid")

@@ -249,8 +249,9 @@ def test_connect_writes_eeprom_only_with_torque_off(bus: DynamixelBus) -> None:
     bus.servos[2].table[64] = 1
     arm, _ = make_arm(bus)
     writes = [(p.id, p.params[0]) for p in bus.log if p.instruction == 0x03]
-    # servo 3's limits (0..4095 ticks) and mode already match: no EEPROM write at all
-    assert not [a for pid, a in writes if pid == 3 and a < 64]
+    # servo 3's limits (0..4095 ticks) and mode already match: its one EEPROM write is the
+    # Return Delay Time (9) the emulator powers up without (0, the config says 500 us)
+    assert [a for pid, a in writes if pid == 3 and a < 64] == [9]
     for i in (1, 2, 4):
         mine = [addr for pid, addr in writes if pid == i]
         eeprom = [k for k, a in enumerate(mine) if a < 64]
@@ -460,8 +461,11 @@ def test_recorded_session_replays_byte_exactly() -> None:
     for got, want in zip(out[1:3], SESSION_MOVES):
         assert angular_distance_deg(got, want) < 0.1
     # the moves went out as one sync write (0x83) of Goal Position (116) for 4 servos
-    syncs = [s for s, _ in pairs if s[7] == 0x83]
-    assert len(syncs) == 3 and all(s[8:10] == b"\x74\x00" and s[10:12] == b"\x04\x00" for s in syncs)
+    syncs = [s for s, _ in pairs if s[7] == 0x83 and s[8:10] == b"\x74\x00"]
+    assert len(syncs) == 3 and all(s[10:12] == b"\x04\x00" for s in syncs)
+    # the other sync writes set Status Return Level (68) on open, one servo each
+    levels = [s for s, _ in pairs if s[7] == 0x83 and s[8:10] != b"\x74\x00"]
+    assert len(levels) == 4 and all(s[8:10] == b"\x44\x00" for s in levels)
 
 
 # --- end to end: the real SDK against the emulator process on a pty -----------------------------

@@ -59,15 +59,16 @@ def w(*values: int) -> bytes:
 
 def open_pairs(slots: dict[int, str] | None = None, checksum: bool = True,
                compression: bool = False, trigger: int = 0) -> list[tuple[bytes, bytes]]:
-    """The exact exchange of OceanSpectrometer's open in binary mode: settings are sent only
-    when they change the power-up state (free running, no compression, no checksum)."""
+    """The exact exchange of OceanSpectrometer's open in binary mode: every setting the driver
+    relies on is sent whatever the unit was left with (checksum, compression, trigger, scans to
+    add, pixel mode), and those the unit reports (?T, ?A) are read back."""
     s = {0: "SN0001", 1: "400.0", 2: "10.0", 3: "0", 4: "0"}
     s.update(slots or {})
     pairs = [(b"bB", ACK), (b"v", ACK + w(3001))]
     pairs += [(b"?x" + w(n), ACK + s[n].encode() + b"\r\n") for n in range(5)]
-    pairs += [(b"k" + w(1), ACK)] if checksum else []
-    pairs += [(b"G" + w(1), ACK)] if compression else []
-    pairs += [(b"T" + w(trigger), ACK)] if trigger else []
+    pairs += [(b"k" + w(int(checksum)), ACK), (b"G" + w(int(compression)), ACK)]
+    pairs += [(b"T" + w(trigger), ACK), (b"?T", ACK + w(trigger))]
+    pairs += [(b"A" + w(1), ACK), (b"?A", ACK + w(1)), (b"P" + w(0), ACK)]
     return pairs
 
 
@@ -89,7 +90,8 @@ def frame(values: list[int], scans: int = 1, integ_ms: int = 10, checksum: bool 
 
 def acquire_pairs(values_list: list[list[int]], integ_ms: int = 10, scans: int = 1,
                   **kw: bool) -> list[tuple[bytes, bytes]]:
-    pairs = [(b"I" + w(integ_ms), ACK), (b"A" + w(scans), ACK), (b"P" + w(0), ACK)]
+    pairs = [(b"I" + w(integ_ms), ACK), (b"?I", ACK + w(integ_ms))]
+    pairs += [(b"A" + w(scans), ACK), (b"?A", ACK + w(scans))] if scans != 1 else []
     pairs += [(b"S", frame(v, scans=scans, integ_ms=integ_ms, **kw)) for v in values_list]
     return pairs
 
@@ -145,11 +147,19 @@ def test_accumulated_frame_is_dwords_and_flags_saturation_per_scan() -> None:
     spec.close()
 
 
-def test_nak_names_the_command() -> None:
-    script = ScriptedTransport(open_pairs() + [(b"I" + w(10), NAK)])
+def test_a_nak_is_retried_and_a_persistent_one_names_the_command() -> None:
+    """A line glitch can turn a good command into an unknown one: one NAK is retried (counted
+    as recovered); NAKs through every attempt are a typed error naming the command."""
+    script = ScriptedTransport(open_pairs() + [(b"I" + w(10), NAK)] + acquire_pairs([VALS]))
     spec = OceanSpectrometer(script, **SMALL)
-    with pytest.raises(ProtocolError, match="NAK to command 'I'"):
+    spec.acquire(0.01, 1)
+    assert spec.faults.snapshot() == {"retries": 1, "recovered": 1, "failed": 0, "discarded": 0, "fault.nak": 1}
+    spec.close()
+    script = ScriptedTransport(open_pairs() + [(b"I" + w(10), NAK)] * 2)  # retries=1: two attempts
+    spec = OceanSpectrometer(script, **SMALL)
+    with pytest.raises(ProtocolError, match=r"NAK to command 'I'.*after 2 attempt"):
         spec.acquire(0.01, 1)
+    assert spec.faults.failed == 1
     spec.close()
 
 
@@ -312,9 +322,8 @@ def test_replay_recorded_ascii_session() -> None:
 
 def test_replay_recorded_fault_session() -> None:
     spec = OceanSpectrometer(ScriptedTransport(load_fixture(FIX / "faults.jsonl")), **FIXCFG)
-    with pytest.raises(ProtocolError, match="NAK to command 'I'"):
-        spec.acquire(0.01, 1)
-    spec.acquire(0.01, 1)          # a dropped reply (to I), then a retry
+    spec.acquire(0.01, 1)          # a NAK to I, then a retry
+    spec.acquire(0.01, 1)          # a dropped reply (to S), then a retry
     spec.acquire(0.01, 1)          # a corrupted frame (checksum), then a retry
     with pytest.raises(ProtocolError, match="insufficient memory"):
         spec.acquire(0.01, 1)
@@ -451,6 +460,8 @@ def test_e2e_external_trigger(emu: SpectrometerEmulator) -> None:
 def test_e2e_faults(spec: OceanSpectrometer, emu: SpectrometerEmulator) -> None:
     t0 = time.monotonic()
     emu.nak("S")
+    spec.acquire(0.01, 1)                      # a NAK is retried
+    emu.nak("S", n=2)
     with pytest.raises(ProtocolError, match="NAK to command 'S'"):
         spec.acquire(0.01, 1)
     emu.drop_replies(1)
@@ -508,14 +519,11 @@ def record_fixtures() -> None:
             s.acquire(0.01, averages)
             s.close()
         rec = RecordingTransport(SerialTransport(e.port), FIX / "faults.jsonl",
-                                 note="ocean emulator, 512 px: NAK to I, dropped S reply, "
+                                 note="ocean emulator, 512 px: NAK to I (retried), dropped S reply, "
                                       "corrupted frame, ETX (tests/test_ocean.py --record)")
         s = OceanSpectrometer(rec, **FIXCFG)
         e.nak("I")
-        try:
-            s.acquire(0.01, 1)
-        except ProtocolError:
-            pass
+        s.acquire(0.01, 1)
         e.drop_replies(1)
         s.acquire(0.01, 1)
         e.corrupt_frames(1)

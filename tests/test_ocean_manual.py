@@ -51,12 +51,38 @@ def spec_on(t: Tap, **kw: Any) -> OceanSpectrometer:
 # --- a command the device does not need is never fatal ----------------------------------
 
 
-def test_g0_is_not_sent_when_it_changes_nothing() -> None:
+#: what the driver sends after the calibration slots, whatever it assumes the unit holds (binary)
+def settings(checksum: int = 1, g: list = None) -> list:
+    pairs = [(b"k" + w(checksum), ACK)] + (g if g is not None else [(b"G" + w(0), ACK)])
+    return pairs + [(b"T" + w(0), ACK), (b"?T", ACK + w(0)), (b"A" + w(1), ACK), (b"?A", ACK + w(1)),
+                    (b"P" + w(0), ACK)]
+
+
+
+
+def test_every_setting_is_sent_on_open_whatever_is_assumed() -> None:
+    """A unit keeps its settings from an earlier program: G 0, k 0, T 0 are sent although they
+    are the reset defaults, and ?T / ?A read back what was set."""
     t = Tap()
-    s = spec_on(t, compression=False)
+    s = spec_on(t, compression=False, checksum=False)
     s.acquire(0.01, 1)
-    assert b"G" not in [bytes(x[:1]) for x in t.written]
+    letters = [bytes(x[:2]) if x[:1] == b"?" else bytes(x[:1]) for x in t.written]
+    assert [x for x in letters if x in (b"k", b"G", b"T", b"?T", b"A", b"?A", b"P")] == \
+        [b"k", b"G", b"T", b"?T", b"A", b"?A", b"P"]
     assert not s.unsupported
+    s.close()
+
+
+def test_a_unit_left_in_checksum_mode_is_turned_out_of_it() -> None:
+    """An earlier program left checksum mode on; checksum = false must send k 0, or
+    the unit keeps appending checksums."""
+    t = Tap()
+    spec_on(t, checksum=True).close()
+    t.closed = False
+    assert t.device.s.checksum
+    s = spec_on(t, checksum=False)
+    assert not t.device.s.checksum and not s.checksum_on
+    assert s.acquire(0.01, 1).signal.shape == (64,)
     s.close()
 
 
@@ -67,7 +93,7 @@ def test_unit_without_g_is_opened_and_the_nak_data_bytes_are_not_later_answers()
     s = spec_on(t, compression=True)
     assert s.unsupported == {"G"} and s.describe().extra["unsupported"] == ["G"]
     assert s.describe().extra["compression"] is False
-    assert t.replies.count(NAK) == 3  # the G, then its two data bytes: all drained at open
+    assert t.replies.count(NAK) == 6  # the G, then its two data bytes, retried once: all drained at open
     r = s.acquire(0.01, 2)
     assert r.signal.shape == (64,) and np.all(r.signal > 0)
     s.close()
@@ -77,8 +103,8 @@ def test_scripted_nak_to_optional_g_is_recorded_byte_exactly() -> None:
     opening = [(b"bB", ACK), (b"v", ACK + w(1000))]
     opening += [(b"?x" + w(n), ACK + t + b"\r\n")
                 for n, t in enumerate([b"SN1", b"400.0", b"10.0", b"0", b"0"])]
-    pairs = opening + [(b"k" + w(1), ACK), (b"G" + w(1), NAK + NAK + NAK)]
-    pairs += [(b"I" + w(10), ACK), (b"A" + w(1), ACK), (b"P" + w(0), ACK)]
+    pairs = opening + settings(g=[(b"G" + w(1), NAK + NAK + NAK)] * 2)  # a NAK is retried once
+    pairs += [(b"I" + w(10), ACK), (b"?I", ACK + w(10))]
     vals = [100, 200, 300, 400, 500, 600, 700, 800]
     pairs += [(b"S", STX + w(0xFFFF, 0, 1, 10, 0, 0, 0, *vals, 0xFFFD, sum(vals)))]
     s = OceanSpectrometer(ScriptedTransport(pairs), **SMALL, compression=True)
@@ -100,7 +126,7 @@ def test_ascii_commands_are_framed_per_manual_byte_by_byte() -> None:
     assert b"aA" in sent and b"\r" not in sent[sent.index(b"aA") - 1:sent.index(b"aA") + 1]
     after = b"".join(sent[sent.index(b"aA") + 1:])
     assert after.startswith(b"v?x0\r?x1\r")          # v alone, then ?x + value + CR
-    assert b"I10\rA1\rP0\rS" in after and after.endswith(b"S")
+    assert b"k0\rG0\rT0\r?TA1\r?AP0\rI10\r?IS" in after and after.endswith(b"S")
     assert all(len(x) == 1 for x in sent[sent.index(b"aA") + 1:])  # one byte per write
     s.command_mode("binary")
     assert sent[-2:] == [b"b", b"B"] and t.device.s.mode == "binary"
@@ -162,7 +188,7 @@ def test_calibration_strings_ending_with_cr_alone_are_accepted() -> None:
     pairs = [(b"bB", ACK), (b"v", ACK + w(1000))]
     pairs += [(b"?x" + w(n), ACK + t + b"\r")
               for n, t in enumerate([b"SN1", b"400.0", b"10.0", b"0", b"0"])]
-    pairs += [(b"k" + w(1), ACK)]
+    pairs += settings()
     s = OceanSpectrometer(ScriptedTransport(pairs), **SMALL)
     assert s.wavelength_coeffs == [400.0, 10.0, 0.0, 0.0]
     s.close()

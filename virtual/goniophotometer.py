@@ -149,6 +149,9 @@ class VirtualGoniophotometer(InstrumentBase):
             raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
         if method == "fast" and not self.specimen.has_density:
             raise InputError(f"method 'fast' needs a specimen with a density; {self.specimen.label} has none")
+        if method == "fast" and self.beam.kind != "collimated":  # its quadrature integrates one incidence
+            raise InputError(f"method 'fast' models a collimated beam only, not a {self.beam.kind} one "
+                             "(use --method rays or auto)")
         if not (math.isfinite(gain) and gain > 0):
             raise InputError(f"gain must be finite and > 0, got {gain}")
         self.rays = int(rays)

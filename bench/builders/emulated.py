@@ -286,6 +286,7 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
     try:
         turntable = ModbusStageAxis(emu.stage.url, config=emu.turntable_config, name="turntable")
         closers.append(turntable.close)
+        turntable.establish()
         arm = DynamixelArm(emu.arm_config, external_axes={"turntable": turntable})
         closers.append(arm.close)
         ocean = OceanSpectrometer(emu.spectrometer.port, name="spectrometer",

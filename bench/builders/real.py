@@ -57,6 +57,7 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
             t = dict(d["turntable"])
             external["turntable"] = ModbusStageAxis(str(t.pop("port")), config=t, name="turntable")
             closers.append(external["turntable"].close)
+            external["turntable"].establish()
         arm = DynamixelArm(dict(d["arm"]), external_axes=external)
         closers.append(arm.close)
         ocean = OceanSpectrometer.from_config(d["spectrometer"])

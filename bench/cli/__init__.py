@@ -35,7 +35,7 @@ import tempfile
 import traceback
 from typing import Callable, Collection, Sequence
 
-from bench.cli.argtypes import BenchArgumentParser
+from bench.cli.argtypes import BenchArgumentParser, one_line as _one_line
 from bench.cli.commands import COMMANDS
 from bench.cli.common import DEFAULT_STORE, stop_announcing
 from bench.core.errors import BenchError, InputError, StoreError
@@ -130,10 +130,6 @@ def _quiet_broken_pipe() -> int:
     return 0
 
 
-def _one_line(text: object) -> str:
-    return " ".join(str(text).split()) or "(no message)"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one ``bench`` command; returns the exit status (see :data:`EXIT_STATUS_HELP`).
 
@@ -181,10 +177,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, UnicodeError) as exc:  # a path the user gave that cannot be read or written
         name = getattr(exc, "filename", None)
         why = getattr(exc, "strerror", None) or _one_line(exc)
-        print(f"bench {command}: error: {name + ': ' if name else ''}{why}", file=sys.stderr)
+        print(f"bench {command}: error: {_one_line(f'{name}: {why}' if name else why)}", file=sys.stderr)
         return 2
     except Exception as exc:  # the last resort: never a raw traceback
         path = _save_traceback(command)
-        print(f"bench {command}: internal error: {type(exc).__name__}: {_one_line(exc)[:300]} "
+        print(f"bench {command}: internal error: {type(exc).__name__}: {_one_line(exc, 300)} "
               f"(traceback saved to {path}; please report it)", file=sys.stderr)
         return 70

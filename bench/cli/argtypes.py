@@ -15,7 +15,7 @@ import sys
 from typing import Callable, Iterable, Iterator, NoReturn
 from urllib.parse import urlsplit
 
-__all__ = ["BenchArgumentParser", "RegistryChoices", "count", "real", "seed", "rays", "incidence", "wavelengths", "collector",
+__all__ = ["BenchArgumentParser", "one_line", "MAX_ERROR_CHARS", "RegistryChoices", "count", "real", "seed", "rays", "incidence", "wavelengths", "collector",
            "int_list", "scheduler_address", "run_id", "listen_address", "MAX_RAYS", "MAX_PATCHES", "MAX_SEED", "RAYS_PER_SECOND"]
 
 #: the most rays per wavelength a command accepts at all (the time bound, --max-seconds, comes first)
@@ -29,6 +29,20 @@ RAYS_PER_SECOND = 2e7
 
 _Type = Callable[[str], object]
 
+#: the longest error line the CLI prints (a 60,000-character value must not make a 120 KB line)
+MAX_ERROR_CHARS = 600
+
+
+def one_line(text: object, limit: int = MAX_ERROR_CHARS) -> str:
+    """``text`` on one line (whitespace runs become one space), at most ``limit`` characters: a
+    longer one keeps its head and tail around a note of how much was left out."""
+    line = " ".join(str(text).split()) or "(no message)"
+    if len(line) <= limit:
+        return line
+    cut = len(line) - limit + 40
+    head = (limit - 40) * 2 // 3
+    return f"{line[:head]} [... {cut:,} characters left out ...] {line[head + cut:]}"
+
 
 class BenchArgumentParser(argparse.ArgumentParser):
     """An ArgumentParser whose usage errors are one line on stderr (exit 2), not usage + error."""
@@ -41,7 +55,7 @@ class BenchArgumentParser(argparse.ArgumentParser):
         return super()._get_values(action, arg_strings)
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
 
 
 class RegistryChoices:

@@ -57,8 +57,15 @@ def open_store(path: str, create: bool = True, readonly: bool = False) -> Any:
 def check_output(path: str | Path, *, directory: bool = False, suffixes: Sequence[str] | None = None) -> Path:
     """Refuse, before any work, an output path that cannot be written: under a file, a folder
     where a file is expected (or the reverse), a read-only folder, an unknown image format."""
+    text = str(path)
     p = Path(path)
     what = "output folder" if directory else "output file"
+    if not text.strip():
+        raise InputError(f"{what}: empty path")
+    if any(ord(ch) < 32 or ord(ch) == 127 for ch in text):
+        raise InputError(f"{what} {text!r}: control characters in the path")
+    if not directory and (text.endswith(("/", os.sep)) or p.name in ("", ".", "..")):
+        raise InputError(f"{what} {text!r} names a folder, not a file")
     if suffixes is not None and p.suffix.lower() not in suffixes:
         raise InputError(f"{what} {p}: unknown format {p.suffix or '(no suffix)'!r}; use one of "
                          f"{', '.join(s.lstrip('.') for s in suffixes)}")

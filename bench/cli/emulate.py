@@ -16,11 +16,13 @@ from bench.cli.common import wait_until_stopped
 
 def cmd_emulate(args: argparse.Namespace) -> int:
     from bench.builders.emulated import Emulators
+    from bench.builders.tables import validate_driver_tables
     from bench.core.parsing import read_toml
     from bench.core.schemas import BenchFile, validate_document
 
     config = read_toml(args.bench, "bench config")
     validate_document(BenchFile, config, f"bench config {args.bench}")
+    validate_driver_tables(config, f"bench config {args.bench}")
     emu = Emulators(config, seed=args.seed)
     try:
         if args.json:

@@ -116,7 +116,13 @@ def cmd_resume(args: argparse.Namespace) -> int:
     from bench.runner import resume_scan
 
     with open_store(args.store, create=False, readonly=True) as store:
-        kind = store.run(args.run)["kind"]
+        stored = store.run(args.run)
+    kind = stored["kind"]
+    if kind == "bluesky" and "bluesky_plan" in (stored.get("plan") or {}):
+        raise InputError(f"run {args.run} was recorded by a Bluesky RunEngine from its plan "
+                         f"{stored['plan'].get('bluesky_plan')!r}: a RunEngine resumes a paused run only in the "
+                         f"process that paused it, so run that plan again (a bench plan run through the RunEngine, "
+                         f"or by `bench scan`, can be finished here)")
     if kind == "sweep":
         from bench.cli.sweep import resume_run
 
@@ -204,6 +210,8 @@ def cmd_show(args: argparse.Namespace) -> int:
         s["fit"] = {k: meta.get(k) for k in ("fit", "specimen", "record", "record_run_id")}
     s["identity"] = run_identity(info)
     s["value"]["unit"] = value_unit(info.get("meta") or {})
+    held = (info.get("meta") or {}).get("device_faults") or {}
+    s["device_faults"] = {"points": len(held.get("points") or {}), "total": held.get("total") or {}}
     if args.json:
         emit_json(s)
         return 0
@@ -245,7 +253,21 @@ def cmd_show(args: argparse.Namespace) -> int:
     elapsed = "n/a" if t["elapsed_s"] is None else f"{t['elapsed_s']:.3g} s"
     mean = "n/a" if t["mean_point_s"] is None else f"{t['mean_point_s']:.3g} s"
     print(f"  created {t['created_utc']}, finished {t['finished_utc']}, duration {elapsed}, mean per point {mean}")
+    if s["device_faults"]["points"]:
+        print(f"  device faults: {fault_summary(s['device_faults'])}")
     return 0
+
+
+def fault_summary(faults: dict) -> str:
+    """One line from a run's ``device_faults`` summary: recovered transactions and retries per
+    device, and the fault kinds seen."""
+    total, parts = faults["total"], []
+    for dev in sorted({k.split(".", 1)[0] for k in total}):
+        kinds = ", ".join(f"{k.split('.fault.', 1)[1]} {n}" for k, n in sorted(total.items())
+                          if k.startswith(f"{dev}.fault."))
+        parts.append(f"{dev} {total.get(f'{dev}.recovered', 0)} recovered after {total.get(f'{dev}.retries', 0)} "
+                     f"retries" + (f" ({kinds})" if kinds else ""))
+    return f"{'; '.join(parts)} -- on {faults['points']} point(s)"
 
 
 def export_format(fmt: str | None, out: str | None) -> str:
@@ -315,7 +337,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.hemisphere == "both" and fmt == "zemax":
         raise InputError("a Zemax file holds one side: --hemisphere R (BRDF) or T (BTDF)")
     default_name = Path(args.run).name.split(".")[0] if Path(args.run).is_file() else args.run
-    out = check_output(args.out or f"{default_name}{default_suffix(fmt)}")  # before reading anything
+    out = check_output(f"{default_name}{default_suffix(fmt)}" if args.out is None else args.out)  # before reading
     paths = []
     for specimen, record in _records_to_export(args):
         target = out

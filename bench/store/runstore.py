@@ -6,6 +6,7 @@ Reading back is :class:`bench.store.reading.RunReader`.
 from __future__ import annotations
 
 import functools
+import logging
 import math
 import os
 import sqlite3
@@ -16,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bench.core.errors import InputError, StoreError
+from bench.core.errors import BenchError, InputError, StoreError
 from bench.core.records import BSDFRecord
 from bench.store.reading import RunReader
 from bench.store.rows import _INSERT_READING, _reading_tuples
@@ -25,6 +26,8 @@ from bench.store.schema import (_GEOMETRY, _MIGRATIONS, _SCHEMA, _TRANSITIONS, R
                                 _dumps, _loads, _now, _py, new_run_id, package_versions)
 
 __all__ = ["RunStore"]
+
+log = logging.getLogger(__name__)
 
 
 def _typed_errors(cls: type) -> type:
@@ -103,6 +106,8 @@ class RunStore(RunReader):
         try:
             self._db.execute(f"PRAGMA busy_timeout = {int(self.timeout * 1000)}")
             self._refuse_foreign()  # before anything is written (no WAL switch on a foreign file)
+            if not create and not self._tables():  # an empty file is no store to resume from: write nothing
+                raise StoreError(f"{self.path} is not a goniobench run store (an empty file)")
             if self.readonly:
                 self._check_schema_readonly()
                 return
@@ -112,6 +117,7 @@ class RunStore(RunReader):
             self._db.execute(f"PRAGMA synchronous = {sync}")
             self._db.execute("PRAGMA foreign_keys = ON")
             self._ensure_schema()
+            self._require_tables()
             self._db.execute(_OWNERS_TABLE)
         except sqlite3.DatabaseError as e:
             self._db.close()
@@ -150,12 +156,15 @@ class RunStore(RunReader):
             raise StoreError(f"{self.path} is an SQLite file but not a goniobench run store "
                              f"(tables: {', '.join(sorted(tables))}; no schema_version)")
 
-    def _check_schema_readonly(self) -> None:
-        tables = self._tables()
-        missing = {"schema_version", "runs", "points", "readings", "run_events"} - tables
+    def _require_tables(self) -> None:
+        """Refuse a store that lost a table, before a run is created in it."""
+        missing = {"schema_version", "runs", "points", "readings", "run_events"} - self._tables()
         if missing:
             raise StoreError(f"{self.path} is not a complete goniobench run store (missing table(s) "
                              f"{', '.join(sorted(missing))})")
+
+    def _check_schema_readonly(self) -> None:
+        self._require_tables()
         version = self._db.execute("SELECT MAX(version) FROM schema_version").fetchone()[0]
         if version is None or version != SCHEMA_VERSION:
             raise StoreError(f"{self.path} has store schema version {version}; this goniobench reads "
@@ -339,6 +348,15 @@ class RunStore(RunReader):
                 db.execute("UPDATE runs SET status=?, reason=?, finished_utc=?, finished_epoch=? WHERE run_id=?",
                            (status, reason, iso, t, run_id))
             db.execute("INSERT INTO run_events VALUES (?,?,?,?,?)", (run_id, iso, t, status, reason))
+
+    def record_failure(self, run_id: str, exc: BaseException) -> None:
+        """Mark ``run_id`` failed (resumable) with ``exc`` as the reason, after an error the run's
+        own handling did not expect, so that no run stays ``running``; a store too broken to
+        take it is only logged (the error being raised matters more)."""
+        try:
+            self.set_status(run_id, "failed", f"{type(exc).__name__}: {exc}"[:500])
+        except (BenchError, sqlite3.Error, OSError) as err:
+            log.warning("run %s: could not record the failure (%s)", run_id, err)
 
     def update_meta(self, run_id: str, **fields: Any) -> None:
         """Merge keys into a run's ``meta`` JSON (one transaction)."""

@@ -261,6 +261,9 @@ def _execute(spec: SweepSpec, store: Any, run_id: str, done: set[int], client: A
     except BenchError as exc:
         store.set_status(run_id, "interrupted", f"{type(exc).__name__}: {exc}")
         raise
+    except BaseException as exc:  # anything else (a store that lost a table, a bug): never left `running`
+        store.record_failure(run_id, exc)
+        raise
     finally:
         bar.close()
         sink.flush()

@@ -38,9 +38,16 @@ Behaviour
   holds where it is). Torque is switched off only on hardware errors, or at ``close()`` when
   ``torque_off_on_close`` is set (arms may sag without torque, so the default keeps it on).
 - At connect every axis is pinged (model number checked), its Hardware Error Status read (twice),
-  Operating Mode and (mode 3) position limits compared with the config and written only if
-  different and only with torque off; then profile acceleration/velocity are written and
-  torque enabled.
+  and every setting the driver relies on is established whatever an earlier program left:
+  Status Return Level 2 (set by a SYNC_WRITE, which no level answers), Operating Mode, Drive
+  Mode (forward, velocity-based profile), Homing Offset 0, Return Delay Time and (mode 3)
+  position limits are compared with the config and written only if different, only with torque
+  off; profile acceleration/velocity are written; each written value is read back (a read-back
+  that disagrees is read again: a late status of the same length looks like an answer); then
+  torque is enabled.
+- A well-framed status answering another request is discarded while the awaited one is listened
+  for, and bytes waiting before a transaction are dropped; failed attempts, recoveries and
+  discards are counted in ``DynamixelArm.faults`` (a :class:`drivers.faultlog.FaultLog`).
 
 Config dict (TOML-friendly)
 ---------------------------
@@ -51,7 +58,7 @@ Config dict (TOML-friendly)
     tolerance_deg = 0.2            # settle tolerance per joint
     settle_timeout_s = 10.0
     poll_interval_s = 0.01
-    retries = 3
+    retries = 5
     start_timeout_s = 0.1          # an axis that must move shows motion within this
     return_delay_s = 0.0005        # the servos' Return Delay Time (quiet-bus wait)
     latency_s = 0.016              # USB adapter latency timer (quiet-bus wait)

@@ -17,8 +17,9 @@ from bench.core.geometry import Geometry
 from bench.core.roles import InstrumentBase, InstrumentInfo
 from drivers import kinematics as kin
 from drivers.dynamixel.config import (_BLOCK_ADDR, _BLOCK_LEN, _OFF_GOAL, _OFF_MOVING, _OFF_PRESENT, ADDR,
-                                      ERRBIT_ALERT, STATUS_ERRORS, TICKS_PER_REV, ArmConfig, _le, _s32,
-                                      decode_hardware_error)
+                                      DRIVE_MODE_CLEAR, ERRBIT_ALERT, RETURN_DELAY_UNIT_S, STATUS_ERRORS,
+                                      STATUS_RETURN_ALL, TICKS_PER_REV, ArmConfig, _le, _s32, decode_hardware_error)
+from drivers.faultlog import FaultLog
 from drivers.dynamixel.link import DxlLink
 from drivers.kinematics import Joints
 from drivers.transport import SerialTransport, Transport, TransportPortHandler
@@ -237,28 +238,59 @@ class DynamixelArm(InstrumentBase):
                                     f"call reset() to reboot it", code=hw, flags=decode_hardware_error(hw))
                 self._latch(exc)
                 raise exc
-            mode = self._read(a.id, ADDR["operating_mode"], 1, "read Operating Mode")
-            writes: list[tuple[int, int, int, str]] = []
-            if mode != a.operating_mode:
-                writes.append((ADDR["operating_mode"], 1, a.operating_mode, "Operating Mode"))
-            if a.operating_mode == 3:
-                lo, hi = self.config.kinematics.limits[a.joint]
-                t = sorted((a.to_ticks(lo), a.to_ticks(hi)))
-                cur_max = _s32(self._read(a.id, ADDR["max_position"], 4, "read Max Position Limit"))
-                cur_min = _s32(self._read(a.id, ADDR["min_position"], 4, "read Min Position Limit"))
-                if cur_max != t[1]:
-                    writes.append((ADDR["max_position"], 4, t[1], "Max Position Limit"))
-                if cur_min != t[0]:
-                    writes.append((ADDR["min_position"], 4, t[0], "Min Position Limit"))
-            if writes:  # EEPROM: only with torque off
-                self._write(a.id, ADDR["torque_enable"], 1, 0, "torque off for EEPROM")
-                for addr, size, value, name in writes:
-                    self._write(a.id, addr, size, value, f"write {name}")
-            self._write(a.id, ADDR["profile_acceleration"], 4, a.profile_acceleration,
-                        "write Profile Acceleration")
-            self._write(a.id, ADDR["profile_velocity"], 4, a.profile_velocity, "write Profile Velocity")
-            self._write(a.id, ADDR["torque_enable"], 1, 1, "torque on")
+            self._establish(a)
         self._joints = self._joints_from(self._sync_read_block())
+
+    def _establish(self, a: Any) -> None:
+        """Set every setting of servo ``a`` the driver relies on, whatever an earlier program left
+        (a servo keeps its EEPROM and, until powered off, its RAM), and read back what it wrote:
+        Status Return Level 2 (a status for every write), Operating Mode, Drive Mode (forward,
+        velocity-based profile), Homing Offset 0, Return Delay Time, the position limits of mode 3,
+        Profile Acceleration/Velocity; then torque on."""
+        # a SYNC_WRITE is answered at no level, so it sets the level whatever the level is
+        self._link.sync_write(ADDR["status_return_level"], 1, {a.id: bytes([STATUS_RETURN_ALL])},
+                              f"set Status Return Level of servo {a.id}")
+        wanted: list[tuple[int, int, int | None, str]] = [
+            (ADDR["operating_mode"], 1, a.operating_mode, "Operating Mode"),
+            (ADDR["drive_mode"], 1, None, "Drive Mode"),
+            (ADDR["homing_offset"], 4, 0, "Homing Offset"),
+            (ADDR["return_delay"], 1, min(254, round(self.config.return_delay_s / RETURN_DELAY_UNIT_S)),
+             "Return Delay Time")]
+        if a.operating_mode == 3:
+            lo, hi = sorted((a.to_ticks(x) for x in self.config.kinematics.limits[a.joint]))
+            wanted += [(ADDR["max_position"], 4, hi, "Max Position Limit"),
+                       (ADDR["min_position"], 4, lo, "Min Position Limit")]
+        writes: list[tuple[int, int, int, str]] = []
+        for addr, size, value, name in wanted:
+            now = self._read(a.id, addr, size, f"read {name}")
+            now = _s32(now) if size == 4 else now
+            if value is None:  # Drive Mode: clear the bits the driver relies on, keep the rest
+                value = now & ~DRIVE_MODE_CLEAR
+            if now != value:
+                writes.append((addr, size, value, name))
+        if writes:  # EEPROM: only with torque off
+            self._write(a.id, ADDR["torque_enable"], 1, 0, "torque off for EEPROM")
+            for addr, size, value, name in writes:
+                self._write(a.id, addr, size, value, f"write {name}")
+        self._write(a.id, ADDR["profile_acceleration"], 4, a.profile_acceleration, "write Profile Acceleration")
+        self._write(a.id, ADDR["profile_velocity"], 4, a.profile_velocity, "write Profile Velocity")
+        checks = [(ADDR["status_return_level"], 1, STATUS_RETURN_ALL, "Status Return Level"),
+                  *[(addr, size, value, name) for addr, size, value, name in writes],
+                  (ADDR["profile_acceleration"], 4, a.profile_acceleration, "Profile Acceleration"),
+                  (ADDR["profile_velocity"], 4, a.profile_velocity, "Profile Velocity")]
+        for addr, size, value, name in checks:
+            for attempt in range(self.config.retries + 1):
+                got = self._read(a.id, addr, size, f"read back {name}")
+                got = _s32(got) if size == 4 else got
+                if got == value:
+                    break
+                # a late status of an earlier read of the same length is indistinguishable from the
+                # answer (Protocol 2.0 has no sequence number): read again before believing it
+                self.faults.attempt_failed("foreign", attempt < self.config.retries)
+            else:
+                raise ProtocolError(f"{self.config.name}: servo {a.id} ({a.joint}) kept {name} = {got} "
+                                    f"after the driver wrote {value} ({self.config.retries + 1} reads)")
+        self._write(a.id, ADDR["torque_enable"], 1, 1, "torque on")
 
     def reset(self) -> None:
         """Clear a latched fault: reboot servos with hardware errors, re-apply settings, torque on.
@@ -322,6 +354,11 @@ class DynamixelArm(InstrumentBase):
         return {a.id: a.to_ticks(getattr(j, a.joint)) for a in self._axes}
 
     # -- Goniometer role --------------------------------------------------------------------
+    @property
+    def faults(self) -> FaultLog:
+        """The bus's transaction faults and recoveries (:class:`drivers.faultlog.FaultLog`)."""
+        return self._link.faults
+
     def describe(self) -> InstrumentInfo:
         lim = self.config.kinematics.limits
         res = max(360.0 / (TICKS_PER_REV * a.gear_ratio) for a in self._axes)

@@ -13,12 +13,19 @@ from bench.core.errors import ConfigError
 from bench.core.validation import Finite, Settings
 from drivers.kinematics import JOINTS, KinematicsConfig
 
-ADDR = {"model_number": 0, "operating_mode": 11, "max_position": 48, "min_position": 52,
-        "torque_enable": 64, "hardware_error": 70, "profile_acceleration": 108,
+ADDR = {"model_number": 0, "return_delay": 9, "drive_mode": 10, "operating_mode": 11, "homing_offset": 20,
+        "max_position": 48, "min_position": 52, "torque_enable": 64, "status_return_level": 68, "hardware_error": 70, "profile_acceleration": 108,
         "profile_velocity": 112, "goal_position": 116, "moving": 122, "moving_status": 123,
         "present_position": 132}
 TICKS_PER_REV = 4096
 ERRBIT_ALERT = 0x80
+#: Drive Mode (10) bits the driver relies on being clear: 0 reverse direction (the config's
+#: ``direction`` says it), 2 time-based profile (Profile Velocity/Acceleration read as velocities)
+DRIVE_MODE_CLEAR = 0b101
+#: Return Delay Time (9) unit, s; the register holds 0..254
+RETURN_DELAY_UNIT_S = 2e-6
+#: Status Return Level (68) the driver needs: a status for every instruction (0 ping only, 1 + reads)
+STATUS_RETURN_ALL = 2
 HW_ERROR_FLAGS = {0: "input_voltage", 1: "hall_sensor", 2: "overheating", 3: "motor_encoder",
                   4: "electrical_shock", 5: "overload"}
 STATUS_ERRORS = {1: "result fail", 2: "instruction error", 3: "CRC error", 4: "data range error",
@@ -112,7 +119,7 @@ class ArmConfig(Settings):
     tolerance_deg: _NonNegative = 0.2
     settle_timeout_s: _NonNegative = 10.0
     poll_interval_s: _NonNegative = 0.01
-    retries: Annotated[StrictInt, Field(ge=0)] = 3
+    retries: Annotated[StrictInt, Field(ge=0)] = 5  # a 3-servo sync read fails ~2 % of attempts at ~1 % faults
     start_timeout_s: _NonNegative = 0.1
     return_delay_s: _NonNegative = 500e-6
     latency_s: _NonNegative = 0.016

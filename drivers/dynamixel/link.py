@@ -12,7 +12,10 @@ manual's packet rules require (ROBOTIS e-Manual, DYNAMIXEL Protocol 2.0):
   rest of an aborted SYNC_READ), so before any retry :class:`DxlLink` waits until the line has
   been quiet for the return delay plus the transmit time of the longest outstanding status at
   the port's baud rate, then flushes the input;
-- retries are bounded; after them the last failure is raised as a typed error
+- a well-framed status answering another request (a late one) is discarded while the awaited
+  one is listened for (:data:`MAX_DISCARDS`), and bytes waiting before a transaction are
+  dropped, so a stale status neither fails nor poisons an attempt;
+- retries are bounded (counted in :attr:`DxlLink.faults`); after them the last failure is raised as a typed error
   (:class:`DeviceTimeoutError`, :class:`ChecksumError`, :class:`ProtocolError`).
 
 :func:`decode_status` is the pure codec (raw frame bytes -> parameters and error byte, checked
@@ -35,6 +38,7 @@ from bench.core.errors import (
     DeviceTimeoutError,
     ProtocolError,
 )
+from drivers.faultlog import FaultLog
 from drivers.transport import TransportPortHandler
 
 __all__ = ["Request", "check_status", "decode_status", "DxlLink", "STATUS_INSTRUCTION",
@@ -51,6 +55,14 @@ BROADCAST_ID = 0xFE
 _STATUS_OVERHEAD = 11  # header 4, id, len 2, inst, err, crc 2
 _HEADER = b"\xff\xff\xfd\x00"
 _PING_REPLY_LEN = 3  # model number (2) + firmware version (1)
+#: statuses answering another request skipped while one is awaited (then the attempt fails)
+MAX_DISCARDS = 8
+
+
+def _hex(data: Sequence[int], limit: int = 24) -> str:
+    """The bytes of a reply as hex (the first ``limit``), for error messages."""
+    b = bytes(data)
+    return (b[:limit].hex(" ") + (f" ... ({len(b)} bytes)" if len(b) > limit else "")) if b else "no bytes"
 
 
 @dataclass(frozen=True)
@@ -123,10 +135,11 @@ def decode_status(frame: bytes, req: Request) -> tuple[bytes, int]:
 class _Failure(Exception):
     """Internal: one failed attempt (timeout, corrupt, mismatch) to be retried after quiet."""
 
-    def __init__(self, error: CommunicationError | ProtocolError, outstanding: int) -> None:
+    def __init__(self, error: CommunicationError | ProtocolError, outstanding: int, kind: str = "timeout") -> None:
         super().__init__(str(error))
         self.error = error
         self.outstanding = outstanding
+        self.kind = kind  # the FaultLog kind: timeout, corrupt, foreign, transmit
 
 
 class DxlLink:
@@ -165,6 +178,7 @@ class DxlLink:
         self.name = name
         self.discarded = 0       # late bytes swallowed while waiting for quiet (diagnostics)
         self.recoveries = 0      # quiet-and-flush recoveries done
+        self.faults = FaultLog()
 
     # -- quiet bus ---------------------------------------------------------------------------
     def quiet(self, outstanding_bytes: int) -> None:
@@ -195,21 +209,47 @@ class DxlLink:
         self.port.is_using = False
         if comm != COMM_SUCCESS:
             raise _Failure(CommunicationError(f"{self.name}: {what}: transmit failed "
-                                              f"({self.ph.getTxRxResult(comm)})"), 0)
+                                              f"({self.ph.getTxRxResult(comm)})"), 0, "transmit")
 
     def _rx(self, req: Request, outstanding: int) -> tuple[bytes, int]:
-        rx, comm = self.ph.rxPacket(self.port, False)
-        self.port.is_using = False
-        if comm == COMM_RX_TIMEOUT:
-            raise _Failure(DeviceTimeoutError(f"{self.name}: no reply to {req.what}"), outstanding)
-        if comm != COMM_SUCCESS:
-            kind = "corrupt reply (CRC/framing)" if comm == COMM_RX_CORRUPT else \
-                self.ph.getTxRxResult(comm)
-            raise _Failure(ChecksumError(f"{self.name}: {kind} to {req.what}"), outstanding)
-        try:
-            return check_status(rx, req)
-        except ProtocolError as exc:
-            raise _Failure(ProtocolError(f"{self.name}: {exc}"), outstanding) from None
+        """The status answering ``req``. A well-framed status answering another request (another
+        id, another parameter length: a late status of an earlier attempt or transaction) is
+        discarded and the wait goes on, at most :data:`MAX_DISCARDS` times, so a stale status
+        never costs (or poisons) an attempt; a timeout or a corrupt frame fails the attempt."""
+        size = _STATUS_OVERHEAD + req.reply_len
+        last: ProtocolError | None = None
+        for k in range(MAX_DISCARDS + 1):
+            rx, comm = self.ph.rxPacket(self.port, False)
+            self.port.is_using = False
+            if comm == COMM_RX_TIMEOUT and last is not None:  # only statuses answering something else came
+                raise _Failure(ProtocolError(f"{self.name}: no reply to {req.what} after {k} discarded "
+                                             f"status(es) answering another request (last: {last})"),
+                               outstanding, "timeout")  # the awaited status was lost
+            if comm == COMM_RX_TIMEOUT:
+                raise _Failure(DeviceTimeoutError(f"{self.name}: no reply to {req.what}"), outstanding, "timeout")
+            if comm != COMM_SUCCESS:
+                kind = "corrupt reply (CRC/framing)" if comm == COMM_RX_CORRUPT else \
+                    self.ph.getTxRxResult(comm)
+                raise _Failure(ChecksumError(f"{self.name}: {kind} to {req.what}: {_hex(rx)}"), outstanding,
+                               "corrupt")
+            try:
+                return check_status(rx, req)
+            except ProtocolError as exc:
+                self.faults.discarded += 1
+                last = ProtocolError(f"{self.name}: {exc}: {_hex(rx)}")
+                log.debug("%s: discarded a status that does not answer %s: %s", self.name, req.what, last)
+                self.port.setPacketTimeout(size)  # listen again for the awaited status
+        assert last is not None
+        raise _Failure(last, outstanding, "foreign")
+
+    def _drain_stale(self) -> None:
+        """Before a transaction: bytes already waiting answer no request of it; drop them."""
+        t = self.port.transport
+        n = int(getattr(t, "in_waiting", 0) or 0)
+        if n > 0:
+            self.discarded += len(t.read(n, 0))
+            self.faults.discarded += 1
+            t.reset_input()
 
     @staticmethod
     def _packet(dxl_id: int, instruction: int, params: Sequence[int]) -> list[int]:
@@ -222,15 +262,25 @@ class DxlLink:
         return pkt
 
     def _retrying(self, what: str, attempt: Callable[[], object]) -> object:
+        """``attempt()`` with at most :attr:`retries` more after a failed one, each after a quiet
+        bus (:meth:`quiet`), so a retry does not inherit the failed attempt's late statuses;
+        counted in :attr:`faults`. A fault that persists is raised typed, naming device,
+        transaction and bytes."""
         last: _Failure | None = None
+        self._drain_stale()
         for n in range(self.retries + 1):
             try:
-                return attempt()
+                out = attempt()
             except _Failure as f:
                 last = f
+                self.faults.attempt_failed(f.kind, n < self.retries)
                 log.debug("%s: %s attempt %d: %s", self.name, what, n + 1, f.error)
                 self.quiet(f.outstanding)
+                continue
+            self.faults.finished(n, True)
+            return out
         assert last is not None
+        self.faults.finished(self.retries + 1, False)
         err = last.error
         raise type(err)(f"{err} after {self.retries + 1} attempt(s)") from None
 

@@ -26,7 +26,7 @@ alarm is :class:`HardwareError`, no HOME-END in time a STOP and :class:`DeviceTi
 Faults
 ------
 * A Modbus exception response -> :class:`ProtocolError` naming the function, address and
-  exception code (no retry: the drive answered).
+  exception code (no retry: the drive answered; ACKNOWLEDGE and SLAVE DEVICE BUSY are retried).
 * No reply / a garbled reply -> retried ``retries`` times, then :class:`DeviceTimeoutError`
   (or :class:`ChecksumError` when bytes came back but never a valid frame). A valid reply that
   does not answer this request (another device, function code, register count or echoed

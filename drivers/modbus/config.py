@@ -19,6 +19,9 @@ MODBUS_EXCEPTIONS = {
     8: "MEMORY PARITY ERROR", 10: "GATEWAY PATH UNAVAILABLE",
     11: "GATEWAY TARGET DEVICE FAILED TO RESPOND",
 }
+#: exception codes that say "not now" rather than "never": ACKNOWLEDGE (a long operation under way)
+#: and SLAVE DEVICE BUSY; the request is retried (bounded) instead of refused
+TRANSIENT_EXCEPTIONS = (5, 6)
 _FUNCTION_NAMES = {3: "read holding registers", 16: "write multiple registers"}
 
 
@@ -84,7 +87,8 @@ class AxisConfig(Settings):
     timeout_s : float
         Reply timeout for one Modbus request.
     retries : int
-        Extra attempts after a timeout / lost connection (exception responses never retry).
+        Extra attempts after a timeout, a garbled or foreign reply, a lost connection or a transient
+        exception response (ACKNOWLEDGE, SLAVE DEVICE BUSY; other exception responses never retry).
     retry_delay_s : float
         Pause between attempts.
     device_id : int
@@ -113,7 +117,7 @@ class AxisConfig(Settings):
     home_timeout_s: _Positive = 60.0
     poll_interval_s: _Positive = 0.01
     timeout_s: _Positive = 0.5
-    retries: Annotated[int, Field(ge=0)] = 2
+    retries: Annotated[int, Field(ge=0)] = 3
     retry_delay_s: Finite = 0.05
     device_id: Annotated[int, Field(ge=1, le=247)] = 1
     baudrate: int = 115200

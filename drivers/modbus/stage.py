@@ -18,13 +18,14 @@ from pymodbus.framer import FramerType
 from bench.core.errors import (ChecksumError, ConfigError, DeviceError, DeviceTimeoutError, FaultLatchedError,
                                GeometryError, HardwareError, InputError, PortGoneError, ProtocolError)
 from bench.core.roles import InstrumentBase, InstrumentInfo
+from drivers.faultlog import FaultLog
 from drivers.settings import port_and_name, settings_with_overrides
 from drivers.registers import RegisterMap, load_register_map
 from drivers.modbus.client import (
     TransportModbusClient, check_reply, port_open_hint, probe_serial_open,
 )
 from drivers.modbus.homing import HomingMixin
-from drivers.modbus.config import _FUNCTION_NAMES, MODBUS_EXCEPTIONS, AxisConfig
+from drivers.modbus.config import _FUNCTION_NAMES, MODBUS_EXCEPTIONS, TRANSIENT_EXCEPTIONS, AxisConfig
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +88,7 @@ class ModbusStageAxis(HomingMixin, InstrumentBase):
         self._owns_client = client is None
         self._rx_seen = False
         self._answered = False   # a reply ever came back on this link
+        self.faults = FaultLog()
         self._gone: str | None = None
         self._closed = False
         cfg = base
@@ -153,6 +155,7 @@ class ModbusStageAxis(HomingMixin, InstrumentBase):
                 resp = call()
             except ConnectionException as exc:
                 last, kind = exc, "gone"
+                self.faults.attempt_failed("gone", attempt < cfg.retries)
                 self._safe_close_client()
                 if self.link == "rtu" and self._answered:
                     # A serial port that worked and then failed has vanished (adapter unplugged,
@@ -167,21 +170,25 @@ class ModbusStageAxis(HomingMixin, InstrumentBase):
             except ModbusIOException as exc:
                 last, kind = exc, "timeout"
                 garbled = garbled or self._rx_seen
+                self.faults.attempt_failed("corrupt" if self._rx_seen else "timeout", attempt < cfg.retries)
                 log.warning("%s: %s: no valid reply (attempt %d)", self.name, what, attempt + 1)
                 continue
             except (PortGoneError, DeviceError):
                 raise
             except ModbusException as exc:
                 last, kind = exc, "timeout"
+                self.faults.attempt_failed("timeout", attempt < cfg.retries)
                 continue
             except OSError as exc:
                 last, kind = exc, "gone"
+                self.faults.attempt_failed("gone", attempt < cfg.retries)
                 self._safe_close_client()
                 continue
             try:
                 check_reply(resp, fc, cfg.device_id, address, count)
             except ProtocolError as exc:  # a late answer to another request: never used
                 last, kind, garbled = exc, "timeout", True
+                self.faults.attempt_failed("foreign", attempt < cfg.retries)
                 log.warning("%s: %s: reply does not match the request (attempt %d): %s",
                             self.name, what, attempt + 1, exc)
                 self._flush_input()
@@ -189,11 +196,18 @@ class ModbusStageAxis(HomingMixin, InstrumentBase):
             if resp.isError():
                 code = getattr(resp, "exception_code", None)
                 ename = MODBUS_EXCEPTIONS.get(code, "unknown") if code is not None else "?"
+                if code in TRANSIENT_EXCEPTIONS and attempt < cfg.retries:  # busy now, not refused
+                    last, kind = ProtocolError(f"Modbus exception code {code} ({ename})"), "timeout"
+                    self.faults.attempt_failed("exception", True)
+                    continue
+                self.faults.finished(attempt + 1, False)
                 raise ProtocolError(f"{self.name}: {what}: Modbus exception code {code} ({ename})"
                                     f" from device {cfg.device_id}")
             self._answered = True
+            self.faults.finished(attempt, True)
             return resp
         tries = cfg.retries + 1
+        self.faults.finished(tries, False)
         if kind == "gone":
             hint = ""
             if self.link == "rtu":
@@ -301,6 +315,21 @@ class ModbusStageAxis(HomingMixin, InstrumentBase):
         if self._fault is not None:
             log.info("%s: fault cleared (%s)", self.name, self._fault.message)
         self._fault = None
+
+    def establish(self) -> dict[str, Any]:
+        """Set the registers the driver relies on, whatever an earlier program left, and read
+        them back: the input command word all off (a START/ZHOME/ALM-RST bit left on would
+        swallow the rising edge the driver pulses; FREE de-energizes the motor; STOP blocks
+        motion). The direct-data block is written whole with every move. Returns the status
+        (an alarm present is reported by the first move, which :meth:`reset_alarm` clears).
+
+        Builders call it right after constructing the axis (the axis's "open")."""
+        self.write_int32("input_command", 0)
+        left = self.read_int32("input_command")
+        if left != 0:
+            raise ProtocolError(f"{self.name}: input command reads back 0x{left & 0xFFFFFFFF:08X} after "
+                                f"writing 0 (register map {self.rmap.name})")
+        return self.status()
 
     # --- motion ---------------------------------------------------------------------------------
     def check_deg(self, value: float) -> None:

@@ -18,9 +18,11 @@ ASCII mode (``aA``; back with ``bB``; both two bare bytes, no CR)
     reads each echo back. Data values are decimal and end with CR; a command without data is
     the letter alone. Values the device sends back end with CR LF (a bare CR is accepted too).
 Settings
-    The driver assumes the power-up settings (free running, no compression, no checksum) and
-    sends ``k``, ``G``, ``T`` only when the config changes one of them. ``G`` and ``k`` are
-    optional: a NAK to them is recorded as "not supported" (``describe().extra["unsupported"]``)
+    A unit keeps its settings from an earlier program, so on open the driver assumes none: it
+    sends ``k``, ``G``, ``T``, ``A 1`` and ``P 0`` and reads back ``?T`` and ``?A`` (``I`` with
+    ``?I`` at the first acquisition); later a setting is sent only when it changes. A NAK, a
+    timeout or a corrupt reply is retried (bounded, after draining the line) and counted in
+    ``OceanSpectrometer.faults``. ``G`` and ``k`` are optional: a NAK to them is recorded as "not supported" (``describe().extra["unsupported"]``)
     and the session goes on without them; the device's answers to the refused command's data
     bytes are drained, never read as later answers. ``open`` brings the device back to binary
     mode from either mode (a bare ``bB``: echoed and ACKed in ASCII mode, ACKed in binary).

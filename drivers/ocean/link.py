@@ -9,7 +9,8 @@ Owns :class:`OceanLink`, the half of the driver that talks to the transport, per
   values it sends end with CR LF (a bare CR is accepted too, once seen it is remembered);
 - ``aA`` / ``bB`` are two bare bytes (no CR); ``bB`` from ASCII mode is echoed, then ACKed in
   binary; :meth:`OceanLink.sync_binary` brings a device back from either mode;
-- after a NAK or a failed attempt, :meth:`OceanLink.drain` swallows whatever is still arriving
+- a NAK, a timeout or a corrupt reply is retried a bounded number of times (:meth:`OceanLink.retrying`,
+  counted in :attr:`OceanLink.faults`); before each retry :meth:`OceanLink.drain` swallows whatever is still arriving
   (e.g. the device's answers to a refused command's data bytes, which it may take for
   commands) so that no byte of it is read as the answer to the next command.
 """
@@ -27,6 +28,7 @@ from bench.core.errors import (
     PortGoneError,
     ProtocolError,
 )
+from drivers.faultlog import FaultLog
 from drivers.ocean.codec import ACK, CR, LF, NAK
 
 __all__ = ["OceanLink", "Nak", "Retry"]
@@ -61,6 +63,7 @@ class OceanLink:
         self._rx = bytearray()
         self._lf: bool | None = None   # do value lines end CR LF (True) or CR (False)?
         self.closed = False
+        self.faults = FaultLog()
 
     # -- reads -------------------------------------------------------------------------------
     def deadline(self, extra_s: float = 0.0) -> float:
@@ -160,21 +163,33 @@ class OceanLink:
             raise Retry(ChecksumError(f"{self.name}: {what}: expected ACK/NAK, got 0x{b:02X}"))
 
     def retrying(self, what: str, fn: Callable[[], Any]) -> Any:
-        last: CommunicationError | None = None
+        """``fn()`` with at most :attr:`retries` more attempts after a timeout, a corrupt reply or
+        a NAK (a line glitch can turn a good command into an unknown one); before each retry the
+        line is drained until quiet, so no late byte is taken for the next answer. A fault that
+        persists is raised typed, naming the device, the command and the bytes."""
+        last: CommunicationError | ProtocolError | None = None
+        failures = 0
         for attempt in range(self.retries + 1):
             if self.closed:
                 raise PortGoneError(f"{self.name}: closed")
             try:
-                return fn()
-            except Retry as r:
-                last = r.error
+                out = fn()
+            except (Retry, Nak) as r:
+                last = r.error if isinstance(r, Retry) else r
+                failures += 1
+                kind = "nak" if isinstance(r, Nak) else ("timeout" if isinstance(last, DeviceTimeoutError)
+                                                        else "corrupt")
+                self.faults.attempt_failed(kind, attempt < self.retries)
                 log.warning("%s: %s failed (attempt %d of %d): %s", self.name, what, attempt + 1,
-                            self.retries + 1, r.error)
-                self.drain()
-            except Nak:
-                self.drain()  # answers to data bytes the device may have taken for commands
-                raise
+                            self.retries + 1, last)
+                late = self.drain()  # and answers to data bytes the device may have taken for commands
+                if late:
+                    last = type(last)(f"{last} (then {len(late)} late byte(s): {late[:16].hex(' ')})")
+                continue
+            self.faults.finished(failures, True)
+            return out
         assert last is not None
+        self.faults.finished(failures, False)
         raise type(last)(f"{last} [after {self.retries + 1} attempt(s)]") from None
 
     # -- modes -------------------------------------------------------------------------------

@@ -27,14 +27,17 @@ from drivers.ocean.codec import (
     encode_binary, parse_ascii_frame, parse_binary_frame,
 )
 from drivers.ocean.config import OceanConfig
+from drivers.faultlog import FaultLog
 from drivers.ocean.link import Nak, OceanLink, Retry
 from drivers.transport import SerialTransport
 
 log = logging.getLogger(__name__)
 
-#: Settings as the device has them after power-up (manual: free-running trigger, no
-#: compression, no checksum). Optional commands are sent only to change one of these.
+#: Settings as the device has them after ``Q`` (reset to defaults; manual: free-running trigger,
+#: no compression, no checksum). On open nothing is assumed: every setting is sent.
 POWER_UP = {"T": 0, "G": 0, "k": 0}
+#: settings the device reports back (``?A``, ``?I``, ``?T``): each is read back after it is set
+READ_BACK = ("A", "I", "T")
 #: Commands a session can do without: a NAK to one is recorded as "not supported".
 OPTIONAL = {"G", "k"}
 
@@ -77,7 +80,7 @@ class OceanSpectrometer(InstrumentBase):
             t = transport
         self.link = OceanLink(t, name, self.config.timeout_s, self.config.retries, clock)
         self._closed = False
-        self._state: dict[str, int] = dict(POWER_UP)
+        self._state: dict[str, int] = {}      # what the device is known to have: nothing until set
         self._sent: set[str] = set()          # letters actually sent this session
         self._suspect_compression = False
         self.unsupported: set[str] = set()
@@ -175,6 +178,10 @@ class OceanSpectrometer(InstrumentBase):
         try:
             self.command(letter, value)
             self._sent.add(letter)
+            if letter in READ_BACK and letter not in self.unsupported:
+                got = self.query(letter)
+                if got != value:
+                    raise ProtocolError(f"{self.name}: set {letter} {value} but the device reports {got}")
         except Nak:
             if letter not in OPTIONAL:
                 raise
@@ -213,10 +220,15 @@ class OceanSpectrometer(InstrumentBase):
         self._apply_settings()
 
     def _apply_settings(self) -> None:
+        """Every setting the driver relies on, sent whatever the device is assumed to have (a unit
+        keeps them from an earlier program): checksum, compression, trigger, scans to add 1, all
+        pixels; the integration time is set by the first acquisition."""
         cfg = self.config
         self._set("k", int(cfg.checksum))
         self._set("G", int(cfg.compression))
         self._set("T", cfg.trigger_mode)
+        self._set("A", 1)
+        self._set("P", 0)
 
     # --- open ---------------------------------------------------------------------------------
     def _open(self) -> None:
@@ -409,6 +421,11 @@ class OceanSpectrometer(InstrumentBase):
         return out
 
     # --- Instrument ---------------------------------------------------------------------------
+    @property
+    def faults(self) -> FaultLog:
+        """The line's transaction faults and recoveries (:class:`drivers.faultlog.FaultLog`)."""
+        return self.link.faults
+
     def describe(self) -> InstrumentInfo:
         wl = self._wavelengths
         cfg = self.config

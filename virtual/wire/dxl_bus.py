@@ -37,10 +37,14 @@ class Faults:
     #: the next n broadcast SYNC_WRITE / BULK_WRITE packets are lost on the line (no servo
     #: takes them; a broadcast has no status, so the host cannot see it)
     drop_broadcast_next: int = 0
+    #: probability that a status of an earlier request (the last one sent) reaches the host again
+    #: just before a reply: a late or foreign status the host must discard (soak)
+    stale_rate: float = 0.0
     dropped: int = 0
     corrupted: int = 0
     late: int = 0
     dropped_broadcasts: int = 0
+    stale: int = 0
 
 
 @dataclass
@@ -86,11 +90,12 @@ class DynamixelBus:
         self.axes = {k: AxisMap(**dict(v)) for k, v in (axes or {}).items()}
         self.log: list[Packet] = []  # instructions received (bounded)
         self.later: list[tuple[float, bytes]] = []  # (release time, bytes) held back by late_s
+        self._last_status = b""  # the status sent last: what a stale_rate fault sends again
 
     # -- control ----------------------------------------------------------------------------
     def set_faults(self, **kw: Any) -> None:
         for k, v in kw.items():
-            if not hasattr(self.faults, k) or k in ("dropped", "corrupted", "late", "dropped_broadcasts"):
+            if not hasattr(self.faults, k) or k in ("dropped", "corrupted", "late", "dropped_broadcasts", "stale"):
                 raise KeyError(f"unknown fault {k!r}")
             setattr(self.faults, k, type(getattr(self.faults, k))(v))
 
@@ -156,6 +161,14 @@ class DynamixelBus:
         f = self.faults
         if f.hang:
             return b""
+        stale, self._last_status = self._last_status, reply
+        if stale and f.stale_rate and self.rng.random() < f.stale_rate:
+            f.stale += 1
+            return stale + self._inject_one(reply)
+        return self._inject_one(reply)
+
+    def _inject_one(self, reply: bytes) -> bytes:
+        f = self.faults
         if f.drop_next > 0 or (f.drop_rate and self.rng.random() < f.drop_rate):
             f.drop_next = max(0, f.drop_next - 1)
             f.dropped += 1
@@ -181,7 +194,7 @@ class DynamixelBus:
                                            + bytes([s.value("firmware_version")])))
             return out
         if i == INST["read"]:
-            if not targets or not reply_ok:
+            if not targets or not reply_ok or self.servos[pkt.id].value("status_return_level") < 1:
                 return []
             s = self.servos[pkt.id]
             if len(p) != 4:
@@ -193,22 +206,24 @@ class DynamixelBus:
             out = []
             for t in targets:
                 s = self.servos[t]
+                answers = s.value("status_return_level") >= 2  # the level before this write
                 err = s.write(p[0] | p[1] << 8, p[2:]) if len(p) > 2 else ERR["data_length"]
-                if reply_ok:
+                if reply_ok and answers:
                     out.append(encode_status(t, s.status_error(err)))
             return out
         if i == INST["reboot"]:
             out = []
             for t in targets:
+                answers = self.servos[t].value("status_return_level") >= 2
                 self.servos[t].reboot()
-                if reply_ok:
+                if reply_ok and answers:
                     out.append(encode_status(t, self.servos[t].status_error()))
             return out
         if i == INST["sync_read"] and pkt.id == BROADCAST_ID and len(p) >= 4:
             addr, n = p[0] | p[1] << 8, p[2] | p[3] << 8
             out = []
             for t in p[4:]:
-                if t in self.servos:
+                if t in self.servos and self.servos[t].value("status_return_level") >= 1:
                     s = self.servos[t]
                     err, data = s.read(addr, n)
                     out.append(encode_status(t, s.status_error(err), data))

@@ -45,7 +45,8 @@ The process exits by itself when the process that started it dies (unless ``--no
 
 Modelling simplifications: motion at constant profile velocity (Profile Acceleration is
 stored, not simulated); Profile Velocity 0 means the Velocity Limit; no return delay; Status
-Return Level is always 2; a Goal Position outside the position limits in mode 3 is refused
+Return Level (68) as the manual says: 0 answers PING only, 1 PING and reads, 2 every instruction
+(the level before a write decides whether it is answered); a Goal Position outside the position limits in mode 3 is refused
 with error 6 (data limit) on a plain write and ignored in a sync/bulk write; Torque Enable = 1
 sets Goal Position to Present Position (no jump).
 """

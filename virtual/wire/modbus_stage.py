@@ -28,6 +28,7 @@ Start, inject faults, stop::
         emu.alarm(0x30)           # overload alarm (motion freezes, ALM on)
         emu.drop_replies(2)       # the next 2 replies are not sent
         emu.corrupt_replies(1)    # the next reply has one byte flipped (CRC error on RTU)
+        emu.fault_rate(0.01, 3)   # random dropped and corrupted replies from now on (soak)
         emu.state()               # dict: position, target, moving, alarm, triggers, ...
         emu.die()                 # the process exits at once (os._exit), like a pulled plug
     # leaving the block stops (or kills) the process
@@ -43,6 +44,7 @@ import asyncio
 import json
 import logging
 import os
+import random
 import sys
 import threading
 from typing import Any
@@ -72,11 +74,23 @@ class _Faults:
         self.drop = 0
         self.corrupt = 0
         self.drop_all = False
+        #: random transient faults (soak): each reply dropped or corrupted with probability rate / 2
+        self.rate = 0.0
+        self.rng = random.Random(0)
+        self.injected = {"drop": 0, "corrupt": 0}
 
     def outgoing(self, data: bytes) -> bytes:
         with self.lock:
             if self.drop_all:
                 return b""
+            if self.rate > 0 and data:
+                u = self.rng.random()
+                if u < self.rate / 2:
+                    self.drop += 1
+                    self.injected["drop"] += 1
+                elif u < self.rate:
+                    self.corrupt += 1
+                    self.injected["corrupt"] += 1
             if self.drop > 0:
                 self.drop -= 1
                 log.info("fault: dropping reply %s", data.hex(" "))
@@ -243,6 +257,12 @@ async def _serve(cfg: dict[str, Any], transport: str, conn: Any) -> None:
                         elif cmd == "clear":
                             faults.drop = faults.corrupt = 0
                             faults.drop_all = False
+                            faults.rate = 0.0
+                        elif cmd == "rates":
+                            faults.rate = float(msg.get("rate", 0.0))
+                            faults.rng.seed(int(msg.get("seed", 0)))
+                        elif cmd == "injected":
+                            reply["injected"] = dict(faults.injected)
                         else:
                             reply = {"ok": False, "error": f"unknown command {cmd!r}"}
             conn.send(reply)
@@ -320,6 +340,15 @@ class StageEmulator(PipeEmulator):
     def corrupt_replies(self, n: int = 1) -> None:
         """Flip one byte in each of the next ``n`` replies."""
         self._call({"cmd": "corrupt", "n": n})
+
+    def fault_rate(self, rate: float, seed: int = 0) -> None:
+        """Random transient faults from now on (seeded): each reply dropped or corrupted with
+        probability ``rate`` / 2."""
+        self._call({"cmd": "rates", "rate": rate, "seed": seed})
+
+    def injected(self) -> dict[str, int]:
+        """Random faults injected so far, by kind."""
+        return self._call({"cmd": "injected"})["injected"]
 
     def silence(self, on: bool = True) -> None:
         """Drop every reply until ``silence(False)``."""

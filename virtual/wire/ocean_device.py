@@ -7,6 +7,7 @@ acquisitions scheduled in time, triggers) and the fault injection state :class:`
 from __future__ import annotations
 
 import logging
+import random
 import time
 from typing import Callable
 
@@ -34,11 +35,27 @@ _SETTINGS: dict[str, tuple[str, int, int, type]] = {
 _ONE_WORD = {ord(letter) for letter in _SETTINGS}
 
 class _Faults:
-    def __init__(self) -> None:
+    def __init__(self, rate: float = 0.0, seed: int = 0) -> None:
         self.nak: list[int | None] = []   # command letters (None = any) to NAK once each
         self.drop = 0
         self.corrupt = 0
         self.no_memory = 0
+        #: random transient faults (soak): each command is NAKed, or its reply dropped, with
+        #: probability ``rate`` / 2 each; each frame is corrupted with probability ``rate``
+        self.rate = float(rate)
+        self.rng = random.Random(seed)
+        self.injected = {"nak": 0, "drop": 0, "corrupt": 0}
+
+    def draw(self, kinds: tuple[str, ...]) -> str | None:
+        """A random fault of ``kinds`` (each with probability rate / len(kinds)), or None."""
+        if self.rate <= 0:
+            return None
+        u = self.rng.random()
+        for k, kind in enumerate(kinds):
+            if u < self.rate * (k + 1) / len(kinds):
+                self.injected[kind] += 1
+                return kind
+        return None
 
 
 class _Device:
@@ -69,7 +86,7 @@ class _Device:
             if want is None or want == letter:
                 del f.nak[i]
                 return "nak"
-        return None
+        return f.draw(("nak", "drop"))
 
     def feed(self, data: bytes) -> None:
         now = time.monotonic()
@@ -345,8 +362,8 @@ class _Device:
                 body = encode_frame_ascii(values, s, convention=cfg.dword_checksum)
             else:
                 body = bytearray(encode_frame(values, s, convention=cfg.dword_checksum))
-                if f.corrupt > 0:
-                    f.corrupt -= 1
+                if f.corrupt > 0 or f.draw(("corrupt",)):
+                    f.corrupt = max(0, f.corrupt - 1)
                     i = 14 + len(s.pixel_params) * 2 + min(40, npix)  # inside the pixel data
                     body[i] ^= 0x10
                     log.info("fault: flipped byte %d of the frame", i)

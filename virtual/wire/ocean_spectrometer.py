@@ -23,6 +23,7 @@ Start, inject faults, stop::
         emu.nak("I")             # NAK the next I command (or emu.nak() for the next command)
         emu.drop_replies(1)      # the next command gets no reply at all
         emu.corrupt_frames(1)    # one byte of the next S frame's pixel data is flipped
+        emu.fault_rate(0.01, seed=3)  # random NAKs, dropped replies and corrupt frames (soak)
         emu.no_memory(1)         # the next S answers ETX (insufficient memory)
         emu.trigger()            # release an acquisition waiting in an external trigger mode
         emu.state()              # settings, mode, counters
@@ -114,6 +115,11 @@ def _child_main(cfg: dict[str, Any], geometry_source: Any, response: Any, conn: 
                     f.no_memory += int(msg.get("n", 1))
                 elif cmd == "clear":
                     dev.faults = _Faults()
+                elif cmd == "rates":
+                    dev.faults.rate = float(msg.get("rate", 0.0))
+                    dev.faults.rng.seed(int(msg.get("seed", 0)))
+                elif cmd == "injected":
+                    reply["injected"] = dict(dev.faults.injected)
                 elif cmd == "trigger":
                     dev.external_trigger()
                 elif cmd == "state":
@@ -181,6 +187,15 @@ class SpectrometerEmulator(PipeEmulator):
 
     def trigger(self) -> None:
         self._call({"cmd": "trigger"})
+
+    def fault_rate(self, rate: float, seed: int = 0) -> None:
+        """Random transient faults from now on (seeded): NAKs and dropped replies, rate / 2 of the
+        commands each, and corrupted frames, ``rate`` of them."""
+        self._call({"cmd": "rates", "rate": rate, "seed": seed})
+
+    def injected(self) -> dict[str, int]:
+        """Random faults injected so far, by kind."""
+        return self._call({"cmd": "injected"})["injected"]
 
     def __repr__(self) -> str:
         return f"SpectrometerEmulator({self.port}, pid={self._proc.pid})"
