@@ -9,7 +9,8 @@ information (:mod:`bench.identify.design`) also counts:
   reading by up to a few per cent at grazing angles, far more than the readings' noise;
 * optionally (``shared=True``) the white standard's relative uncertainty as one error shared by
   every reading (covariance ``rho^2 y y^T``) rather than an independent error per reading; the
-  default keeps the fit's diagonal covariance, which the design's information matches.
+  default is the diagonal of the readings' covariance, which the design's information matches
+  (``bench fit`` itself divides by the budgets' full covariance).
 
 Readings the calibration masked (saturated, at or below dark: no value) are left out, as they
 carry no information; :func:`valid_readings` drops them from a record.
@@ -64,6 +65,9 @@ class BenchReadings(GaussianReadings):
         self.geometries = [Geometry(float(a), float(b), float(c), float(d)) for a, b, c, d in
                            zip(t["theta_i"], t["phi_i"], t["theta_r"], t["phi_r"])]
         self.wavelengths = t["wavelength_nm"].to_numpy(float)
+        # the design's Fisher information is diagonal in the readings: so is this likelihood (the
+        # fit proper, bench.identify.likelihood, takes the budgets' full covariance)
+        self.chol = np.diag(np.sqrt(np.diag(self.chol @ self.chol.T)))
         if shared:
             rho = shared_relative(record)
             u = np.sqrt(np.diag(self.chol @ self.chol.T))
