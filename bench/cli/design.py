@@ -35,7 +35,7 @@ def _times(text: str) -> str:
 
 def _add_common(g: argparse._ArgumentGroup, what: str) -> None:
     g.add_argument("--seconds", type=real(0.0, 1e7, lo_open=True), metavar="S",
-                   help=f"{what}: the bench-time budget, s (as `bench plan` estimates it)")
+                   help=f"{what}: the bench-time budget, s (as `bench plan` estimates it; no default: required)")
     g.add_argument("--criterion", choices=("D", "A", "E"), default="D",
                    help=f"{what}: D (log det of the Fisher information, default), A (mean variance), E (worst "
                    "direction)")
@@ -54,9 +54,9 @@ def add_design_options(parser: argparse.ArgumentParser) -> None:
     """The ``bench plan --design`` options."""
     g = parser.add_argument_group("designed plans (--design)")
     g.add_argument("--design", metavar="MODEL", help="write a plan designed to identify MODEL, e.g. "
-                   "\"plastic:alpha=?,kd=?\" (the ? parameters), instead of checking PLAN.toml")
-    g.add_argument("--out", type=output_file((".toml",)), metavar="PLAN.toml", help="--design: the plan file to write")
-    g.add_argument("--compare", metavar="PLAN.toml", help="--design: also predict the interval widths of this plan")
+                   "\"plastic:alpha=?,kd=?\" (the ? parameters), instead of checking PLAN.toml (default: none, check PLAN.toml)")
+    g.add_argument("--out", type=output_file((".toml",)), metavar="PLAN.toml", help="--design: the plan file to write (no default: required with --design)")
+    g.add_argument("--compare", metavar="PLAN.toml", help="--design: also predict the interval widths of this plan (default: none)")
     _add_common(g, "--design")
 
 
@@ -64,9 +64,9 @@ def add_adaptive_options(parser: argparse.ArgumentParser) -> None:
     """The ``bench scan --adaptive`` options."""
     g = parser.add_argument_group("sequential design (--adaptive)")
     g.add_argument("--adaptive", metavar="MODEL", help="measure, fit and re-design until the budget or the "
-                   "target widths, for MODEL, e.g. \"plastic:alpha=?,kd=?\" (instead of PLAN.toml)")
+                   "target widths, for MODEL, e.g. \"plastic:alpha=?,kd=?\" (instead of PLAN.toml; default: none)")
     g.add_argument("--target", metavar="p=WIDTH,...", help="--adaptive: stop when each named parameter's 95%% "
-                   "interval is at most this wide")
+                   "interval is at most this wide (default: none, the time budget alone)")
     _add_common(g, "--adaptive")
 
 

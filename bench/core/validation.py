@@ -85,14 +85,14 @@ class Settings(BaseModel):
 def _model_names() -> set[str]:
     """Class names of every pydantic model defined so far: pydantic labels a union branch in an
     error's location with its model's class name."""
-    names: set[str] = set()
+    seen: set[type] = set()  # by class, not name: two models may share a name, not their subclasses
     todo = list(BaseModel.__subclasses__())
     while todo:
         cls = todo.pop()
-        if cls.__name__ not in names:
-            names.add(cls.__name__)
+        if cls not in seen:
+            seen.add(cls)
             todo.extend(cls.__subclasses__())
-    return names
+    return {cls.__name__ for cls in seen}
 
 
 def _loc(loc: tuple[Any, ...]) -> str:
