@@ -157,14 +157,16 @@ class CatalogServer:
         return from_uri(self.uri, api_key=self.api_key) if write else from_uri(self.uri)
 
     def add_runs(self, store: Any, run_ids: list[str] | None = None) -> list[str]:
-        """Write stored runs (default: all) through ``TiledWriter``; runs already in the catalog
-        (a kept ``--catalog``) are left as they are. Returns the run ids written."""
+        """Write stored runs (default: every run not still ``running``: a run is served once it
+        has ended, complete) through ``TiledWriter``; runs already in the catalog (a kept
+        ``--catalog``, or served earlier) are left as they are. Returns the run ids written."""
         from bluesky_tiled_plugins import TiledWriter
 
         client = self.client(write=True)
         present = set(client)
         written = []
-        for rid in run_ids if run_ids is not None else [r["run_id"] for r in store.runs()]:
+        ids = run_ids if run_ids is not None else [r["run_id"] for r in store.runs() if r["status"] != "running"]
+        for rid in ids:
             if rid in present:
                 continue
             writer = TiledWriter(client)

@@ -3,7 +3,8 @@
 Fast: the documents of a stored run are valid event-model documents keyed by the run id, and
 their event rows are the rows `bench export` writes (values, identity, units). Slow (a real Tiled
 server: ~10 CPU-s of imports and start-up): `bench serve` on a free port, read back with
-`tiled.client.from_uri` equal to the export, and a RunEngine's TiledWriter writing into it.
+`tiled.client.from_uri` equal to the export, a RunEngine's TiledWriter writing into it, and a run
+stored after the start served once it ends.
 """
 
 from __future__ import annotations
@@ -112,6 +113,18 @@ def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_wr
 
         with pytest.raises(ClientError, match="401"):
             from_uri(info["uri"]).create_container("not-allowed")
+        # a run that ends while the server runs is added within a few seconds (polled every 2 s)
+        with RunStore(path) as s:
+            later = s.create_run("virtual", n_planned=2)
+            s.add_record(later, BSDFRecord(pd.DataFrame([{
+                "wavelength_nm": 500.0, "theta_i": 20.0, "phi_i": 0.0, "theta_r": 30.0, "phi_r": 180.0, "hemisphere": "R",
+                "value": 0.12, "std": 0.001, "ci_lo": 0.11, "ci_hi": 0.13}]), {"specimen": "lambert:albedo=0.3",
+                                                                                "bench_kind": "virtual"}))
+            s.set_status(later, "completed")
+        deadline = __import__("time").monotonic() + 60
+        while later not in from_uri(info["uri"]) and __import__("time").monotonic() < deadline:
+            __import__("time").sleep(0.5)
+        assert later in from_uri(info["uri"]), "a run stored after the start was not served"
     finally:
         server.terminate()
         server.wait(20)

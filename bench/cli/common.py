@@ -167,18 +167,21 @@ def warn_if_radians(what: str, angles: Sequence[float]) -> None:
               f"{', '.join(f'{math.degrees(a):.4g}' for a in list(angles)[:4])} deg", file=sys.stderr)
 
 
-def wait_until_stopped(seconds: float | None) -> None:
+def wait_until_stopped(seconds: float | None, tick: Any = None, period_s: float = 2.0) -> None:
     """Block for ``seconds`` (None: until Ctrl-C or SIGTERM), for commands that keep a service
-    running (``bench emulate``, ``bench serve``); Ctrl-C returns normally."""
+    running (``bench emulate``, ``bench serve``), calling ``tick()`` every ``period_s`` when given
+    (``bench serve`` adds the runs stored meanwhile); Ctrl-C returns normally."""
     import signal
     import time
 
+    end = None if seconds is None else time.monotonic() + seconds
     try:
-        if seconds is not None:
-            time.sleep(seconds)
-        else:
+        if seconds is None:
             signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
-            while True:
-                time.sleep(3600)
+        while end is None or time.monotonic() < end:
+            left = 3600.0 if end is None else end - time.monotonic()
+            time.sleep(max(0.0, min(left, period_s if tick is not None else left)))
+            if tick is not None:
+                tick()
     except KeyboardInterrupt:
         pass

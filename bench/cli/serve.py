@@ -41,8 +41,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 print(f"  read:  from tiled.client import from_uri; c = from_uri({server.uri!r}); "
                       f"c[RUN]['primary'].read()")
                 print(f"  write: TiledWriter(from_uri({server.uri!r}, api_key={server.api_key!r}))")
-                print("  (Ctrl-C stops it)", flush=True)
-            wait_until_stopped(args.seconds)
+                print("  (runs that end later are added as they end; Ctrl-C stops it)", flush=True)
+            # runs that end while the server runs are added as they end (every 2 s)
+            wait_until_stopped(args.seconds, tick=lambda: server.add_runs(store))
     return 0
 
 
