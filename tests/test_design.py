@@ -147,4 +147,7 @@ def test_sequential_design_on_the_emulated_body_stores_each_step_and_resumes(tmp
     code, text, err = run_main(capsys, *argv)
     assert code == 0, err
     again = json.loads(text)
-    assert again["runs"] == first["runs"] and again["estimates"] == first["estimates"]
+    # the same stored steps, refitted: the same estimates up to the optimizer's last digits (the
+    # rerun fits the records read back from the store; the multi-start's local fits agree to ~1e-10)
+    assert again["runs"] == first["runs"]
+    assert again["estimates"] == {k: pytest.approx(v, rel=1e-8) for k, v in first["estimates"].items()}
