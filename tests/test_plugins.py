@@ -182,7 +182,9 @@ def test_a_pip_installed_lab_package_is_listed_and_runs_in_a_sweep_on_dask_worke
     py = _venv_with_the_lab_package(tmp_path)
     listed = _bench(py, "specimens", cwd=tmp_path)
     assert listed.returncode == 0, listed.stderr
-    assert "velvet: Velvet: back to the source" in listed.stdout and "  retro: 0 .. 1" in listed.stdout
+    lines = listed.stdout.splitlines()  # one block per family: "name: convention", then its parameters
+    assert any(line.startswith("velvet: ") for line in lines), listed.stdout
+    assert any(line.startswith("  retro: 0 .. 1, default 0.5") for line in lines), listed.stdout
 
     (tmp_path / "velvet.toml").write_text(SWEEP)
     runs = {}
@@ -214,5 +216,7 @@ def test_a_pip_installed_lab_package_is_listed_and_runs_in_a_sweep_on_dask_worke
 
     exported = _bench(py, "export", runs["dask"], "--store", "s.sqlite", "--format", "labjson", cwd=tmp_path)
     assert exported.returncode == 0, exported.stderr
-    lines = Path(tmp_path / exported.stdout.strip()).read_text().splitlines()
+    paths = exported.stdout.split()  # a two-specimen sweep: one file per specimen
+    assert len(paths) == 2 and any("velvet" in p for p in paths), paths
+    lines = [line for p in paths for line in Path(tmp_path / p).read_text().splitlines()]
     assert len(lines) == len(dask) and {"value", "count", "N"} <= set(json.loads(lines[0]))
