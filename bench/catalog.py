@@ -121,6 +121,7 @@ class CatalogServer:
         from tiled.server.app import build_app
 
         self.api_key = api_key or secrets.token_hex(16)
+        self._served: set[str] | None = None  # run ids in the catalog (add_runs), listed on first use
         self.port = int(port) or free_port()
         try:
             with socket.socket() as probe:
@@ -162,16 +163,20 @@ class CatalogServer:
         ``--catalog``, or served earlier) are left as they are. Returns the run ids written."""
         from bluesky_tiled_plugins import TiledWriter
 
-        client = self.client(write=True)
-        present = set(client)
-        written = []
         ids = run_ids if run_ids is not None else [r["run_id"] for r in store.runs() if r["status"] != "running"]
+        if self._served is not None and self._served.issuperset(ids):
+            return []  # the 2-s poll of `bench serve`: nothing new, no request to the server
+        client = self.client(write=True)
+        if self._served is None:  # what a kept --catalog already holds, listed once
+            self._served = set(client)
+        written = []
         for rid in ids:
-            if rid in present:
+            if rid in self._served:
                 continue
             writer = TiledWriter(client)
             for name, doc in run_documents(store, rid):
                 writer(name, doc)
+            self._served.add(rid)
             written.append(rid)
         return written
 
