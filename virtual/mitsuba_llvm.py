@@ -26,9 +26,14 @@ import numpy as np
 
 __all__ = ["LIBLLVM_CANDIDATES", "llvm_library", "llvm_variant", "llvm_status", "WavefrontSampler"]
 
-#: Where Debian/Ubuntu put libLLVM (the newest first).
-LIBLLVM_CANDIDATES = tuple(f"/usr/lib/x86_64-linux-gnu/libLLVM-{v}.so" for v in (19, 18, 17, 16, 15)) + (
-    "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1", "/usr/lib/x86_64-linux-gnu/libLLVM.so")
+#: Where Debian/Ubuntu put libLLVM (the newest first), of the versions whose x86 back end lowers
+#: every operation Mitsuba's samplers emit. Dr.Jit itself accepts LLVM 15 or newer, but LLVM 15
+#: aborts the whole process ("LLVM ERROR: Cannot select: f32 = fmaximum") on the first BSDF
+#: sample -- an abort no probe in the process can catch -- and 14 is refused by Dr.Jit. A
+#: library of another version is used only when named by ``DRJIT_LIBLLVM_PATH``.
+LIBLLVM_VERSIONS = (21, 20, 19, 18)
+LIBLLVM_CANDIDATES = tuple(f"/usr/lib/x86_64-linux-gnu/libLLVM-{v}.so" for v in LIBLLVM_VERSIONS) + tuple(
+    f"/usr/lib/x86_64-linux-gnu/libLLVM.so.{v}.1" for v in LIBLLVM_VERSIONS)
 #: Set to "0" to keep Mitsuba specimens on the scalar loop.
 ENV_SWITCH = "GONIOBENCH_MITSUBA_LLVM"
 
@@ -73,7 +78,8 @@ def llvm_status(variant: str = "llvm_ad_rgb") -> str:
     if os.environ.get(ENV_SWITCH, "1") == "0":
         return f"disabled by {ENV_SWITCH}=0"
     if llvm_library() is None:
-        return "no libLLVM found (apt-get install libllvm19, or set DRJIT_LIBLLVM_PATH)"
+        return (f"no libLLVM {min(LIBLLVM_VERSIONS)} or newer found (apt-get install libllvm19, or set "
+                "DRJIT_LIBLLVM_PATH)")
     try:
         import drjit as dr
         import mitsuba as mi
