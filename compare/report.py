@@ -26,7 +26,7 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
@@ -42,8 +42,12 @@ from compare.stats import (DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, Comparison, com
                            group_keys, rank)
 from bench.core.budget import budget_summary
 from compare.verdict import Criterion, group_verdicts, model_verdict
+from compare.report_tables import (budget_note, budget_rows, check_rows, criterion_rows, expected_failure, fit_note,
+                                   fit_rows, fmt, frame_rows, group_rows, html_table, md_table, metric_rows,
+                                   ranking_rows, verdict_rows)
 
 __all__ = ["compare_records"]
+
 
 def _json_safe(o: Any) -> Any:
     """Strict JSON values for ``summary.json``: non-finite floats become null; numpy values and
@@ -66,7 +70,7 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
                     observer: str = DEFAULT_OBSERVER, checks: bool = True, on_error: str = "raise", draw_figures: bool = True,
                     map_wavelength_nm: float | None = None, map_incidence: tuple[float, float] | None = None,
                     criterion: Criterion | None = None, check_records: Mapping[str, Any] | None = None,
-                    **align_kwargs: Any) -> dict[str, Any]:
+                    fits: Mapping[str, Mapping[str, Any]] | None = None, **align_kwargs: Any) -> dict[str, Any]:
     """Compare candidates (models, virtual records) with one actual record and write the report.
 
     Parameters
@@ -89,6 +93,10 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
         best-ranked model); the small multiples show every incidence
     check_records : more records (name -> BSDFRecord) to run the physical checks on, e.g. each
         model's whole-sphere patch record, on which energy conservation can be tested
+    fits : model fits to the actual record to report beside the comparison (the application fits,
+        e.g. ``bench compare --fit MODEL``; compare never fits): model string -> ``{"fit": the
+        ``bench fit --json`` document, "confidence": its intervals' confidence, "figure": a residual
+        figure's path or None}``
     criterion : the acceptance criterion (:class:`compare.verdict.Criterion`); its ``k`` and
         instrument uncertainty win over the arguments of the same name
     **align_kwargs : ``angle_tol_deg``, ``wavelength_tol_nm``, ``match``, ``channels``
@@ -101,7 +109,8 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
         ``ranking`` (list, best first), ``checks`` (record name -> check name -> result dict;
         BSDF only), ``unmatched`` (name -> count), ``errors`` (name -> message), ``warnings``,
         ``breakdown`` (name -> ``by_wavelength``/``by_incidence`` lists of per-group metrics),
-        ``alignment`` (name -> tolerances and methods),
+        ``alignment`` (name -> tolerances and methods), ``fits`` (model -> fit document,
+        confidence and figure id; empty when no fit was asked for),
         ``figures`` (ids), ``report_html``, ``report_md``, ``summary_json`` (paths).
 
     Raises
@@ -163,6 +172,8 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     budget = None if table is None or "uncertainty_budget" not in table else budget_summary(list(table.uncertainty_budget))
     figures = (report_figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence, group_tables)
                if draw_figures else [])
+    fit_figures = _fit_figures(fits or {}, figdir)
+    figures += fit_figures
     warnings = sorted({w for c in comps.values() for w in c.summary["warnings"]})
     for r in ranking:
         v = verdicts.get(r["name"])
@@ -175,6 +186,9 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
         "checks": check_results, "unmatched": {n: int((c.aligned.unmatched.side == "actual").sum())
                                                for n, c in comps.items()},
         "errors": errors, "warnings": warnings, "figures": [f["id"] for f in figures], "uncertainty_budget": budget,
+        "fits": {m: {"fit": f["fit"], "confidence": float(f["confidence"]),
+                     "figure": next((g["id"] for g in fit_figures if g["model"] == m), None)}
+                 for m, f in (fits or {}).items()},
         "breakdown": {n: {"by_wavelength": c.by_wavelength.to_dict(orient="records"),
                           "by_incidence": c.by_incidence.to_dict(orient="records")} for n, c in comps.items()},
         "alignment": {n: {key: c.aligned.meta.get(key) for key in ("angle_tol_deg", "wavelength_tol_nm", "match_method",
@@ -189,6 +203,24 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     safe = _json_safe(summary)
     json_path.write_text(json.dumps(safe, indent=1), encoding="utf-8")
     return safe
+
+
+def _fit_figures(fits: Mapping[str, Mapping[str, Any]], figdir: Path) -> list[dict[str, Any]]:
+    """The fits' residual figures, copied into the report's figures folder."""
+    import shutil
+
+    out = []
+    for m, f in fits.items():
+        if f.get("figure"):
+            fid = f"fig-fit-{slug(m)}"
+            path = figdir / f"{fid}{Path(f['figure']).suffix}"
+            if Path(f["figure"]).resolve() != path.resolve():
+                shutil.copyfile(f["figure"], path)
+            out.append({"id": fid, "model": m, "path": str(path), "group": "fits",
+                        "alt": f"normalized residuals of the fit {m}",
+                        "caption": f"Fit {m}: residuals in standard uncertainties (whitened by the readings' "
+                                   "covariance) per incidence/wavelength group."})
+    return out
 
 
 def _describe(rec: Any) -> dict[str, Any]:
@@ -211,174 +243,6 @@ def _describe(rec: Any) -> dict[str, Any]:
                                                                  zip(t.theta_i, t.phi_i)}),
                   "wavelengths_nm": sorted(set(map(float, t.wavelength_nm)))})
     return d
-
-
-_METRIC_ROWS = [("n_points", "points compared"), ("mean_abs_discrepancy_pct", "mean |discrepancy| (%)"),
-                ("rmse", "RMSE"), ("bias", "bias (virtual - actual)"), ("max_abs", "max |difference|"),
-                ("chi2", "chi-square (all points, u_c only: criterion-free)"), ("dof", "degrees of freedom"),
-                ("chi2_per_dof", "chi-square / dof (criterion-free)"),
-                ("p_value", "p-value (all points, u_c only: criterion-free; the verdict tests each group with "
-                            "the tolerance)"),
-                ("fraction_within_uncertainty", "fraction within k u_c"),
-                ("fraction_band", "band of that fraction for a right model (nominal +- 3 binomial s.e.)"),
-                ("ba_bias", "Bland-Altman bias"),
-                ("ba_limits", "Bland-Altman 95 % limits"), ("delta_e2000_mean", "mean CIEDE2000"),
-                ("n_reference_zero", "zero references (excluded from %)"), ("n_both_zero", "zero in both"),
-                ("n_no_uncertainty", "no uncertainty"), ("n_unmatched", "unmatched actual points"),
-                ("u_model", "instrument uncertainty")]
-
-
-def _fmt(v: Any) -> str:
-    if v is None:
-        return "n/a"
-    if isinstance(v, (bool, np.bool_)):
-        return "yes" if v else "no"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        v = float(v)
-        if not math.isfinite(v):
-            return "n/a"
-        if v == 0:
-            return "0"
-        return f"{v:.4g}" if 1e-3 <= abs(v) < 1e5 else f"{v:.3e}"
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    return str(v)
-
-
-def _metric_value(s: Mapping[str, Any], key: str) -> Any:
-    ba = s.get("bland_altman") or {}
-    if key == "ba_bias":
-        return ba.get("bias")
-    if key == "ba_limits":
-        return None if ba.get("lower") is None else [ba["lower"], ba["upper"]]
-    if key == "u_model":
-        u = s.get("uncertainty_model") or {}
-        return f"{_fmt(u.get('instrument'))} {u.get('kind', '')} ({u.get('source', '')})"
-    return s.get(key)
-
-
-def _metric_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
-    names = list(summary["candidates"])
-    rows = []
-    k = summary["k"]
-    for key, label in _METRIC_ROWS:
-        if key == "delta_e2000_mean" and summary["kind"] != "spectrum":
-            continue
-        label = label.replace("k u_c", f"k u_c (k = {k:g})").replace(
-            "nominal +- 3", f"nominal {summary['nominal_fraction']:.2%} at k = {k:g}, +- 3")
-        rows.append([label] + [_fmt(_metric_value(summary["candidates"][n], key)) for n in names])
-    return ["metric"] + names, rows
-
-
-def _ranking_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
-    metrics = ["chi2_per_dof", "mean_abs_discrepancy_pct", "rmse", "abs_bias", "max_abs"]
-    if summary["kind"] == "spectrum":
-        metrics.append("delta_e2000_mean")
-    head = ["rank", "candidate"] + [f"{m} (primary)" if m == summary["primary_metric"] else m for m in metrics] + [
-        "p_value", "fraction_within_uncertainty", "note"]
-    rows = [[_fmt(r["rank"]), r["name"]] + [_fmt(r[m]) for m in metrics] + [
-        _fmt(r["p_value"]), _fmt(r["fraction_within_uncertainty"]), r["note"]] for r in summary["ranking"]]
-    return head, rows
-
-
-def _criterion_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
-    c = summary["criterion"]
-    rows = []
-    for key, v in c.items():
-        if key == "statement" or (key == "instrument_uncertainty_kind" and v is None):
-            continue
-        text = _fmt(v)
-        if key == "instrument_uncertainty" and v is None:  # not given: say what the metrics used instead
-            used = sorted({_metric_value(s, "u_model") for s in summary["candidates"].values()})
-            text = "not given; used " + "; ".join(used)
-        rows.append([key, text])
-    return ["setting", "value"], rows
-
-
-def _verdict_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
-    rows = []
-    for r in summary["ranking"]:
-        v = summary["verdicts"][r["name"]]
-        rows.append([r["name"], _fmt(r["rank"]), v["verdict"], v["reason"]])
-    return ["model", "rank", "verdict", "reason"], rows
-
-
-def _group_rows(summary: Mapping[str, Any], name: str) -> tuple[list[str], list[list[str]]]:
-    gs = summary["verdicts"][name]["groups"]
-    return (["group", "verdict", "reason", "chi2", "dof", "p-value", "fraction within k u_c"],
-            [[g["group"], g["verdict"], g["reason"], _fmt(g["chi2"]), _fmt(g["dof"]), _fmt(g["p_value"]),
-              _fmt(g["fraction_within"])] for g in gs])
-
-
-def _budget_rows(summary: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
-    b = summary["uncertainty_budget"]
-    head = ["component", "type", "shared between readings", "u (median)", "sensitivity (median)", "contribution (median)",
-            "% of value (median)", "% of value (max)"]
-    rows = [[c["name"], c["type"], "yes" if c["shared"] else "", _fmt(c["standard_uncertainty"]), _fmt(c["sensitivity"]),
-             _fmt(c["contribution"]), _fmt(c["relative_pct"]), _fmt(c["max_relative_pct"])] for c in b["components"]]
-    rows.append(["combined u_c", "", "", "", "", "", _fmt(b["combined_relative_pct"]), ""])
-    return head, rows
-
-
-def _budget_note(summary: Mapping[str, Any]) -> str:
-    b = summary["uncertainty_budget"]
-    return (f"GUM budget of the actual record's {b['n_readings']} readings (method {', '.join(b['method'])}, "
-            f"k = {', '.join(f'{k:g}' for k in b['k'])}); components shared by the run's readings enter the "
-            f"covariance of the comparison once, not once per point.")
-
-
-#: a physical check -> the specimen property (record metadata) that, when declared false, makes
-#: its failure expected, and why
-_DECLARED = {"reciprocity": ("reciprocal", "not reciprocal by construction"),
-             "isotropy": ("isotropic", "anisotropic by construction")}
-
-
-def expected_failure(check: str, meta: Mapping[str, Any]) -> str | None:
-    """Why a failed ``check`` is expected from what the record's specimen declares (its
-    ``reciprocal`` / ``isotropic`` flags), or None when nothing declared explains it."""
-    prop = _DECLARED.get(check)
-    if prop is None or meta.get(prop[0]) is not False:
-        return None
-    spec = meta.get("specimen")
-    name = str(spec.get("spec", spec) if isinstance(spec, Mapping) else spec or "the specimen")
-    return f"expected: {name} declares {prop[0]} = false ({prop[1]})"
-
-
-def _check_rows(check_results: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
-    head = ["record", "check", "result", "statistic", "p-value", "max z", "n", "offending", "message"]
-    rows = []
-    for rec, res in check_results.items():
-        for name, r in res.items():
-            result = ("passed" if r["passed"] else "FAILED") if r["tested"] else "not tested"
-            why = r.get("expected") if r["tested"] and not r["passed"] else None
-            rows.append([rec, name, result + (" (expected)" if why else ""), _fmt(r["statistic"]),
-                         _fmt(r["p_value"]), _fmt(r["max_z"]), _fmt(r["n"]), _fmt(r["n_offending"]),
-                         r["message"] + (f"; {why}" if why else "")])
-    return head, rows
-
-
-def _frame_rows(df: pd.DataFrame, cols: Sequence[str], limit: int) -> tuple[list[str], list[list[str]]]:
-    cols = [c for c in cols if c in df.columns]
-    return list(cols), [[_fmt(v) if not isinstance(v, str) else v for v in row]
-                        for row in df[cols].head(limit).itertuples(index=False)]
-
-
-def _html_table(head: Sequence[str], rows: Sequence[Sequence[str]], cls: str = "") -> str:
-    e = html.escape
-    h = "".join(f"<th>{e(str(x))}</th>" for x in head)
-    b = "".join("<tr>" + "".join(f"<td>{e(str(x))}</td>" for x in r) + "</tr>" for r in rows)
-    return f'<div class="scroll"><table class="{cls}"><thead><tr>{h}</tr></thead><tbody>{b}</tbody></table></div>'
-
-
-def _md_table(head: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    def cell(x: Any) -> str:
-        return str(x).replace("|", "\\|").replace("\n", " ")
-
-    lines = ["| " + " | ".join(cell(x) for x in head) + " |", "|" + "---|" * len(head)]
-    lines += ["| " + " | ".join(cell(x) for x in r) + " |" for r in rows]
-    return "\n".join(lines)
 
 
 _CSS = """
@@ -410,27 +274,35 @@ def _html(title: str, summary: Mapping[str, Any], comps: Mapping[str, Comparison
                  f"within {summary['nominal_fraction']:.2%}).</p>")
     parts.append("<h2 id=\"criterion\">Acceptance criterion</h2>")
     parts.append(f"<p id=\"criterion-text\">{e(summary['criterion']['statement'])}</p>")
-    parts.append(_html_table(*_criterion_rows(summary)))
+    parts.append(html_table(*criterion_rows(summary)))
     parts.append("<h2 id=\"verdicts\">Verdicts</h2>")
-    parts.append(_html_table(*_verdict_rows(summary), cls="verdicts"))
+    parts.append(html_table(*verdict_rows(summary), cls="verdicts"))
     if summary["warnings"]:
         parts.append("<div class=\"warn\" id=\"top-warnings\"><ul>" + "".join(
             f"<li>{e(w)}</li>" for w in summary["warnings"] if " is rejected: " in w or "fail" in w) + "</ul></div>")
     for name in comps:
         parts.append(f"<h3>Groups: {e(name)}</h3>")
-        parts.append(_html_table(*_group_rows(summary, name), cls=f"groups groups-{e(slug(name))}"))
+        parts.append(html_table(*group_rows(summary, name), cls=f"groups groups-{e(slug(name))}"))
     parts.append("<h2 id=\"actual\">Actual record</h2>")
-    parts.append(_html_table(["field", "value"], [[k_, _fmt(v)] for k_, v in summary["actual"].items()],
+    parts.append(html_table(["field", "value"], [[k_, fmt(v)] for k_, v in summary["actual"].items()],
                              cls="metadata"))
     if summary.get("uncertainty_budget"):
         parts.append("<h3 id=\"budget\">Uncertainty budget</h3>")
-        parts.append(f"<p class=\"muted\">{e(_budget_note(summary))}</p>")
-        parts.append(_html_table(*_budget_rows(summary), cls="budget"))
+        parts.append(f"<p class=\"muted\">{e(budget_note(summary))}</p>")
+        parts.append(html_table(*budget_rows(summary), cls="budget"))
+    if summary["fits"]:
+        parts.append("<h2 id=\"fits\">Fits to the actual record</h2>")
+        parts.append("<p class=\"muted\">Maximum-likelihood parameters of each model asked for (<code>bench fit</code>), "
+                     "with intervals at the stated confidence and the goodness of fit.</p>")
+        for m, f in summary["fits"].items():
+            parts.append(f"<h3 id=\"fit-{e(slug(m))}\">{e(m)}</h3>")
+            parts.append(f"<p>{e(fit_note(f['fit'], f['confidence']))}</p>")
+            parts.append(html_table(*fit_rows(f["fit"]), cls=f"fit fit-{e(slug(m))}"))
     parts.append("<h2 id=\"ranking\">Model ranking</h2>")
     parts.append(f"<p>Ranked by <b>{e(summary['primary_metric'])}</b> (lower is better).</p>")
-    parts.append(_html_table(*_ranking_rows(summary)))
+    parts.append(html_table(*ranking_rows(summary)))
     parts.append("<h2 id=\"metrics\">Metrics</h2>")
-    parts.append(_html_table(*_metric_rows(summary)))
+    parts.append(html_table(*metric_rows(summary)))
     parts.append("<p class=\"muted\">z = (virtual - actual) / u_c with u_c = sqrt(u_instrument^2 + s_virtual^2 + "
                  "s_actual^2); chi-square = sum z^2 on dof = number of z's (d^T C^-1 d with the full covariance "
                  "C of the differences when the actual record has GUM budgets); p = chi2.sf(chi2, dof).</p>")
@@ -449,24 +321,24 @@ def _html(title: str, summary: Mapping[str, Any], comps: Mapping[str, Comparison
         parts.append("</div>")
     if check_results:
         parts.append("<h2 id=\"checks\">Physical checks</h2>")
-        head, rows = _check_rows(check_results)
-        parts.append(_html_table(head, rows))
+        head, rows = check_rows(check_results)
+        parts.append(html_table(head, rows))
     for name, c in comps.items():
         parts.append(f"<h2 id=\"details-{e(slug(name))}\">Details: {e(name)}</h2>")
         parts.append(f"<p class=\"muted\">Alignment: {e(json.dumps(_json_safe(summary['alignment'][name])))}</p>")
         if len(c.by_wavelength):
             parts.append("<h3>Per wavelength</h3>")
-            parts.append(_html_table(*_frame_rows(c.by_wavelength, list(c.by_wavelength.columns), _GROUP_LIMIT)))
+            parts.append(html_table(*frame_rows(c.by_wavelength, list(c.by_wavelength.columns), _GROUP_LIMIT)))
             if len(c.by_wavelength) > _GROUP_LIMIT:
                 parts.append(f"<p class=\"muted\">first {_GROUP_LIMIT} of {len(c.by_wavelength)} rows</p>")
         if len(c.by_incidence):
             parts.append("<h3>Per incidence</h3>")
-            parts.append(_html_table(*_frame_rows(c.by_incidence, list(c.by_incidence.columns), _GROUP_LIMIT)))
+            parts.append(html_table(*frame_rows(c.by_incidence, list(c.by_incidence.columns), _GROUP_LIMIT)))
         um = c.aligned.unmatched
         parts.append(f"<h3 id=\"unmatched-{e(slug(name))}\">Unmatched ({int((um.side == 'actual').sum())} actual "
                      f"points, {int((um.side == 'candidate').sum())} unused candidate groups)</h3>")
         if len(um):
-            parts.append(_html_table(*_frame_rows(um, list(um.columns), _UNMATCHED_LIMIT)))
+            parts.append(html_table(*frame_rows(um, list(um.columns), _UNMATCHED_LIMIT)))
             if len(um) > _UNMATCHED_LIMIT:
                 parts.append(f"<p class=\"muted\">first {_UNMATCHED_LIMIT} of {len(um)} rows</p>")
         else:
@@ -486,18 +358,20 @@ def _markdown(title: str, summary: Mapping[str, Any], comps: Mapping[str, Compar
               check_results: Mapping[str, Any]) -> str:
     out = [f"# {title}", "", f"Quantity: {summary['quantity']}; k = {summary['k']:g} (nominal fraction within "
            f"{summary['nominal_fraction']:.2%}).", "", "## Acceptance criterion", "", summary["criterion"]["statement"],
-           "", _md_table(*_criterion_rows(summary)), "", "## Verdicts", "", _md_table(*_verdict_rows(summary)), "", "## Model ranking", "",
-           f"Ranked by **{summary['primary_metric']}** (lower is better).", "", _md_table(*_ranking_rows(summary)),
-           "", "## Metrics", "", _md_table(*_metric_rows(summary)), ""]
+           "", md_table(*criterion_rows(summary)), "", "## Verdicts", "", md_table(*verdict_rows(summary)), "", "## Model ranking", "",
+           f"Ranked by **{summary['primary_metric']}** (lower is better).", "", md_table(*ranking_rows(summary)),
+           "", "## Metrics", "", md_table(*metric_rows(summary)), ""]
     if summary.get("uncertainty_budget"):
-        out += ["## Uncertainty budget", "", _budget_note(summary), "", _md_table(*_budget_rows(summary)), ""]
+        out += ["## Uncertainty budget", "", budget_note(summary), "", md_table(*budget_rows(summary)), ""]
+    for m, f in summary["fits"].items():
+        out += [f"## Fit: {m}", "", fit_note(f["fit"], f["confidence"]), "", md_table(*fit_rows(f["fit"])), ""]
     out += ["## Figures", ""]
     for f in figures:
         out.append(f"![{f['alt']}](figures/{Path(f['path']).name})")
         out.append(f"*{f['caption']}*")
         out.append("")
     if check_results:
-        out += ["## Physical checks", "", _md_table(*_check_rows(check_results)), ""]
+        out += ["## Physical checks", "", md_table(*check_rows(check_results)), ""]
     out += ["## Unmatched", ""]
     for name, c in comps.items():
         um = c.aligned.unmatched

@@ -265,3 +265,33 @@ def test_a_virtual_scan_of_plastic_is_fitted_with_the_truth_inside_its_intervals
         assert hi - lo < 0.02 * truth, (name, lo, hi)  # identified, not merely bounded
     wrong = fit("plastic:alpha=?,kd=?,eta=1.52")
     assert not any(truth_inside(wrong).values()) and wrong["p_value"] < 1e-3, wrong
+
+
+def test_compare_reports_the_fit_asked_for_the_same_as_bench_fit(capsys, tmp_path):
+    """`bench compare ACTUAL CANDIDATE --fit MODEL`: the report carries `bench fit`'s document for
+    the actual record (the same numbers), in summary.json, the HTML and the Markdown, with its
+    residual figure; a bad model string is refused before any record is read."""
+    rec, cand = tmp_path / "actual.json", tmp_path / "model.json"
+    for path, seed in ((rec, "3"), (cand, "4")):
+        code, out, _ = run_main(capsys, "gonio", "--specimen", "lambert:reflectance=0.6", "--collector",
+                                "equal-psa:3x8", "--rays", "100000", "--seed", seed, "--json")
+        assert code == 0
+        path.write_text(out)
+    code, out, _ = run_main(capsys, "fit", rec, "--model", "lambert:reflectance=?", "--json")
+    alone = json.loads(out)
+    report = tmp_path / "report"
+    code, out, err = run_main(capsys, "compare", rec, f"model={cand}", "--fit", "lambert:reflectance=?",
+                              "--report", report, "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    fit = summary["fits"]["lambert:reflectance=?"]
+    assert fit["fit"] == alone and fit["confidence"] == 0.95
+    assert fit["figure"] in summary["figures"] and (report / "figures" / f"{fit['figure']}.png").stat().st_size > 0
+    lo, hi = alone["parameters"]["reflectance"]["ci"]
+    md = (report / "report.md").read_text()
+    assert "## Fit: lambert:reflectance=?" in md and f"{lo:.4g}" in md and f"{hi:.4g}" in md
+    html = (report / "report.html").read_text()
+    assert 'id="fits"' in html and 'class="fit fit-' in html
+    code, out, err = run_main(capsys, "compare", tmp_path / "missing.json", f"model={cand}", "--fit",
+                              "lambert:nonsense=?", "--report", report)
+    assert code == 2 and "nonsense" in err and err.count("\n") == 1 and "missing.json" not in err

@@ -106,7 +106,7 @@ def test_bsdf_summary_has_stable_keys_ranking_and_checks(bsdf_report):
 
 
 def test_an_expected_check_failure_is_explained_by_the_specimens_declared_properties():
-    from compare.report import _check_rows, expected_failure
+    from compare.report_tables import check_rows, expected_failure
 
     plastic = {"specimen": "plastic:alpha=0.1", "reciprocal": False, "isotropic": True}
     why = expected_failure("reciprocity", plastic)
@@ -116,7 +116,7 @@ def test_an_expected_check_failure_is_explained_by_the_specimens_declared_proper
     assert "anisotropic by construction" in expected_failure("isotropy", {"specimen": "aniso-ggx", "isotropic": False})
     failed = {"tested": True, "passed": False, "statistic": 9.0, "p_value": 1e-9, "max_z": 6.0, "n": 10,
               "n_offending": 4, "message": "not reciprocal", "expected": why}
-    _, rows = _check_rows({"plastic": {"reciprocity": failed}})
+    _, rows = check_rows({"plastic": {"reciprocity": failed}})
     assert rows[0][2] == "FAILED (expected)" and rows[0][-1].endswith(why)
 
 

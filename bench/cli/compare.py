@@ -27,6 +27,9 @@ from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, output_dir
 from bench.core.errors import InputError
 
+#: the confidence of the intervals of `bench compare --fit` (that of `bench fit`'s default)
+FIT_CONFIDENCE = 0.95
+
 HEADLINE = ("n_points", "mean_abs_discrepancy_pct", "rmse", "bias", "max_abs", "chi2", "p_value",
             "fraction_within_uncertainty", "delta_e2000_mean")
 
@@ -81,12 +84,37 @@ def _settings(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
     return Criterion.from_mapping(crit), opts
 
 
+def _fit_models(strings: list[str]) -> dict[str, Any]:
+    from bench.identify import parse_model_spec
+
+    return {m: parse_model_spec(m) for m in dict.fromkeys(strings)}
+
+
+def _fits(actual: Any, models: dict[str, Any], out: Path, draw_figures: bool) -> dict[str, dict[str, Any]]:
+    """``bench fit`` of each ``--fit`` model to the actual record, for the report's fit section."""
+    if not models:
+        return {}
+    from bench.identify import fit_record
+    from bench.identify.figure import plot_residuals
+
+    fits = {}
+    for i, (m, spec) in enumerate(models.items()):
+        result = fit_record(actual, spec, confidence=FIT_CONFIDENCE)
+        figure = None
+        if draw_figures:
+            (out / "figures").mkdir(parents=True, exist_ok=True)
+            figure = str(plot_residuals(result, out / "figures" / f"fit-residuals-{i}.png"))
+        fits[m] = {"fit": result.to_json(), "confidence": FIT_CONFIDENCE, "figure": figure}
+    return fits
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     from compare.report import compare_records
 
     from tqdm import tqdm
 
     criterion, opts = _settings(args)
+    models = _fit_models(args.fit or [])  # a bad model string costs no record reading
     # progress with an ETA on a terminal: one step per record read, one for the statistics and report
     with tqdm(total=len(args.candidates) + 2, disable=not stderr_is_terminal(), desc="compare", unit="step",
               leave=False, dynamic_ncols=True) as bar:
@@ -98,11 +126,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
             candidates[name] = record
             bar.update()
         out = Path(args.report or "compare-report")
+        fits = _fits(actual, models, out, draw_figures=not args.no_figures)
         align_kw = {k: float(opts[k]) for k in ("angle_tol_deg", "wavelength_tol_nm") if k in opts}
         summary = compare_records(actual, candidates, out, primary_metric=opts.get("metric", "chi2_per_dof"),
                                   title=opts.get("title") or f"{', '.join(candidates)} against {actual_name}",
                                   on_error="skip" if args.skip_bad else "raise", criterion=criterion,
-                                  draw_figures=not args.no_figures, **align_kw)
+                                  draw_figures=not args.no_figures, fits=fits, **align_kw)
         bar.update()
     if args.json:
         print(json.dumps(summary))
@@ -118,6 +147,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print("      " + ", ".join(parts))
     for name, err in summary["errors"].items():
         print(f"  not compared: {name}: {err}")
+    for model, f in summary["fits"].items():
+        fit = f["fit"]
+        values = ", ".join(f"{n} {p['value']:.5g} [{p['ci'][0]:.5g}, {p['ci'][1]:.5g}]"
+                           for n, p in fit["parameters"].items())
+        p_value = "n/a" if fit["p_value"] is None else f"{fit['p_value']:.3g}"
+        print(f"  fit {model}: {values}; chi2 {fit['chi2']:.4g}, dof {fit['dof']}, p {p_value}"
+              + ("" if fit["converged"] else " (NOT converged)"))
     for w in summary["warnings"]:
         print(f"  warning: {w}")
     print(f"report: {summary['report_html']} (and {summary['report_md']})")
@@ -154,5 +190,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-figures", action="store_true",
                    help="write the report's tables and verdicts without drawing its figures (faster)")
     p.add_argument("--skip-bad", action="store_true", help="leave out candidates that cannot be compared")
+    p.add_argument("--fit", action="append", metavar="FAMILY:p=?,...",
+                   help="also fit this model to the actual record (as `bench fit`, intervals at "
+                        f"{FIT_CONFIDENCE:g}) and report its parameters, goodness of fit and residuals; "
+                        "repeat for more models")
     p.add_argument("--json", action="store_true", help="the summary as one JSON object with stable keys")
     p.set_defaults(func=cmd_compare)
