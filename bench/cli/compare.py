@@ -193,6 +193,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fit", action="append", metavar="FAMILY:p=?,...",
                    help="also fit this model to the actual record (as `bench fit`, intervals at "
                         f"{FIT_CONFIDENCE:g}) and report its parameters, goodness of fit and residuals; "
-                        "repeat for more models")
+                        "repeat for more models (default: no fit)")
     p.add_argument("--json", action="store_true", help="the summary as one JSON object with stable keys")
     p.set_defaults(func=cmd_compare)
