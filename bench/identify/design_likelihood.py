@@ -5,8 +5,10 @@
 information (:mod:`bench.identify.design`) also counts:
 
 * the prediction is the model averaged over the detector's aperture, as the bench description
-  declares it (``[emulated] aperture_deg``): near a glossy peak a 1 deg aperture changes the
-  reading by up to a few per cent at grazing angles, far more than the readings' noise;
+  declares it (:func:`bench.builders.instrument.declared_aperture`), calibrated against the
+  white read through the same cone (:func:`bench.identify.prediction.predicted_brdf`): near a
+  glossy peak a 1 deg aperture changes the reading by up to a few per cent at grazing angles,
+  far more than the readings' noise;
 * optionally (``shared=True``) the white standard's relative uncertainty as one error shared by
   every reading (covariance ``rho^2 y y^T``) rather than an independent error per reading; the
   default is the diagonal of the readings' covariance, which the design's information matches
@@ -24,7 +26,8 @@ import numpy as np
 
 from bench.core.records import BSDFRecord
 from bench.core.geometry import Geometry
-from bench.identify.design_noise import predicted_brdf
+from bench.builders.instrument import declared_aperture
+from bench.identify.prediction import predicted_brdf
 from bench.identify.likelihood import GaussianReadings
 
 __all__ = ["BenchReadings", "bench_likelihood", "valid_readings", "aperture_of", "shared_relative"]
@@ -38,8 +41,9 @@ def valid_readings(record: BSDFRecord) -> BSDFRecord:
 
 
 def aperture_of(description: Any) -> float:
-    """The detector aperture half-angle (deg) a bench description declares (0 when none)."""
-    return float(((description or {}).get("emulated") or {}).get("aperture_deg", 0.0) or 0.0)
+    """The detector aperture half-angle (deg) a bench description declares (0 when none):
+    :func:`bench.builders.instrument.declared_aperture`."""
+    return declared_aperture(description or {})
 
 
 def shared_relative(record: BSDFRecord) -> float:
@@ -81,7 +85,7 @@ class BenchReadings(GaussianReadings):
         for w in np.unique(self.wavelengths):
             rows = np.flatnonzero(self.wavelengths == w)
             out[rows] = predicted_brdf(specimen, [self.geometries[i] for i in rows], np.array([w]),
-                                       self.aperture_deg)[:, 0]
+                                       self.aperture_deg, self.white)[:, 0]
         return out
 
     def n_data(self, specimen: Any) -> int:
