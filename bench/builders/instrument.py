@@ -94,19 +94,16 @@ def declared_aperture(d: Mapping[str, Any], source: str = "bench config") -> flo
     """The detector half-angle (deg) description ``d`` declares, for every body (0: none) -- the
     one answer the virtual body, the emulator, the fit and the design read:
 
-    * ``[instrument] aperture_deg`` when declared (> 0): the lab's declaration of its detector;
+    * ``[instrument] aperture_deg`` when declared (> 0): the lab's declaration of its detector,
+      which wins over ``[emulated]``'s (the emulator then uses it too);
     * else ``[emulated] aperture_deg``, the aperture the emulator uses: when the table states it
       (as the emulated bench's twin, ``fixtures/benches/virtual.toml``, does), or by default
       (1 deg) for a description of a physical bench (``kind = "emulated"`` or ``"real"``);
     * else 0 (a virtual description: the detector is the collector patch of the viewing direction).
-
-    Both tables declaring it with different values is refused (:class:`ConfigError`)."""
+    """
     inst = validate_document(InstrumentTable, d.get("instrument") or {}, f"{source} [instrument]").aperture_deg
     emulated = d.get("emulated") or {}
     emu = validate_document(EmulatedTable, emulated, f"{source} [emulated]").aperture_deg
-    if inst > 0 and "aperture_deg" in emulated and emu != inst:
-        raise ConfigError(f"{source}: aperture_deg is declared twice, [instrument] {inst:g} and [emulated] {emu:g}: "
-                          "keep one")
     if inst > 0:
         return float(inst)
     physical = str(d.get("kind", "virtual")) in ("emulated", "real")
