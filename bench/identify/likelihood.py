@@ -22,7 +22,10 @@ maximum-likelihood estimate and differences of ``sum(r**2)`` are likelihood-rati
   parameters;
 * **calibrated readings** (:class:`GaussianReadings`): a scan's BSDF values or spectra with
   their uncertainties, ``r = L^-1 (y - model)`` with ``L L^T`` the readings' covariance from
-  :func:`readings_and_covariance` (the one place the covariance comes from).
+  :func:`readings_and_covariance` (the one place the covariance comes from) and ``model`` what
+  the body read (:mod:`bench.identify.prediction`, the design's prediction too): the cone of the
+  detector aperture the record's metadata gives, calibrated against the white read through the
+  same cone, or the collector patch of a virtual body without an aperture.
 
 The record's kind decides (:func:`likelihood_for`): integer counts with ray totals are
 virtual counts, anything else is calibrated readings.
@@ -37,11 +40,11 @@ from typing import Any, Sequence
 import numpy as np
 
 from bench.core.errors import InputError
-from bench.core.geometry import Geometry, cie_geometry, direction
+from bench.core.geometry import Geometry, cie_geometry
 from bench.core.records import BSDFRecord
 from bench.core.roles import Spectrum
-from bench.identify.prediction import (PATCH_BOUNDS, cone_nodes, patch_nodes, record_aperture, virtual_body_patches,
-                                       white_geometry)
+from bench.identify.prediction import (PATCH_BOUNDS, cone_nodes, directional_rt, ideal_rf, patch_nodes,
+                                       record_aperture, virtual_body_patches, white_geometry)
 from virtual.beam import Beam
 from virtual.collector import SCHEMES, Collector
 from virtual.specimens import Specimen
@@ -243,22 +246,6 @@ class GonioCounts(Likelihood):
 # --- virtual counts: spectrophotometer ----------------------------------------------------
 
 
-def directional_rt(specimen: Specimen, theta_deg: float, wavelength_nm: float) -> tuple[float, float] | None:
-    """The specimen's directional-hemispherical (R, T) at incidence ``theta_deg``: its own
-    ``directional_rt`` when it has one, else the certified quadrature of its density; ``None``
-    when neither is available or certified."""
-    own = getattr(specimen, "directional_rt", None)
-    if own is not None:
-        r, t = own(theta_deg, wavelength_nm)
-        return float(r), float(t)
-    if not specimen.has_density:
-        return None
-    from virtual.quadrature import certified_patch_integrals
-
-    cert = certified_patch_integrals(specimen, direction(theta_deg, 0.0), Collector("equal-psa", 1, 1), wavelength_nm)
-    return (cert.reflectance, cert.transmittance) if cert.certified else None
-
-
 def _spectra(record: Any) -> tuple[Spectrum, ...]:
     return (record,) if isinstance(record, Spectrum) else tuple(record)
 
@@ -416,19 +403,6 @@ def readings_and_covariance(record: Any) -> tuple[np.ndarray, np.ndarray]:
     return values, cov
 
 
-def _ideal_rf(specimen: Specimen, geometry: str, wavelength_nm: float) -> float:
-    """Reflectance factor of a bidirectional geometry ``"THETA_I/THETA_R"``: pi f_r, viewed in the
-    plane of incidence on the far side."""
-    a, _, b = geometry.partition("/")
-    try:
-        ti, tr = float(a), float(b)
-    except ValueError:
-        g = cie_geometry(geometry)
-        ti, tr = g.theta_i, g.theta_r
-    f = specimen.bsdf(direction(ti, 0.0), direction(tr, 180.0)[None, :], wavelength_nm)
-    return math.pi * float(np.asarray(f)[0])
-
-
 class GaussianReadings(Likelihood):
     """Calibrated readings with their covariance (see the module docstring)."""
 
@@ -481,7 +455,7 @@ class GaussianReadings(Likelihood):
                 wi, dirs, weights = nodes
                 out[i] = float(weights @ np.asarray(specimen.bsdf(wi, dirs, r["wavelength_nm"]), dtype=float))
             elif q == "RF":
-                out[i] = _ideal_rf(specimen, r["geometry"], r["wavelength_nm"])
+                out[i] = ideal_rf(specimen, r["geometry"], r["wavelength_nm"])
             else:
                 rt = directional_rt(specimen, cie_geometry(r["geometry"]).reciprocal_directional.theta_i,
                                     r["wavelength_nm"])

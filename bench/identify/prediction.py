@@ -23,11 +23,12 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from bench.core.errors import ConfigError, InputError
-from bench.core.geometry import Geometry, cone_cos_weights, direction
+from bench.core.geometry import Geometry, cie_geometry, cone_cos_weights, direction
 from virtual.collector import Collector
+from virtual.specimens import Specimen
 
 __all__ = ["predicted_brdf", "cone_nodes", "patch_nodes", "record_aperture", "white_geometry",
-           "virtual_body_patches", "PATCH_BOUNDS", "PATCH_ORDER"]
+           "virtual_body_patches", "directional_rt", "ideal_rf", "PATCH_BOUNDS", "PATCH_ORDER"]
 
 #: a record's patch columns: a reading with them is the BSDF averaged over that patch
 PATCH_BOUNDS = ("theta_min", "theta_max", "phi_min", "phi_max")
@@ -145,3 +146,32 @@ def virtual_body_patches(meta: Mapping[str, Any], theta_r: np.ndarray, phi_r: np
         return out
     dirs = np.array([direction(a, b) for a, b in zip(theta_r, phi_r)])
     return np.degrees(col.bin_bounds()[col.index(dirs)])
+
+
+def directional_rt(specimen: Specimen, theta_deg: float, wavelength_nm: float) -> tuple[float, float] | None:
+    """The specimen's directional-hemispherical (R, T) at incidence ``theta_deg``: its own
+    ``directional_rt`` when it has one, else the certified quadrature of its density; ``None``
+    when neither is available or certified."""
+    own = getattr(specimen, "directional_rt", None)
+    if own is not None:
+        r, t = own(theta_deg, wavelength_nm)
+        return float(r), float(t)
+    if not specimen.has_density:
+        return None
+    from virtual.quadrature import certified_patch_integrals
+
+    cert = certified_patch_integrals(specimen, direction(theta_deg, 0.0), Collector("equal-psa", 1, 1), wavelength_nm)
+    return (cert.reflectance, cert.transmittance) if cert.certified else None
+
+
+def ideal_rf(specimen: Specimen, geometry: str, wavelength_nm: float) -> float:
+    """Reflectance factor of a bidirectional geometry ``"THETA_I/THETA_R"``: pi f_r, viewed in the
+    plane of incidence on the far side."""
+    a, _, b = geometry.partition("/")
+    try:
+        ti, tr = float(a), float(b)
+    except ValueError:
+        g = cie_geometry(geometry)
+        ti, tr = g.theta_i, g.theta_r
+    f = specimen.bsdf(direction(ti, 0.0), direction(tr, 180.0)[None, :], wavelength_nm)
+    return math.pi * float(np.asarray(f)[0])
