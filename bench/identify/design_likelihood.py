@@ -25,9 +25,7 @@ from typing import Any
 import numpy as np
 
 from bench.core.records import BSDFRecord
-from bench.core.geometry import Geometry
 from bench.builders.instrument import declared_aperture
-from bench.identify.prediction import predicted_brdf
 from bench.identify.likelihood import GaussianReadings
 
 __all__ = ["BenchReadings", "bench_likelihood", "valid_readings", "aperture_of", "shared_relative"]
@@ -56,19 +54,17 @@ def shared_relative(record: BSDFRecord) -> float:
 
 
 class BenchReadings(GaussianReadings):
-    """Calibrated readings of a bench: aperture-averaged predictions (and optionally a shared
-    white scale)."""
+    """Calibrated readings of a bench: the fit's predictions through the aperture ``aperture_deg``
+    the bench description declares (and optionally a shared white scale)."""
 
     def __init__(self, record: BSDFRecord, aperture_deg: float = 0.0, shared: bool = False) -> None:
         from scipy.linalg import cholesky
 
         record = valid_readings(record)
         super().__init__(record)
+        # the aperture the description declares; the prediction is the fit's own
+        # (GaussianReadings.bsdf_nodes: the patch a virtual body without an aperture read, else the cone)
         self.aperture_deg = float(aperture_deg)
-        t = record.table
-        self.geometries = [Geometry(float(a), float(b), float(c), float(d)) for a, b, c, d in
-                           zip(t["theta_i"], t["phi_i"], t["theta_r"], t["phi_r"])]
-        self.wavelengths = t["wavelength_nm"].to_numpy(float)
         # the design's Fisher information is diagonal in the readings: so is this likelihood (the
         # fit proper, bench.identify.likelihood, takes the budgets' full covariance)
         self.chol = np.diag(np.sqrt(np.diag(self.chol @ self.chol.T)))
@@ -79,14 +75,6 @@ class BenchReadings(GaussianReadings):
             own = np.maximum(u**2 - (rho * y) ** 2, (0.05 * u) ** 2)  # the rest of each reading's variance
             cov = np.diag(own) + rho**2 * np.outer(y, y)
             self.chol = cholesky(cov, lower=True)
-
-    def predictions(self, specimen: Any) -> np.ndarray:
-        out = np.empty(len(self.geometries))
-        for w in np.unique(self.wavelengths):
-            rows = np.flatnonzero(self.wavelengths == w)
-            out[rows] = predicted_brdf(specimen, [self.geometries[i] for i in rows], np.array([w]),
-                                       self.aperture_deg, self.white)[:, 0]
-        return out
 
     def n_data(self, specimen: Any) -> int:
         return len(self.values)
