@@ -117,7 +117,9 @@ def _specular_brdf_cos(aperture_deg: float) -> tuple[float, float, float]:
     with its reported std, and the model's own mean of f cos theta_r over the declared cone (a
     48 x 96 quadrature of the specimen's BRDF: the prediction)."""
     spec, g = "ggx:alpha=0.1,eta=1.5,k=0", Geometry(30, 0, 30, 180)
-    cfg = {**VIRTUAL, "specimen": {"spec": spec}, "virtual": {**VIRTUAL["virtual"], "wavelengths": 550.0}}
+    emulated = {k: v for k, v in VIRTUAL["emulated"].items() if k != "aperture_deg"}  # [instrument] declares it
+    cfg = {**VIRTUAL, "specimen": {"spec": spec}, "virtual": {**VIRTUAL["virtual"], "wavelengths": 550.0},
+           "emulated": emulated}
     with load_bench({**cfg, "instrument": {"aperture_deg": aperture_deg}}, seed=1) as bench:
         bench.goniometer.move_to(g)
         r = bench.spectrometer.acquire(0.02, 1)

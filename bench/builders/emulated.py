@@ -18,7 +18,8 @@ Config (beside ``[specimen]`` and ``[white]``, see :mod:`bench.config`)::
     time_scale = 20          # emulated motion runs 20x faster than the real drives would
     bands = "450:650:100"    # band centres (nm) reported per point
     bandwidth_nm = 10
-    aperture_deg = 1.0       # detector half-angle
+    aperture_deg = 1.0       # detector half-angle (an [instrument] aperture_deg is the same declaration:
+                             # bench.builders.instrument.declared_aperture, read by every body)
     seed = 7                 # emulator noise
     [arm]                    # drivers.dynamixel ArmConfig keys (optional overrides)
     [turntable]              # drivers.modbus AxisConfig keys
@@ -44,11 +45,12 @@ from bench.bands import SpectralBands
 from bench.config import Bench
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import ConfigError
-from bench.core.geometry import cone_quadrature
+from bench.core.geometry import cone_cos_weights
 from bench.core.parsing import parse_wavelengths
 from bench.core.schemas import EmulatedTable
 from bench.core.roles import Reading
 from bench.builders.detector import RESPONSE_GAIN, described_bands, detector_settings, emulator_settings
+from bench.builders.instrument import declared_aperture
 from bench.builders.light import LAMP_LINE, LampLine, LightTable, build_light, declares_light, light_settings
 from bench.builders.motion import motion_profile
 from drivers.dynamixel import ArmConfig, DynamixelArm
@@ -135,14 +137,13 @@ def emulated_response(geometry: Any, wavelengths_nm: np.ndarray, specimen: str, 
         mounted = "specimen"
     g = geometry
     wl = np.asarray(wavelengths_nm, dtype=float)
-    dirs, weights = cone_quadrature(g.view, aperture_deg)  # the detector's cone, as the virtual body's
-    cos_r = np.clip(dirs[:, 2], 0.0, None)
+    dirs, w_cos = cone_cos_weights(g.view, aperture_deg)  # the detector's cone, as the virtual body's
     if mounted == "white":
-        return RESPONSE_GAIN * _white_fraction(white_rf, wl) * float(weights @ cos_r)
+        return RESPONSE_GAIN * _white_fraction(white_rf, wl) * float(w_cos.sum())
     spec = _PROCESS_CACHE.get("specimen")
     if spec is None:
         spec = _PROCESS_CACHE["specimen"] = parse_specimen(specimen)
-    wi, w_cos = g.incident, weights * cos_r
+    wi = g.incident
     rng = spec.wavelength_range()
     if rng is None:  # not spectral: one evaluation serves every pixel
         return np.full(wl.shape, RESPONSE_GAIN * float(w_cos @ spec.bsdf(wi, dirs, float(wl[0]))))
@@ -236,7 +237,7 @@ class Emulators:
                                                   str(self.turntable_config.get("register_map", "oriental_az"))),
                 response=functools.partial(emulated_response, specimen=spec,
                                            white_rf=self.white.as_dict()["reflectance_factor"],
-                                           mount_file=str(self.mount), aperture_deg=float(e.get("aperture_deg", 1.0))),
+                                           mount_file=str(self.mount), aperture_deg=declared_aperture(d)),
                 seed=emu_seed, time_scale=max(1.0, self.time_scale), **self.detector)
             self._closers.append(self.spectrometer.stop)
         except BaseException:

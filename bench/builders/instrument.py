@@ -7,7 +7,8 @@ it (``[instrument]``; the mission: simulate only the effects a measurement calls
     shot_noise = true            # Poisson statistics of the counts (averaged over the scans)
     lamp_drift = 0.001           # relative change of the lamp's output per lit reading
     positioning_error_deg = 0.05 # standard deviation of each angle the goniometer reaches
-    aperture_deg = 2.0           # detector half-angle: the reading averages the cone it sees
+    aperture_deg = 2.0           # detector half-angle: the virtual detector counts the rays into this
+                                 # cone (ApertureReading; declared_aperture says which table wins)
     seed = 11                    # the effects' random stream (default: 0)
 
 A description without ``[instrument]`` (or with every effect at its default) gives the readings
@@ -23,6 +24,7 @@ level and read noise).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from typing import Any, Mapping
 
@@ -30,13 +32,18 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from bench.builders.detector import FULL_SCALE, detector_settings
-from bench.core.errors import ConfigError
-from bench.core.geometry import Geometry, cone_quadrature, spherical
+from bench.core.errors import ConfigError, InputError
+from bench.core.geometry import Geometry, cone_cos_weights
 from bench.core.roles import InstrumentInfo, Reading
-from bench.core.schemas import Finite, Whole, validate_document
+from bench.core.schemas import EmulatedTable, Finite, Whole, validate_document
 
 __all__ = ["InstrumentTable", "DetectorEffects", "EffectsSpectrometer", "PositioningError", "ApertureReading",
-           "instrument_effects", "declared_effects"]
+           "instrument_effects", "declared_effects", "declared_aperture"]
+
+log = logging.getLogger(__name__)
+
+#: the first spawn-key entry of the cone counts' streams (apart from the collector's simulations)
+_CONE_STREAM = 0x636F6E65
 
 
 class InstrumentTable(BaseModel):
@@ -81,6 +88,26 @@ def declared_effects(d: Mapping[str, Any], source: str = "bench config") -> Inst
         table[key] = getattr(det, key)
     t = validate_document(InstrumentTable, table, f"{source} [instrument]")
     return t if _declares_any(t) or det.saturation_counts < FULL_SCALE else None
+
+
+def declared_aperture(d: Mapping[str, Any], source: str = "bench config") -> float:
+    """The detector half-angle (deg) description ``d`` declares, for every body (0: none) -- the
+    one answer the virtual body, the emulator, the fit and the design read:
+
+    * ``[instrument] aperture_deg`` when declared (> 0): the lab's declaration of its detector,
+      which wins over ``[emulated]``'s (the emulator then uses it too);
+    * else ``[emulated] aperture_deg``, the aperture the emulator uses: when the table states it
+      (as the emulated bench's twin, ``fixtures/benches/virtual.toml``, does), or by default
+      (1 deg) for a description of a physical bench (``kind = "emulated"`` or ``"real"``);
+    * else 0 (a virtual description: the detector is the collector patch of the viewing direction).
+    """
+    inst = validate_document(InstrumentTable, d.get("instrument") or {}, f"{source} [instrument]").aperture_deg
+    emulated = d.get("emulated") or {}
+    emu = validate_document(EmulatedTable, emulated, f"{source} [emulated]").aperture_deg
+    if inst > 0:
+        return float(inst)
+    physical = str(d.get("kind", "virtual")) in ("emulated", "real")
+    return float(emu) if physical or "aperture_deg" in emulated else 0.0
 
 
 class DetectorEffects:
@@ -162,39 +189,66 @@ class PositioningError:
 
 
 class ApertureReading:
-    """The Spectrometer role of a virtual goniophotometer ``inner`` seen through a detector of
-    finite aperture: the weighted mean of its readings at the directions of a
-    :func:`~bench.core.geometry.cone_quadrature` around the current viewing direction (those
-    below the horizon read nothing), each with its own ``cos theta_r``. The specimen is
-    simulated once per incidence, so the directions cost no rays. Neighbouring directions may
-    read one collector patch, so the standard deviations add linearly (an upper bound)."""
+    """The Spectrometer role of a virtual goniophotometer ``inner`` whose detector is a cone of
+    half-angle ``half_angle_deg`` around the viewing direction (the description's
+    :func:`declared_aperture`), read as the emulated spectrometer reads it: per wavelength, the
+    probability that a ray leaves into the cone is ``p = Omega mean_cone(f |cos theta|)``
+    (``Omega = 2 pi (1 - cos a)``, the mean by :func:`~bench.core.geometry.cone_quadrature` of the
+    specimen's density, directions on the far side of the specimen from the axis reading
+    nothing), the count of ``N = inner.rays`` rays is ``Binomial(N, p)`` and the reading is
+    ``gain t count / (N Omega)`` -- an unbiased estimate of ``gain t mean_cone(f cos)``, the
+    emulator's ``RESPONSE_GAIN mean_cone(f cos)`` -- with the standard deviation
+    ``gain t sqrt(p (1 - p) / N) / Omega`` at the observed ``p``, as the goniophotometer scales a
+    patch count. Counts are drawn from numpy's PCG64 keyed by the instrument's seed, the
+    geometry (millidegrees) and the wavelength (pm), so a repeated or resumed reading draws the
+    same count on any CPU, as the collector's cached simulation does. A specimen without a
+    density (no ``has_density``) cannot be integrated over the cone: its reading stays the
+    collector patch's, logged once and stated by :meth:`describe` (``detector_reads``)."""
 
     def __init__(self, inner: Any, half_angle_deg: float) -> None:
         self._inner = inner
         self.half_angle_deg = float(half_angle_deg)
+        self.omega = 2.0 * math.pi * (1.0 - math.cos(math.radians(self.half_angle_deg)))
+        self.reads_cone = bool(getattr(inner.specimen, "has_density", False))
+        if not self.reads_cone:
+            log.info("detector aperture %g deg: specimen %s has no density, so the virtual detector reads the "
+                     "collector patch of the viewing direction instead of the cone", self.half_angle_deg,
+                     inner.specimen.label)
+
+    def expected(self, geometry: Geometry, wavelengths: Any) -> np.ndarray:
+        """``mean_cone(f |cos theta|)`` per wavelength: what a reading estimates, over ``gain t``."""
+        dirs, w_cos = cone_cos_weights(geometry.view, self.half_angle_deg)
+        wi = geometry.incident
+        return np.array([float(w_cos @ np.asarray(self._inner.specimen.bsdf(wi, dirs, float(w)), dtype=float))
+                         for w in np.asarray(wavelengths, dtype=float)])
+
+    def _stream(self, g: Geometry, wavelength_nm: float) -> np.random.Generator:
+        key = (_CONE_STREAM, *(int(round((a % 360.0) * 1000)) for a in (g.theta_i, g.phi_i, g.theta_r, g.phi_r)),
+               int(round(wavelength_nm * 1000)))
+        return np.random.default_rng(np.random.SeedSequence(int(self._inner.seed), spawn_key=key))
 
     def acquire(self, integration_s: float, averages: int = 1) -> Reading:
+        if not self.reads_cone or not getattr(self._inner, "_light_on", True):
+            return self._inner.acquire(integration_s, averages)  # the patch; or dark (zero)
+        if not (isinstance(integration_s, (int, float)) and math.isfinite(integration_s) and integration_s > 0):
+            raise InputError(f"integration_s must be finite and > 0, got {integration_s!r}")
+        if not isinstance(averages, (int, np.integer)) or averages < 1:
+            raise InputError(f"averages must be an integer >= 1, got {averages!r}")
         g = self._inner.position()
-        dirs, weights = cone_quadrature(g.view, self.half_angle_deg)
-        signal, std, first = 0.0, 0.0, None
-        try:
-            for d, w in zip(dirs, weights):
-                theta, phi = spherical(d)
-                if theta >= 90.0:
-                    continue
-                self._inner.move_to(Geometry(g.theta_i, g.phi_i, theta, phi))
-                r = self._inner.acquire(integration_s, averages)
-                first = first or r
-                signal = signal + w * np.asarray(r.signal, dtype=float)
-                std = std + w * np.asarray(r.std if r.std is not None else 0.0, dtype=float)
-        finally:
-            self._inner.move_to(g)
-        if first is None:  # the whole cone below the horizon
-            return self._inner.acquire(integration_s, averages)
-        return dataclasses.replace(first, signal=np.asarray(signal, dtype=float), std=np.asarray(std, dtype=float))
+        wl = np.asarray(self._inner.wavelengths, dtype=float)
+        p = np.clip(self.omega * self.expected(g, wl), 0.0, 1.0)
+        n = int(self._inner.rays)
+        counts = np.array([self._stream(g, float(w)).binomial(n, pk) for w, pk in zip(wl, p)], dtype=float)
+        observed = counts / n
+        scale = float(self._inner.gain) * float(integration_s) / self.omega
+        return Reading(wavelengths=wl, signal=scale * observed, saturated=np.zeros(wl.size, dtype=bool),
+                       integration_s=float(integration_s), averages=int(averages),
+                       std=scale * np.sqrt(observed * (1.0 - observed) / n))
 
     def describe(self) -> InstrumentInfo:
-        return self._inner.describe()
+        info = self._inner.describe()
+        return dataclasses.replace(info, extra={**info.extra, "aperture_deg": self.half_angle_deg,
+                                                "detector_reads": "cone" if self.reads_cone else "patch"})
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._inner, name)

@@ -1,5 +1,7 @@
 """The virtual bench (``kind = "virtual"``): a virtual goniophotometer in every role, and a virtual
-white standard measured by a second one."""
+white standard measured by a second one. Its detector reads the cone of the aperture the
+description declares (:func:`bench.builders.instrument.declared_aperture`: rays counted into the
+cone, as the emulated spectrometer averages it), else the collector patch of the viewing direction."""
 
 from __future__ import annotations
 
@@ -7,7 +9,7 @@ from typing import Any, Mapping
 
 from bench.builders.detector import described_bands, detector_settings, virtual_gain
 from bench.builders.instrument import (ApertureReading, DetectorEffects, EffectsSpectrometer, PositioningError,
-                                      declared_effects)
+                                      declared_aperture, declared_effects)
 from bench.builders.light import declares_light
 from bench.config import Bench
 from bench.core.calibration import WhiteStandard
@@ -56,8 +58,8 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     effects = declared_effects(d)  # declared effects only; none: the bare instrument
     saturation = float(det.saturation_counts) if det is not None else None
     detector = DetectorEffects(effects, stream=1, saturation=saturation) if effects is not None else None
-    aperture = effects.aperture_deg if effects is not None else 0.0
-    seen: Any = ApertureReading(gonio, aperture) if aperture > 0 else gonio  # the detector's cone
+    aperture = declared_aperture(d)  # the detector's cone (0: the collector patch of the viewing direction)
+    seen: Any = ApertureReading(gonio, aperture) if aperture > 0 else gonio
     white_seen: Any = ApertureReading(standard, aperture) if aperture > 0 else standard
     spectrometer: Any = EffectsSpectrometer(seen, detector) if detector is not None else seen
 

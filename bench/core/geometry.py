@@ -27,6 +27,7 @@ __all__ = [
     "direction",
     "spherical",
     "cone_quadrature",
+    "cone_cos_weights",
 ]
 
 
@@ -73,6 +74,16 @@ def cone_quadrature(axis: np.ndarray, half_angle_deg: float, rings: int = 4,
             * (np.cos(phi)[None, :, None] * u + np.sin(phi)[None, :, None] * v))
     weights = np.repeat(w / w.sum() / azimuths, azimuths)
     return dirs.reshape(-1, 3), weights
+
+
+def cone_cos_weights(axis: np.ndarray, half_angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Directions and weights ``w`` of a detector's cone (:func:`cone_quadrature`) such that
+    ``w @ f(dirs)`` is the cone mean of ``f |cos theta|``: directions on the other side of the
+    specimen from the axis (past the horizon) read nothing. What the emulated spectrometer and
+    the virtual body's detector read (over their gain) and what a fit predicts."""
+    dirs, weights = cone_quadrature(axis, half_angle_deg)
+    side = 1.0 if float(np.asarray(axis, dtype=float)[2]) >= 0.0 else -1.0
+    return dirs, weights * np.clip(side * dirs[:, 2], 0.0, None)
 
 
 def _check_angle(name: str, value: float, lo: float, hi: float) -> float:

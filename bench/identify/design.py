@@ -25,7 +25,8 @@ import numpy as np
 
 from bench.core.errors import ConfigError
 from bench.core.geometry import Geometry
-from bench.identify.design_noise import ReadingModel, predicted_brdf
+from bench.identify.design_noise import ReadingModel
+from bench.identify.prediction import predicted_brdf
 from bench.identify.time_model import ReadingSettings, TimeModel
 
 __all__ = ["ModelPoint", "Information", "information", "Sensitivities", "sensitivities", "criterion", "Design", "design_plan", "CRITERIA",
@@ -103,15 +104,17 @@ class Sensitivities:
 
 
 def sensitivities(model: ModelPoint, candidates: Sequence[Geometry], wavelengths: np.ndarray,
-                  aperture_deg: float = 0.0) -> Sensitivities:
-    """Predicted readings and their central-difference derivatives at the prior."""
-    f0 = predicted_brdf(model.specimen(), candidates, wavelengths, aperture_deg)
+                  aperture_deg: float = 0.0, white: Geometry | None = None) -> Sensitivities:
+    """Predicted readings (:func:`bench.identify.prediction.predicted_brdf`, the fit's prediction:
+    a detector of half-angle ``aperture_deg`` calibrated against a white read at ``white``) and
+    their central-difference derivatives at the prior."""
+    f0 = predicted_brdf(model.specimen(), candidates, wavelengths, aperture_deg, white)
     jac = []
     for k, h in model.steps().items():
         up = dict(model.values, **{k: model.values[k] + h})
         dn = dict(model.values, **{k: model.values[k] - h})
-        jac.append((predicted_brdf(model.specimen(up), candidates, wavelengths, aperture_deg)
-                    - predicted_brdf(model.specimen(dn), candidates, wavelengths, aperture_deg)) / (2 * h))
+        jac.append((predicted_brdf(model.specimen(up), candidates, wavelengths, aperture_deg, white)
+                    - predicted_brdf(model.specimen(dn), candidates, wavelengths, aperture_deg, white)) / (2 * h))
     return Sensitivities(f0, np.stack(jac, axis=-1))
 
 
@@ -124,7 +127,8 @@ def information(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
     as the fit's likelihood does (:func:`bench.identify.likelihood.readings_and_covariance`: the
     record's per-reading uncertainty, a diagonal covariance).
     """
-    sens = sens or sensitivities(model, candidates, readings.wavelengths, readings.aperture_deg)
+    sens = sens or sensitivities(model, candidates, readings.wavelengths, readings.aperture_deg,
+                                 readings.standard.geometry)
     f0 = sens.brdf
     sigma, rho = readings.noise(f0, candidates)
     if not shared_scale:
@@ -289,7 +293,8 @@ def design_for_bench(model: ModelPoint, bench: Any, candidates: Sequence[Geometr
     sens = None
     for s in settings:
         readings = bench_reading_model(bench, s)
-        sens = sens or sensitivities(model, pool, readings.wavelengths, readings.aperture_deg)
+        sens = sens or sensitivities(model, pool, readings.wavelengths, readings.aperture_deg,
+                                    readings.standard.geometry)
         try:
             d = design_plan(model, candidates, readings, bench_time_model(bench, s), seconds, criterion_name,
                             seed_points, sens, shared_scale)

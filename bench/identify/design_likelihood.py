@@ -5,8 +5,10 @@
 information (:mod:`bench.identify.design`) also counts:
 
 * the prediction is the model averaged over the detector's aperture, as the bench description
-  declares it (``[emulated] aperture_deg``): near a glossy peak a 1 deg aperture changes the
-  reading by up to a few per cent at grazing angles, far more than the readings' noise;
+  declares it (:func:`bench.builders.instrument.declared_aperture`), calibrated against the
+  white read through the same cone (:func:`bench.identify.prediction.predicted_brdf`): near a
+  glossy peak a 1 deg aperture changes the reading by up to a few per cent at grazing angles,
+  far more than the readings' noise;
 * optionally (``shared=True``) the white standard's relative uncertainty as one error shared by
   every reading (covariance ``rho^2 y y^T``) rather than an independent error per reading; the
   default is the diagonal of the readings' covariance, which the design's information matches
@@ -23,8 +25,7 @@ from typing import Any
 import numpy as np
 
 from bench.core.records import BSDFRecord
-from bench.core.geometry import Geometry
-from bench.identify.design_noise import predicted_brdf
+from bench.builders.instrument import declared_aperture
 from bench.identify.likelihood import GaussianReadings
 
 __all__ = ["BenchReadings", "bench_likelihood", "valid_readings", "aperture_of", "shared_relative"]
@@ -38,8 +39,9 @@ def valid_readings(record: BSDFRecord) -> BSDFRecord:
 
 
 def aperture_of(description: Any) -> float:
-    """The detector aperture half-angle (deg) a bench description declares (0 when none)."""
-    return float(((description or {}).get("emulated") or {}).get("aperture_deg", 0.0) or 0.0)
+    """The detector aperture half-angle (deg) a bench description declares (0 when none):
+    :func:`bench.builders.instrument.declared_aperture`."""
+    return declared_aperture(description or {})
 
 
 def shared_relative(record: BSDFRecord) -> float:
@@ -52,19 +54,17 @@ def shared_relative(record: BSDFRecord) -> float:
 
 
 class BenchReadings(GaussianReadings):
-    """Calibrated readings of a bench: aperture-averaged predictions (and optionally a shared
-    white scale)."""
+    """Calibrated readings of a bench: the fit's predictions through the aperture ``aperture_deg``
+    the bench description declares (and optionally a shared white scale)."""
 
     def __init__(self, record: BSDFRecord, aperture_deg: float = 0.0, shared: bool = False) -> None:
         from scipy.linalg import cholesky
 
         record = valid_readings(record)
         super().__init__(record)
+        # the aperture the description declares; the prediction is the fit's own
+        # (GaussianReadings.bsdf_nodes: the patch a virtual body without an aperture read, else the cone)
         self.aperture_deg = float(aperture_deg)
-        t = record.table
-        self.geometries = [Geometry(float(a), float(b), float(c), float(d)) for a, b, c, d in
-                           zip(t["theta_i"], t["phi_i"], t["theta_r"], t["phi_r"])]
-        self.wavelengths = t["wavelength_nm"].to_numpy(float)
         # the design's Fisher information is diagonal in the readings: so is this likelihood (the
         # fit proper, bench.identify.likelihood, takes the budgets' full covariance)
         self.chol = np.diag(np.sqrt(np.diag(self.chol @ self.chol.T)))
@@ -75,14 +75,6 @@ class BenchReadings(GaussianReadings):
             own = np.maximum(u**2 - (rho * y) ** 2, (0.05 * u) ** 2)  # the rest of each reading's variance
             cov = np.diag(own) + rho**2 * np.outer(y, y)
             self.chol = cholesky(cov, lower=True)
-
-    def predictions(self, specimen: Any) -> np.ndarray:
-        out = np.empty(len(self.geometries))
-        for w in np.unique(self.wavelengths):
-            rows = np.flatnonzero(self.wavelengths == w)
-            out[rows] = predicted_brdf(specimen, [self.geometries[i] for i in rows], np.array([w]),
-                                       self.aperture_deg)[:, 0]
-        return out
 
     def n_data(self, specimen: Any) -> int:
         return len(self.values)

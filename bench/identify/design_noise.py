@@ -3,7 +3,8 @@
 A design needs, for every candidate point, the calibrated BRDF a model predicts there and the
 covariance of the reading the bench would give. The prediction is the specimen's density
 (``Specimen.bsdf``, numpy, no kernel) averaged over the detector's aperture as the emulated
-spectrometer averages it. The noise comes from the body's own declared noise model, pushed
+spectrometer and the virtual body read it (:func:`bench.identify.prediction.predicted_brdf`, the
+fit's own prediction). The noise comes from the body's own declared noise model, pushed
 through the calibration chain every run uses (:meth:`bench.core.calibration.Calibration.apply`)
 on the expected readings:
 
@@ -32,32 +33,13 @@ from bench.core.calibration import Calibration, WhiteStandard
 from bench.core.geometry import Geometry
 from bench.core.parsing import parse_wavelengths
 from bench.core.roles import Reading
+from bench.identify.prediction import predicted_brdf
 from bench.identify.time_model import ReadingSettings
 
 __all__ = ["ReadingModel", "bench_reading_model", "predicted_brdf", "SATURATION_MARGIN"]
 
 #: a design avoids readings predicted above this fraction of the detector's full scale
 SATURATION_MARGIN = 0.8
-
-
-def predicted_brdf(specimen: Any, geometries: Sequence[Geometry], wavelengths: np.ndarray,
-                   aperture_deg: float = 0.0) -> np.ndarray:
-    """The specimen's BRDF (1/sr) at each geometry and wavelength, ``(points, wavelengths)``, as a
-    detector of half-angle ``aperture_deg`` reads it: the cone average of ``f cos(theta)``
-    (:func:`bench.core.geometry.cone_quadrature`, the rule of the emulator and the virtual body)
-    divided by the axis's ``cos(theta_r)``."""
-    from bench.core.geometry import cone_quadrature
-
-    spectral = specimen.wavelength_range() is not None
-    bands = wavelengths if spectral else wavelengths[:1]  # a non-spectral density: one evaluation
-    out = np.empty((len(geometries), len(bands)))
-    for k, g in enumerate(geometries):
-        dirs, weights = cone_quadrature(g.view, aperture_deg)
-        cos_axis = float(g.view[2])
-        w = weights * np.clip(dirs[:, 2], 0.0, None) / cos_axis if cos_axis > 1e-9 else weights
-        for b, wl in enumerate(bands):
-            out[k, b] = float(w @ specimen.bsdf(g.incident, dirs, float(wl)))
-    return out if spectral else np.repeat(out, len(wavelengths), axis=1)
 
 
 def _reading(signal: np.ndarray, std: np.ndarray, wavelengths: np.ndarray, settings: ReadingSettings,
@@ -133,6 +115,7 @@ class ReadingModel:
 
 def _emulated_model(d: Mapping[str, Any], settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
     from bench.builders.emulated import RESPONSE_GAIN
+    from bench.builders.instrument import declared_aperture
     from drivers.ocean.codec import FULL_SCALE
     from virtual.wire.ocean_model import SpectrometerConfig, SpectrometerModel
 
@@ -155,19 +138,22 @@ def _emulated_model(d: Mapping[str, Any], settings: ReadingSettings, standard: W
     # a band is flagged when any pixel of any scan reaches full scale: keep a margin for noise and
     # for a prior that is only a guess
     full = np.full(centres.size, SATURATION_MARGIN * FULL_SCALE)
-    return ReadingModel("emulated", centres, settings, standard, float(e.get("aperture_deg", 1.0)),
+    return ReadingModel("emulated", centres, settings, standard, declared_aperture(d),
                         np.array(per_count), np.array(per_var), np.array(floor), np.full(centres.size, dark),
                         saturation=full, peak_ratio=np.array(peak))
 
 
 def _virtual_model(bench: Any, settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
-    from bench.builders.instrument import instrument_effects
+    from bench.builders.instrument import declared_aperture, instrument_effects
 
     gonio = bench.spectrometer  # the virtual goniophotometer (through any declared effects)
     wl = np.asarray(gonio.wavelengths, dtype=float)
-    psa = float(np.median(gonio.collector.psa))
+    aperture = declared_aperture(bench.config)
+    # binomial counting in a patch, or in the aperture's cone of solid angle 2 pi (1 - cos a):
+    # var(f) ~ f / (rays psa) for f psa << 1
+    psa = (2.0 * math.pi * (1.0 - math.cos(math.radians(aperture))) if aperture > 0
+           else float(np.median(gonio.collector.psa)))
     scale = float(gonio.gain) * settings.integration_s  # signal per unit of BRDF x cos(theta_r)
-    # binomial counting in a patch: var(f) ~ f / (rays psa) for f psa << 1
     per_count = np.full(wl.size, scale / (float(gonio.rays) * psa))
     floor = np.zeros(wl.size)
     dark = np.zeros(wl.size)
@@ -176,10 +162,11 @@ def _virtual_model(bench: Any, settings: ReadingSettings, standard: WhiteStandar
         per_count = per_count + (1.0 / settings.averages if effects.shot_noise else 0.0)
         floor = floor + effects.read_noise**2 / settings.averages
         dark = dark + effects.dark_counts
-    return ReadingModel("virtual", wl, settings, standard, 0.0, np.full(wl.size, scale), per_count, floor, dark)
+    return ReadingModel("virtual", wl, settings, standard, aperture, np.full(wl.size, scale), per_count, floor, dark)
 
 
 def _real_model(bench: Any, settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
+    from bench.builders.instrument import declared_aperture
     from bench.identify.time_model import plan_of_points
     from bench.plans import MotionProfile, estimate
 
@@ -187,7 +174,8 @@ def _real_model(bench: Any, settings: ReadingSettings, standard: WhiteStandard) 
     one_point = plan_of_points([Geometry(0.0, 0.0, 30.0, 180.0)], settings)
     rel = float(estimate(one_point, MotionProfile.instantaneous())["relative_uncertainty"])
     z = np.zeros(wl.size)
-    return ReadingModel("real", wl, settings, standard, 0.0, np.ones(wl.size), z, z, z, relative_floor=rel)
+    return ReadingModel("real", wl, settings, standard, declared_aperture(bench.config), np.ones(wl.size), z, z, z,
+                        relative_floor=rel)
 
 
 def bench_reading_model(bench: Any, settings: ReadingSettings) -> ReadingModel:

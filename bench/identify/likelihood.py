@@ -22,7 +22,10 @@ maximum-likelihood estimate and differences of ``sum(r**2)`` are likelihood-rati
   parameters;
 * **calibrated readings** (:class:`GaussianReadings`): a scan's BSDF values or spectra with
   their uncertainties, ``r = L^-1 (y - model)`` with ``L L^T`` the readings' covariance from
-  :func:`readings_and_covariance` (the one place the covariance comes from).
+  :func:`readings_and_covariance` (the one place the covariance comes from) and ``model`` what
+  the body read (:mod:`bench.identify.prediction`, the design's prediction too): the cone of the
+  detector aperture the record's metadata gives, calibrated against the white read through the
+  same cone, or the collector patch of a virtual body without an aperture.
 
 The record's kind decides (:func:`likelihood_for`): integer counts with ray totals are
 virtual counts, anything else is calibrated readings.
@@ -37,9 +40,11 @@ from typing import Any, Sequence
 import numpy as np
 
 from bench.core.errors import InputError
-from bench.core.geometry import Geometry, cie_geometry, direction
+from bench.core.geometry import Geometry, cie_geometry
 from bench.core.records import BSDFRecord
 from bench.core.roles import Spectrum
+from bench.identify.prediction import (PATCH_BOUNDS, cone_nodes, directional_rt, ideal_rf, patch_nodes,
+                                       record_aperture, virtual_body_patches, white_geometry)
 from virtual.beam import Beam
 from virtual.collector import SCHEMES, Collector
 from virtual.specimens import Specimen
@@ -241,22 +246,6 @@ class GonioCounts(Likelihood):
 # --- virtual counts: spectrophotometer ----------------------------------------------------
 
 
-def directional_rt(specimen: Specimen, theta_deg: float, wavelength_nm: float) -> tuple[float, float] | None:
-    """The specimen's directional-hemispherical (R, T) at incidence ``theta_deg``: its own
-    ``directional_rt`` when it has one, else the certified quadrature of its density; ``None``
-    when neither is available or certified."""
-    own = getattr(specimen, "directional_rt", None)
-    if own is not None:
-        r, t = own(theta_deg, wavelength_nm)
-        return float(r), float(t)
-    if not specimen.has_density:
-        return None
-    from virtual.quadrature import certified_patch_integrals
-
-    cert = certified_patch_integrals(specimen, direction(theta_deg, 0.0), Collector("equal-psa", 1, 1), wavelength_nm)
-    return (cert.reflectance, cert.transmittance) if cert.certified else None
-
-
 def _spectra(record: Any) -> tuple[Spectrum, ...]:
     return (record,) if isinstance(record, Spectrum) else tuple(record)
 
@@ -345,7 +334,8 @@ def reading_rows(record: Any) -> list[dict[str, Any]]:
                   else np.full((len(t), 4), np.nan))
         missing = ~np.all(np.isfinite(bounds), axis=1)
         if missing.any():
-            bounds[missing] = _virtual_body_patches(record, t[missing])
+            bounds[missing] = virtual_body_patches(record.meta, t["theta_r"].to_numpy(float)[missing],
+                                                   t["phi_r"].to_numpy(float)[missing])
         for r, ui, b in zip(t.itertuples(index=False), u, bounds):
             rows.append({"quantity": "bsdf", "wavelength_nm": float(r.wavelength_nm), "theta_i": float(r.theta_i),
                          "phi_i": float(r.phi_i), "theta_r": float(r.theta_r), "phi_r": float(r.phi_r),
@@ -378,51 +368,6 @@ def _measured(record: BSDFRecord) -> Any:
     the calibration: its value NaN) carries no information and is left out, in table order."""
     t = record.table
     return t[np.isfinite(t["value"].to_numpy(float))]
-
-
-#: a record's patch columns: a reading with them is the BSDF averaged over that patch
-PATCH_BOUNDS = ("theta_min", "theta_max", "phi_min", "phi_max")
-#: Gauss-Legendre order per axis of a patch average
-PATCH_ORDER = 8
-
-
-def patch_nodes(theta_min: float, theta_max: float, phi_min: float, phi_max: float,
-                order: int = PATCH_ORDER) -> tuple[np.ndarray, np.ndarray]:
-    """Directions and weights (summing to 1) of the projected-solid-angle average over a
-    collector patch (degrees): what a patch reading ``n / (N * PSA)`` estimates. In
-    ``u = sin^2(theta)`` the projected solid angle is uniform (``dPSA = du dphi / 2``), so a
-    Gauss-Legendre product rule in (u, phi) averages with equal measure."""
-    x, w = np.polynomial.legendre.leggauss(order)
-    lo, hi = math.sin(math.radians(theta_min)) ** 2, math.sin(math.radians(theta_max)) ** 2
-    u = lo + (hi - lo) * (x + 1.0) / 2.0
-    phi = math.radians(phi_min) + math.radians(phi_max - phi_min) * (x + 1.0) / 2.0
-    st = np.sqrt(np.clip(u, 0.0, 1.0))
-    ct = np.sqrt(np.clip(1.0 - u, 0.0, 1.0))
-    if min(theta_min, theta_max) >= 90.0:  # a transmission patch: below the specimen
-        ct = -ct
-    dirs = np.stack([np.outer(st, np.cos(phi)).ravel(), np.outer(st, np.sin(phi)).ravel(),
-                     np.repeat(ct, order)], axis=1)
-    weights = np.outer(w, w).ravel() / 4.0
-    return dirs, weights
-
-
-def _virtual_body_patches(record: BSDFRecord, t: Any) -> np.ndarray:
-    """Patch bounds (deg) of readings a virtual body took: its detector reads the collector patch
-    that holds the viewing direction (the collector the run's bench description names), so the
-    reading is that patch's average, not the BSDF at the direction. NaN rows elsewhere."""
-    out = np.full((len(t), 4), np.nan)
-    desc = record.meta.get("bench_description") or {}
-    c = ((desc.get("goniometer") or {}).get("extra") or {}).get("collector") if isinstance(desc, dict) else None
-    if record.meta.get("bench_kind", desc.get("kind") if isinstance(desc, dict) else None) != "virtual" or not c:
-        return out
-    try:
-        col = Collector(str(c["scheme"]), int(c["n_theta"]), int(c["n_phi"]))
-    except (KeyError, TypeError, ValueError, InputError):
-        return out
-    dirs = np.array([direction(a, b) for a, b in zip(t["theta_r"].to_numpy(float), t["phi_r"].to_numpy(float))])
-    if len(dirs) == 0:
-        return out
-    return np.degrees(col.bin_bounds()[col.index(dirs)])
 
 
 def readings_and_covariance(record: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -458,19 +403,6 @@ def readings_and_covariance(record: Any) -> tuple[np.ndarray, np.ndarray]:
     return values, cov
 
 
-def _ideal_rf(specimen: Specimen, geometry: str, wavelength_nm: float) -> float:
-    """Reflectance factor of a bidirectional geometry ``"THETA_I/THETA_R"``: pi f_r, viewed in the
-    plane of incidence on the far side."""
-    a, _, b = geometry.partition("/")
-    try:
-        ti, tr = float(a), float(b)
-    except ValueError:
-        g = cie_geometry(geometry)
-        ti, tr = g.theta_i, g.theta_r
-    f = specimen.bsdf(direction(ti, 0.0), direction(tr, 180.0)[None, :], wavelength_nm)
-    return math.pi * float(np.asarray(f)[0])
-
-
 class GaussianReadings(Likelihood):
     """Calibrated readings with their covariance (see the module docstring)."""
 
@@ -480,6 +412,11 @@ class GaussianReadings(Likelihood):
         from scipy.linalg import cholesky
 
         self.rows = reading_rows(record)
+        meta = record.meta if isinstance(record, BSDFRecord) else {}
+        #: the detector's half-angle (deg) and where its white was read (the record's metadata)
+        self.aperture_deg = record_aperture(meta)
+        self.white = white_geometry(meta)
+        self._nodes: list[Any] | None = None
         self.values, cov = readings_and_covariance(record)
         self.chol = cholesky(cov, lower=True)
         self.xlabel = "reading" if isinstance(record, BSDFRecord) else "wavelength (nm)"
@@ -498,17 +435,27 @@ class GaussianReadings(Likelihood):
             i = j
         self.groups = tuple(groups)
 
+    def bsdf_nodes(self, row: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(incident direction, directions, weights) of a BSDF reading's prediction ``weights @ f``:
+        the collector patch it averaged (a virtual body without an aperture), else the detector's
+        cone through the record's aperture, calibrated against its white
+        (:func:`bench.identify.prediction.cone_nodes`; no aperture: the viewing direction)."""
+        g = Geometry(row["theta_i"], row["phi_i"], row["theta_r"], row["phi_r"])
+        if row.get("patch") is not None:
+            return (g.incident, *patch_nodes(*row["patch"]))
+        return (g.incident, *cone_nodes(g, self.aperture_deg, self.white))
+
     def predictions(self, specimen: Specimen) -> np.ndarray:
+        if self._nodes is None:
+            self._nodes = [self.bsdf_nodes(r) if r["quantity"] == "bsdf" else None for r in self.rows]
         out = np.empty(len(self.rows))
-        for i, r in enumerate(self.rows):
+        for i, (r, nodes) in enumerate(zip(self.rows, self._nodes)):
             q = r["quantity"]
-            if q == "bsdf":
-                wi = Geometry(r["theta_i"], r["phi_i"], 0.0, 0.0).incident
-                dirs, weights = (patch_nodes(*r["patch"]) if r.get("patch") is not None
-                                 else (direction(r["theta_r"], r["phi_r"])[None, :], np.ones(1)))
+            if nodes is not None:
+                wi, dirs, weights = nodes
                 out[i] = float(weights @ np.asarray(specimen.bsdf(wi, dirs, r["wavelength_nm"]), dtype=float))
             elif q == "RF":
-                out[i] = _ideal_rf(specimen, r["geometry"], r["wavelength_nm"])
+                out[i] = ideal_rf(specimen, r["geometry"], r["wavelength_nm"])
             else:
                 rt = directional_rt(specimen, cie_geometry(r["geometry"]).reciprocal_directional.theta_i,
                                     r["wavelength_nm"])
