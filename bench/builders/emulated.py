@@ -81,6 +81,7 @@ DEFAULT_EMULATED_CONFIG: dict[str, Any] = {
     "specimen": {"spec": "lambert:albedo=0.8"},
     "white": {"reflectance_factor": 0.99, "uncertainty": 0.005, "geometry": [0, 0, 45, 180]},
     "emulated": {"time_scale": 50, "bands": "450:650:100", "bandwidth_nm": 10, "aperture_deg": 1.0, "seed": 7},
+    "spectrometer": {"nonlinearity": True},  # the emulated detector is non-linear; a lab corrects it
 }
 
 
