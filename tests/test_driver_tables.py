@@ -77,7 +77,12 @@ def test_the_fixtures_pass():
 @pytest.mark.parametrize("table,key,value", [("turntable", "gear_ratio", "x"), ("spectrometer", "checksum", "x")])
 def test_cli_refuses_before_any_emulator_starts(tmp_path, capsys, table, key, value):
     bench = tmp_path / "b.toml"
-    bench.write_text(EMULATED.read_text() + f'\n[{table}]\n{key} = "{value}"\n')
+    text = EMULATED.read_text()
+    line = f'{key} = "{value}"\n'
+    # into the fixture's table when it has one (emulated.toml declares [spectrometer]), else a new table
+    text = (text.replace(f"\n[{table}]", f"\n[{table}]\n{line}", 1) if f"\n[{table}]" in text
+            else text + f"\n[{table}]\n{line}")
+    bench.write_text(text)
     code, out, err = run_main(capsys, "plan", ROOT / "fixtures" / "plans" / "cie-spectral.toml", "--bench", bench)
     assert code == 2, err
     line = err.strip()
