@@ -12,6 +12,10 @@ Every step is an ordinary scan run in the store, named ``adaptive-KEY-STEP`` (``
 the model, bench, budget and options). Run again with the same arguments after a kill, it reuses
 the completed steps, finishes an interrupted one as ``bench resume`` would, and carries on: the
 next designs depend only on the stored readings, so the continuation is the same.
+
+The loop is :class:`AdaptiveSession`'s step function (``next_step``: the next plan or ``None`` to
+stop; ``add``: a measured step's record, fitted with all before it), which the Bluesky plan
+``bench.bluesky.plans.adaptive_fit`` drives on a RunEngine the same way.
 """
 
 from __future__ import annotations
