@@ -4,8 +4,8 @@ Bluesky plan, on the virtual body of the emulated bench description with a plast
 The bench file is seeded at its top level (``seed = 5``), so the virtual body draws the same
 readings on every path: the plan and :func:`adaptive_scan` (the CLI's loop) must then make the
 same designs and find the same estimates. Everything here is deterministic (fixed seed): no
-statistical false alarm. Cost: the fast tests share one 1-s session per path (~4-5 CPU-s each)
-plus one 1-step session for the target.
+statistical false alarm. Cost of the fast tests: one shared 1-s session of the plan (~5 CPU-s),
+its rerun (~2 CPU-s: the fits again) and a 1-step session for the target (~1 CPU-s).
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def test_one_run_per_step_with_its_design_and_fit_stopping_at_the_budget(session
                                                  for k in range(len(runs))]
 
 
-@pytest.mark.slow  # ~8 CPU-s: a whole CLI session (3 designs, 3 fits) besides the plan's
+@pytest.mark.slow  # ~5-10 CPU-s: a whole CLI session (3 designs, 3 fits) besides the plan's
 def test_the_plan_finds_what_bench_scan_adaptive_finds(session, devs, tmp_path):
     """Same bench file (seeded), model, budget and options: the CLI's loop makes the same designs
     on the same readings, so the estimates agree to the optimizer's last digits."""
@@ -132,7 +132,6 @@ def test_a_target_width_stops_early(session, RE, devs, tmp_path):
     assert _fit_events(docs)[-1]["fit-stopped"] == "target"
 
 
-@pytest.mark.slow  # ~6 CPU-s: the session's three fits again
 def test_a_rerun_reuses_the_stored_steps_without_measuring(session, RE, devs):
     docs, result, store = session
     again_docs, again = _run(RE, adaptive_fit(MODEL, devs, store=store, **OPTIONS))
@@ -140,7 +139,7 @@ def test_a_rerun_reuses_the_stored_steps_without_measuring(session, RE, devs):
     assert again.estimates == pytest.approx(result.estimates, rel=1e-8)
 
 
-@pytest.mark.slow  # ~12 CPU-s: a whole session again, interrupted in its second step, then finished
+@pytest.mark.slow  # ~4-8 CPU-s: a whole session again, failed in its second step, then finished
 def test_a_session_failed_in_a_step_is_finished_by_a_rerun_as_if_uninterrupted(session, RE, devs, tmp_path):
     from bluesky.utils import FailedStatus
 
