@@ -40,10 +40,13 @@ from bench.config import Bench, load_bench
 from bench.core.errors import BenchError, DeviceError
 from bench.core.records import json_default
 
-__all__ = ["connect", "Devices", "METADATA_KEY", "jsonable"]
+__all__ = ["connect", "Devices", "METADATA_KEY", "PLAN_KEY", "jsonable"]
 
 #: the start-document key (set in ``RE.md`` by :func:`connect`) holding the bench's metadata
 METADATA_KEY = "goniobench"
+#: the start-document key describing our plan (its table, the order, points planned), set by
+#: :func:`bench.bluesky.plans.plan_from_toml` and read by :class:`bench.bluesky.StoreWriter`
+PLAN_KEY = "goniobench_plan"
 
 
 @dataclass

@@ -34,9 +34,8 @@ from typing import Any
 import numpy as np
 from event_model import DocumentRouter, unpack_event_page
 
-from bench.bluesky.connect import METADATA_KEY, jsonable
+from bench.bluesky.connect import METADATA_KEY, PLAN_KEY, jsonable
 from bench.bluesky.goniometer import AXES, Mover
-from bench.bluesky.plans import PLAN_KEY
 from bench.core.calibration import Calibration
 from bench.core.geometry import Geometry
 from bench.core.roles import Reading

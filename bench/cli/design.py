@@ -79,17 +79,9 @@ def refuse_unused(args: argparse.Namespace, flag: str) -> None:
 
 
 def _model(args: argparse.Namespace, text: str) -> tuple[Any, Any, list[Any]]:
-    from bench.identify.design import integration_choices
-    from bench.identify.design_io import model_point, parse_prior
-    from bench.identify.model_spec import parse_model_spec
-    from bench.identify.time_model import ReadingSettings
-    from bench.plans import load_plan
+    from bench.identify.design_io import design_inputs
 
-    spec = parse_model_spec(text)
-    point = model_point(spec, parse_prior(args.prior))
-    base = ReadingSettings.like(load_plan(args.like)) if args.like else ReadingSettings()
-    settings = integration_choices(base, [float(t) for t in str(args.integration_s).split(",") if t.strip()])
-    return spec, point, settings
+    return design_inputs(text, args.prior, args.like, args.integration_s)
 
 
 def cmd_scan_adaptive(args: argparse.Namespace) -> int:
@@ -100,8 +92,7 @@ def cmd_scan_adaptive(args: argparse.Namespace) -> int:
 
     from bench.cli.common import open_store
     from bench.config import load_bench
-    from bench.identify.design_sequential import adaptive_scan, parse_targets, session_key
-    from bench.identify.time_model import candidate_grid, reachable
+    from bench.identify.design_sequential import adaptive_scan, parse_targets, session_candidates, session_key
 
     if args.plan is not None:
         raise InputError(f"give a plan file or --adaptive, not both (got {args.plan} and --adaptive)")
@@ -113,9 +104,7 @@ def cmd_scan_adaptive(args: argparse.Namespace) -> int:
                       args.like, args.step, args.target, args.seed)
     bench = load_bench(args.bench, seed=args.seed, body=args.body)
     with bench, open_store(args.store) as store:
-        candidates = reachable(candidate_grid(args.step), bench.goniometer.check, settings[0])
-        if not candidates:
-            raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
+        candidates = session_candidates(bench, args.step, settings)
         result = adaptive_scan(bench, store, spec, point, args.seconds, settings, candidates, args.criterion,
                                targets, seed=getattr(bench.goniometer, "seed", args.seed), key=key,
                                progress=not args.quiet and sys.stderr.isatty())

@@ -11,14 +11,17 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import tomli_w
 
 from bench.core.errors import InputError, SpecimenError
-from bench.identify.design import Design, ModelPoint
+from bench.identify.design import Design, ModelPoint, integration_choices
+from bench.identify.model_spec import parse_model_spec
+from bench.identify.time_model import ReadingSettings
+from bench.plans import load_plan
 
-__all__ = ["model_point", "parse_prior", "parse_values", "design_table", "write_design", "widths_text"]
+__all__ = ["model_point", "parse_prior", "parse_values", "design_table", "write_design", "widths_text", "design_inputs"]
 
 
 def parse_values(text: str | None, option: str, what: str = "VALUE", positive: bool = False) -> dict[str, float]:
@@ -68,6 +71,21 @@ def model_point(spec: Any, prior: Mapping[str, float] | None = None) -> ModelPoi
     except SpecimenError as exc:
         raise InputError(f"--prior: {exc}") from None
     return point
+
+
+def design_inputs(model: str, prior: str | Mapping[str, float] | None = None, like: str | Path | None = None,
+                  integration_s: str | Sequence[float] = "0.02") -> tuple[Any, ModelPoint, list[ReadingSettings]]:
+    """The parsed model, the model at its prior and the reading settings a design chooses from,
+    from ``--prior``, ``--like`` and ``--integration-s`` as ``bench plan --design`` / ``bench scan
+    --adaptive`` take them (``prior`` may also be a mapping, ``integration_s`` a sequence)."""
+    spec = parse_model_spec(model)
+    point = model_point(spec, parse_prior(prior) if prior is None or isinstance(prior, str) else dict(prior))
+    base = ReadingSettings.like(load_plan(like)) if like else ReadingSettings()
+    if isinstance(integration_s, str):
+        times = [float(t) for t in integration_s.split(",") if t.strip()]
+    else:
+        times = [float(t) for t in integration_s]
+    return spec, point, integration_choices(base, times)
 
 
 def widths_text(widths: Mapping[str, float]) -> str:

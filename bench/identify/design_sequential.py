@@ -12,6 +12,10 @@ Every step is an ordinary scan run in the store, named ``adaptive-KEY-STEP`` (``
 the model, bench, budget and options). Run again with the same arguments after a kill, it reuses
 the completed steps, finishes an interrupted one as ``bench resume`` would, and carries on: the
 next designs depend only on the stored readings, so the continuation is the same.
+
+The loop is :class:`AdaptiveSession`'s step function (``next_step``: the next plan or ``None`` to
+stop; ``add``: a measured step's record, fitted with all before it), which the Bluesky plan
+``bench.bluesky.plans.adaptive_fit`` drives on a RunEngine the same way.
 """
 
 from __future__ import annotations
@@ -29,10 +33,10 @@ from bench.core.records import BSDFRecord
 from bench.identify.design import ModelPoint, design_for_bench
 from bench.identify.design_io import parse_values
 from bench.identify.design_likelihood import bench_likelihood
-from bench.identify.time_model import ReadingSettings, plan_of_points
+from bench.identify.time_model import ReadingSettings, candidate_grid, plan_of_points, reachable
 
-__all__ = ["AdaptiveStep", "AdaptiveResult", "adaptive_scan", "parse_targets", "session_key", "combined_record",
-           "fit_readings"]
+__all__ = ["AdaptiveStep", "AdaptiveResult", "AdaptiveSession", "NextStep", "adaptive_scan", "parse_targets",
+           "session_key", "session_candidates", "stored_steps", "combined_record", "fit_readings"]
 
 #: share of the budget the first (prior-guess) design spends; the rest is split over later steps
 FIRST_SHARE = 0.4
@@ -98,14 +102,130 @@ def fit_readings(spec: Any, records: Sequence[BSDFRecord], description: Mapping[
     return fit_record(record, spec, interval="hessian", likelihood=bench_likelihood(record, description))
 
 
-def _existing(store: Any, prefix: str) -> dict[int, dict[str, Any]]:
+def session_candidates(bench: Any, step_deg: float, settings: Sequence[ReadingSettings]) -> list[Geometry]:
+    """The in-plane candidate grid (``--step``) minus every point ``bench`` refuses."""
+    candidates = reachable(candidate_grid(step_deg), bench.goniometer.check, settings[0])
+    if not candidates:
+        raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
+    return candidates
+
+
+def stored_steps(store: Any, prefix: str) -> dict[int, dict[str, Any]]:
+    """The runs of a session already in ``store`` (plan named ``PREFIX + step``), by step; of
+    several runs of one step (a step measured again after an interrupted run), the completed one,
+    else the latest."""
     out: dict[int, dict[str, Any]] = {}
     for r in store.runs():
         info = store.run(r["run_id"])
         name = str((info.get("plan") or {}).get("name", ""))
-        if name.startswith(prefix):
-            out[int(name[len(prefix):])] = info
+        if not name.startswith(prefix) or not name[len(prefix):].isdigit():
+            continue
+        k = int(name[len(prefix):])
+        if k not in out or out[k]["status"] != "completed":
+            out[k] = info
     return out
+
+
+@dataclass
+class NextStep:
+    """What :meth:`AdaptiveSession.next_step` asks to measure: step ``number``'s ``points`` read
+    with ``settings`` (as the ``plan`` named ``adaptive-KEY-NUMBER``), designed at ``designed_at``
+    for ``budget_s`` bench seconds; ``stored`` is the session's stored run of this step, if any
+    (its plan is reused, not designed again)."""
+
+    number: int
+    budget_s: float
+    designed_at: dict[str, float]
+    points: list[Geometry]
+    settings: ReadingSettings
+    plan: Any
+    stored: dict[str, Any] | None = None
+
+
+class AdaptiveSession:
+    """The sequential design's state and its one step function, shared by ``bench scan
+    --adaptive`` (:func:`adaptive_scan`) and the Bluesky plan ``bench.bluesky.plans.adaptive_fit``.
+
+    Loop: ``step = session.next_step(...)``; ``None`` means stop (budget spent, targets reached,
+    or what is left of the budget buys no informative point); else measure ``step.plan`` and hand
+    its record to :meth:`add`, which fits every reading so far and decides on the targets.
+    """
+
+    def __init__(self, bench: Any, spec: Any, prior: ModelPoint, seconds: float, settings: Sequence[ReadingSettings],
+                 candidates: Sequence[Geometry], criterion: str = "D", targets: Mapping[str, float] | None = None,
+                 key: str = "") -> None:
+        self.bench, self.spec, self.prior, self.seconds = bench, spec, prior, float(seconds)
+        self.candidates, self.criterion, self.targets = list(candidates), criterion, dict(targets or {})
+        self.prefix = f"adaptive-{key}-"
+        self.point = prior
+        self.settings = list(settings)
+        self.spent = 0.0
+        self.stopped = "budget"
+        self.fit: Any = None
+        self.records: list[BSDFRecord] = []
+        self.measured: list[Geometry] = []
+        self.steps: list[AdaptiveStep] = []
+
+    @property
+    def number(self) -> int:
+        """The number of the next step (steps measured so far)."""
+        return len(self.steps)
+
+    def next_step(self, stored: Mapping[str, Any] | None = None) -> NextStep | None:
+        """The next step to measure, or ``None`` to stop. ``stored``: the session's stored run of
+        this step (:func:`stored_steps`), whose plan is then taken as it is."""
+        k = self.number
+        if self.stopped == "target" or k > LATER_STEPS:
+            return None
+        remaining = self.seconds - self.spent
+        budget = remaining * (FIRST_SHARE if k == 0 else 1.0 / (1 + LATER_STEPS - k))
+        designed_at = {n: float(self.point.values[n]) for n in self.point.free}
+        if stored is not None:
+            table = stored["plan"]
+            points = [Geometry(*p) for p in table["points"]]
+            settings = ReadingSettings(table["integration_s"], table["averages"], table["dark"], table["white"])
+        else:
+            try:
+                design = design_for_bench(self.point, self.bench, self.candidates, budget, self.settings,
+                                          self.criterion, seed_points=self.measured)
+            except InputError:
+                if k == 0:
+                    raise
+                return None  # what is left buys no informative point
+            points, settings = list(design.points), design.settings
+        plan = plan_of_points(points, settings, name=f"{self.prefix}{k}",
+                              description=f"adaptive step {k} for {self.spec.text}: designed at "
+                              + ",".join(f"{n}={v:g}" for n, v in self.point.values.items()))
+        return NextStep(k, budget, designed_at, points, settings, plan, None if stored is None else dict(stored))
+
+    def add(self, step: NextStep, run_id: str, record: BSDFRecord) -> AdaptiveStep:
+        """Step ``step`` measured as run ``run_id`` (its readings ``record``): fit every reading so
+        far, and stop at the targets or re-centre the next design on the estimate."""
+        self.settings = [step.settings]  # later steps read as the first design chose
+        step_seconds = float(_time_of(self.bench, step.settings, step.points))
+        self.spent += step_seconds
+        self.measured += list(step.points)
+        self.records.append(record)
+        self.fit = fit = fit_readings(self.spec, self.records, self.bench.config)
+        estimates = {n: e.value for n, e in fit.parameters.items()}
+        widths = {n: e.ci[1] - e.ci[0] for n, e in fit.parameters.items()}
+        done = AdaptiveStep(run_id, step_seconds, len(step.points), estimates, widths)
+        self.steps.append(done)
+        if self.targets and all(widths[n] <= w for n, w in self.targets.items()):
+            self.stopped = "target"
+        else:
+            self.point = ModelPoint(self.prior.family, {**self.prior.values, **_inside(estimates, self.spec)},
+                                    self.prior.free)
+        return done
+
+    def result(self) -> AdaptiveResult:
+        """What the session found so far (after at least one step)."""
+        fit = self.fit
+        assert fit is not None
+        return AdaptiveResult([s.run_id for s in self.steps], self.spent, self.seconds, self.stopped,
+                              {n: e.value for n, e in fit.parameters.items()},
+                              {n: [e.ci[0], e.ci[1]] for n, e in fit.parameters.items()},
+                              {n: e.ci[1] - e.ci[0] for n, e in fit.parameters.items()}, list(self.steps))
 
 
 def adaptive_scan(bench: Any, store: Any, spec: Any, prior: ModelPoint, seconds: float,
@@ -115,57 +235,17 @@ def adaptive_scan(bench: Any, store: Any, spec: Any, prior: ModelPoint, seconds:
     """Run the sequential design (see the module docstring) on an open ``bench`` into ``store``."""
     from bench.runner import resume_scan, run_scan
 
-    targets = dict(targets or {})
-    prefix = f"adaptive-{key}-"
-    done = _existing(store, prefix)
-    records: list[BSDFRecord] = []
-    measured: list[Geometry] = []
-    steps: list[AdaptiveStep] = []
-    point, spent, stopped, fit = prior, 0.0, "budget", None
-    chosen_settings = list(settings)
-    for k in range(1 + LATER_STEPS):
-        remaining = seconds - spent
-        budget = remaining * (FIRST_SHARE if k == 0 else 1.0 / (1 + LATER_STEPS - k))
-        if k in done:  # a step of this session already in the store: finish it if interrupted
-            info = done[k]
-            plan_table = info["plan"]
-            run_id = info["run_id"]
-            if info["status"] != "completed":
+    session = AdaptiveSession(bench, spec, prior, seconds, settings, candidates, criterion, targets, key)
+    done = stored_steps(store, session.prefix)
+    while (step := session.next_step(done.get(session.number))) is not None:
+        if step.stored is not None:  # a step of this session already in the store: finish it if interrupted
+            run_id = step.stored["run_id"]
+            if step.stored["status"] != "completed":
                 resume_scan(bench, store, run_id, progress=progress)
-            step_points = [Geometry(*p) for p in plan_table["points"]]
-            step_settings = ReadingSettings(plan_table["integration_s"], plan_table["averages"], plan_table["dark"],
-                                            plan_table["white"])
         else:
-            try:
-                design = design_for_bench(point, bench, candidates, budget, chosen_settings, criterion,
-                                          seed_points=measured)
-            except InputError:
-                if k == 0:
-                    raise
-                break  # what is left buys no informative point
-            step_points, step_settings = design.points, design.settings
-            plan = plan_of_points(step_points, step_settings, name=f"{prefix}{k}",
-                                  description=f"adaptive step {k} for {spec.text}: designed at "
-                                  + ",".join(f"{n}={v:g}" for n, v in point.values.items()))
-            run_id = run_scan(bench, plan, store, seed=seed, progress=progress).run_id
-        chosen_settings = [step_settings]  # later steps read as the first design chose
-        step_seconds = float(_time_of(bench, step_settings, step_points))
-        spent += step_seconds
-        measured += list(step_points)
-        records.append(store.to_record(run_id))
-        fit = fit_readings(spec, records, bench.config)
-        estimates = {n: e.value for n, e in fit.parameters.items()}
-        widths = {n: e.ci[1] - e.ci[0] for n, e in fit.parameters.items()}
-        steps.append(AdaptiveStep(run_id, step_seconds, len(step_points), estimates, widths))
-        if targets and all(widths[n] <= w for n, w in targets.items()):
-            stopped = "target"
-            break
-        point = ModelPoint(prior.family, {**prior.values, **_inside(estimates, spec)}, prior.free)
-    assert fit is not None
-    return AdaptiveResult([s.run_id for s in steps], spent, seconds, stopped,
-                          {n: e.value for n, e in fit.parameters.items()},
-                          {n: [e.ci[0], e.ci[1]] for n, e in fit.parameters.items()},
-                          {n: e.ci[1] - e.ci[0] for n, e in fit.parameters.items()}, steps)
+            run_id = run_scan(bench, step.plan, store, seed=seed, progress=progress).run_id
+        session.add(step, run_id, store.to_record(run_id))
+    return session.result()
 
 
 def _inside(values: Mapping[str, float], spec: Any) -> dict[str, float]:
