@@ -29,7 +29,7 @@ from bench.sweep import run_sweep, sweep_from_dict
 from compare.align import NoOverlapError, align
 from compare.report import compare_records
 from compare.verdict import Criterion
-from tests.helpers.cli import run_bench
+from tests.helpers.cli import run_bench, run_main
 
 CHROMIUM = Path("/usr/bin/chromium")
 
@@ -128,23 +128,26 @@ def test_spectro_sweeps_compare_as_spectra_with_ciede2000(sweeps, tmp_path):
     assert len(s["breakdown"]["model"]["by_wavelength"]) == 16  # per-wavelength statistics
 
 
-def test_cli_compares_spectrum_csvs_and_spectro_sweeps(sweeps, tmp_path):
+def test_cli_compares_spectrum_csvs_and_spectro_sweeps(sweeps, tmp_path, capsys):
+    """In this process (run_main): the command's own work, not five interpreter start-ups."""
     store, ids, d = sweeps
     for seed in (1, 2):
-        r = run_bench("spectro", "--specimen", "colorchecker:dark skin", "--geometry", "8/d", "--wavelengths",
-                   "400:700:20", "--rays", "20000", "--seed", str(seed), "--csv", f"s{seed}.csv", cwd=tmp_path)
-        assert r.returncode == 0, r.stderr
-    r = run_bench("compare", "s1.csv", "s1.csv", "--report", "self", "--json", cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
-    js = json.loads(r.stdout)
+        code, _, err = run_main(capsys, "spectro", "--specimen", "colorchecker:dark skin", "--geometry", "8/d",
+                                "--wavelengths", "400:700:20", "--rays", "20000", "--seed", str(seed), "--csv",
+                                tmp_path / f"s{seed}.csv")
+        assert code == 0, err
+    s1, s2 = tmp_path / "s1.csv", tmp_path / "s2.csv"
+    code, out, err = run_main(capsys, "compare", s1, s1, "--report", tmp_path / "self", "--json")
+    assert code == 0, err
+    js = json.loads(out)
     assert js["verdicts"]["s1"]["verdict"] == "accept" and js["candidates"]["s1"]["delta_e2000_mean"] == 0
-    r = run_bench("compare", "s1.csv", "s2.csv", "--report", "re", "--no-figures", cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
-    assert re.search(r"#1 s2: ACCEPT", r.stdout) and "delta_e2000_mean" in r.stdout
-    r = run_bench("compare", ids["s"], ids["t"], "--store", str(d / "runs.sqlite"), "--report", "sw", "--json",
-                  "--no-figures", cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
-    js = json.loads(r.stdout)
+    code, out, err = run_main(capsys, "compare", s1, s2, "--report", tmp_path / "re", "--no-figures")
+    assert code == 0, err
+    assert re.search(r"#1 s2: ACCEPT", out) and "delta_e2000_mean" in out
+    code, out, err = run_main(capsys, "compare", ids["s"], ids["t"], "--store", d / "runs.sqlite", "--report",
+                              tmp_path / "sw", "--json", "--no-figures")
+    assert code == 0, err
+    js = json.loads(out)
     assert js["kind"] == "spectrum" and list(js["verdicts"].values())[0]["verdict"] == "accept"
 
 
