@@ -46,10 +46,10 @@ def description(seed: int) -> dict[str, Any]:
     return d
 
 
-def _fit(records: list[Any], d: dict[str, Any]) -> dict[str, tuple[float, float, float]]:
+def _fit(records: list[Any]) -> dict[str, tuple[float, float, float]]:
     from bench.identify.design_sequential import fit_readings
 
-    fit = fit_readings(MODEL, records, d)
+    fit = fit_readings(MODEL, records)
     return {n: (e.value, e.ci[0], e.ci[1]) for n, e in fit.parameters.items()}
 
 
@@ -102,7 +102,7 @@ def measure(seeds: tuple[int, ...] = SEEDS) -> dict[str, Any]:
                 for name, plan, seconds in plans:
                     log.info("seed %d: %s", seed, name)
                     run = run_scan(bench, plan, store, seed=seed)
-                    est = _fit([store.to_record(run.run_id)], d)
+                    est = _fit([store.to_record(run.run_id)])
                     results.setdefault(name, []).append({"seed": seed, "seconds": seconds, "fit": est})
                 log.info("seed %d: sequential", seed)
                 seq = adaptive_scan(bench, store, spec, prior, budget, settings, candidates, key=f"bench-{seed}",

@@ -10,8 +10,11 @@ width (2 x 1.96 standard errors). The 200-record coverage study is tests/test_fi
 
 from __future__ import annotations
 
+import functools
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -215,6 +218,33 @@ def test_a_fit_that_does_not_converge_exits_1_with_its_best_point(capsys, tmp_pa
     assert code == 1 and "NOT converged" in out and "reflectance" in out and "did not converge" in err
 
 
+def _bench(cwd: Path, *args: object) -> subprocess.CompletedProcess:
+    """``bench ARGS`` as a child process (what a user runs), in ``cwd``."""
+    root = Path(__file__).resolve().parent.parent
+    return subprocess.run([sys.executable, "-m", "bench.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, env={**os.environ, "PYTHONPATH": str(root)}, timeout=900)
+
+
+def _scan(cwd: Path, bench_file: Path, body: str) -> str:
+    """`bench scan` of the shipped in-plane plan into ``cwd/s.sqlite``; its run id."""
+    plan = Path(__file__).resolve().parent.parent / "fixtures" / "plans" / "in-plane.toml"
+    r = _bench(cwd, "scan", plan, "--bench", bench_file, "--body", body, "--store", "s.sqlite", "--json")
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)["run_id"]
+
+
+def _fit_999(cwd: Path, run: str, model: str) -> dict:
+    """`bench fit --json` of a stored run with 99.9 % intervals."""
+    r = _bench(cwd, "fit", run, "--store", "s.sqlite", "--model", model, "--confidence", "0.999", "--json")
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)
+
+
+def _truth_inside(fit: dict) -> dict[str, bool]:
+    return {name: fit["parameters"][name]["ci"][0] <= truth <= fit["parameters"][name]["ci"][1]
+            for name, truth in (("alpha", 0.15), ("kd", 0.5))}
+
+
 @pytest.mark.slow  # a 63-point scan and two two-parameter fits of its 189 readings (~35 CPU-s)
 def test_a_virtual_scan_of_plastic_is_fitted_with_the_truth_inside_its_intervals(tmp_path):
     """The workflow end to end: `bench scan` of the in-plane plan on the virtual body of the
@@ -233,42 +263,22 @@ def test_a_virtual_scan_of_plastic_is_fitted_with_the_truth_inside_its_intervals
     the 200-record study's (test_fit_coverage). Power: the same record fitted with the plastic's
     index 1.52 instead of 1.5 (a 1.3 % error in the coat's Fresnel) puts the truth outside both
     intervals and fails the goodness of fit."""
-    import subprocess
-    import sys
-
     root = Path(__file__).resolve().parent.parent
     bench_file = tmp_path / "b.toml"
     bench_file.write_text("seed = 1\n" + (root / "fixtures" / "benches" / "emulated.toml").read_text().replace(
         'spec = "lambert:albedo=0.8"', 'spec = "plastic:alpha=0.15,kd=0.5"')
         + '\n[virtual]\nrays = 1000000000\nwavelengths = "450:650:100"\n')  # 1-deg cone: ~10x fewer counts
-    env = {**os.environ, "PYTHONPATH": str(root)}
-
-    def bench(*args):
-        return subprocess.run([sys.executable, "-m", "bench.cli", *args], capture_output=True, text=True, cwd=tmp_path,
-                              env=env, timeout=900)
-
-    r = bench("scan", str(root / "fixtures" / "plans" / "in-plane.toml"), "--bench", str(bench_file), "--body", "virtual",
-              "--store", "s.sqlite", "--json")
-    assert r.returncode == 0, r.stderr
-    run = json.loads(r.stdout)["run_id"]
-
-    def fit(model):
-        r = bench("fit", run, "--store", "s.sqlite", "--model", model, "--confidence", "0.999", "--json")
-        assert r.returncode == 0, r.stderr
-        return json.loads(r.stdout)
-
-    def truth_inside(fit):
-        return {name: fit["parameters"][name]["ci"][0] <= truth <= fit["parameters"][name]["ci"][1]
-                for name, truth in (("alpha", 0.15), ("kd", 0.5))}
+    run = _scan(tmp_path, bench_file, "virtual")
+    fit = functools.partial(_fit_999, tmp_path, run)
 
     right = fit("plastic:alpha=?,kd=?")
     assert right["converged"] and right["p_value"] > 1e-3, right
-    assert all(truth_inside(right).values()), right["parameters"]
+    assert all(_truth_inside(right).values()), right["parameters"]
     for name, truth in (("alpha", 0.15), ("kd", 0.5)):
         lo, hi = right["parameters"][name]["ci"]
         assert hi - lo < 0.02 * truth, (name, lo, hi)  # identified, not merely bounded
     wrong = fit("plastic:alpha=?,kd=?,eta=1.52")
-    assert not any(truth_inside(wrong).values()) and wrong["p_value"] < 1e-3, wrong
+    assert not any(_truth_inside(wrong).values()) and wrong["p_value"] < 1e-3, wrong
 
 
 @pytest.mark.slow  # two emulated 63-point scans and three two-parameter fits of 189 readings (~40 CPU-s)
@@ -286,44 +296,20 @@ def test_an_emulated_scan_of_plastic_is_fitted_with_the_truth_inside_its_interva
     the white) and the fit of that record misses the truth (chi2 ~ 7600, p = 0): that record is the
     power case. Power also: the coat's index 1.52 instead of 1.5 puts the truth outside both
     intervals and fails the goodness of fit."""
-    import subprocess
-    import sys
-
     root = Path(__file__).resolve().parent.parent
     text = (root / "fixtures" / "benches" / "emulated.toml").read_text().replace(
         'spec = "lambert:albedo=0.8"', 'spec = "plastic:alpha=0.15,kd=0.5"')
     assert "nonlinearity = true" in text  # the shipped emulated bench corrects it
     (tmp_path / "raw.toml").write_text(text.replace("nonlinearity = true", "nonlinearity = false"))
     (tmp_path / "corrected.toml").write_text(text)
-    env = {**os.environ, "PYTHONPATH": str(root)}
-
-    def bench(*args):
-        return subprocess.run([sys.executable, "-m", "bench.cli", *args], capture_output=True, text=True, cwd=tmp_path,
-                              env=env, timeout=900)
-
-    def scan(bench_file):
-        r = bench("scan", str(root / "fixtures" / "plans" / "in-plane.toml"), "--bench", bench_file, "--body",
-                  "emulated", "--store", "s.sqlite", "--json")
-        assert r.returncode == 0, r.stderr
-        return json.loads(r.stdout)["run_id"]
-
-    def fit(run, model):
-        r = bench("fit", run, "--store", "s.sqlite", "--model", model, "--confidence", "0.999", "--json")
-        assert r.returncode == 0, r.stderr
-        return json.loads(r.stdout)
-
-    def truth_inside(fit):
-        return {name: fit["parameters"][name]["ci"][0] <= truth <= fit["parameters"][name]["ci"][1]
-                for name, truth in (("alpha", 0.15), ("kd", 0.5))}
-
-    corrected = scan("corrected.toml")
-    right = fit(corrected, "plastic:alpha=?,kd=?")
+    corrected = _scan(tmp_path, tmp_path / "corrected.toml", "emulated")
+    right = _fit_999(tmp_path, corrected, "plastic:alpha=?,kd=?")
     assert right["converged"] and right["p_value"] > 1e-3, right
-    assert all(truth_inside(right).values()), right["parameters"]
-    wrong = fit(corrected, "plastic:alpha=?,kd=?,eta=1.52")
-    assert not any(truth_inside(wrong).values()) and wrong["p_value"] < 1e-3, wrong
-    raw = fit(scan("raw.toml"), "plastic:alpha=?,kd=?")  # the detector's non-linearity left in
-    assert not any(truth_inside(raw).values()) and raw["p_value"] < 1e-3, raw
+    assert all(_truth_inside(right).values()), right["parameters"]
+    wrong = _fit_999(tmp_path, corrected, "plastic:alpha=?,kd=?,eta=1.52")
+    assert not any(_truth_inside(wrong).values()) and wrong["p_value"] < 1e-3, wrong
+    raw = _fit_999(tmp_path, _scan(tmp_path, tmp_path / "raw.toml", "emulated"), "plastic:alpha=?,kd=?")
+    assert not any(_truth_inside(raw).values()) and raw["p_value"] < 1e-3, raw  # the non-linearity left in
 
 
 def test_compare_reports_the_fit_asked_for_the_same_as_bench_fit(capsys, tmp_path):

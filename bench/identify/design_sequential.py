@@ -32,7 +32,6 @@ from bench.core.geometry import Geometry
 from bench.core.records import BSDFRecord
 from bench.identify.design import ModelPoint, design_for_bench
 from bench.identify.design_io import parse_values
-from bench.identify.design_likelihood import bench_likelihood
 from bench.identify.time_model import ReadingSettings, candidate_grid, plan_of_points, reachable
 
 __all__ = ["AdaptiveStep", "AdaptiveResult", "AdaptiveSession", "NextStep", "adaptive_scan", "parse_targets",
@@ -88,18 +87,42 @@ def session_key(*parts: Any) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:10]
 
 
+def _run_scoped(budget: Any, run: int) -> Any:
+    """A reading's budget with the inputs its run alone shares (white reading, darks) keyed to
+    that run; the white standard's certificate stays one quantity for every run (one standard)."""
+    from bench.core.budget import WHITE_CERTIFICATE
+
+    b = json.loads(budget) if isinstance(budget, str) else budget
+    if not isinstance(b, Mapping) or not b.get("components"):
+        return budget
+    comps = [c if c.get("shared") is None or c.get("name") == WHITE_CERTIFICATE
+             else {**c, "shared": f"run {run}: {c['shared']}"} for c in b["components"]]
+    return {**b, "components": comps}
+
+
 def combined_record(records: Sequence[BSDFRecord]) -> BSDFRecord:
-    """The readings of several runs as one record (the first run's metadata)."""
-    table = pd.concat([r.table for r in records], ignore_index=True)
-    return BSDFRecord(table, dict(records[0].meta))
+    """The readings of several runs as one record (the first run's metadata); their budgets'
+    run-scoped shared inputs (each run's white reading and darks) kept apart, the white
+    standard's certificate shared by all."""
+    tables = []
+    for i, r in enumerate(records):
+        t = r.table
+        if "uncertainty_budget" in t.columns:
+            t = t.assign(uncertainty_budget=[_run_scoped(b, i) for b in t["uncertainty_budget"]])
+        tables.append(t)
+    return BSDFRecord(pd.concat(tables, ignore_index=True), dict(records[0].meta))
 
 
-def fit_readings(spec: Any, records: Sequence[BSDFRecord], description: Mapping[str, Any]) -> Any:
-    """Fit ``spec`` to the readings of ``records`` with the bench's likelihood (Hessian intervals)."""
+def fit_readings(spec: Any, records: Sequence[BSDFRecord]) -> Any:
+    """Fit ``spec`` to the readings of ``records`` as ``bench fit`` does (Hessian intervals): with
+    the readings' full covariance from their budgets, so the white standard's certificate -- one
+    error common to every reading of every step -- bounds what any design can pin down of a
+    scale-like parameter (kd). The design's own information is diagonal
+    (:class:`bench.identify.design_likelihood.BenchReadings`); reported intervals are not."""
     from bench.identify.fit import fit_record
 
     record = combined_record(records)
-    return fit_record(record, spec, interval="hessian", likelihood=bench_likelihood(record, description))
+    return fit_record(record, spec, interval="hessian")
 
 
 def session_candidates(bench: Any, step_deg: float, settings: Sequence[ReadingSettings]) -> list[Geometry]:
@@ -206,7 +229,7 @@ class AdaptiveSession:
         self.spent += step_seconds
         self.measured += list(step.points)
         self.records.append(record)
-        self.fit = fit = fit_readings(self.spec, self.records, self.bench.config)
+        self.fit = fit = fit_readings(self.spec, self.records)
         estimates = {n: e.value for n, e in fit.parameters.items()}
         widths = {n: e.ci[1] - e.ci[0] for n, e in fit.parameters.items()}
         done = AdaptiveStep(run_id, step_seconds, len(step.points), estimates, widths)
