@@ -10,9 +10,10 @@ information (:mod:`bench.identify.design`) also counts:
   glossy peak a 1 deg aperture changes the reading by up to a few per cent at grazing angles,
   far more than the readings' noise;
 * optionally (``shared=True``) the white standard's relative uncertainty as one error shared by
-  every reading (covariance ``rho^2 y y^T``) rather than an independent error per reading; the
-  default is the diagonal of the readings' covariance, which the design's information matches
-  (``bench fit`` itself divides by the budgets' full covariance).
+  every reading (covariance ``rho^2 y y^T``, what the design's information counts by default)
+  rather than an independent error per reading (the default here: the diagonal of the readings'
+  covariance). ``bench fit`` and the sequential design's fits divide by the budgets' full
+  covariance (:func:`bench.identify.design_sequential.fit_readings`).
 
 Readings the calibration masked (saturated, at or below dark: no value) are left out, as they
 carry no information; :func:`valid_readings` drops them from a record.
