@@ -107,7 +107,7 @@ def test_methods_parse_and_must_include_the_uniform_plan():
         design_study.measure(MODEL, {}, seeds=[])
 
 
-# ~5 CPU-s: two scans and fits on the virtual body (exact fast path), one seed
+# ~8 CPU-s: two scans and fits on the virtual body (exact fast path), one seed
 def test_cli_json_and_plot_on_the_virtual_body(tmp_path, capsys):
     bench = _bench_file(tmp_path)
     png = tmp_path / "design.png"
@@ -152,3 +152,25 @@ def test_cli_refuses_no_seed_and_a_bench_that_refuses_the_uniform_plan(tmp_path,
     assert "refuses the uniform plan" in err and "\n" not in err
     assert main(["tradeoff", "--design", MODEL, "--bench", str(bench), "--seeds", ","]) == 2  # argparse: no seed
     assert "expected 1 to 50 comma-separated integers" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # the full study on the emulated body: 18 scans, 24 fits, ~170 CPU-s
+def test_full_study_on_the_emulated_body(tmp_path):
+    """Every method on seeds 7, 8, 9 (as `python -m benchmarks design`). Half the uniform plan's
+    theta_r points widen both intervals by about sqrt(63/33) = 1.38 (accepted 1.2..1.6); the
+    uniform plan's 95 % intervals hold the truth in at least 2 of 3 seeds for each parameter (false
+    alarm 1 - 0.95^3 - 3 * 0.95^2 * 0.05 = 0.7 % per parameter if the intervals are honest); power:
+    a truth moved by 0.2 % of its value (alpha 0.1503, over 5 interval widths) is held in none."""
+    d = copy.deepcopy(read_toml(BENCHES / "emulated.toml", "bench config"))
+    d["specimen"]["spec"] = "plastic:alpha=0.15,kd=0.5"
+    m = design_study.measure(MODEL, d)
+    assert m["body"] == "emulated" and m["seeds"] == [7, 8, 9]
+    by = {r["method"]: r for r in design_study.rows(m)}
+    assert list(by) == list(design_study.METHODS.values()) and all(r["seeds"] == 3 for r in by.values())
+    assert all(1.2 < by["uniform, 10 deg"]["ratio_to_uniform"][p] < 1.6 for p in ("alpha", "kd"))
+    assert all(by["uniform in-plane"]["truth_in"][p] >= 2 for p in ("alpha", "kd"))
+    moved = design_study.rows({**m, "truth": {"alpha": 0.15 * 1.002, "kd": 0.5 * 1.002}})
+    assert moved[0]["method"] == "uniform in-plane" and moved[0]["truth_in"] == {"alpha": 0, "kd": 0}
+    fig = design_study.plot_study(m, tmp_path / "study.png")
+    assert len([ax for ax in fig.axes if ax.get_xlabel()]) == 2
+    assert all(len(ax.containers) == 6 for ax in fig.axes if ax.get_xlabel())
