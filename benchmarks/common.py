@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import platform
 import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, Sequence
 
 import numpy as np
+
+from bench.machine import cpu_info  # noqa: F401  (the studies' tables state it)
 
 
 def best_of(fn: Callable[[], Any], repeat: int = 3) -> tuple[float, Any]:
@@ -18,33 +19,6 @@ def best_of(fn: Callable[[], Any], repeat: int = 3) -> tuple[float, Any]:
         out = fn()
         best = min(best, time.perf_counter() - t0)
     return best, out
-
-
-def cpu_info() -> dict[str, Any]:
-    """The CPU the figures come from: model name, the widest vector ISA it has (``avx512``,
-    ``avx2``, ``avx``, ``sse4.2``, ``sse2``), whether it has FMA, and the CPU name LLVM compiles
-    numba's kernels for."""
-    flags: set[str] = set()
-    model = platform.processor() or platform.machine()
-    try:
-        for line in open("/proc/cpuinfo", encoding="utf-8", errors="replace"):
-            key, _, value = line.partition(":")
-            if key.strip() == "model name":
-                model = value.strip()
-            elif key.strip() == "flags":
-                flags = set(value.split())
-                break
-    except OSError:
-        pass
-    isa = next((name for name, flag in (("avx512", "avx512f"), ("avx2", "avx2"), ("avx", "avx"),
-                                        ("sse4.2", "sse4_2")) if flag in flags), "sse2")
-    try:
-        from llvmlite import binding
-
-        llvm_cpu = binding.get_host_cpu_name()
-    except Exception:  # informative only
-        llvm_cpu = "unknown"
-    return {"model": model, "vector_isa": isa, "fma": "fma" in flags, "llvm_cpu": llvm_cpu}
 
 
 def numpy_uniform_rate(n_doubles: int, threads: int = 2, seed: int = 0) -> float:
