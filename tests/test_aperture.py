@@ -24,7 +24,7 @@ from bench.config import load_bench
 from bench.core.geometry import Geometry, cone_quadrature
 from bench.core.parsing import read_toml
 from bench.core.records import BSDFRecord
-from bench.identify.design_likelihood import BenchReadings
+from bench.identify.design import ModelPoint, sensitivities
 from bench.identify.likelihood import GaussianReadings
 from bench.identify.prediction import predicted_brdf
 from virtual.goniophotometer import VirtualGoniophotometer
@@ -147,7 +147,9 @@ def test_a_fit_predicts_the_cone_each_body_read():
     emulated = _record({"bench_kind": "emulated", "bench": EMULATED, "calibration": CALIBRATION})
     lik = GaussianReadings(emulated)
     assert lik.aperture_deg == 1.0 and np.array_equal(lik.predictions(spec), cone)
-    assert np.allclose(BenchReadings(emulated, 1.0).predictions(spec), cone, rtol=1e-14)
+    design = sensitivities(ModelPoint(type(spec), {"alpha": 0.15, "kd": 0.5}, ("alpha",)),
+                          [SPECULAR, OFF_SPECULAR], np.array([550.0]), 1.0, WHITE)
+    assert np.allclose(design.brdf[:, 0], cone, rtol=1e-14)  # the design predicts what the fit does
     described = {"kind": "virtual", "spectrometer": {"extra": {"aperture_deg": 1.0, "detector_reads": "cone"}},
                  "goniometer": {"extra": {"collector": {"scheme": "equal-psa", "n_theta": 9, "n_phi": 36}}}}
     virtual = _record({"bench_kind": "virtual", "bench_description": described, "calibration": CALIBRATION})

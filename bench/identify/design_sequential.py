@@ -2,9 +2,9 @@
 
 ``bench scan --adaptive MODEL --seconds S`` runs :func:`adaptive_scan`: the first step spends a
 share of the budget on a design at the prior guess; every later step fits all the readings so
-far (:func:`bench.identify.fit.fit_record` with the bench's likelihood,
-:class:`bench.identify.design_likelihood.BenchReadings`), designs the next plan at that estimate
-with the points already measured counted in the information, and scans it. It stops when the
+far (:func:`fit_readings`: ``bench fit``'s likelihood, the readings' full covariance), designs
+the next plan at that estimate with the points already measured counted in the information, and
+scans it. It stops when the
 budget (bench seconds as ``bench plan`` estimates them) is spent or every targeted parameter's
 interval is narrower than its target.
 
@@ -115,10 +115,8 @@ def combined_record(records: Sequence[BSDFRecord]) -> BSDFRecord:
 
 def fit_readings(spec: Any, records: Sequence[BSDFRecord]) -> Any:
     """Fit ``spec`` to the readings of ``records`` as ``bench fit`` does (Hessian intervals): with
-    the readings' full covariance from their budgets, so the white standard's certificate -- one
-    error common to every reading of every step -- bounds what any design can pin down of a
-    scale-like parameter (kd). The design's own information is diagonal
-    (:class:`bench.identify.design_likelihood.BenchReadings`); reported intervals are not."""
+    the readings' full covariance from their budgets, the white standard's certificate one error
+    common to every reading of every step (as the design's information counts it)."""
     from bench.identify.fit import fit_record
 
     record = combined_record(records)
