@@ -96,14 +96,15 @@ def _fits(actual: Any, models: dict[str, Any], out: Path, draw_figures: bool) ->
         return {}
     from bench.identify import fit_record
     from bench.identify.figure import plot_residuals
+    from compare.figures import slug
 
     fits = {}
-    for i, (m, spec) in enumerate(models.items()):
+    for m, spec in models.items():
         result = fit_record(actual, spec, confidence=FIT_CONFIDENCE)
         figure = None
-        if draw_figures:
+        if draw_figures:  # drawn where the report keeps it (compare.report's fig-fit-<slug>), not copied
             (out / "figures").mkdir(parents=True, exist_ok=True)
-            figure = str(plot_residuals(result, out / "figures" / f"fit-residuals-{i}.png"))
+            figure = str(plot_residuals(result, out / "figures" / f"fig-fit-{slug(m)}.png"))
         fits[m] = {"fit": result.to_json(), "confidence": FIT_CONFIDENCE, "figure": figure}
     return fits
 
