@@ -75,6 +75,15 @@ class Bench:
     #: reading or ``operator_confirmed`` (``bench white --yes``: the operator says it is mounted)
     white_needs_operator: bool = False
     operator_confirmed: bool = False
+    #: ``measure_whites(integration_s, averages, repeats)``: the standard mounted once, then read
+    #: ``repeats`` times in sequence (None: ``measure_white`` called ``repeats`` times)
+    measure_whites: Callable[[float, int, int], list[Reading]] | None = None
+
+    def white_readings(self, integration_s: float, averages: int, repeats: int) -> list[Reading]:
+        """``repeats`` readings of the white standard taken in sequence, mounted once."""
+        if self.measure_whites is not None:
+            return list(self.measure_whites(integration_s, averages, repeats))
+        return [self.measure_white(integration_s, averages) for _ in range(repeats)]
 
     def describe(self) -> dict[str, Any]:
         out: dict[str, Any] = {"name": self.name, "kind": self.kind}

@@ -11,7 +11,9 @@ A plan is a TOML file (or a dict, or built in Python) with a ``kind`` and its ta
 ``list``           explicit ``points = [[theta_i, phi_i, theta_r, phi_r], ...]``.
 
 Common keys: ``name``, ``integration_s``, ``averages``, ``dark`` (``"none"``, ``"once"``,
-``"per-incidence"``, ``"per-point"``), ``white`` (``"none"``, ``"once"``), ``order``
+``"per-incidence"``, ``"per-point"``), ``white`` (``"none"``, ``"once"``, ``"repeated"``: the
+operator mounts the standard once and ``white_repeats`` (>= 3, default 5) white readings are taken
+in sequence, from which the lamp's drift is estimated, :mod:`bench.core.calibration`), ``order``
 (``"travel"`` to cut motion time, or ``"as-given"``), ``home`` (``true``: return the turntable
 to home after validation, before any other motion; a bench without one skips it). Ranges are lists or
 ``{start, stop, step}`` tables (stop included when on the grid).
@@ -34,7 +36,7 @@ import numpy as np
 from bench.core.errors import ConfigError, GeometryError, PlanError
 from bench.core.geometry import Geometry, cie_geometry
 from bench.core.parsing import parse_range, read_toml
-from bench.core.schemas import MAX_PLAN_POINTS, PlanFile, validate_document
+from bench.core.schemas import DEFAULT_WHITE_REPEATS, MAX_PLAN_POINTS, PlanFile, validate_document
 
 __all__ = [
     "Plan",
@@ -53,7 +55,7 @@ __all__ = [
 
 KINDS = ("spectral", "in-plane", "hemispherical", "half-vector", "list")
 DARK_MODES = ("none", "once", "per-incidence", "per-point")
-WHITE_MODES = ("none", "once")
+WHITE_MODES = ("none", "once", "repeated")
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,12 @@ class Plan:
     home: bool = False
     source: Mapping[str, Any] = field(default_factory=dict)
     unreachable: str = "refuse"  # "skip": measure the reachable points, record the others as skipped
+    white_repeats: int = DEFAULT_WHITE_REPEATS  # white readings taken when white = "repeated"
+
+    @property
+    def n_whites(self) -> int:
+        """How many white readings the plan takes (0, 1 or ``white_repeats``)."""
+        return {"none": 0, "once": 1}.get(self.white, self.white_repeats)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -199,6 +207,9 @@ def plan_from_dict(d: Mapping[str, Any], name: str = "plan", source: str | None 
         raise ConfigError(f"plan dark must be one of {', '.join(DARK_MODES)}, got {dark!r}")
     if white not in WHITE_MODES:
         raise ConfigError(f"plan white must be one of {', '.join(WHITE_MODES)}, got {white!r}")
+    if "white_repeats" in d and white != "repeated":
+        raise ConfigError(f"plan white_repeats: needs white = \"repeated\", the plan has white = {white!r}")
+    repeats = int(d.get("white_repeats", DEFAULT_WHITE_REPEATS))
     if order not in ("travel", "as-given"):
         raise ConfigError(f"plan order must be 'travel' or 'as-given', got {order!r}")
     home = d.get("home", False)
@@ -207,7 +218,7 @@ def plan_from_dict(d: Mapping[str, Any], name: str = "plan", source: str | None 
     pts = _points(kind, table)
     return Plan(name=str(d.get("name", name)), kind=kind, points=tuple(pts), integration_s=integration,
                 averages=averages, dark=dark, white=white, order=order, home=home, source=d,
-                unreachable=str(d.get("unreachable", "refuse")))
+                unreachable=str(d.get("unreachable", "refuse")), white_repeats=repeats)
 
 
 def load_plan(path: str | Path) -> Plan:
@@ -358,8 +369,8 @@ def estimate(plan: Plan, profile: MotionProfile, order: Sequence[int] | None = N
     per_reading = plan.integration_s * plan.averages + reading_overhead_s + profile.overhead_s
     acquisition = len(order) * per_reading
     darks = {"none": 0, "once": 1, "per-incidence": n_incidences, "per-point": len(order)}[plan.dark]
-    whites = {"none": 0, "once": 1}[plan.white]
-    references = (darks + whites) * per_reading + whites * 2 * profile.settle_s
+    whites = plan.n_whites  # the standard is mounted once: one move there and back, then its readings
+    references = (darks + whites) * per_reading + (2 * profile.settle_s if whites else 0.0)
     total = motion + acquisition + references
     return {"points": len(order), "incidences": n_incidences, "seconds": total, "motion_s": motion,
             "acquisition_s": acquisition, "references_s": references,

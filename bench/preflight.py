@@ -1,10 +1,12 @@
 """Calibration preflight: every calibration step a plan asks for is possible on the bench, or
 the run is refused before any motion, in one line naming the step and what is missing.
+Repeated whites (``white = "repeated"``) are the same step as one: the standard is mounted once
+and read ``white_repeats`` times, which every body can do.
 
 The steps: darks (``dark = "once" | "per-incidence" | "per-point"``) need a light the bench can
 switch off (``[light]``, :mod:`bench.builders.light`); a white reference (``white = "once"``)
 needs either a stored reading that matches the plan (same standard geometry, integration time,
-averages and dark treatment: :func:`check_white_reference`) or a bench that can measure its
+averages, dark treatment and number of repeated whites: :func:`check_white_reference`) or a bench that can measure its
 standard now (a virtual or emulated bench mounts it itself; a real one needs an operator at a
 terminal, or ``bench white --yes``). ``dark = "none"`` is taken only when the plan says so, and
 the run records it.
@@ -42,10 +44,11 @@ def no_light(bench: Bench, plan: Plan) -> CalibrationRefused:
 
 
 def check_white_reference(ref: WhiteReference, bench: Bench, integration_s: float, averages: int,
-                          dark: str) -> None:
+                          dark: str, repeats: int = 1) -> None:
     """Refuse a stored white reading that does not match the run: taken at another geometry than
-    the bench's ``[white]`` standard, with another integration time or number of averages, or with
-    a dark where the plan takes none (or none where it takes darks)."""
+    the bench's ``[white]`` standard, with another integration time or number of averages, with
+    a dark where the plan takes none (or none where it takes darks), or with another number of
+    repeated white readings than the plan's (``repeats``: 1 for ``white = "once"``)."""
     where = f"white reference {ref.path or '(stored reading)'}"
     g = ref.standard.get("geometry") if isinstance(ref.standard, Mapping) else None
     if not isinstance(g, Mapping) or any(k not in g for k in _GEOMETRY_KEYS):
@@ -61,6 +64,11 @@ def check_white_reference(ref: WhiteReference, bench: Bench, integration_s: floa
     if ref.white.averages != averages:
         raise CalibrationRefused(f"{where} averages {ref.white.averages} scans; the plan averages {averages}: "
                                f"take it again with --averages {averages}")
+    held = len(ref.repeats) or 1
+    if held != repeats:
+        want = f"white = \"repeated\" with white_repeats = {repeats}" if repeats > 1 else "white = \"once\""
+        raise CalibrationRefused(f"{where} holds {held} white reading(s); the plan asks for {want}: take it again "
+                                 f"with --repeats {repeats}")
     if dark != "none" and ref.dark is None:
         raise CalibrationRefused(f"{where} has no dark; the plan asks for {dark_step(dark)}: take it again on a bench "
                                f"with a switchable light, or set dark = \"none\" in the plan")
@@ -80,16 +88,24 @@ def check_calibration_steps(bench: Bench, plan: Plan, ref: WhiteReference | None
     if plan.white == "none":
         return
     if ref is not None:
-        check_white_reference(ref, bench, plan.integration_s, plan.averages, plan.dark)
+        check_white_reference(ref, bench, plan.integration_s, plan.averages, plan.dark, plan.n_whites)
     elif bench.white_needs_operator and not bench.operator_confirmed and not sys.stdin.isatty():
+        repeats = f" --repeats {plan.white_repeats}" if plan.white == "repeated" else ""
         raise CalibrationRefused(
             f"plan {plan.name!r} asks for a white reference; bench {bench.name!r} names no stored reading "
             f"([white] reference_file) and no operator at a terminal can mount the standard: mount it, run "
             f"`bench white --bench B --out FILE --yes --integration-s {plan.integration_s:g} --averages "
-            f"{plan.averages}`, then set [white] reference_file = \"FILE\"; or set white = \"none\" in the plan")
+            f"{plan.averages}{repeats}`, then set [white] reference_file = \"FILE\"; or set white = \"none\" in the plan")
 
 
-def calibration_record(plan: Plan, ref: WhiteReference | None) -> dict[str, Any]:
-    """What a run records about the calibration steps it took (also when it took none)."""
-    return {"dark": plan.dark, "white": plan.white, "averages": plan.averages, "integration_s": plan.integration_s,
-            "white_source": "none" if plan.white == "none" else ("file" if ref is not None else "measured")}
+def calibration_record(plan: Plan, ref: WhiteReference | None, cal: Any = None) -> dict[str, Any]:
+    """What a run records about the calibration steps it took (also when it took none); with
+    repeated whites also ``white_repeats`` and ``lamp_drift``, the Type A estimate of ``cal``
+    (:class:`~bench.core.calibration.LampDrift`)."""
+    out = {"dark": plan.dark, "white": plan.white, "averages": plan.averages, "integration_s": plan.integration_s,
+           "white_source": "none" if plan.white == "none" else ("file" if ref is not None else "measured")}
+    if plan.white == "repeated":
+        drift = getattr(cal, "lamp_drift", None)
+        out["white_repeats"] = plan.white_repeats
+        out["lamp_drift"] = None if drift is None else drift.as_dict()
+    return out

@@ -5,8 +5,10 @@
   committed, and :func:`resume` finishes a run with exactly the missing points.
 * Ctrl-C or a device fault ends the run cleanly: it is stored as ``interrupted`` with the
   reason, and :class:`bench.core.errors.RunInterrupted` is raised.
-* The white reference is measured once, before the run is created, and stored with it; a
-  resumed run reuses it, so its values are those an uninterrupted run would have recorded.
+* The white reference is measured once (or, ``white = "repeated"``, read ``white_repeats`` times
+  in sequence after one mounting: the lamp drift's Type A estimate, every point corrected for
+  it), before the run is created, and stored with it; a resumed run reuses it, so its values are
+  those an uninterrupted run would have recorded.
   A bench whose ``[white]`` names a ``reference_file`` (:mod:`bench.io.white`) is calibrated
   from that stored reading instead: no operator is needed (the run records the file, its date
   and the operator's note).
@@ -53,12 +55,15 @@ class ScanResult:
 
 
 def point_rows(reading: Reading, cal: Calibration | None, geometry: Geometry, dark: Reading | None,
-               white_net: np.ndarray | None, budgets: list[Budget | None] | None = None) -> list[dict[str, Any]]:
+               white_net: np.ndarray | None, budgets: list[Budget | None] | None = None,
+               lit_index: int | None = None) -> list[dict[str, Any]]:
     """The store rows of one point: one per wavelength. With ``budgets`` (one per wavelength, see
-    :func:`point_budgets`) each row keeps its GUM budget and its ``std`` is the budget's u_c."""
+    :func:`point_budgets`) each row keeps its GUM budget and its ``std`` is the budget's u_c.
+    ``lit_index`` (the reading is the k-th lit one since the first white): with repeated whites the
+    value is corrected for the estimated lamp drift (:meth:`Calibration.apply`)."""
     rows = []
     if cal is not None:
-        c = cal.apply(reading, geometry, dark)
+        c = cal.apply(reading, geometry, dark, lit_index=lit_index)
         value, std, rf, reasons = c.brdf, c.std, c.reflectance_factor, c.mask_reason
         if budgets is not None:
             std = np.array([s if b is None else b.combined for s, b in zip(std, budgets)])
@@ -90,15 +95,16 @@ def point_budgets(description: Mapping[str, Any], cal: Calibration | None, readi
     """The GUM budget of each wavelength of a point (:mod:`bench.core.budget`), from the bench
     description's declared components; positioning sensitivities from its specimen model
     (:mod:`bench.builders.slopes`) when positioning is declared. ``lit_index``: the point is the k-th lit
-    reading since the white; ``idx`` keys its Monte Carlo draws; ``dark_key`` names the dark reading
-    (readings with the same key share its noise). None without a calibration."""
+    reading since the (first) white; ``idx`` keys its Monte Carlo draws; ``dark_key`` names the dark
+    reading (readings with the same key share its noise). None without a calibration."""
     if cal is None:
         return None
     slopes = None
     if declared(description)["positioning_deg"] > 0:
         from bench.builders.slopes import model_slopes
 
-        slopes = model_slopes(description, geometry, reading.wavelengths, cal.apply(reading, geometry, dark).brdf)
+        slopes = model_slopes(description, geometry, reading.wavelengths,
+                              cal.apply(reading, geometry, dark, lit_index=lit_index).brdf)
     return calibration_budgets(cal, reading, geometry, dark, description, lit_index=lit_index, slopes=slopes,
                                seed_key=(idx,), dark_key=dark_key)
 
@@ -125,7 +131,8 @@ def stored_white(bench: Bench) -> WhiteReference | None:
 def measure_calibration(bench: Bench, plan: Plan, use_reference_file: bool = True) -> Calibration | None:
     """The plan's calibration: None for ``white = "none"``; the bench's stored white reference
     file when it names one (and ``use_reference_file``); else a dark (light off, when the
-    plan takes darks) and the white standard measured now."""
+    plan takes darks) and the white standard measured now: once, or (``white = "repeated"``)
+    mounted once and read ``white_repeats`` times in sequence."""
     if plan.white == "none":
         return None
     ref = stored_white(bench) if use_reference_file else None
@@ -133,6 +140,9 @@ def measure_calibration(bench: Bench, plan: Plan, use_reference_file: bool = Tru
     if ref is not None:
         return ref.calibration(bench.white)
     dark = acquire_dark(bench, plan) if plan.dark != "none" else None
+    if plan.white == "repeated":
+        return Calibration.from_repeats(bench.white, bench.white_readings(plan.integration_s, plan.averages,
+                                                                          plan.white_repeats), dark)
     white = bench.measure_white(plan.integration_s, plan.averages)
     return Calibration(bench.white, white, dark)
 
@@ -166,7 +176,7 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
             "source": "virtual" if bench.kind == "virtual" else "measured",
             "specimen": specimen.get("spec") or specimen.get("name"),  # the key compare aligns on: the model
             "specimen_name": specimen.get("name") or specimen.get("spec"), "plan_name": plan.name,
-            "calibration_steps": calibration_record(plan, ref),
+            "calibration_steps": calibration_record(plan, ref, cal),
             "skipped": [r.as_dict() for r in refused]}  # unreachable = "skip": what was not measured, and why
     run_id = store.create_run(kind="scan", plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
                               n_planned=len(order), calibration=None if cal is None else cal.as_dict())
@@ -227,8 +237,9 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
                 dark, dark_key = acquire_dark(bench, plan), f"dark before point {idx}"
             last_incidence = incidence
             reading = bench.spectrometer.acquire(plan.integration_s, plan.averages)
+            lit = (cal.n_whites if cal is not None else 1) + k  # lit readings before this one since the first white
             rows = point_rows(reading, cal, reached, dark, white_net,
-                              point_budgets(bench.config, cal, reading, reached, dark, k + 1, idx, dark_key))
+                              point_budgets(bench.config, cal, reading, reached, dark, lit, idx, dark_key), lit)
             store.add_point(run_id, idx, reached.as_dict(), rows, t_start=t0, t_end=time.time())
             faults.record(idx)
             k += 1

@@ -189,6 +189,9 @@ class ReflectanceDevice(_SpectralReadable):
             raise ConfigError(f"{self.name} dark_mode must be one of {', '.join(DARK_MODES)}, got {dark!r}")
         if white not in WHITE_MODES:
             raise ConfigError(f"{self.name} white_mode must be one of {', '.join(WHITE_MODES)}, got {white!r}")
+        if white == "repeated":  # its drift correction counts lit readings, which only the runner does
+            raise ConfigError(f"{self.name} white_mode 'repeated' is taken by `bench scan` (the runner) only: "
+                              f"use 'once' here")
         return Plan(name=self.name, kind="list", points=(), integration_s=t, averages=n, dark=dark, white=white)
 
     @AsyncStatus.wrap

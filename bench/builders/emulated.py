@@ -302,17 +302,21 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
         raise
     white = emu.white
 
-    def measure_white(integration_s: float, averages: int) -> Reading:
-        emu.mount_white(True)
+    def measure_whites(integration_s: float, averages: int, repeats: int) -> list[Reading]:
+        emu.mount_white(True)  # mounted once, then read in sequence
         try:
             arm.move_to(white.geometry)
-            return bands.acquire(integration_s, averages)
+            return [bands.acquire(integration_s, averages) for _ in range(repeats)]
         finally:
             emu.mount_white(False)
 
+    def measure_white(integration_s: float, averages: int) -> Reading:
+        return measure_whites(integration_s, averages, 1)[0]
+
     kin = arm.config.kinematics
     return Bench(name=str(d.get("name", "emulated")), kind="emulated", goniometer=arm, spectrometer=bands,
-                 white=white, measure_white=measure_white, light=lamp if emu.light else None,
+                 white=white, measure_white=measure_white, measure_whites=measure_whites,
+                 light=lamp if emu.light else None,
                  motion=emulated_motion(d),
                  joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers,
                  parts={"emulators": emu, "arm": arm, "turntable": turntable, "spectrometer": ocean})

@@ -72,7 +72,7 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
         raise
     white = WhiteStandard.from_dict(d.get("white", {}))
 
-    def measure_white(integration_s: float, averages: int) -> Reading:
+    def measure_whites(integration_s: float, averages: int, repeats: int) -> list[Reading]:
         confirmed = bench.operator_confirmed
         if not confirmed and not sys.stdin.isatty():
             raise CalibrationRefused(
@@ -81,17 +81,21 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
                 "name FILE in [white] reference_file; or use white = \"none\" in the plan")
         arm.move_to(white.geometry)
         if confirmed:
-            log.info("white standard %s: mounted, as the operator confirmed (--yes)", white.name)
-            return spectrometer.acquire(integration_s, averages)
-        input(f"Mount the white standard ({white.name}) and press Enter... ")
+            log.info("white standard %s: mounted, as the operator confirmed (--yes); %d reading(s)", white.name,
+                     repeats)
+            return [spectrometer.acquire(integration_s, averages) for _ in range(repeats)]
+        input(f"Mount the white standard ({white.name}) and press Enter... ")  # once, for every repeat
         try:
-            return spectrometer.acquire(integration_s, averages)
+            return [spectrometer.acquire(integration_s, averages) for _ in range(repeats)]
         finally:
             input("Mount the specimen again and press Enter... ")
 
+    def measure_white(integration_s: float, averages: int) -> Reading:
+        return measure_whites(integration_s, averages, 1)[0]
+
     kin = arm.config.kinematics
     bench = Bench(name=str(d.get("name", "real")), kind="real", goniometer=arm, spectrometer=spectrometer,
-                  white=white, measure_white=measure_white, light=light,
+                  white=white, measure_white=measure_white, measure_whites=measure_whites, light=light,
                   motion=motion, white_needs_operator=True,
                   joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d), closers=closers,
                   parts={"arm": arm, "spectrometer": ocean, **external})

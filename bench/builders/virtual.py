@@ -63,10 +63,16 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     white_seen: Any = ApertureReading(standard, aperture) if aperture > 0 else standard
     spectrometer: Any = EffectsSpectrometer(seen, detector) if detector is not None else seen
 
-    def measure_white(integration_s: float, averages: int) -> Reading:
+    def measure_whites(integration_s: float, averages: int, repeats: int) -> list[Reading]:
         standard.move_to(white.geometry)
-        reading = white_seen.acquire(integration_s, averages)
-        return detector.apply(reading) if detector is not None else reading  # the same detector reads it
+        out = []
+        for _ in range(repeats):  # each a lit reading: the lamp drifts between them as between points
+            reading = white_seen.acquire(integration_s, averages)
+            out.append(detector.apply(reading) if detector is not None else reading)  # the same detector reads it
+        return out
+
+    def measure_white(integration_s: float, averages: int) -> Reading:
+        return measure_whites(integration_s, averages, 1)[0]
 
     goniometer: Any = gonio
     motion = joints = None
@@ -79,6 +85,7 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     if effects is not None and effects.positioning_error_deg > 0:
         goniometer = PositioningError(goniometer, effects)
     return Bench(name=str(d.get("name", "virtual")), kind="virtual", goniometer=goniometer, spectrometer=spectrometer,
-                 light=gonio if declares_light(d) else None, white=white, measure_white=measure_white, config=dict(d),
+                 light=gonio if declares_light(d) else None, white=white, measure_white=measure_white,
+                 measure_whites=measure_whites, config=dict(d),
                  motion=motion, joints=joints, closers=[gonio.close, standard.close])
 

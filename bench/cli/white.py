@@ -5,6 +5,9 @@ confirms at a terminal, or beforehand with ``--yes``; a dark is taken with it un
 none``, and a bench that cannot switch its light off refuses a dark rather than skip it), or take the
 white reference a completed run was calibrated with (``--from-run RUN --store S``). A bench
 config then names the file (``[white] reference_file = "..."``) and its runs need no operator.
+``--repeats N`` (N >= 3) reads the mounted standard N times in sequence and keeps every reading
+(the file of a plan with ``white = "repeated"``, ``white_repeats = N``); ``--json`` then gives
+the lamp drift's Type A estimate.
 """
 
 from __future__ import annotations
@@ -16,6 +19,9 @@ from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, add_bench_options, emit_json, open_store, output_file
 from bench.core.errors import InputError
 
+#: bench.core.schemas.MAX_WHITE_REPEATS (not imported: the CLI starts without pydantic)
+MAX_WHITE_REPEATS = 1000
+
 __all__ = ["register", "cmd_white"]
 
 
@@ -26,8 +32,10 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
 
     if not args.integration_s > 0:
         raise InputError(f"--integration-s must be > 0 s, got {args.integration_s:g}")
+    if args.repeats == 2:
+        raise InputError("--repeats must be 1 (one white) or >= 3 (a lamp drift estimate needs 3), got 2")
     plan = Plan(name="white", kind="list", points=(), integration_s=args.integration_s, averages=args.averages,
-                dark=args.dark, white="once")
+                dark=args.dark, white="repeated" if args.repeats > 1 else "once", white_repeats=max(args.repeats, 3))
     with load_bench(args.bench, body=args.body) as bench:
         bench.operator_confirmed = args.yes
         cal = measure_calibration(bench, plan, use_reference_file=False)
@@ -53,11 +61,14 @@ def cmd_white(args: argparse.Namespace) -> int:
         raise InputError("give either --bench BENCH.toml (measure now) or --from-run RUN (a completed run's)")
     cal, bench_name = _measure(args) if args.bench is not None else _from_run(args)
     ref = WhiteReference.from_calibration(cal, operator_note=args.note, bench=bench_name)
+    drift = getattr(cal, "lamp_drift", None)  # repeated whites: the Type A estimate
     path = write_white_reference(args.out, ref)
     if args.json:
         emit_json({"file": str(path), "date": ref.date, "operator_note": ref.operator_note, "bench": bench_name,
                    "wavelengths": int(ref.white.signal.size), "dark": ref.dark is not None,
-                   "integration_s": ref.white.integration_s, "averages": ref.white.averages})
+                   "integration_s": ref.white.integration_s, "averages": ref.white.averages,
+                   "repeats": len(ref.repeats) or 1,
+                   "lamp_drift": None if drift is None else drift.as_dict()})
     else:
         print(path)
     return 0
@@ -80,6 +91,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     w.add_argument("--dark", choices=("once", "none"), default="once",
                    help="take a dark with the light off (once), or none (the file records it; runs whose plan "
                         "takes darks then refuse it) (default %(default)s)")
+    w.add_argument("--repeats", type=count(1, MAX_WHITE_REPEATS), default=1, metavar="N",
+                   help="white readings taken in sequence with the standard mounted once: 1, or N >= 3 to estimate "
+                        "the lamp's drift (runs whose plan has white = \"repeated\", white_repeats = N) "
+                        "(default %(default)s)")
     w.add_argument("--yes", action="store_true",
                    help="the white standard is mounted (the operator confirms it): measure without asking at a "
                         "terminal (default: ask)")

@@ -7,6 +7,9 @@ The measurement model of one calibrated reading (one wavelength of one point; se
         * (1 + d_drift) * (1 + d_nonlinearity) * (1 + d_aperture)
         + sum over axes a of  c_a * d_a
 
+(with repeated whites the drift is estimated and corrected for: ``(1 + d_drift)`` becomes
+``1 / (1 + d_drift)``, ``d_drift = delta * k``, see the table and below).
+
 ======================================  ====  ==========================================  =============
 input (component name)                  type  standard uncertainty                        shared by
 ======================================  ====  ==========================================  =============
@@ -17,13 +20,28 @@ input (component name)                  type  standard uncertainty              
 ``R_w`` white standard certificate      B     ``[white] uncertainty``                     the whole run
 ``d_drift`` lamp drift                  B     ``[instrument] lamp_drift * k`` (k-th lit      --
                                               reading since the white)
+``d_drift`` lamp drift (repeated        A     ``k * u(delta)``, ``k = m - (N-1)/2`` lit       the run
+whites: estimate ``delta * k``)               readings since the repeats' centroid
 ``d_nonlinearity`` nonlinearity         B     ``[uncertainty] nonlinearity`` (relative)   --
 ``d_aperture`` detector solid angle     B     ``[uncertainty] aperture`` (relative)       --
 ``d_a`` positioning <axis>              B     ``[instrument] positioning_error_deg`` (deg)  --
 ======================================  ====  ==========================================  =============
 
 An input is in the budget when the description declares it (or, for the dark, when the plan
-takes darks); so every body of one description gives budgets of the same components. The
+takes darks; for the Type A lamp drift, when the plan takes repeated whites); so every body of
+one description gives budgets of the same components.
+
+Lamp drift from repeated whites (a plan's ``white = "repeated"``, :mod:`bench.core.calibration`):
+the ``N`` white readings give ``delta``, the lamp's relative drift per lit reading, with its
+standard error ``u(delta)`` by least squares (Type A, ``N - 2`` degrees of freedom, not carried
+into ``k``). The reading, the ``m``-th lit reading since the first white, is *corrected* for it
+(GUM 3.2.4: correct for recognised systematic effects): ``d_drift = delta k`` is the estimate,
+the model divides by ``1 + d_drift``, and the component's standard uncertainty is ``k u(delta)``
+(sensitivity ``-f / (1 + d_drift)``). The Type A evaluation *replaces* a declared ``[instrument]
+lamp_drift`` (Type B, uncorrected): the estimate is knowledge of this run's lamp. ``delta`` is
+one quantity for the whole run, so the component is shared (``"run"``): two readings covary by
+``c_i k_i c_j k_j u(delta)^2``, as the white certificate's term. Runs with one white
+(``white = "once"``) are calibrated and budgeted as before. The
 sensitivity of a component is the model's partial derivative at the estimates (``uncertainties``
 differentiates the model), except for positioning, whose slope ``c_a`` comes from the caller
 (the specimen model's slope, or the calibration's own cosine). Contribution ``|c| u``.
@@ -151,9 +169,12 @@ def declared(description: Mapping[str, Any]) -> dict[str, float]:
 
 def reading_inputs(description: Mapping[str, Any], *, signal: float, u_signal: float, averages: int,
                    dark: float | None, u_dark: float, dark_key: str | None, white_rate: float, u_white_rate: float,
-                   white_rf: float, u_white_rf: float, wavelength_nm: float, lit_index: int) -> list[Input]:
+                   white_rf: float, u_white_rf: float, wavelength_nm: float, lit_index: int,
+                   drift: Any = None) -> list[Input]:
     """The inputs of one reading's model as the description declares them (see the module table).
-    ``u_signal`` is the reading's whole std; the declared read noise is split off it."""
+    ``u_signal`` is the reading's whole std; the declared read noise is split off it. ``drift``: the
+    calibration's :class:`~bench.core.calibration.LampDrift` (repeated whites), which replaces the
+    declared Type B lamp drift by its Type A estimate; ``lit_index`` then counts from the first white."""
     decl = declared(description)
     u_read = decl["read_noise"] / math.sqrt(max(averages, 1))
     u_shot = math.sqrt(max(u_signal**2 - u_read**2, 0.0))
@@ -165,7 +186,10 @@ def reading_inputs(description: Mapping[str, Any], *, signal: float, u_signal: f
         out.append(Input(DARK, "A", dark, u_dark, None if dark_key is None else f"{dark_key}, {wl}"))
     out.append(Input(WHITE_READING, "A", white_rate, u_white_rate, f"run, {wl}"))
     out.append(Input(WHITE_CERTIFICATE, "B", white_rf, u_white_rf, "run"))
-    if decl["lamp_drift"]:
+    if drift is not None:
+        k = drift.offset(lit_index)
+        out.append(Input(LAMP_DRIFT, "A", drift.per_lit_reading * k, abs(k) * drift.standard_uncertainty, "run"))
+    elif decl["lamp_drift"]:
         out.append(Input(LAMP_DRIFT, "B", 0.0, decl["lamp_drift"] * max(lit_index, 0)))
     if decl["nonlinearity"]:
         out.append(Input(NONLINEARITY, "B", 0.0, decl["nonlinearity"]))
@@ -177,13 +201,17 @@ def reading_inputs(description: Mapping[str, Any], *, signal: float, u_signal: f
 
 
 def calibrated_value(x: Mapping[str, Any], *, integration_s: float, cos_ratio: float,
-                     slopes: Mapping[str, float]) -> Any:
+                     slopes: Mapping[str, float], drift_corrected: bool = False) -> Any:
     """The measurement model (module docstring) on inputs ``x`` by component name: floats,
     ``uncertainties`` numbers or numpy arrays of draws alike. ``cos_ratio = cos theta_w / cos
-    theta_r``; ``slopes`` the positioning sensitivities per axis (value per degree)."""
+    theta_r``; ``slopes`` the positioning sensitivities per axis (value per degree);
+    ``drift_corrected``: the lamp drift is an estimate the reading is corrected for (divided by
+    ``1 + d_drift``), not an uncorrected effect (times ``1 + d_drift``)."""
     net = x[COUNTING] + x.get(READ_NOISE, 0.0) - x.get(DARK, 0.0)
     f = net / integration_s / x[WHITE_READING] * x[WHITE_CERTIFICATE] / math.pi * cos_ratio
-    for name in (LAMP_DRIFT, NONLINEARITY, APERTURE):
+    if drift_corrected and LAMP_DRIFT in x:
+        f = f / (1.0 + x[LAMP_DRIFT])
+    for name in (NONLINEARITY, APERTURE) if drift_corrected else (LAMP_DRIFT, NONLINEARITY, APERTURE):
         if name in x:
             f = f * (1.0 + x[name])
     for a in AXES:
@@ -297,11 +325,13 @@ def calibration_budgets(cal: Any, reading: Any, geometry: Any, dark: Any, descri
     :class:`~bench.core.calibration.Calibration`) at ``geometry`` with ``dark``; None where the
     calibration masks the pixel. ``lit_index``: the reading is the k-th lit one since the white;
     ``slopes[i]``: pixel i's positioning sensitivities (default: the calibration's cosine only);
-    ``dark_key``: which dark this is (readings of a run with the same key share its noise)."""
+    ``dark_key``: which dark this is (readings of a run with the same key share its noise). With
+    repeated whites, ``lit_index`` counts from the first white and the value is drift-corrected."""
     from bench.core.calibration import reading_std
 
     table = uncertainty_table(description)
-    c = cal.apply(reading, geometry, dark)
+    drift = getattr(cal, "lamp_drift", None)
+    c = cal.apply(reading, geometry, dark, lit_index=lit_index)
     ref, u_ref, _ = cal.reference_rate()
     wl = np.asarray(reading.wavelengths, dtype=float)
     rf_w = cal.standard.rf(wl)
@@ -320,9 +350,9 @@ def calibration_budgets(cal: Any, reading: Any, geometry: Any, dark: Any, descri
                                 u_dark=0.0 if u_d is None else float(u_d[i]), dark_key=dark_key,
                                 white_rate=float(ref[i]), u_white_rate=float(u_ref[i]), white_rf=float(rf_w[i]),
                                 u_white_rf=float(cal.standard.uncertainty), wavelength_nm=float(wl[i]),
-                                lit_index=lit_index)
+                                lit_index=lit_index, drift=drift)
         s = slopes[i] if slopes is not None else cosine_slopes(float(c.brdf[i]), geometry.theta_r)
-        model = _bound_model(reading.integration_s, cos_ratio, s)
+        model = _bound_model(reading.integration_s, cos_ratio, s, drift is not None)
         out.append(evaluate_budget(inputs, model, table, (*seed_key, i)))
     return out
 
@@ -334,9 +364,10 @@ def cosine_slopes(value: float, theta_r_deg: float) -> dict[str, float]:
     return {"theta_r": -value * math.tan(math.radians(theta_r_deg)) * math.pi / 180.0}
 
 
-def _bound_model(integration_s: float, cos_ratio: float, slopes: Mapping[str, float]):
+def _bound_model(integration_s: float, cos_ratio: float, slopes: Mapping[str, float], drift_corrected: bool = False):
     def model(x: Mapping[str, Any]) -> Any:
-        return calibrated_value(x, integration_s=integration_s, cos_ratio=cos_ratio, slopes=slopes)
+        return calibrated_value(x, integration_s=integration_s, cos_ratio=cos_ratio, slopes=slopes,
+                                drift_corrected=drift_corrected)
     return model
 
 

@@ -14,7 +14,24 @@ with viewing angle ``theta_w`` gives ``S_w``. Hence, per wavelength::
     DSF = f cos(theta_r)                   (the cosine-corrected "differential scattering function")
 
 Uncertainties add in quadrature in relative terms (signal, dark, reference, reference dark,
-and the standard's own ``u(R_w)``). Pixels where the reference is saturated, or at or below its
+and the standard's own ``u(R_w)``).
+
+Repeated white readings (a plan's ``white = "repeated"``): the operator mounts the standard once
+and ``N >= 3`` white readings are taken in sequence, lit readings ``j = 0 .. N-1`` of the lamp.
+``S_w`` is then their mean (the white at the centroid ``j_c = (N-1)/2``) and the lamp's relative
+drift per lit reading is estimated by least squares (:func:`estimate_lamp_drift`): the
+band-summed dark-corrected white rate ``y_j = sum_pixels (S_w,j - D_w) / t`` against ``j``,
+``delta = b1 / mean(y)`` with ``u(delta) = se(b1) / mean(y)`` (``N - 2`` degrees of freedom; the
+mean's own uncertainty enters ``u(delta)`` only at second order and is left out). One relative
+slope for the whole band, because the lamp model every body simulates and the description
+declares is one number (``[instrument] lamp_drift``), and summing the band gives that number
+with the smallest standard error. With the x's centred, ``b1`` and the mean are uncorrelated,
+so the white reference reading and the drift are independent inputs. A reading that is the
+``m``-th lit reading since the first white is corrected for the estimated drift (GUM: correct
+for known systematic effects)::
+
+    f_corrected = f / (1 + delta (m - j_c))
+ Pixels where the reference is saturated, or at or below its
 dark, are *masked and reported*: they are never divided by, and their value is NaN with the
 reason in ``mask_reason`` (not a silent NaN).
 """
@@ -23,6 +40,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, Mapping
 
 import numpy as np
@@ -31,7 +49,7 @@ from bench.core.errors import CalibrationError, ConfigError
 from bench.core.geometry import Geometry
 from bench.core.roles import Reading
 
-__all__ = ["WhiteStandard", "Calibration", "Calibrated", "reading_std"]
+__all__ = ["WhiteStandard", "Calibration", "Calibrated", "LampDrift", "reading_std", "mean_reading", "estimate_lamp_drift"]
 
 
 @dataclass(frozen=True)
@@ -100,16 +118,108 @@ def reading_std(r: Reading) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class LampDrift:
+    """The Type A estimate of the lamp's relative drift per lit reading from repeated whites:
+    ``per_lit_reading`` (delta, relative to the white at ``centroid``), its standard uncertainty,
+    degrees of freedom (``repeats - 2``) and the lit index ``centroid = (repeats - 1) / 2`` of
+    the repeats' mean."""
+
+    per_lit_reading: float
+    standard_uncertainty: float
+    dof: int
+    centroid: float
+    repeats: int
+
+    def offset(self, lit_index: int) -> float:
+        """Lit readings between the white's centroid and the ``lit_index``-th lit reading."""
+        return float(lit_index) - self.centroid
+
+    def factor(self, lit_index: int) -> float:
+        """The lamp's output at ``lit_index`` relative to the white's centroid: ``1 + delta d``."""
+        return 1.0 + self.per_lit_reading * self.offset(lit_index)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"per_lit_reading": self.per_lit_reading, "standard_uncertainty": self.standard_uncertainty,
+                "dof": self.dof, "centroid": self.centroid, "repeats": self.repeats, "type": "A"}
+
+
+def mean_reading(readings: Any) -> Reading:
+    """The mean of repeated readings of one thing: signal averaged, std ``sqrt(sum u_j^2) / N``,
+    saturated where any repeat is, timestamp of the first."""
+    rs = list(readings)
+    if not rs:
+        raise CalibrationError("no readings to average")
+    if any(r.signal.shape != rs[0].signal.shape for r in rs):
+        raise CalibrationError("repeated white readings have different pixel counts")
+    n = len(rs)
+    signal = np.mean([np.asarray(r.signal, float) for r in rs], axis=0)
+    std = np.sqrt(np.sum([reading_std(r) ** 2 for r in rs], axis=0)) / n
+    saturated = np.any([np.asarray(r.saturated, bool) for r in rs], axis=0)
+    first = rs[0]
+    return Reading(wavelengths=np.asarray(first.wavelengths, float), signal=signal, saturated=saturated,
+                   integration_s=first.integration_s, averages=first.averages, timestamp=first.timestamp,
+                   dark=first.dark, std=std)
+
+
+def estimate_lamp_drift(repeats: Any, dark: Reading | None, ok: np.ndarray | None = None) -> LampDrift:
+    """Least-squares slope of the band-summed white rate against the lit index (module
+    docstring), over the pixels ``ok`` (default: every pixel). Needs at least 3 repeats."""
+    rs = list(repeats)
+    n = len(rs)
+    if n < 3:
+        raise CalibrationError(f"a lamp drift estimate needs at least 3 repeated white readings, got {n}")
+    d = np.zeros_like(np.asarray(rs[0].signal, float)) if dark is None else np.asarray(dark.signal, float)
+    keep = np.ones(d.shape, bool) if ok is None else np.asarray(ok, bool)
+    if not keep.any():
+        raise CalibrationError("no usable pixel in the repeated white readings to estimate the lamp drift")
+    y = np.array([float(np.sum((np.asarray(r.signal, float) - d)[keep])) / r.integration_s for r in rs])
+    x = np.arange(n, dtype=float)
+    xc = x - x.mean()
+    sxx = float(xc @ xc)
+    y_mean = float(y.mean())
+    if not y_mean > 0:
+        raise CalibrationError("the repeated white readings are at or below their dark: no lamp drift estimate")
+    b1 = float(xc @ (y - y_mean)) / sxx
+    resid = y - y_mean - b1 * xc
+    se_b1 = math.sqrt(float(resid @ resid) / (n - 2) / sxx)
+    return LampDrift(b1 / y_mean, se_b1 / y_mean, n - 2, float(x.mean()), n)
+
+
+@dataclass(frozen=True)
 class Calibration:
-    """A white reference (with its dark) that turns readings into BRDF."""
+    """A white reference (with its dark) that turns readings into BRDF. ``white_repeats``: the
+    repeated white readings ``white`` is the mean of (:meth:`from_repeats`), empty for one."""
 
     standard: WhiteStandard
     white: Reading
     white_dark: Reading | None = None
+    white_repeats: tuple[Reading, ...] = ()
 
     def __post_init__(self) -> None:
         if self.white_dark is not None and self.white_dark.signal.shape != self.white.signal.shape:
             raise CalibrationError("white reference and its dark have different pixel counts")
+        if self.white_repeats and len(self.white_repeats) < 3:
+            raise CalibrationError(f"repeated white readings must be at least 3, got {len(self.white_repeats)}")
+
+    @classmethod
+    def from_repeats(cls, standard: WhiteStandard, repeats: Any, dark: Reading | None = None) -> "Calibration":
+        """The calibration of ``N >= 3`` white readings taken in sequence: the white is their mean."""
+        rs = tuple(repeats)
+        return cls(standard, mean_reading(rs), dark, rs)
+
+    @property
+    def n_whites(self) -> int:
+        """How many lit white readings the calibration took (1, or the repeats)."""
+        return len(self.white_repeats) or 1
+
+    @cached_property
+    def lamp_drift(self) -> LampDrift | None:
+        """The Type A lamp drift estimate of the repeats (None without repeats), over the pixels
+        the reference does not mask."""
+        if not self.white_repeats:
+            return None
+        ok = np.array([not r for r in self.reference_rate()[2]])
+        return estimate_lamp_drift(self.white_repeats, self.white_dark, ok)
 
     def reference_rate(self) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """Dark-corrected reference counts per second, their std, and per-pixel mask reasons."""
@@ -128,8 +238,12 @@ class Calibration:
                 reasons.append("")
         return net, u, reasons
 
-    def apply(self, reading: Reading, geometry: Geometry, dark: Reading | None = None) -> Calibrated:
-        """Calibrate one reading taken at ``geometry`` (dark subtracted when given)."""
+    def apply(self, reading: Reading, geometry: Geometry, dark: Reading | None = None,
+              lit_index: int | None = None) -> Calibrated:
+        """Calibrate one reading taken at ``geometry`` (dark subtracted when given). With repeated
+        whites and ``lit_index`` (the reading is the ``lit_index``-th lit reading since the first
+        white) the value is corrected for the estimated lamp drift and its std carries the
+        estimate's uncertainty (module docstring)."""
         if reading.signal.shape != self.white.signal.shape:
             raise CalibrationError(f"reading has {reading.signal.size} pixels, the white reference "
                                    f"{self.white.signal.size}")
@@ -157,6 +271,11 @@ class Calibration:
             rel2[ok] = ((u_ref[ok] / ref[ok]) ** 2 + (self.standard.uncertainty / rf_w[ok]) ** 2)
             signal_term = np.where(ok, u_net * ref**-1 * scale, 0.0)
         std[ok] = np.sqrt(signal_term[ok] ** 2 + brdf[ok] ** 2 * rel2[ok])
+        drift = self.lamp_drift
+        if drift is not None and lit_index is not None:
+            factor = drift.factor(lit_index)
+            u_rel = abs(drift.offset(lit_index)) * drift.standard_uncertainty / factor
+            brdf, std = brdf / factor, np.hypot(std / factor, brdf / factor * u_rel)
         return Calibrated(wavelengths=np.asarray(reading.wavelengths, dtype=float), brdf=brdf, std=std,
                           reflectance_factor=brdf * math.pi, signal=reading.signal, dark=d, mask_reason=reasons)
 
@@ -168,7 +287,10 @@ class Calibration:
                     "saturated": x.saturated.tolist(), "integration_s": x.integration_s,
                     "averages": x.averages, "std": None if x.std is None else np.asarray(x.std).tolist(),
                     "timestamp": x.timestamp}
-        return {"standard": self.standard.as_dict(), "white": r(self.white), "white_dark": r(self.white_dark)}
+        out = {"standard": self.standard.as_dict(), "white": r(self.white), "white_dark": r(self.white_dark)}
+        if self.white_repeats:  # only then: a single white's dict is as before
+            out["white_repeats"] = [r(x) for x in self.white_repeats]
+        return out
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "Calibration":
@@ -181,4 +303,6 @@ class Calibration:
                            std=None if x.get("std") is None else np.asarray(x["std"], float))
         white = r(d["white"])
         assert white is not None
-        return cls(WhiteStandard.from_dict(d["standard"]), white, r(d.get("white_dark")))
+        repeats = tuple(r(x) for x in d.get("white_repeats") or ())
+        return cls(WhiteStandard.from_dict(d["standard"]), white, r(d.get("white_dark")),
+                   tuple(x for x in repeats if x is not None))

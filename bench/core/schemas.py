@@ -21,7 +21,7 @@ from bench.core.validation import Finite, Settings, Table, Whole, validate_docum
 
 __all__ = ["PlanFile", "BenchFile", "SweepFile", "SceneFile", "validate_document", "validation_message", "Settings",
            "BENCH_KINDS", "UncertaintyTable", "SceneEffect", "EFFECT_SCHEMAS", "plugin_effects", "scene_schema", "MAX_PLAN_POINTS",
-           "MAX_INTEGRATION_S", "MAX_AVERAGES", "MAX_RAYS", "MAX_SWEEP_SERIES"]
+           "MAX_INTEGRATION_S", "MAX_AVERAGES", "MAX_WHITE_REPEATS", "DEFAULT_WHITE_REPEATS", "MAX_RAYS", "MAX_SWEEP_SERIES"]
 
 #: the most points one plan may expand to (a plan of more is almost surely a typo in a step)
 MAX_PLAN_POINTS = 200_000
@@ -31,6 +31,8 @@ MAX_INTEGRATION_S = 3600.0
 MAX_AVERAGES = 100_000
 #: the most rays per wavelength a file may ask for (the CLI's --max-seconds bounds the time)
 MAX_RAYS = 10**15
+#: the most repeated white readings a plan may ask for, and how many ``white = "repeated"`` takes
+MAX_WHITE_REPEATS, DEFAULT_WHITE_REPEATS = 1000, 5
 #: the most series (specimen x collector x incidence/geometry) one sweep may hold
 MAX_SWEEP_SERIES = 100_000
 
@@ -112,7 +114,9 @@ class PlanFile(Table):
     integration_s: Annotated[Finite, Field(gt=0, le=MAX_INTEGRATION_S)] = 0.1
     averages: Annotated[Whole, Field(ge=1, le=MAX_AVERAGES)] = 1
     dark: Literal["none", "once", "per-incidence", "per-point"] = "once"
-    white: Literal["none", "once"] = "once"
+    white: Literal["none", "once", "repeated"] = "once"
+    #: white = "repeated": white readings taken in sequence (the lamp drift's Type A estimate)
+    white_repeats: Annotated[Whole, Field(ge=3, le=MAX_WHITE_REPEATS)] = DEFAULT_WHITE_REPEATS
     order: Literal["travel", "as-given"] = "travel"
     home: StrictBool = False  # return the turntable to home before the first point
     unreachable: Literal["refuse", "skip"] = "refuse"  # skip: measure the reachable points, record the others

@@ -204,7 +204,8 @@ class AdaptiveSession:
         if stored is not None:
             table = stored["plan"]
             points = [Geometry(*p) for p in table["points"]]
-            settings = ReadingSettings(table["integration_s"], table["averages"], table["dark"], table["white"])
+            settings = ReadingSettings(table["integration_s"], table["averages"], table["dark"], table["white"],
+                                       table.get("white_repeats"))
         else:
             try:
                 design = design_for_bench(self.point, self.bench, self.candidates, budget, self.settings,

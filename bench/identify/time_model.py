@@ -36,15 +36,20 @@ class ReadingSettings:
     averages: int = 2
     dark: str = "per-incidence"
     white: str = "once"
+    white_repeats: int | None = None  # white = "repeated": how many
 
     @classmethod
     def like(cls, plan: Plan) -> "ReadingSettings":
         """The reading settings of an existing plan (a design compared with it reads alike)."""
-        return cls(plan.integration_s, plan.averages, plan.dark, plan.white)
+        return cls(plan.integration_s, plan.averages, plan.dark, plan.white,
+                   plan.white_repeats if plan.white == "repeated" else None)
 
     def plan_table(self) -> dict[str, Any]:
-        return {"integration_s": self.integration_s, "averages": self.averages, "dark": self.dark,
-                "white": self.white}
+        table = {"integration_s": self.integration_s, "averages": self.averages, "dark": self.dark,
+                 "white": self.white}
+        if self.white_repeats is not None:
+            table["white_repeats"] = self.white_repeats
+        return table
 
 
 def candidate_grid(step_deg: float = DEFAULT_STEP_DEG, theta_i_max: float = 80.0, theta_r_max: float = 85.0,

@@ -14,6 +14,12 @@ The file is a CSV (written by :func:`bench.io.files.write_csv`, atomically)::
 for people. ``white`` / ``dark`` hold ``integration_s``, ``averages`` and ``timestamp`` of the
 two readings (``dark`` is null when the bench has no switchable light; its columns are then
 empty). Bad files raise :class:`bench.core.errors.InputError` naming file and line.
+
+Repeated whites (``bench white --repeats N``, a plan's ``white = "repeated"``): the first line is
+``# goniobench-white 2``, ``signal``/``std`` are the repeats' mean, the columns ``signal_1, std_1
+.. signal_N, std_N`` keep each repeat in the order taken, and ``meta`` has ``"repeats": [{...},
+...]`` (their ``integration_s``, ``averages``, ``timestamp``). A repeat is flagged saturated
+where the mean is (any repeat saturated). Files of one white (version 1) read as before.
 """
 
 from __future__ import annotations
@@ -34,10 +40,11 @@ from bench.core.roles import Reading
 from bench.io.files import write_csv
 from bench.io.reading import bad, read_lines
 
-__all__ = ["WhiteReference", "write_white_reference", "read_white_reference", "WHITE_MAGIC"]
+__all__ = ["WhiteReference", "write_white_reference", "read_white_reference", "WHITE_MAGIC", "WHITE_MAGIC_REPEATS"]
 
-#: the first line of a white reference file
+#: the first line of a white reference file (one white), and of one with repeated whites
 WHITE_MAGIC = "# goniobench-white 1"
+WHITE_MAGIC_REPEATS = "# goniobench-white 2"
 _COLUMNS = ["wavelength_nm", "signal", "std", "saturated", "dark", "dark_std"]
 
 
@@ -52,6 +59,7 @@ class WhiteReference:
     standard: Mapping[str, Any] = field(default_factory=dict)
     bench: str = ""
     path: str = ""
+    repeats: tuple[Reading, ...] = ()  # the repeated white readings ``white`` is the mean of
 
     @classmethod
     def from_calibration(cls, cal: Calibration, operator_note: str = "", bench: str = "",
@@ -59,7 +67,8 @@ class WhiteReference:
         """The reference of a calibration (a fresh one, or a completed run's)."""
         when = date or _dt.datetime.fromtimestamp(cal.white.timestamp, _dt.timezone.utc).strftime(
             "%Y-%m-%dT%H:%M:%SZ")
-        return cls(cal.white, cal.white_dark, when, operator_note, cal.standard.as_dict(), bench)
+        return cls(cal.white, cal.white_dark, when, operator_note, cal.standard.as_dict(), bench,
+                   repeats=tuple(cal.white_repeats))
 
     def calibration(self, standard: WhiteStandard) -> Calibration:
         """The calibration of ``standard`` (the bench's ``[white]``) with this stored reading.
@@ -70,12 +79,15 @@ class WhiteReference:
         if isinstance(g, Mapping) and "theta_r" in g and abs(float(g["theta_r"]) - standard.geometry.theta_r) > 1e-6:
             raise InputError(f"{self.path or 'white reference'}: taken at theta_r = {float(g['theta_r']):g} deg, "
                              f"the bench's [white] geometry has theta_r = {standard.geometry.theta_r:g} deg")
-        return Calibration(standard, self.white, self.dark)
+        return Calibration(standard, self.white, self.dark, self.repeats)
 
     def provenance(self) -> dict[str, Any]:
         """What a run records about the reference it used."""
-        return {"file": self.path, "date": self.date, "operator_note": self.operator_note, "bench": self.bench,
-                "white_integration_s": self.white.integration_s, "white_averages": self.white.averages}
+        out = {"file": self.path, "date": self.date, "operator_note": self.operator_note, "bench": self.bench,
+               "white_integration_s": self.white.integration_s, "white_averages": self.white.averages}
+        if self.repeats:
+            out["white_repeats"] = len(self.repeats)
+        return out
 
 
 def _reading_meta(r: Reading | None) -> dict[str, Any] | None:
@@ -97,10 +109,15 @@ def write_white_reference(path: str | Path, ref: WhiteReference) -> Path:
         "saturated": np.asarray(w.saturated, bool).astype(int),
         "dark": nan if d is None else np.asarray(d.signal, float),
         "dark_std": nan if (d is None or d.std is None) else np.asarray(d.std, float)})
+    for j, r in enumerate(ref.repeats, start=1):
+        table[f"signal_{j}"] = np.asarray(r.signal, float)
+        table[f"std_{j}"] = nan if r.std is None else np.asarray(r.std, float)
     meta = {"date": ref.date, "operator_note": ref.operator_note, "bench": ref.bench,
             "standard": dict(ref.standard), "white": _reading_meta(w), "dark": _reading_meta(d)}
+    if ref.repeats:
+        meta["repeats"] = [_reading_meta(r) for r in ref.repeats]
     note = " ".join(ref.operator_note.split())  # one line for people; meta keeps it exactly
-    header = [WHITE_MAGIC, f"# date: {ref.date}", f"# operator_note: {note}",
+    header = [WHITE_MAGIC_REPEATS if ref.repeats else WHITE_MAGIC, f"# date: {ref.date}", f"# operator_note: {note}",
               f"# meta: {json.dumps(meta, default=json_default)}"]
     return write_csv(table, path, header_lines=header)
 
@@ -129,8 +146,12 @@ def read_white_reference(path: str | Path) -> WhiteReference:
         non-finite white signal, a dark column half filled, no wavelengths.
     """
     p, lines = read_lines(path)
-    if not lines or lines[0].strip() != WHITE_MAGIC:
-        raise bad(p, 1, f"not a goniobench white reference (first line must be {WHITE_MAGIC!r})")
+    if not lines or lines[0].strip() not in (WHITE_MAGIC, WHITE_MAGIC_REPEATS):
+        raise bad(p, 1, f"not a goniobench white reference (first line must be {WHITE_MAGIC!r} or "
+                        f"{WHITE_MAGIC_REPEATS!r})")
+    n_rep = 0
+    if lines[0].strip() == WHITE_MAGIC_REPEATS:
+        n_rep = _repeat_count(p, lines)
     meta_line = next((i for i, ln in enumerate(lines) if ln.startswith("# meta:")), None)
     if meta_line is None:
         raise bad(p, None, "no '# meta:' line")
@@ -140,19 +161,20 @@ def read_white_reference(path: str | Path) -> WhiteReference:
         raise bad(p, meta_line + 1, f"meta is not JSON ({exc})") from None
     if not isinstance(meta, dict) or not isinstance(meta.get("white"), dict):
         raise bad(p, meta_line + 1, "meta must be a JSON object with a 'white' object")
+    columns = _COLUMNS + [f"{c}_{j}" for j in range(1, n_rep + 1) for c in ("signal", "std")]
     body = [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and not ln.startswith("#")]
-    if not body or [c.strip() for c in body[0][1].split(",")] != _COLUMNS:
-        raise bad(p, body[0][0] if body else None, f"the column header must be {','.join(_COLUMNS)}")
+    if not body or [c.strip() for c in body[0][1].split(",")] != columns:
+        raise bad(p, body[0][0] if body else None, f"the column header must be {','.join(columns)}")
     rows = []
     for lineno, ln in body[1:]:
         cells = ln.split(",")
-        if len(cells) != len(_COLUMNS):
-            raise bad(p, lineno, f"expected {len(_COLUMNS)} columns, got {len(cells)}")
-        rows.append([_float(c, p, lineno, col) for c, col in zip(cells, _COLUMNS)])
+        if len(cells) != len(columns):
+            raise bad(p, lineno, f"expected {len(columns)} columns, got {len(cells)}")
+        rows.append([_float(c, p, lineno, col) for c, col in zip(cells, columns)])
     if not rows:
         raise bad(p, None, "no wavelengths")
     a = np.array(rows, dtype=float)
-    wl, sig, std, sat, dark, dstd = a.T
+    wl, sig, std, sat, dark, dstd = a.T[:6]
     if not (np.all(np.isfinite(wl)) and np.all(np.diff(wl) > 0)):
         raise bad(p, None, "wavelength_nm must be finite and increasing")
     if not (np.all(np.isfinite(sig)) and np.all(sig >= 0)):
@@ -178,5 +200,29 @@ def read_white_reference(path: str | Path) -> WhiteReference:
     if not isinstance(date, str) or not date:
         raise bad(p, meta_line + 1, "meta: date is required (when the standard was read)")
     standard = meta.get("standard") if isinstance(meta.get("standard"), dict) else {}
+    repeats = []
+    for j in range(n_rep):
+        rm = meta.get("repeats")[j]
+        s_j, u_j = a[:, 6 + 2 * j], a[:, 7 + 2 * j]
+        if not (isinstance(rm, dict) and np.all(np.isfinite(s_j)) and np.all(s_j >= 0)):
+            raise bad(p, None, f"signal_{j + 1} must be finite counts >= 0 on every row (with meta repeats[{j}])")
+        repeats.append(Reading(wavelengths=wl, signal=s_j, saturated=sat.astype(bool),
+                               integration_s=_positive(rm, "integration_s", p, float),
+                               averages=_positive(rm, "averages", p, int), timestamp=float(rm.get("timestamp") or 0.0),
+                               std=None if np.all(np.isnan(u_j)) else u_j))
     return WhiteReference(white, dark_reading, date, str(meta.get("operator_note", "")), standard,
-                          str(meta.get("bench", "")), str(p))
+                          str(meta.get("bench", "")), str(p), tuple(repeats))
+
+
+def _repeat_count(p: Path, lines: list[str]) -> int:
+    """How many repeats a version-2 file's meta line lists (at least 3)."""
+    meta_line = next((i for i, ln in enumerate(lines) if ln.startswith("# meta:")), None)
+    try:
+        meta = json.loads(lines[meta_line].removeprefix("# meta:")) if meta_line is not None else None
+    except ValueError:
+        return 0  # the meta check below names it
+    reps = meta.get("repeats") if isinstance(meta, dict) else None
+    if not isinstance(reps, list) or len(reps) < 3:
+        raise bad(p, None if meta_line is None else meta_line + 1,
+                  "meta: repeats must list at least 3 repeated white readings in a version 2 file")
+    return len(reps)
