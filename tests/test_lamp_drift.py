@@ -158,6 +158,11 @@ def test_the_covariance_shares_the_drift_term_across_the_run(runs):
 
 def test_bench_show_json_shows_the_estimate_and_the_type_a_component(runs, capsys):
     path, run = runs[A]
+    info, _, _ = _run(runs, A)
+    delta, se = _by_hand(info)
+    assert main(["show", run, "--store", str(path)]) == 0
+    assert f"lamp drift: {delta:.3g} +- {se:.2g} per lit reading (Type A, {N} white readings, {N - 2} dof)" \
+        in capsys.readouterr().out
     assert main(["show", run, "--store", str(path), "--json"]) == 0
     shown = json.loads(capsys.readouterr().out)
     assert shown["calibration_steps"]["white"] == "repeated" and shown["calibration_steps"]["white_repeats"] == N
@@ -255,6 +260,10 @@ def test_white_reference_file_keeps_the_repeats_and_runs_must_match_it(tmp_path,
                 check_calibration_steps(b, plan_from_dict(other), ref)
     assert main(["white", "--bench", str(bench), "--out", str(out), "--repeats", "2"]) == 2
     assert "--repeats" in capsys.readouterr().err
+    from bench.cli.white import MAX_WHITE_REPEATS as cli_max
+    from bench.core.schemas import MAX_WHITE_REPEATS
+
+    assert cli_max == MAX_WHITE_REPEATS  # the CLI's copy (it starts without pydantic)
 
 
 def test_a_real_bench_without_an_operator_is_refused_before_motion_naming_the_repeats():

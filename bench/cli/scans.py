@@ -243,6 +243,10 @@ def cmd_show(args: argparse.Namespace) -> int:
     if steps:
         print(f"  calibration: dark {steps['dark']}, white {steps['white']} ({steps['white_source']}), "
               f"integration {steps['integration_s']:g} s, averages {steps['averages']}")
+        drift = steps.get("lamp_drift")
+        if drift:  # white = "repeated": the Type A estimate every reading is corrected for
+            print(f"  lamp drift: {drift['per_lit_reading']:.3g} +- {drift['standard_uncertainty']:.2g} per lit "
+                  f"reading (Type A, {drift['repeats']} white readings, {drift['dof']} dof); readings corrected")
     budgets = [p["uncertainty_budget"] for p in points if p["uncertainty_budget"]]
     rel = sorted(100.0 * b["combined"] / abs(b["value"]) for b in budgets if b.get("value"))
     if rel:
