@@ -327,3 +327,51 @@ def test_virtual_and_emulated_bodies_take_the_repeated_whites_alike(tmp_path):
     assert repeats == {"virtual": N, "emulated": N}
     assert names["virtual"] == names["emulated"] and len(names["virtual"]) == 1
     assert ("lamp drift", "A") in next(iter(names["virtual"]))
+
+
+@pytest.mark.hil
+@pytest.mark.slow
+def test_the_real_body_over_the_emulators_takes_the_repeats_after_one_mounting(tmp_path, capsys):
+    """The real drivers on the emulators (a ``kind = "real"`` bench, about 10 s): `bench white
+    --yes --repeats N` stores N readings of the once-mounted standard; a repeated-white plan then
+    runs from the file with a Type A lamp drift in every budget, and its values hold the emulated
+    Lambertian's 0.8/pi: |z| below the two-sided Bonferroni bound of a family-wise false-alarm
+    rate of 1e-3 over the run's values. A plan asking another number of whites is refused."""
+    import tomli_w
+    from scipy.stats import norm
+
+    from bench.builders.emulated import DEFAULT_EMULATED_CONFIG, Emulators
+
+    emu = Emulators(DEFAULT_EMULATED_CONFIG)
+    try:
+        config = emu.real_bench_config()
+        lab = tmp_path / "lab.toml"
+        lab.write_bytes(tomli_w.dumps(config).encode())
+        white = tmp_path / "white.csv"
+        emu.mount_white(True)  # what the operator confirms with --yes
+        try:
+            assert main(["white", "--bench", str(lab), "--out", str(white), "--yes", "--integration-s", "0.02",
+                         "--averages", "2", "--repeats", str(N)]) == 0
+        finally:
+            emu.mount_white(False)
+        assert len(read_white_reference(white).repeats) == N
+        lab.write_bytes(tomli_w.dumps({**config, "white": {**config["white"], "reference_file": str(white)}}).encode())
+        plan = tmp_path / "plan.toml"
+        table = {**PLAN, "integration_s": 0.02, "averages": 2, "list": {"points": [[30, 0, t, 180] for t in (10, 30, 50)]}}
+        plan.write_bytes(tomli_w.dumps(table).encode())
+        store = tmp_path / "runs.sqlite"
+        capsys.readouterr()
+        assert main(["scan", str(plan), "--bench", str(lab), "--store", str(store), "--quiet", "--json"]) == 0
+        run = json.loads(capsys.readouterr().out)["run_id"]
+        with RunStore(store, create=False) as s:
+            rows = s.reading_budgets(run)
+            steps = s.run(run)["meta"]["calibration_steps"]
+        assert steps["white_source"] == "file" and steps["lamp_drift"]["repeats"] == N
+        assert {_drift_component(r["uncertainty_budget"])["type"] for r in rows} == {"A"}
+        z = np.array([(r["value"] - TRUTH) / r["std"] for r in rows])
+        assert np.max(np.abs(z)) < norm.isf(1e-3 / 2 / z.size)
+        plan.write_bytes(tomli_w.dumps({**table, "white_repeats": N - 1}).encode())
+        assert main(["scan", str(plan), "--bench", str(lab), "--store", str(store), "--quiet"]) == 2
+        assert f"holds {N} white reading(s)" in capsys.readouterr().err
+    finally:
+        emu.close()
