@@ -41,8 +41,9 @@ the model divides by ``1 + d_drift``, and the component's standard uncertainty i
 lamp_drift`` (Type B, uncorrected): the estimate is knowledge of this run's lamp. ``delta`` is
 one quantity for the whole run, so the component is shared (``"run"``): two readings covary by
 ``c_i k_i c_j k_j u(delta)^2``, as the white certificate's term. Runs with one white
-(``white = "once"``) are calibrated and budgeted as before. The
-sensitivity of a component is the model's partial derivative at the estimates (``uncertainties``
+(``white = "once"``) are calibrated and budgeted as before.
+
+The sensitivity of a component is the model's partial derivative at the estimates (``uncertainties``
 differentiates the model), except for positioning, whose slope ``c_a`` comes from the caller
 (the specimen model's slope, or the calibration's own cosine). Contribution ``|c| u``.
 

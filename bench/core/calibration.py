@@ -14,7 +14,9 @@ with viewing angle ``theta_w`` gives ``S_w``. Hence, per wavelength::
     DSF = f cos(theta_r)                   (the cosine-corrected "differential scattering function")
 
 Uncertainties add in quadrature in relative terms (signal, dark, reference, reference dark,
-and the standard's own ``u(R_w)``).
+and the standard's own ``u(R_w)``). Pixels where the reference is saturated, or at or below its
+dark, are *masked and reported*: they are never divided by, and their value is NaN with the
+reason in ``mask_reason`` (not a silent NaN).
 
 Repeated white readings (a plan's ``white = "repeated"``): the operator mounts the standard once
 and ``N >= 3`` white readings are taken in sequence, lit readings ``j = 0 .. N-1`` of the lamp.
@@ -23,17 +25,15 @@ drift per lit reading is estimated by least squares (:func:`estimate_lamp_drift`
 band-summed dark-corrected white rate ``y_j = sum_pixels (S_w,j - D_w) / t`` against ``j``,
 ``delta = b1 / mean(y)`` with ``u(delta) = se(b1) / mean(y)`` (``N - 2`` degrees of freedom; the
 mean's own uncertainty enters ``u(delta)`` only at second order and is left out). One relative
-slope for the whole band, because the lamp model every body simulates and the description
-declares is one number (``[instrument] lamp_drift``), and summing the band gives that number
-with the smallest standard error. With the x's centred, ``b1`` and the mean are uncorrelated,
+slope for the whole band, because the lamp model the description declares and the virtual body
+simulates is one number (``[instrument] lamp_drift``), and summing the band gives that number
+with the smallest standard error (a lamp whose spectrum drifts, e.g. a halogen cooling, would
+need a slope per wavelength: not modelled). With the x's centred, ``b1`` and the mean are uncorrelated,
 so the white reference reading and the drift are independent inputs. A reading that is the
 ``m``-th lit reading since the first white is corrected for the estimated drift (GUM: correct
 for known systematic effects)::
 
     f_corrected = f / (1 + delta (m - j_c))
- Pixels where the reference is saturated, or at or below its
-dark, are *masked and reported*: they are never divided by, and their value is NaN with the
-reason in ``mask_reason`` (not a silent NaN).
 """
 
 from __future__ import annotations
