@@ -375,3 +375,24 @@ def test_the_real_body_over_the_emulators_takes_the_repeats_after_one_mounting(t
         assert f"holds {N} white reading(s)" in capsys.readouterr().err
     finally:
         emu.close()
+
+
+def test_a_repeated_white_file_round_trips_exactly_and_bad_ones_are_one_line(tmp_path):
+    from bench.core.errors import InputError
+
+    reps = [_reading([1000.0 + j, 2000.5 - j, 3000.25], [1.5, 2.0, 2.5]) for j in range(4)]
+    cal = Calibration.from_repeats(WhiteStandard(), reps, _reading([10.0, 11.0, 12.0], [0.1, 0.2, 0.3]))
+    path = write_white_reference(tmp_path / "w.csv", WhiteReference.from_calibration(cal, bench="lab"))
+    back = read_white_reference(path)
+    assert len(back.repeats) == 4 and back.provenance()["white_repeats"] == 4
+    for a, b in zip(back.repeats, reps):
+        assert np.array_equal(a.signal, b.signal) and np.array_equal(a.std, b.std)
+    assert back.calibration(WhiteStandard()).lamp_drift == cal.lamp_drift
+    good = path.read_text()
+    for why, text in {"at least 3 repeated": good.replace('"repeats": [{', '"repeats": [', 1).replace(
+                          '"repeats": [', '"repeats": [{"integration_s": 0.1}], "x": [{', 1),
+                      "column header": good.replace(",signal_4,std_4", ""),
+                      "signal_2 must be finite": good.replace(",1001.0,1.5,", ",-1.0,1.5,", 1)}.items():
+        (tmp_path / "bad.csv").write_text(text)
+        with pytest.raises(InputError, match=why):
+            read_white_reference(tmp_path / "bad.csv")
