@@ -174,14 +174,12 @@ def estimate_lamp_drift(repeats: Any, dark: Reading | None, ok: np.ndarray | Non
         raise CalibrationError("no usable pixel in the repeated white readings to estimate the lamp drift")
     y = np.array([float(np.sum((np.asarray(r.signal, float) - d)[keep])) / r.integration_s for r in rs])
     x = np.arange(n, dtype=float)
-    xc = x - x.mean()
-    sxx = float(xc @ xc)
     y_mean = float(y.mean())
     if not y_mean > 0:
         raise CalibrationError("the repeated white readings are at or below their dark: no lamp drift estimate")
-    b1 = float(xc @ (y - y_mean)) / sxx
-    resid = y - y_mean - b1 * xc
-    se_b1 = math.sqrt(float(resid @ resid) / (n - 2) / sxx)
+    # numpy's least squares; cov=True scales the covariance by the residuals over n - 2 dof
+    coef, cov = np.polyfit(x, y, 1, cov=True)
+    b1, se_b1 = float(coef[0]), math.sqrt(max(float(cov[0, 0]), 0.0))
     return LampDrift(b1 / y_mean, se_b1 / y_mean, n - 2, float(x.mean()), n)
 
 
