@@ -6,6 +6,8 @@ command times (:func:`benchmarks.bench_cli.measure`). ``python -m benchmarks --c
 fails (exit 1) when a ratio fell by more than :data:`benchmarks.guard.TOLERANCE` against the
 accepted ones (``benchmarks/accepted_ratios.json``); ``--accept`` rewrites that file with this
 run's ratios. Neither is part of ``make test``: timings on a shared machine are noisy.
+``python -m benchmarks gonio --isa avx2`` compiles both sides of the comparison for AVX2 on a
+wider CPU (:mod:`benchmarks.isa`), so one machine measures what an AVX2 one would see.
 ``python -m benchmarks soak --minutes N --json`` (``make soak``) is the fault-injection soak of
 :mod:`benchmarks.soak`.
 """
@@ -20,7 +22,36 @@ STUDIES = ["spectro", "gonio", "store", "scan", "effects", "adaptive", "tradeoff
 FLAGS = ("--json", "--check", "--accept")
 
 
+def _isa_option(argv: list[str]) -> tuple[str | None, list[str]]:
+    """``--isa NAME`` / ``--isa=NAME`` taken out of ``argv``: (NAME or None, the rest)."""
+    isa, rest, i = None, [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--isa":
+            isa = argv[i + 1] if i + 1 < len(argv) else ""
+            i += 2
+            continue
+        if a.startswith("--isa="):
+            isa = a.split("=", 1)[1]
+        else:
+            rest.append(a)
+        i += 1
+    return isa, rest
+
+
 def main(argv: list[str]) -> int:
+    isa, argv = _isa_option(argv)
+    if isa is not None:
+        from benchmarks.isa import ISAS, reexec, requested
+
+        if isa not in ISAS:
+            print(f"--isa must be one of {', '.join(ISAS)}, got {isa!r}", file=sys.stderr)
+            return 2
+        if any(n != "gonio" for n in argv if not n.startswith("--")) or not argv:
+            print("--isa applies to the gonio study only: python -m benchmarks gonio --isa avx2", file=sys.stderr)
+            return 2
+        if isa != requested():
+            reexec(isa, argv)  # numba reads its target at import: a fresh interpreter
     if argv[:1] == ["soak"]:  # its own options (benchmarks/soak.py); not a timing study
         from benchmarks.soak import main as soak
 

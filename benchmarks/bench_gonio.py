@@ -39,6 +39,7 @@ import numpy as np
 from numba import prange
 
 from benchmarks.common import best_of, cpu_info, numpy_uniform_rate, table
+from benchmarks.isa import compiled_isa
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import float32_suits, gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
@@ -392,7 +393,9 @@ def measure(n: int = N_RAYS) -> dict:
     """The JSON of ``python -m benchmarks gonio --json``: ``rows`` and the ``ratios``."""
     threads = numba.get_num_threads()
     rows = mitsuba_rows(n, threads) + native_rows(n) + spectral_rows(n) + cli_rows() + mitsuba_specimen_rows()
-    return {"cpu": cpu_info(), "threads": threads, "collector": "equal-psa 30x30", "incidence_deg": 30.0,
+    cpu = cpu_info()
+    cpu["compiled_isa"] = compiled_isa(cpu)
+    return {"cpu": cpu, "threads": threads, "collector": "equal-psa 30x30", "incidence_deg": 30.0,
             "rows": rows, "ratios": ratios(rows)}
 
 
@@ -425,8 +428,9 @@ def _anchor_table(m: dict) -> str:
             target = "yes" if ok else "NO"
         out_rows.append([r["name"], r["kernel"], rate, r["seconds"], x_anchor, target])
     cpu = m["cpu"]
+    code = "" if cpu["compiled_isa"] == cpu["vector_isa"] else f"; both sides compiled for {cpu['compiled_isa']}"
     return table(f"Against the anchor on {cpu['model']} ({cpu['vector_isa']}{', FMA' if cpu['fma'] else ''}; LLVM "
-                 f"target {cpu['llvm_cpu']}): 1e8 rays, 900 equal-PSA patches, conical beam, 30 deg, {m['threads']} threads "
+                 f"target {cpu['llvm_cpu']}{code}): 1e8 rays, 900 equal-PSA patches, conical beam, 30 deg, {m['threads']} threads "
                  f"(targets: ggx, lambert >= 2x their Mitsuba row; every family >= 1e8 rays/s and >= the Mitsuba "
                  f"GGX row)", ["row", "kernel", "rays/s", "s", "x its Mitsuba row", "target met"], out_rows)
 

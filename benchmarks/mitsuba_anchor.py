@@ -18,6 +18,7 @@ import math
 import time
 from typing import Any
 
+from benchmarks.isa import restrict_drjit
 from virtual.mitsuba_llvm import llvm_library
 
 __all__ = ["available", "MitsubaGonio", "WAVEFRONT"]
@@ -39,7 +40,8 @@ def available(variant: str = "llvm_ad_rgb") -> tuple[Any, str]:
         dr.zeros(mi.Float, 4)  # touches the LLVM back end
     except Exception as exc:  # any failure of the back end means "not available"
         return None, f"not available: {variant} failed ({type(exc).__name__}: {exc})"
-    return mi, ""
+    why = restrict_drjit()  # --isa avx2: Dr.Jit compiles for the ISA numba does
+    return (None, f"not available: {why}") if why else (mi, "")
 
 
 class MitsubaGonio:

@@ -173,6 +173,7 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
     ts = np.empty(nb, dtype=np.float32)  # (u + DOUBT) g_den / g_num: survives at w when below lo_w
     tl = np.empty(nb, dtype=np.float32)  # (u - DOUBT) g_den / g_num: dies at w when at or above hi_w
     idx = np.empty(nb, dtype=np.int64)  # the ray's index in the chunk
+    unsure_rays = np.empty(nb, dtype=np.int32)  # rays whose decision at some wavelength needs the exact F
     hits = 0
     left = n_rays
     while left > 0:
@@ -216,37 +217,48 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
             n_hit += k != 2
         hits += n_hit
         guess_bins32(code, vx, vy, vz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
+        for i in range(j):  # the rare exact lookups in a loop of their own: no call in the hot loop below
+            if code[i] < 0:
+                code[i] = patch_of(np.float64(vx[i]), np.float64(vy[i]), np.float64(vz[i]), scheme, n_theta, n_phi,
+                                   sin2_edges, phi_cs)
+        n_unsure = 0
         for i in range(j):
-            kb = code[i]
-            if kb < 0:
-                kb = patch_of(np.float64(vx[i]), np.float64(vy[i]), np.float64(vz[i]), scheme, n_theta, n_phi,
-                              sin2_edges, phi_cs)
-            y = ys[i]
-            t = ts[i]
-            t_lo = tl[i]
-            ci = cell[i]
-            h0 = kb * wp
+            h0 = code[i] * wp
             row = hist[h0:h0 + wp]  # slices: LLVM then vectorizes the loop (indexing the whole arrays, it does not)
+            ci = cell[i]
             lrow = lo[ci]
             hrow = hi[ci]
+            t = ts[i]
+            t_lo = tl[i]
             unsure = _NO
             for w in range(wp):  # contiguous in the table and the histogram: whole vectors per ray
                 sure = t < lrow[w]
                 row[w] += _YES if sure else _NO
                 unsure |= _YES if (t_lo < hrow[w]) != sure else _NO
-            if unsure != _NO:  # between the bounds for some wavelength: the exact Fresnel factor decides
-                c = cc[i]
-                uu = us[i]
-                g_den = gs[i]
-                for w in range(n_w):
-                    if (t >= lrow[w]) & (t_lo < hrow[w]):
-                        f_num, f_den = fresnel_conductor_ratio32(c, etas[w], ks[w], False)
-                        if in_doubt32(uu, f_num * y, f_den * g_den):  # u refined, F in float64
-                            fn, fd = fresnel_conductor_ratio(np.float64(c), np.float64(etas[w]), np.float64(ks[w]))
-                            uf = refined_by(uu, ray_bits(key, idx[i]))
-                            row[w] += _YES if uf * fd * np.float64(g_den) < fn * np.float64(y) else _NO
-                        else:
-                            row[w] += _YES if uu * g_den * f_den < f_num * y else _NO
+            unsure_rays[n_unsure] = i  # kept when unsure: the exact decisions wait for the loop below
+            n_unsure += unsure
+        for q in range(n_unsure):  # between the bounds for some wavelength (about 1 ray in 10^3): exact Fresnel
+            i = unsure_rays[q]
+            h0 = code[i] * wp
+            row = hist[h0:h0 + wp]
+            ci = cell[i]
+            lrow = lo[ci]
+            hrow = hi[ci]
+            t = ts[i]
+            t_lo = tl[i]
+            y = ys[i]
+            c = cc[i]
+            uu = us[i]
+            g_den = gs[i]
+            for w in range(n_w):
+                if (t >= lrow[w]) & (t_lo < hrow[w]):
+                    f_num, f_den = fresnel_conductor_ratio32(c, etas[w], ks[w], False)
+                    if in_doubt32(uu, f_num * y, f_den * g_den):  # u refined, F in float64
+                        fn, fd = fresnel_conductor_ratio(np.float64(c), np.float64(etas[w]), np.float64(ks[w]))
+                        uf = refined_by(uu, ray_bits(key, idx[i]))
+                        row[w] += _YES if uf * fd * np.float64(g_den) < fn * np.float64(y) else _NO
+                    else:
+                        row[w] += _YES if uu * g_den * f_den < f_num * y else _NO
         left -= m
     tally[0] += hits
     tally[1] += n_rays - hits

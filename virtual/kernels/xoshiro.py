@@ -79,6 +79,7 @@ def fill_uniforms(lanes, out):
 
 
 _TO_FLOAT32 = np.float32(2.0 ** -24)
+_U8, _U9, _U11, _U21 = uint32(8), uint32(9), uint32(11), uint32(21)
 
 
 @jit(inline="always")
@@ -90,7 +91,8 @@ def _rotl32(x, k):
 def fill_uniforms32(lanes, out):
     """Fill ``out`` (float32[rows, LANES]) with uniforms k 2^-24 in [0, 1) from xoshiro128+
     (Blackman & Vigna): column ``l`` from lane ``l`` of ``lanes`` (uint32[4, LANES], advanced in
-    place), the top 24 bits of each 32-bit output."""
+    place), the top 24 bits of each 32-bit output. Every step is cast back to uint32 (numba
+    widens uint32 arithmetic to 64 bits, which would halve the lanes per vector instruction)."""
     n_lanes = lanes.shape[1]
     for j in range(out.shape[0]):
         row = out[j]
@@ -99,16 +101,16 @@ def fill_uniforms32(lanes, out):
             s1 = lanes[1, lane]
             s2 = lanes[2, lane]
             s3 = lanes[3, lane]
-            r = s0 + s3  # numba widens uint32 arithmetic: the stores and the 24-bit mask cut it back
-            t = s1 << uint32(9)
-            s2 ^= s0
-            s3 ^= s1
-            s1 ^= s2
-            s0 ^= s3
-            s2 ^= t
-            s3 = _rotl32(s3, 11)
+            r = uint32(s0 + s3)
+            t = uint32(s1 << _U9)
+            s2 = uint32(s2 ^ s0)
+            s3 = uint32(s3 ^ s1)
+            s1 = uint32(s1 ^ s2)
+            s0 = uint32(s0 ^ s3)
+            s2 = uint32(s2 ^ t)
+            s3 = uint32(uint32(s3 << _U11) | uint32(s3 >> _U21))
             lanes[0, lane] = s0
             lanes[1, lane] = s1
             lanes[2, lane] = s2
             lanes[3, lane] = s3
-            row[lane] = np.float32(int32(r >> uint32(8)) & int32(0xFFFFFF)) * _TO_FLOAT32  # bits 8-31 of the 32-bit sum
+            row[lane] = np.float32(int32(uint32(r >> _U8))) * _TO_FLOAT32  # bits 8-31 of the 32-bit sum
