@@ -233,10 +233,17 @@ E_TABLE_MAX_NODES = 257
 MU_MIN = 1e-6
 
 
+#: Margin (rad) added on each side of the sampled range of a conical beam's angles of incidence.
+ANGLE_MARGIN = math.radians(0.25)
+
+
 def beam_cosines(beam_kind: int, beam_args: np.ndarray) -> tuple[float, float]:
-    """Bounds (lo, hi) of |cos theta| of the rays a beam delivers (:meth:`virtual.beam.Beam.kernel_args`):
-    the axis's for a collimated beam; for a conical one, a ray from the emitter disk (radius r1,
-    distance D) to the specimen disk (r2) is within atan((r1 + r2) / (D - r2)) of the axis."""
+    """Bounds (lo, hi) of |cos theta| of the rays a beam delivers (:meth:`virtual.beam.Beam.kernel_args`).
+    Collimated: the axis's. Conical: a ray joins an emitter point R (x1, y1, D) to a specimen
+    point (x2, y2, 0); the extreme angles of these vectors (a convex set: the extremes lie on its
+    boundary) are taken over the two disks' rims and three inner circles each, widened by
+    :data:`ANGLE_MARGIN`; the normal is included when atan((r1 + r2) / (D - r2)), a bound on the
+    angle to the axis, reaches it. Rays outside read the table's end (the kernels clamp)."""
     b = np.asarray(beam_args, dtype=np.float64)
     mu0 = min(abs(float(b[B_AXIS_Z])), 1.0)
     if int(beam_kind) == BEAM_COLLIMATED:
@@ -244,7 +251,15 @@ def beam_cosines(beam_kind: int, beam_args: np.ndarray) -> tuple[float, float]:
     r1, r2, d = float(b[B_EMITTER_RADIUS]), float(b[B_SPECIMEN_RADIUS]), float(b[B_DISTANCE])
     delta = math.atan2(r1 + r2, d - r2) if d > r2 else math.pi
     theta = math.acos(mu0)
-    return math.cos(min(theta + delta, 0.5 * math.pi)), math.cos(max(theta - delta, 0.0))
+    phi = np.linspace(0.0, 2.0 * math.pi, 360, endpoint=False)
+    ring = np.concatenate([[[0.0, 0.0]], *[k * np.column_stack([np.cos(phi), np.sin(phi)]) for k in (0.25, 0.5, 0.75, 1.0)]])
+    origin = np.column_stack([r1 * ring, np.full(len(ring), d)]) @ b[:9].reshape(3, 3).T
+    v = origin[:, None, :] - np.column_stack([r2 * ring, np.zeros(len(ring))])[None, :, :]
+    wz = v[..., 2] / np.sqrt(np.einsum("ijk,ijk->ij", v, v))
+    ang = np.arccos(np.clip(np.abs(wz[wz * b[B_AXIS_Z] > 0.0]), 0.0, 1.0))
+    lo = math.cos(min(float(ang.max()) + ANGLE_MARGIN, 0.5 * math.pi))
+    hi = 1.0 if theta <= delta else math.cos(max(float(ang.min()) - ANGLE_MARGIN, 0.0))
+    return lo, hi
 
 
 def lagrange4(values: np.ndarray, lo: float, hi: float, s: np.ndarray) -> np.ndarray:
