@@ -22,7 +22,11 @@ Two kernel shapes:
   It serves the :data:`~virtual.kernels.block64.BLOCK_MODELS` (Lambertian, GGX, anisotropic GGX
   with three uniforms per ray; Phong, Oren-Nayar, rough dielectric with four; the rough plastic
   with seven and one attempt of its diffuse rejection loop, the rare rejected ray finishing
-  the loop on a scalar stream), 2-5x the ray-by-ray kernel's throughput.
+  the loop on a scalar stream), 2-5x the ray-by-ray kernel's throughput; Mitsuba's
+  roughplastic and the leaf run the same shape in a chunk of their own
+  (``gonio_coat_kernel``, :mod:`virtual.kernels.block_coat`). The roughplastic's parameter
+  vector gets its coat's specular albedo over the beam's cosines appended per measurement
+  (:func:`measurement_params`).
 
 Both count the same physics with the same distribution (tested by two-sample chi-square); their
 random streams differ, so equal seeds give equal counts only within one kernel shape.
