@@ -36,7 +36,7 @@ from virtual.kernels.block64 import guess_bins
 from virtual.kernel_codes import BEAM_UNIFORMS, BLOCK_RAYS
 from virtual.model_ids import MODEL_ROUGHPLASTIC
 
-__all__ = ["RP_UNIFORMS", "LEAF_UNIFORMS", "roughplastic_given", "leaf_given", "leaf_body_redo", "gonio_coat_chunk"]
+__all__ = ["RP_UNIFORMS", "LEAF_UNIFORMS", "roughplastic_given", "rp_lookups", "leaf_given", "leaf_body_redo", "gonio_coat_chunk"]
 
 #: Uniforms :func:`roughplastic_given` consumes per ray.
 RP_UNIFORMS = 7
@@ -60,7 +60,7 @@ def _specular_given(a, wx, wy, wz, u1, u2, separable):
 
 
 @jit(inline="always")
-def roughplastic_given(p, tab, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
+def roughplastic_given(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6, base_num, base_den, t_o):
     """:func:`~virtual.kernels.coat.roughplastic` with its uniforms given and one attempt of the
     base's rejection loop: ``(ox, oy, oz, alive, redo)``; ``redo`` marks a base ray whose attempt
     was rejected (``oz`` then carries only the side, +-1).
@@ -68,21 +68,34 @@ def roughplastic_given(p, tab, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
     Specular when u0 < F G1(wo) (visible normal from (u1, u2); F and G1 rolled at once: the same
     probability, and the direction does not depend on the roll); else the base when
     u3 (1 - E_spec) < c t(cos_i); its attempt is Malley's direction from (u4, u5), kept when
-    u6 < t(cos_o). ``p`` = the first six parameters (a tuple), ``tab`` = the whole vector.
+    u6 < t(cos_o). The table values come looked up (:func:`rp_lookups`): ``base_num`` = c t(cos_i),
+    ``base_den`` = 1 - E_spec(cos_i), ``t_o`` = t(sqrt(1 - u4)), the attempt's cosine.
     """
     flip = wz < 0.0
     wz = abs(wz)
     sx, sy, sz, c, g_num, g_den = _specular_given(p[0], wx, wy, wz, u1, u2, 1.0)
     f, _ = fresnel_dielectric(c, p[1])
     spec = (sz > 0.0) & (u0 * g_den < f * g_num)
-    base = (~spec) & (u3 * (1.0 - rp_e(tab, wz)) < p[3] * rp_t(tab, wz))
+    base = (~spec) & (u3 * base_den < base_num)
     dx, dy, dz = warp_cosine_hemisphere(u5, u4)
-    accepted = u6 < rp_t(tab, dz)
+    accepted = u6 < t_o
     ox = sx if spec else dx
     oy = sy if spec else dy
     oz = sz if spec else (dz if accepted else 1.0)
     ok = wz > 0.0
     return ox, oy, (-oz if flip else oz), ok & (spec | (base & accepted)), ok & base & (~accepted)
+
+
+@jit(inline="always")
+def rp_lookups(p, tab, mu, dz, base_num, base_den, t_o, n):
+    """The table reads of :func:`roughplastic_given` for rays i < n, in a loop of their own (an
+    indexed read of ``tab`` among the stores would keep LLVM from vectorizing the main loop):
+    from the cosines of incidence ``mu`` and of the attempts ``dz``."""
+    for i in range(n):
+        m = mu[i]
+        base_num[i] = p[3] * rp_t(tab, m)
+        base_den[i] = 1.0 - rp_e(tab, m)
+        t_o[i] = rp_t(tab, dz[i])
 
 
 @jit(inline="always")
@@ -158,11 +171,16 @@ def gonio_coat_chunk(model, p, tab, beam_kind, b, cargs, ring_margin, sector_mar
         m = min(left, nb)
         fill_uniforms(lane, ublock)
         if model == MODEL_ROUGHPLASTIC:
+            for i in range(nb):  # the cosines the tables are read at (recomputed the same way below)
+                _, _, wz, _ = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                vx[i] = abs(wz)
+                vy[i] = math.sqrt(1.0 - u[s0 + 4 * nb + i])  # warp_cosine_hemisphere's z
+            rp_lookups(p, tab, vx, vy, cx, cy, cz, nb)
             for i in range(nb):
                 wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
                 vx[i], vy[i], vz[i], alive, redo = roughplastic_given(
-                    p, tab, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i],
-                    u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i])
+                    p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i],
+                    u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i], cx[i], cy[i], cz[i])
                 code[i] = -2 if (alive & hit) else (-3 if (redo & hit) else ((absorbed if hit else missed) + (i & 7)))
             for i in range(m):  # the base rays whose one attempt was rejected: the loop continues
                 if code[i] == -3:
