@@ -12,7 +12,6 @@ the same comparison with p < 1e-6.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import pytest
 
@@ -24,6 +23,7 @@ from virtual import engine
 from virtual.engine import gonio_counts, gonio_kernel_for, measurement_params, measurement_seed
 from virtual.goniophotometer import VirtualGoniophotometer
 from virtual.kernel_codes import B_AXIS_Z, RP_E, RP_N_E, RP_S_HI, RP_S_LO
+from virtual.kernels import jit
 from virtual.kernels.coat import rp_e
 from virtual.model_ids import MODEL_LEAF, MODEL_ROUGHPLASTIC
 from virtual.python_engine import incidence
@@ -150,7 +150,7 @@ def test_the_albedo_table_is_within_1e_6_of_the_complement(theta, alpha):
     assert np.all(np.abs(table - exact) <= 1e-6 * (1.0 - exact))
 
 
-@numba.njit
+@jit
 def _kernel_e(p, mu):
     out = np.empty(mu.shape[0])
     for i in range(mu.shape[0]):
