@@ -103,7 +103,7 @@ def spectro_effect_counts(model: int, ptab: np.ndarray, cdf: np.ndarray | None, 
     """
     sizes = chunking(n_rays)
     states = stream_states(seq, sizes.shape[0])
-    t, c = _ptab(measurement_params(model, np.atleast_2d(ptab), beam_kind, beam_args), cdf)
+    t, c = _ptab(measurement_params(model, np.atleast_2d(ptab), beam_kind, beam_args, bool(flags & FX_SPHERE)), cdf)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     out = spectro_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b,
                              pinpoint_beam_args(b), np.ascontiguousarray(cone, dtype=np.float64),
@@ -120,7 +120,7 @@ def gonio_effect_counts(model: int, ptab: np.ndarray, cdf: np.ndarray | None, be
     det = np.zeros((0, 4)) if detectors is None else np.ascontiguousarray(detectors, dtype=np.float64)
     sizes = chunking(n_rays)
     states = stream_states(seq, sizes.shape[0])
-    t, c = _ptab(measurement_params(model, np.atleast_2d(ptab), beam_kind, beam_args), cdf)
+    t, c = _ptab(measurement_params(model, np.atleast_2d(ptab), beam_kind, beam_args, bool(flags & FX_SPHERE)), cdf)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     out = gonio_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b, pinpoint_beam_args(b),
                            tuple(collector_args), np.int64(n_bins), np.int64(flags), _effect_vector(e, flags), det,

@@ -152,12 +152,15 @@ def _no_effects(params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
             np.zeros((0, 4)))
 
 
-def measurement_params(model: int, params: np.ndarray, beam_kind: int, beam_args: np.ndarray) -> np.ndarray:
+def measurement_params(model: int, params: np.ndarray, beam_kind: int, beam_args: np.ndarray,
+                       hemisphere: bool = False) -> np.ndarray:
     """The parameter vector (or table of rows) the kernels read for one measurement: the
     specimen's, with Mitsuba's roughplastic's specular albedo over the beam's cosines appended
-    (:func:`virtual.specimens.roughplastic.incidence_params`); every other model's unchanged."""
+    (:func:`virtual.specimens.roughplastic.incidence_params`; over every cosine when
+    ``hemisphere``: the light comes from all directions too, e.g. an integrating sphere's
+    wall); every other model's unchanged."""
     if int(model) == MODEL_ROUGHPLASTIC:
-        return incidence_params(params, beam_kind, beam_args)
+        return incidence_params(params, beam_kind, beam_args, hemisphere)
     return params
 
 

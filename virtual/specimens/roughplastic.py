@@ -312,22 +312,24 @@ def albedo_table(alpha: float, eta: float, lo: float, hi: float) -> tuple[float,
             return a, b, both
         n, values = 2 * n - 1, both
         if n > E_TABLE_MAX_NODES:
-            raise SpecimenError(f"roughplastic: the specular albedo over the beam's cosines [{lo:.6g}, {hi:.6g}] "
-                                f"(alpha = {alpha:g}, eta = {eta:g}) needs more than {E_TABLE_MAX_NODES} nodes; "
-                                "use a narrower or a collimated beam")
+            raise SpecimenError(f"roughplastic: the specular albedo over the cosines [{lo:.6g}, {hi:.6g}] "
+                                f"(alpha = {alpha:g}, eta = {eta:g}) needs more than {E_TABLE_MAX_NODES} table nodes; "
+                                "a narrower or collimated beam (and no integrating sphere) needs fewer")
 
 
-def incidence_params(params: np.ndarray, beam_kind: int, beam_args: np.ndarray) -> np.ndarray:
+def incidence_params(params: np.ndarray, beam_kind: int, beam_args: np.ndarray, hemisphere: bool = False) -> np.ndarray:
     """The kernel vector of one measurement: ``params`` (:meth:`MitsubaRoughPlastic.kernel_params`,
-    one row or a table of rows) with the beam's specular albedo table appended
-    (``s_lo, s_hi, n, E...``, :mod:`virtual.kernels.coat`). Raises :class:`SpecimenError` when
-    the base would need more rays than the coat lets through (as :meth:`MitsubaRoughPlastic.sample`)."""
+    one row or a table of rows) with the specular albedo table appended (``s_lo, s_hi, n, E...``,
+    :mod:`virtual.kernels.coat`) over the beam's cosines, or over all of them (``hemisphere``:
+    an integrating sphere lights the specimen from every direction; a long table). Raises
+    :class:`SpecimenError` when the base would need more rays than the coat lets through (as
+    :meth:`MitsubaRoughPlastic.sample`) or the table cannot be certified."""
     p = np.asarray(params, dtype=np.float64)
     if p.ndim == 2:
-        return np.array([incidence_params(row, beam_kind, beam_args) for row in p])
+        return np.array([incidence_params(row, beam_kind, beam_args, hemisphere) for row in p])
     a, eta, _, c = (float(v) for v in p[:RP_TABLE])
     t = p[RP_TABLE:RP_TABLE + TABLE_RES]
-    lo, hi, values = albedo_table(a, eta, *beam_cosines(beam_kind, beam_args))
+    lo, hi, values = albedo_table(a, eta, *((MU_MIN, 1.0) if hemisphere else beam_cosines(beam_kind, beam_args)))
     s = np.linspace(lo, hi, len(values)) if len(values) > 4 else np.array([lo])  # 4 nodes: one cosine
     need = c * _lerp_gather(t, 1.0 - s * s) / np.maximum(1.0 - values[:len(s)], 1e-300)
     if need.max() > 1.0 + 1e-9:
