@@ -97,8 +97,8 @@ def test_power_against_a_perturbed_albedo_table(monkeypatch):
     a = _counts(sp.model, sp.params(550.0), CONICAL, 30.0, 41, "block")
     exact = engine.incidence_params
 
-    def perturbed(params, beam_kind, beam_args):
-        q = exact(params, beam_kind, beam_args)
+    def perturbed(params, beam_kind, beam_args, hemisphere=False):
+        q = exact(params, beam_kind, beam_args, hemisphere)
         q[RP_E:] -= 0.05 * (1.0 - q[RP_E:])
         return q
 
