@@ -33,6 +33,7 @@ __all__ = ["KERNEL_FAMILIES", "CompileProgress", "compile_progress", "WARM_UP", 
 KERNEL_FAMILIES: dict[str, tuple[str, float]] = {
     "gonio_block_chunk": ("float64 block kernel", 60.0),
     "gonio_block32_chunk": ("float32 block kernel", 50.0),
+    "gonio_coat_chunk": ("float64 block kernel of roughplastic and the leaf", 30.0),
     "lambert_spectral_chunk": ("float64 spectral Lambertian batch", 15.0),
     "ggx_spectral_chunk": ("float64 spectral GGX batch", 20.0),
     "lambert_spectral32_chunk": ("float32 spectral Lambertian batch", 15.0),
@@ -212,13 +213,13 @@ def compile_progress(stream: TextIO | None = None, interactive: bool | None = No
 
 # --- the warm-up ---------------------------------------------------------------------------------
 
-def _gonio(kernel: str) -> None:
+def _gonio(kernel: str, spec: str = "ggx:alpha=0.2") -> None:
     from virtual.beam import Beam
     from virtual.collector import Collector
     from virtual.engine import gonio_counts, measurement_seed
     from virtual.specimens import parse_specimen
 
-    sp, beam, col = parse_specimen("ggx:alpha=0.2"), Beam("conical"), Collector("equal-psa", 3, 6)
+    sp, beam, col = parse_specimen(spec), Beam("conical"), Collector("equal-psa", 3, 6)
     gonio_counts(sp.model, sp.params(550.0), beam.code, beam.disk_code, beam.kernel_args(30.0, 0.0), col.kernel_args(),
                  100, measurement_seed(1), kernel=kernel)
 
@@ -226,6 +227,7 @@ def _gonio(kernel: str) -> None:
 def _block_kernels() -> None:
     _gonio("block")
     _gonio("block32")
+    _gonio("block", "leaf:healthy")  # gonio_coat_chunk (roughplastic's too)
 
 
 def _spectral_batches() -> None:

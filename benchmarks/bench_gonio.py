@@ -212,6 +212,8 @@ FAMILY_SPECS = {
     "aniso-ggx": "aniso-ggx",
     "plastic": "plastic",
     "dielectric": "dielectric",
+    "roughplastic": "roughplastic",
+    "leaf": "leaf:healthy",
 }
 #: The Mitsuba BSDFs of the anchor rows (the same physics as ``lambert`` and ``ggx`` above).
 MITSUBA_BSDFS = {

@@ -20,10 +20,11 @@ import numpy as np
 
 from virtual.kernels.block32 import gonio_block32_chunk
 from virtual.kernels.ray_loop import gonio_fx_chunk, spectro_fx_chunk, spectro_points_chunk
+from virtual.kernels.block_coat import gonio_coat_chunk
 from virtual.kernels.block64 import ggx_spectral_chunk, gonio_block_chunk, lambert_spectral_chunk
 from virtual.kernels.spectral32 import ggx_spectral32_chunk, lambert_spectral32_chunk
 
-__all__ = ["run_chunks", "gonio_block32_kernel", "gonio_block_kernel", "lambert_spectral_kernel",
+__all__ = ["run_chunks", "gonio_block32_kernel", "gonio_block_kernel", "gonio_coat_kernel", "lambert_spectral_kernel",
            "ggx_spectral_kernel", "lambert_spectral32_kernel", "ggx_spectral32_kernel", "spectro_fx_kernel",
            "gonio_fx_kernel", "spectro_points_kernel"]
 
@@ -72,6 +73,20 @@ def gonio_block_kernel(model: Any, params: np.ndarray, beam_kind: Any, beam_args
     run_chunks(gonio_block_chunk, sizes.shape[0],
                lambda c: (model, p, beam_kind, b, cargs, m0, m1, n_bins, sizes[c], lanes[c].copy(), states[c].copy(),
                           out[c]))
+    return out
+
+
+def gonio_coat_kernel(model: Any, params: np.ndarray, beam_kind: Any, beam_args: np.ndarray, cargs: tuple,
+                      margins: Any, n_bins: Any, sizes: np.ndarray, lanes: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """Counts per chunk of the coated families' block kernel (:mod:`virtual.kernels.block_coat`):
+    the whole float64 ``params`` vector (zero-padded to at least six), 15 ``beam_args``."""
+    out = np.zeros((sizes.shape[0], int(n_bins) + 2), dtype=np.int64)
+    tab = np.ascontiguousarray(params, dtype=np.float64)
+    p, b = _tuple(tab[:6]), _tuple(beam_args)
+    m0, m1 = np.float64(margins[0]), np.float64(margins[1])
+    run_chunks(gonio_coat_chunk, sizes.shape[0],
+               lambda c: (model, p, tab, beam_kind, b, cargs, m0, m1, n_bins, sizes[c], lanes[c].copy(),
+                          states[c].copy(), out[c]))
     return out
 
 

@@ -49,9 +49,9 @@ import math
 import numpy as np
 from bench.core.errors import InputError
 
-from virtual.engine import chunking
+from virtual.engine import chunking, measurement_params
 from virtual.chunked import gonio_fx_kernel, spectro_fx_kernel, spectro_points_kernel
-from virtual.kernel_codes import B_SPECIMEN_RADIUS
+from virtual.kernel_codes import B_SPECIMEN_RADIUS, BEAM_CONICAL
 from virtual.kernels.ray_loop import (E_NEAR_DISTANCE, E_NEAR_RADIUS, E_PATTERN_PERIOD, E_SPOT_RADIUS, N_EFFECT_ARGS,
                                      FX_BANDPASS, FX_DETECTORS, FX_NEAR, FX_PATTERN, FX_POSITIONS, FX_SPHERE, FX_STRAY)
 from virtual.rng import stream_states
@@ -103,7 +103,7 @@ def spectro_effect_counts(model: int, ptab: np.ndarray, cdf: np.ndarray | None, 
     """
     sizes = chunking(n_rays)
     states = stream_states(seq, sizes.shape[0])
-    t, c = _ptab(ptab, cdf)
+    t, c = _ptab(measurement_params(model, np.atleast_2d(ptab), beam_kind, beam_args, bool(flags & FX_SPHERE)), cdf)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     out = spectro_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b,
                              pinpoint_beam_args(b), np.ascontiguousarray(cone, dtype=np.float64),
@@ -120,7 +120,7 @@ def gonio_effect_counts(model: int, ptab: np.ndarray, cdf: np.ndarray | None, be
     det = np.zeros((0, 4)) if detectors is None else np.ascontiguousarray(detectors, dtype=np.float64)
     sizes = chunking(n_rays)
     states = stream_states(seq, sizes.shape[0])
-    t, c = _ptab(ptab, cdf)
+    t, c = _ptab(measurement_params(model, np.atleast_2d(ptab), beam_kind, beam_args, bool(flags & FX_SPHERE)), cdf)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     out = gonio_fx_kernel(np.int64(model), t, c, np.int64(beam_kind), np.int64(disk), b, pinpoint_beam_args(b),
                            tuple(collector_args), np.int64(n_bins), np.int64(flags), _effect_vector(e, flags), det,
@@ -146,6 +146,7 @@ def spectro_point_counts(model: int, params: np.ndarray, beam_args: np.ndarray, 
     sizes = chunking(len(pts))
     starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     states = stream_states(seq, sizes.shape[0])
+    params = measurement_params(model, params, BEAM_CONICAL, beam_args)
     out = spectro_points_kernel(np.int64(model), np.ascontiguousarray(params, dtype=np.float64),
                                  np.ascontiguousarray(beam_args, dtype=np.float64), pts, starts, states)
     tot = out.sum(axis=0)

@@ -22,7 +22,11 @@ Two kernel shapes:
   It serves the :data:`~virtual.kernels.block64.BLOCK_MODELS` (Lambertian, GGX, anisotropic GGX
   with three uniforms per ray; Phong, Oren-Nayar, rough dielectric with four; the rough plastic
   with seven and one attempt of its diffuse rejection loop, the rare rejected ray finishing
-  the loop on a scalar stream), 2-5x the ray-by-ray kernel's throughput.
+  the loop on a scalar stream), 2-5x the ray-by-ray kernel's throughput; Mitsuba's
+  roughplastic and the leaf run the same shape in a chunk of their own
+  (``gonio_coat_kernel``, :mod:`virtual.kernels.block_coat`). The roughplastic's parameter
+  vector gets its coat's specular albedo over the beam's cosines appended per measurement
+  (:func:`measurement_params`).
 
 Both count the same physics with the same distribution (tested by two-sample chi-square); their
 random streams differ, so equal seeds give equal counts only within one kernel shape.
@@ -38,11 +42,12 @@ from typing import Any
 import numpy as np
 
 from virtual.collector import guess_margins, guess_margins32
-from virtual.kernel_codes import (B_AXIS_Z, BEAM_CONICAL, BLOCK32_MODELS, BLOCK_MODELS, BLOCK_PARAMS, DISK_REJECTION,
-                                  FRESNEL_CELLS, FRESNEL_SAMPLES, N_EFFECT_ARGS)
-from virtual.model_ids import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT
+from virtual.kernel_codes import (B_AXIS_Z, BEAM_CONICAL, BLOCK32_MODELS, BLOCK_MODELS, BLOCK_PARAMS, COAT_MODELS,
+                                  DISK_REJECTION, FRESNEL_CELLS, FRESNEL_SAMPLES, N_EFFECT_ARGS)
+from virtual.model_ids import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT, MODEL_ROUGHPLASTIC
 from virtual.rng import lane_states, lane_states32, stream_states
 from virtual.routing import within_float32_limits
+from virtual.specimens.roughplastic import incidence_params
 
 # The compiled kernels (virtual.chunked, which loads numba) are imported where rays are counted,
 # not here: routing, seeding and the certified fast path's multinomial draw never need them.
@@ -63,6 +68,7 @@ __all__ = [
     "gonio_counts_spectral",
     "SPECTRAL_BATCH_MODELS",
     "shares_angular_part",
+    "measurement_params",
 ]
 
 #: Rays per chunk aimed at; enough to amortise a chunk's set-up, small enough to balance 2 cores.
@@ -146,6 +152,18 @@ def _no_effects(params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
             np.zeros((0, 4)))
 
 
+def measurement_params(model: int, params: np.ndarray, beam_kind: int, beam_args: np.ndarray,
+                       hemisphere: bool = False) -> np.ndarray:
+    """The parameter vector (or table of rows) the kernels read for one measurement: the
+    specimen's, with Mitsuba's roughplastic's specular albedo over the beam's cosines appended
+    (:func:`virtual.specimens.roughplastic.incidence_params`; over every cosine when
+    ``hemisphere``: the light comes from all directions too, e.g. an integrating sphere's
+    wall); every other model's unchanged."""
+    if int(model) == MODEL_ROUGHPLASTIC:
+        return incidence_params(params, beam_kind, beam_args, hemisphere)
+    return params
+
+
 def spectro_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam_args: np.ndarray,
                    n_rays: int, seq: np.random.SeedSequence, cone: np.ndarray = NO_CONE) -> SpectroTally:
     """Shoot ``n_rays`` rays at a specimen and count where they go.
@@ -157,7 +175,7 @@ def spectro_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, be
 
     sizes = chunking(n_rays)
     states = stream_states(seq, sizes.shape[0])
-    ptab, cdf, e, _ = _no_effects(params)
+    ptab, cdf, e, _ = _no_effects(measurement_params(model, params, beam_kind, beam_args))
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     out = spectro_fx_kernel(np.int64(model), ptab, cdf, np.int64(beam_kind), np.int64(disk), b, b,
                             np.ascontiguousarray(cone, dtype=np.float64), _NO_FLAGS, e, sizes, states)
@@ -211,13 +229,13 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     O(chunks x bins), independent of ``n_rays``. ``kernel`` picks the kernel shape
     (:func:`gonio_kernel_for`); the counts' distribution is the same either way.
     """
-    from virtual.chunked import gonio_block32_kernel, gonio_block_kernel, gonio_fx_kernel
+    from virtual.chunked import gonio_block32_kernel, gonio_block_kernel, gonio_coat_kernel, gonio_fx_kernel
 
     shape = gonio_kernel_for(model, disk, kernel, params)
     n_theta, n_phi = int(collector_args[1]), int(collector_args[2])  # (scheme, n_theta, n_phi, ...)
     n_bins = 2 * n_theta * n_phi
     sizes = chunking(n_rays)
-    p = np.ascontiguousarray(params, dtype=np.float64)
+    p = np.ascontiguousarray(measurement_params(model, params, beam_kind, beam_args), dtype=np.float64)
     b = np.ascontiguousarray(beam_args, dtype=np.float64)
     if shape == "block32":
         p6 = np.zeros(max(BLOCK_PARAMS, p.size))
@@ -228,9 +246,9 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     elif shape == "block":
         p4 = np.zeros(max(BLOCK_PARAMS, p.size))  # the block kernel reads six parameters whatever the model
         p4[:p.size] = p
-        out = gonio_block_kernel(np.int64(model), p4, np.int64(beam_kind), b, tuple(collector_args),
-                                  guess_margins(n_theta, n_phi), np.int64(n_bins), sizes,
-                                  lane_states(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
+        run = gonio_coat_kernel if int(model) in COAT_MODELS else gonio_block_kernel
+        out = run(np.int64(model), p4, np.int64(beam_kind), b, tuple(collector_args), guess_margins(n_theta, n_phi),
+                  np.int64(n_bins), sizes, lane_states(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
     else:
         ptab, cdf, e, det = _no_effects(p)
         out = gonio_fx_kernel(np.int64(model), ptab, cdf, np.int64(beam_kind), np.int64(disk), b, b,

@@ -7,8 +7,8 @@ editing a value recompiles the kernels that use it). Specimen model ids are in
 :mod:`virtual.model_ids`.
 """
 
-from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_OREN_NAYAR,
-                               MODEL_PHONG, MODEL_PLASTIC)
+from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_LEAF,
+                               MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_ROUGHPLASTIC)
 
 __all__ = ["BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "B_EMITTER_RADIUS",
            "B_SPECIMEN_RADIUS", "B_DISTANCE", "B_AXIS_X", "B_AXIS_Y", "B_AXIS_Z", "N_BEAM_ARGS",
@@ -16,7 +16,8 @@ __all__ = ["BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "D
            "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "FX_STRAY", "FX_BANDPASS", "FX_SPHERE", "FX_PATTERN",
            "FX_DETECTORS", "FX_NEAR", "FX_POSITIONS", "N_EFFECT_ARGS", "GIVEN_MODELS", "GIVEN_UNIFORMS",
            "GIVEN4_MODELS", "GIVEN4_UNIFORMS", "BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS",
-           "BLOCK32_MODELS", "BLOCK32_RAYS", "FRESNEL_CELLS", "FRESNEL_SAMPLES", "LANES"]
+           "BLOCK32_MODELS", "BLOCK32_RAYS", "COAT_MODELS", "RP_TABLE", "RP_TABLE_RES", "RP_S_LO", "RP_S_HI", "RP_N_E",
+           "RP_E", "FRESNEL_CELLS", "FRESNEL_SAMPLES", "LANES"]
 
 # beams (virtual.kernels.emit)
 BEAM_COLLIMATED = 0
@@ -80,8 +81,12 @@ GIVEN4_UNIFORMS = 4
 #: Rays per block of the block kernel: its 7 uniforms and 4 outputs per ray (88 KiB) stay in L2.
 BLOCK_RAYS = 1024
 BEAM_UNIFORMS = 4  # two polar disk points
-#: Models the block kernel runs (three uniforms each for the first, four for the second group).
-BLOCK_MODELS = GIVEN_MODELS + GIVEN4_MODELS + (MODEL_PLASTIC,)
+#: Models the block kernel of :mod:`virtual.kernels.block_coat` runs (a table in the parameter
+#: vector, or nine uniforms per ray): Mitsuba's roughplastic and the leaf.
+COAT_MODELS = (MODEL_ROUGHPLASTIC, MODEL_LEAF)
+#: Models a block kernel runs (three uniforms each for the first, four for the second group; the
+#: plastic in :func:`~virtual.kernels.block64.gonio_block_chunk`, the COAT_MODELS in their own chunk).
+BLOCK_MODELS = GIVEN_MODELS + GIVEN4_MODELS + (MODEL_PLASTIC,) + COAT_MODELS
 #: Parameters the block kernel passes to a model (as a tuple; shorter vectors are zero-padded).
 BLOCK_PARAMS = 6
 #: Models with a float32 form (the others run the float64 block or ray-by-ray kernel).
@@ -89,6 +94,18 @@ BLOCK32_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX, MODEL_PHONG, MODEL_
                   MODEL_PLASTIC)
 #: Rays per block of the float32 kernel: up to 11 float32 uniforms and 6 float32 coordinates per ray stay in L1/L2.
 BLOCK32_RAYS = 1024
+
+# Mitsuba's roughplastic parameter vector (virtual.specimens.roughplastic, virtual.kernels.coat):
+# [alpha, eta, kd_eff, c, t(mu_0..mu_63), s_lo, s_hi, n, E(node_0..node_n-1)], s = sqrt(1 - mu)
+#: Where the coat transmittance table t(mu_i), mu_i = i / 63, starts, and its length.
+RP_TABLE = 4
+RP_TABLE_RES = 64
+#: The specular albedo table E_spec on n uniform nodes of s = sqrt(1 - mu) over [s_lo, s_hi] (the
+#: incidences the beam delivers), appended by the engine per measurement: its bounds, n, the first node.
+RP_S_LO = RP_TABLE + RP_TABLE_RES
+RP_S_HI = RP_S_LO + 1
+RP_N_E = RP_S_LO + 2
+RP_E = RP_S_LO + 3
 
 # the float32 spectral GGX batch (virtual.kernels.spectral32)
 #: Cells of c = cos(theta_m) in [0, 1] of the Fresnel bound table.

@@ -9,7 +9,7 @@ editing one recompiles them.
 """
 
 __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX",
-           "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_PYTHON"]
+           "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_ROUGHPLASTIC", "MODEL_PYTHON"]
 
 MODEL_LAMBERT = 0
 MODEL_OREN_NAYAR = 1
@@ -19,6 +19,7 @@ MODEL_ANISO_GGX = 4
 MODEL_PLASTIC = 5
 MODEL_DIELECTRIC = 6
 MODEL_LEAF = 7  # virtual.specimens.leaf: PROSPECT-D body under a GGX cuticle
+MODEL_ROUGHPLASTIC = 8  # virtual.specimens.roughplastic: Mitsuba 3's roughplastic (tabulated coat)
 #: Specimens without a kernel (e.g. :class:`virtual.specimens.mitsuba.MitsubaSpecimen`, or a lab's own
 #: model registered with :func:`virtual.specimens.register_specimen`): the devices count their
 #: rays with :mod:`virtual.python_engine`, which calls the specimen's ``sample`` method.

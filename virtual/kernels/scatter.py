@@ -25,13 +25,14 @@ from virtual.kernels.microfacet import (disk_direction, fresnel_conductor_ratio,
                                         g2_over_g1, g2_over_g1_masked, g2_over_g1_masked_ratio, ggx_n, ggx_vndf, ggx_vndf_given,
                                         unit_disk)
 from virtual.kernels.xoshiro import next_double
+from virtual.kernels.coat import roughplastic
 from virtual.kernels.warps import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
 # Model ids: one branch each in `scatter`; they live in a numba-free module (specimens declare them).
 from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_LEAF,
-                               MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON)
+                               MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON, MODEL_ROUGHPLASTIC)
 
 __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX",
-           "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
+           "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_ROUGHPLASTIC", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
            "scatter", "scatter_given", "ggx_given_parts"]
 
 from virtual.kernel_codes import GIVEN_MODELS, GIVEN_UNIFORMS
@@ -304,6 +305,8 @@ def _scatter_general(model, p, wx, wy, wz, s):
         return _dielectric(p, wx, wy, wz, s)
     if model == MODEL_LEAF:
         return _leaf(p, wx, wy, wz, s)
+    if model == MODEL_ROUGHPLASTIC:
+        return roughplastic(p, wx, wy, wz, s)
     return 0.0, 0.0, 0.0, False
 
 
