@@ -123,3 +123,28 @@ def test_weights_above_one_are_clamped_counted_and_warned_once() -> None:
         _, alive = spec.sample(np.array([0.0, 0.0, 1.0]), 500, 550.0, np.random.default_rng(0))
         spec.sample(np.array([0.0, 0.0, 1.0]), 500, 550.0, np.random.default_rng(1))
     assert len(record) == 1 and spec.clamped == 1000 and alive.all()
+
+
+def test_a_scene_counts_a_mitsuba_specimen_as_the_devices_do_and_refuses_effects_it_cannot_apply() -> None:
+    """A scene of a specimen without a kernel counts its rays in numpy, as the virtual devices do
+    (the same counts for the same stream), instead of handing model -1 to a kernel that absorbed
+    every ray; per-ray effects, which only the kernels apply, are refused before any ray."""
+    from bench.core.errors import ConfigError
+    from virtual.collector import Collector
+    from virtual.engine import measurement_seed
+    from virtual.python_engine import gonio_counts_python
+    from virtual.scene.declared import Effects, StrayLight
+    from virtual.scene.simulate import Scene
+
+    sp = MitsubaSpecimen(DIFFUSE)
+    col = Collector("equal-psa", 6, 12)
+    scene = Scene(sp, instrument="goniophotometer", collector=col, incidence=(30.0, 0.0), rays=50_000,
+                  method="rays")
+    res = scene.run()
+    seq = measurement_seed(scene.seed, 550_000, 30_000, 0)
+    expected = gonio_counts_python(sp, 550.0, scene.beam, 30.0, 0.0, col, 50_000, seq)
+    np.testing.assert_array_equal(res.counts[0], expected)
+    n_bins = 2 * col.n_patches
+    assert abs(res.counts[0][:n_bins].sum() / 50_000 - 0.5) < 4 * np.sqrt(0.25 / 50_000)  # reflects, 4 SE
+    with pytest.raises(ConfigError, match="has no kernel"):
+        Scene(sp, instrument="goniophotometer", collector=col, effects=Effects(stray_light=StrayLight()))

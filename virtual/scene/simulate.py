@@ -29,7 +29,7 @@ from virtual.kernels.ray_loop import (E_DETECTOR_PORT, E_NEAR_DISTANCE, E_NEAR_R
 from virtual.engine import NO_CONE, measurement_seed, multinomial_counts
 from virtual.quadrature import integrate_patches
 from virtual.scene.declared import Effects
-from virtual.specimens import Lambertian, Specimen
+from virtual.specimens import MODEL_PYTHON, Lambertian, Specimen
 
 __all__ = ["Scene", "SceneResult", "cone_probability", "INSTRUMENTS", "OBSERVABLES"]
 
@@ -132,6 +132,10 @@ class Scene:
                               "bidirectional cone is its gloss_trap / geometry)")
         if self.instrument == "goniophotometer" and (e.sphere is not None or e.gloss_trap is not None):
             raise ConfigError("effects.sphere and effects.gloss_trap belong to a spectrophotometer")
+        if self.specimen.model == MODEL_PYTHON and self.kernel_flags():  # before any ray, not absorbed silently
+            raise ConfigError(f"specimen {getattr(self.specimen, 'name', type(self.specimen).__name__)!r} has no kernel (it samples in Python), so the "
+                              f"scene's per-ray effects cannot act on its rays; drop the effects or use a "
+                              f"native family")
         if self.method == "fast" and not self.fast_path_possible():
             raise ConfigError("method 'fast' needs a collimated beam, a specimen with a density and no "
                               "per-ray effect")
@@ -253,6 +257,8 @@ class Scene:
     def _ray_counts(self, wl: float, n: int, seq: np.random.SeedSequence, flags: int) -> np.ndarray:
         b = self.beam.kernel_args(*self.incidence)
         sp = self.specimen
+        if sp.model == MODEL_PYTHON:  # no kernel (e.g. Mitsuba): counted in numpy, as the devices do
+            return self._python_counts(wl, n, seq)
         if self.instrument == "spectrophotometer":
             if flags == 0:
                 t = engine.spectro_counts(sp.model, sp.params(wl), self.beam.code, self.beam.disk_code, b, n, seq,
@@ -268,6 +274,17 @@ class Scene:
         det = self.effects.aperture.rows() if self.effects.aperture is not None else None
         return fx.gonio_effect_counts(sp.model, ptab, cdf, self.beam.code, self.beam.disk_code, b, cargs, flags,
                                       self._effect_args(), det, n, seq)
+
+    def _python_counts(self, wl: float, n: int, seq: np.random.SeedSequence) -> np.ndarray:
+        """The bare kernels' counts for a specimen that samples in Python (no per-ray effect:
+        :meth:`__post_init__` refuses those)."""
+        from virtual.python_engine import gonio_counts_python, spectro_counts_python
+
+        theta_i, phi_i = (float(a) for a in self.incidence)
+        if self.instrument == "spectrophotometer":
+            t = spectro_counts_python(self.specimen, wl, self.beam, theta_i, phi_i, n, seq, self._cone())
+            return np.array([t.reflected, t.transmitted, t.absorbed, t.missed, t.cone, 0, 0], dtype=np.int64)
+        return gonio_counts_python(self.specimen, wl, self.beam, theta_i, phi_i, self.collector, n, seq)
 
     def bin_probabilities(self, wl: float) -> np.ndarray:
         """Exact probabilities of the kernel's bins for a collimated beam and no per-ray effect
