@@ -50,6 +50,53 @@ def guess_bins(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_mar
             code[i] = guess_bin(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
 
 
+@jit(inline="always")
+def block_buffers(nb, n_bins):
+    """A block's scratch: ``code`` (int64), its directions ``vx, vy, vz``, the compacted survivors'
+    ``cx, cy, cz``, and the chunk's private counts ``h``: the bins, then absorbed and missed rays
+    spread over 8 bins each (by i mod 8; when most rays are absorbed, one bin would chain every
+    increment on the previous one's store), then 8 dump bins for :func:`bin_block`."""
+    return (np.empty(nb, dtype=np.int64), np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nb),
+            np.empty(nb), np.zeros(n_bins + 24, dtype=np.int64))
+
+
+@jit(inline="always")
+def bin_block(code, vx, vy, vz, cx, cy, cz, m, h, dump, cargs, ring_margin, sector_margin):
+    """Count the block's ``m`` rays into ``h``: ``code[i]`` is -2 for a survivor, else its
+    absorbed/missed bin. Compaction: the surviving rays' directions move to the front of
+    ``cx, cy, cz`` (branch-free: every ray is written, the write position advances only for a
+    survivor); the others are counted now (absorbed/missed bins, or a dump bin for a survivor).
+    Only survivors are binned -- a GGX dielectric absorbs 96 % of its rays, a Lambertian of
+    albedo 0.5 half of them."""
+    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
+    j = 0
+    for i in range(m):
+        k = code[i]
+        live = k == -2
+        cx[j] = vx[i]
+        cy[j] = vy[i]
+        cz[j] = vz[i]
+        h[dump + (i & 7) if live else k] += 1
+        j += live
+    guess_bins(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
+    for i in range(j):
+        k = code[i]
+        if k < 0:  # too near an edge (or the pole, or the horizon) for the guess: exact lookup
+            k = patch_of(cx[i], cy[i], cz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
+        h[k] += 1
+
+
+@jit(inline="always")
+def flush_block_hist(h, hist, n_bins):
+    """Add a chunk's private counts ``h`` (bins, then 8 absorbed, 8 missed, 8 dump) to ``hist``
+    (bins, absorbed, missed)."""
+    for k in range(n_bins):
+        hist[k] += h[k]
+    for k in range(8):
+        hist[n_bins] += h[n_bins + k]
+        hist[n_bins + 1] += h[n_bins + 8 + k]
+
+
 @jit(nogil=True, error_model="numpy")
 def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
     """One chunk of the block kernel: ``n_rays`` rays from the xoshiro lanes ``lane`` (advanced in
@@ -72,17 +119,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
     u = ublock.reshape(ublock.size)
     s0 = n_beam * nb  # the scatterer's uniforms follow the beam's
     bo = nb if n_beam > 0 else 0  # a collimated beam reads none: any valid index will do
-    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
-    code = np.empty(nb, dtype=np.int64)
-    vx = np.empty(nb)
-    vy = np.empty(nb)
-    vz = np.empty(nb)
-    cx = np.empty(nb)
-    cy = np.empty(nb)
-    cz = np.empty(nb)
-    # Absorbed and missed rays are spread over 8 bins each (by i mod 8), summed at the end: when
-    # most rays are absorbed, one bin would chain every increment on the previous one's store.
-    h = np.zeros(n_bins + 24, dtype=np.int64)
+    code, vx, vy, vz, cx, cy, cz, h = block_buffers(nb, n_bins)
     absorbed = n_bins
     missed = n_bins + 8
     dump = n_bins + 16  # survivors' placeholder counts during compaction (discarded)
@@ -139,31 +176,9 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
                 vx[i], vy[i], vz[i], alive = scatter_given(MODEL_GGX, p, wx, wy, wz, u[s0 + i],
                                                            u[s0 + nb + i], u[s0 + 2 * nb + i])
                 code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
-        # Compaction: the surviving rays' directions move to the front (branch-free: every ray
-        # is written, the write position advances only for a survivor); the others are counted
-        # now (absorbed/missed bins, or a dump bin for a survivor). Only survivors are binned --
-        # a GGX dielectric absorbs 96 % of its rays, a Lambertian of albedo 0.5 half of them.
-        j = 0
-        for i in range(m):
-            k = code[i]
-            live = k == -2
-            cx[j] = vx[i]
-            cy[j] = vy[i]
-            cz[j] = vz[i]
-            h[dump + (i & 7) if live else k] += 1
-            j += live
-        guess_bins(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
-        for i in range(j):
-            k = code[i]
-            if k < 0:  # too near an edge (or the pole, or the horizon) for the guess: exact lookup
-                k = patch_of(cx[i], cy[i], cz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
-            h[k] += 1
+        bin_block(code, vx, vy, vz, cx, cy, cz, m, h, dump, cargs, ring_margin, sector_margin)
         left -= m
-    for k in range(n_bins):
-        hist[k] += h[k]
-    for k in range(8):
-        hist[n_bins] += h[absorbed + k]
-        hist[n_bins + 1] += h[missed + k]
+    flush_block_hist(h, hist, n_bins)
 
 
 

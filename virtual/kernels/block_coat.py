@@ -26,13 +26,11 @@ import numpy as np
 from virtual.kernels import jit
 from virtual.kernels.coat import roughplastic_base_redo, rp_e, rp_t
 from virtual.kernels.emit import BEAM_CONICAL, emit_given
-from virtual.kernels.microfacet import (fresnel_dielectric, g2_over_g1_masked_ratio, ggx_n, ggx_vndf_given,
-                                        unit_disk)
-from virtual.kernels.patch_lookup import patch_of
-from virtual.kernels.scatter import _leaf_specular
+from virtual.kernels.microfacet import (fresnel_dielectric, unit_disk)
+from virtual.kernels.scatter import _leaf_specular, ggx_given_parts
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.xoshiro import LANES, fill_uniforms
-from virtual.kernels.block64 import guess_bins
+from virtual.kernels.block64 import bin_block, block_buffers, flush_block_hist
 from virtual.kernel_codes import BEAM_UNIFORMS, BLOCK_RAYS
 from virtual.model_ids import MODEL_ROUGHPLASTIC
 
@@ -48,14 +46,8 @@ LEAF_UNIFORMS = 9
 def _specular_given(a, wx, wy, wz, u1, u2, separable):
     """The mirror direction about the visible normal of w (wz > 0) drawn from (u1, u2):
     ``(sx, sy, sz, F-cosine c, G2/G1 numerator, denominator)`` under the masking ``separable``."""
-    ni = ggx_n(wx, wy, wz, a, a)
     ca, sa = sincos_2pi(u1)
-    mx, my, mz = ggx_vndf_given(wx, wy, wz, a, a, 1.0 / ni, ca, sa, u2)
-    c = max(wx * mx + wy * my + wz * mz, 0.0)
-    sx = 2.0 * c * mx - wx
-    sy = 2.0 * c * my - wy
-    sz = 2.0 * c * mz - wz
-    g_num, g_den = g2_over_g1_masked_ratio(wz, ni, sz, ggx_n(sx, sy, sz, a, a), separable)
+    sx, sy, sz, c, g_num, g_den, _ = ggx_given_parts(a, a, separable, wx, wy, wz, ca, sa, u2)
     return sx, sy, sz, c, g_num, g_den
 
 
@@ -154,15 +146,7 @@ def gonio_coat_chunk(model, p, tab, beam_kind, b, cargs, ring_margin, sector_mar
     u = ublock.reshape(ublock.size)
     s0 = n_beam * nb
     bo = nb if n_beam > 0 else 0
-    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
-    code = np.empty(nb, dtype=np.int64)
-    vx = np.empty(nb)
-    vy = np.empty(nb)
-    vz = np.empty(nb)
-    cx = np.empty(nb)
-    cy = np.empty(nb)
-    cz = np.empty(nb)
-    h = np.zeros(n_bins + 24, dtype=np.int64)  # absorbed, missed spread over 8 bins each, then a dump
+    code, vx, vy, vz, cx, cy, cz, h = block_buffers(nb, n_bins)
     absorbed = n_bins
     missed = n_bins + 8
     dump = n_bins + 16
@@ -204,25 +188,6 @@ def gonio_coat_chunk(model, p, tab, beam_kind, b, cargs, ring_margin, sector_mar
                     vy[i] = oy
                     vz[i] = oz if vz[i] > 0.0 else -oz
                     code[i] = -2
-        # compaction and binning, as in gonio_block_chunk
-        j = 0
-        for i in range(m):
-            k = code[i]
-            live = k == -2
-            cx[j] = vx[i]
-            cy[j] = vy[i]
-            cz[j] = vz[i]
-            h[dump + (i & 7) if live else k] += 1
-            j += live
-        guess_bins(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
-        for i in range(j):
-            k = code[i]
-            if k < 0:
-                k = patch_of(cx[i], cy[i], cz[i], scheme, n_theta, n_phi, sin2_edges, phi_cs)
-            h[k] += 1
+        bin_block(code, vx, vy, vz, cx, cy, cz, m, h, dump, cargs, ring_margin, sector_margin)  # as gonio_block_chunk
         left -= m
-    for k in range(n_bins):
-        hist[k] += h[k]
-    for k in range(8):
-        hist[n_bins] += h[absorbed + k]
-        hist[n_bins + 1] += h[missed + k]
+    flush_block_hist(h, hist, n_bins)
