@@ -12,7 +12,7 @@ Each family's rejection loop (the roughplastic's base direction thinned by t(cos
 body's cosine direction thinned by 1 - ks E_s(wo), each test a visible-normal sample) gets one
 attempt in the branch-free loop; a ray whose attempt was rejected is marked and finished on the
 chunk's scalar xoshiro stream ``s`` by the loop itself (:func:`~virtual.kernels.coat.roughplastic_base_redo`,
-:func:`leaf_body_redo`): attempts being independent, that is exactly the loop's law -- as the
+:func:`~virtual.kernels.scatter.leaf_body_redo`): attempts being independent, that is exactly the loop's law -- as the
 rough plastic's ``plastic_diffuse_redo`` does. Tested against the ray-by-ray branches by
 two-sample chi-square (tests/test_block_coat.py).
 """
@@ -26,15 +26,15 @@ import numpy as np
 from virtual.kernels import jit
 from virtual.kernels.coat import roughplastic_base_redo, rp_e, rp_t
 from virtual.kernels.emit import BEAM_CONICAL, emit_given
-from virtual.kernels.microfacet import (fresnel_dielectric, unit_disk)
-from virtual.kernels.scatter import _leaf_specular, ggx_given_parts
+from virtual.kernels.microfacet import fresnel_dielectric
+from virtual.kernels.scatter import ggx_given_parts, leaf_body_redo
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.xoshiro import LANES, fill_uniforms
 from virtual.kernels.block64 import bin_block, block_buffers, flush_block_hist
 from virtual.kernel_codes import BEAM_UNIFORMS, BLOCK_RAYS
 from virtual.model_ids import MODEL_ROUGHPLASTIC
 
-__all__ = ["RP_UNIFORMS", "LEAF_UNIFORMS", "roughplastic_given", "rp_lookups", "leaf_given", "leaf_body_redo", "gonio_coat_chunk"]
+__all__ = ["RP_UNIFORMS", "LEAF_UNIFORMS", "roughplastic_given", "rp_lookups", "leaf_given", "gonio_coat_chunk"]
 
 #: Uniforms :func:`roughplastic_given` consumes per ray.
 RP_UNIFORMS = 7
@@ -120,18 +120,6 @@ def leaf_given(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6, u7, u8):
     below = flip if kept else (up == flip)
     ok = wz > 0.0
     return ox, oy, (-oz if below else oz), ok & (kept | (body & (~back))), ok & body & back
-
-
-@jit(inline="always")
-def leaf_body_redo(a, eta, ks, s):
-    """The leaf body's direction (cosine lobe thinned by 1 - ks E_s(wo)) from the stream ``s``,
-    upper hemisphere: the fallback of :func:`leaf_given`, the loop of ``_leaf``."""
-    while True:
-        ox, oy, r2 = unit_disk(s)
-        oz = math.sqrt(1.0 - r2)
-        _, _, _, back = _leaf_specular(ox, oy, oz, a, eta, ks, s)
-        if not back:
-            return ox, oy, oz
 
 
 @jit(nogil=True, error_model="numpy")

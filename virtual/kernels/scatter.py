@@ -33,7 +33,7 @@ from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MOD
 
 __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX",
            "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_ROUGHPLASTIC", "MODEL_PYTHON", "GIVEN_MODELS", "GIVEN_UNIFORMS",
-           "scatter", "scatter_given", "ggx_given_parts"]
+           "scatter", "scatter_given", "ggx_given_parts", "leaf_body_redo"]
 
 from virtual.kernel_codes import GIVEN_MODELS, GIVEN_UNIFORMS
 
@@ -255,6 +255,20 @@ def _leaf_specular(wx, wy, wz, a, eta, ks, s):
 
 
 @jit(inline="always")
+def leaf_body_redo(a, eta, ks, s):
+    """The leaf body's direction from the stream ``s``, upper hemisphere: the cosine lobe thinned
+    by 1 - ks E_s(wo) (a direction is redrawn while light from it would have been kept by the
+    cuticle); ends with probability 1 (E_s < 1). The block kernel finishes its rejected attempts
+    with it too."""
+    while True:
+        ox, oy, r2 = unit_disk(s)
+        oz = math.sqrt(1.0 - r2)
+        _, _, _, back = _leaf_specular(ox, oy, oz, a, eta, ks, s)
+        if not back:
+            return ox, oy, oz
+
+
+@jit(inline="always")
 def _leaf(p, wx, wy, wz, s):
     """Leaf (:class:`virtual.specimens.leaf.Leaf`), params ``[alpha, eta, ks, r_b, t_b]``: the
     cuticle's specular lobe (kept w.p. ks E_s(wi)); else the body reflects (r_b), transmits
@@ -275,12 +289,7 @@ def _leaf(p, wx, wy, wz, s):
     if u >= p[3] + p[4]:
         return _DEAD
     up = u < p[3]
-    while True:  # cosine lobe thinned by 1 - ks E_s(wo); ends w.p. 1 (E_s < 1)
-        ox, oy, r2 = unit_disk(s)
-        oz = math.sqrt(1.0 - r2)
-        _, _, _, back = _leaf_specular(ox, oy, oz, a, eta, ks, s)
-        if not back:
-            break
+    ox, oy, oz = leaf_body_redo(a, eta, ks, s)
     if up == flip:
         oz = -oz
     return ox, oy, oz, True
