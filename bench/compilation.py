@@ -224,9 +224,15 @@ def _gonio(kernel: str, spec: str = "ggx:alpha=0.2") -> None:
                  100, measurement_seed(1), kernel=kernel)
 
 
-def _block_kernels() -> None:
+def _block64() -> None:
     _gonio("block")
+
+
+def _block32() -> None:
     _gonio("block32")
+
+
+def _coat64() -> None:
     _gonio("block", "leaf:healthy")  # gonio_coat_chunk (roughplastic's too)
 
 
@@ -246,32 +252,41 @@ def _spectral_batches() -> None:
                               100, measurement_seed(1))
 
 
-def _instruments() -> None:
-    from virtual.goniophotometer import VirtualGoniophotometer
-    from virtual.spectrophotometer import VirtualSpectrophotometer
-
-    VirtualSpectrophotometer("lambert:reflectance=0.5", rays=100, beam="conical", seed=1).measure("8/d", [550.0])
-    VirtualSpectrophotometer("lambert:reflectance=0.5", seed=1, uncertainty=0.2).measure("8/d", [550.0])
-    VirtualGoniophotometer("lambert:albedo=0.5", rays=1000, method="fast", seed=1).simulate(30.0, 0.0, 550.0)
-    _gonio("ray")
-
-
-def _effects() -> None:
+def _spectro_kernels() -> None:
+    """The spectrophotometer's ray-by-ray kernels: its instrument, its scene effects, given points."""
     import numpy as np
 
     from virtual.beam import Beam
-    from virtual.collector import Collector
-    from virtual.effects import gonio_effect_counts, spectro_effect_counts, spectro_point_counts
+    from virtual.effects import spectro_effect_counts, spectro_point_counts
     from virtual.engine import NO_CONE, measurement_seed
+    from virtual.spectrophotometer import VirtualSpectrophotometer
     from virtual.specimens import parse_specimen
 
-    sp, beam, col = parse_specimen("lambert:albedo=0.5"), Beam("conical"), Collector("equal-psa", 3, 6)
+    VirtualSpectrophotometer("lambert:reflectance=0.5", rays=100, beam="conical", seed=1).measure("8/d", [550.0])
+    VirtualSpectrophotometer("lambert:reflectance=0.5", seed=1, uncertainty=0.2).measure("8/d", [550.0])
+    sp, beam = parse_specimen("lambert:albedo=0.5"), Beam("conical")
     p, b = sp.params(550.0), beam.kernel_args(30.0, 0.0)
     spectro_effect_counts(sp.model, p[None, :], None, beam.code, beam.disk_code, b, NO_CONE, 0, None, 100,
-                          measurement_seed(1))  # the same kernels as _instruments': loaded, not compiled again
-    gonio_effect_counts(sp.model, p[None, :], None, beam.code, beam.disk_code, b, col.kernel_args(), 0, None, None,
-                        100, measurement_seed(1))
+                          measurement_seed(1))  # the instrument's kernel: loaded, not compiled again
     spectro_point_counts(sp.model, p, b, np.zeros((4, 4)), measurement_seed(1))
+
+
+def _gonio_kernels() -> None:
+    """The goniophotometer's ray-by-ray kernel (instrument and scene effects), its fast path and
+    the samplers."""
+    from virtual.beam import Beam
+    from virtual.collector import Collector
+    from virtual.effects import gonio_effect_counts
+    from virtual.engine import measurement_seed
+    from virtual.goniophotometer import VirtualGoniophotometer
+    from virtual.specimens import parse_specimen
+
+    VirtualGoniophotometer("lambert:albedo=0.5", rays=1000, method="fast", seed=1).simulate(30.0, 0.0, 550.0)
+    _gonio("ray")
+    sp, beam, col = parse_specimen("lambert:albedo=0.5"), Beam("conical"), Collector("equal-psa", 3, 6)
+    gonio_effect_counts(sp.model, sp.params(550.0)[None, :], None, beam.code, beam.disk_code,
+                        beam.kernel_args(30.0, 0.0), col.kernel_args(), 0, None, None, 100, measurement_seed(1))
+    _samplers()
 
 
 def _samplers() -> None:
@@ -285,19 +300,25 @@ def _samplers() -> None:
     sample_triangle(4, (0.0, 0.0), (1.0, 0.0), (0.0, 1.0), "random", 1)
 
 
-#: The warm-up's tasks, in two groups of about equal compile CPU (one process each) that share
-#: no kernel. Measured (CPU-s, AMD EPYC Zen 1, fresh cache): the block kernels 154 (float64 63,
-#: float32 the rest); the ray-by-ray kernels with the samplers about 110; the spectral batches 45.
-WARM_UP: tuple[tuple[Callable[[], None], ...], ...] = (
-    (_block_kernels,),
-    (_instruments, _effects, _samplers, _spectral_batches),
-)
+#: The warm-up's tasks, costliest first (compile CPU-s on a 2-core AMD EPYC Zen 5, fresh cache,
+#: the other core busy: float32 block 36, the spectrophotometer's 35, float64 block 33, the coated
+#: families' block kernel 24, the spectral batches 22, the goniophotometer's ray kernel 20). No two tasks share a kernel, so
+#: none is compiled twice; two workers take them in this order as each frees up (longest first:
+#: the two processes end within one task's time of each other, whatever a new kernel adds).
+WARM_UP: tuple[Callable[[], None], ...] = (_block32, _spectro_kernels, _block64, _coat64, _spectral_batches,
+                                           _gonio_kernels)
 
 
-def _run_group(group: tuple[Callable[[], None], ...]) -> None:
-    with compile_progress(interactive=False):
-        for task in group:
+_HEADER_SAID = [False]  # per worker process: its tasks say "compiling kernels" once between them
+
+
+def _run_task(task: Callable[[], None]) -> None:
+    with compile_progress(interactive=False) as progress:
+        progress._header_said = _HEADER_SAID[0]
+        try:
             task()
+        finally:
+            _HEADER_SAID[0] = progress._header_said
 
 
 def warm_up(processes: int = 2) -> float:
@@ -305,11 +326,11 @@ def warm_up(processes: int = 2) -> float:
     current); returns the seconds taken."""
     t0 = time.perf_counter()
     if processes <= 1:
-        for group in WARM_UP:
-            _run_group(group)
+        for task in WARM_UP:
+            _run_task(task)
     else:
         with ProcessPoolExecutor(max_workers=min(processes, len(WARM_UP))) as pool:
-            for f in [pool.submit(_run_group, g) for g in WARM_UP]:
+            for f in [pool.submit(_run_task, t) for t in WARM_UP]:
                 f.result()
     return time.perf_counter() - t0
 
