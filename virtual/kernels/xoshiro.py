@@ -48,34 +48,62 @@ def next_double(s):
 
 
 @jit(inline="always")
+def _step(s0, s1, s2, s3):
+    """One xoshiro256+ step of a lane held in registers: ``(uniform, s0, s1, s2, s3)``."""
+    r = s0 + s3
+    t = s1 << uint64(17)
+    s2 ^= s0
+    s3 ^= s1
+    s1 ^= s2
+    s0 ^= s3
+    s2 ^= t
+    s3 = _rotl(s3, 45)
+    return int64(r >> uint64(11)) * _TO_DOUBLE, s0, s1, s2, s3
+
+
+#: Rows a lane's state makes per load and store in the fills: every row stored and reloaded it
+#: (the lane loop innermost, for the vectors), which made the fill 2.3-2.8x slower on AVX-512.
+_ROWS_PER_PASS = 4
+
+
+@jit(inline="always")
 def fill_uniforms(lanes, out):
     """Fill ``out`` (float64[rows, LANES]) with uniforms in [0, 1): column ``l`` comes from lane
     ``l`` of ``lanes`` (uint64[4, LANES], advanced in place), row by row.
 
     The lane loop is innermost and branch-free, so LLVM vectorizes it (8 lanes per AVX-512
-    instruction): 4x the throughput of one stream drawn number by number.
+    instruction): 4x the throughput of one stream drawn number by number. Each pass makes four
+    rows from one load of the states (the same numbers as row by row).
     """
     n_lanes = lanes.shape[1]
-    for j in range(out.shape[0]):
-        row = out[j]
-        for lane in range(n_lanes):
-            s0 = lanes[0, lane]
-            s1 = lanes[1, lane]
-            s2 = lanes[2, lane]
-            s3 = lanes[3, lane]
-            r = s0 + s3
-            t = s1 << uint64(17)
-            s2 ^= s0
-            s3 ^= s1
-            s1 ^= s2
-            s0 ^= s3
-            s2 ^= t
-            s3 = _rotl(s3, 45)
-            lanes[0, lane] = s0
-            lanes[1, lane] = s1
-            lanes[2, lane] = s2
-            lanes[3, lane] = s3
-            row[lane] = int64(r >> uint64(11)) * _TO_DOUBLE
+    rows = out.shape[0]
+    j = 0
+    while j < rows:
+        if j + _ROWS_PER_PASS <= rows:
+            r0 = out[j]
+            r1 = out[j + 1]
+            r2 = out[j + 2]
+            r3 = out[j + 3]
+            for lane in range(n_lanes):
+                s0 = lanes[0, lane]
+                s1 = lanes[1, lane]
+                s2 = lanes[2, lane]
+                s3 = lanes[3, lane]
+                r0[lane], s0, s1, s2, s3 = _step(s0, s1, s2, s3)
+                r1[lane], s0, s1, s2, s3 = _step(s0, s1, s2, s3)
+                r2[lane], s0, s1, s2, s3 = _step(s0, s1, s2, s3)
+                r3[lane], s0, s1, s2, s3 = _step(s0, s1, s2, s3)
+                lanes[0, lane] = s0
+                lanes[1, lane] = s1
+                lanes[2, lane] = s2
+                lanes[3, lane] = s3
+            j += _ROWS_PER_PASS
+        else:
+            r0 = out[j]
+            for lane in range(n_lanes):
+                r0[lane], lanes[0, lane], lanes[1, lane], lanes[2, lane], lanes[3, lane] = _step(
+                    lanes[0, lane], lanes[1, lane], lanes[2, lane], lanes[3, lane])
+            j += 1
 
 
 _TO_FLOAT32 = np.float32(2.0 ** -24)
@@ -83,34 +111,53 @@ _U8, _U9, _U11, _U21 = uint32(8), uint32(9), uint32(11), uint32(21)
 
 
 @jit(inline="always")
-def _rotl32(x, k):
-    return (x << uint32(k)) | (x >> uint32(32 - k))
+def _step32(s0, s1, s2, s3):
+    """One xoshiro128+ step of a lane held in registers: ``(uniform, s0, s1, s2, s3)``, the
+    uniform from bits 8-31 of the 32-bit sum. Every step is cast back to uint32 (numba widens
+    uint32 arithmetic to 64 bits, which would halve the lanes per vector instruction)."""
+    r = uint32(s0 + s3)
+    t = uint32(s1 << _U9)
+    s2 = uint32(s2 ^ s0)
+    s3 = uint32(s3 ^ s1)
+    s1 = uint32(s1 ^ s2)
+    s0 = uint32(s0 ^ s3)
+    s2 = uint32(s2 ^ t)
+    s3 = uint32(uint32(s3 << _U11) | uint32(s3 >> _U21))
+    return np.float32(int32(uint32(r >> _U8))) * _TO_FLOAT32, s0, s1, s2, s3
 
 
 @jit(inline="always")
 def fill_uniforms32(lanes, out):
     """Fill ``out`` (float32[rows, LANES]) with uniforms k 2^-24 in [0, 1) from xoshiro128+
     (Blackman & Vigna): column ``l`` from lane ``l`` of ``lanes`` (uint32[4, LANES], advanced in
-    place), the top 24 bits of each 32-bit output. Every step is cast back to uint32 (numba
-    widens uint32 arithmetic to 64 bits, which would halve the lanes per vector instruction)."""
+    place), the top 24 bits of each 32-bit output; four rows per load of the states, as
+    :func:`fill_uniforms`."""
     n_lanes = lanes.shape[1]
-    for j in range(out.shape[0]):
-        row = out[j]
-        for lane in range(n_lanes):
-            s0 = lanes[0, lane]
-            s1 = lanes[1, lane]
-            s2 = lanes[2, lane]
-            s3 = lanes[3, lane]
-            r = uint32(s0 + s3)
-            t = uint32(s1 << _U9)
-            s2 = uint32(s2 ^ s0)
-            s3 = uint32(s3 ^ s1)
-            s1 = uint32(s1 ^ s2)
-            s0 = uint32(s0 ^ s3)
-            s2 = uint32(s2 ^ t)
-            s3 = uint32(uint32(s3 << _U11) | uint32(s3 >> _U21))
-            lanes[0, lane] = s0
-            lanes[1, lane] = s1
-            lanes[2, lane] = s2
-            lanes[3, lane] = s3
-            row[lane] = np.float32(int32(uint32(r >> _U8))) * _TO_FLOAT32  # bits 8-31 of the 32-bit sum
+    rows = out.shape[0]
+    j = 0
+    while j < rows:
+        if j + _ROWS_PER_PASS <= rows:
+            r0 = out[j]
+            r1 = out[j + 1]
+            r2 = out[j + 2]
+            r3 = out[j + 3]
+            for lane in range(n_lanes):
+                s0 = lanes[0, lane]
+                s1 = lanes[1, lane]
+                s2 = lanes[2, lane]
+                s3 = lanes[3, lane]
+                r0[lane], s0, s1, s2, s3 = _step32(s0, s1, s2, s3)
+                r1[lane], s0, s1, s2, s3 = _step32(s0, s1, s2, s3)
+                r2[lane], s0, s1, s2, s3 = _step32(s0, s1, s2, s3)
+                r3[lane], s0, s1, s2, s3 = _step32(s0, s1, s2, s3)
+                lanes[0, lane] = s0
+                lanes[1, lane] = s1
+                lanes[2, lane] = s2
+                lanes[3, lane] = s3
+            j += _ROWS_PER_PASS
+        else:
+            r0 = out[j]
+            for lane in range(n_lanes):
+                r0[lane], lanes[0, lane], lanes[1, lane], lanes[2, lane], lanes[3, lane] = _step32(
+                    lanes[0, lane], lanes[1, lane], lanes[2, lane], lanes[3, lane])
+            j += 1
