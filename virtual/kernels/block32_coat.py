@@ -160,28 +160,30 @@ def redo_coat_ray64(model, p, kind, b, u, i, nb, bo, s0, s):
 @jit(inline="always")
 def _rp_cells(mu, mo, n, lo, span):
     """Where :func:`~virtual.kernels.coat.rp_t` reads t at ``mu`` and ``mo`` and
-    :func:`~virtual.kernels.coat.rp_e` reads E at ``mu`` (the same float64 expressions): ``(k,
-    w, j, x, ko, wo)``, node and weight or fraction. Arithmetic only: the loop computing them
-    vectorizes, and the table reads (:func:`_rp_reads`) are left a loop of their own."""
+    :func:`~virtual.kernels.coat.rp_e` reads E at ``mu`` (the same float64 expressions), with
+    the weights of the nodes read: ``(k, w, j, l0, l1, l2, l3, ko, wo)``. Arithmetic only: the
+    loop computing them vectorizes, and leaves the indexed reads (:func:`_rp_reads`) little to
+    do in their own, scalar, loop."""
     x = mu * (RP_TABLE_RES - 1)
     k = min(int(max(x, 0.0)), RP_TABLE_RES - 2)
     xe = (min(max(math.sqrt(max(1.0 - mu, 0.0)), lo), lo + span) - lo) / span * (n - 1)
     j = min(max(int(xe) - 1, 0), n - 4)
+    t = xe - j
+    t1 = t - 1.0
+    t2 = t - 2.0
+    t3 = t - 3.0
     xo = mo * (RP_TABLE_RES - 1)
     ko = min(int(max(xo, 0.0)), RP_TABLE_RES - 2)
-    return k, x - k, j, xe - j, ko, xo - ko
+    return (k, x - k, j, -t1 * t2 * t3 / 6.0, 3.0 * t * t2 * t3 / 6.0, -3.0 * t * t1 * t3 / 6.0, t * t1 * t2 / 6.0,
+            ko, xo - ko)
 
 
 @jit(inline="always")
-def _rp_reads(tab, c, k, w, j, x, ko, wo):
-    """The table values at the cells of :func:`_rp_cells`: ``(c t(mu), 1 - E(mu), t(mo))``,
-    as :func:`~virtual.kernels.block_coat.rp_lookups` computes them."""
-    t1 = x - 1.0
-    t2 = x - 2.0
-    t3 = x - 3.0
+def _rp_reads(tab, c, k, w, j, l0, l1, l2, l3, ko, wo):
+    """The table values at the cells of :func:`_rp_cells`: ``(c t(mu), 1 - E(mu), t(mo))``, as
+    :func:`~virtual.kernels.block_coat.rp_lookups` computes them (to float64 rounding)."""
     e = RP_E + j
-    ev = (-t1 * t2 * t3 * tab[e] + 3.0 * x * t2 * t3 * tab[e + 1] - 3.0 * x * t1 * t3 * tab[e + 2]
-          + x * t1 * t2 * tab[e + 3]) / 6.0
+    ev = l0 * tab[e] + l1 * tab[e + 1] + l2 * tab[e + 2] + l3 * tab[e + 3]
     return (c * ((1.0 - w) * tab[RP_TABLE + k] + w * tab[RP_TABLE + k + 1]), 1.0 - ev,
             (1.0 - wo) * tab[RP_TABLE + ko] + wo * tab[RP_TABLE + ko + 1])
 
@@ -215,7 +217,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
     cz = np.empty(nb, dtype=np.float32)
     aux = np.empty((7, nb), dtype=np.float32)
     cell_i = np.empty((3, nb), dtype=np.int32)
-    cell_f = np.empty((3, nb))
+    cell_f = np.empty((6, nb))
     n_e = int(p64[RP_N_E]) if rp else 4
     e_lo = p64[RP_S_LO] if rp else 0.0
     e_span = (p64[RP_S_HI] - e_lo) if rp else 1.0
@@ -234,17 +236,20 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
                 aux[1, i] = wy
                 aux[2, i] = wz
                 aux[6, i] = ONE if hit else ZERO
-                k, w, j, x, ko, wo = _rp_cells(abs(wz), math.sqrt(1.0 - np.float64(u[s0 + 4 * nb + i])), n_e, e_lo,
-                                               e_span)  # the attempt's cosine: warp_cosine_hemisphere's z
+                k, w, j, l0, l1, l2, l3, ko, wo = _rp_cells(abs(wz), math.sqrt(1.0 - np.float64(u[s0 + 4 * nb + i])),
+                                                            n_e, e_lo, e_span)  # the attempt's cosine: Malley's z
                 cell_i[0, i] = k
                 cell_i[1, i] = j
                 cell_i[2, i] = ko
                 cell_f[0, i] = w
-                cell_f[1, i] = x
-                cell_f[2, i] = wo
+                cell_f[1, i] = l0
+                cell_f[2, i] = l1
+                cell_f[3, i] = l2
+                cell_f[4, i] = l3
+                cell_f[5, i] = wo
             for i in range(nb):  # the table reads (indexed loads: a loop of their own)
                 t_num, t_den, t_o = _rp_reads(p64, c_base, cell_i[0, i], cell_f[0, i], cell_i[1, i], cell_f[1, i],
-                                              cell_i[2, i], cell_f[2, i])
+                                              cell_f[2, i], cell_f[3, i], cell_f[4, i], cell_i[2, i], cell_f[5, i])
                 aux[3, i] = t_num
                 aux[4, i] = t_den
                 aux[5, i] = t_o
