@@ -41,7 +41,7 @@ FLOAT32_LIMITS: dict[int, tuple[tuple[int, str, float, float], ...]] = {
     MODEL_ANISO_GGX: ((0, "alpha_x", *_ALPHA), (1, "alpha_y", *_ALPHA)),
     MODEL_DIELECTRIC: ((0, "alpha", *_ALPHA), (1, "eta", 1.0 / MAX_ETA, MAX_ETA)),
     MODEL_PLASTIC: ((0, "alpha", *_ALPHA), (1, "eta", *_ETA)),
-    MODEL_ROUGHPLASTIC: ((0, "alpha", *_ALPHA), (1, "eta", *_ETA), (2, "kd", 0.0, 1.0), (3, "c", 0.0, 1.0)),
+    MODEL_ROUGHPLASTIC: ((0, "alpha", *_ALPHA), (1, "eta", *_ETA), (3, "c", 0.0, 1.0)),  # p[2], kd_eff: unread
     MODEL_LEAF: ((0, "alpha", *_ALPHA), (1, "eta", *_ETA), (2, "ks", 0.0, 1.0), (3, "r_b", 0.0, 1.0),
                  (4, "t_b", 0.0, 1.0)),
 }
