@@ -196,6 +196,43 @@ def _rp_reads(tab, c, k, w, j, l0, l1, l2, l3, ko, wo):
             (1.0 - wo) * tab[RP_TABLE + ko] + wo * tab[RP_TABLE + ko + 1])
 
 
+@jit
+def _rp_read_block(tab, c, cell_i, cell_f, aux, nb):
+    """The table reads of a block (:func:`_rp_reads`) into rows 3-5 of ``aux``: indexed loads,
+    a scalar loop -- called, not inlined, like :func:`_finish_block`."""
+    for i in range(nb):
+        t_num, t_den, t_o = _rp_reads(tab, c, cell_i[0, i], cell_f[0, i], cell_i[1, i], cell_f[1, i], cell_f[2, i],
+                                      cell_f[3, i], cell_f[4, i], cell_i[2, i], cell_f[5, i])
+        aux[3, i] = t_num
+        aux[4, i] = t_den
+        aux[5, i] = t_o
+
+
+@jit
+def _finish_block(model, p64, kind, b64, u, nb, bo, s0, m, v, code, s):
+    """The block's rays with code 3 (a rejected attempt: the loop continues in float64 on
+    ``s``) and 4 (in doubt: decided again by :func:`redo_coat_ray64`), in that order. Called, not
+    inlined: the scalar code kept out of the chunk's vectorized loops."""
+    rp = model == MODEL_ROUGHPLASTIC
+    for i in range(m):
+        if code[i] == 3:
+            if rp:
+                ox, oy, oz = roughplastic_base_redo(p64, s)
+            else:
+                ox, oy, oz = leaf_body_redo(p64[0], p64[1], p64[2], s)
+            v[0, i] = ox
+            v[1, i] = oy
+            v[2, i] = oz if v[2, i] > ZERO else -oz
+            code[i] = 1
+    for i in range(m):
+        if code[i] == 4:
+            ox, oy, oz, alive, hit = redo_coat_ray64(model, p64, kind, b64, u, i, nb, bo, s0, s)
+            v[0, i] = ox
+            v[1, i] = oy
+            v[2, i] = oz
+            code[i] = 1 if (alive & hit) else (0 if hit else 2)
+
+
 @jit(nogil=True, error_model="numpy")
 def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s,
                        hist):
@@ -255,12 +292,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
                 cell_f[3, i] = l2
                 cell_f[4, i] = l3
                 cell_f[5, i] = wo
-            for i in range(nb):  # the table reads (indexed loads: a loop of their own)
-                t_num, t_den, t_o = _rp_reads(p64, c_base, cell_i[0, i], cell_f[0, i], cell_i[1, i], cell_f[1, i],
-                                              cell_f[2, i], cell_f[3, i], cell_f[4, i], cell_i[2, i], cell_f[5, i])
-                aux[3, i] = t_num
-                aux[4, i] = t_den
-                aux[5, i] = t_o
+            _rp_read_block(p64, c_base, cell_i, cell_f, aux, nb)
             for i in range(nb):
                 v[0, i], v[1, i], v[2, i], alive, redo, doubt = roughplastic_given32(
                     p, aux[0, i], aux[1, i], aux[2, i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i],
@@ -280,24 +312,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
         for i in range(m):  # a vectorized count of the rays to finish or decide again
             n_redo += code[i] >= 3
         if n_redo > 0:
-            for i in range(m):
-                k = code[i]
-                if k == 3:  # a rejected attempt: the loop continues in float64
-                    if rp:
-                        ox, oy, oz = roughplastic_base_redo(p64, s)
-                    else:
-                        ox, oy, oz = leaf_body_redo(p64[0], p64[1], p64[2], s)
-                    v[0, i] = ox
-                    v[1, i] = oy
-                    v[2, i] = oz if v[2, i] > ZERO else -oz
-                    code[i] = 1
-            for i in range(m):
-                if code[i] == 4:
-                    ox, oy, oz, alive, hit = redo_coat_ray64(model, p64, kind, b64, u, i, nb, bo, s0, s)
-                    v[0, i] = ox
-                    v[1, i] = oy
-                    v[2, i] = oz
-                    code[i] = 1 if (alive & hit) else (0 if hit else 2)
+            _finish_block(model, p64, kind, b64, u, nb, bo, s0, m, v, code, s)
         n_live = 0
         n_missed = 0
         for i in range(m):
