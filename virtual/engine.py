@@ -24,7 +24,8 @@ Two kernel shapes:
   with seven and one attempt of its diffuse rejection loop, the rare rejected ray finishing
   the loop on a scalar stream), 2-5x the ray-by-ray kernel's throughput; Mitsuba's
   roughplastic and the leaf run the same shape in a chunk of their own
-  (``gonio_coat_kernel``, :mod:`virtual.kernels.block_coat`). The roughplastic's parameter
+  (``gonio_coat_kernel``, :mod:`virtual.kernels.block_coat`; in float32 ``gonio_coat32_kernel``,
+  :mod:`virtual.kernels.block32_coat`, where ``block32`` suits them). The roughplastic's parameter
   vector gets its coat's specular albedo over the beam's cosines appended per measurement
   (:func:`measurement_params`).
 
