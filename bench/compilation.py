@@ -34,6 +34,7 @@ KERNEL_FAMILIES: dict[str, tuple[str, float]] = {
     "gonio_block_chunk": ("float64 block kernel", 60.0),
     "gonio_block32_chunk": ("float32 block kernel", 50.0),
     "gonio_coat_chunk": ("float64 block kernel of roughplastic and the leaf", 30.0),
+    "gonio_coat32_chunk": ("float32 block kernel of roughplastic and the leaf", 37.0),
     "lambert_spectral_chunk": ("float64 spectral Lambertian batch", 15.0),
     "ggx_spectral_chunk": ("float64 spectral GGX batch", 20.0),
     "lambert_spectral32_chunk": ("float32 spectral Lambertian batch", 15.0),
@@ -234,6 +235,7 @@ def _block32() -> None:
 
 def _coat64() -> None:
     _gonio("block", "leaf:healthy")  # gonio_coat_chunk (roughplastic's too)
+    _gonio("block32", "leaf:healthy")  # gonio_coat32_chunk (roughplastic's too)
 
 
 def _spectral_batches() -> None:

