@@ -235,6 +235,9 @@ def _block32() -> None:
 
 def _coat64() -> None:
     _gonio("block", "leaf:healthy")  # gonio_coat_chunk (roughplastic's too)
+
+
+def _coat32() -> None:
     _gonio("block32", "leaf:healthy")  # gonio_coat32_chunk (roughplastic's too)
 
 
@@ -303,12 +306,13 @@ def _samplers() -> None:
 
 
 #: The warm-up's tasks, costliest first (compile CPU-s on a 2-core AMD EPYC Zen 5, fresh cache,
-#: the other core busy: float32 block 36, the spectrophotometer's 35, float64 block 33, the coated
-#: families' block kernel 24, the spectral batches 22, the goniophotometer's ray kernel 20). No two tasks share a kernel, so
+#: the other core busy: float32 block 36, the coated families' float32 block 35, the
+#: spectrophotometer's 35, float64 block 33, the coated families' float64 block 24, the spectral
+#: batches 22, the goniophotometer's ray kernel 20). No two tasks share a kernel, so
 #: none is compiled twice; two workers take them in this order as each frees up (longest first:
 #: the two processes end within one task's time of each other, whatever a new kernel adds).
-WARM_UP: tuple[Callable[[], None], ...] = (_block32, _spectro_kernels, _block64, _coat64, _spectral_batches,
-                                           _gonio_kernels)
+WARM_UP: tuple[Callable[[], None], ...] = (_block32, _coat32, _spectro_kernels, _block64, _coat64,
+                                           _spectral_batches, _gonio_kernels)
 
 
 _HEADER_SAID = [False]  # per worker process: its tasks say "compiling kernels" once between them

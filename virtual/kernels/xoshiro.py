@@ -63,10 +63,12 @@ def _step(s0, s1, s2, s3):
 
 #: Rows a lane's state makes per load and store in the fills: every row stored and reloaded it
 #: (the lane loop innermost, for the vectors), which made the fill 2.3-2.8x slower on AVX-512.
+#: The fills are called, not inlined: once per block of rays, and every kernel that inlined its
+#: unrolled loops took seconds longer to compile.
 _ROWS_PER_PASS = 4
 
 
-@jit(inline="always")
+@jit
 def fill_uniforms(lanes, out):
     """Fill ``out`` (float64[rows, LANES]) with uniforms in [0, 1): column ``l`` comes from lane
     ``l`` of ``lanes`` (uint64[4, LANES], advanced in place), row by row.
@@ -126,7 +128,7 @@ def _step32(s0, s1, s2, s3):
     return np.float32(int32(uint32(r >> _U8))) * _TO_FLOAT32, s0, s1, s2, s3
 
 
-@jit(inline="always")
+@jit
 def fill_uniforms32(lanes, out):
     """Fill ``out`` (float32[rows, LANES]) with uniforms k 2^-24 in [0, 1) from xoshiro128+
     (Blackman & Vigna): column ``l`` from lane ``l`` of ``lanes`` (uint32[4, LANES], advanced in
