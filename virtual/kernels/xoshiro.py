@@ -68,15 +68,10 @@ def _step(s0, s1, s2, s3):
 _ROWS_PER_PASS = 4
 
 
-@jit
-def fill_uniforms(lanes, out):
-    """Fill ``out`` (float64[rows, LANES]) with uniforms in [0, 1): column ``l`` comes from lane
-    ``l`` of ``lanes`` (uint64[4, LANES], advanced in place), row by row.
-
-    The lane loop is innermost and branch-free, so LLVM vectorizes it (8 lanes per AVX-512
-    instruction): 4x the throughput of one stream drawn number by number. Each pass makes four
-    rows from one load of the states (the same numbers as row by row).
-    """
+@jit(inline="always")
+def _fill_rows(lanes, out, step):
+    """The fills' loop: column ``l`` of ``out`` from lane ``l``, ``step`` (a lane's state in
+    registers -> ``(uniform, state)``) applied four rows per load of the states."""
     n_lanes = lanes.shape[1]
     rows = out.shape[0]
     j = 0
@@ -91,10 +86,10 @@ def fill_uniforms(lanes, out):
                 s1 = lanes[1, lane]
                 s2 = lanes[2, lane]
                 s3 = lanes[3, lane]
-                r0[lane], s0, s1, s2, s3 = _step(s0, s1, s2, s3)
-                r1[lane], s0, s1, s2, s3 = _step(s0, s1, s2, s3)
-                r2[lane], s0, s1, s2, s3 = _step(s0, s1, s2, s3)
-                r3[lane], s0, s1, s2, s3 = _step(s0, s1, s2, s3)
+                r0[lane], s0, s1, s2, s3 = step(s0, s1, s2, s3)
+                r1[lane], s0, s1, s2, s3 = step(s0, s1, s2, s3)
+                r2[lane], s0, s1, s2, s3 = step(s0, s1, s2, s3)
+                r3[lane], s0, s1, s2, s3 = step(s0, s1, s2, s3)
                 lanes[0, lane] = s0
                 lanes[1, lane] = s1
                 lanes[2, lane] = s2
@@ -103,9 +98,21 @@ def fill_uniforms(lanes, out):
         else:
             r0 = out[j]
             for lane in range(n_lanes):
-                r0[lane], lanes[0, lane], lanes[1, lane], lanes[2, lane], lanes[3, lane] = _step(
+                r0[lane], lanes[0, lane], lanes[1, lane], lanes[2, lane], lanes[3, lane] = step(
                     lanes[0, lane], lanes[1, lane], lanes[2, lane], lanes[3, lane])
             j += 1
+
+
+@jit
+def fill_uniforms(lanes, out):
+    """Fill ``out`` (float64[rows, LANES]) with uniforms in [0, 1): column ``l`` comes from lane
+    ``l`` of ``lanes`` (uint64[4, LANES], advanced in place), row by row.
+
+    The lane loop is innermost and branch-free, so LLVM vectorizes it (8 lanes per AVX-512
+    instruction): 4x the throughput of one stream drawn number by number. Each pass makes four
+    rows from one load of the states (the same numbers as row by row).
+    """
+    _fill_rows(lanes, out, _step)
 
 
 _TO_FLOAT32 = np.float32(2.0 ** -24)
@@ -134,32 +141,4 @@ def fill_uniforms32(lanes, out):
     (Blackman & Vigna): column ``l`` from lane ``l`` of ``lanes`` (uint32[4, LANES], advanced in
     place), the top 24 bits of each 32-bit output; four rows per load of the states, as
     :func:`fill_uniforms`."""
-    n_lanes = lanes.shape[1]
-    rows = out.shape[0]
-    j = 0
-    while j < rows:
-        if j + _ROWS_PER_PASS <= rows:
-            r0 = out[j]
-            r1 = out[j + 1]
-            r2 = out[j + 2]
-            r3 = out[j + 3]
-            for lane in range(n_lanes):
-                s0 = lanes[0, lane]
-                s1 = lanes[1, lane]
-                s2 = lanes[2, lane]
-                s3 = lanes[3, lane]
-                r0[lane], s0, s1, s2, s3 = _step32(s0, s1, s2, s3)
-                r1[lane], s0, s1, s2, s3 = _step32(s0, s1, s2, s3)
-                r2[lane], s0, s1, s2, s3 = _step32(s0, s1, s2, s3)
-                r3[lane], s0, s1, s2, s3 = _step32(s0, s1, s2, s3)
-                lanes[0, lane] = s0
-                lanes[1, lane] = s1
-                lanes[2, lane] = s2
-                lanes[3, lane] = s3
-            j += _ROWS_PER_PASS
-        else:
-            r0 = out[j]
-            for lane in range(n_lanes):
-                r0[lane], lanes[0, lane], lanes[1, lane], lanes[2, lane], lanes[3, lane] = _step32(
-                    lanes[0, lane], lanes[1, lane], lanes[2, lane], lanes[3, lane])
-            j += 1
+    _fill_rows(lanes, out, _step32)
