@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.helpers.kernels import kernel_counts, on_one_and_all_threads
+from tests.helpers.kernels import kernel_counts
 from tests.helpers.stats import family_rate, two_sample_p
 from virtual.beam import Beam
 from virtual.collector import Collector
@@ -147,12 +147,3 @@ def test_the_redo_path_has_power():
     b = gonio_counts(sp.model, q, CONICAL.code, CONICAL.disk_code, args, PSA.kernel_args(), hist.sum(),
                      measurement_seed(54), kernel="ray")
     assert two_sample_p(hist, b) < 1e-6
-
-
-@pytest.mark.parametrize("spec, beam", [(LEAF, CONICAL), (RP, COLLIMATED)])
-def test_counts_do_not_depend_on_the_thread_count(spec, beam):
-    """Several chunks; the rejected and doubted rays finish on a scalar stream of each chunk's own."""
-    n = 3 * (1 << 20) + 5
-    one, many = on_one_and_all_threads(lambda: kernel_counts(spec, beam, PSA, n, 3, "block32"))
-    np.testing.assert_array_equal(one, many)
-

@@ -120,11 +120,13 @@ def test_power_against_a_perturbed_leaf_body():
     assert two_sample_p(a, b) < 1e-6
 
 
+@pytest.mark.parametrize("kernel", ["block", "block32"])
 @pytest.mark.parametrize("spec, beam", [(LEAF, CONICAL), (RP, COLLIMATED)])
-def test_counts_do_not_depend_on_the_thread_count(spec, beam):
-    """Several chunks; the rejected rays finish on a scalar stream of each chunk's own."""
+def test_counts_do_not_depend_on_the_thread_count(spec, beam, kernel):
+    """Several chunks, float64 and float32 kernels; the rejected (and, in float32, doubted) rays
+    finish on a scalar stream of each chunk's own."""
     n = 3 * (1 << 20) + 5
-    one, many = on_one_and_all_threads(lambda: kernel_counts(spec, beam, PSA, n, 3, "block"))
+    one, many = on_one_and_all_threads(lambda: kernel_counts(spec, beam, PSA, n, 3, kernel))
     np.testing.assert_array_equal(one, many)
 
 
