@@ -26,7 +26,7 @@ from virtual.kernels.xoshiro import LANES, fill_uniforms32
 from virtual.kernels.scatter import (MODEL_DIELECTRIC, MODEL_LAMBERT, MODEL_OREN_NAYAR,
                                      MODEL_PHONG, MODEL_PLASTIC)
 
-__all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "gonio_block32_chunk"]
+__all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "guess_bins32", "bin_block32", "gonio_block32_chunk"]
 
 from virtual.kernel_codes import BLOCK32_MODELS, BLOCK32_RAYS
 _BEAM_UNIFORMS = 4
@@ -46,6 +46,44 @@ def guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_m
     else:
         for i in range(n):
             code[i] = guess_bin32(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+
+
+@jit(inline="always")
+def bin_block32(code, vx, vy, vz, m, cx, cy, cz, cargs, ring_margin, sector_margin, h, n_dead):
+    """A block's ``m`` rays into ``h``, by their codes (1 survivor, 0 absorbed, 2 missed): the
+    absorbed and missed counted into ``n_dead`` (a vectorized tally, not binned), the survivors'
+    directions compacted into ``cx, cy, cz``, their bins guessed (:func:`guess_bins32`, a
+    vectorized loop) and the few near an edge looked up exactly in float64."""
+    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
+    n_live = 0
+    n_missed = 0
+    for i in range(m):  # a vectorized tally first
+        k = code[i]
+        n_live += k == 1
+        n_missed += k == 2
+    n_dead[0] += m - n_live - n_missed
+    n_dead[1] += n_missed
+    j = 0
+    if 4 * n_live < m:  # few survivors (a dark or a specular specimen): a branch, rarely taken
+        for i in range(m):
+            if code[i] == 1:
+                cx[j] = vx[i]
+                cy[j] = vy[i]
+                cz[j] = vz[i]
+                j += 1
+    else:  # many: branch-free (every ray written, j advances for survivors)
+        for i in range(m):
+            cx[j] = vx[i]
+            cy[j] = vy[i]
+            cz[j] = vz[i]
+            j += code[i] == 1
+    guess_bins32(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
+    for i in range(j):
+        k = code[i]
+        if k < 0:  # near an edge, the pole or the horizon: the exact float64 lookup
+            k = patch_of(np.float64(cx[i]), np.float64(cy[i]), np.float64(cz[i]), scheme, n_theta, n_phi, sin2_edges,
+                         phi_cs)
+        h[k] += 1
 
 
 @jit(nogil=True, error_model="numpy")
@@ -71,7 +109,6 @@ def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sect
     u = ublock.reshape(ublock.size)
     s0 = n_beam * nb
     bo = nb if conical else 0
-    scheme, n_theta, n_phi, sin2_edges, phi_cs = cargs
     code = np.empty(nb, dtype=np.int32)  # int32: 16 lanes per vector, like the float32 values
     vx = np.empty(nb, dtype=np.float32)
     vy = np.empty(nb, dtype=np.float32)
@@ -148,35 +185,7 @@ def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sect
                     vy[i] = oy
                     vz[i] = oz
                     code[i] = 1 if (alive & hit) else (0 if hit else 2)
-        n_live = 0
-        n_missed = 0
-        for i in range(m):  # a vectorized tally first
-            k = code[i]
-            n_live += k == 1
-            n_missed += k == 2
-        n_dead[0] += m - n_live - n_missed
-        n_dead[1] += n_missed
-        j = 0
-        if 4 * n_live < m:  # few survivors (a dark or a specular specimen): a branch, rarely taken
-            for i in range(m):
-                if code[i] == 1:
-                    cx[j] = vx[i]
-                    cy[j] = vy[i]
-                    cz[j] = vz[i]
-                    j += 1
-        else:  # many: branch-free (every ray written, j advances for survivors)
-            for i in range(m):
-                cx[j] = vx[i]
-                cy[j] = vy[i]
-                cz[j] = vz[i]
-                j += code[i] == 1
-        guess_bins32(code, cx, cy, cz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
-        for i in range(j):
-            k = code[i]
-            if k < 0:  # near an edge, the pole or the horizon: the exact float64 lookup
-                k = patch_of(np.float64(cx[i]), np.float64(cy[i]), np.float64(cz[i]), scheme, n_theta, n_phi,
-                             sin2_edges, phi_cs)
-            h[k] += 1
+        bin_block32(code, vx, vy, vz, m, cx, cy, cz, cargs, ring_margin, sector_margin, h, n_dead)
         left -= m
     for k in range(n_bins):
         hist[k] += h[k]
