@@ -26,10 +26,12 @@ scattering loop. (Computing the cosines in float32 instead would move t and E by
 times the cosine's float32 error, which near normal incidence, where E is read in
 s = sqrt(1 - mu), has no useful bound; the float64 emission costs ~2.5 ns a ray more.)
 
-Where the time goes (one thread, this Zen 5, scratch timings, ns a ray): the binning ~3 as for
-every model, the roughplastic's float64 incidence and table cells ~5, its table reads ~2.7 and
-its scattering ~2.4; the leaf's scattering (two visible normals) ~5.4; the uniforms (11 and 13 a
-ray against GGX's 7). The scalar code (table reads, finishing of rejected and doubted rays) is
+Where the time goes (one thread, a Zen 5 in AVX-512 code, scratch timings, ns a ray): the
+uniforms ~0.14 each (11 and 13 a ray against GGX's 7); the roughplastic's table reads ~1.8 and
+its float64 emission ~1.3 more than a float32 one, its binning ~0.4 (of ~13.7 in all); the leaf's
+cuticle loop ~6.7 with its uniforms, its body rays' attempts ~1.8 (a quarter of the rays at
+550 nm, :func:`_leaf_bodies`) and the float64 finishing of their rejected attempts ~1.2.
+The scalar code (table reads, finishing of rejected and doubted rays) is
 called, not inlined: inlined, it slowed the vectorized loops around it (leaf 1.35x, in A/B runs).
 """
 
