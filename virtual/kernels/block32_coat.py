@@ -10,21 +10,17 @@ rejected attempt is finished in float64 on the chunk's stream ``s``
 Every decision carries a ``doubt`` flag (:func:`~virtual.kernels.f32.in_doubt32`); a doubted
 ray is decided again in float64 by :func:`redo_coat_ray64`.
 
-The roughplastic's table reads. Its decisions ``u3 (1 - E(mu)) < c t(mu)`` and ``u6 < t(mu_o)``
-read the coat transmittance t and the specular albedo E at the ray's cosines. The kernel
-computes those cosines in float64 -- the incidence by the float64
-:func:`~virtual.kernels.emit.emit_given` of the ray's (grid) uniforms, the attempt's cosine
-sqrt(1 - u4) -- and reads the tables in float64 (:func:`_rp_cells`, :func:`_rp_reads`: the
-expressions of :func:`~virtual.kernels.coat.rp_t` and :func:`~virtual.kernels.coat.rp_e`, the
-Lagrange weights multiplied out), so the values are the float64 kernel's at the same uniforms to
-float64 rounding, and no bound on t' or E' enters. They are stored in float32 (a relative 2^-24
-each: num/den <= 1 moves by at most two grid cells of 2^-24), and the float32 product
-``u3 den`` rounds by one more: within the four grid cells of :data:`~virtual.kernels.f32.DOUBT`
-with the grid cell itself -- the band the other float32 decisions use, for the same reasons. The
-incidence is emitted once, in that float64 loop, and stored (rounded to float32) for the
-scattering loop. (Computing the cosines in float32 instead would move t and E by |t'| or |E'|
-times the cosine's float32 error, which near normal incidence, where E is read in
-s = sqrt(1 - mu), has no useful bound; the float64 emission costs ~2.5 ns a ray more.)
+The roughplastic's table reads. Its decisions ``u3 (1 - E(mu)) < c t(mu)`` and ``u6 < t(mo)``
+read the coat transmittance t and the specular albedo E at the incidence's cosine mu and the
+attempt's cosine mo = sqrt(1 - u4), in float32 like every other float32 decision: the cells and
+weights in one vectorized loop (:func:`_rp_cells32`, E read in s = sqrt(1 - mu) computed from
+the direction's transverse part, so well conditioned at any incidence), the indexed reads of the
+float32-rounded tables in a scalar loop of their own (:func:`_rp_read_block32`). Each value is
+within a few float32 roundings of the float64 :func:`~virtual.kernels.coat.rp_t` and
+:func:`~virtual.kernels.coat.rp_e` (tested, tests/test_block32_coat.py), the error every float32
+survival test carries (:mod:`virtual.kernels.f32`); the doubted rays are decided again on the
+float64 tables. (Until now the incidence was emitted in float64 to read the tables in float64:
+half of the kernel's time in AVX2 code, a quarter in AVX-512 code.)
 
 Where the time goes (one thread, a Zen 5 in AVX-512 code, scratch timings, ns a ray): the
 uniforms ~0.14 each (11 and 13 a ray against GGX's 7); the roughplastic's table reads ~1.8 and
@@ -175,47 +171,53 @@ def redo_coat_ray64(model, p, kind, b, u, i, nb, bo, s0, s):
     return ox, oy, oz, alive, hit
 
 
-@jit(inline="always")
-def _rp_cells(mu, mo, n, lo, span):
-    """Where :func:`~virtual.kernels.coat.rp_t` reads t at ``mu`` and ``mo`` and
-    :func:`~virtual.kernels.coat.rp_e` reads E at ``mu`` (the same float64 expressions), with
-    the weights of the nodes read: ``(k, w, j, l0, l1, l2, l3, ko, wo)``. Arithmetic only: the
-    loop computing them vectorizes, and leaves the indexed reads (:func:`_rp_reads`) little to
-    do in their own, scalar, loop."""
-    x = mu * (RP_TABLE_RES - 1)
-    k = min(int(max(x, 0.0)), RP_TABLE_RES - 2)
-    xe = (min(max(math.sqrt(max(1.0 - mu, 0.0)), lo), lo + span) - lo) / span * (n - 1)
-    j = min(max(int(xe) - 1, 0), n - 4)
-    t = xe - j
-    t1 = t - 1.0
-    t2 = t - 2.0
-    t3 = t - 3.0
-    xo = mo * (RP_TABLE_RES - 1)
-    ko = min(int(max(xo, 0.0)), RP_TABLE_RES - 2)
-    return (k, x - k, j, -t1 * t2 * t3 / 6.0, 3.0 * t * t2 * t3 / 6.0, -3.0 * t * t1 * t3 / 6.0, t * t1 * t2 / 6.0,
-            ko, xo - ko)
+_THREE = np.float32(3.0)
+_SIXTH = np.float32(1.0 / 6.0)
+_LAST_CELL = np.int32(RP_TABLE_RES - 2)
+_MU_SCALE = np.float32(RP_TABLE_RES - 1)
 
 
 @jit(inline="always")
-def _rp_reads(tab, c, k, w, j, l0, l1, l2, l3, ko, wo):
-    """The table values at the cells of :func:`_rp_cells`: ``(c t(mu), 1 - E(mu), t(mo))``, as
-    :func:`~virtual.kernels.block_coat.rp_lookups` computes them (to float64 rounding)."""
-    e = RP_E + j
-    ev = l0 * tab[e] + l1 * tab[e + 1] + l2 * tab[e + 2] + l3 * tab[e + 3]
-    return (c * ((1.0 - w) * tab[RP_TABLE + k] + w * tab[RP_TABLE + k + 1]), 1.0 - ev,
-            (1.0 - wo) * tab[RP_TABLE + ko] + wo * tab[RP_TABLE + ko + 1])
+def _rp_cells32(wx, wy, wz, u4, e_lo, e_hi, e_scale, n_e):
+    """Where :func:`~virtual.kernels.coat.rp_t` reads t at the incidence ``mu = |wz|`` and the
+    attempt's cosine ``mo = sqrt(1 - u4)`` (Malley's z) and :func:`~virtual.kernels.coat.rp_e`
+    reads E at ``s = sqrt(1 - mu)``, with the weights of the nodes read: ``(k, w, j, l0, l1, l2,
+    l3, ko, wo)``, in float32. s is computed as ``sqrt((wx^2 + wy^2) / (1 + mu))`` (the same
+    value for a unit w): a few float32 roundings of s at any incidence (``sqrt(1 - mu)`` would
+    turn mu's rounding into an error of s up to 2^-12 near normal incidence). Arithmetic
+    only: the loop computing them vectorizes; the indexed reads are :func:`_rp_read_block32`."""
+    mu = abs(wz)
+    x = mu * _MU_SCALE
+    k = min(np.int32(x), _LAST_CELL)
+    s = math.sqrt((wx * wx + wy * wy) / (ONE + mu))
+    xe = (min(max(s, e_lo), e_hi) - e_lo) * e_scale
+    j = min(max(np.int32(xe) - np.int32(1), np.int32(0)), np.int32(n_e - 4))
+    t = xe - np.float32(j)
+    t1 = t - ONE
+    t2 = t - TWO
+    t3 = t - _THREE
+    xo = math.sqrt(ONE - u4) * _MU_SCALE  # 1 - u4 is exact on the 2^-24 grid
+    ko = min(np.int32(xo), _LAST_CELL)
+    return (k, x - np.float32(k), j, -t1 * t2 * t3 * _SIXTH, _THREE * t * t2 * t3 * _SIXTH,
+            -_THREE * t * t1 * t3 * _SIXTH, t * t1 * t2 * _SIXTH, ko, xo - np.float32(ko))
 
 
 @jit
-def _rp_read_block(tab, c, cell_i, cell_f, aux, nb):
-    """The table reads of a block (:func:`_rp_reads`) into rows 3-5 of ``aux``: indexed loads,
-    a scalar loop -- called, not inlined, like :func:`_finish_block`."""
+def _rp_read_block32(t32, e32, c, cell_i, cell_f, aux, nb):
+    """The table values at the cells of :func:`_rp_cells32` into rows 3-5 of ``aux``: ``c t(mu),
+    1 - E(mu), t(mo)`` (the expressions of :func:`~virtual.kernels.coat.rp_t` and
+    :func:`~virtual.kernels.coat.rp_e` on the float32 tables ``t32``, ``e32``). Indexed loads: a
+    scalar loop, called, not inlined, like :func:`_finish_block`."""
     for i in range(nb):
-        t_num, t_den, t_o = _rp_reads(tab, c, cell_i[0, i], cell_f[0, i], cell_i[1, i], cell_f[1, i], cell_f[2, i],
-                                      cell_f[3, i], cell_f[4, i], cell_i[2, i], cell_f[5, i])
-        aux[3, i] = t_num
-        aux[4, i] = t_den
-        aux[5, i] = t_o
+        k = cell_i[0, i]
+        j = cell_i[1, i]
+        ko = cell_i[2, i]
+        w = cell_f[0, i]
+        wo = cell_f[5, i]
+        aux[3, i] = c * ((ONE - w) * t32[k] + w * t32[k + 1])
+        aux[4, i] = ONE - (cell_f[1, i] * e32[j] + cell_f[2, i] * e32[j + 1] + cell_f[3, i] * e32[j + 2]
+                           + cell_f[4, i] * e32[j + 3])
+        aux[5, i] = (ONE - wo) * t32[ko] + wo * t32[ko + 1]
 
 
 @jit
@@ -301,11 +303,19 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
     cz = np.empty(nb, dtype=np.float32)
     aux = np.empty((7, nb), dtype=np.float32)
     cell_i = np.empty((3, nb), dtype=np.int32)
-    cell_f = np.empty((6, nb))
+    cell_f = np.empty((6, nb), dtype=np.float32)
     n_e = int(p64[RP_N_E]) if rp else 4
-    e_lo = p64[RP_S_LO] if rp else 0.0
-    e_span = (p64[RP_S_HI] - e_lo) if rp else 1.0
-    c_base = p64[3]
+    t32 = np.zeros(RP_TABLE_RES, dtype=np.float32)  # the roughplastic's tables, rounded to float32
+    e32 = np.zeros(n_e, dtype=np.float32)
+    if rp:
+        for k in range(RP_TABLE_RES):
+            t32[k] = p64[RP_TABLE + k]
+        for k in range(n_e):
+            e32[k] = p64[RP_E + k]
+    e_lo = np.float32(p64[RP_S_LO] if rp else 0.0)
+    e_hi = np.float32(p64[RP_S_HI] if rp else 1.0)
+    e_scale = np.float32((n_e - 1) / ((p64[RP_S_HI] - p64[RP_S_LO]) if rp else 1.0))
+    c_base = np.float32(p64[3])
     h = np.zeros(n_bins, dtype=np.int64)
     n_dead = np.zeros(2, dtype=np.int64)
     left = n_rays
@@ -313,15 +323,13 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
         m = min(left, nb)
         fill_uniforms32(lane, ublock)
         if rp:
-            for i in range(nb):  # the incidence once, in float64 (module docstring), and the table cells
-                wx, wy, wz, hit = emit_given(kind, b64, np.float64(u[i]), np.float64(u[bo + i]),
-                                             np.float64(u[2 * bo + i]), np.float64(u[3 * bo + i]))
+            for i in range(nb):  # the incidence and the table cells (vectorized), then the table reads (scalar)
+                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
                 aux[0, i] = wx
                 aux[1, i] = wy
                 aux[2, i] = wz
                 aux[6, i] = ONE if hit else ZERO
-                k, w, j, l0, l1, l2, l3, ko, wo = _rp_cells(abs(wz), math.sqrt(1.0 - np.float64(u[s0 + 4 * nb + i])),
-                                                            n_e, e_lo, e_span)  # the attempt's cosine: Malley's z
+                k, w, j, l0, l1, l2, l3, ko, wo = _rp_cells32(wx, wy, wz, u[s0 + 4 * nb + i], e_lo, e_hi, e_scale, n_e)
                 cell_i[0, i] = k
                 cell_i[1, i] = j
                 cell_i[2, i] = ko
@@ -331,7 +339,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
                 cell_f[3, i] = l2
                 cell_f[4, i] = l3
                 cell_f[5, i] = wo
-            _rp_read_block(p64, c_base, cell_i, cell_f, aux, nb)
+            _rp_read_block32(t32, e32, c_base, cell_i, cell_f, aux, nb)
             for i in range(nb):
                 v[0, i], v[1, i], v[2, i], alive, redo, doubt = roughplastic_given32(
                     p, aux[0, i], aux[1, i], aux[2, i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i],

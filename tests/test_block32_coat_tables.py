@@ -1,0 +1,77 @@
+"""The roughplastic's table values on the float32 block kernel
+(:func:`~virtual.kernels.block32_coat._rp_cells32`, :func:`~virtual.kernels.block32_coat._rp_read_block32`)
+against the float64 reads (:func:`~virtual.kernels.coat.rp_t`, :func:`~virtual.kernels.coat.rp_e`) over
+every incidence from normal to grazing: within a few float32 roundings (:data:`BOUND`), the error
+each float32 survival test carries. Power: the same reads at directions tilted by 1e-5 rad differ
+from the untilted ones by more than the bound, in c t(mu) and in 1 - E(mu).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from virtual.kernel_codes import RP_E, RP_N_E, RP_S_HI, RP_S_LO, RP_TABLE, RP_TABLE_RES
+from virtual.kernels.block32_coat import _rp_cells32, _rp_read_block32
+from virtual.kernels.coat import rp_e, rp_t
+from virtual.kernels.emit import BEAM_COLLIMATED
+from virtual.specimens import parse_specimen
+from virtual.specimens.roughplastic import incidence_params
+
+#: Eight float32 roundings of a value <= 1: a table value's own rounding, the weights', the sums'.
+BOUND = 8 * 2.0 ** -24
+F = np.float32
+
+
+def _hemisphere_params(spec: str) -> np.ndarray:
+    """The kernel vector with the specular albedo table over every incidence (an integrating sphere's)."""
+    return incidence_params(np.asarray(parse_specimen(spec).params(550.0), dtype=np.float64), BEAM_COLLIMATED,
+                            np.zeros(16), hemisphere=True)
+
+
+def _float32_reads(p: np.ndarray, w: np.ndarray, u4: np.ndarray) -> np.ndarray:
+    """Rows ``c t(mu), 1 - E(mu), t(mo)`` as the kernel computes them for unit directions ``w``
+    (rounded to float32) and grid uniforms ``u4``."""
+    n, n_e = len(u4), int(p[RP_N_E])
+    cell_i, cell_f, aux = np.empty((3, n), np.int32), np.empty((6, n), np.float32), np.zeros((7, n), np.float32)
+    lo, hi = F(p[RP_S_LO]), F(p[RP_S_HI])
+    scale = F((n_e - 1) / (p[RP_S_HI] - p[RP_S_LO]))
+    w32 = w.astype(np.float32)
+    for i in range(n):
+        k, f, j, l0, l1, l2, l3, ko, fo = _rp_cells32(w32[i, 0], w32[i, 1], w32[i, 2], F(u4[i]), lo, hi, scale, n_e)
+        cell_i[:, i] = k, j, ko
+        cell_f[:, i] = f, l0, l1, l2, l3, fo
+    _rp_read_block32(p[RP_TABLE:RP_TABLE + RP_TABLE_RES].astype(np.float32), p[RP_E:RP_E + n_e].astype(np.float32),
+                     F(p[3]), cell_i, cell_f, aux, n)
+    return aux[3:6].astype(np.float64)
+
+
+def _directions() -> np.ndarray:
+    """Unit directions from normal incidence (and within 1e-4 rad of it) to grazing, at random azimuths."""
+    rng = np.random.default_rng(7)
+    theta = np.concatenate([[0.0, 1e-7, 1e-5], rng.uniform(0.0, 1e-4, 200), rng.uniform(0.0, 0.5 * math.pi - 1e-3, 2000)])
+    phi = rng.uniform(0.0, 2.0 * math.pi, len(theta))
+    return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=1)
+
+
+def test_float32_table_values_are_within_a_few_roundings_of_the_float64_reads_at_every_incidence():
+    for spec in ("roughplastic:alpha=0.3,eta=1.5,kd=0.5", "roughplastic:alpha=0.5,eta=1.33,kd=0.5"):
+        p = _hemisphere_params(spec)
+        w = _directions()
+        u4 = np.random.default_rng(8).integers(0, 2 ** 24, len(w)) * 2.0 ** -24
+        got = _float32_reads(p, w, u4)
+        mu = np.abs(w[:, 2])
+        want = np.array([[p[3] * rp_t(p, m) for m in mu], [1.0 - rp_e(p, m) for m in mu],
+                         [rp_t(p, math.sqrt(1.0 - v)) for v in u4]])
+        err = np.abs(got - want).max(axis=1)
+        assert (err <= BOUND).all(), f"{spec}: errors {err} (c t, 1 - E, t(mo)) exceed {BOUND:.3g}"
+
+
+def test_power_directions_a_hundred_thousandth_of_a_radian_off_miss_the_bound():
+    p = _hemisphere_params("roughplastic:alpha=0.3,eta=1.5,kd=0.5")
+    theta = np.linspace(0.3, 1.3, 200)
+    w, tilted = (np.stack([np.sin(t), np.zeros_like(t), np.cos(t)], axis=1) for t in (theta, theta + 1e-5))
+    u4 = np.full(len(theta), 0.5)
+    err = np.abs(_float32_reads(p, tilted, u4) - _float32_reads(p, w, u4)).max(axis=1)
+    assert err[0] > BOUND and err[1] > BOUND, err
