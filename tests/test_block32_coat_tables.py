@@ -13,7 +13,8 @@ import math
 import numpy as np
 
 from virtual.kernel_codes import RP_E, RP_N_E, RP_S_HI, RP_S_LO, RP_TABLE, RP_TABLE_RES
-from virtual.kernels.block32_coat import _rp_cells32, _rp_read_block32
+from virtual.beam import Beam
+from virtual.kernels.block32_coat import _rp_bounds, _rp_cells32, _rp_read_block32
 from virtual.kernels.coat import rp_e, rp_t
 from virtual.kernels.emit import BEAM_COLLIMATED
 from virtual.specimens import parse_specimen
@@ -42,8 +43,10 @@ def _float32_reads(p: np.ndarray, w: np.ndarray, u4: np.ndarray) -> np.ndarray:
         k, f, j, l0, l1, l2, l3, ko, fo = _rp_cells32(w32[i, 0], w32[i, 1], w32[i, 2], F(u4[i]), lo, hi, scale, n_e)
         cell_i[:, i] = k, j, ko
         cell_f[:, i] = f, l0, l1, l2, l3, fo
+    aux[:3] = w32.T
+    cell_i[0] = 1  # every ray's incidence read (the kernel reads it only where its bounds leave the base unsure)
     _rp_read_block32(p[RP_TABLE:RP_TABLE + RP_TABLE_RES].astype(np.float32), p[RP_E:RP_E + n_e].astype(np.float32),
-                     F(p[3]), cell_i, cell_f, aux, n)
+                     F(p[3]), lo, hi, scale, n_e, u4.astype(np.float32), -4 * n, n, cell_i, cell_f, aux)
     return aux[3:6].astype(np.float64)
 
 
@@ -75,3 +78,31 @@ def test_power_directions_a_hundred_thousandth_of_a_radian_off_miss_the_bound():
     u4 = np.full(len(theta), 0.5)
     err = np.abs(_float32_reads(p, tilted, u4) - _float32_reads(p, w, u4)).max(axis=1)
     assert err[0] > BOUND and err[1] > BOUND, err
+
+
+def _base_probabilities(p: np.ndarray, mu_lo: float, mu_hi: float, rng) -> np.ndarray:
+    """c t / (1 - E) as the kernel computes it, at 3000 directions with cosines uniform in [mu_lo, mu_hi]."""
+    mu = rng.uniform(mu_lo, min(mu_hi, 1.0), 3000)
+    phi = rng.uniform(0.0, 2.0 * math.pi, len(mu))
+    sin = np.sqrt(1.0 - mu * mu)
+    num, den, _ = _float32_reads(p, np.stack([sin * np.cos(phi), sin * np.sin(phi), mu], axis=1), np.zeros(len(mu)))
+    return num / den
+
+
+def test_the_base_bounds_hold_the_float32_probability_at_every_cosine_they_claim():
+    """:func:`_rp_bounds`: for cosines in its [mu_lo, mu_hi], c t / (1 - E) as the kernel computes it lies
+    inside [q_lo, q_hi] with half the margin to spare, so a ray it decides decides as the read would,
+    and out of doubt. Power: the probabilities of a perturbed specimen (kd 0.5 -> 0.8) leave them."""
+    rng = np.random.default_rng(9)
+    margin = 1e-5
+    for kind in ("conical", "collimated"):
+        for theta in (0.0, 30.0, 60.0, 80.0):
+            beam = Beam(kind)
+            p, perturbed = (incidence_params(np.asarray(parse_specimen(f"roughplastic:alpha=0.3,eta=1.5,kd={kd}").params(550.0),
+                                                        dtype=np.float64), beam.code, beam.kernel_args(theta, 0.0))
+                            for kd in (0.5, 0.8))
+            q_lo, q_hi, mu_lo, mu_hi = (float(v) for v in _rp_bounds(p, int(p[RP_N_E]), margin))
+            q = _base_probabilities(p, mu_lo, mu_hi, rng)
+            assert q.min() >= q_lo + margin / 2 and q.max() <= q_hi - margin / 2, (kind, theta, q.min(), q.max(), q_lo, q_hi)
+            q = _base_probabilities(perturbed, mu_lo, mu_hi, rng)
+            assert q.min() < q_lo or q.max() > q_hi, (kind, theta)

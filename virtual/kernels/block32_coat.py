@@ -12,21 +12,22 @@ ray is decided again in float64 by :func:`redo_coat_ray64`.
 
 The roughplastic's table reads. Its decisions ``u3 (1 - E(mu)) < c t(mu)`` and ``u6 < t(mo)``
 read the coat transmittance t and the specular albedo E at the incidence's cosine mu and the
-attempt's cosine mo = sqrt(1 - u4), in float32 like every other float32 decision: the cells and
-weights in one vectorized loop (:func:`_rp_cells32`, E read in s = sqrt(1 - mu) computed from
-the direction's transverse part, so well conditioned at any incidence), the indexed reads of the
-float32-rounded tables in a scalar loop of their own (:func:`_rp_read_block32`). Each value is
-within a few float32 roundings of the float64 :func:`~virtual.kernels.coat.rp_t` and
-:func:`~virtual.kernels.coat.rp_e` (tested, tests/test_block32_coat.py), the error every float32
-survival test carries (:mod:`virtual.kernels.f32`); the doubted rays are decided again on the
-float64 tables. (Until now the incidence was emitted in float64 to read the tables in float64:
-half of the kernel's time in AVX2 code, a quarter in AVX-512 code.)
+attempt's cosine mo = sqrt(1 - u4), in float32 like every other float32 decision. The base test
+is mostly decided by bounds on c t / (1 - E) over the beam's cosines (:func:`_rp_bounds`, in the
+vectorized loop); only the rays whose u3 falls between them (about 2 % at 30 degrees, conical)
+read the tables at their incidence (:func:`_rp_cells32`, E read in s = sqrt(1 - mu) computed from
+the direction's transverse part, well conditioned at any incidence). t(mo) is read for every ray,
+in a scalar loop of its own (:func:`_rp_read_block32`: indexed loads, which LLVM does not
+vectorize next to stores it cannot prove apart). Each value is within a few float32 roundings of
+the float64 :func:`~virtual.kernels.coat.rp_t` and :func:`~virtual.kernels.coat.rp_e`, and the
+bounds hold those values with a margin (both tested, tests/test_block32_coat_tables.py); the
+doubted rays are decided again on the float64 tables.
 
-Where the time goes (one thread, a Zen 5 in AVX-512 code, scratch timings, ns a ray): the
-uniforms ~0.14 each (11 and 13 a ray against GGX's 7); the roughplastic's table reads ~1.8 and
-its float64 emission ~1.3 more than a float32 one, its binning ~0.4 (of ~13.7 in all); the leaf's
-cuticle loop ~6.7 with its uniforms, its body rays' attempts ~1.8 (a quarter of the rays at
-550 nm, :func:`_leaf_bodies`) and the float64 finishing of their rejected attempts ~1.2.
+Where the time goes (one thread, a Zen 5, scratch timings, ns a ray): the roughplastic ~10.2
+in AVX-512 code with every table read per ray, ~8.9 with the bounds (AVX2 code: 14.7 and 12.7;
+with the incidence emitted and the tables read in float64, as before, 14.9 and 29); the uniforms ~0.14 each (11 and 13 a ray against GGX's 7); the leaf's cuticle loop ~6.7
+with its uniforms, its body rays' attempts ~1.8 (a quarter of the rays at 550 nm,
+:func:`_leaf_bodies`) and the float64 finishing of their rejected attempts ~1.2.
 The scalar code (table reads, finishing of rejected and doubted rays) is
 called, not inlined: inlined, it slowed the vectorized loops around it (leaf 1.35x, in A/B runs).
 """
@@ -203,21 +204,52 @@ def _rp_cells32(wx, wy, wz, u4, e_lo, e_hi, e_scale, n_e):
 
 
 @jit
-def _rp_read_block32(t32, e32, c, cell_i, cell_f, aux, nb):
-    """The table values at the cells of :func:`_rp_cells32` into rows 3-5 of ``aux``: ``c t(mu),
-    1 - E(mu), t(mo)`` (the expressions of :func:`~virtual.kernels.coat.rp_t` and
-    :func:`~virtual.kernels.coat.rp_e` on the float32 tables ``t32``, ``e32``). Indexed loads: a
-    scalar loop, called, not inlined, like :func:`_finish_block`."""
+def _rp_bounds(p64, n_e, margin):
+    """``(q_lo, q_hi, mu_lo, mu_hi)``: bounds on the base's probability ``c t(mu) / (1 - E(mu))``,
+    as float32 computes it, for the cosines mu in [mu_lo, mu_hi] (the E table's range of
+    s = sqrt(1 - mu) and a table cell more), widened by ``margin`` (far above float32
+    rounding). t is a lerp: within its nodes over the cells those cosines touch; E a four-point
+    Lagrange form: within its nodes' range widened twice over (the Lebesgue constant of four
+    equispaced nodes is below 1.7). A ray whose u3 lies outside [q_lo, q_hi], and whose cosine
+    inside [mu_lo, mu_hi], is decided without reading the tables at its incidence."""
+    e_min = p64[RP_E]
+    e_max = p64[RP_E]
+    for k in range(n_e):
+        e_min = min(e_min, p64[RP_E + k])
+        e_max = max(e_max, p64[RP_E + k])
+    spread = e_max - e_min
+    s_lo = p64[RP_S_LO]
+    s_hi = s_lo if n_e == 4 else p64[RP_S_HI]  # four nodes: one cosine's E, over [s, s + 1]
+    k_lo = max(min(int((1.0 - s_hi * s_hi) * (RP_TABLE_RES - 1)) - 1, RP_TABLE_RES - 2), 0)
+    k_hi = max(min(int((1.0 - s_lo * s_lo) * (RP_TABLE_RES - 1)) + 1, RP_TABLE_RES - 2), 0)
+    t_min = p64[RP_TABLE + k_lo]
+    t_max = t_min
+    for k in range(k_lo, min(k_hi + 3, RP_TABLE_RES)):
+        t_min = min(t_min, p64[RP_TABLE + k])
+        t_max = max(t_max, p64[RP_TABLE + k])
+    c = p64[3]
+    q_lo = c * t_min / max(1.0 - (e_min - 2.0 * spread), 1e-30)
+    q_hi = c * t_max / max(1.0 - min(e_max + 2.0 * spread, 1.0), 1e-30)
+    return (np.float32(q_lo - margin), np.float32(min(q_hi + margin, 2.0)),
+            np.float32((k_lo + 0.5) / (RP_TABLE_RES - 1)), np.float32((k_hi + 1.5) / (RP_TABLE_RES - 1)))
+
+
+@jit
+def _rp_read_block32(t32, e32, c, e_lo, e_hi, e_scale, n_e, u, s0, nb, cell_i, cell_f, aux):
+    """The table reads of a block, scalar (indexed loads): every ray's ``t(mo)`` into row 5 of
+    ``aux``, and for the rays whose base test the bounds leave unsure (``cell_i[0]``, rare) the
+    values ``c t(mu), 1 - E(mu)`` into rows 3-4 -- the expressions of
+    :func:`~virtual.kernels.coat.rp_t` and :func:`~virtual.kernels.coat.rp_e` on the float32
+    tables ``t32``, ``e32``. Called, not inlined, like :func:`_finish_block`."""
     for i in range(nb):
-        k = cell_i[0, i]
-        j = cell_i[1, i]
         ko = cell_i[2, i]
-        w = cell_f[0, i]
         wo = cell_f[5, i]
-        aux[3, i] = c * ((ONE - w) * t32[k] + w * t32[k + 1])
-        aux[4, i] = ONE - (cell_f[1, i] * e32[j] + cell_f[2, i] * e32[j + 1] + cell_f[3, i] * e32[j + 2]
-                           + cell_f[4, i] * e32[j + 3])
         aux[5, i] = (ONE - wo) * t32[ko] + wo * t32[ko + 1]
+        if cell_i[0, i] != 0:
+            k, w, j, l0, l1, l2, l3, _, _ = _rp_cells32(aux[0, i], aux[1, i], aux[2, i], u[s0 + 4 * nb + i], e_lo,
+                                                        e_hi, e_scale, n_e)
+            aux[3, i] = c * ((ONE - w) * t32[k] + w * t32[k + 1])
+            aux[4, i] = ONE - (l0 * e32[j] + l1 * e32[j + 1] + l2 * e32[j + 2] + l3 * e32[j + 3])
 
 
 @jit
@@ -316,6 +348,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
     e_hi = np.float32(p64[RP_S_HI] if rp else 1.0)
     e_scale = np.float32((n_e - 1) / ((p64[RP_S_HI] - p64[RP_S_LO]) if rp else 1.0))
     c_base = np.float32(p64[3])
+    q_lo, q_hi, mu_lo, mu_hi = _rp_bounds(p64, n_e, 1e-5) if rp else (ZERO, ZERO, ZERO, ZERO)
     h = np.zeros(n_bins, dtype=np.int64)
     n_dead = np.zeros(2, dtype=np.int64)
     left = n_rays
@@ -323,23 +356,22 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
         m = min(left, nb)
         fill_uniforms32(lane, ublock)
         if rp:
-            for i in range(nb):  # the incidence and the table cells (vectorized), then the table reads (scalar)
+            for i in range(nb):  # the incidence, the attempt's table cell, the base test by bounds (vectorized)
                 wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
                 aux[0, i] = wx
                 aux[1, i] = wy
                 aux[2, i] = wz
                 aux[6, i] = ONE if hit else ZERO
-                k, w, j, l0, l1, l2, l3, ko, wo = _rp_cells32(wx, wy, wz, u[s0 + 4 * nb + i], e_lo, e_hi, e_scale, n_e)
-                cell_i[0, i] = k
-                cell_i[1, i] = j
+                xo = math.sqrt(ONE - u[s0 + 4 * nb + i]) * _MU_SCALE  # as _rp_cells32's
+                ko = min(np.int32(xo), _LAST_CELL)
                 cell_i[2, i] = ko
-                cell_f[0, i] = w
-                cell_f[1, i] = l0
-                cell_f[2, i] = l1
-                cell_f[3, i] = l2
-                cell_f[4, i] = l3
-                cell_f[5, i] = wo
-            _rp_read_block32(t32, e32, c_base, cell_i, cell_f, aux, nb)
+                cell_f[5, i] = xo - np.float32(ko)
+                u3 = u[s0 + 3 * nb + i]
+                mu = abs(wz)
+                cell_i[0, i] = ((u3 >= q_lo) & (u3 <= q_hi)) | (mu < mu_lo) | (mu > mu_hi)
+                aux[3, i] = TWO if u3 < q_lo else -ONE  # num, den deciding u3 den < num as the bounds do,
+                aux[4, i] = ONE  # never in doubt (the unsure rays' values are read below)
+            _rp_read_block32(t32, e32, c_base, e_lo, e_hi, e_scale, n_e, u, s0, nb, cell_i, cell_f, aux)
             for i in range(nb):
                 v[0, i], v[1, i], v[2, i], alive, redo, doubt = roughplastic_given32(
                     p, aux[0, i], aux[1, i], aux[2, i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i],
