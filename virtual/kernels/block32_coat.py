@@ -23,11 +23,12 @@ the float64 :func:`~virtual.kernels.coat.rp_t` and :func:`~virtual.kernels.coat.
 bounds hold those values with a margin (both tested, tests/test_block32_coat_tables.py); the
 doubted rays are decided again on the float64 tables.
 
-Where the time goes (one thread, a Zen 5, scratch timings, ns a ray): the roughplastic ~10.2
-in AVX-512 code with every table read per ray, ~8.9 with the bounds (AVX2 code: 14.7 and 12.7;
-with the incidence emitted and the tables read in float64, as before, 14.9 and 29); the uniforms ~0.14 each (11 and 13 a ray against GGX's 7); the leaf's cuticle loop ~6.7
-with its uniforms, its body rays' attempts ~1.8 (a quarter of the rays at 550 nm,
-:func:`_leaf_bodies`) and the float64 finishing of their rejected attempts ~1.2.
+Where the time goes (one thread, a Zen 5, scratch timings, ns a ray): the roughplastic ~10.2 in
+AVX-512 code with every table read per ray, ~8.9 with the bounds (AVX2 code: 14.7 and 12.7; with
+the incidence emitted and the tables read in float64, as before, 14.9 and 29); the uniforms ~0.14
+each (11 and 13 a ray against GGX's 7); the leaf's cuticle loop ~6.7 with its uniforms, its body
+rays' attempts ~1.8 (a quarter of the rays at 550 nm, :func:`_leaf_bodies`) and the float64
+finishing of their rejected attempts ~1.2.
 The scalar code (table reads, finishing of rejected and doubted rays) is
 called, not inlined: inlined, it slowed the vectorized loops around it (leaf 1.35x, in A/B runs).
 """
@@ -281,8 +282,9 @@ def _finish_block(model, p64, kind, b64, u, nb, bo, s0, m, v, code, s):
 def _leaf_bodies(p, u, s0, nb, m, v, code, aux, idx, ox, oy, oz):
     """The attempts of a block's body rays (code 5) of the ``m`` emitted: their uniforms and side
     gathered into the rows of ``aux`` (their ray numbers into ``idx[0]`` by a branch-free loop over
-    the block, one store a ray), :func:`leaf_body32` on the gathered rows (a vectorized loop) into ``ox, oy, oz``, the results written
-    back -- code 1 accepted, 3 rejected (finished in float64), 4 in doubt."""
+    the block, one store a ray), :func:`leaf_body32` on the gathered rows (a vectorized loop) into
+    ``ox, oy, oz``, the results written back -- code 1 accepted, 3 rejected (finished in float64),
+    4 in doubt."""
     n = 0
     for i in range(m):
         idx[0, n] = i
@@ -313,7 +315,8 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
     """One chunk: the arguments of :func:`~virtual.kernels.block32.gonio_block32_chunk`, except
     that ``p64`` is the whole float64 parameter vector (an array: the roughplastic's tables;
     ``p`` its first six values as a float32 tuple). Codes: 1 survivor, 0 absorbed, 2 missed,
-    3 a rejected attempt (finished on ``s``), 4 in doubt (decided again in float64).
+    3 a rejected attempt (finished on ``s``), 4 in doubt (decided again in float64); 5, within
+    a block only, a leaf's body ray whose attempt is still to run (:func:`_leaf_bodies`).
 
     A loop reads few arrays: LLVM vectorizes a loop only when it can check at run time that its
     stores overlap none of its loads, and it gives up beyond a handful of arrays. So the
