@@ -53,7 +53,8 @@ from virtual.kernels.xoshiro import LANES, fill_uniforms32
 from virtual.kernel_codes import BLOCK32_RAYS, RP_E, RP_N_E, RP_S_HI, RP_S_LO, RP_TABLE, RP_TABLE_RES
 from virtual.model_ids import MODEL_ROUGHPLASTIC
 
-__all__ = ["RP32_UNIFORMS", "LEAF32_UNIFORMS", "roughplastic_given32", "leaf_cuticle32", "leaf_body32", "redo_coat_ray64", "gonio_coat32_chunk"]
+__all__ = ["RP32_UNIFORMS", "LEAF32_UNIFORMS", "roughplastic_given32", "leaf_cuticle32", "leaf_body32", "redo_coat_ray64",
+           "rp_tables32", "gonio_coat32_chunk"]
 
 #: Uniforms :func:`roughplastic_given32` consumes per ray.
 RP32_UNIFORMS = 7
@@ -205,6 +206,20 @@ def _rp_cells32(wx, wy, wz, u4, e_lo, e_hi, e_scale, n_e):
 
 
 @jit
+def rp_tables32(p64, n_e, rp):
+    """The roughplastic's tables in float32: ``(t, 1 - E)`` at their nodes, each rounded once
+    from float64 (empty-valued when ``rp`` is false: the leaf's chunk)."""
+    t32 = np.zeros(RP_TABLE_RES, dtype=np.float32)
+    e32 = np.zeros(n_e, dtype=np.float32)
+    if rp:
+        for k in range(RP_TABLE_RES):
+            t32[k] = p64[RP_TABLE + k]
+        for k in range(n_e):
+            e32[k] = 1.0 - p64[RP_E + k]
+    return t32, e32
+
+
+@jit
 def _rp_bounds(p64, n_e, margin):
     """``(q_lo, q_hi, mu_lo, mu_hi)``: bounds on the base's probability ``c t(mu) / (1 - E(mu))``,
     as float32 computes it, for the cosines mu in [mu_lo, mu_hi] (the E table's range of
@@ -241,7 +256,9 @@ def _rp_read_block32(t32, e32, c, e_lo, e_hi, e_scale, n_e, u, s0, nb, cell_i, c
     ``aux``, and for the rays whose base test the bounds leave unsure (``cell_i[0]``, rare) the
     values ``c t(mu), 1 - E(mu)`` into rows 3-4 -- the expressions of
     :func:`~virtual.kernels.coat.rp_t` and :func:`~virtual.kernels.coat.rp_e` on the float32
-    tables ``t32``, ``e32``. Called, not inlined, like :func:`_finish_block`."""
+    tables of :func:`rp_tables32` (1 - E interpolated itself: the same value, as the weights sum
+    to 1, without the cancellation of 1 - E where E is near 1). Called, not inlined, like
+    :func:`_finish_block`."""
     for i in range(nb):
         ko = cell_i[2, i]
         wo = cell_f[5, i]
@@ -250,7 +267,7 @@ def _rp_read_block32(t32, e32, c, e_lo, e_hi, e_scale, n_e, u, s0, nb, cell_i, c
             k, w, j, l0, l1, l2, l3, _, _ = _rp_cells32(aux[0, i], aux[1, i], aux[2, i], u[s0 + 4 * nb + i], e_lo,
                                                         e_hi, e_scale, n_e)
             aux[3, i] = c * ((ONE - w) * t32[k] + w * t32[k + 1])
-            aux[4, i] = ONE - (l0 * e32[j] + l1 * e32[j + 1] + l2 * e32[j + 2] + l3 * e32[j + 3])
+            aux[4, i] = l0 * e32[j] + l1 * e32[j + 1] + l2 * e32[j + 2] + l3 * e32[j + 3]
 
 
 @jit
@@ -340,13 +357,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
     cell_i = np.empty((3, nb), dtype=np.int32)
     cell_f = np.empty((6, nb), dtype=np.float32)
     n_e = int(p64[RP_N_E]) if rp else 4
-    t32 = np.zeros(RP_TABLE_RES, dtype=np.float32)  # the roughplastic's tables, rounded to float32
-    e32 = np.zeros(n_e, dtype=np.float32)
-    if rp:
-        for k in range(RP_TABLE_RES):
-            t32[k] = p64[RP_TABLE + k]
-        for k in range(n_e):
-            e32[k] = p64[RP_E + k]
+    t32, e32 = rp_tables32(p64, n_e, rp)
     e_lo = np.float32(p64[RP_S_LO] if rp else 0.0)
     e_hi = np.float32(p64[RP_S_HI] if rp else 1.0)
     e_scale = np.float32((n_e - 1) / ((p64[RP_S_HI] - p64[RP_S_LO]) if rp else 1.0))
