@@ -12,9 +12,9 @@ import math
 
 import numpy as np
 
-from virtual.kernel_codes import RP_N_E, RP_S_HI, RP_S_LO
+from virtual.kernel_codes import RP_N_E
 from virtual.beam import Beam
-from virtual.kernels.block32_coat import _rp_bounds, _rp_cells32, _rp_read_block32, rp_tables32
+from virtual.kernels.block32_coat import _rp_bounds, _rp_read_block32, _t_cell32, rp_tables32
 from virtual.kernels.coat import rp_e, rp_t
 from virtual.kernels.emit import BEAM_COLLIMATED
 from virtual.specimens import parse_specimen
@@ -41,18 +41,13 @@ def _float32_reads(p: np.ndarray, w: np.ndarray, u4: np.ndarray) -> np.ndarray:
     """Rows ``c t(mu), 1 - E(mu), t(mo)`` as the kernel computes them for unit directions ``w``
     (rounded to float32) and grid uniforms ``u4``."""
     n, n_e = len(u4), int(p[RP_N_E])
-    cell_i, cell_f, aux = np.empty((3, n), np.int32), np.empty((6, n), np.float32), np.zeros((7, n), np.float32)
-    lo, hi = F(p[RP_S_LO]), F(p[RP_S_HI])
-    scale = F((n_e - 1) / (p[RP_S_HI] - p[RP_S_LO]))
-    w32 = w.astype(np.float32)
+    cell_i, cell_f, aux = np.ones((3, n), np.int32), np.zeros((6, n), np.float32), np.zeros((7, n), np.float32)
     for i in range(n):
-        k, f, j, l0, l1, l2, l3, ko, fo = _rp_cells32(w32[i, 0], w32[i, 1], w32[i, 2], F(u4[i]), lo, hi, scale, n_e)
-        cell_i[:, i] = k, j, ko
-        cell_f[:, i] = f, l0, l1, l2, l3, fo
-    aux[:3] = w32.T
-    cell_i[0] = 1  # every ray's incidence read (the kernel reads it only where its bounds leave the base unsure)
-    t32, e32 = rp_tables32(p, n_e, True)
-    _rp_read_block32(t32, e32, F(p[3]), lo, hi, scale, n_e, u4.astype(np.float32), -4 * n, n, cell_i, cell_f, aux)
+        cell_i[2, i], cell_f[5, i] = _t_cell32(math.sqrt(F(1.0) - F(u4[i])))
+    aux[:3] = w.astype(np.float32).T
+    # cell_i[0] = 1: every ray's incidence read (the kernel reads it only where its bounds leave the base unsure)
+    t32, e32, lo, hi, scale = rp_tables32(p, n_e, True)
+    _rp_read_block32(t32, e32, F(p[3]), lo, hi, scale, n_e, n, cell_i, cell_f, aux)
     return aux[3:6].astype(np.float64)
 
 

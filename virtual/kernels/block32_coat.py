@@ -53,8 +53,8 @@ from virtual.kernels.xoshiro import LANES, fill_uniforms32
 from virtual.kernel_codes import BLOCK32_RAYS, RP_E, RP_N_E, RP_S_HI, RP_S_LO, RP_TABLE, RP_TABLE_RES
 from virtual.model_ids import MODEL_ROUGHPLASTIC
 
-__all__ = ["RP32_UNIFORMS", "LEAF32_UNIFORMS", "roughplastic_given32", "leaf_cuticle32", "leaf_body32", "redo_coat_ray64",
-           "rp_tables32", "gonio_coat32_chunk"]
+__all__ = ["RP32_UNIFORMS", "LEAF32_UNIFORMS", "roughplastic_given32", "leaf_cuticle32", "leaf_body32",
+           "redo_coat_ray64", "rp_tables32", "gonio_coat32_chunk"]
 
 #: Uniforms :func:`roughplastic_given32` consumes per ray.
 RP32_UNIFORMS = 7
@@ -181,17 +181,24 @@ _MU_SCALE = np.float32(RP_TABLE_RES - 1)
 
 
 @jit(inline="always")
-def _rp_cells32(wx, wy, wz, u4, e_lo, e_hi, e_scale, n_e):
-    """Where :func:`~virtual.kernels.coat.rp_t` reads t at the incidence ``mu = |wz|`` and the
-    attempt's cosine ``mo = sqrt(1 - u4)`` (Malley's z) and :func:`~virtual.kernels.coat.rp_e`
-    reads E at ``s = sqrt(1 - mu)``, with the weights of the nodes read: ``(k, w, j, l0, l1, l2,
-    l3, ko, wo)``, in float32. s is computed as ``sqrt((wx^2 + wy^2) / (1 + mu))`` (the same
-    value for a unit w): a few float32 roundings of s at any incidence (``sqrt(1 - mu)`` would
-    turn mu's rounding into an error of s up to 2^-12 near normal incidence). Arithmetic
-    only: the loop computing them vectorizes; the indexed reads are :func:`_rp_read_block32`."""
-    mu = abs(wz)
-    x = mu * _MU_SCALE
+def _t_cell32(cos):
+    """Where :func:`~virtual.kernels.coat.rp_t` reads t at the cosine ``cos`` in [0, 1], in
+    float32: ``(k, w)``, t = (1 - w) t_k + w t_(k+1)."""
+    x = cos * _MU_SCALE
     k = min(np.int32(x), _LAST_CELL)
+    return k, x - np.float32(k)
+
+
+@jit(inline="always")
+def _rp_cells32(wx, wy, wz, e_lo, e_hi, e_scale, n_e):
+    """Where :func:`~virtual.kernels.coat.rp_t` reads t at the incidence ``mu = |wz|`` and
+    :func:`~virtual.kernels.coat.rp_e` reads E at ``s = sqrt(1 - mu)``, with the weights of the
+    nodes read: ``(k, w, j, l0, l1, l2, l3)``, in float32. s is computed as
+    ``sqrt((wx^2 + wy^2) / (1 + mu))`` (the same value for a unit w): a few float32 roundings of
+    s at any incidence (``sqrt(1 - mu)`` would turn mu's rounding into an error of s up to 2^-12
+    near normal incidence)."""
+    mu = abs(wz)
+    k, w = _t_cell32(mu)
     s = math.sqrt((wx * wx + wy * wy) / (ONE + mu))
     xe = (min(max(s, e_lo), e_hi) - e_lo) * e_scale
     j = min(max(np.int32(xe) - np.int32(1), np.int32(0)), np.int32(n_e - 4))
@@ -199,24 +206,25 @@ def _rp_cells32(wx, wy, wz, u4, e_lo, e_hi, e_scale, n_e):
     t1 = t - ONE
     t2 = t - TWO
     t3 = t - _THREE
-    xo = math.sqrt(ONE - u4) * _MU_SCALE  # 1 - u4 is exact on the 2^-24 grid
-    ko = min(np.int32(xo), _LAST_CELL)
-    return (k, x - np.float32(k), j, -t1 * t2 * t3 * _SIXTH, _THREE * t * t2 * t3 * _SIXTH,
-            -_THREE * t * t1 * t3 * _SIXTH, t * t1 * t2 * _SIXTH, ko, xo - np.float32(ko))
+    return (k, w, j, -t1 * t2 * t3 * _SIXTH, _THREE * t * t2 * t3 * _SIXTH, -_THREE * t * t1 * t3 * _SIXTH,
+            t * t1 * t2 * _SIXTH)
 
 
 @jit
 def rp_tables32(p64, n_e, rp):
-    """The roughplastic's tables in float32: ``(t, 1 - E)`` at their nodes, each rounded once
-    from float64 (empty-valued when ``rp`` is false: the leaf's chunk)."""
+    """The roughplastic's tables in float32: ``(t, 1 - E, s_lo, s_hi, scale)`` -- t and 1 - E at
+    their nodes, each rounded once from float64, and E's nodes' range in s with its nodes per unit
+    of s (zeros and a unit range when ``rp`` is false: the leaf's chunk)."""
     t32 = np.zeros(RP_TABLE_RES, dtype=np.float32)
     e32 = np.zeros(n_e, dtype=np.float32)
-    if rp:
-        for k in range(RP_TABLE_RES):
-            t32[k] = p64[RP_TABLE + k]
-        for k in range(n_e):
-            e32[k] = 1.0 - p64[RP_E + k]
-    return t32, e32
+    if not rp:
+        return t32, e32, ZERO, ONE, np.float32(n_e - 1)
+    for k in range(RP_TABLE_RES):
+        t32[k] = p64[RP_TABLE + k]
+    for k in range(n_e):
+        e32[k] = 1.0 - p64[RP_E + k]
+    return (t32, e32, np.float32(p64[RP_S_LO]), np.float32(p64[RP_S_HI]),
+            np.float32((n_e - 1) / (p64[RP_S_HI] - p64[RP_S_LO])))
 
 
 @jit
@@ -251,7 +259,7 @@ def _rp_bounds(p64, n_e, margin):
 
 
 @jit
-def _rp_read_block32(t32, e32, c, e_lo, e_hi, e_scale, n_e, u, s0, nb, cell_i, cell_f, aux):
+def _rp_read_block32(t32, e32, c, e_lo, e_hi, e_scale, n_e, nb, cell_i, cell_f, aux):
     """The table reads of a block, scalar (indexed loads): every ray's ``t(mo)`` into row 5 of
     ``aux``, and for the rays whose base test the bounds leave unsure (``cell_i[0]``, rare) the
     values ``c t(mu), 1 - E(mu)`` into rows 3-4 -- the expressions of
@@ -264,8 +272,7 @@ def _rp_read_block32(t32, e32, c, e_lo, e_hi, e_scale, n_e, u, s0, nb, cell_i, c
         wo = cell_f[5, i]
         aux[5, i] = (ONE - wo) * t32[ko] + wo * t32[ko + 1]
         if cell_i[0, i] != 0:
-            k, w, j, l0, l1, l2, l3, _, _ = _rp_cells32(aux[0, i], aux[1, i], aux[2, i], u[s0 + 4 * nb + i], e_lo,
-                                                        e_hi, e_scale, n_e)
+            k, w, j, l0, l1, l2, l3 = _rp_cells32(aux[0, i], aux[1, i], aux[2, i], e_lo, e_hi, e_scale, n_e)
             aux[3, i] = c * ((ONE - w) * t32[k] + w * t32[k + 1])
             aux[4, i] = l0 * e32[j] + l1 * e32[j + 1] + l2 * e32[j + 2] + l3 * e32[j + 3]
 
@@ -357,10 +364,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
     cell_i = np.empty((3, nb), dtype=np.int32)
     cell_f = np.empty((6, nb), dtype=np.float32)
     n_e = int(p64[RP_N_E]) if rp else 4
-    t32, e32 = rp_tables32(p64, n_e, rp)
-    e_lo = np.float32(p64[RP_S_LO] if rp else 0.0)
-    e_hi = np.float32(p64[RP_S_HI] if rp else 1.0)
-    e_scale = np.float32((n_e - 1) / ((p64[RP_S_HI] - p64[RP_S_LO]) if rp else 1.0))
+    t32, e32, e_lo, e_hi, e_scale = rp_tables32(p64, n_e, rp)
     c_base = np.float32(p64[3])
     q_lo, q_hi, mu_lo, mu_hi = _rp_bounds(p64, n_e, 1e-5) if rp else (ZERO, ZERO, ZERO, ZERO)
     h = np.zeros(n_bins, dtype=np.int64)
@@ -376,16 +380,13 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
                 aux[1, i] = wy
                 aux[2, i] = wz
                 aux[6, i] = ONE if hit else ZERO
-                xo = math.sqrt(ONE - u[s0 + 4 * nb + i]) * _MU_SCALE  # as _rp_cells32's
-                ko = min(np.int32(xo), _LAST_CELL)
-                cell_i[2, i] = ko
-                cell_f[5, i] = xo - np.float32(ko)
+                cell_i[2, i], cell_f[5, i] = _t_cell32(math.sqrt(ONE - u[s0 + 4 * nb + i]))  # Malley's z; 1 - u4 exact
                 u3 = u[s0 + 3 * nb + i]
                 mu = abs(wz)
                 cell_i[0, i] = ((u3 >= q_lo) & (u3 <= q_hi)) | (mu < mu_lo) | (mu > mu_hi)
                 aux[3, i] = TWO if u3 < q_lo else -ONE  # num, den deciding u3 den < num as the bounds do,
                 aux[4, i] = ONE  # never in doubt (the unsure rays' values are read below)
-            _rp_read_block32(t32, e32, c_base, e_lo, e_hi, e_scale, n_e, u, s0, nb, cell_i, cell_f, aux)
+            _rp_read_block32(t32, e32, c_base, e_lo, e_hi, e_scale, n_e, nb, cell_i, cell_f, aux)
             for i in range(nb):
                 v[0, i], v[1, i], v[2, i], alive, redo, doubt = roughplastic_given32(
                     p, aux[0, i], aux[1, i], aux[2, i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i],
