@@ -13,29 +13,32 @@ sends a specimen here only when float32 suffices for it (:mod:`virtual.kernels.f
 from __future__ import annotations
 
 import numpy as np
+from numba import uint32
+from numba.cpython.unsafe.numbers import trailing_zeros
 
 from virtual.kernels import jit
 from virtual.kernels.emit import BEAM_COLLIMATED, BEAM_CONICAL
 from virtual.kernels.patch_lookup import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
-from virtual.kernels.f32 import ZERO, emit_given32, emit_side32, guess_bin32
+from virtual.kernels.f32 import ZERO, emit_block32, emit_side32, guess_bin32, sincos_2pi32
 from virtual.kernels.branchfree import GIVEN4_UNIFORMS, plastic_diffuse_redo
 from virtual.kernels.refine import redo_ray64
-from virtual.kernels.branchfree32 import ggx_given32, lambert_given32, oren_nayar_given32, phong_given32, phong_lobe_omc32
+from virtual.kernels.branchfree32 import ggx_finish32, ggx_normal32, lambert_given32, oren_nayar_given32, phong_given32, phong_lobe_omc32
 from virtual.kernels.branchfree32_rough import DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_given32, plastic_given32
 from virtual.kernels.xoshiro import LANES, fill_uniforms32
 from virtual.kernels.scatter import (MODEL_DIELECTRIC, MODEL_LAMBERT, MODEL_OREN_NAYAR,
                                      MODEL_PHONG, MODEL_PLASTIC)
 
-__all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "guess_bins32", "bin_block32", "gonio_block32_chunk"]
+__all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "guess_bins32", "ggx_block32", "bin_block32", "gonio_block32_chunk"]
 
 from virtual.kernel_codes import BLOCK32_MODELS, BLOCK32_RAYS
 _BEAM_UNIFORMS = 4
 
 
-@jit(inline="always")
+@jit(error_model="numpy")
 def guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_margin):
     """``code[i] = guess_bin32(...)`` for i < n, one loop per scheme (the scheme a constant in
-    each, so each vectorizes)."""
+    each, so each vectorizes). Called, not inlined: inlined into a chunk kernel its loops ran
+    slower (GGX on Zen 5, 0.2-0.4 ns a ray of the chunk's 5)."""
     if scheme == SCHEME_EQUAL_PSA:
         for i in range(n):
             code[i] = guess_bin32(x[i], y[i], z[i], SCHEME_EQUAL_PSA, n_theta, n_phi, ring_margin, sector_margin)
@@ -46,6 +49,24 @@ def guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_m
     else:
         for i in range(n):
             code[i] = guess_bin32(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
+
+
+@jit(inline="always")
+def ggx_block32(p, u, s0, nb, vx, vy, vz, code, mx, my, mz, ni, plain):
+    """GGX on a block whose incident directions are in ``vx, vy, vz`` and hits in ``code``
+    (:func:`~virtual.kernels.f32.emit_block32`): the visible normals in one loop (into ``mx, my,
+    mz, ni``), the reflections and their tests in another -- each loop's chain short enough for
+    the core to overlap its iterations (:func:`~virtual.kernels.f32.emit_block32`). Leaves the
+    reflected directions in ``vx, vy, vz`` and the codes (1 survivor, 0 absorbed, 2 missed, 4 in
+    doubt) in ``code``. ``plain`` as :func:`~virtual.kernels.branchfree32.ggx_given32`."""
+    for i in range(nb):
+        ca, sa = sincos_2pi32(u[s0 + 2 * nb + i])
+        mx[i], my[i], mz[i], ni[i] = ggx_normal32(p[0], p[1], vx[i], vy[i], vz[i], ca, sa, u[s0 + nb + i], plain)
+    for i in range(nb):
+        hit = code[i] == 1
+        vx[i], vy[i], vz[i], alive, doubt = ggx_finish32(p, vx[i], vy[i], vz[i], mx[i], my[i], mz[i], ni[i], u[s0 + i],
+                                                         plain)
+        code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
 
 
 @jit(inline="always")
@@ -64,8 +85,21 @@ def bin_block32(code, vx, vy, vz, m, cx, cy, cz, cargs, ring_margin, sector_marg
     n_dead[0] += m - n_live - n_missed
     n_dead[1] += n_missed
     j = 0
-    if 4 * n_live < m:  # few survivors (a dark or a specular specimen): a branch, rarely taken
-        for i in range(m):
+    if 4 * n_live < m:  # few survivors (a dark or a specular specimen): the set bits of 32-ray masks
+        g = 0
+        while g + 32 <= m:
+            bits = uint32(0)
+            for k in range(32):  # a vectorized mask
+                bits |= uint32(code[g + k] == 1) << uint32(k)
+            while bits != uint32(0):  # a branch per survivor, not per ray
+                i = g + trailing_zeros(bits)
+                cx[j] = vx[i]
+                cy[j] = vy[i]
+                cz[j] = vz[i]
+                j += 1
+                bits &= bits - uint32(1)
+            g += 32
+        for i in range(g, m):
             if code[i] == 1:
                 cx[j] = vx[i]
                 cy[j] = vy[i]
@@ -116,63 +150,61 @@ def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sect
     cx = np.empty(nb, dtype=np.float32)
     cy = np.empty(nb, dtype=np.float32)
     cz = np.empty(nb, dtype=np.float32)
+    cw = np.empty(nb, dtype=np.float32)  # cx..cw: GGX's normals, Phong's lobe, then the survivors
     h = np.zeros(n_bins, dtype=np.int64)
     n_dead = np.zeros(2, dtype=np.int64)  # absorbed, missed: summed in the vectorized loops, not binned
     left = n_rays
     while left > 0:
         m = min(left, nb)
         fill_uniforms32(lane, ublock)
-        if model == MODEL_LAMBERT:
+        if model == MODEL_LAMBERT:  # the beam's side test is cheap: one loop
             for i in range(nb):
                 wz, hit = emit_side32(conical, b, u[i], u[bo + i])
                 vx[i], vy[i], vz[i], alive, doubt = lambert_given32(p, wz, u[s0 + i], u[s0 + nb + i],
                                                                     u[s0 + 2 * nb + i])
                 code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))  # 1 survivor, 0 absorbed, 2 missed
-        elif model == MODEL_PHONG:
-            phong_lobe_omc32(p, u[s0 + 2 * nb:s0 + 3 * nb], code, vx)  # code: int32 scratch until written below
-            for i in range(nb):
-                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive, doubt = phong_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
-                                                           u[s0 + 2 * nb + i], u[s0 + 3 * nb + i], vx[i])
-                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
-        elif model == MODEL_OREN_NAYAR:
-            for i in range(nb):
-                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive, doubt = oren_nayar_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
-                                                                u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
-                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
-        elif model == MODEL_DIELECTRIC:
-            for i in range(nb):
-                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive, doubt = dielectric_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
-                                                                u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
-                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))  # survivor, absorbed, missed
-        elif model == MODEL_PLASTIC:
-            for i in range(nb):
-                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive, redo, doubt = plastic_given32(
-                    p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i],
-                    u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i])
-                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2)))
-            for i in range(m):  # the diffuse rays whose one attempt was rejected: the loop continues in float64
-                if code[i] == 3:
-                    ox, oy, oz = plastic_diffuse_redo(p64[1], s)
-                    vx[i] = ox
-                    vy[i] = oy
-                    vz[i] = oz if vz[i] > ZERO else -oz
-                    code[i] = 1
-        elif p[0] == p[1] and p[3] == ZERO and p[4] == ZERO:  # isotropic, height-correlated, k = 0
-            for i in range(nb):
-                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive, doubt = ggx_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
-                                                         u[s0 + 2 * nb + i], True)
-                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
-        else:  # GGX, anisotropic GGX
-            for i in range(nb):
-                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive, doubt = ggx_given32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
-                                                         u[s0 + 2 * nb + i], False)
-                code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
+        else:  # the beam first, in a loop of its own (emit_block32); code holds the hits until marked
+            emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)
+            if model == MODEL_PHONG:
+                phong_lobe_omc32(p, u[s0 + 2 * nb:s0 + 3 * nb], cy.view(np.int32), cx)  # cy: int32 scratch
+                for i in range(nb):
+                    hit = code[i] == 1
+                    vx[i], vy[i], vz[i], alive, doubt = phong_given32(p, vx[i], vy[i], vz[i], u[s0 + i],
+                                                                      u[s0 + nb + i], u[s0 + 2 * nb + i],
+                                                                      u[s0 + 3 * nb + i], cx[i])
+                    code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
+            elif model == MODEL_OREN_NAYAR:
+                for i in range(nb):
+                    hit = code[i] == 1
+                    vx[i], vy[i], vz[i], alive, doubt = oren_nayar_given32(p, vx[i], vy[i], vz[i], u[s0 + i],
+                                                                           u[s0 + nb + i], u[s0 + 2 * nb + i],
+                                                                           u[s0 + 3 * nb + i])
+                    code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
+            elif model == MODEL_DIELECTRIC:
+                for i in range(nb):
+                    hit = code[i] == 1
+                    vx[i], vy[i], vz[i], alive, doubt = dielectric_given32(p, vx[i], vy[i], vz[i], u[s0 + i],
+                                                                           u[s0 + nb + i], u[s0 + 2 * nb + i],
+                                                                           u[s0 + 3 * nb + i])
+                    code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
+            elif model == MODEL_PLASTIC:
+                for i in range(nb):
+                    hit = code[i] == 1
+                    vx[i], vy[i], vz[i], alive, redo, doubt = plastic_given32(
+                        p, vx[i], vy[i], vz[i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i],
+                        u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i])
+                    code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2)))
+                for i in range(m):  # the diffuse rays whose one attempt was rejected: the loop continues in float64
+                    if code[i] == 3:
+                        ox, oy, oz = plastic_diffuse_redo(p64[1], s)
+                        vx[i] = ox
+                        vy[i] = oy
+                        vz[i] = oz if vz[i] > ZERO else -oz
+                        code[i] = 1
+            elif p[0] == p[1] and p[3] == ZERO and p[4] == ZERO:  # isotropic, height-correlated, k = 0
+                ggx_block32(p, u, s0, nb, vx, vy, vz, code, cx, cy, cz, cw, True)
+            else:  # GGX, anisotropic GGX
+                ggx_block32(p, u, s0, nb, vx, vy, vz, code, cx, cy, cz, cw, False)
         n_doubt = 0
         for i in range(m):  # a vectorized count of the rays in doubt first (about one in 10^6)
             n_doubt += code[i] == 4

@@ -30,7 +30,7 @@ from virtual.kernels.emit import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMI
 from virtual.kernels.patch_lookup import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
 
 __all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
-           "GRID", "DOUBT", "in_doubt32", "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "emit_side32", "guess_bin32",
+           "GRID", "DOUBT", "in_doubt32", "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "emit_block32", "emit_side32", "guess_bin32",
            "ggx_n32", "ggx_vndf_given32", "g2_over_g1_masked_ratio32", "fresnel_conductor_ratio32", "fresnel_dielectric32", "frame32"]
 
 F = np.float32
@@ -128,6 +128,19 @@ def emit_given32(conical, b, u1, u2, u3, u4):
     wz = oz * inv
     hit = wz * b[B_AXIS_Z] > ZERO
     return (wx if conical else b[B_AXIS_X]), (wy if conical else b[B_AXIS_Y]), (wz if conical else b[B_AXIS_Z]), (hit if conical else True)
+
+
+@jit(inline="always")
+def emit_block32(conical, b, u, bo, n, wx, wy, wz, hit):
+    """:func:`emit_given32` for the block's first ``n`` rays, from its first four rows of uniforms
+    (``bo`` rays apart; 0 for a collimated beam): the directions into ``wx, wy, wz``, ``hit[i]``
+    1 or 0. A loop of its own, before the specimen's: the beam's dependency chain (a sine and
+    cosine, two disk radii, a square root and a division) added to the specimen's made one loop
+    body longer than the core's reorder window holds iterations, so the loop ran at its latency
+    rather than its throughput."""
+    for i in range(n):
+        wx[i], wy[i], wz[i], h = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+        hit[i] = h
 
 
 @jit(inline="always")
