@@ -44,8 +44,8 @@ from virtual.kernels.block32 import bin_block32
 from virtual.kernels.block_coat import leaf_given, roughplastic_given
 from virtual.kernels.coat import roughplastic_base_redo, rp_e, rp_t
 from virtual.kernels.emit import BEAM_COLLIMATED, BEAM_CONICAL, emit_given
-from virtual.kernels.f32 import (ONE, TWO, ZERO, emit_given32, fresnel_conductor_ratio32, fresnel_dielectric32,
-                                 ggx_vndf_given32, in_doubt32,
+from virtual.kernels.branchfree32 import ggx_normal32
+from virtual.kernels.f32 import (ONE, TWO, ZERO, emit_block32, fresnel_conductor_ratio32, fresnel_dielectric32, in_doubt32,
                                  sincos_2pi32, warp_cosine_hemisphere32)
 from virtual.kernels.refine import refined
 from virtual.kernels.scatter import leaf_body_redo
@@ -69,14 +69,18 @@ def _mirror32(a, wx, wy, wz, u1, u2):
     2 pi u1, squared radius u2): ``(sx, sy, sz, c, ni, no)``, c = w.m, ni and no the
     |(a x, a y, z)| of w and of the mirror direction (the masking terms)."""
     ca, sa = sincos_2pi32(u1)
-    a2 = a * a
-    ni = math.sqrt(a2 * (wx * wx + wy * wy) + wz * wz)
-    mx, my, mz = ggx_vndf_given32(wx, wy, wz, a, a, ONE / ni, ca, sa, u2)
+    mx, my, mz, ni = ggx_normal32(a, a, wx, wy, wz, ca, sa, u2, True)
+    return _mirror_about32(a, wx, wy, wz, mx, my, mz, ni)
+
+
+@jit(inline="always")
+def _mirror_about32(a, wx, wy, wz, mx, my, mz, ni):
+    """:func:`_mirror32` from the visible normal m and ni (:func:`~virtual.kernels.branchfree32.ggx_normal32`) on."""
     c = max(wx * mx + wy * my + wz * mz, ZERO)
     sx = TWO * c * mx - wx
     sy = TWO * c * my - wy
     sz = TWO * c * mz - wz
-    return sx, sy, sz, c, ni, math.sqrt(a2 * (sx * sx + sy * sy) + sz * sz)
+    return sx, sy, sz, c, ni, math.sqrt(a * a * (sx * sx + sy * sy) + sz * sz)
 
 
 @jit(inline="always")
@@ -84,9 +88,17 @@ def roughplastic_given32(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6, base_num, ba
     """:func:`~virtual.kernels.block_coat.roughplastic_given` in float32: ``(ox, oy, oz, alive,
     redo, doubt)``. The specular test is Mitsuba's separable masking, G2/G1 = G1(wo) =
     2 oz / (oz + no); the table values come from the float64 lookups (module docstring)."""
+    ca, sa = sincos_2pi32(u1)
+    mx, my, mz, _ = ggx_normal32(p[0], p[0], wx, wy, wz, ca, sa, u2, True)
+    return roughplastic_about32(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num, base_den, t_o)
+
+
+@jit(inline="always")
+def roughplastic_about32(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num, base_den, t_o):
+    """:func:`roughplastic_given32` from the visible normal of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32`) on."""
     flip = wz < ZERO
     wz = abs(wz)
-    sx, sy, sz, c, _, no = _mirror32(p[0], wx, wy, wz, u1, u2)
+    sx, sy, sz, c, _, no = _mirror_about32(p[0], wx, wy, wz, mx, my, mz, ZERO)
     f, _ = fresnel_dielectric32(c, p[1])
     s_num = f * (TWO * sz)
     s_den = sz + no
@@ -111,9 +123,17 @@ def leaf_cuticle32(p, wx, wy, wz, u0, u1, u2, u3):
     dielectric's F as a ratio (no division; 3 % faster than ``fresnel_dielectric32`` here),
     tested against it by the law (tests/test_block32_coat.py). A body ray's attempt is
     :func:`leaf_body32`, run only for the body rays (about a quarter of a green leaf's at 550 nm)."""
+    ca, sa = sincos_2pi32(u1)
+    mx, my, mz, ni = ggx_normal32(p[0], p[0], wx, wy, wz, ca, sa, u2, True)
+    return leaf_cuticle_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3)
+
+
+@jit(inline="always")
+def leaf_cuticle_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
+    """:func:`leaf_cuticle32` from the visible normal of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32`) on."""
     flip = wz < ZERO
     wz = abs(wz)
-    sx, sy, sz, c, ni, no = _mirror32(p[0], wx, wy, wz, u1, u2)
+    sx, sy, sz, c, ni, no = _mirror_about32(p[0], wx, wy, wz, mx, my, mz, ni)
     f_num, f_den = fresnel_conductor_ratio32(c, p[1], ZERO, True)  # k = 0: the dielectric's F, no division
     k_num = p[2] * f_num * ((wz + ni) * sz)
     k_den = f_den * (ni * sz + no * wz)
@@ -345,7 +365,8 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
     A loop reads few arrays: LLVM vectorizes a loop only when it can check at run time that its
     stores overlap none of its loads, and it gives up beyond a handful of arrays. So the
     per-ray values live in rows of few 2-D arrays (``aux``: the roughplastic's incidence, table
-    values and hit flag; ``v``: the directions)."""
+    values; ``v``: the directions). The beam runs in a loop of its own first
+    (:func:`~virtual.kernels.f32.emit_block32`), its hits in ``code`` until the rays are marked."""
     nb = BLOCK32_RAYS
     rp = model == MODEL_ROUGHPLASTIC
     n_beam = _BEAM_UNIFORMS if conical else 0
@@ -360,7 +381,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
     cx = np.empty(nb, dtype=np.float32)
     cy = np.empty(nb, dtype=np.float32)
     cz = np.empty(nb, dtype=np.float32)
-    aux = np.empty((7, nb), dtype=np.float32)
+    aux = np.empty((6, nb), dtype=np.float32)
     cell_i = np.empty((3, nb), dtype=np.int32)
     cell_f = np.empty((6, nb), dtype=np.float32)
     n_e = int(p64[RP_N_E]) if rp else 4
@@ -374,12 +395,9 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
         m = min(left, nb)
         fill_uniforms32(lane, ublock)
         if rp:
-            for i in range(nb):  # the incidence, the attempt's table cell, the base test by bounds (vectorized)
-                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                aux[0, i] = wx
-                aux[1, i] = wy
-                aux[2, i] = wz
-                aux[6, i] = ONE if hit else ZERO
+            emit_block32(conical, b, u, bo, nb, aux[0], aux[1], aux[2], code)  # code: the hits until marked
+            for i in range(nb):  # the attempt's table cell, the base test by bounds (vectorized)
+                wz = aux[2, i]
                 cell_i[2, i], cell_f[5, i] = _t_cell32(math.sqrt(ONE - u[s0 + 4 * nb + i]))  # Malley's z; 1 - u4 exact
                 u3 = u[s0 + 3 * nb + i]
                 mu = abs(wz)
@@ -387,18 +405,26 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
                 aux[3, i] = TWO if u3 < q_lo else -ONE  # num, den deciding u3 den < num as the bounds do,
                 aux[4, i] = ONE  # never in doubt (the unsure rays' values are read below)
             _rp_read_block32(t32, e32, c_base, e_lo, e_hi, e_scale, n_e, nb, cell_i, cell_f, aux)
+            for i in range(nb):  # the coat's visible normals into v, in a loop of their own (as emit_block32)
+                ca, sa = sincos_2pi32(u[s0 + nb + i])
+                v[0, i], v[1, i], v[2, i], _ = ggx_normal32(p[0], p[0], aux[0, i], aux[1, i], aux[2, i], ca, sa,
+                                                            u[s0 + 2 * nb + i], True)
             for i in range(nb):
-                v[0, i], v[1, i], v[2, i], alive, redo, doubt = roughplastic_given32(
-                    p, aux[0, i], aux[1, i], aux[2, i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i],
-                    u[s0 + 3 * nb + i], u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i], aux[3, i],
-                    aux[4, i], aux[5, i])
-                hit = aux[6, i] > ZERO
+                v[0, i], v[1, i], v[2, i], alive, redo, doubt = roughplastic_about32(
+                    p, aux[0, i], aux[1, i], aux[2, i], v[0, i], v[1, i], v[2, i], u[s0 + i], u[s0 + 3 * nb + i],
+                    u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i], aux[3, i], aux[4, i], aux[5, i])
+                hit = code[i] == 1
                 code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2)))
         else:
+            emit_block32(conical, b, u, bo, nb, v[0], v[1], v[2], code)  # code: the hits until marked
+            for i in range(nb):  # the cuticle's visible normals, in a loop of their own (as emit_block32)
+                ca, sa = sincos_2pi32(u[s0 + nb + i])
+                aux[0, i], aux[1, i], aux[2, i], aux[3, i] = ggx_normal32(p[0], p[0], v[0, i], v[1, i], v[2, i], ca, sa,
+                                                                          u[s0 + 2 * nb + i], True)
             for i in range(nb):  # the cuticle for every ray; code 5: a body ray, its attempt below
-                wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                v[0, i], v[1, i], v[2, i], kept, body, doubt = leaf_cuticle32(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
-                                                                              u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+                hit = code[i] == 1
+                v[0, i], v[1, i], v[2, i], kept, body, doubt = leaf_cuticle_about32(
+                    p, v[0, i], v[1, i], v[2, i], aux[0, i], aux[1, i], aux[2, i], aux[3, i], u[s0 + i], u[s0 + 3 * nb + i])
                 code[i] = 4 if (doubt & hit) else (1 if (kept & hit) else (5 if (body & hit) else (0 if hit else 2)))
             _leaf_bodies(p, u, s0, nb, m, v, code, aux, cell_i, cx, cy, cz)  # cx, cy, cz: scratch until binned
         n_redo = 0
