@@ -28,9 +28,9 @@ from numba import int32
 from virtual.kernels import jit
 from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32
 from virtual.kernels.patch_lookup import patch_of
-from virtual.kernels.f32 import (DOUBT, ONE, emit_given32, in_doubt32, emit_side32, fresnel_conductor_ratio32, sincos_2pi32,
+from virtual.kernels.f32 import (DOUBT, ONE, emit_block32, in_doubt32, emit_side32, fresnel_conductor_ratio32, sincos_2pi32,
                                  warp_cosine_hemisphere32)
-from virtual.kernels.branchfree32 import ggx_given_parts32
+from virtual.kernels.branchfree32 import ggx_normal32, ggx_reflect32
 from virtual.kernels.microfacet import fresnel_conductor_ratio
 from virtual.kernels.refine import ray_bits, refined_by
 from virtual.kernels.xoshiro import LANES, fill_uniforms32
@@ -179,11 +179,14 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
     while left > 0:
         m = min(left, nb)
         fill_uniforms32(lane, ublock)
-        for i in range(nb):
-            wx, wy, wz, hit = emit_given32(conical, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+        emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)  # the beam, then the normals, in loops of their own
+        for i in range(nb):  # the visible normal and ni into cc, gs, ys, ts until the loop below overwrites them
             ca, sa = sincos_2pi32(u[s0 + 2 * nb + i])
-            ox, oy, oz, c, g_num, g_den, valid = ggx_given_parts32(p[0], p[1], p[2], wx, wy, wz, ca, sa,
-                                                                   u[s0 + nb + i], False)
+            cc[i], gs[i], ys[i], ts[i] = ggx_normal32(p[0], p[1], vx[i], vy[i], vz[i], ca, sa, u[s0 + nb + i], False)
+        for i in range(nb):
+            hit = code[i] == 1
+            ox, oy, oz, c, g_num, g_den, valid = ggx_reflect32(p[0], p[1], p[2], vx[i], vy[i], vz[i], cc[i], gs[i],
+                                                               ys[i], ts[i], False)
             vx[i] = ox
             vy[i] = oy
             vz[i] = oz
@@ -230,11 +233,11 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
             hrow = hi[ci]
             t = ts[i]
             t_lo = tl[i]
-            unsure = _NO
+            unsure = False  # a bool: an int32 would be widened to int64 by numba, half the lanes
             for w in range(wp):  # contiguous in the table and the histogram: whole vectors per ray
                 sure = t < lrow[w]
                 row[w] += _YES if sure else _NO
-                unsure |= _YES if (t_lo < hrow[w]) != sure else _NO
+                unsure |= (t_lo < hrow[w]) != sure
             unsure_rays[n_unsure] = i  # kept when unsure: the exact decisions wait for the loop below
             n_unsure += unsure
         for q in range(n_unsure):  # between the bounds for some wavelength (about 1 ray in 10^3): exact Fresnel
