@@ -23,12 +23,13 @@ from virtual.kernels.f32 import ZERO, emit_block32, emit_side32, guess_bin32, si
 from virtual.kernels.branchfree import GIVEN4_UNIFORMS, plastic_diffuse_redo
 from virtual.kernels.refine import redo_ray64
 from virtual.kernels.branchfree32 import ggx_finish32, ggx_normal32, lambert_given32, oren_nayar_given32, phong_given32, phong_lobe_omc32
-from virtual.kernels.branchfree32_rough import DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_given32, plastic_given32
+from virtual.kernels.branchfree32_rough import (DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_about32, plastic_about32,
+                                                plastic_diffuse32)
 from virtual.kernels.xoshiro import LANES, fill_uniforms32
 from virtual.kernels.scatter import (MODEL_DIELECTRIC, MODEL_LAMBERT, MODEL_OREN_NAYAR,
                                      MODEL_PHONG, MODEL_PLASTIC)
 
-__all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "guess_bins32", "ggx_block32", "bin_block32", "gonio_block32_chunk"]
+__all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "guess_bins32", "normals_block32", "ggx_block32", "bin_block32", "gonio_block32_chunk"]
 
 from virtual.kernel_codes import BLOCK32_MODELS, BLOCK32_RAYS
 _BEAM_UNIFORMS = 4
@@ -52,16 +53,25 @@ def guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_m
 
 
 @jit(inline="always")
+def normals_block32(ax, ay, angle, radius, n, vx, vy, vz, mx, my, mz, ni, plain):
+    """The GGX visible normals (:func:`~virtual.kernels.branchfree32.ggx_normal32`) of the block's
+    first ``n`` incident directions ``vx, vy, vz`` (:func:`~virtual.kernels.f32.emit_block32`),
+    from the rows of uniforms ``angle`` and ``radius``, into ``mx, my, mz, ni``: a loop of its own,
+    so that each loop's chain is short enough for the core to overlap its iterations
+    (:func:`~virtual.kernels.f32.emit_block32`)."""
+    for i in range(n):
+        ca, sa = sincos_2pi32(angle[i])
+        mx[i], my[i], mz[i], ni[i] = ggx_normal32(ax, ay, vx[i], vy[i], vz[i], ca, sa, radius[i], plain)
+
+
+@jit(inline="always")
 def ggx_block32(p, u, s0, nb, vx, vy, vz, code, mx, my, mz, ni, plain):
-    """GGX on a block whose incident directions are in ``vx, vy, vz`` and hits in ``code``
-    (:func:`~virtual.kernels.f32.emit_block32`): the visible normals in one loop (into ``mx, my,
-    mz, ni``), the reflections and their tests in another -- each loop's chain short enough for
-    the core to overlap its iterations (:func:`~virtual.kernels.f32.emit_block32`). Leaves the
-    reflected directions in ``vx, vy, vz`` and the codes (1 survivor, 0 absorbed, 2 missed, 4 in
-    doubt) in ``code``. ``plain`` as :func:`~virtual.kernels.branchfree32.ggx_given32`."""
-    for i in range(nb):
-        ca, sa = sincos_2pi32(u[s0 + 2 * nb + i])
-        mx[i], my[i], mz[i], ni[i] = ggx_normal32(p[0], p[1], vx[i], vy[i], vz[i], ca, sa, u[s0 + nb + i], plain)
+    """GGX on a block whose incident directions are in ``vx, vy, vz`` and hits in ``code``: the
+    visible normals (:func:`normals_block32`), then the reflections and their tests in a loop of
+    their own. Leaves the reflected directions in ``vx, vy, vz`` and the codes (1 survivor, 0
+    absorbed, 2 missed, 4 in doubt) in ``code``. ``plain`` as
+    :func:`~virtual.kernels.branchfree32.ggx_given32`."""
+    normals_block32(p[0], p[1], u[s0 + 2 * nb:s0 + 3 * nb], u[s0 + nb:s0 + 2 * nb], nb, vx, vy, vz, mx, my, mz, ni, plain)
     for i in range(nb):
         hit = code[i] == 1
         vx[i], vy[i], vz[i], alive, doubt = ggx_finish32(p, vx[i], vy[i], vz[i], mx[i], my[i], mz[i], ni[i], u[s0 + i],
@@ -150,7 +160,8 @@ def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sect
     cx = np.empty(nb, dtype=np.float32)
     cy = np.empty(nb, dtype=np.float32)
     cz = np.empty(nb, dtype=np.float32)
-    cw = np.empty(nb, dtype=np.float32)  # cx..cw: GGX's normals, Phong's lobe, then the survivors
+    cw = np.empty(nb, dtype=np.float32)  # cx..cw: the GGX normals, Phong's lobe, then the survivors
+    dd = np.empty((4, nb), dtype=np.float32)  # the plastic's diffuse attempts
     h = np.zeros(n_bins, dtype=np.int64)
     n_dead = np.zeros(2, dtype=np.int64)  # absorbed, missed: summed in the vectorized loops, not binned
     left = n_rays
@@ -181,18 +192,23 @@ def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sect
                                                                            u[s0 + 3 * nb + i])
                     code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
             elif model == MODEL_DIELECTRIC:
+                normals_block32(p[0], p[0], u[s0 + nb:s0 + 2 * nb], u[s0 + 2 * nb:s0 + 3 * nb], nb, vx, vy, vz, cx, cy,
+                                cz, cw, False)
                 for i in range(nb):
                     hit = code[i] == 1
-                    vx[i], vy[i], vz[i], alive, doubt = dielectric_given32(p, vx[i], vy[i], vz[i], u[s0 + i],
-                                                                           u[s0 + nb + i], u[s0 + 2 * nb + i],
-                                                                           u[s0 + 3 * nb + i])
+                    vx[i], vy[i], vz[i], alive, doubt = dielectric_about32(p, vx[i], vy[i], vz[i], cx[i], cy[i], cz[i],
+                                                                           cw[i], u[s0 + i], u[s0 + 3 * nb + i])
                     code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
             elif model == MODEL_PLASTIC:
+                normals_block32(p[0], p[0], u[s0 + nb:s0 + 2 * nb], u[s0 + 2 * nb:s0 + 3 * nb], nb, vx, vy, vz, cx, cy,
+                                cz, cw, False)
+                for i in range(nb):  # the diffuse attempts (independent of the incidence) in a loop of their own
+                    dd[0, i], dd[1, i], dd[2, i], dd[3, i] = plastic_diffuse32(p, u[s0 + 4 * nb + i], u[s0 + 5 * nb + i])
                 for i in range(nb):
                     hit = code[i] == 1
-                    vx[i], vy[i], vz[i], alive, redo, doubt = plastic_given32(
-                        p, vx[i], vy[i], vz[i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i],
-                        u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i])
+                    vx[i], vy[i], vz[i], alive, redo, doubt = plastic_about32(
+                        p, vx[i], vy[i], vz[i], cx[i], cy[i], cz[i], cw[i], dd[0, i], dd[1, i], dd[2, i], dd[3, i],
+                        u[s0 + i], u[s0 + 3 * nb + i], u[s0 + 6 * nb + i])
                     code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2)))
                 for i in range(m):  # the diffuse rays whose one attempt was rejected: the loop continues in float64
                     if code[i] == 3:

@@ -152,9 +152,25 @@ def leaf_body32(p, side, u4, u5, u6, u7, u8):
     Malley's direction d from (u4, u5) on the side ``side`` (+-1) of :func:`leaf_cuticle32`,
     rejected when the cuticle would have kept light from d (visible normal from (u6, u7), u8):
     ``(ox, oy, oz, back, doubt)``, oz = +-1 when rejected (the attempt is finished in float64)."""
+    dx, dy, dz, mx, my, mz, ni = leaf_body_normal32(p, u4, u5, u6, u7)
+    return leaf_body_about32(p, side, dx, dy, dz, mx, my, mz, ni, u8)
+
+
+@jit(inline="always")
+def leaf_body_normal32(p, u4, u5, u6, u7):
+    """The first half of :func:`leaf_body32`: Malley's d and its visible normal, ``(dx, dy, dz, mx,
+    my, mz, ni)``."""
     a = p[0]
     dx, dy, dz = warp_cosine_hemisphere32(u5, u4)
-    bx, by, bz, bc, bi, bo = _mirror32(a, dx, dy, dz, u6, u7)
+    ca, sa = sincos_2pi32(u6)
+    mx, my, mz, ni = ggx_normal32(a, a, dx, dy, dz, ca, sa, u7, True)
+    return dx, dy, dz, mx, my, mz, ni
+
+
+@jit(inline="always")
+def leaf_body_about32(p, side, dx, dy, dz, mx, my, mz, ni, u8):
+    """:func:`leaf_body32` from :func:`leaf_body_normal32` on."""
+    bx, by, bz, bc, bi, bo = _mirror_about32(p[0], dx, dy, dz, mx, my, mz, ni)
     fb_num, fb_den = fresnel_conductor_ratio32(bc, p[1], ZERO, True)
     b_num = p[2] * fb_num * ((dz + bi) * bz)
     b_den = fb_den * (bi * bz + bo * dz)
@@ -323,12 +339,12 @@ def _finish_block(model, p64, kind, b64, u, nb, bo, s0, m, v, code, s):
 
 
 @jit(inline="always")
-def _leaf_bodies(p, u, s0, nb, m, v, code, aux, idx, ox, oy, oz):
+def _leaf_bodies(p, u, s0, nb, m, v, code, aux, idx, t, ox, oy, oz):
     """The attempts of a block's body rays (code 5) of the ``m`` emitted: their uniforms and side
     gathered into the rows of ``aux`` (their ray numbers into ``idx[0]`` by a branch-free loop over
-    the block, one store a ray), :func:`leaf_body32` on the gathered rows (a vectorized loop) into
-    ``ox, oy, oz``, the results written back -- code 1 accepted, 3 rejected (finished in float64),
-    4 in doubt."""
+    the block, one store a ray), :func:`leaf_body32` on the gathered rows (two vectorized loops:
+    d and its visible normal into the rows of ``t``, then the rest) into ``ox, oy, oz``, the
+    results written back -- code 1 accepted, 3 rejected (finished in float64), 4 in doubt."""
     n = 0
     for i in range(m):
         idx[0, n] = i
@@ -341,9 +357,12 @@ def _leaf_bodies(p, u, s0, nb, m, v, code, aux, idx, ox, oy, oz):
         aux[3, k] = u[s0 + 7 * nb + i]
         aux[4, k] = u[s0 + 8 * nb + i]
         aux[5, k] = v[2, i]
-    for k in range(n):  # the results into other arrays than the uniforms': LLVM vectorizes it
-        ox[k], oy[k], oz[k], back, doubt = leaf_body32(p, aux[5, k], aux[0, k], aux[1, k], aux[2, k], aux[3, k],
-                                                       aux[4, k])
+    for k in range(n):  # d and its normal (into other arrays than the uniforms': LLVM vectorizes it)
+        t[0, k], t[1, k], t[2, k], t[3, k], t[4, k], t[5, k], t[6, k] = leaf_body_normal32(p, aux[0, k], aux[1, k],
+                                                                                           aux[2, k], aux[3, k])
+    for k in range(n):  # the rest of the attempt, in a loop of its own (as emit_block32)
+        ox[k], oy[k], oz[k], back, doubt = leaf_body_about32(p, aux[5, k], t[0, k], t[1, k], t[2, k], t[3, k], t[4, k],
+                                                             t[5, k], t[6, k], aux[4, k])
         idx[1, k] = 4 if doubt else (3 if back else 1)
     for k in range(n):
         i = idx[0, k]
@@ -383,7 +402,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
     cz = np.empty(nb, dtype=np.float32)
     aux = np.empty((6, nb), dtype=np.float32)
     cell_i = np.empty((3, nb), dtype=np.int32)
-    cell_f = np.empty((6, nb), dtype=np.float32)
+    cell_f = np.empty((7, nb), dtype=np.float32)  # the roughplastic's table cells; the leaf's body normals
     n_e = int(p64[RP_N_E]) if rp else 4
     t32, e32, e_lo, e_hi, e_scale = rp_tables32(p64, n_e, rp)
     c_base = np.float32(p64[3])
@@ -426,7 +445,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
                 v[0, i], v[1, i], v[2, i], kept, body, doubt = leaf_cuticle_about32(
                     p, v[0, i], v[1, i], v[2, i], aux[0, i], aux[1, i], aux[2, i], aux[3, i], u[s0 + i], u[s0 + 3 * nb + i])
                 code[i] = 4 if (doubt & hit) else (1 if (kept & hit) else (5 if (body & hit) else (0 if hit else 2)))
-            _leaf_bodies(p, u, s0, nb, m, v, code, aux, cell_i, cx, cy, cz)  # cx, cy, cz: scratch until binned
+            _leaf_bodies(p, u, s0, nb, m, v, code, aux, cell_i, cell_f, cx, cy, cz)  # cx, cy, cz: scratch until binned
         n_redo = 0
         for i in range(m):  # a vectorized count of the rays to finish or decide again
             n_redo += code[i] >= 3

@@ -15,10 +15,12 @@ rare rejected diffuse rays are finished in float64 by
 from __future__ import annotations
 
 from virtual.kernels import jit
+from virtual.kernels.branchfree32 import ggx_normal32
 from virtual.kernels.f32 import (ONE, TWO, ZERO, fresnel_dielectric32, g2_over_g1_masked_ratio32, ggx_n32,
-                                 ggx_vndf_given32, in_doubt32, sincos_2pi32, warp_cosine_hemisphere32)
+                                 in_doubt32, sincos_2pi32, warp_cosine_hemisphere32)
 
-__all__ = ["DIELECTRIC32_UNIFORMS", "PLASTIC32_UNIFORMS", "dielectric_given32", "plastic_given32"]
+__all__ = ["DIELECTRIC32_UNIFORMS", "PLASTIC32_UNIFORMS", "dielectric_given32", "dielectric_about32",
+           "plastic_given32", "plastic_diffuse32", "plastic_about32"]
 
 #: Uniforms :func:`dielectric_given32` consumes per ray.
 DIELECTRIC32_UNIFORMS = 4
@@ -31,14 +33,20 @@ def dielectric_given32(p, wx, wy, wz, u0, u1, u2, u3):
     """Rough dielectric (``p`` = alpha, eta, separable): the visible normal from (u1, u2),
     reflection when u0 < F (else refraction; F = 1 on total internal reflection), surviving
     with probability G2/G1 by u3. From below the relative index is 1/eta."""
+    ca, sa = sincos_2pi32(u1)
+    mx, my, mz, ni = ggx_normal32(p[0], p[0], wx, wy, wz, ca, sa, u2, False)
+    return dielectric_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3)
+
+
+@jit(inline="always")
+def dielectric_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
+    """:func:`dielectric_given32` from the visible normal of |w|
+    (:func:`~virtual.kernels.branchfree32.ggx_normal32`) on."""
     a = p[0]
     flip = wz < ZERO
     wz = abs(wz)
     er = ONE / p[1] if flip else p[1]
     inv = p[1] if flip else ONE / p[1]
-    ni = ggx_n32(wx, wy, wz, a, a)
-    ca, sa = sincos_2pi32(u1)
-    mx, my, mz = ggx_vndf_given32(wx, wy, wz, a, a, ONE / ni, ca, sa, u2)
     c = max(wx * mx + wy * my + wz * mz, ZERO)
     f, ct = fresnel_dielectric32(c, er)
     refl = u0 < f
@@ -61,13 +69,30 @@ def plastic_given32(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
     u0 < F: specular (visible normal from (u1, u2), G2/G1 by u3); else u0 - F < kd (1 - F) is
     the diffuse survival; the attempt is Malley's direction from (u4, u5), kept when
     u6 >= F(cos theta_o)."""
+    ca, sa = sincos_2pi32(u1)
+    mx, my, mz, ni = ggx_normal32(p[0], p[0], wx, wy, wz, ca, sa, u2, False)
+    dx, dy, dz, fo = plastic_diffuse32(p, u4, u5)
+    return plastic_about32(p, wx, wy, wz, mx, my, mz, ni, dx, dy, dz, fo, u0, u3, u6)
+
+
+@jit(inline="always")
+def plastic_diffuse32(p, u4, u5):
+    """The diffuse attempt of :func:`plastic_given32`, which does not depend on w: Malley's direction
+    from (u4, u5) and F at its cosine, ``(dx, dy, dz, fo)``."""
+    dx, dy, dz = warp_cosine_hemisphere32(u5, u4)
+    fo, _ = fresnel_dielectric32(dz, p[1])
+    return dx, dy, dz, fo
+
+
+@jit(inline="always")
+def plastic_about32(p, wx, wy, wz, mx, my, mz, ni, dx, dy, dz, fo, u0, u3, u6):
+    """:func:`plastic_given32` from the visible normal of |w|
+    (:func:`~virtual.kernels.branchfree32.ggx_normal32`) and the diffuse attempt
+    (:func:`plastic_diffuse32`) on."""
     flip = wz < ZERO
     wz = abs(wz)
     a = p[0]
     eta = p[1]
-    ni = ggx_n32(wx, wy, wz, a, a)
-    ca, sa = sincos_2pi32(u1)
-    mx, my, mz = ggx_vndf_given32(wx, wy, wz, a, a, ONE / ni, ca, sa, u2)
     c = max(wx * mx + wy * my + wz * mz, ZERO)
     f, _ = fresnel_dielectric32(c, eta)
     spec = u0 < f
@@ -76,8 +101,6 @@ def plastic_given32(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
     sz = TWO * c * mz - wz
     g_num, g_den = g2_over_g1_masked_ratio32(wz, ni, sz, ggx_n32(sx, sy, sz, a, a), ZERO)
     spec_ok = (sz > ZERO) & (u3 * g_den < g_num)
-    dx, dy, dz = warp_cosine_hemisphere32(u5, u4)
-    fo, _ = fresnel_dielectric32(dz, eta)
     diffuse = (u0 >= f) & ((u0 - f) < p[2] * (ONE - f))
     accepted = u6 >= fo
     ox = sx if spec else dx
