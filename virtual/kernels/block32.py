@@ -2,11 +2,14 @@
 vectors (as many lanes as the machine's hold: twice the float64 kernel's).
 
 Same shape as the float64 block kernel -- a block's uniforms first (64 xoshiro128+ lanes,
-:func:`~virtual.kernels.xoshiro.fill_uniforms32`), one branch-free loop that emits, scatters and
-marks every ray, compaction of the survivors, a vectorized guess of their bins
+:func:`~virtual.kernels.xoshiro.fill_uniforms32`), branch-free loops that emit, scatter and
+mark every ray, compaction of the survivors, a vectorized guess of their bins
 (:func:`~virtual.kernels.f32.guess_bin32`) and the exact float64
 :func:`~virtual.kernels.patch_lookup.patch_of` for the few near an edge -- with twice the lanes
-per instruction and half the generator's work per uniform. :func:`virtual.engine.gonio_kernel_for`
+per instruction and half the generator's work per uniform. The beam, the microfacet normals and
+the rest of each specimen run as separate loops over the block (:func:`~virtual.kernels.f32.emit_block32`,
+:func:`normals_block32`): in one loop per ray the chain of square roots and divisions was longer
+than the core could overlap across iterations, and GGX ran 1.5x slower. :func:`virtual.engine.gonio_kernel_for`
 sends a specimen here only when float32 suffices for it (:mod:`virtual.kernels.f32`).
 """
 
