@@ -338,13 +338,30 @@ def _finish_block(model, p64, kind, b64, u, nb, bo, s0, m, v, code, s):
             code[i] = 1 if (alive & hit) else (0 if hit else 2)
 
 
+@jit
+def _finish_leaf_bodies(p64, s, n, idx, v, code):
+    """The rejected attempts (``idx[1]`` 3) among a block's ``n`` body rays (``idx[0]``, ascending):
+    the leaf body's loop continues in float64 on ``s``, as :func:`_finish_block` would continue it
+    (the same rays in the same order, so the same numbers), from a list of a quarter of the block
+    rather than two scans of all of it. Called, not inlined, like :func:`_finish_block`."""
+    for k in range(n):
+        if idx[1, k] == 3:
+            i = idx[0, k]
+            ox, oy, oz = leaf_body_redo(p64[0], p64[1], p64[2], s)
+            v[0, i] = ox
+            v[1, i] = oy
+            v[2, i] = oz if v[2, i] > ZERO else -oz
+            code[i] = 1
+
+
 @jit(inline="always")
-def _leaf_bodies(p, u, s0, nb, m, v, code, aux, idx, t, ox, oy, oz):
+def _leaf_bodies(p, p64, s, u, s0, nb, m, v, code, aux, idx, t, ox, oy, oz):
     """The attempts of a block's body rays (code 5) of the ``m`` emitted: their uniforms and side
     gathered into the rows of ``aux`` (their ray numbers into ``idx[0]`` by a branch-free loop over
     the block, one store a ray), :func:`leaf_body32` on the gathered rows (two vectorized loops:
     d and its visible normal into the rows of ``t``, then the rest) into ``ox, oy, oz``, the
-    results written back -- code 1 accepted, 3 rejected (finished in float64), 4 in doubt."""
+    results written back -- code 1 accepted, 4 in doubt; a rejected attempt is finished in
+    float64 on ``s`` here (:func:`_finish_leaf_bodies`), not by a scan of the whole block."""
     n = 0
     for i in range(m):
         idx[0, n] = i
@@ -364,12 +381,16 @@ def _leaf_bodies(p, u, s0, nb, m, v, code, aux, idx, t, ox, oy, oz):
         ox[k], oy[k], oz[k], back, doubt = leaf_body_about32(p, aux[5, k], t[0, k], t[1, k], t[2, k], t[3, k], t[4, k],
                                                              t[5, k], t[6, k], aux[4, k])
         idx[1, k] = 4 if doubt else (3 if back else 1)
+    n_back = 0
     for k in range(n):
         i = idx[0, k]
         v[0, i] = ox[k]
         v[1, i] = oy[k]
         v[2, i] = oz[k]
         code[i] = idx[1, k]
+        n_back += idx[1, k] == 3
+    if n_back > 0:
+        _finish_leaf_bodies(p64, s, n, idx, v, code)
 
 
 @jit(nogil=True, error_model="numpy")
@@ -445,7 +466,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
                 v[0, i], v[1, i], v[2, i], kept, body, doubt = leaf_cuticle_about32(
                     p, v[0, i], v[1, i], v[2, i], aux[0, i], aux[1, i], aux[2, i], aux[3, i], u[s0 + i], u[s0 + 3 * nb + i])
                 code[i] = 4 if (doubt & hit) else (1 if (kept & hit) else (5 if (body & hit) else (0 if hit else 2)))
-            _leaf_bodies(p, u, s0, nb, m, v, code, aux, cell_i, cell_f, cx, cy, cz)  # cx, cy, cz: scratch until binned
+            _leaf_bodies(p, p64, s, u, s0, nb, m, v, code, aux, cell_i, cell_f, cx, cy, cz)  # cx, cy, cz: scratch until binned
         n_redo = 0
         for i in range(m):  # a vectorized count of the rays to finish or decide again
             n_redo += code[i] >= 3
