@@ -172,7 +172,7 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
     ys = np.empty(nb, dtype=np.float32)  # g_num
     ts = np.empty(nb, dtype=np.float32)  # (u + DOUBT) g_den / g_num: survives at w when below lo_w
     tl = np.empty(nb, dtype=np.float32)  # (u - DOUBT) g_den / g_num: dies at w when at or above hi_w
-    idx = np.empty(nb, dtype=np.int64)  # the ray's index in the chunk
+    src = np.empty(nb, dtype=np.int32)  # a survivor's ray in the block
     unsure_rays = np.empty(nb, dtype=np.int32)  # rays whose decision at some wavelength needs the exact F
     hits = 0
     left = n_rays
@@ -202,21 +202,14 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
         j = 0
         n_hit = 0
         done = n_rays - left
-        for i in range(m):  # compaction: the valid rays below some wavelength's upper bound (the others die at all)
+        for i in range(m):  # compaction of the directions and ray numbers of the valid rays below some
+            # wavelength's upper bound (the others die at all); the rest is read through src
             k = code[i]
-            ci = cell[i]
             vx[j] = vx[i]
             vy[j] = vy[i]
             vz[j] = vz[i]
-            cc[j] = cc[i]
-            us[j] = us[i]
-            gs[j] = gs[i]
-            ys[j] = ys[i]
-            ts[j] = ts[i]
-            tl[j] = tl[i]
-            idx[j] = done + i
-            cell[j] = ci
-            j += (k == 1) & (tl[i] < top[ci])
+            src[j] = i
+            j += (k == 1) & (tl[i] < top[cell[i]])
             n_hit += k != 2
         hits += n_hit
         guess_bins32(code, vx, vy, vz, j, scheme, n_theta, n_phi, ring_margin, sector_margin)
@@ -228,11 +221,12 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
         for i in range(j):
             h0 = code[i] * wp
             row = hist[h0:h0 + wp]  # slices: LLVM then vectorizes the loop (indexing the whole arrays, it does not)
-            ci = cell[i]
+            r = src[i]
+            ci = cell[r]
             lrow = lo[ci]
             hrow = hi[ci]
-            t = ts[i]
-            t_lo = tl[i]
+            t = ts[r]
+            t_lo = tl[r]
             unsure = False  # a bool: an int32 would be widened to int64 by numba, half the lanes
             for w in range(wp):  # contiguous in the table and the histogram: whole vectors per ray
                 sure = t < lrow[w]
@@ -244,21 +238,22 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
             i = unsure_rays[q]
             h0 = code[i] * wp
             row = hist[h0:h0 + wp]
-            ci = cell[i]
+            r = src[i]
+            ci = cell[r]
             lrow = lo[ci]
             hrow = hi[ci]
-            t = ts[i]
-            t_lo = tl[i]
-            y = ys[i]
-            c = cc[i]
-            uu = us[i]
-            g_den = gs[i]
+            t = ts[r]
+            t_lo = tl[r]
+            y = ys[r]
+            c = cc[r]
+            uu = us[r]
+            g_den = gs[r]
             for w in range(n_w):
                 if (t >= lrow[w]) & (t_lo < hrow[w]):
                     f_num, f_den = fresnel_conductor_ratio32(c, etas[w], ks[w], False)
                     if in_doubt32(uu, f_num * y, f_den * g_den):  # u refined, F in float64
                         fn, fd = fresnel_conductor_ratio(np.float64(c), np.float64(etas[w]), np.float64(ks[w]))
-                        uf = refined_by(uu, ray_bits(key, idx[i]))
+                        uf = refined_by(uu, ray_bits(key, done + r))
                         row[w] += _YES if uf * fd * np.float64(g_den) < fn * np.float64(y) else _NO
                     else:
                         row[w] += _YES if uu * g_den * f_den < f_num * y else _NO
