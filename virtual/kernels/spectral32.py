@@ -140,6 +140,17 @@ def lambert_spectral32_chunk(thr, floors, conical, b, cargs, ring_margin, sector
     tally[0] += missed
 
 
+@jit(inline="always")
+def _survivor_rows(hist, wp, lo, hi, code, src, cell, ts, tl, i):
+    """Compacted survivor ``i``'s histogram row (its bin ``code[i]``), its Fresnel cell's bound
+    rows and its thresholds: ``(row, lrow, hrow, t, t_lo, r)``, ``r`` its ray in the block. Slices,
+    so that LLVM vectorizes the loops over them (indexing the whole arrays, it does not)."""
+    h0 = code[i] * wp
+    r = src[i]
+    ci = cell[r]
+    return hist[h0:h0 + wp], lo[ci], hi[ci], ts[r], tl[r], r
+
+
 @jit(nogil=True, error_model="numpy")
 def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, sector_margin, n_rays, lane, key, hist,
                          tally):
@@ -219,14 +230,7 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
                                    sin2_edges, phi_cs)
         n_unsure = 0
         for i in range(j):
-            h0 = code[i] * wp
-            row = hist[h0:h0 + wp]  # slices: LLVM then vectorizes the loop (indexing the whole arrays, it does not)
-            r = src[i]
-            ci = cell[r]
-            lrow = lo[ci]
-            hrow = hi[ci]
-            t = ts[r]
-            t_lo = tl[r]
+            row, lrow, hrow, t, t_lo, r = _survivor_rows(hist, wp, lo, hi, code, src, cell, ts, tl, i)
             unsure = False  # a bool: an int32 would be widened to int64 by numba, half the lanes
             for w in range(wp):  # contiguous in the table and the histogram: whole vectors per ray
                 sure = t < lrow[w]
@@ -236,14 +240,7 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
             n_unsure += unsure
         for q in range(n_unsure):  # between the bounds for some wavelength (about 1 ray in 10^3): exact Fresnel
             i = unsure_rays[q]
-            h0 = code[i] * wp
-            row = hist[h0:h0 + wp]
-            r = src[i]
-            ci = cell[r]
-            lrow = lo[ci]
-            hrow = hi[ci]
-            t = ts[r]
-            t_lo = tl[r]
+            row, lrow, hrow, t, t_lo, r = _survivor_rows(hist, wp, lo, hi, code, src, cell, ts, tl, i)
             y = ys[r]
             c = cc[r]
             uu = us[r]
