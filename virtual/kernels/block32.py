@@ -73,7 +73,7 @@ def ggx_block32(p, u, s0, nb, vx, vy, vz, code, mx, my, mz, ni, plain):
     visible normals (:func:`normals_block32`), then the reflections and their tests in a loop of
     their own. Leaves the reflected directions in ``vx, vy, vz`` and the codes (1 survivor, 0
     absorbed, 2 missed, 4 in doubt) in ``code``. ``plain`` as
-    :func:`~virtual.kernels.branchfree32.ggx_given32`."""
+    :func:`~virtual.kernels.branchfree32.ggx_finish32`."""
     normals_block32(p[0], p[1], u[s0 + 2 * nb:s0 + 3 * nb], u[s0 + nb:s0 + 2 * nb], nb, vx, vy, vz, mx, my, mz, ni, plain)
     for i in range(nb):
         hit = code[i] == 1

@@ -23,12 +23,13 @@ the float64 :func:`~virtual.kernels.coat.rp_t` and :func:`~virtual.kernels.coat.
 bounds hold those values with a margin (both tested, tests/test_block32_coat_tables.py); the
 doubted rays are decided again on the float64 tables.
 
-Where the time goes (one thread, a Zen 5, scratch timings, ns a ray): the roughplastic ~10.2 in
-AVX-512 code with every table read per ray, ~8.9 with the bounds (AVX2 code: 14.7 and 12.7; with
-the incidence emitted and the tables read in float64, as before, 14.9 and 29); the uniforms ~0.14
-each (11 and 13 a ray against GGX's 7); the leaf's cuticle loop ~6.7 with its uniforms, its body
-rays' attempts ~1.8 (a quarter of the rays at 550 nm, :func:`_leaf_bodies`) and the float64
-finishing of their rejected attempts ~1.2.
+Where the time goes (one thread, a Zen 5, AVX-512 code, scratch timings, ns a ray): the
+roughplastic ~8.4-8.8; the leaf ~8.0, of which the uniforms ~1.7 (13 a ray against GGX's 7), its
+body rays' attempts with their gather and write-back ~2 (a quarter of the rays at 550 nm,
+:func:`_leaf_bodies`) and the float64 finishing of their rejected attempts ~1 (~2 when every block
+was scanned for them). The beam, the coat's visible normals and the rest of each attempt run as
+separate loops (:func:`~virtual.kernels.f32.emit_block32`): in one loop per ray the chain of square
+roots and divisions ran at its latency (leaf 10.3 ns a ray).
 The scalar code (table reads, finishing of rejected and doubted rays) is
 called, not inlined: inlined, it slowed the vectorized loops around it (leaf 1.35x, in A/B runs).
 """
@@ -53,29 +54,21 @@ from virtual.kernels.xoshiro import LANES, fill_uniforms32
 from virtual.kernel_codes import BLOCK32_RAYS, RP_E, RP_N_E, RP_S_HI, RP_S_LO, RP_TABLE, RP_TABLE_RES
 from virtual.model_ids import MODEL_ROUGHPLASTIC
 
-__all__ = ["RP32_UNIFORMS", "LEAF32_UNIFORMS", "roughplastic_given32", "leaf_cuticle32", "leaf_body32",
-           "redo_coat_ray64", "rp_tables32", "gonio_coat32_chunk"]
+__all__ = ["RP32_UNIFORMS", "LEAF32_UNIFORMS", "roughplastic_about32", "leaf_cuticle_about32", "leaf_body_normal32",
+           "leaf_body_about32", "redo_coat_ray64", "rp_tables32", "gonio_coat32_chunk"]
 
-#: Uniforms :func:`roughplastic_given32` consumes per ray.
+#: Uniforms the roughplastic's float32 attempt consumes per ray (u0-u6, :func:`roughplastic_about32`).
 RP32_UNIFORMS = 7
-#: Uniforms :func:`leaf_cuticle32` and :func:`leaf_body32` consume per ray.
+#: Uniforms the leaf's float32 attempt consumes per ray (u0-u3 the cuticle's, u4-u8 the body's).
 LEAF32_UNIFORMS = 9
 _BEAM_UNIFORMS = 4
 
 
 @jit(inline="always")
-def _mirror32(a, wx, wy, wz, u1, u2):
-    """The mirror direction of w (wz > 0) about its isotropic GGX visible normal (direction
-    2 pi u1, squared radius u2): ``(sx, sy, sz, c, ni, no)``, c = w.m, ni and no the
-    |(a x, a y, z)| of w and of the mirror direction (the masking terms)."""
-    ca, sa = sincos_2pi32(u1)
-    mx, my, mz, ni = ggx_normal32(a, a, wx, wy, wz, ca, sa, u2, True)
-    return _mirror_about32(a, wx, wy, wz, mx, my, mz, ni)
-
-
-@jit(inline="always")
 def _mirror_about32(a, wx, wy, wz, mx, my, mz, ni):
-    """:func:`_mirror32` from the visible normal m and ni (:func:`~virtual.kernels.branchfree32.ggx_normal32`) on."""
+    """The mirror direction of w (wz > 0) about its isotropic GGX visible normal m
+    (:func:`~virtual.kernels.branchfree32.ggx_normal32`): ``(sx, sy, sz, c, ni, no)``, c = w.m, ni
+    and no the |(a x, a y, z)| of w and of the mirror direction (the masking terms)."""
     c = max(wx * mx + wy * my + wz * mz, ZERO)
     sx = TWO * c * mx - wx
     sy = TWO * c * my - wy
@@ -84,18 +77,11 @@ def _mirror_about32(a, wx, wy, wz, mx, my, mz, ni):
 
 
 @jit(inline="always")
-def roughplastic_given32(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6, base_num, base_den, t_o):
-    """:func:`~virtual.kernels.block_coat.roughplastic_given` in float32: ``(ox, oy, oz, alive,
-    redo, doubt)``. The specular test is Mitsuba's separable masking, G2/G1 = G1(wo) =
-    2 oz / (oz + no); the table values come from the float64 lookups (module docstring)."""
-    ca, sa = sincos_2pi32(u1)
-    mx, my, mz, _ = ggx_normal32(p[0], p[0], wx, wy, wz, ca, sa, u2, True)
-    return roughplastic_about32(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num, base_den, t_o)
-
-
-@jit(inline="always")
 def roughplastic_about32(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num, base_den, t_o):
-    """:func:`roughplastic_given32` from the visible normal of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32`) on."""
+    """:func:`~virtual.kernels.block_coat.roughplastic_given` in float32, from the visible normal m
+    of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1, u2)) on: ``(ox, oy, oz,
+    alive, redo, doubt)``. The specular test is Mitsuba's separable masking, G2/G1 = G1(wo) =
+    2 oz / (oz + no); the table values come from the float32 table reads (module docstring)."""
     flip = wz < ZERO
     wz = abs(wz)
     sx, sy, sz, c, _, no = _mirror_about32(p[0], wx, wy, wz, mx, my, mz, ZERO)
@@ -115,22 +101,16 @@ def roughplastic_about32(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num
 
 
 @jit(inline="always")
-def leaf_cuticle32(p, wx, wy, wz, u0, u1, u2, u3):
+def leaf_cuticle_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
     """The cuticle's part of :func:`~virtual.kernels.block_coat.leaf_given` in float32
-    (height-correlated masking, isotropic: G2/G1 = (wz + ni) oz / (ni oz + no wz)): ``(ox, oy,
+    from the visible normal m of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1,
+    u2)) on (height-correlated masking, isotropic: G2/G1 = (wz + ni) oz / (ni oz + no wz)): ``(ox, oy,
     oz, kept, body, doubt)``, the mirror direction when kept, else (0, 0, +-1) with the sign of
     the body's side. F is :func:`~virtual.kernels.f32.fresnel_conductor_ratio32` at k = 0 -- the
     dielectric's F as a ratio (no division; 3 % faster than ``fresnel_dielectric32`` here),
     tested against it by the law (tests/test_block32_coat.py). A body ray's attempt is
-    :func:`leaf_body32`, run only for the body rays (about a quarter of a green leaf's at 550 nm)."""
-    ca, sa = sincos_2pi32(u1)
-    mx, my, mz, ni = ggx_normal32(p[0], p[0], wx, wy, wz, ca, sa, u2, True)
-    return leaf_cuticle_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3)
-
-
-@jit(inline="always")
-def leaf_cuticle_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
-    """:func:`leaf_cuticle32` from the visible normal of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32`) on."""
+    :func:`leaf_body_normal32` and :func:`leaf_body_about32`, run only for the body rays (about a
+    quarter of a green leaf's at 550 nm)."""
     flip = wz < ZERO
     wz = abs(wz)
     sx, sy, sz, c, ni, no = _mirror_about32(p[0], wx, wy, wz, mx, my, mz, ni)
@@ -147,19 +127,10 @@ def leaf_cuticle_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
 
 
 @jit(inline="always")
-def leaf_body32(p, side, u4, u5, u6, u7, u8):
-    """A body ray's attempt (:func:`~virtual.kernels.block_coat.leaf_given`'s, in float32):
-    Malley's direction d from (u4, u5) on the side ``side`` (+-1) of :func:`leaf_cuticle32`,
-    rejected when the cuticle would have kept light from d (visible normal from (u6, u7), u8):
-    ``(ox, oy, oz, back, doubt)``, oz = +-1 when rejected (the attempt is finished in float64)."""
-    dx, dy, dz, mx, my, mz, ni = leaf_body_normal32(p, u4, u5, u6, u7)
-    return leaf_body_about32(p, side, dx, dy, dz, mx, my, mz, ni, u8)
-
-
-@jit(inline="always")
 def leaf_body_normal32(p, u4, u5, u6, u7):
-    """The first half of :func:`leaf_body32`: Malley's d and its visible normal, ``(dx, dy, dz, mx,
-    my, mz, ni)``."""
+    """The first half of a body ray's attempt (:func:`~virtual.kernels.block_coat.leaf_given`'s, in
+    float32): Malley's direction d from (u4, u5) and its visible normal from (u6, u7), ``(dx, dy,
+    dz, mx, my, mz, ni)``."""
     a = p[0]
     dx, dy, dz = warp_cosine_hemisphere32(u5, u4)
     ca, sa = sincos_2pi32(u6)
@@ -169,7 +140,9 @@ def leaf_body_normal32(p, u4, u5, u6, u7):
 
 @jit(inline="always")
 def leaf_body_about32(p, side, dx, dy, dz, mx, my, mz, ni, u8):
-    """:func:`leaf_body32` from :func:`leaf_body_normal32` on."""
+    """The rest of a body ray's attempt, from :func:`leaf_body_normal32`: d on the side ``side``
+    (+-1) of :func:`leaf_cuticle_about32`, rejected when the cuticle would have kept light from d
+    (u8): ``(ox, oy, oz, back, doubt)``, oz = +-1 when rejected (the attempt is finished in float64)."""
     bx, by, bz, bc, bi, bo = _mirror_about32(p[0], dx, dy, dz, mx, my, mz, ni)
     fb_num, fb_den = fresnel_conductor_ratio32(bc, p[1], ZERO, True)
     b_num = p[2] * fb_num * ((dz + bi) * bz)
@@ -358,7 +331,7 @@ def _finish_leaf_bodies(p64, s, n, idx, v, code):
 def _leaf_bodies(p, p64, s, u, s0, nb, m, v, code, aux, idx, t, ox, oy, oz):
     """The attempts of a block's body rays (code 5) of the ``m`` emitted: their uniforms and side
     gathered into the rows of ``aux`` (their ray numbers into ``idx[0]`` by a branch-free loop over
-    the block, one store a ray), :func:`leaf_body32` on the gathered rows (two vectorized loops:
+    the block, one store a ray), the attempt on the gathered rows (two vectorized loops:
     d and its visible normal into the rows of ``t``, then the rest) into ``ox, oy, oz``, the
     results written back -- code 1 accepted, 4 in doubt; a rejected attempt is finished in
     float64 on ``s`` here (:func:`_finish_leaf_bodies`), not by a scan of the whole block."""

@@ -20,7 +20,7 @@ from virtual.kernels import jit
 from virtual.kernels.f32 import (DOUBT, F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32, frame32, g2_over_g1_masked_ratio32,
                                  ggx_n32, ggx_vndf_given32, in_doubt32, sincos_2pi32, warp_cosine_hemisphere32)
 
-__all__ = ["lambert_given32", "ggx_normal32", "ggx_reflect32", "ggx_given_parts32", "ggx_finish32", "ggx_given32", "phong_lobe_omc32", "phong_given32",
+__all__ = ["lambert_given32", "ggx_normal32", "ggx_reflect32", "ggx_finish32", "phong_lobe_omc32", "phong_given32",
            "oren_nayar_given32"]
 
 _LN2 = F(math.log(2.0))
@@ -45,8 +45,11 @@ def lambert_given32(p, wz, u0, u1, u2):
 
 @jit(inline="always")
 def ggx_normal32(ax, ay, wx, wy, wz, ca, sa, r2, plain):
-    """The first half of :func:`ggx_given_parts32`: the visible normal ``(mx, my, mz)`` for the
-    disk point (``ca, sa``, squared radius ``r2``) and ni = |(ax wx, ay wy, |wz|)|."""
+    """GGX (isotropic or anisotropic), two-sided, first half (:func:`~virtual.kernels.scatter.ggx_given_parts`
+    in float32): the visible normal ``(mx, my, mz)`` of |w| for the disk point (direction ``ca, sa``
+    = 2 pi u2, squared radius ``r2`` = u1) and ni = |(ax wx, ay wy, |wz|)|. ``plain`` (a literal:
+    the branches fold away) says ax == ay and height-correlated masking, which saves the
+    anisotropic and separable terms."""
     wz = abs(wz)
     if plain:
         ni = math.sqrt(ax * ax * (wx * wx + wy * wy) + wz * wz)
@@ -58,8 +61,9 @@ def ggx_normal32(ax, ay, wx, wy, wz, ca, sa, r2, plain):
 
 @jit(inline="always")
 def ggx_reflect32(ax, ay, separable, wx, wy, wz, mx, my, mz, ni, plain):
-    """The second half of :func:`ggx_given_parts32`: the reflection of w about the normal and its
-    terms, ``(ox, oy, oz, c, g_num, g_den, valid)``."""
+    """The second half of :func:`~virtual.kernels.scatter.ggx_given_parts` in float32: the
+    reflection of w about the normal of :func:`ggx_normal32` and its terms, ``(ox, oy, oz, c,
+    g_num, g_den, valid)``."""
     flip = wz < ZERO
     wz = abs(wz)
     c = max(wx * mx + wy * my + wz * mz, ZERO)
@@ -75,35 +79,16 @@ def ggx_reflect32(ax, ay, separable, wx, wy, wz, mx, my, mz, ni, plain):
 
 
 @jit(inline="always")
-def ggx_given_parts32(ax, ay, separable, wx, wy, wz, ca, sa, r2, plain):
-    """:func:`~virtual.kernels.scatter.ggx_given_parts` in float32: ``(ox, oy, oz, c, g_num,
-    g_den, valid)``, :func:`ggx_normal32` then :func:`ggx_reflect32`. ``plain`` (a literal: the
-    branches fold away) says ax == ay and height-correlated masking, which saves the anisotropic
-    and separable terms."""
-    mx, my, mz, ni = ggx_normal32(ax, ay, wx, wy, wz, ca, sa, r2, plain)
-    return ggx_reflect32(ax, ay, separable, wx, wy, wz, mx, my, mz, ni, plain)
-
-
-@jit(inline="always")
 def ggx_finish32(p, wx, wy, wz, mx, my, mz, ni, u0, plain):
-    """:func:`ggx_given32` from its visible normal (:func:`ggx_normal32`) on: the reflection,
-    surviving with probability F G2/G1 by u0: ``(ox, oy, oz, alive, doubt)``."""
+    """GGX reflection from its visible normal (:func:`ggx_normal32`) on, surviving with
+    probability F G2/G1 by u0 (``p`` = alpha_x, alpha_y, eta, k, separable): ``(ox, oy, oz, alive,
+    doubt)``. ``plain`` (a literal) says isotropic, height-correlated and k = 0 (a dielectric's
+    Fresnel factor: one square root fewer)."""
     ox, oy, oz, c, g_num, g_den, valid = ggx_reflect32(p[0], p[1], p[4], wx, wy, wz, mx, my, mz, ni, plain)
     f_num, f_den = fresnel_conductor_ratio32(c, p[2], p[3], plain)
     den = f_den * g_den
     excess = u0 * den - f_num * g_num  # < 0: survives; within DOUBT den of 0: in doubt (in_doubt32)
     return ox, oy, oz, valid & (excess < ZERO), abs(excess) <= DOUBT * den
-
-
-@jit(inline="always")
-def ggx_given32(p, wx, wy, wz, u0, u1, u2, plain):
-    """GGX (isotropic or anisotropic) reflection, two-sided: the visible normal from the disk
-    point (direction 2 pi u2, squared radius u1), surviving with probability F G2/G1 by u0
-    (``p`` = alpha_x, alpha_y, eta, k, separable). ``plain`` (a literal) says isotropic,
-    height-correlated and k = 0 (a dielectric's Fresnel factor: one square root fewer)."""
-    ca, sa = sincos_2pi32(u2)
-    mx, my, mz, ni = ggx_normal32(p[0], p[1], wx, wy, wz, ca, sa, u1, plain)
-    return ggx_finish32(p, wx, wy, wz, mx, my, mz, ni, u0, plain)
 
 
 @jit(error_model="numpy")

@@ -15,33 +15,23 @@ rare rejected diffuse rays are finished in float64 by
 from __future__ import annotations
 
 from virtual.kernels import jit
-from virtual.kernels.branchfree32 import ggx_normal32
 from virtual.kernels.f32 import (ONE, TWO, ZERO, fresnel_dielectric32, g2_over_g1_masked_ratio32, ggx_n32,
-                                 in_doubt32, sincos_2pi32, warp_cosine_hemisphere32)
+                                 in_doubt32, warp_cosine_hemisphere32)
 
-__all__ = ["DIELECTRIC32_UNIFORMS", "PLASTIC32_UNIFORMS", "dielectric_given32", "dielectric_about32",
-           "plastic_given32", "plastic_diffuse32", "plastic_about32"]
+__all__ = ["DIELECTRIC32_UNIFORMS", "PLASTIC32_UNIFORMS", "dielectric_about32", "plastic_diffuse32", "plastic_about32"]
 
-#: Uniforms :func:`dielectric_given32` consumes per ray.
+#: Uniforms the rough dielectric consumes per ray (u0-u3, :func:`dielectric_about32`).
 DIELECTRIC32_UNIFORMS = 4
-#: Uniforms :func:`plastic_given32` consumes per ray.
+#: Uniforms the rough plastic consumes per ray (u0-u6, :func:`plastic_about32`).
 PLASTIC32_UNIFORMS = 7
 
 
 @jit(inline="always")
-def dielectric_given32(p, wx, wy, wz, u0, u1, u2, u3):
-    """Rough dielectric (``p`` = alpha, eta, separable): the visible normal from (u1, u2),
-    reflection when u0 < F (else refraction; F = 1 on total internal reflection), surviving
-    with probability G2/G1 by u3. From below the relative index is 1/eta."""
-    ca, sa = sincos_2pi32(u1)
-    mx, my, mz, ni = ggx_normal32(p[0], p[0], wx, wy, wz, ca, sa, u2, False)
-    return dielectric_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3)
-
-
-@jit(inline="always")
 def dielectric_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
-    """:func:`dielectric_given32` from the visible normal of |w|
-    (:func:`~virtual.kernels.branchfree32.ggx_normal32`) on."""
+    """Rough dielectric (``p`` = alpha, eta, separable) from the visible normal of |w|
+    (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1, u2)) on: reflection when u0 < F
+    (else refraction; F = 1 on total internal reflection), surviving with probability G2/G1 by u3.
+    From below the relative index is 1/eta."""
     a = p[0]
     flip = wz < ZERO
     wz = abs(wz)
@@ -62,22 +52,8 @@ def dielectric_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
 
 
 @jit(inline="always")
-def plastic_given32(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
-    """Rough plastic (``p`` = alpha, eta, kd), two-sided, one attempt of the diffuse lobe's
-    rejection loop: ``(ox, oy, oz, alive, redo, doubt)``, ``redo`` marking a rejected diffuse ray
-    (``oz`` then only its side, +-1) whose direction the float64 ``plastic_diffuse_redo`` draws.
-    u0 < F: specular (visible normal from (u1, u2), G2/G1 by u3); else u0 - F < kd (1 - F) is
-    the diffuse survival; the attempt is Malley's direction from (u4, u5), kept when
-    u6 >= F(cos theta_o)."""
-    ca, sa = sincos_2pi32(u1)
-    mx, my, mz, ni = ggx_normal32(p[0], p[0], wx, wy, wz, ca, sa, u2, False)
-    dx, dy, dz, fo = plastic_diffuse32(p, u4, u5)
-    return plastic_about32(p, wx, wy, wz, mx, my, mz, ni, dx, dy, dz, fo, u0, u3, u6)
-
-
-@jit(inline="always")
 def plastic_diffuse32(p, u4, u5):
-    """The diffuse attempt of :func:`plastic_given32`, which does not depend on w: Malley's direction
+    """The diffuse attempt of :func:`plastic_about32`, which does not depend on w: Malley's direction
     from (u4, u5) and F at its cosine, ``(dx, dy, dz, fo)``."""
     dx, dy, dz = warp_cosine_hemisphere32(u5, u4)
     fo, _ = fresnel_dielectric32(dz, p[1])
@@ -86,9 +62,14 @@ def plastic_diffuse32(p, u4, u5):
 
 @jit(inline="always")
 def plastic_about32(p, wx, wy, wz, mx, my, mz, ni, dx, dy, dz, fo, u0, u3, u6):
-    """:func:`plastic_given32` from the visible normal of |w|
-    (:func:`~virtual.kernels.branchfree32.ggx_normal32`) and the diffuse attempt
-    (:func:`plastic_diffuse32`) on."""
+    """Rough plastic (``p`` = alpha, eta, kd), two-sided, one attempt of the diffuse lobe's
+    rejection loop: ``(ox, oy, oz, alive, redo, doubt)``, ``redo`` marking a rejected diffuse ray
+    (``oz`` then only its side, +-1) whose direction the float64 ``plastic_diffuse_redo`` draws.
+    u0 < F: specular (visible normal from (u1, u2), G2/G1 by u3); else u0 - F < kd (1 - F) is
+    the diffuse survival; the attempt is Malley's direction from (u4, u5), kept when
+    u6 >= F(cos theta_o).
+    From the visible normal of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1,
+    u2)) and the diffuse attempt (:func:`plastic_diffuse32` from (u4, u5)) on."""
     flip = wz < ZERO
     wz = abs(wz)
     a = p[0]
