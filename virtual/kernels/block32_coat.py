@@ -41,7 +41,7 @@ import math
 import numpy as np
 
 from virtual.kernels import jit
-from virtual.kernels.block32 import bin_block32
+from virtual.kernels.block32 import bin_block32, normals_block32
 from virtual.kernels.block_coat import leaf_given, roughplastic_given
 from virtual.kernels.coat import roughplastic_base_redo, rp_e, rp_t
 from virtual.kernels.emit import BEAM_COLLIMATED, BEAM_CONICAL, emit_given
@@ -418,10 +418,8 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
                 aux[3, i] = TWO if u3 < q_lo else -ONE  # num, den deciding u3 den < num as the bounds do,
                 aux[4, i] = ONE  # never in doubt (the unsure rays' values are read below)
             _rp_read_block32(t32, e32, c_base, e_lo, e_hi, e_scale, n_e, nb, cell_i, cell_f, aux)
-            for i in range(nb):  # the coat's visible normals into v, in a loop of their own (as emit_block32)
-                ca, sa = sincos_2pi32(u[s0 + nb + i])
-                v[0, i], v[1, i], v[2, i], _ = ggx_normal32(p[0], p[0], aux[0, i], aux[1, i], aux[2, i], ca, sa,
-                                                            u[s0 + 2 * nb + i], True)
+            normals_block32(p[0], p[0], u[s0 + nb:s0 + 2 * nb], u[s0 + 2 * nb:s0 + 3 * nb], nb, aux[0], aux[1], aux[2],
+                            v[0], v[1], v[2], cell_f[6], True)  # the coat's normals into v; ni (unused) into cell_f[6]
             for i in range(nb):
                 v[0, i], v[1, i], v[2, i], alive, redo, doubt = roughplastic_about32(
                     p, aux[0, i], aux[1, i], aux[2, i], v[0, i], v[1, i], v[2, i], u[s0 + i], u[s0 + 3 * nb + i],
@@ -430,10 +428,8 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
                 code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2)))
         else:
             emit_block32(conical, b, u, bo, nb, v[0], v[1], v[2], code)  # code: the hits until marked
-            for i in range(nb):  # the cuticle's visible normals, in a loop of their own (as emit_block32)
-                ca, sa = sincos_2pi32(u[s0 + nb + i])
-                aux[0, i], aux[1, i], aux[2, i], aux[3, i] = ggx_normal32(p[0], p[0], v[0, i], v[1, i], v[2, i], ca, sa,
-                                                                          u[s0 + 2 * nb + i], True)
+            normals_block32(p[0], p[0], u[s0 + nb:s0 + 2 * nb], u[s0 + 2 * nb:s0 + 3 * nb], nb, v[0], v[1], v[2],
+                            aux[0], aux[1], aux[2], aux[3], True)  # the cuticle's visible normals
             for i in range(nb):  # the cuticle for every ray; code 5: a body ray, its attempt below
                 hit = code[i] == 1
                 v[0, i], v[1, i], v[2, i], kept, body, doubt = leaf_cuticle_about32(

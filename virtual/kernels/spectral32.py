@@ -26,11 +26,10 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
-from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32
+from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32, normals_block32
 from virtual.kernels.patch_lookup import patch_of
-from virtual.kernels.f32 import (DOUBT, ONE, emit_block32, in_doubt32, emit_side32, fresnel_conductor_ratio32, sincos_2pi32,
-                                 warp_cosine_hemisphere32)
-from virtual.kernels.branchfree32 import ggx_normal32, ggx_reflect32
+from virtual.kernels.f32 import (DOUBT, ONE, emit_block32, in_doubt32, emit_side32, fresnel_conductor_ratio32, warp_cosine_hemisphere32)
+from virtual.kernels.branchfree32 import ggx_reflect32
 from virtual.kernels.microfacet import fresnel_conductor_ratio
 from virtual.kernels.refine import ray_bits, refined_by
 from virtual.kernels.xoshiro import LANES, fill_uniforms32
@@ -191,9 +190,8 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
         m = min(left, nb)
         fill_uniforms32(lane, ublock)
         emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)  # the beam, then the normals, in loops of their own
-        for i in range(nb):  # the visible normal and ni into cc, gs, ys, ts until the loop below overwrites them
-            ca, sa = sincos_2pi32(u[s0 + 2 * nb + i])
-            cc[i], gs[i], ys[i], ts[i] = ggx_normal32(p[0], p[1], vx[i], vy[i], vz[i], ca, sa, u[s0 + nb + i], False)
+        normals_block32(p[0], p[1], u[s0 + 2 * nb:s0 + 3 * nb], u[s0 + nb:s0 + 2 * nb], nb, vx, vy, vz, cc, gs, ys, ts,
+                        False)  # the visible normals and ni into cc, gs, ys, ts until the loop below overwrites them
         for i in range(nb):
             hit = code[i] == 1
             ox, oy, oz, c, g_num, g_den, valid = ggx_reflect32(p[0], p[1], p[2], vx[i], vy[i], vz[i], cc[i], gs[i],
