@@ -64,7 +64,7 @@ LEAF32_UNIFORMS = 9
 _BEAM_UNIFORMS = 4
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _mirror_about32(a, wx, wy, wz, mx, my, mz, ni):
     """The mirror direction of w (wz > 0) about its isotropic GGX visible normal m
     (:func:`~virtual.kernels.branchfree32.ggx_normal32`): ``(sx, sy, sz, c, ni, no)``, c = w.m, ni
@@ -76,7 +76,7 @@ def _mirror_about32(a, wx, wy, wz, mx, my, mz, ni):
     return sx, sy, sz, c, ni, math.sqrt(a * a * (sx * sx + sy * sy) + sz * sz)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def roughplastic_about32(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num, base_den, t_o):
     """:func:`~virtual.kernels.block_coat.roughplastic_given` in float32, from the visible normal m
     of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1, u2)) on: ``(ox, oy, oz,
@@ -100,7 +100,7 @@ def roughplastic_about32(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num
     return ox, oy, (-oz if flip else oz), ok & (spec | (base & accepted)), ok & base & (~accepted), doubt
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def leaf_cuticle_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
     """The cuticle's part of :func:`~virtual.kernels.block_coat.leaf_given` in float32
     from the visible normal m of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1,
@@ -126,7 +126,7 @@ def leaf_cuticle_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
     return (sx if kept else ZERO), (sy if kept else ZERO), (-oz if below else oz), ok & kept, ok & (~kept) & (u3 < rt), doubt
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def leaf_body_normal32(p, u4, u5, u6, u7):
     """The first half of a body ray's attempt (:func:`~virtual.kernels.block_coat.leaf_given`'s, in
     float32): Malley's direction d from (u4, u5) and its visible normal from (u6, u7), ``(dx, dy,
@@ -138,7 +138,7 @@ def leaf_body_normal32(p, u4, u5, u6, u7):
     return dx, dy, dz, mx, my, mz, ni
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def leaf_body_about32(p, side, dx, dy, dz, mx, my, mz, ni, u8):
     """The rest of a body ray's attempt, from :func:`leaf_body_normal32`: d on the side ``side``
     (+-1) of :func:`leaf_cuticle_about32`, rejected when the cuticle would have kept light from d
@@ -189,7 +189,7 @@ _LAST_CELL = np.int32(RP_TABLE_RES - 2)
 _MU_SCALE = np.float32(RP_TABLE_RES - 1)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _t_cell32(cos):
     """Where :func:`~virtual.kernels.coat.rp_t` reads t at the cosine ``cos`` in [0, 1], in
     float32: ``(k, w)``, t = (1 - w) t_k + w t_(k+1)."""
@@ -198,7 +198,7 @@ def _t_cell32(cos):
     return k, x - np.float32(k)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _rp_cells32(wx, wy, wz, e_lo, e_hi, e_scale, n_e):
     """Where :func:`~virtual.kernels.coat.rp_t` reads t at the incidence ``mu = |wz|`` and
     :func:`~virtual.kernels.coat.rp_e` reads E at ``s = sqrt(1 - mu)``, with the weights of the

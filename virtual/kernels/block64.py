@@ -50,7 +50,7 @@ def guess_bins(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_mar
             code[i] = guess_bin(x[i], y[i], z[i], SCHEME_EQUAL_ANGLE, n_theta, n_phi, ring_margin, sector_margin)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def block_buffers(nb, n_bins):
     """A block's scratch: ``code`` (int64), its directions ``vx, vy, vz``, the compacted survivors'
     ``cx, cy, cz``, and the chunk's private counts ``h``: the bins, then absorbed and missed rays

@@ -42,7 +42,7 @@ RP_UNIFORMS = 7
 LEAF_UNIFORMS = 9
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _specular_given(a, wx, wy, wz, u1, u2, separable):
     """The mirror direction about the visible normal of w (wz > 0) drawn from (u1, u2):
     ``(sx, sy, sz, F-cosine c, G2/G1 numerator, denominator)`` under the masking ``separable``."""
@@ -51,7 +51,7 @@ def _specular_given(a, wx, wy, wz, u1, u2, separable):
     return sx, sy, sz, c, g_num, g_den
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def roughplastic_given(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6, base_num, base_den, t_o):
     """:func:`~virtual.kernels.coat.roughplastic` with its uniforms given and one attempt of the
     base's rejection loop: ``(ox, oy, oz, alive, redo)``; ``redo`` marks a base ray whose attempt
@@ -90,7 +90,7 @@ def rp_lookups(p, tab, mu, dz, base_num, base_den, t_o, n):
         t_o[i] = rp_t(tab, dz[i])
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def leaf_given(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6, u7, u8):
     """:func:`~virtual.kernels.scatter._leaf` with its uniforms given and one attempt of the
     body's rejection loop: ``(ox, oy, oz, alive, redo)`` as :func:`roughplastic_given`.

@@ -27,14 +27,14 @@ __all__ = ["GIVEN4_MODELS", "GIVEN4_UNIFORMS", "scatter_given4", "PLASTIC_UNIFOR
 from virtual.kernel_codes import GIVEN4_MODELS, GIVEN4_UNIFORMS
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def phong_lobe_cos(p, u2):
     """cos(alpha) of Phong's cos^n lobe from its uniform: u2^(1/(n+1)). A call of ``pow``,
     which LLVM does not vectorize: the block kernel computes it in a loop of its own."""
     return u2 ** (1.0 / (p[2] + 1.0))
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def phong_given(p, wx, wy, wz, u0, u1, u2, u3, ca):
     """:func:`_phong` given its uniforms: diffuse when u0 < kd-share (Malley from (u1, u2)),
     the cos^n lobe when u0 < kd + lobe share (cos(alpha) = ``ca`` =
@@ -61,7 +61,7 @@ def phong_given(p, wx, wy, wz, u0, u1, u2, u3, ca):
     return ox, oy, (-oz if flip else oz), alive
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _oren_nayar_given(p, wx, wy, wz, u0, u1, u2, u3):
     """:func:`_oren_nayar` given its uniforms: the cosine lobe (Malley from (u1, u2)) when
     u0 < albedo A, else "uniform in cos(theta_o) (1 - u1), azimuth density cos(dphi)/2
@@ -92,7 +92,7 @@ def _oren_nayar_given(p, wx, wy, wz, u0, u1, u2, u3):
     return ox, oy, (-oz if flip else oz), alive
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _dielectric_given(p, wx, wy, wz, u0, u1, u2, u3):
     """:func:`_dielectric` given its uniforms: the visible normal from (u1, u2), reflection when
     u0 < F (else refraction), surviving with probability G2/G1 by u3."""
@@ -117,7 +117,7 @@ def _dielectric_given(p, wx, wy, wz, u0, u1, u2, u3):
     return ox, oy, (-oz if flip else oz), alive
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def scatter_given4(model, p, wx, wy, wz, u0, u1, u2, u3):
     """:func:`scatter` for the :data:`GIVEN4_MODELS`, with four uniforms given: the same
     distribution of ``(ox, oy, oz, alive)``, no branch (callers pass a constant ``model``)."""
@@ -133,7 +133,7 @@ def scatter_given4(model, p, wx, wy, wz, u0, u1, u2, u3):
 PLASTIC_UNIFORMS = 7
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def plastic_given(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
     """:func:`_plastic` with its uniforms given and one attempt of the diffuse lobe's rejection
     loop: ``(ox, oy, oz, alive, redo)``. ``redo`` marks a diffuse ray whose one attempt was
@@ -174,7 +174,7 @@ def plastic_given(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6):
     return ox, oy, (-oz if flip else oz), alive, redo
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def plastic_diffuse_redo(eta, s):
     """The plastic's diffuse direction (cosine lobe thinned by 1 - F(cos theta_o)) drawn by
     rejection from the stream ``s``, upper hemisphere: the fallback of :func:`plastic_given`."""

@@ -33,7 +33,7 @@ _HALF_BITS, _ONE_BITS = np.int32(0x3F000000), np.int32(0x3F800000)  # exponent b
 _BIAS, _MIN_EXP, _SHIFT = np.int32(127), np.int32(-126), np.int32(23)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def lambert_given32(p, wz, u0, u1, u2):
     """Lambertian: alive when u0 < R + T, reflected (source side) when u0 < R, the direction
     Malley's from (u1, u2)."""
@@ -43,7 +43,7 @@ def lambert_given32(p, wz, u0, u1, u2):
     return x, y, (z if up else -z), u0 < rt, in_doubt32(u0, p[0], ONE) | in_doubt32(u0, rt, ONE)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def ggx_normal32(ax, ay, wx, wy, wz, ca, sa, r2, plain):
     """GGX (isotropic or anisotropic), two-sided, first half (:func:`~virtual.kernels.scatter.ggx_given_parts`
     in float32): the visible normal ``(mx, my, mz)`` of |w| for the disk point (direction ``ca, sa``
@@ -59,7 +59,7 @@ def ggx_normal32(ax, ay, wx, wy, wz, ca, sa, r2, plain):
     return mx, my, mz, ni
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def ggx_reflect32(ax, ay, separable, wx, wy, wz, mx, my, mz, ni, plain):
     """The second half of :func:`~virtual.kernels.scatter.ggx_given_parts` in float32: the
     reflection of w about the normal of :func:`ggx_normal32` and its terms, ``(ox, oy, oz, c,
@@ -78,7 +78,7 @@ def ggx_reflect32(ax, ay, separable, wx, wy, wz, mx, my, mz, ni, plain):
     return ox, oy, (-oz if flip else oz), c, g_num, g_den, (wz > ZERO) & (oz > ZERO)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def ggx_finish32(p, wx, wy, wz, mx, my, mz, ni, u0, plain):
     """GGX reflection from its visible normal (:func:`ggx_normal32`) on, surviving with
     probability F G2/G1 by u0 (``p`` = alpha_x, alpha_y, eta, k, separable): ``(ox, oy, oz, alive,
@@ -125,7 +125,7 @@ def phong_lobe_omc32(p, u, ibuf, out):
         out[i] = ONE if u[i] == ZERO else omc
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def phong_given32(p, wx, wy, wz, u0, u1, u2, u3, omc):
     """:func:`~virtual.kernels.branchfree.phong_given` in float32: diffuse when u0 < kd (Malley from
     (u1, u2)), the cos^n lobe when u0 < kd + lobe share (1 - cos(alpha) = ``omc`` from
@@ -154,7 +154,7 @@ def phong_given32(p, wx, wy, wz, u0, u1, u2, u3, omc):
     return ox, oy, (-oz if flip else oz), alive, doubt
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def oren_nayar_given32(p, wx, wy, wz, u0, u1, u2, u3):
     """:func:`~virtual.kernels.branchfree._oren_nayar_given` in float32: the cosine lobe (Malley from
     (u1, u2)) when u0 < albedo A, else uniform in cos(theta_o) (1 - u1) with azimuth density

@@ -26,7 +26,7 @@ DIELECTRIC32_UNIFORMS = 4
 PLASTIC32_UNIFORMS = 7
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def dielectric_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
     """Rough dielectric (``p`` = alpha, eta, separable) from the visible normal of |w|
     (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1, u2)) on: reflection when u0 < F
@@ -51,7 +51,7 @@ def dielectric_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
     return ox, oy, (-oz if flip else oz), alive, doubt
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def plastic_diffuse32(p, u4, u5):
     """The diffuse attempt of :func:`plastic_about32`, which does not depend on w: Malley's direction
     from (u4, u5) and F at its cosine, ``(dx, dy, dz, fo)``."""
@@ -60,7 +60,7 @@ def plastic_diffuse32(p, u4, u5):
     return dx, dy, dz, fo
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def plastic_about32(p, wx, wy, wz, mx, my, mz, ni, dx, dy, dz, fo, u0, u3, u6):
     """Rough plastic (``p`` = alpha, eta, kd), two-sided, one attempt of the diffuse lobe's
     rejection loop: ``(ox, oy, oz, alive, redo, doubt)``, ``redo`` marking a rejected diffuse ray

@@ -34,7 +34,7 @@ from virtual.kernel_codes import RP_E, RP_N_E, RP_S_HI, RP_S_LO, RP_TABLE, RP_TA
 __all__ = ["rp_t", "rp_e", "roughplastic", "roughplastic_base_redo"]
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def rp_t(p, mu):
     """t(mu) as Mitsuba's ``lerp_gather`` reads its 64-node table (``p[RP_TABLE:]``), mu in [0, 1]."""
     x = mu * (RP_TABLE_RES - 1)
@@ -43,7 +43,7 @@ def rp_t(p, mu):
     return (1.0 - w) * p[RP_TABLE + i] + w * p[RP_TABLE + i + 1]
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def rp_e(p, mu):
     """E_spec(mu) from the measurement's table: four-point Lagrange interpolation in
     s = sqrt(1 - mu) on its n >= 4 uniform nodes over [s_lo, s_hi], s clamped to that range.
@@ -62,7 +62,7 @@ def rp_e(p, mu):
             + t * t1 * t2 * p[j + 3]) / 6.0
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def roughplastic_base_redo(p, s):
     """A direction of the base's lobe (cosine, kept with probability t(cos_o), redrawn
     otherwise) from the stream ``s``, upper hemisphere. Ends with probability 1 (t > 0)."""
@@ -73,7 +73,7 @@ def roughplastic_base_redo(p, s):
             return ox, oy, oz
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def roughplastic(p, wx, wy, wz, s):
     """Mitsuba's roughplastic, ray by ray (see the module docstring); two-sided like every
     opaque model. ``(ox, oy, oz, alive)``."""

@@ -23,7 +23,7 @@ from virtual.kernel_codes import (B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EM
                                   DISK_REJECTION, N_BEAM_ARGS)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _disk(u1, u2, r, code, s):
     if code != DISK_POLAR:  # rejection, also for "auto" in this ray-by-ray form
         while True:  # eq. 3.3 with rejection; acceptance pi/4, so the loop ends fast
@@ -36,7 +36,7 @@ def _disk(u1, u2, r, code, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def emit(kind, disk, b, s):
     """One incident ray: the unit vector toward its source, and whether it hits the front face.
 
@@ -50,7 +50,7 @@ def emit(kind, disk, b, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def toward_source(b, x1, y1, x2, y2):
     """Unit vector from the target (x2, y2, 0) to the emitter point R (x1, y1, D), and whether
     it arrives on the front face (the side the beam axis comes from)."""
@@ -64,7 +64,7 @@ def toward_source(b, x1, y1, x2, y2):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def emit_given(kind, b, u1, u2, u3, u4):
     """:func:`emit` with both disks drawn by the polar warp from the given uniforms (none are
     read for a collimated beam): branch-free, for the vectorized block kernel."""
@@ -75,7 +75,7 @@ def emit_given(kind, b, u1, u2, u3, u4):
     return (b[B_AXIS_X] if col else wx), (b[B_AXIS_Y] if col else wy), (b[B_AXIS_Z] if col else wz), (True if col else hit)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def beam_tuple(beam_args):
     """The 15 values of :meth:`virtual.beam.Beam.kernel_args` as a tuple (of the array's float
     type): the block kernels pass it to their chunks, because LLVM must reload an array element

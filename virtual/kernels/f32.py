@@ -66,7 +66,7 @@ _A4, _A5, _A6, _A7 = F(0.09967909753322601), F(-0.06021890789270401), F(0.024756
 # ATAN32_MAX_ERROR (virtual.kernel_codes): the largest error of the float32 polynomial atan2 below.
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def in_doubt32(u, num, den):
     """Whether the decision ``u den < num`` (u a grid uniform, den >= 0; the probability
     num/den) may turn on bits of u below the 2^-24 grid: num/den within :data:`DOUBT` of u.
@@ -79,7 +79,7 @@ def in_doubt32(u, num, den):
     return abs(u * den - num) <= DOUBT * den
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def sincos_2pi32(u):
     """``(cos 2 pi u, sin 2 pi u)`` in float32 for u in [0, 1): the float64
     :func:`~virtual.kernels.warps.sincos_2pi` with float32 polynomials (error < 2e-7)."""
@@ -98,7 +98,7 @@ def sincos_2pi32(u):
     return cq, sq
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def warp_polar32(u1, u2, r):
     """Eq. 3.4: (rho cos phi, rho sin phi) with phi = 2 pi u1, rho = r sqrt(u2)."""
     c, s = sincos_2pi32(u1)
@@ -106,14 +106,14 @@ def warp_polar32(u1, u2, r):
     return rho * c, rho * s
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def warp_cosine_hemisphere32(u1, u2):
     """Malley's method: z = sqrt(1 - u2) from u2 directly (never from rho)."""
     x, y = warp_polar32(u1, u2, ONE)
     return x, y, math.sqrt(ONE - u2)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def emit_given32(conical, b, u1, u2, u3, u4):
     """:func:`~virtual.kernels.emit.emit_given` in float32 (``b`` a tuple of float32)."""
     x1, y1 = warp_polar32(u1, u2, b[B_EMITTER_RADIUS])
@@ -143,7 +143,7 @@ def emit_block32(conical, b, u, bo, n, wx, wy, wz, hit):
         hit[i] = h
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def emit_side32(conical, b, u1, u2):
     """What a Lambertian needs of :func:`emit_given32`: the z of the direction toward the source
     before normalization (the sign of its ``wz``: the normalization is by a positive factor) and
@@ -154,7 +154,7 @@ def emit_side32(conical, b, u1, u2):
     return (oz if conical else b[B_AXIS_Z]), ((oz * b[B_AXIS_Z] > ZERO) if conical else True)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _atan_first_quadrant32(ay, ax):
     swap = ay > ax
     t = min(ax, ay) / max(max(ax, ay), _TINY)
@@ -163,14 +163,14 @@ def _atan_first_quadrant32(ay, ax):
     return HALF_PI - a if swap else a
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _phi32(x, y):
     a = _atan_first_quadrant32(abs(y), abs(x))
     a = PI - a if x < ZERO else a
     return TWO_PI - a if y < ZERO else a
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def guess_bin32(x, y, z, scheme_code, n_theta, n_phi, ring_margin, sector_margin):
     """:func:`~virtual.kernels.patch_lookup.guess_bin` in float32: the bin of (x, y, z), or -1 when
     it lies within the margins (:func:`virtual.collector.guess_margins32`) of an edge, at the
@@ -196,13 +196,13 @@ def guess_bin32(x, y, z, scheme_code, n_theta, n_phi, ring_margin, sector_margin
     return b if sure else -1
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def ggx_n32(wx, wy, wz, ax, ay):
     """|(ax wx, ay wy, wz)| (:func:`~virtual.kernels.microfacet.ggx_n`)."""
     return math.sqrt(ax * ax * wx * wx + ay * ay * wy * wy + wz * wz)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def ggx_vndf_given32(wx, wy, wz, ax, ay, inv_ni, ca, sa, r2):
     """:func:`~virtual.kernels.microfacet.ggx_vndf_given` in float32."""
     vx = ax * wx * inv_ni
@@ -222,7 +222,7 @@ def ggx_vndf_given32(wx, wy, wz, ax, ay, inv_ni, ca, sa, r2):
     return (mx * inv if good else ZERO), (my * inv if good else ZERO), (hz * inv if good else ONE)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def g2_over_g1_masked_ratio32(wz, ni, oz, no, separable):
     """:func:`~virtual.kernels.microfacet.g2_over_g1_masked_ratio` in float32: ``(num, den)``
     (``separable`` 0 height-correlated, 1 separable Smith)."""
@@ -230,7 +230,7 @@ def g2_over_g1_masked_ratio32(wz, ni, oz, no, separable):
     return one_minus * (wz + ni) * oz + separable * TWO * oz, one_minus * (ni * oz + no * wz) + separable * (oz + no)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def fresnel_conductor_ratio32(c, eta, k, k_zero):
     """:func:`~virtual.kernels.microfacet.fresnel_conductor_ratio` in float32: ``(num, den)``.
     ``k_zero`` (a literal: the branch folds away) says k = 0, where a^2 + b^2 = |t0| and
@@ -253,7 +253,7 @@ def fresnel_conductor_ratio32(c, eta, k, k_zero):
     return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def fresnel_dielectric32(c, eta):
     """:func:`~virtual.kernels.microfacet.fresnel_dielectric` in float32, branch-free:
     ``(F, cos_t)``, F = 1 and cos_t = 0 on total internal reflection. cos_t^2 = ((eta - 1)(eta
@@ -268,7 +268,7 @@ def fresnel_dielectric32(c, eta):
     return (ONE if tir else f), (ZERO if tir else ct)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def frame32(nx, ny, nz):
     """:func:`~virtual.kernels.microfacet.frame` (Duff et al. 2017) in float32."""
     sign = ONE if nz >= ZERO else -ONE

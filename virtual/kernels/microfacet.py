@@ -18,7 +18,7 @@ __all__ = ["unit_disk", "disk_direction", "fresnel_conductor_ratio", "fresnel_di
            "ggx_vndf_given", "ggx_vndf", "g2_over_g1_ratio", "g2_over_g1", "frame"]
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def unit_disk(s):
     """A uniform point (a, b) of the open unit disk minus its centre, and r2 = a^2 + b^2.
 
@@ -32,7 +32,7 @@ def unit_disk(s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def fresnel_conductor_ratio(c, eta, k):
     """Scalar twin of :func:`_np_fresnel_conductor` (c in [0, 1]) as ``(num, den)``, F = num / den,
     den >= 0: F = (Rs + Rp) / 2 with Rp = Rs (t3 - t4) / (t3 + t4) is Rs t3 / (t3 + t4), and Rs
@@ -53,7 +53,7 @@ def fresnel_conductor_ratio(c, eta, k):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def fresnel_dielectric(c, eta):
     """(F, cos_t) for incident cosine c in [0, 1] and eta = n_t / n_i; F = 1, cos_t = 0 on TIR.
     cos_t^2 = ((eta - 1)(eta + 1) + c^2) / eta^2: exact at eta = 1 however grazing c is."""
@@ -67,7 +67,7 @@ def fresnel_dielectric(c, eta):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def ggx_vndf_given(wx, wy, wz, ax, ay, inv_ni, ca, sa, r2):
     """A microfacet normal from GGX's distribution of visible normals for w (wz > 0), given
     ``inv_ni`` = 1 / |(ax wx, ay wy, wz)| (:func:`ggx_n`, which G1 needs too) and a uniform
@@ -96,7 +96,7 @@ def ggx_vndf_given(wx, wy, wz, ax, ay, inv_ni, ca, sa, r2):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def disk_direction(s):
     """A uniform point of the unit disk drawn by rejection from ``s``: its direction (unit) and
     its squared radius, uniform in (0, 1)."""
@@ -106,7 +106,7 @@ def disk_direction(s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def ggx_vndf(wx, wy, wz, ax, ay, s):
     """:func:`ggx_vndf_given` with the disk point drawn by rejection from the stream ``s``."""
     ca, sa, r2 = disk_direction(s)
@@ -114,13 +114,13 @@ def ggx_vndf(wx, wy, wz, ax, ay, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def ggx_n(wx, wy, wz, ax, ay):
     return math.sqrt(ax * ax * wx * wx + ay * ay * wy * wy + wz * wz)
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def g2_over_g1_ratio(wz, ni, oz, no):
     """G2(wi, wo) / G1(wi) as ``(num, den)`` from the cosines and :func:`ggx_n` of both
     directions; den > 0 for wz, oz > 0."""
@@ -128,7 +128,7 @@ def g2_over_g1_ratio(wz, ni, oz, no):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def g2_over_g1_masked_ratio(wz, ni, oz, no, separable):
     """G2(wi, wo) / G1(wi) as ``(num, den)`` under either masking convention, branch-free:
     ``separable`` = 0.0 (height-correlated, :func:`g2_over_g1_ratio`) or 1.0 (separable Smith,
@@ -138,7 +138,7 @@ def g2_over_g1_masked_ratio(wz, ni, oz, no, separable):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def g2_over_g1_masked(wx, wy, wz, ox, oy, oz, ax, ay, separable):
     """:func:`g2_over_g1` under the masking convention ``separable`` (0.0 or 1.0)."""
     num, den = g2_over_g1_masked_ratio(wz, ggx_n(wx, wy, wz, ax, ay), oz, ggx_n(ox, oy, oz, ax, ay), separable)
@@ -146,7 +146,7 @@ def g2_over_g1_masked(wx, wy, wz, ox, oy, oz, ax, ay, separable):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def g2_over_g1(wx, wy, wz, ox, oy, oz, ax, ay):
     """G2(wi, wo) / G1(wi) for wz, oz > 0 (<= 1)."""
     num, den = g2_over_g1_ratio(wz, ggx_n(wx, wy, wz, ax, ay), oz, ggx_n(ox, oy, oz, ax, ay))
@@ -154,7 +154,7 @@ def g2_over_g1(wx, wy, wz, ox, oy, oz, ax, ay):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def frame(nx, ny, nz):
     """An orthonormal basis (t, b) around the unit vector n (Duff et al. 2017, branchless)."""
     sign = math.copysign(1.0, nz)

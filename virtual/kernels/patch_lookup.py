@@ -30,7 +30,7 @@ _HUGE2 = 1e280   # |v|^2 above: squares may overflow -> rescale
 # margin of :func:`guess_bin` is built on it.
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _atan_first_quadrant(ay, ax):
     """atan2(ay, ax) for ay, ax >= 0 to within :data:`ATAN_MAX_ERROR`, branch-free (0 at 0, 0).
 
@@ -47,7 +47,7 @@ def _atan_first_quadrant(ay, ax):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _approx_phi(x, y):
     """atan2(y, x) taken into [0, 2 pi), to within :data:`ATAN_MAX_ERROR` (a guess only)."""
     a = _atan_first_quadrant(abs(y), abs(x))
@@ -56,7 +56,7 @@ def _approx_phi(x, y):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _ring_guess(s2, az, rho2, r2, scheme_code, n_theta):
     """The ring coordinate (ring index + fraction) of a direction by the scheme's closed form."""
     if scheme_code == SCHEME_EQUAL_PSA:
@@ -67,7 +67,7 @@ def _ring_guess(s2, az, rho2, r2, scheme_code, n_theta):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _patch_core(x, y, z, rho2, r2, scheme_code, n_theta, n_phi, sin2_edges, phi_cs):
     az = abs(z)
     s2 = rho2 / r2
@@ -140,7 +140,7 @@ def _patch_of_rare(x, y, z, scheme_code, n_theta, n_phi, sin2_edges, phi_cs):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def patch_of(x, y, z, scheme_code, n_theta, n_phi, sin2_edges, phi_cs):
     """Bin index in ``[0, 2 n_theta n_phi)`` of the direction ``(x, y, z)`` (any length).
 
@@ -171,7 +171,7 @@ def patch_of(x, y, z, scheme_code, n_theta, n_phi, sin2_edges, phi_cs):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def guess_bin(x, y, z, scheme_code, n_theta, n_phi, ring_margin, sector_margin):
     """:func:`patch_of` without table look-ups or branches, for vectorized kernels: the bin,
     or -1 when the answer is not certain (then call :func:`patch_of`).

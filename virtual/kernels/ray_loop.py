@@ -41,7 +41,7 @@ E_NEAR_RADIUS = 9
 _TWO_PI = 2.0 * math.pi
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _spot(r, s):
     """A uniform point of the disk of radius r (eq. 3.3 with rejection)."""
     while True:
@@ -51,7 +51,7 @@ def _spot(r, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _emit_at(kind, disk, b, bp, spot_r, s):
     """emit() plus the point (x, y) where the ray meets the specimen plane."""
     if kind == BEAM_COLLIMATED:
@@ -71,7 +71,7 @@ def _emit_at(kind, disk, b, bp, spot_r, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _pick(cdf, s):
     u = next_double(s)
     k = 0

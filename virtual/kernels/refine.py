@@ -30,20 +30,20 @@ __all__ = ["refined_by", "refined", "ray_bits", "redo_ray64"]
 _BELOW_GRID = 2.0 ** -53  # the weight of the 29 bits added below the 2^-24 grid
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def refined_by(u, bits):
     """A grid uniform u (k 2^-24, k < 2^24) completed by the top 29 of 64 random ``bits``:
     uniform over [u, u + 2^-24) on the 2^-53 grid, exact in float64 and below 1."""
     return np.float64(u) + np.float64(bits >> uint64(35)) * _BELOW_GRID
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def refined(u, s):
     """:func:`refined_by` with the bits drawn from the xoshiro stream ``s``."""
     return refined_by(u, next_uint64(s))
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def ray_bits(key, index):
     """64 random bits of ray ``index`` under ``key`` (splitmix64's finalizer of key + index times
     the golden ratio): a spectral batch refines a ray's uniform with bits that depend on the ray

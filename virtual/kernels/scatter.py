@@ -40,7 +40,7 @@ from virtual.kernel_codes import GIVEN_MODELS, GIVEN_UNIFORMS
 _DEAD = (0.0, 0.0, 0.0, False)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _oren_nayar(p, wx, wy, wz, s):
     flip = wz < 0.0
     if flip:
@@ -81,7 +81,7 @@ def _oren_nayar(p, wx, wy, wz, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _phong(p, wx, wy, wz, s):
     flip = wz < 0.0
     if flip:
@@ -111,7 +111,7 @@ def _phong(p, wx, wy, wz, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def ggx_given_parts(ax, ay, separable, wx, wy, wz, ca, sa, r2):
     """The wavelength-free part of :func:`_ggx_given`, which calls it (the spectral batch samples
     it once per ray): ``(ox, oy, oz, c, g_num, g_den, valid)`` -- the reflected direction (side
@@ -131,7 +131,7 @@ def ggx_given_parts(ax, ay, separable, wx, wy, wz, ca, sa, r2):
     return ox, oy, (-oz if flip else oz), c, g_num, g_den, (wz > 0.0) & (oz > 0.0)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _ggx_given(p, wx, wy, wz, ca, sa, r2, u):
     """GGX reflection of the ray from w (either side: two-sided) given the VNDF's disk point
     (direction (ca, sa), squared radius r2) and the survival uniform u. Branch-free (block
@@ -149,14 +149,14 @@ def _ggx_given(p, wx, wy, wz, ca, sa, r2, u):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _ggx(p, wx, wy, wz, s):
     ca, sa, r2 = disk_direction(s)
     return _ggx_given(p, wx, wy, wz, ca, sa, r2, next_double(s))
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _plastic(p, wx, wy, wz, s):
     flip = wz < 0.0
     if flip:
@@ -186,7 +186,7 @@ def _plastic(p, wx, wy, wz, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _dielectric(p, wx, wy, wz, s):
     a = p[0]
     flip = wz < 0.0
@@ -218,7 +218,7 @@ def _dielectric(p, wx, wy, wz, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _lambert_given(p, wz, u, x, y, z):
     """Lambertian: alive when u < R + T; reflected rays (u < R) leave on the side of the source,
     transmitted ones on the other side, along the cosine-distributed (x, y, z), z >= 0."""
@@ -227,7 +227,7 @@ def _lambert_given(p, wz, u, x, y, z):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _lambert(p, wz, s):
     u = next_double(s)
     if u >= p[0] + p[1]:  # absorbed: no direction drawn
@@ -237,7 +237,7 @@ def _lambert(p, wz, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _leaf_specular(wx, wy, wz, a, eta, ks, s):
     """The leaf cuticle's specular event for light from w (wz > 0): ``(ox, oy, oz, kept)``, kept
     with probability ks E_s(w) (a visible normal, Fresnel reflection, above the horizon, ks G2/G1)."""
@@ -254,7 +254,7 @@ def _leaf_specular(wx, wy, wz, a, eta, ks, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def leaf_body_redo(a, eta, ks, s):
     """The leaf body's direction from the stream ``s``, upper hemisphere: the cosine lobe thinned
     by 1 - ks E_s(wo) (a direction is redrawn while light from it would have been kept by the
@@ -268,7 +268,7 @@ def leaf_body_redo(a, eta, ks, s):
             return ox, oy, oz
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _leaf(p, wx, wy, wz, s):
     """Leaf (:class:`virtual.specimens.leaf.Leaf`), params ``[alpha, eta, ks, r_b, t_b]``: the
     cuticle's specular lobe (kept w.p. ks E_s(wi)); else the body reflects (r_b), transmits
@@ -320,7 +320,7 @@ def _scatter_general(model, p, wx, wy, wz, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def scatter(model, p, wx, wy, wz, s):
     """Scatter one ray (see the module docstring for the contract).
 
@@ -333,7 +333,7 @@ def scatter(model, p, wx, wy, wz, s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def scatter_given(model, p, wx, wy, wz, u0, u1, u2):
     """:func:`scatter` for the :data:`GIVEN_MODELS`, with its three uniforms given instead of
     drawn, and no branch: the same distribution of ``(ox, oy, oz, alive)``.

@@ -139,7 +139,7 @@ def lambert_spectral32_chunk(thr, floors, conical, b, cargs, ring_margin, sector
     tally[0] += missed
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _survivor_rows(hist, wp, lo, hi, code, src, cell, ts, tl, i):
     """Compacted survivor ``i``'s histogram row (its bin ``code[i]``), its Fresnel cell's bound
     rows and its thresholds: ``(row, lrow, hrow, t, t_lo, r)``, ``r`` its ray in the block. Slices,

@@ -20,14 +20,14 @@ _TWO_PI = 2.0 * math.pi
 _HALF_PI = 0.5 * math.pi
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def warp_square(u1, u2, r):
     """Eq. 3.3: a point in the square [-r, r]^2 (to be rejected outside the disk)."""
     return r * (2.0 * u1 - 1.0), r * (2.0 * u2 - 1.0)
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def sincos_2pi(u):
     """``(cos 2 pi u, sin 2 pi u)`` for u in [0, 1), to within 2 ulp, branch-free.
 
@@ -54,7 +54,7 @@ def sincos_2pi(u):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def warp_polar(u1, u2, r):
     """Eq. 3.4 done right: (phi, rho) = (2 pi u1, r sqrt(u2)) -> (rho cos phi, rho sin phi)."""
     c, s = sincos_2pi(u1)
@@ -63,7 +63,7 @@ def warp_polar(u1, u2, r):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def warp_triangle(u3, u4):
     """Eq. 3.11 (Shirley): barycentric (x', y') uniform on the triangle for uniforms u3, u4."""
     xp = 1.0 - math.sqrt(1.0 - u3)
@@ -85,7 +85,7 @@ def _warp_triangle_array(u, out):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def warp_cosine_hemisphere(u1, u2):
     """Malley's method: the polar warp lifted to the unit hemisphere, pdf cos(theta)/pi.
 
@@ -97,7 +97,7 @@ def warp_cosine_hemisphere(u1, u2):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def sample_cosine_hemisphere(s):
     """Malley's method on a rejection-sampled unit disk (eq. 3.3): pdf cos(theta)/pi.
 

@@ -19,13 +19,13 @@ from virtual.kernel_codes import LANES
 _TO_DOUBLE = 1.0 / 9007199254740992.0  # 2**-53
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _rotl(x, k):
     return (x << uint64(k)) | (x >> uint64(64 - k))
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def next_uint64(s):
     """Advance the xoshiro256+ state ``s`` (uint64[4]) in place; return 64 random bits."""
     r = s[0] + s[3]
@@ -40,14 +40,14 @@ def next_uint64(s):
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def next_double(s):
     """Uniform double in [0, 1) from the top 53 bits (the low bits of xoshiro256+ are weak)."""
     return (next_uint64(s) >> uint64(11)) * _TO_DOUBLE
 
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _step(s0, s1, s2, s3):
     """One xoshiro256+ step of a lane held in registers: ``(uniform, s0, s1, s2, s3)``."""
     r = s0 + s3
@@ -119,7 +119,7 @@ _TO_FLOAT32 = np.float32(2.0 ** -24)
 _U8, _U9, _U11, _U21 = uint32(8), uint32(9), uint32(11), uint32(21)
 
 
-@jit(inline="always")
+@jit(inline="llvm")
 def _step32(s0, s1, s2, s3):
     """One xoshiro128+ step of a lane held in registers: ``(uniform, s0, s1, s2, s3)``, the
     uniform from bits 8-31 of the 32-bit sum. Every step is cast back to uint32 (numba widens
