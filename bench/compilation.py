@@ -31,21 +31,21 @@ __all__ = ["KERNEL_FAMILIES", "CompileProgress", "compile_progress", "WARM_UP", 
 #: Kernels called from Python, by name: (what the user reads, seconds a cold compile takes on a
 #: 2-core machine, the estimate before this machine has compiled it once).
 KERNEL_FAMILIES: dict[str, tuple[str, float]] = {
-    "gonio_block_chunk": ("float64 block kernel", 60.0),
-    "gonio_block32_chunk": ("float32 block kernel", 50.0),
-    "gonio_coat_chunk": ("float64 block kernel of roughplastic and the leaf", 30.0),
-    "gonio_coat32_chunk": ("float32 block kernel of roughplastic and the leaf", 37.0),
-    "lambert_spectral_chunk": ("float64 spectral Lambertian batch", 15.0),
-    "ggx_spectral_chunk": ("float64 spectral GGX batch", 20.0),
-    "lambert_spectral32_chunk": ("float32 spectral Lambertian batch", 15.0),
-    "ggx_spectral32_chunk": ("float32 spectral GGX batch", 15.0),
-    "fresnel_bounds": ("Fresnel bound tables", 3.0),
-    "spectro_fx_chunk": ("spectrophotometer kernel (ray by ray, scene effects by flag)", 60.0),
-    "gonio_fx_chunk": ("goniophotometer kernel (ray by ray, scene effects by flag)", 60.0),
-    "spectro_points_chunk": ("spectrophotometer kernel on given points", 25.0),
-    "index_many": ("collector patch lookup", 3.0),
-    "_warp_polar_array": ("disk sampler", 2.0),
-    "_warp_triangle_array": ("triangle sampler", 2.0),
+    "gonio_block_chunk": ("float64 block kernel", 10.0),
+    "gonio_block32_chunk": ("float32 block kernel", 14.0),
+    "gonio_coat_chunk": ("float64 block kernel of roughplastic and the leaf", 10.0),
+    "gonio_coat32_chunk": ("float32 block kernel of roughplastic and the leaf", 16.0),
+    "lambert_spectral_chunk": ("float64 spectral Lambertian batch", 3.0),
+    "ggx_spectral_chunk": ("float64 spectral GGX batch", 4.0),
+    "lambert_spectral32_chunk": ("float32 spectral Lambertian batch", 5.0),
+    "ggx_spectral32_chunk": ("float32 spectral GGX batch", 5.0),
+    "fresnel_bounds": ("Fresnel bound tables", 2.0),
+    "spectro_fx_chunk": ("spectrophotometer kernel (ray by ray, scene effects by flag)", 9.0),
+    "gonio_fx_chunk": ("goniophotometer kernel (ray by ray, scene effects by flag)", 8.0),
+    "spectro_points_chunk": ("spectrophotometer kernel on given points", 2.0),
+    "index_many": ("collector patch lookup", 1.0),
+    "_warp_polar_array": ("disk sampler", 1.0),
+    "_warp_triangle_array": ("triangle sampler", 1.0),
 }
 
 _HISTORY = "compile-seconds.json"
@@ -305,14 +305,15 @@ def _samplers() -> None:
     sample_triangle(4, (0.0, 0.0), (1.0, 0.0), (0.0, 1.0), "random", 1)
 
 
-#: The warm-up's tasks, costliest first (compile CPU-s on a 2-core AMD EPYC Zen 5, fresh cache,
-#: the other core busy: float32 block 36, the coated families' float32 block 35, the
-#: spectrophotometer's 35, float64 block 33, the coated families' float64 block 24, the spectral
-#: batches 22, the goniophotometer's ray kernel 20). No two tasks share a kernel, so
-#: none is compiled twice; two workers take them in this order as each frees up (longest first:
-#: the two processes end within one task's time of each other, whatever a new kernel adds).
-WARM_UP: tuple[Callable[[], None], ...] = (_block32, _coat32, _spectro_kernels, _block64, _coat64,
-                                           _spectral_batches, _gonio_kernels)
+#: The warm-up's tasks, costliest first (seconds of a cold compile, each alone into an empty
+#: cache, on a 2-core AMD EPYC Zen 5: the coated families' float32 block 18, the spectral batches
+#: 15, float32 block 15, the coated families' float64 block 12, the spectrophotometer's 10, float64
+#: block 10, the goniophotometer's ray kernel 9; together 25 s on two processes, because the per-ray
+#: helpers they share are compiled once and cached: see :mod:`virtual.kernels`). No two tasks share
+#: a kernel, so none is compiled twice; two workers take them in this order as each frees up
+#: (longest first: the two processes end within one task's time of each other).
+WARM_UP: tuple[Callable[[], None], ...] = (_coat32, _spectral_batches, _block32, _coat64, _spectro_kernels,
+                                           _block64, _gonio_kernels)
 
 
 _HEADER_SAID = [False]  # per worker process: its tasks say "compiling kernels" once between them
