@@ -28,8 +28,10 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
+# --no-compile: pip would byte-compile every file of every package (half of the install's time);
+# Python compiles and caches what is imported, the first time it is.
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[test,scale,parquet,mitsuba,bluesky,tiled]"
+	$(BIN)/python -m pip install --quiet --no-compile -e ".[test,scale,parquet,mitsuba,bluesky,tiled]"
 	touch $(STAMP)
 
 # The project with every extra its tests use, its bytecode (written even where
