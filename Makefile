@@ -28,10 +28,14 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# --no-compile: pip would byte-compile every file of every package (half of the install's time);
-# Python compiles and caches what is imported, the first time it is.
+# pip byte-compiles the installed files one by one (half of the install's time); compileall does it
+# on every core. It must be done here: where PYTHONDONTWRITEBYTECODE is set, Python would otherwise
+# compile every imported module from source in every process. (A file it cannot compile -- some
+# packages ship Python 2 fixtures -- is skipped as pip skips it.)
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --no-compile -e ".[test,scale,parquet,mitsuba,bluesky,tiled]"
+	@$(BIN)/python -m compileall -q -j 0 "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" \
+	  >/dev/null 2>&1 || true
 	touch $(STAMP)
 
 # The project with every extra its tests use, its bytecode (written even where
