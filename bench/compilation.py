@@ -1,7 +1,7 @@
 """Kernel compilation, shown while it happens and done ahead of time.
 
 numba compiles a kernel the first time it is called with a new signature and caches the machine
-code on disk (:mod:`virtual.kernels`); a cold cache costs tens of seconds per kernel family. Two
+code on disk (:mod:`virtual.kernels`); a cold cache costs 2-16 s per kernel family. Two
 things keep that from looking like a hang or landing on a user's first command:
 
 * :class:`CompileProgress` (a numba event listener, installed for the length of a CLI command by
