@@ -308,10 +308,12 @@ def _samplers() -> None:
 #: The warm-up's tasks, costliest first (seconds of a cold compile, each alone into an empty
 #: cache, on a 2-core AMD EPYC Zen 5: the coated families' float32 block 18, the spectral batches
 #: 15, float32 block 15, the coated families' float64 block 12, the spectrophotometer's 10, float64
-#: block 10, the goniophotometer's ray kernel 9; together 25 s on two processes, because the per-ray
-#: helpers they share are compiled once and cached: see :mod:`virtual.kernels`). No two tasks share
-#: a kernel, so none is compiled twice; two workers take them in this order as each frees up
-#: (longest first: the two processes end within one task's time of each other).
+#: block 10, the goniophotometer's ray kernel 9; together 21-30 s on two processes, less than the
+#: sum because the per-ray helpers they share are compiled once per process at most and cached:
+#: see :mod:`virtual.kernels`). No two tasks share a kernel, so no kernel is compiled twice (a
+#: shared helper may be, once in each process, when both need it before either has cached it); two
+#: workers take them in this order as each frees up (longest first: the two processes end within
+#: one task's time of each other).
 WARM_UP: tuple[Callable[[], None], ...] = (_coat32, _spectral_batches, _block32, _coat64, _spectro_kernels,
                                            _block64, _gonio_kernels)
 
