@@ -53,6 +53,7 @@ from bench.builders.detector import RESPONSE_GAIN, described_bands, detector_set
 from bench.builders.instrument import declared_aperture
 from bench.builders.light import LAMP_LINE, LampLine, LightTable, build_light, declares_light, light_settings
 from bench.builders.motion import motion_profile
+from bench.builders.ownership import lock_devices
 from drivers.dynamixel import ArmConfig, DynamixelArm
 from drivers.kinematics import Joints, geometry_to_joints, joints_to_geometry
 from drivers.modbus import ModbusStageAxis
@@ -259,11 +260,18 @@ class Emulators:
     def real_bench_config(self) -> dict[str, Any]:
         """A ``kind = "real"`` bench config whose ports are these emulators."""
         arm = {k: v for k, v in self.arm_config.items()}
-        return {"name": "emulators", "kind": "real", "arm": arm,
+        d = self.description
+        # what the description declares about its detector, aperture and budget, so that the
+        # printed description reads these emulators as the emulated bench reads them
+        declared = {k: dict(d[k]) for k in ("uncertainty", "instrument") if d.get(k)}
+        if not (d.get("instrument") or {}).get("aperture_deg"):
+            declared["emulated"] = {"aperture_deg": declared_aperture(d)}
+        return {"name": "emulators", "kind": "real", "arm": arm, **declared,
                 "specimen": {"name": f"emulated {self.specimen}", "spec": self.specimen},
                 **({"light": {"kind": LAMP_LINE}} if self.light else {}),  # the lamp-enable line: darks
                 "turntable": {"port": self.stage.url, **self.turntable_config},
-                "spectrometer": {"port": self.spectrometer.port, **self.spectrometer_settings()},
+                "spectrometer": {"port": self.spectrometer.port, **_without_ports(d.get("spectrometer")),
+                                 **self.spectrometer_settings()},
                 "bands": {"centres": self.bands[0], "bandwidth_nm": self.bands[1]},
                 "white": self.white.as_dict(),
                 **({"detector": dict(self.description["detector"])} if "detector" in self.description else {})}
@@ -286,6 +294,9 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
     emu = Emulators(d, seed)
     closers: list[Any] = [emu.close]
     try:
+        # its own emulators, locked all the same: one owner per device, whatever the body
+        locks = lock_devices({"arm": emu.bus.port, "turntable": emu.stage.url, "spectrometer": emu.spectrometer.port})
+        closers.append(locks.release)
         turntable = ModbusStageAxis(emu.stage.url, config=emu.turntable_config, name="turntable")
         closers.append(turntable.close)
         turntable.establish()
