@@ -11,6 +11,7 @@ from typing import Any
 import bluesky.plan_stubs as bps
 import bluesky.plans as bp
 import bluesky.preprocessors as bpp
+import numpy as np
 import pytest
 from bluesky import RunEngine
 from bluesky.utils import FailedStatus, RunEngineInterrupted
@@ -175,6 +176,36 @@ def test_a_servo_fault_mid_plan_fails_the_run_with_the_fault_and_nothing_moves(R
         assert info["reason"].startswith("HardwareError: emulated-arm: hardware error") and "overload" in info["reason"]
     RE(bps.mv(emulated.goniometer, Geometry(30, 0, 25, 180)))  # the bench works again after reset()
     assert abs(emulated.goniometer.mover.reached.theta_r - 25) < 0.2
+
+
+def test_staging_returns_the_arm_to_the_setpoint_after_measuring_the_white(RE, emulated):
+    """The white is read at 0/45 on this bench: stage() moves there and back, so ``count`` after
+    ``mv`` reads at the setpoint (it used to read at the white geometry while ``locate()`` said
+    the setpoint). The truth of the readings: tests/conformance/test_bluesky_cells.py."""
+    reset_reflectance(RE, emulated)
+    RE(bps.mv(emulated.goniometer.theta_i, 30, emulated.goniometer.theta_r, 20))
+    docs, _ = run(RE, emulated, bp.count([emulated.reflectance]))
+    (event,) = docs.of("event")
+    got = [event["data"][f"reflectance-{a}"] for a in ("theta_i", "phi_i", "theta_r", "phi_r")]
+    assert np.allclose(got, [30, 0, 20, 180], atol=0.1), got
+    loc = asyncio.run_coroutine_threadsafe(emulated.goniometer.locate(), RE.loop).result(10)
+    assert np.allclose(loc["readback"], loc["setpoint"], atol=0.1), loc
+
+
+def test_staging_at_a_parked_arm_is_refused_in_one_line_naming_the_setpoint(RE):
+    """Fresh from connect() the emulated arm is parked (detector in the beam): the white moves it
+    away, and it cannot be returned to a geometry nothing can be measured at -- refused in one
+    line, not read at the white geometry."""
+    devs = connect(BENCHES / "emulated.toml", run_engine=RE)
+    try:
+        reset_reflectance(RE, devs)
+        with pytest.raises(FailedStatus) as info:
+            RE(bp.count([devs.reflectance]))
+        exc = info.value.__cause__ or info.value
+        assert isinstance(exc, GeometryError), repr(exc)
+        assert "not a measuring geometry" in str(exc) and "\n" not in str(exc), str(exc)
+    finally:
+        devs.close()
 
 
 @pytest.mark.slow  # ~6 CPU-s (a fresh interpreter, bluesky, three emulators); every emulated test above starts

@@ -10,7 +10,8 @@
 ``ReflectanceDevice``   Triggerable, Readable, Configurable, Stageable: BRDF (sr^-1) and
                         reflectance factor per wavelength with standard uncertainty. ``stage()``
                         measures the white (and dark) reference exactly as ``bench scan`` does
-                        (:mod:`bench.runner`); ``trigger()`` takes darks as ``dark_mode`` says
+                        (:mod:`bench.runner`), then returns the arm to the setpoint if that
+                        moved it; ``trigger()`` takes darks as ``dark_mode`` says
                         and calibrates with :class:`bench.core.calibration.Calibration`.
                         Hinted scalars ``rf_mean`` / ``rf_mean_std``: the band-mean reflectance
                         factor and its standard uncertainty (what a live table or plot shows).
@@ -196,13 +197,19 @@ class ReflectanceDevice(_SpectralReadable):
 
     @AsyncStatus.wrap
     async def stage(self) -> None:
-        """Measure the white reference (and its dark), then the run's dark when ``once``."""
+        """Measure the white reference (and its dark), then the run's dark when ``once``; then
+        return the arm to the goniometer's setpoint if measuring the white moved it."""
         plan = await self._settings()
+        before = self._mover.reached
         try:
             self._cal = await self._worker.run(measure_calibration, self._bench, plan)
             self._dark = await self._worker.run(acquire_dark, self._bench, plan) if plan.dark == "once" else None
-        finally:
+        except BaseException:
             await self._mover.refresh()  # measuring the white may have moved the arm
+            raise
+        # measuring the white moves a physical arm to the white geometry: back to the setpoint,
+        # so the first trigger reads where the goniometer says it is
+        await self._mover.restore(before)
         self._last_incidence = None
         self._set_calibration(json.dumps(None if self._cal is None else self._cal.as_dict(), default=json_default))
         self._staged = True

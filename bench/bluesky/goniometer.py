@@ -58,6 +58,16 @@ def _azimuth_gap(a: float, b: float) -> float:
     return abs((a - b + 180.0) % 360.0 - 180.0)
 
 
+#: read-backs closer than this (deg, under one servo step) are the same place
+_SAME_PLACE_DEG = 0.01
+
+
+def _same_place(a: Geometry, b: Geometry) -> bool:
+    """Whether two read-backs are the same arm position (azimuths compared on the circle)."""
+    return (abs(a.theta_i - b.theta_i) <= _SAME_PLACE_DEG and abs(a.theta_r - b.theta_r) <= _SAME_PLACE_DEG
+            and _azimuth_gap(a.phi_i, b.phi_i) <= _SAME_PLACE_DEG and _azimuth_gap(a.phi_r, b.phi_r) <= _SAME_PLACE_DEG)
+
+
 class Mover:
     """Owns the requested geometry of one goniometer and moves it on the bench's worker.
 
@@ -134,6 +144,30 @@ class Mover:
             changes, self._pending = self._pending, {}
         g = self.check(**changes)  # the combined target, before any byte; refused -> target kept
         self.target.update(changes)
+        self.moves += 1
+        try:
+            reached = await self.worker.run(self.goniometer.move_to, g)
+        except BaseException:
+            await self.refresh()
+            raise
+        self._publish(reached)
+        return reached
+
+    async def restore(self, before: Geometry) -> Geometry:
+        """Return the arm to the setpoint if something other than a move (measuring the white
+        standard) left it away from ``before``, the read-back it had; returns the geometry reached.
+
+        Raises :class:`~bench.core.errors.GeometryError` (no motion) when the setpoint is not a
+        geometry the bench measures at (a parked arm: the detector in the beam)."""
+        now = await self.refresh()
+        if _same_place(now, before):
+            return now
+        g = self.geometry_of(self.target)
+        try:
+            self.goniometer.check(g)
+        except GeometryError as exc:
+            raise GeometryError(f"the goniometer's setpoint {g} is not a measuring geometry ({exc}); "
+                                f"move it to one before the first trigger") from None
         self.moves += 1
         try:
             reached = await self.worker.run(self.goniometer.move_to, g)
