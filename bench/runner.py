@@ -11,7 +11,9 @@
   those an uninterrupted run would have recorded.
   A bench whose ``[white]`` names a ``reference_file`` (:mod:`bench.io.white`) is calibrated
   from that stored reading instead: no operator is needed (the run records the file, its date
-  and the operator's note).
+  and the operator's note). Which white, which darks, refused or taken, is decided once, before
+  any motion, by :func:`bench.calibration_chain.decide_calibration`: a white measured on another
+  body or detector is refused there.
 * Each calibrated reading is stored with its GUM uncertainty budget (:func:`point_budgets`,
   :mod:`bench.core.budget`): the components the bench description declares; its ``std`` is the
   budget's combined standard uncertainty.
@@ -23,7 +25,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -35,9 +37,9 @@ from bench.core.errors import BenchError, DeviceError, RunInterrupted, StoreErro
 from bench.core.geometry import Geometry
 from bench.core.roles import Reading
 from bench.builders.homing import HOME_AXIS, home_axis, homeable_axes
-from bench.io.white import WhiteReference, read_white_reference
+from bench.builders.ownership import note_run
 from bench.plans import Plan, order_for_travel, plan_from_dict, validate
-from bench.preflight import calibration_record, check_calibration_steps, no_light
+from bench.calibration_chain import acquire_dark, decide_calibration, resumed_calibration, stored_white
 
 log = logging.getLogger(__name__)
 
@@ -109,42 +111,13 @@ def point_budgets(description: Mapping[str, Any], cal: Calibration | None, readi
                                seed_key=(idx,), dark_key=dark_key)
 
 
-def acquire_dark(bench: Bench, plan: Plan) -> Reading:
-    """A reading with the light off (never silently skipped: a bench without a switchable light
-    cannot take one, and says so)."""
-    if bench.light is None:
-        raise no_light(bench, plan)
-    bench.light.off()
-    try:
-        return bench.spectrometer.acquire(plan.integration_s, plan.averages)
-    finally:
-        bench.light.on()
-
-
-def stored_white(bench: Bench) -> WhiteReference | None:
-    """The white reference file the bench's ``[white] reference_file`` names (a relative path is
-    taken from the current directory), or None."""
-    path = (bench.config.get("white") or {}).get("reference_file")
-    return read_white_reference(path) if path else None
-
-
 def measure_calibration(bench: Bench, plan: Plan, use_reference_file: bool = True) -> Calibration | None:
-    """The plan's calibration: None for ``white = "none"``; the bench's stored white reference
-    file when it names one (and ``use_reference_file``); else a dark (light off, when the
-    plan takes darks) and the white standard measured now: once, or (``white = "repeated"``)
-    mounted once and read ``white_repeats`` times in sequence."""
-    if plan.white == "none":
-        return None
-    ref = stored_white(bench) if use_reference_file else None
-    check_calibration_steps(bench, plan, ref)
-    if ref is not None:
-        return ref.calibration(bench.white)
-    dark = acquire_dark(bench, plan) if plan.dark != "none" else None
-    if plan.white == "repeated":
-        return Calibration.from_repeats(bench.white, bench.white_readings(plan.integration_s, plan.averages,
-                                                                          plan.white_repeats), dark)
-    white = bench.measure_white(plan.integration_s, plan.averages)
-    return Calibration(bench.white, white, dark)
+    """The plan's calibration (:mod:`bench.calibration_chain`): None for ``white = "none"``; the
+    bench's stored white reference file when it names one (and ``use_reference_file``), checked
+    against this body and detector; else a dark (light off, when the plan takes darks) and the
+    white standard measured now: once, or (``white = "repeated"``) mounted once and read
+    ``white_repeats`` times in sequence."""
+    return decide_calibration(bench, plan, use_reference_file).take()
 
 
 def _progress(total: int, initial: int, enabled: bool, desc: str):
@@ -165,18 +138,16 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     skipped = {r.index for r in refused}
     order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))
     order = [i for i in order if i not in skipped]
-    ref = stored_white(bench) if plan.white != "none" else None  # a bad file fails before any motion
-    check_calibration_steps(bench, plan, ref)  # and so does a calibration step the bench cannot take
-    stored_cal = ref.calibration(bench.white) if ref is not None else None
+    chain = decide_calibration(bench, plan)  # which white, which darks: refused here, before any motion
     homed = _home(bench, plan)
-    cal = stored_cal if stored_cal is not None else measure_calibration(bench, plan, use_reference_file=False)
+    cal = chain.take()
     specimen = bench.config.get("specimen") or {}
     meta = {"order": order, "bench_description": bench.describe(), "bench_kind": bench.kind,
-            "homed": homed, "white_reference": None if ref is None else ref.provenance(),
+            "homed": homed, "white_reference": chain.provenance(),
             "source": "virtual" if bench.kind == "virtual" else "measured",
             "specimen": specimen.get("spec") or specimen.get("name"),  # the key compare aligns on: the model
             "specimen_name": specimen.get("name") or specimen.get("spec"), "plan_name": plan.name,
-            "calibration_steps": calibration_record(plan, ref, cal),
+            "calibration_steps": chain.record(cal),
             "skipped": [r.as_dict() for r in refused]}  # unreachable = "skip": what was not measured, and why
     run_id = store.create_run(kind="scan", plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
                               n_planned=len(order), calibration=None if cal is None else cal.as_dict())
@@ -192,9 +163,8 @@ def resume_scan(bench: Bench, store: Any, run_id: str, progress: bool = False,
     plan = plan_from_dict(info["plan"], name=info["plan"].get("name", "plan"))
     meta = info.get("meta") or {}
     order = [int(i) for i in meta.get("order", range(len(plan.points)))]
-    cal = Calibration.from_dict(info["calibration"]) if info.get("calibration") else None
     validate(plan, bench.goniometer.check)
-    check_calibration_steps(bench, replace(plan, white="none") if cal is not None else plan, None)
+    cal = resumed_calibration(bench, plan, run_id, info)  # the run's own white, on the body that measured it
     _home(bench, plan)
     done = set(store.done_indices(run_id))
     store.set_status(run_id, "running", None)
@@ -215,6 +185,7 @@ def _home(bench: Bench, plan: Plan) -> dict[str, float] | None:
 def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int], cal: Calibration | None,
              done: set[int], progress: bool, on_point: Callable[[int, int], None] | None) -> ScanResult:
     t_run = time.perf_counter()
+    note_run(run_id)  # the devices' owner records name the run a second process would disturb
     white_net = cal.reference_rate()[0] if cal is not None else None
     dark: Reading | None = None
     dark_key = "dark once"  # which dark a reading used: readings sharing one share its noise (budgets)

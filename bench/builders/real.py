@@ -24,6 +24,7 @@ from bench.bands import SpectralBands
 from bench.builders.detector import described_bands
 from bench.builders.light import build_light, light_settings
 from bench.builders.motion import motion_profile
+from bench.builders.ownership import lock_devices
 from bench.config import Bench
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import CalibrationRefused, ConfigError
@@ -50,7 +51,10 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     motion = motion_profile(d.get("arm"), d.get("turntable"))  # from the config, before any port opens
     described_bands(d)  # bands on the declared [detector], before any port opens
     lamp = light_settings(d.get("light"))
-    closers: list[Any] = []
+    # one owner per device: locked before any port opens (a second process is refused, exit 2)
+    locks = lock_devices({"arm": d["arm"]["port"], "turntable": d.get("turntable", {}).get("port"),
+                          "spectrometer": d["spectrometer"]["port"]})
+    closers: list[Any] = [locks.release]
     try:
         external = {}
         if "turntable" in d:

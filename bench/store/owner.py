@@ -14,7 +14,7 @@ import socket
 import sqlite3
 from typing import Literal
 
-__all__ = ["claim_run", "owner_state", "process_identity", "_OWNERS_TABLE"]
+__all__ = ["claim_run", "owner_state", "process_identity", "process_state", "_OWNERS_TABLE"]
 
 _OWNERS_TABLE = ("CREATE TABLE IF NOT EXISTS run_owners (run_id TEXT PRIMARY KEY, host TEXT NOT NULL, "
                  "pid INTEGER NOT NULL, started REAL)")
@@ -64,6 +64,13 @@ def owner_state(db: sqlite3.Connection, run_id: str) -> OwnerState:
     if row is None:
         return "unknown"
     host, pid, started = row
+    return process_state(str(host), int(pid), None if started is None else float(started))
+
+
+def process_state(host: str, pid: int, started: float | None) -> OwnerState:
+    """Whether the process ``(host, pid, started)`` (as :func:`process_identity` gave it) still
+    runs: ``alive``, ``gone`` (no such process, or the pid reused by another) or ``unknown``
+    (another host)."""
     if host != socket.gethostname():
         return "unknown"
     now = _start_time(int(pid))
