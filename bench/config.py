@@ -42,7 +42,7 @@ from bench.core.schemas import BENCH_KINDS, BenchFile, validate_document
 from bench.core.roles import Goniometer, LightSource, Reading, Spectrometer
 from bench.plans import MotionProfile
 
-__all__ = ["Bench", "load_bench", "BUILDERS"]
+__all__ = ["Bench", "load_bench", "load_description", "BUILDERS"]
 
 #: kind -> "module:function" building a Bench from (config dict, seed): one builder module per
 #: kind the bench schema declares (bench.builders.KIND:build_KIND_bench)
@@ -124,14 +124,11 @@ class Bench:
         self.close()
 
 
-def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None, body: str | None = None) -> Bench:
-    """Build the bench a config describes (a TOML path or its dict).
-
-    The config goes through the declared schema (:class:`bench.core.schemas.BenchFile`) first,
-    so a typo, a wrong type or an out-of-range value is one :class:`ConfigError` naming the file
-    and key before any device is built or emulator started. ``body`` (``virtual``, ``emulated``
-    or ``real``) picks what executes the description; default: its ``kind``.
-    """
+def load_description(config: str | Path | Mapping[str, Any], body: str | None = None) -> tuple[dict[str, Any], str]:
+    """A bench description (a TOML path or its dict) through the declared schema
+    (:class:`bench.core.schemas.BenchFile`) and the drivers' tables, and the body that executes
+    it (``body``, default its ``kind``): one :class:`ConfigError` naming the file and key, with
+    nothing built or opened."""
     if isinstance(config, Mapping):
         d, source = dict(config), "bench config"
     else:
@@ -143,6 +140,18 @@ def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None, 
     from bench.builders.tables import validate_driver_tables  # loads drivers only when a table needs them
 
     validate_driver_tables(d, source)
+    return d, kind
+
+
+def load_bench(config: str | Path | Mapping[str, Any], seed: int | None = None, body: str | None = None) -> Bench:
+    """Build the bench a config describes (a TOML path or its dict).
+
+    The config goes through the declared schema (:class:`bench.core.schemas.BenchFile`) first,
+    so a typo, a wrong type or an out-of-range value is one :class:`ConfigError` naming the file
+    and key before any device is built or emulator started. ``body`` (``virtual``, ``emulated``
+    or ``real``) picks what executes the description; default: its ``kind``.
+    """
+    d, kind = load_description(config, body)
     module, func = BUILDERS[kind].split(":")
     builder = getattr(importlib.import_module(module), func)
     return builder(d, seed)

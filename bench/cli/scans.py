@@ -21,15 +21,23 @@ from bench.core.errors import InputError
 __all__ = ["register", "cmd_plan", "cmd_scan", "cmd_resume", "cmd_runs", "cmd_show", "cmd_export"]
 
 
-def _plan_and_bench(args: argparse.Namespace):
-    from bench.config import load_bench
+def _plan_and_bench(args: argparse.Namespace, planning: bool = False):
+    """The plan and the bench that runs it, refused first from the description alone (nothing
+    opened); ``planning``: the bench as the description alone gives it (:mod:`bench.builders.described`)."""
+    from bench.builders.described import planning_bench
+    from bench.config import load_bench, load_description
+    from bench.plan_check import refuse_before_opening
     from bench.plans import load_plan
 
     plan = load_plan(args.plan)
     thetas = [a for g in plan.points for a in (g.theta_i, g.theta_r)]
     warn_if_radians(f"plan {args.plan} theta_i/theta_r", sorted(set(thetas)))
-    bench = load_bench(args.bench, seed=getattr(args, "seed", None), body=args.body)
-    return plan, bench
+    seed = getattr(args, "seed", None)
+    if planning:
+        return plan, planning_bench(args.bench, seed=seed, body=args.body)
+    d, body = load_description(args.bench, args.body)
+    refuse_before_opening(plan, d, body)
+    return plan, load_bench(d, seed=seed, body=body)
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -46,11 +54,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
         raise InputError("give a plan file to check, or --design MODEL to write one")
     refuse_unused(args, "--design")
     from bench.core.errors import CalibrationRefused, PlanError
+    from bench.exposure import predict_exposure
     from bench.plans import MotionProfile, estimate, order_for_travel, refusal_message, refusals
     from bench.preflight import check_calibration_steps
     from bench.runner import stored_white
 
-    plan, bench = _plan_and_bench(args)
+    plan, bench = _plan_and_bench(args, planning=True)  # nothing opened: the description alone
+    exposure = predict_exposure(plan, bench.config)  # the counts each reading will hold, vs full scale
+    noise = {} if exposure is None else {"relative_noise_per_reading": exposure.relative_noise}
     with bench:
         refused = refusals(plan, bench.goniometer.check)
         calibration = None  # what `bench scan` would refuse about the calibration steps, if anything
@@ -63,21 +74,24 @@ def cmd_plan(args: argparse.Namespace) -> int:
         kw = {"joints": bench.joints} if bench.joints is not None else {}
         given_order = [i for i in range(len(plan.points)) if i not in skipped]
         order = [i for i in order_for_travel(plan.points) if i not in skipped] if plan.order == "travel" else given_order
-        est = estimate(plan, profile, order, **kw)
-        given = estimate(plan, profile, given_order, **kw)
+        est = estimate(plan, profile, order, **kw, **noise)
+        given = estimate(plan, profile, given_order, **kw, **noise)
     out = {"plan": plan.name, "kind": plan.kind, "bench": bench.name, "bench_kind": bench.kind, **est,
            "points": len(plan.points), "reachable": len(order), "unreachable": plan.unreachable,
            "refused": [r.as_dict() for r in refused], "calibration_refused": calibration,
            "seconds_in_given_order": given["seconds"], "integration_s": plan.integration_s,
-           "averages": plan.averages}
+           "averages": plan.averages, "exposure": None if exposure is None else exposure.as_dict()}
     refuse = bool(refused) and plan.unreachable != "skip"
+    saturates = exposure is not None and exposure.saturates
     if args.json:
         emit_json(out)
-        return 2 if refuse or calibration else 0
+        return 2 if refuse or calibration or saturates else 0
     if refuse:
         raise PlanError(refusal_message(plan, refused))
     if calibration:
         raise CalibrationRefused(calibration)
+    if saturates:
+        raise PlanError(exposure.refusal(plan.name, bench.name))
     head = (f"all {est['points']} points reachable" if not refused else
             f"{len(order)} of {len(plan.points)} points reachable, {len(refused)} skipped "
             f"({', '.join(sorted({r.rule for r in refused}))})")
@@ -87,6 +101,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
           f"  (in the order given: {hms(given['seconds'])})")
     print(f"  expected relative uncertainty per point {est['relative_uncertainty']:.2%} "
           f"({plan.averages} averages x {plan.integration_s:g} s)")
+    if exposure is not None:
+        e = exposure.as_dict()
+        print(f"  exposure: brightest reading {e['brightest']} at {e['fraction_of_full_scale']:.0%} of full scale "
+              f"({e['brightest_counts']:.0f} of {e['full_scale']:.0f} counts per scan)")
     return 0
 
 
@@ -112,7 +130,9 @@ def cmd_scan(args: argparse.Namespace) -> int:
 
 
 def cmd_resume(args: argparse.Namespace) -> int:
-    from bench.config import load_bench
+    from bench.config import load_bench, load_description
+    from bench.plan_check import refuse_before_opening
+    from bench.plans import plan_from_dict
     from bench.runner import resume_scan
 
     with open_store(args.store, create=False, readonly=True) as store:
@@ -131,7 +151,11 @@ def cmd_resume(args: argparse.Namespace) -> int:
         info = store.run(args.run)
         config = args.bench if args.bench else info["bench"]
         body = args.body or (info.get("meta") or {}).get("bench_kind")  # the body the run started on
-        bench = load_bench(config, seed=info.get("seed"), body=body)
+        d, body = load_description(config, body)
+        plan = plan_from_dict(info["plan"], name=info["plan"].get("name", "plan"))
+        if info["status"] != "completed":  # (a completed run is refused by resume_scan, naming it)
+            refuse_before_opening(plan, d, body, calibrated=bool(info.get("calibration")))
+        bench = load_bench(d, seed=info.get("seed"), body=body)
         with bench:
             result = resume_scan(bench, store, args.run, progress=not args.quiet and sys.stderr.isatty())
     return report_run(result, args.json)
