@@ -19,7 +19,9 @@ device             our role                                     Bluesky protocol
 =================  ===========================================  ==================================
 
 All devices share the bench's single worker thread (:class:`~bench.bluesky.worker.BenchWorker`)
-and are connected in the RunEngine's event loop. Close with :meth:`Devices.close` (or use
+and the spectrometer and reflectance devices share one set of reading settings
+(:class:`~bench.bluesky.detectors.ReadingSettings`: ``integration_s`` and ``averages`` set on
+either are the other's; the defaults follow the bench's stored white, if any), and are connected in the RunEngine's event loop. Close with :meth:`Devices.close` (or use
 ``with``): it stops the goniometer, ends the worker, and closes the bench (stopping emulators).
 """
 
@@ -33,7 +35,7 @@ from typing import Any, Mapping
 
 from ophyd_async.core import Device
 
-from bench.bluesky.detectors import LightDevice, ReflectanceDevice, SpectrometerDevice
+from bench.bluesky.detectors import LightDevice, ReadingSettings, ReflectanceDevice, SpectrometerDevice
 from bench.bluesky.goniometer import GoniometerDevice
 from bench.bluesky.worker import BenchWorker
 from bench.config import Bench, load_bench
@@ -148,8 +150,9 @@ def connect(config: str | Path | Mapping[str, Any], run_engine: Any = None, *, s
     try:
         start = worker.call(bench.goniometer.position)
         gonio = GoniometerDevice(bench.goniometer, worker, start, name="goniometer")
-        spectrometer = SpectrometerDevice(bench, worker, name="spectrometer")
-        reflectance = ReflectanceDevice(bench, worker, gonio.mover, name="reflectance")
+        settings = ReadingSettings.for_bench(bench)  # one detector: one integration time for both
+        spectrometer = SpectrometerDevice(bench, worker, name="spectrometer", settings=settings)
+        reflectance = ReflectanceDevice(bench, worker, gonio.mover, name="reflectance", settings=settings)
         light = LightDevice(bench, worker, name="light") if bench.light is not None else None
         actual_seed = getattr(bench.goniometer, "seed", seed)
         devs = Devices(bench, worker, gonio, spectrometer, reflectance, light,

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -42,13 +43,15 @@ from bench.bluesky.goniometer import Mover
 from bench.bluesky.worker import BenchWorker
 from bench.config import Bench
 from bench.core.calibration import Calibration
-from bench.core.errors import ConfigError
+from bench.core.errors import BenchError, ConfigError
 from bench.core.records import json_default
 from bench.core.roles import Reading
 from bench.plans import DARK_MODES, WHITE_MODES, Plan
-from bench.runner import acquire_dark, measure_calibration
+from bench.preflight import check_calibration_steps
+from bench.runner import acquire_dark, measure_calibration, stored_white
 
-__all__ = ["SpectrometerDevice", "ReflectanceDevice", "LightDevice", "WAVELENGTH_DIM", "band_mean"]
+__all__ = ["SpectrometerDevice", "ReflectanceDevice", "LightDevice", "ReadingSettings", "WAVELENGTH_DIM",
+           "band_mean"]
 
 WAVELENGTH_DIM = "wavelength_nm"
 F64 = Array1D[np.float64]
@@ -91,11 +94,53 @@ def _check_reading_settings(integration_s: float, averages: int) -> None:
         raise ConfigError(f"averages must be an integer >= 1, got {averages!r}")
 
 
+@dataclass
+class ReadingSettings:
+    """One bench's reading settings, shared by its spectrometer and reflectance devices: the
+    ``integration_s`` / ``averages`` signals of both read and write these, so
+    ``mv(spectrometer.integration_s, 0.02)`` is what the reflectance detector integrates too
+    (one detector, one integration time). ``dark`` / ``white`` are the reflectance's modes."""
+
+    integration_s: float = 0.1
+    averages: int = 1
+    dark: str = "once"
+    white: str = "once"
+
+    @classmethod
+    def for_bench(cls, bench: Bench) -> "ReadingSettings":
+        """Defaults that match the bench's stored white reading (``[white] reference_file``):
+        its integration time, averages and dark treatment; else 0.1 s, 1, ``once``. A file that
+        cannot be read keeps the defaults (staging then refuses it in one line)."""
+        try:
+            ref = stored_white(bench)
+        except (BenchError, OSError):
+            ref = None
+        if ref is None:
+            return cls()
+        return cls(float(ref.white.integration_s), int(ref.white.averages), "once" if ref.dark is not None else "none")
+
+    def set_integration_s(self, value: float) -> None:
+        _check_reading_settings(float(value), self.averages)
+        self.integration_s = float(value)
+
+    def set_averages(self, value: int) -> None:
+        _check_reading_settings(self.integration_s, value)
+        self.averages = int(value)
+
+    def signals(self) -> tuple[Any, Any]:
+        """New ``integration_s`` and ``averages`` signals backed by these settings."""
+        return (soft_signal_rw(float, self.integration_s, units="s", getter=lambda: self.integration_s,
+                               setter=self.set_integration_s),
+                soft_signal_rw(int, self.averages, getter=lambda: self.averages, setter=self.set_averages))
+
+
 class SpectrometerDevice(_SpectralReadable):
     """The bench's spectrometer (raw counts per wavelength)."""
 
-    def __init__(self, bench: Bench, worker: BenchWorker, name: str = "") -> None:
+    def __init__(self, bench: Bench, worker: BenchWorker, name: str = "",
+                 settings: ReadingSettings | None = None) -> None:
         self._bench, self._worker = bench, worker
+        self.settings = settings if settings is not None else ReadingSettings.for_bench(bench)
         wl = np.asarray(bench.spectrometer.wavelengths, dtype=float)
         self._n = wl.size
         with self.add_children_as_readables(Format.UNCACHED_SIGNAL):
@@ -108,15 +153,14 @@ class SpectrometerDevice(_SpectralReadable):
             self.mean_counts, self._set_mean = soft_signal_r_and_setter(float, 0.0, units="counts")
             self.peak_counts, self._set_peak = soft_signal_r_and_setter(float, 0.0, units="counts")
         with self.add_children_as_readables(Format.CONFIG_SIGNAL):
-            self.integration_s = soft_signal_rw(float, 0.1, units="s")
-            self.averages = soft_signal_rw(int, 1)
+            self.integration_s, self.averages = self.settings.signals()
             self.wavelength_nm, set_wl = _array(self._n, "nm")
         set_wl(wl)
         super().__init__(name=name)
 
     @AsyncStatus.wrap
     async def trigger(self) -> None:
-        t, n = await self.integration_s.get_value(), await self.averages.get_value()
+        t, n = self.settings.integration_s, self.settings.averages
         _check_reading_settings(t, n)
         r: Reading = await self._worker.run(self._bench.spectrometer.acquire, float(t), int(n))
         signal, saturated = np.asarray(r.signal, dtype=float), np.asarray(r.saturated, dtype=bool)
@@ -143,8 +187,10 @@ class ReflectanceDevice(_SpectralReadable):
     BestEffortCallback shows.
     """
 
-    def __init__(self, bench: Bench, worker: BenchWorker, mover: Mover, name: str = "") -> None:
+    def __init__(self, bench: Bench, worker: BenchWorker, mover: Mover, name: str = "",
+                 settings: ReadingSettings | None = None) -> None:
         self._bench, self._worker, self._mover = bench, worker, mover
+        self.settings = settings if settings is not None else ReadingSettings.for_bench(bench)
         wl = np.asarray(bench.spectrometer.wavelengths, dtype=float)
         self._n = wl.size
         self._cal: Calibration | None = None
@@ -172,19 +218,30 @@ class ReflectanceDevice(_SpectralReadable):
             self.rf_mean, self._set_rf_mean = soft_signal_r_and_setter(float, math.nan, precision=4)
             self.rf_mean_std, self._set_rf_mean_std = soft_signal_r_and_setter(float, math.nan, precision=4)
         with self.add_children_as_readables(Format.CONFIG_SIGNAL):
-            self.integration_s = soft_signal_rw(float, 0.1, units="s")
-            self.averages = soft_signal_rw(int, 1)
-            self.dark_mode = soft_signal_rw(str, "once")
-            self.white_mode = soft_signal_rw(str, "once")
+            self.integration_s, self.averages = self.settings.signals()
+            self.dark_mode = soft_signal_rw(str, self.settings.dark, getter=lambda: self.settings.dark,
+                                            setter=self._set_dark_mode)
+            self.white_mode = soft_signal_rw(str, self.settings.white, getter=lambda: self.settings.white,
+                                             setter=self._set_white_mode)
             self.wavelength_nm, set_wl = _array(self._n, "nm")
             self.calibration, self._set_calibration = soft_signal_r_and_setter(str, "null")
         set_wl(wl)
         super().__init__(name=name)
 
-    async def _settings(self) -> Plan:
+    def _set_dark_mode(self, value: str) -> None:
+        if value not in DARK_MODES:
+            raise ConfigError(f"{self.name} dark_mode must be one of {', '.join(DARK_MODES)}, got {value!r}")
+        self.settings.dark = value
+
+    def _set_white_mode(self, value: str) -> None:
+        if value not in WHITE_MODES:
+            raise ConfigError(f"{self.name} white_mode must be one of {', '.join(WHITE_MODES)}, got {value!r}")
+        self.settings.white = value
+
+    def _settings(self) -> Plan:
         """The reading settings as the runner's :class:`Plan` (no points) and checked."""
-        t, n = float(await self.integration_s.get_value()), int(await self.averages.get_value())
-        dark, white = await self.dark_mode.get_value(), await self.white_mode.get_value()
+        st = self.settings
+        t, n, dark, white = float(st.integration_s), int(st.averages), st.dark, st.white
         _check_reading_settings(t, n)
         if dark not in DARK_MODES:
             raise ConfigError(f"{self.name} dark_mode must be one of {', '.join(DARK_MODES)}, got {dark!r}")
@@ -195,11 +252,24 @@ class ReflectanceDevice(_SpectralReadable):
                               f"use 'once' here")
         return Plan(name=self.name, kind="list", points=(), integration_s=t, averages=n, dark=dark, white=white)
 
-    @AsyncStatus.wrap
-    async def stage(self) -> None:
+    def stage(self) -> AsyncStatus:
         """Measure the white reference (and its dark), then the run's dark when ``once``; then
-        return the arm to the goniometer's setpoint if measuring the white moved it."""
-        plan = await self._settings()
+        return the arm to the goniometer's setpoint if measuring the white moved it.
+
+        The settings are checked first, synchronously: a step the bench cannot take or a stored
+        white taken with other settings raises its one-line
+        :class:`~bench.core.errors.CalibrationRefused` (or ``ConfigError``) straight out of
+        ``RE(...)``, before any motion, instead of failing a status."""
+        plan = self._settings()
+        try:
+            check_calibration_steps(self._bench, plan, stored_white(self._bench) if plan.white != "none" else None)
+        except BenchError as exc:
+            raise type(exc)(f"{self.name} (integration_s {plan.integration_s:g} s, averages {plan.averages}, "
+                            f"dark_mode {plan.dark!r}, white_mode {plan.white!r}): {exc}") from None
+        return self._stage(plan)
+
+    @AsyncStatus.wrap
+    async def _stage(self, plan: Plan) -> None:
         before = self._mover.reached
         try:
             self._cal = await self._worker.run(measure_calibration, self._bench, plan)
@@ -222,7 +292,7 @@ class ReflectanceDevice(_SpectralReadable):
     async def trigger(self) -> None:
         if not self._staged:  # a bare trigger (no stage): calibrate first, as a plan would
             await self.stage()
-        plan = await self._settings()
+        plan = self._settings()
         target = self._mover.geometry_of(self._mover.target)
         incidence = (target.theta_i, target.phi_i)
         if plan.dark == "per-point" or (plan.dark == "per-incidence" and incidence != self._last_incidence):

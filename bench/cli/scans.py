@@ -196,16 +196,17 @@ def _duration(info: dict[str, Any]) -> str:
 
 def cmd_runs(args: argparse.Namespace) -> int:
     with open_store(args.store, create=False, readonly=True) as store:
-        runs = store.runs()
-        infos = {r["run_id"]: store.run(r["run_id"]) for r in runs}
+        runs = store.runs()  # a damaged run is listed with its reason, the others as usual
+        infos = {r["run_id"]: {} if r["damaged"] else store.run(r["run_id"]) for r in runs}
     for r in runs:
         r.update(run_identity(infos[r["run_id"]]), duration_s=None)
         i = infos[r["run_id"]]
         if i.get("finished_epoch") is not None and i.get("started_epoch") is not None:
             r["duration_s"] = i["finished_epoch"] - i["started_epoch"]
+    damaged = [r for r in runs if r["damaged"]]
     if args.json:
         emit_json(runs)
-        return 0
+        return _damaged_runs(damaged)
     print(f"{'run':<20} {'kind':<7} {'status':<11} {'points':>9} {'duration':>9}  {'specimen':<28} "
           f"{'bench (body)':<22} {'plan':<16} created (UTC)")
     for r in runs:
@@ -213,17 +214,31 @@ def cmd_runs(args: argparse.Namespace) -> int:
         status, reason = r["status"], r["reason"]
         if r.get("process_gone"):
             status, reason = "interrupted", "process gone; `bench resume` finishes it"
+        if r["damaged"]:
+            status, reason = "damaged", r["damaged"]
         where = f"{r['bench'] or '?'} ({r['body'] or '?'})"
-        print(f"{r['run_id']:<20} {r['kind']:<7} {status:<11} {pts:>9} {_duration(infos[r['run_id']]):>9}  "
+        print(f"{r['run_id']!s:<20} {r['kind']!s:<7} {status:<11} {pts:>9} {_duration(infos[r['run_id']]):>9}  "
               f"{r['specimen'] or 'n/a':<28} {where:<22} {r['plan'] or 'n/a':<16} {r['created_utc']}"
               + (f"  ({reason})" if reason else ""))
-    return 0
+    return _damaged_runs(damaged)
+
+
+def _damaged_runs(damaged: list[dict[str, Any]]) -> int:
+    """After the whole list: one line naming the damaged runs, exit 2 (0 when none is)."""
+    if not damaged:
+        return 0
+    first = damaged[0]
+    more = f" and {len(damaged) - 1} more" if len(damaged) > 1 else ""
+    print(f"bench runs: error: {len(damaged)} damaged run(s) listed: {first['run_id']} ({first['damaged']}){more}",
+          file=sys.stderr)
+    return 2
 
 
 def cmd_show(args: argparse.Namespace) -> int:
     from bench.core.records import value_unit
 
     with open_store(args.store, create=False, readonly=True) as store:
+        store.check_run(args.run)  # a damaged field is named (run, point, field), not shown as a number
         s = store.summary(args.run)
         points = store.reading_budgets(args.run)  # each reading's GUM budget (bench.core.budget)
         info = store.run(args.run)
