@@ -56,8 +56,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from bench.core.errors import CalibrationRefused, PlanError
     from bench.exposure import predict_exposure
     from bench.plans import MotionProfile, estimate, order_for_travel, refusal_message, refusals
-    from bench.preflight import check_calibration_steps
-    from bench.runner import stored_white
+    from bench.calibration_chain import decide_calibration
+    from bench.exposure import predict_exposure
 
     plan, bench = _plan_and_bench(args, planning=True)  # nothing opened: the description alone
     exposure = predict_exposure(plan, bench.config)  # the counts each reading will hold, vs full scale
@@ -66,7 +66,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         refused = refusals(plan, bench.goniometer.check)
         calibration = None  # what `bench scan` would refuse about the calibration steps, if anything
         try:
-            check_calibration_steps(bench, plan, stored_white(bench) if plan.white != "none" else None)
+            decide_calibration(bench, plan)  # the runner's own decision: which white, which darks
         except CalibrationRefused as exc:
             calibration = str(exc)
         skipped = {r.index for r in refused}

@@ -8,6 +8,12 @@ config then names the file (``[white] reference_file = "..."``) and its runs nee
 ``--repeats N`` (N >= 3) reads the mounted standard N times in sequence and keeps every reading
 (the file of a plan with ``white = "repeated"``, ``white_repeats = N``); ``--json`` then gives
 the lamp drift's Type A estimate.
+
+The file records the white's origin (body, bench, detector: :mod:`bench.calibration_chain`);
+runs on another body or detector refuse it. A white that does not look like the standard is
+refused and nothing is written: against the declared detector's response to the certificate,
+and against the last accepted white of the same body and detector (the file ``--out`` replaces,
+else the bench's ``[white] reference_file``): its level and spectral shape.
 """
 
 from __future__ import annotations
@@ -26,6 +32,9 @@ __all__ = ["register", "cmd_white"]
 
 
 def _measure(args: argparse.Namespace) -> tuple[object, str]:
+    from pathlib import Path
+
+    from bench.calibration_chain import check_white_level, previous_white
     from bench.config import load_bench
     from bench.plans import Plan
     from bench.runner import measure_calibration
@@ -38,7 +47,10 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
                 dark=args.dark, white="repeated" if args.repeats > 1 else "once", white_repeats=max(args.repeats, 3))
     with load_bench(args.bench, body=args.body) as bench:
         bench.operator_confirmed = args.yes
-        cal = measure_calibration(bench, plan, use_reference_file=False)
+        cal = measure_calibration(bench, plan, use_reference_file=False)  # checked against the declared level
+        previous = previous_white(bench, args.out if Path(args.out).is_file() else None)
+        if previous is not None:  # and against the last accepted white of this body and detector
+            check_white_level(f"the white measured on bench {bench.name!r}", cal, bench, *previous)
         return cal, bench.name
 
 

@@ -186,12 +186,15 @@ def estimate_lamp_drift(repeats: Any, dark: Reading | None, ok: np.ndarray | Non
 @dataclass(frozen=True)
 class Calibration:
     """A white reference (with its dark) that turns readings into BRDF. ``white_repeats``: the
-    repeated white readings ``white`` is the mean of (:meth:`from_repeats`), empty for one."""
+    repeated white readings ``white`` is the mean of (:meth:`from_repeats`), empty for one.
+    ``origin``: what measured the white (body, bench, detector identity; see
+    :mod:`bench.calibration_chain`), None when not recorded (an older white)."""
 
     standard: WhiteStandard
     white: Reading
     white_dark: Reading | None = None
     white_repeats: tuple[Reading, ...] = ()
+    origin: Mapping[str, Any] | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         if self.white_dark is not None and self.white_dark.signal.shape != self.white.signal.shape:
@@ -200,10 +203,11 @@ class Calibration:
             raise CalibrationError(f"repeated white readings must be at least 3, got {len(self.white_repeats)}")
 
     @classmethod
-    def from_repeats(cls, standard: WhiteStandard, repeats: Any, dark: Reading | None = None) -> "Calibration":
+    def from_repeats(cls, standard: WhiteStandard, repeats: Any, dark: Reading | None = None,
+                     origin: Mapping[str, Any] | None = None) -> "Calibration":
         """The calibration of ``N >= 3`` white readings taken in sequence: the white is their mean."""
         rs = tuple(repeats)
-        return cls(standard, mean_reading(rs), dark, rs)
+        return cls(standard, mean_reading(rs), dark, rs, origin)
 
     @property
     def n_whites(self) -> int:
@@ -288,6 +292,8 @@ class Calibration:
         out = {"standard": self.standard.as_dict(), "white": r(self.white), "white_dark": r(self.white_dark)}
         if self.white_repeats:  # only then: a single white's dict is as before
             out["white_repeats"] = [r(x) for x in self.white_repeats]
+        if self.origin is not None:  # only then: an older calibration's dict is as before
+            out["origin"] = dict(self.origin)
         return out
 
     @classmethod
@@ -302,5 +308,6 @@ class Calibration:
         white = r(d["white"])
         assert white is not None
         repeats = tuple(r(x) for x in d.get("white_repeats") or ())
+        origin = d.get("origin")
         return cls(WhiteStandard.from_dict(d["standard"]), white, r(d.get("white_dark")),
-                   tuple(x for x in repeats if x is not None))
+                   tuple(x for x in repeats if x is not None), dict(origin) if isinstance(origin, Mapping) else None)

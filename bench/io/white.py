@@ -10,7 +10,11 @@ The file is a CSV (written by :func:`bench.io.files.write_csv`, atomically)::
     # meta: {"date": ..., "operator_note": ..., "bench": ..., "standard": {...}, "white": {...}, "dark": {...}}
     wavelength_nm,signal,std,saturated,dark,dark_std
 
-``meta`` (one line of JSON) is what is read back; the ``date`` and ``operator_note`` lines are
+``meta`` (one line of JSON) is what is read back; its ``origin`` says what measured the white
+(body, bench and detector: :func:`bench.calibration_chain.white_origin`), and a run applies the
+file only on that body and detector. Files written before origins were recorded read as before
+(``origin`` None, :attr:`WhiteReference.lacks` names what they lack); a run refuses them in one
+line saying how to take them again; the ``date`` and ``operator_note`` lines are
 for people. ``white`` / ``dark`` hold ``integration_s``, ``averages`` and ``timestamp`` of the
 two readings (``dark`` is null when the bench has no switchable light; its columns are then
 empty). Bad files raise :class:`bench.core.errors.InputError` naming file and line.
@@ -60,6 +64,7 @@ class WhiteReference:
     bench: str = ""
     path: str = ""
     repeats: tuple[Reading, ...] = ()  # the repeated white readings ``white`` is the mean of
+    origin: Mapping[str, Any] | None = None  # body, bench and detector that measured it (None: not recorded)
 
     @classmethod
     def from_calibration(cls, cal: Calibration, operator_note: str = "", bench: str = "",
@@ -68,7 +73,7 @@ class WhiteReference:
         when = date or _dt.datetime.fromtimestamp(cal.white.timestamp, _dt.timezone.utc).strftime(
             "%Y-%m-%dT%H:%M:%SZ")
         return cls(cal.white, cal.white_dark, when, operator_note, cal.standard.as_dict(), bench,
-                   repeats=tuple(cal.white_repeats))
+                   repeats=tuple(cal.white_repeats), origin=cal.origin)
 
     def calibration(self, standard: WhiteStandard) -> Calibration:
         """The calibration of ``standard`` (the bench's ``[white]``) with this stored reading.
@@ -79,12 +84,19 @@ class WhiteReference:
         if isinstance(g, Mapping) and "theta_r" in g and abs(float(g["theta_r"]) - standard.geometry.theta_r) > 1e-6:
             raise InputError(f"{self.path or 'white reference'}: taken at theta_r = {float(g['theta_r']):g} deg, "
                              f"the bench's [white] geometry has theta_r = {standard.geometry.theta_r:g} deg")
-        return Calibration(standard, self.white, self.dark, self.repeats)
+        return Calibration(standard, self.white, self.dark, self.repeats, self.origin)
+
+    @property
+    def lacks(self) -> list[str]:
+        """What an older file does not record (empty for a current one)."""
+        o = self.origin
+        return [k for k in ("body", "detector") if not isinstance(o, Mapping) or not o.get(k)]
 
     def provenance(self) -> dict[str, Any]:
         """What a run records about the reference it used."""
         out = {"file": self.path, "date": self.date, "operator_note": self.operator_note, "bench": self.bench,
-               "white_integration_s": self.white.integration_s, "white_averages": self.white.averages}
+               "white_integration_s": self.white.integration_s, "white_averages": self.white.averages,
+               "body": None if self.origin is None else self.origin.get("body")}
         if self.repeats:
             out["white_repeats"] = len(self.repeats)
         return out
@@ -116,6 +128,8 @@ def write_white_reference(path: str | Path, ref: WhiteReference) -> Path:
             "standard": dict(ref.standard), "white": _reading_meta(w), "dark": _reading_meta(d)}
     if ref.repeats:
         meta["repeats"] = [_reading_meta(r) for r in ref.repeats]
+    if ref.origin is not None:
+        meta["origin"] = dict(ref.origin)
     note = " ".join(ref.operator_note.split())  # one line for people; meta keeps it exactly
     header = [WHITE_MAGIC_REPEATS if ref.repeats else WHITE_MAGIC, f"# date: {ref.date}", f"# operator_note: {note}",
               f"# meta: {json.dumps(meta, default=json_default)}"]
@@ -210,8 +224,12 @@ def read_white_reference(path: str | Path) -> WhiteReference:
                                integration_s=_positive(rm, "integration_s", p, float),
                                averages=_positive(rm, "averages", p, int), timestamp=float(rm.get("timestamp") or 0.0),
                                std=None if np.all(np.isnan(u_j)) else u_j))
+    origin = meta.get("origin")
+    if origin is not None and not (isinstance(origin, dict) and isinstance(origin.get("body"), str)
+                                   and isinstance(origin.get("detector"), dict)):
+        raise bad(p, meta_line + 1, "meta: origin must be an object with a 'body' string and a 'detector' object")
     return WhiteReference(white, dark_reading, date, str(meta.get("operator_note", "")), standard,
-                          str(meta.get("bench", "")), str(p), tuple(repeats))
+                          str(meta.get("bench", "")), str(p), tuple(repeats), origin)
 
 
 def _repeat_count(p: Path, lines: list[str]) -> int:

@@ -14,7 +14,9 @@ import numpy as np
 
 from bench.core.records import BSDF_COLUMNS, BSDFRecord
 from bench.store.owner import owner_state
-from bench.store.schema import READING_COLUMNS, _loads
+from bench.store.check import (RUN_JSON_FIELDS, DamagedRun, check_frame, check_run_row, damaged, reading_extra, run_field,
+                               valid_run_id)
+from bench.store.schema import READING_COLUMNS
 
 
 __all__ = ["RunReader"]
@@ -31,8 +33,9 @@ class RunReader:
         if row is None:
             raise self._unknown(run_id)
         d = dict(zip([c[0] for c in cur.description], row))
-        for k in ("plan", "bench", "versions", "calibration", "meta"):
-            d[k] = _loads(d[k])
+        check_run_row(run_id, d)
+        for k in RUN_JSON_FIELDS:  # a field that is not JSON of its type names the run and field
+            d[k] = run_field(run_id, k, d[k])
         return d
 
     def runs(self) -> list[dict[str, Any]]:
@@ -47,7 +50,20 @@ class RunReader:
         out = [dict(zip(keys, r)) for r in cur.fetchall()]
         for r in out:  # a "running" run whose process was killed: say so (resume still works)
             r["process_gone"] = r["status"] == "running" and owner_state(self._db, r["run_id"]) == "gone"
+            r["damaged"] = self._damage(r["run_id"])
         return out
+
+    def _damage(self, run_id: Any) -> str | None:
+        """Why a run's own row cannot be read (its id, or a JSON field), or None; a damaged run
+        is listed with the reason, never hiding the others."""
+        if not valid_run_id(run_id):
+            shown = str(run_id).encode("utf-8", "backslashreplace").decode("ascii", "backslashreplace")[:60]
+            return f"run id {shown!r} is not of the store's format (letters, digits, '._:-'; no '/')"
+        try:
+            self._run_row(run_id)
+        except DamagedRun as exc:
+            return str(exc).split(": ", 1)[-1].split("; the stored record", 1)[0]
+        return None
 
     def run(self, run_id: str) -> dict[str, Any]:
         """A run's metadata (JSON fields decoded), status history and counts
@@ -87,6 +103,8 @@ class RunReader:
                "FROM readings r JOIN points p ON p.run_id = r.run_id AND p.idx = r.idx "
                "WHERE r.run_id = ? ORDER BY r.idx, r.rowid")
         df = pd.read_sql_query(sql, self._db, params=(run_id,))
+        self._check_points(run_id)
+        check_frame(run_id, df)  # before any coercion: a text or an out-of-range number is named, not NaN
         float_cols = [c for c in ("theta_i", "phi_i", "theta_r", "phi_r", "wavelength_nm", "signal", "dark",
                                   "white", "value", "std", "ci_lo", "ci_hi", "theta_min", "theta_max",
                                   "phi_min", "phi_max", "psa", "t_start", "t_end")]
@@ -99,8 +117,8 @@ class RunReader:
             extra = df.pop("extra")
             present = extra.notna()
             if present.any():
-                parsed = pd.DataFrame([json.loads(x) if isinstance(x, str) else {} for x in extra],
-                                      index=df.index)
+                parsed = pd.DataFrame([reading_extra(run_id, i, w, x, u) for i, w, x, u in
+                                       zip(df["idx"], df["wavelength_nm"], extra, df["std"])], index=df.index)
                 for c in parsed.columns:
                     if c not in df.columns:
                         df[c] = parsed[c]
@@ -135,6 +153,26 @@ class RunReader:
             meta.setdefault(k, info.get(k))
         return BSDFRecord(out, meta)
 
+    def _check_points(self, run_id: str) -> None:
+        """Refuse a run whose readings do not match its points: a point whose stored count of
+        readings differs from the rows it has (rows lost or added), or readings of no point."""
+        row = self._db.execute(
+            "SELECT p.idx, p.n_readings, (SELECT COUNT(*) FROM readings r WHERE r.run_id = p.run_id AND r.idx = p.idx) "
+            "AS n FROM points p WHERE p.run_id = ? AND p.n_readings IS NOT (SELECT COUNT(*) FROM readings r "
+            "WHERE r.run_id = p.run_id AND r.idx = p.idx) ORDER BY p.idx LIMIT 1", (run_id,)).fetchone()
+        if row is not None:
+            raise damaged(run_id, f"points.n_readings says {row[1]!r} readings, {row[2]} are stored", row[0])
+        row = self._db.execute("SELECT r.idx FROM readings r WHERE r.run_id = ? AND NOT EXISTS (SELECT 1 FROM points p "
+                               "WHERE p.run_id = r.run_id AND p.idx = r.idx) LIMIT 1", (run_id,)).fetchone()
+        if row is not None:
+            raise damaged(run_id, "readings are stored for a point that is not (no points row)", row[0])
+
+    def check_run(self, run_id: str) -> None:
+        """Read every field of a run and refuse it (:class:`bench.store.check.DamagedRun`, one line
+        naming run, point and field) if anything does not parse or is out of range."""
+        self._run_row(run_id)
+        self.readings(run_id)
+
     def reading_budgets(self, run_id: str) -> list[dict[str, Any]]:
         """Each reading's geometry, wavelength, value and ``uncertainty_budget`` (None for a reading
         stored without one: masked, uncalibrated, or from a store older than the budgets)."""
@@ -145,7 +183,7 @@ class RunReader:
             "AND p.idx = r.idx WHERE r.run_id = ? ORDER BY r.idx, r.rowid", (run_id,)).fetchall()
         out = []
         for idx, ti, pi_, tr, pr, wl, value, std, extra in rows:
-            budget = json.loads(extra).get("uncertainty_budget") if isinstance(extra, str) else None
+            budget = reading_extra(run_id, idx, wl, extra, std).get("uncertainty_budget")
             out.append({"idx": idx, "theta_i": ti, "phi_i": pi_, "theta_r": tr, "phi_r": pr, "wavelength_nm": wl,
                         "value": value, "std": std, "uncertainty_budget": budget})
         return out

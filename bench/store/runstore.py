@@ -19,6 +19,7 @@ import numpy as np
 
 from bench.core.errors import BenchError, InputError, StoreError
 from bench.core.records import BSDFRecord
+from bench.store.check import valid_run_id
 from bench.store.reading import RunReader
 from bench.store.rows import _INSERT_READING, _reading_tuples
 from bench.store.owner import _OWNERS_TABLE, claim_run, owner_state
@@ -286,6 +287,9 @@ class RunStore(RunReader):
         """
         if kind not in RUN_KINDS:
             raise InputError(f"run kind must be one of {', '.join(RUN_KINDS)}, got {kind!r}")
+        if run_id is not None and not valid_run_id(run_id):  # an id may become a file name or a URL
+            raise InputError(f"run id {run_id!r} is not of the store's format (letters, digits, '._:-', starting "
+                             f"with a letter or digit, at most 128 characters)")
         if n_planned is not None and (not isinstance(n_planned, (int, np.integer)) or n_planned < 0):
             raise InputError(f"n_planned must be an integer >= 0, got {n_planned!r}")
         iso, t = _now()
