@@ -179,7 +179,9 @@ class ReflectanceDevice(_SpectralReadable):
     Readings: ``brdf`` (sr^-1), ``brdf_std``, ``reflectance_factor`` and its ``_std``, ``masked`` (pixels not
     calibrated: reference saturated or at dark, signal saturated), the raw ``signal`` /
     ``signal_std`` / ``dark`` / ``dark_std`` / ``saturated`` it was computed from, and the
-    geometry reached (``theta_i`` ... ``phi_r``, unsigned, degrees). Configuration:
+    geometry reached (``theta_i`` ... ``phi_r``, degrees, in the goniometer axes' convention:
+    ``theta_r`` signed in the plane of the requested ``phi_r``, so an event holding both says
+    the same angles). Configuration:
     ``integration_s``, ``averages``, ``dark_mode`` (none, once, per-incidence, per-point),
     ``white_mode`` (none, once), the wavelength axis and the ``calibration`` (JSON of
     :meth:`Calibration.as_dict`, measured at ``stage()``). Hinted: ``rf_mean`` and
@@ -326,7 +328,7 @@ class ReflectanceDevice(_SpectralReadable):
         self._set_dark(np.zeros(self._n) if d is None else np.asarray(d.signal, dtype=float))
         self._set_dark_std(nan if d is None or d.std is None else np.asarray(d.std, dtype=float))
         self._set_saturated(np.asarray(reading.saturated, dtype=bool))
-        for axis, value in g.as_dict().items():
+        for axis, value in self._mover.axes_of(g).items():  # the goniometer's sign convention
             self._geometry_setters[axis](float(value))
 
 

@@ -174,8 +174,8 @@ class StoreWriter(DocumentRouter):
     # -- rows ----------------------------------------------------------------------------------
     @staticmethod
     def _geometry(s: _Stream, data: dict[str, Any]) -> Geometry | None:
-        if s.reflectance is not None:
-            return Geometry(*(float(data[f"{s.reflectance}-{a}"]) for a in AXES))
+        if s.reflectance is not None:  # signed as the goniometer axes are
+            return Mover.geometry_of({a: float(data[f"{s.reflectance}-{a}"]) for a in AXES})
         if len(s.goniometer) == len(AXES):
             return Mover.geometry_of({a: float(data[s.goniometer[a]]) for a in AXES})
         return None

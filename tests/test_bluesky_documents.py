@@ -1,0 +1,50 @@
+"""What the Bluesky devices put in the documents: one sign convention per key (the goniometer's
+axes and the reflectance detector's geometry agree in one event, and the store gets the geometry
+they mean).
+"""
+
+from __future__ import annotations
+
+import bluesky.plan_stubs as bps
+import bluesky.plans as bp
+import pytest
+from bluesky import RunEngine
+
+from bench.bluesky import connect
+from bench.bluesky.goniometer import AXES
+from bench.core.geometry import Geometry
+from bench.store import RunStore
+from bluesky_support import BENCHES, reset_reflectance, run
+
+
+@pytest.fixture(scope="module")
+def RE():
+    return RunEngine({})
+
+
+@pytest.fixture(scope="module")
+def virtual(RE):
+    devs = connect(BENCHES / "virtual.toml", run_engine=RE, seed=3)
+    yield devs
+    devs.close()
+
+
+def test_one_event_says_one_geometry_in_one_sign_convention(RE, virtual, tmp_path):
+    """At list_scan(theta_r, [-20]) the goniometer read -20 and the reflectance detector +20 with
+    phi_r flipped: both now say -20 in the plane phi_r = 180, and the store keeps (30, 0, 20, 0)."""
+    reset_reflectance(RE, virtual)
+    RE(bps.mv(virtual.goniometer, Geometry(30, 0, 20, 180)))
+    docs, writer = run(RE, virtual, bp.list_scan([virtual.reflectance], virtual.goniometer.theta_r, [-20, 20]),
+                       tmp_path / "s.sqlite")
+    events = docs.of("event")
+    assert len(events) == 2
+    for event, want in zip(events, (-20.0, 20.0)):
+        data = event["data"]
+        for axis in AXES:
+            if f"goniometer-{axis}" in data:
+                assert data[f"goniometer-{axis}"] == data[f"reflectance-{axis}"], (axis, data)
+        assert data["reflectance-theta_r"] == want and data["reflectance-phi_r"] == 180.0
+    with RunStore(tmp_path / "s.sqlite") as store:
+        df = store.readings(writer.run_ids[0])
+    got = sorted({(r.theta_i, r.phi_i, r.theta_r, r.phi_r) for r in df.itertuples()})
+    assert got == [(30.0, 0.0, 20.0, 0.0), (30.0, 0.0, 20.0, 180.0)]
