@@ -21,25 +21,66 @@ from bench.cli.common import DEFAULT_STORE, PLOT_SUFFIXES, emit_json, open_store
 from bench.core.errors import InputError
 
 
-def _record(ref: str, store_path: str) -> tuple[Any, str | None]:
-    """(record, run id or None) for a file path or a stored run id."""
+def _record(ref: str, store_path: str, partial: bool = False) -> tuple[Any, str | None, dict[str, int]]:
+    """(record, run id or None, why readings without a value have none) for a file path or a
+    stored run id; a run that did not complete is refused unless ``partial``."""
     path = Path(ref)
     if path.exists():
         from bench.io import read_record
 
-        return read_record(path), None
+        return read_record(path), None, {}
     if not Path(store_path).exists():
         raise InputError(f"{ref!r} is neither a file nor a run (no store at {store_path})")
     from bench.io import load_run
 
     with open_store(store_path, create=False, readonly=True) as store:
-        return load_run(store, ref), ref
+        s = store.summary(ref)
+        if s["kind"] == "fit":
+            raise InputError(f"run {ref} is a fit (it holds a result, not readings); fit the record it names")
+        if s["status"] != "completed" and not partial:
+            planned = "?" if s["points_planned"] is None else s["points_planned"]
+            raise InputError(f"run {ref} is {s['status']} ({s['points_done']} of {planned} points measured): "
+                             f"`bench resume {ref}` finishes it, or pass --partial to fit the points it has")
+        return load_run(store, ref), ref, store.masked_readings(ref)
 
 
-def _store_fit(store_path: str, result: Any, ref: str, run_id: str | None, args: argparse.Namespace) -> str:
-    """Keep the fit as a run of kind ``fit`` linked to its record; return its id."""
+def _values(record: Any) -> Any:
+    """Every reading value of a record (BSDF table or spectra), as floats."""
+    import numpy as np
+
+    from bench.core.records import BSDFRecord
+
+    if isinstance(record, BSDFRecord):
+        return record.table["value"].to_numpy(float) if "value" in record.table.columns else np.zeros(0)
+    spectra = record if isinstance(record, (tuple, list)) else (record,)
+    return np.concatenate([np.asarray(getattr(sp, "reflectance", ()), float) for sp in spectra] or [np.zeros(0)])
+
+
+def dropped_readings(record: Any, lik: Any, masked: dict[str, int]) -> dict[str, Any] | None:
+    """What a fit of calibrated readings leaves out: ``{"dropped", "of", "reasons"}`` (the mask
+    reasons the store recorded; "no value" for the rest), or None for counts or nothing dropped."""
+    import numpy as np
+
+    if getattr(lik, "kind", None) != "gaussian":
+        return None
+    values = _values(record)
+    n = int(np.count_nonzero(~np.isfinite(values)))
+    if not n:
+        return None
+    reasons = {str(k): int(v) for k, v in masked.items() if v}
+    rest = n - sum(reasons.values())
+    if rest > 0:
+        reasons["no value"] = rest
+    return {"dropped": n, "of": int(values.size), "reasons": reasons}
+
+
+def _store_fit(store_path: str, result: Any, ref: str, run_id: str | None, args: argparse.Namespace,
+               dropped: dict[str, Any] | None = None) -> str:
+    """Keep the fit as a run of kind ``fit`` linked to its record (with the readings it left out
+    and whether it fitted part of a run); return its id."""
     meta = {"fit": result.to_json(), "specimen": result.specimen, "record": run_id or str(Path(ref).resolve()),
-            "record_run_id": run_id, "fit_seed": args.seed, "starts": args.starts}
+            "record_run_id": run_id, "fit_seed": args.seed, "starts": args.starts, "dropped": dropped,
+            "partial": bool(run_id is not None and args.partial)}
     with open_store(store_path) as store:
         rid = store.create_run(kind="fit", meta=meta, n_planned=0)
         store.set_status(rid, "completed" if result.converged else "failed",
@@ -65,17 +106,33 @@ def _print(result: Any) -> None:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     from bench.identify import fit_record, parse_model_spec
+    from bench.identify.likelihood import likelihood_for
 
     spec = parse_model_spec(args.model)  # a bad model string costs no record reading
-    record, run_id = _record(args.record, args.store or DEFAULT_STORE)
+    record, run_id, masked = _record(args.record, args.store or DEFAULT_STORE, args.partial)
+    if run_id is not None and args.partial:
+        print(f"bench fit: --partial: fitting the points run {run_id} has", file=sys.stderr)
+    lik = likelihood_for(record)
+    dropped = dropped_readings(record, lik, masked)
+    if dropped:
+        why = ", ".join(f"{k} {v}" for k, v in sorted(dropped["reasons"].items()))
+        print(f"bench fit: left out {dropped['dropped']} of {dropped['of']} readings that have no value ({why})",
+              file=sys.stderr)
+    n_free = len(spec.free)
+    if lik.kind == "gaussian" and lik.n_data(None) <= n_free:
+        raise InputError(f"{args.record}: {lik.n_data(None)} readings for {n_free} free parameter(s): no degrees of "
+                         f"freedom left to judge the fit (dof <= 0); measure more, or fix parameters")
     result = fit_record(record, spec, confidence=args.confidence, interval=args.interval, starts=args.starts,
-                        seed=args.seed)
+                        seed=args.seed, likelihood=lik)
+    if result.dof <= 0:
+        raise InputError(f"{args.record}: {result.dof} degrees of freedom for {n_free} free parameter(s): the record "
+                         f"cannot judge the fit (dof <= 0); measure more, or fix parameters")
     if args.figure:
         from bench.identify.figure import plot_residuals
 
         plot_residuals(result, args.figure)
     if args.store:
-        rid = _store_fit(args.store, result, args.record, run_id, args)
+        rid = _store_fit(args.store, result, args.record, run_id, args, dropped)
         print(f"bench fit: stored as run {rid} in {args.store}", file=sys.stderr)
     if args.json:
         emit_json(result.to_json())
@@ -106,5 +163,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed, default=0, help="seed of the Sobol points (default %(default)s)")
     p.add_argument("--figure", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw the residuals per incidence/wavelength (default: none)")
+    p.add_argument("--partial", action="store_true",
+                   help="fit a stored run that did not complete (interrupted, failed, running) on the points it has "
+                        "(default: refused)")
     p.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     p.set_defaults(func=cmd_fit)

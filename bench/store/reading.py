@@ -167,6 +167,15 @@ class RunReader:
         if row is not None:
             raise damaged(run_id, "readings are stored for a point that is not (no points row)", row[0])
 
+    def masked_readings(self, run_id: str) -> dict[str, int]:
+        """How many readings of a run have no value, by the mask reason stored with them
+        ("no value" for those stored without one)."""
+        self._status(run_id)
+        rows = self._db.execute(
+            "SELECT CASE WHEN json_valid(extra) THEN json_extract(extra, '$.extra.mask') END, COUNT(*) FROM readings "
+            "WHERE run_id = ? AND value IS NULL GROUP BY 1", (run_id,)).fetchall()
+        return {("no value" if why is None else str(why)): int(n) for why, n in rows}
+
     def check_run(self, run_id: str) -> None:
         """Read every field of a run and refuse it (:class:`bench.store.check.DamagedRun`, one line
         naming run, point and field) if anything does not parse or is out of range."""
