@@ -16,6 +16,8 @@ Modules (each owns one kind of kernel; none holds Python-side objects):
 ``branchfree32_rough`` float32 forms of the rough dielectric and the rough plastic
 ``block32``     the float32 block kernel (as many lanes as the machine's vectors hold), the default fast path
 ``spectral32``  the float32 spectral batches
+``vector_width`` the vector width each block kernel family is compiled for (a declared table,
+                not the CPU's tuning)
 ``ray_loop``    the ray-by-ray counting kernels (a scene's per-ray effects by flag; none: the bare
                 kernels), and the spectrophotometer on given disk points; the effect vector's indices
 
@@ -63,6 +65,8 @@ from typing import Any, Callable
 
 import numba
 from numba.core import caching
+
+from virtual.kernels import vector_width
 
 __all__ = ["jit", "FASTMATH", "KernelSourceLocator", "kernel_dependencies", "dependency_digest"]
 
@@ -180,7 +184,7 @@ class DeferredDigest:
         self.py_file = py_file
 
     def value(self) -> str:
-        return dependency_digest(self.py_file)
+        return dependency_digest(self.py_file) + ";" + vector_width.stamp()
 
     def __eq__(self, other: object) -> bool:
         return self.value() == (other.value() if isinstance(other, DeferredDigest) else other)
@@ -248,6 +252,9 @@ def jit(fn: Callable | None = None, /, **options: Any) -> Any:
     ``@jit(nogil=True, error_model="numpy")``...; ``cache`` is not an option (every kernel is
     cached under the policy), nor is ``fastmath`` (every kernel gets :data:`FASTMATH`).
 
+    ``family="block32"`` (a key of :data:`virtual.kernels.vector_width.FAMILY_WIDTH`) compiles
+    the function for that family's declared vector width instead of the CPU tuning's choice.
+
     Inlining (see "The inlining policy" in the module docstring):
 
     * ``inline="llvm"`` -- a per-ray helper: compiled once per signature (and cached), marked
@@ -270,8 +277,12 @@ def jit(fn: Callable | None = None, /, **options: Any) -> Any:
     elif options.get("inline", "never") == "never":
         options["forceinline"] = False  # numba would otherwise inherit it from the caller compiling it
 
+    family = options.pop("family", None)
+
     def compile_(f: Callable) -> Any:
         setattr(f, MARK, True)
+        if family is not None:
+            vector_width.register(f.__module__, f.__qualname__, family)
         return numba.njit(cache=True, fastmath=set(FASTMATH), **options)(f)
 
     return compile_ if fn is None else compile_(fn)

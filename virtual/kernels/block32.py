@@ -38,7 +38,7 @@ from virtual.kernel_codes import BLOCK32_MODELS, BLOCK32_RAYS
 _BEAM_UNIFORMS = 4
 
 
-@jit(error_model="numpy")
+@jit(error_model="numpy", family="block32")
 def guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_margin):
     """``code[i] = guess_bin32(...)`` for i < n, one loop per scheme (the scheme a constant in
     each, so each vectorizes). Called, not inlined: inlined into a chunk kernel its loops ran
@@ -133,7 +133,7 @@ def bin_block32(code, vx, vy, vz, m, cx, cy, cz, cargs, ring_margin, sector_marg
         h[k] += 1
 
 
-@jit(nogil=True, error_model="numpy")
+@jit(nogil=True, error_model="numpy", family="block32")
 def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s,
                         hist):
     """One chunk: ``n_rays`` rays from the xoshiro128+ lanes ``lane`` (advanced in place) added

@@ -366,7 +366,7 @@ def _leaf_bodies(p, p64, s, u, s0, nb, m, v, code, aux, idx, t, ox, oy, oz):
         _finish_leaf_bodies(p64, s, n, idx, v, code)
 
 
-@jit(nogil=True, error_model="numpy")
+@jit(nogil=True, error_model="numpy", family="coat32")
 def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s,
                        hist):
     """One chunk: the arguments of :func:`~virtual.kernels.block32.gonio_block32_chunk`, except

@@ -97,7 +97,7 @@ def flush_block_hist(h, hist, n_bins):
         hist[n_bins + 1] += h[n_bins + 8 + k]
 
 
-@jit(nogil=True, error_model="numpy")
+@jit(nogil=True, error_model="numpy", family="block64")
 def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
     """One chunk of the block kernel: ``n_rays`` rays from the xoshiro lanes ``lane`` (advanced in
     place) added to ``hist``; ``s`` is a scalar xoshiro stream for the rare rays a fixed-count
@@ -182,7 +182,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
 
 
 
-@jit(nogil=True, error_model="numpy")
+@jit(nogil=True, error_model="numpy", family="block64")
 def lambert_spectral_chunk(thr, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, cells, missed):
     """One chunk of the spectral Lambertian block kernel (:func:`virtual.chunked.lambert_spectral_kernel` runs it):
     every hit ray's upper-hemisphere patch counted in ``cells[cell of u0, patch]``, missed rays in
@@ -230,7 +230,7 @@ def lambert_spectral_chunk(thr, beam_kind, b, cargs, ring_margin, sector_margin,
     missed[0] += m_count
 
 
-@jit(nogil=True, error_model="numpy")
+@jit(nogil=True, error_model="numpy", family="block64")
 def ggx_spectral_chunk(ax, ay, separable, etas, ks, beam_kind, b, cargs, ring_margin, sector_margin, n_rays, lane, hist, tally):
     """One chunk of the spectral GGX block kernel (:func:`virtual.chunked.ggx_spectral_kernel` runs it): surviving
     rays added to ``hist[patch, w]`` per wavelength w; ``tally`` = (hits, missed)."""

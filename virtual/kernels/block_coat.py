@@ -122,7 +122,7 @@ def leaf_given(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6, u7, u8):
     return ox, oy, (-oz if below else oz), ok & (kept | (body & (~back))), ok & body & back
 
 
-@jit(nogil=True, error_model="numpy")
+@jit(nogil=True, error_model="numpy", family="block64")
 def gonio_coat_chunk(model, p, tab, beam_kind, b, cargs, ring_margin, sector_margin, n_bins, n_rays, lane, s, hist):
     """One chunk of the coated families' block kernel: the arguments of
     :func:`~virtual.kernels.block64.gonio_block_chunk` plus ``tab``, the whole parameter vector

@@ -79,7 +79,7 @@ def fresnel_bounds(etas, ks, n_cells, n_samples, wp):
     return lo, hi
 
 
-@jit(nogil=True, error_model="numpy")
+@jit(nogil=True, error_model="numpy", family="spectral32")
 def lambert_spectral32_chunk(thr, floors, conical, b, cargs, ring_margin, sector_margin, n_patches, n_rays, lane, key,
                              cells, tally):
     """One chunk: hit rays counted in ``cells[cell of u0 * n_patches + patch]``, missed ones in
@@ -150,7 +150,7 @@ def _survivor_rows(hist, wp, lo, hi, code, src, cell, ts, tl, i):
     return hist[h0:h0 + wp], lo[ci], hi[ci], ts[r], tl[r], r
 
 
-@jit(nogil=True, error_model="numpy")
+@jit(nogil=True, error_model="numpy", family="spectral32")
 def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, sector_margin, n_rays, lane, key, hist,
                          tally):
     """One chunk: survivors added to ``hist[patch * wp + w]`` (int32, wp = lo.shape[1]);

@@ -103,7 +103,7 @@ def _fill_rows(lanes, out, step):
             j += 1
 
 
-@jit
+@jit(family="xoshiro")
 def fill_uniforms(lanes, out):
     """Fill ``out`` (float64[rows, LANES]) with uniforms in [0, 1): column ``l`` comes from lane
     ``l`` of ``lanes`` (uint64[4, LANES], advanced in place), row by row.
@@ -135,7 +135,7 @@ def _step32(s0, s1, s2, s3):
     return np.float32(int32(uint32(r >> _U8))) * _TO_FLOAT32, s0, s1, s2, s3
 
 
-@jit
+@jit(family="xoshiro")
 def fill_uniforms32(lanes, out):
     """Fill ``out`` (float32[rows, LANES]) with uniforms k 2^-24 in [0, 1) from xoshiro128+
     (Blackman & Vigna): column ``l`` from lane ``l`` of ``lanes`` (uint32[4, LANES], advanced in
