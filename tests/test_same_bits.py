@@ -1,12 +1,13 @@
 """The same seed gives the same counts on every x86-64 CPU, on every kernel path.
 
 Two checks: the digests of :mod:`tests.same_bits` (every kernel path at fixed seeds) equal the
-pinned ones, so a change that moves a count fails on any machine; and a process whose kernels
-numba compiled for the baseline x86-64 instruction set (SSE2: 2 float64 / 4 float32 lanes, no
-FMA) gives the digests of this machine's own build (AVX2 or AVX-512 here: 4-8 / 8-16 lanes,
-FMA), so no count depends on the vector unit. The second check has power: the same comparison
-applied to a kernel compiled with numba's ``fastmath=True`` (the flags the kernels had before)
-finds a difference.
+pinned ones, so a change that moves a count fails on any machine; and processes whose kernels
+numba compiled for every LLVM target the host can execute (the baseline x86-64 -- SSE2, no FMA --
+through x86-64-v2/v3/v4, Haswell, Skylake-SP, Ice Lake, Sapphire Rapids, Zen 3 and Zen 4; AVX-512
+targets at 512 and at 256 bits) give the same pinned digests, so no count depends on the vector
+unit, the tuning or the width. The second check has power: the same comparison applied to a
+kernel compiled with numba's ``fastmath=True`` (the flags the kernels had before) finds a
+difference.
 
 After an intended change of a kernel's arithmetic, regenerate the pins with
 ``python tests/same_bits.py`` and say why in the commit.
@@ -59,11 +60,50 @@ def test_counts_of_every_kernel_path_are_pinned():
     assert got == PINNED, {k: v for k, v in got.items() if PINNED.get(k) != v}
 
 
-def _in_baseline_isa(script: str, tmp_path: Path, *args: str) -> str:
-    """stdout of ``script`` in a fresh process whose kernels are compiled for plain x86-64."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
-    env.update(NUMBA_CPU_NAME="x86-64", NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(tmp_path / "numba-x86-64"),
+#: The LLVM targets whose code the slow check runs, each with the /proc/cpuinfo flags of the
+#: instructions LLVM may emit for it in arithmetic code (vector, bit-manipulation and
+#: conversion extensions; not system instructions such as mwaitx or wbnoinvd, which it emits only
+#: for intrinsics): a target runs where the host has every one of them. ``x86-64`` is the
+#: baseline (SSE2, no FMA). Targets with AVX-512 run at the table's width and at 256 bits.
+_V2 = {"cx16", "lahf_lm", "popcnt", "sse4_1", "sse4_2", "ssse3"}
+_V3 = _V2 | {"avx", "avx2", "bmi1", "bmi2", "f16c", "fma", "abm", "movbe", "xsave"}
+_V4 = _V3 | {"avx512f", "avx512bw", "avx512cd", "avx512dq", "avx512vl"}
+_HASWELL = _V3 | {"aes", "pclmulqdq", "fsgsbase", "rdrand", "xsaveopt", "invpcid", "erms"}
+_SKX = _HASWELL | _V4 | {"adx", "rdseed", "3dnowprefetch", "clflushopt", "xsavec", "xsaves", "clwb"}
+_ICX = _SKX | {"avx512vbmi", "avx512_vbmi2", "avx512_vnni", "avx512_bitalg", "avx512_vpopcntdq", "avx512ifma",
+               "gfni", "vaes", "vpclmulqdq", "sha_ni", "rdpid"}
+_SPR = _ICX | {"avx512_bf16", "avx512_fp16", "avx_vnni", "serialize", "movdiri", "movdir64b", "cldemote"}
+_ZEN3 = _V3 | {"aes", "pclmulqdq", "adx", "rdseed", "3dnowprefetch", "clflushopt", "clwb", "clzero", "sha_ni",
+               "sse4a", "vaes", "vpclmulqdq", "rdpid", "xsavec", "xsaves", "xsaveopt", "fsgsbase", "rdrand"}
+_ZEN4 = _ZEN3 | _V4 | {"avx512vbmi", "avx512_vbmi2", "avx512_vnni", "avx512_bitalg", "avx512_vpopcntdq",
+                       "avx512ifma", "avx512_bf16", "gfni"}
+TARGETS = {"x86-64": set(), "x86-64-v2": _V2, "x86-64-v3": _V3, "x86-64-v4": _V4, "haswell": _HASWELL,
+           "skylake-avx512": _SKX, "icelake-server": _ICX, "sapphirerapids": _SPR, "znver3": _ZEN3, "znver4": _ZEN4}
+
+
+def _host_flags() -> set[str]:
+    for line in Path("/proc/cpuinfo").read_text(errors="replace").splitlines():
+        if line.split(":")[0].strip() == "flags":
+            return set(line.split(":", 1)[1].split())
+    return set()
+
+
+def _target_cases() -> list:
+    cases = []
+    for cpu, needs in TARGETS.items():
+        for width in (("", "256") if "avx512f" in needs else ("",)):
+            cases.append(pytest.param(cpu, width, id=f"{cpu}-{width or 'table'}"))
+    return cases
+
+
+def _in_target(script: str, tmp_path: Path, *args: str, cpu: str = "x86-64", width: str = "") -> str:
+    """stdout of ``script`` in a fresh process whose kernels numba compiled for LLVM target ``cpu``
+    (that target's own features, not the host's) at vector width ``width`` (the table's if "")."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != "GONIOBENCH_VECTOR_WIDTH"}
+    env.update(NUMBA_CPU_NAME=cpu, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(tmp_path / f"numba-{cpu}-{width}"),
                PYTHONPATH=str(ROOT))
+    if width:
+        env["GONIOBENCH_VECTOR_WIDTH"] = width
     proc = subprocess.run([sys.executable, script, *args], cwd=ROOT, env=env, capture_output=True, text=True,
                           timeout=1800)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -71,9 +111,15 @@ def _in_baseline_isa(script: str, tmp_path: Path, *args: str) -> str:
 
 
 @pytest.mark.slow
-def test_counts_do_not_depend_on_the_instruction_set(tmp_path):
-    baseline = json.loads(_in_baseline_isa(str(ROOT / "tests" / "same_bits.py"), tmp_path))
-    assert baseline == digests()
+@pytest.mark.parametrize("cpu, width", _target_cases())
+def test_counts_do_not_depend_on_the_target_or_the_vector_width(cpu, width, tmp_path):
+    """Every kernel path compiled for each LLVM target this host can execute (and, on AVX-512
+    targets, at 256 bits as well as the table's width) gives the pinned digests."""
+    missing = sorted(TARGETS[cpu] - _host_flags())
+    if missing:  # its code would stop on an illegal instruction here; another machine runs it
+        pytest.skip(f"this CPU cannot execute {cpu} code (lacks {', '.join(missing)})")
+    got = json.loads(_in_target(str(ROOT / "tests" / "same_bits.py"), tmp_path, cpu=cpu, width=width))
+    assert got == PINNED, {k: v for k, v in got.items() if PINNED.get(k) != v}
 
 
 FASTMATH_PROBE = '''
@@ -113,8 +159,8 @@ def test_the_isa_comparison_detects_fastmath(tmp_path):
         assert proc.returncode == 0, proc.stderr[-3000:]
         return proc.stdout.strip().splitlines()[-1]
 
-    assert here("kernels") == _in_baseline_isa(str(probe), tmp_path, "kernels")
-    assert here("fast") != _in_baseline_isa(str(probe), tmp_path, "fast")
+    assert here("kernels") == _in_target(str(probe), tmp_path, "kernels")
+    assert here("fast") != _in_target(str(probe), tmp_path, "fast")
 
 
 @pytest.mark.parametrize("w", [5, 20])
