@@ -4,8 +4,8 @@
 (:func:`benchmarks.bench_gonio.measure`), ``python -m benchmarks cli --json`` the CLI's warm
 command times (:func:`benchmarks.bench_cli.measure`). ``python -m benchmarks --check`` measures them and
 fails (exit 1) when a ratio fell by more than :data:`benchmarks.guard.TOLERANCE` against the
-accepted ones (``benchmarks/accepted_ratios.json``); ``--accept`` rewrites that file with this
-run's ratios. Neither is part of ``make test``: timings on a shared machine are noisy.
+accepted ones of this CPU's family (``benchmarks/accepted_ratios.json``, keyed by
+:func:`benchmarks.guard.family`); ``--accept`` rewrites that family's entry with this run's ratios. Neither is part of ``make test``: timings on a shared machine are noisy.
 ``python -m benchmarks gonio --isa avx2`` compiles both sides of the comparison for AVX2 on a
 wider CPU (:mod:`benchmarks.isa`), so one machine measures what an AVX2 one would see.
 ``python -m benchmarks soak --minutes N --json`` (``make soak``) is the fault-injection soak of
@@ -78,13 +78,13 @@ def main(argv: list[str]) -> int:
         m = measure()
         if "--json" in flags:
             print(json.dumps(m, indent=2))
-        code = 0
+        code, fam = 0, guard.family(m["cpu"])
         if "--check" in flags:
-            code, report = guard.check(m["ratios"])
-            print(report, file=sys.stderr if "--json" in flags else sys.stdout)
+            code, report = guard.check(m["ratios"], guard.load(fam))
+            print(f"CPU family {fam}\n{report}", file=sys.stderr if "--json" in flags else sys.stdout)
         if "--accept" in flags:
-            path = guard.accept(m["ratios"])
-            print(f"accepted ratios written to {path}", file=sys.stderr)
+            path = guard.accept(m["ratios"], fam)
+            print(f"accepted ratios of CPU family {fam} written to {path}", file=sys.stderr)
         return code
     for name in names or STUDIES:
         if name not in STUDIES:

@@ -39,7 +39,7 @@ import numpy as np
 from numba import prange
 
 from benchmarks.common import best_of, cpu_info, numpy_uniform_rate, table
-from benchmarks.isa import compiled_isa
+from benchmarks.isa import compiled_isa, drjit_code, numba_code
 from virtual.beam import Beam
 from virtual.collector import Collector
 from virtual.engine import float32_suits, gonio_counts, gonio_counts_spectral, gonio_kernel_for, measurement_seed
@@ -239,18 +239,19 @@ def mitsuba_rows(n: int = N_RAYS, threads: int = 2) -> list[dict]:
             continue
         seconds, counts = MitsubaGonio(mi, bsdf, threads=threads).rate(n)
         assert int(counts.sum()) == n
-        rows.append(_row(name, family, "mitsuba llvm_ad_rgb", seconds, n))
+        rows.append({**_row(name, family, "mitsuba llvm_ad_rgb", seconds, n), "code": drjit_code()})
     return rows
 
 
 def native_rows(n: int = N_RAYS, families: dict[str, str] = FAMILY_SPECS) -> list[dict]:
-    """One row per native family, by the kernel ``gonio_counts`` picks for it."""
+    """One row per native family, by the kernel ``gonio_counts`` picks for it, with the code that
+    ran: LLVM target, features and the vector width read from the compiled kernel."""
     rows = []
     for family, spec in families.items():
         sp = parse_specimen(spec)
         rate = _kernel_rate(spec, n=n)
         kernel = gonio_kernel_for(sp.model, BEAM.disk_code, params=sp.params(550.0))
-        rows.append(_row(f"ours-{family}", family, kernel, n / rate, n))
+        rows.append({**_row(f"ours-{family}", family, kernel, n / rate, n), "code": numba_code(sp.model, kernel)})
     return rows
 
 
@@ -279,7 +280,8 @@ def spectral_rows(n: int = N_RAYS, w: int = SPECTRAL_W) -> list[dict]:
         gonio_counts_spectral(model, params, BEAM.code, BEAM.disk_code, args, cargs, 1000, measurement_seed(1))
         seconds, out = best_of(batched, 2)
         assert out.shape[0] == w and (out.sum(axis=1) == n).all()
-        rows.append(_row(f"ours-{family}-{w}wl", family, f"block {precision}, spectral batch of {w}", seconds, n))
+        rows.append({**_row(f"ours-{family}-{w}wl", family, f"block {precision}, spectral batch of {w}", seconds, n),
+                     "code": numba_code(model, f"spectral-{precision}")})
         kernel = gonio_kernel_for(model, BEAM.disk_code, params=params[0])
         gonio_counts(model, params[0], BEAM.code, BEAM.disk_code, args, cargs, 1000, measurement_seed(1))
         seconds, _ = best_of(single, 2)

@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ISAS", "ENV", "TARGETS", "requested", "reexec", "restrict_drjit", "compiled_isa"]
+__all__ = ["ISAS", "ENV", "TARGETS", "requested", "reexec", "restrict_drjit", "compiled_isa", "numba_code", "drjit_code"]
 
 #: The ISAs a study can be compiled for: ``native`` (numba's and Dr.Jit's own choice) or ``avx2``.
 ISAS = ("native", "avx2")
@@ -82,3 +82,39 @@ def restrict_drjit() -> str:
 def compiled_isa(cpu: dict[str, Any]) -> str:
     """The ISA the study's code is compiled for: the CPU's own unless narrowed."""
     return cpu.get("vector_isa", "unknown") if requested() == "native" else requested()
+
+
+def _chunk_kernel(model: int, shape: str) -> Any:
+    """The numba dispatcher ``gonio_counts`` (or the spectral batch) ran for ``model`` as ``shape``."""
+    from virtual import chunked
+    from virtual.kernel_codes import COAT_MODELS
+    from virtual.model_ids import MODEL_LAMBERT
+
+    coat = int(model) in COAT_MODELS
+    lambert = int(model) == MODEL_LAMBERT
+    return {"block32": chunked.gonio_coat32_chunk if coat else chunked.gonio_block32_chunk,
+            "block": chunked.gonio_coat_chunk if coat else chunked.gonio_block_chunk,
+            "ray": chunked.gonio_fx_chunk,
+            "spectral-float32": chunked.lambert_spectral32_chunk if lambert else chunked.ggx_spectral32_chunk,
+            "spectral-float64": chunked.lambert_spectral_chunk if lambert else chunked.ggx_spectral_chunk}[shape]
+
+
+def numba_code(model: int, shape: str) -> dict[str, Any]:
+    """What our row's kernel was compiled for: LLVM target and features (numba's), and the widest
+    vector register in its machine code (bits; read from the code, not assumed)."""
+    from virtual.kernels import vector_width
+
+    return {**vector_width.target(), "vector_bits": vector_width.compiled_width(_chunk_kernel(model, shape))}
+
+
+def drjit_code() -> dict[str, Any]:
+    """What Mitsuba's anchor rows were compiled for: Dr.Jit's LLVM target and its lane count."""
+    try:
+        core = _drjit_core()
+        width = core[_VECTOR_WIDTH]
+    except (OSError, AttributeError, ImportError) as exc:
+        return {"cpu": "unknown", "features": "", "vector_bits": None, "note": f"{type(exc).__name__}: {exc}"}
+    width.restype = ctypes.c_uint32
+    lanes = int(width())
+    cpu = TARGETS.get(requested(), "host")
+    return {"cpu": cpu, "features": "", "vector_bits": 32 * lanes}
