@@ -47,6 +47,29 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+#: what Tiled accepts as its single-user API key (ASCII letters and digits; it refuses anything else
+#: only once the server starts, with a page of traceback), and a length that is a secret
+API_KEY_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789")
+API_KEY_LENGTH = (8, 256)
+
+
+def api_key(text: str) -> str:
+    """``--api-key``: 8 to 256 ASCII letters and digits, checked before anything starts (an empty
+    key is refused, never replaced by a random one)."""
+    lo, hi = API_KEY_LENGTH
+    if not text:
+        raise argparse.ArgumentTypeError("an empty key would let no writer in; give 8 to 256 letters and digits, "
+                                         "or leave --api-key out for a random key (printed)")
+    bad = sorted(set(text) - API_KEY_CHARS)
+    if bad:
+        shown = "".join(bad[:8]).encode("ascii", "backslashreplace").decode("ascii")
+        raise argparse.ArgumentTypeError(f"a key holds ASCII letters and digits only (Tiled refuses others); "
+                                         f"this one has {shown!r}")
+    if not lo <= len(text) <= hi:
+        raise argparse.ArgumentTypeError(f"a key has {lo} to {hi} letters and digits, this one {len(text)}")
+    return text
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("serve", help=command_help("serve"))
     p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",
@@ -55,8 +78,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="TCP port on 127.0.0.1, 0 = any free one (default %(default)s)")
     p.add_argument("--catalog", metavar="DIR", default=None,
                    help="keep the Tiled catalog (and runs written into it) in DIR (default: a temporary folder)")
-    p.add_argument("--api-key", default=None,
-                   help="the API key writers pass (default: a random one, printed)")
+    p.add_argument("--api-key", type=api_key, default=None, metavar="KEY",
+                   help="the API key writers pass, 8 to 256 ASCII letters and digits (default: a random one, printed)")
     p.add_argument("--seconds", type=real(0.0, 1e7), help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--json", action="store_true", help="uri, api_key and the runs served as one JSON object")
     p.set_defaults(func=cmd_serve)
