@@ -14,9 +14,11 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from bench.core.errors import InputError
+from bench.core.outputs import check_target
 
 __all__ = ["DEFAULT_STORE", "emit_json", "number", "hms", "open_store", "report_run",
-           "output_file", "output_dir", "check_output", "PLOT_SUFFIXES", "announce_compilation", "stop_announcing"]
+           "output_file", "output_dir", "check_output", "add_force_option", "check_outputs", "PLOT_SUFFIXES",
+           "announce_compilation", "stop_announcing"]
 
 #: image formats matplotlib writes (checked before any work, so a typo does not cost the run)
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".eps", ".ps", ".tif", ".tiff", ".webp",
@@ -54,9 +56,12 @@ def open_store(path: str, create: bool = True, readonly: bool = False) -> Any:
     return RunStore(path, create=create, readonly=readonly)
 
 
-def check_output(path: str | Path, *, directory: bool = False, suffixes: Sequence[str] | None = None) -> Path:
+def check_output(path: str | Path, *, directory: bool = False, suffixes: Sequence[str] | None = None,
+                 force: bool | None = None) -> Path:
     """Refuse, before any work, an output path that cannot be written: under a file, a folder
-    where a file is expected (or the reverse), a read-only folder, an unknown image format."""
+    where a file is expected (or the reverse), a read-only folder, an unknown image format, and
+    for a file what every writer refuses (:func:`bench.core.outputs.check_target`: a device,
+    FIFO or socket; a file's missing folder; an existing file unless ``force``, when given)."""
     text = str(path)
     p = Path(path)
     what = "output folder" if directory else "output file"
@@ -75,9 +80,13 @@ def check_output(path: str | Path, *, directory: bool = False, suffixes: Sequenc
                 raise InputError(f"{what} {p} is a file, not a folder")
             if not directory and p.is_dir():
                 raise InputError(f"{what} {p} is a folder, not a file")
+            if not directory:
+                check_target(p, force=force)  # a device, FIFO or socket; an existing file without --force
             if not os.access(p, os.W_OK):
                 raise InputError(f"{what} {p}: permission denied")
             return p
+        if not directory:
+            check_target(p, force=force)  # the folder of a file must exist: none is created unasked
         parent = p.parent
         while not parent.exists() and parent != parent.parent:
             parent = parent.parent
@@ -111,6 +120,24 @@ def output_file(suffixes: Sequence[str] | None = None) -> Callable[[str], str]:
 
 #: argparse type: a folder that can be created or written (see :func:`check_output`)
 output_dir = _output_type("output folder", directory=True)
+
+
+def add_force_option(parser: argparse.ArgumentParser, *outputs: str) -> None:
+    """``--force``: replace output files that exist. ``outputs`` name the arguments holding the
+    command's output files, checked by :func:`check_outputs` before any work."""
+    parser.add_argument("--force", action="store_true",
+                        help="replace output files that exist (default: refused); a device, FIFO, socket or "
+                             "folder is never replaced")
+    parser.set_defaults(output_dests=outputs)
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """Refuse, before any work, the output files of a command with ``--force``
+    (:func:`add_force_option`) that exist when ``--force`` is not given."""
+    for dest in getattr(args, "output_dests", ()):
+        value = getattr(args, dest, None)
+        if value:
+            check_output(value, force=bool(getattr(args, "force", False)))
 
 
 _ANNOUNCED: list = []  # the command's open compile_progress context, if any

@@ -22,7 +22,8 @@ maximum-likelihood estimate and differences of ``sum(r**2)`` are likelihood-rati
   parameters;
 * **calibrated readings** (:class:`GaussianReadings`): a scan's BSDF values or spectra with
   their uncertainties, ``r = L^-1 (y - model)`` with ``L L^T`` the readings' covariance from
-  :func:`readings_and_covariance` (the one place the covariance comes from) and ``model`` what
+  :func:`readings_and_covariance` (the one place the covariance comes from) less the shared
+  scales, which are fitted as nuisance parameters (:mod:`bench.identify.scales`), and ``model`` what
   the body read (:mod:`bench.identify.prediction`, the design's prediction too): the cone of the
   detector aperture the record's metadata gives, calibrated against the white read through the
   same cone, or the collector patch of a virtual body without an aperture.
@@ -45,6 +46,7 @@ from bench.core.records import BSDFRecord
 from bench.core.roles import Spectrum
 from bench.identify.prediction import (PATCH_BOUNDS, cone_nodes, directional_rt, ideal_rf, patch_nodes,
                                        record_aperture, virtual_body_patches, white_geometry)
+from bench.identify.scales import SharedScales, split_scales
 from virtual.beam import Beam
 from virtual.collector import SCHEMES, Collector
 from virtual.specimens import Specimen
@@ -418,6 +420,12 @@ class GaussianReadings(Likelihood):
         self.white = white_geometry(meta)
         self._nodes: list[Any] | None = None
         self.values, cov = readings_and_covariance(record)
+        #: shared scales (white certificate, white reading, lamp drift) fitted, not in the covariance
+        self.scales = SharedScales((), np.zeros((len(self.values), 0)))
+        if isinstance(record, BSDFRecord) and "uncertainty_budget" in record.table.columns:
+            t = _measured(record)
+            std = t["std"].to_numpy(float) if "std" in t.columns else np.full(len(t), np.nan)
+            cov, self.scales = split_scales(list(t["uncertainty_budget"]), std)
         self.chol = cholesky(cov, lower=True)
         self.xlabel = "reading" if isinstance(record, BSDFRecord) else "wavelength (nm)"
         groups: list[Group] = []
@@ -465,9 +473,8 @@ class GaussianReadings(Likelihood):
         return out
 
     def residuals(self, specimen: Specimen) -> np.ndarray:
-        from scipy.linalg import solve_triangular
-
-        return solve_triangular(self.chol, self.values - self.predictions(specimen), lower=True)
+        """Whitened residuals at the profiled shared scales, then the scales' prior residuals."""
+        return self.scales.profile(self.chol, self.values, self.predictions(specimen))[0]
 
     def n_data(self, specimen: Specimen) -> int:
         return len(self.values)
