@@ -19,7 +19,7 @@ from bench.config import load_bench
 from bench.core.geometry import Geometry
 from bench.core.parsing import read_toml
 from bench.core.records import BSDFRecord
-from bench.io import load_run, spectrum_to_csv
+from bench.io import load_run, save_figure, spectrum_to_csv
 from bench.plans import load_plan
 from bench.runner import run_scan
 from bench.store import RunStore
@@ -224,7 +224,7 @@ def leaf_angle_figures(readings: Any, out: Path, theta_i: float = 40.0, waveleng
     ax.legend(fontsize=6, ncol=2, loc="best")
     fig.tight_layout()
     rt = out / f"{name}-rt-vs-incidence.png"
-    fig.savefig(rt)
+    save_figure(fig, rt)
     plt.close(fig)
     return {"polar": polar, "rt_vs_incidence": rt}
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
+from bench.core.outputs import save_figure
 from bench.plans import MotionProfile, estimate, order_for_travel, plan_from_dict
 from compare.figures import pyplot
 
@@ -57,6 +58,6 @@ def plot_physical(rows: Sequence[dict[str, Any]], path: str, title: str = "") ->
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return path

@@ -18,6 +18,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from bench.core.outputs import save_figure
 from virtual import tradeoff
 
 __all__ = ["repeated_sweep", "plot_small_multiples", "MIN_REPEATS"]
@@ -130,6 +131,6 @@ def plot_small_multiples(rows: Sequence[dict[str, Any]], path: str, *, title: st
                title=f"configuration family; bars: fastest-slowest of {'/'.join(map(str, reps))} runs; grey step: "
                      f"Pareto front of the medians", title_fontsize=8)
     fig.suptitle(title or "accuracy versus time", fontsize=10)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path

@@ -14,6 +14,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
+from bench.core.outputs import save_figure
 from bench.core.records import BSDFRecord
 from bench.core.roles import Spectrum
 from compare.align import record_kind, record_quantity
@@ -178,7 +179,7 @@ def _save(fig: Any, path: str | Path) -> Path:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(p)
+    save_figure(fig, p)
     pyplot().close(fig)
     return p
 

@@ -24,6 +24,7 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
+from bench.core.outputs import save_figure
 from compare.stats import Comparison
 
 __all__ = ["MAX_PANELS", "incidence_order", "sigma_grid", "value_grid", "spectra_grid", "bland_altman_grid",
@@ -48,7 +49,7 @@ def _plt() -> Any:
 
 
 def _save(fig: Any, path: Path) -> Path:
-    fig.savefig(path)
+    save_figure(fig, path)
     _plt().close(fig)
     return path
 

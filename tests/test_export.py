@@ -70,13 +70,13 @@ def test_tidy_csv_round_trip_is_exact(tmp_path, lambert, meta_mode):
         assert back.meta["column_units"]["value"] == "1/sr" and back.meta["column_units"]["theta_i"] == "deg"
         assert back.meta["column_units"]["wavelength_nm"] == "nm" and back.meta["column_units"]["psa"] == "sr"
         plain = pd.read_csv(path, comment="#")  # what a user reading it with pandas gets
-        assert list(plain.columns) == BSDF_COLUMNS + ["specimen", "collector", "quantity", "geometry"]
+        assert list(plain.columns) == BSDF_COLUMNS + ["specimen", "collector", "quantity"]  # no geometry: none filled
         assert len(plain) == len(lambert)
     else:  # the default: plain pandas reads the table; metadata and units are in <file>.json
         assert json.loads(Path(str(path) + ".json").read_text()) == back.meta
         assert back.meta["column_units"]["value"] == "1/sr" and back.meta["column_units"]["theta_i"] == "deg"
         plain = pd.read_csv(path)
-        assert list(plain.columns) == BSDF_COLUMNS + ["specimen", "collector", "quantity", "geometry"]
+        assert list(plain.columns) == BSDF_COLUMNS + ["specimen", "collector", "quantity"]  # no geometry: none filled
         assert len(plain) == len(lambert) and set(plain.specimen) == {lambert.meta["specimen"]}
 
 
@@ -392,6 +392,10 @@ def test_spectrum_to_csv_still_works(tmp_path):
 
     sp = VirtualSpectrophotometer("lambert:albedo=0.5", rays=2000, seed=1)
     s = sp.measure("8/d", [500, 600])
+    with pytest.raises(InputError, match="does not exist"):  # no folder is created unasked
+        spectrum_to_csv(s, tmp_path / "a" / "s.csv")
+    assert not (tmp_path / "a").exists()
+    (tmp_path / "a").mkdir()
     out = spectrum_to_csv(s, tmp_path / "a" / "s.csv")
     df = pd.read_csv(out)
     assert list(df.wavelength_nm) == [500, 600] and "reflectance_lo" in df.columns

@@ -37,6 +37,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from bench.core.errors import InputError
+from bench.core.outputs import save_figure
 from virtual.collector import parse_collector
 from virtual.scene import Scene
 from virtual.bounds import adaptive_plan, hoeffding_rays, run_adaptive
@@ -392,6 +393,6 @@ def plot_tradeoff(rows: Sequence[dict[str, Any]], path: str, title: str = "") ->
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return path

@@ -37,8 +37,9 @@ from typing import Callable, Collection, Sequence
 
 from bench.cli.argtypes import BenchArgumentParser, one_line as _one_line
 from bench.cli.commands import COMMANDS
-from bench.cli.common import DEFAULT_STORE, stop_announcing
+from bench.cli.common import DEFAULT_STORE, check_outputs, stop_announcing
 from bench.core.errors import BenchError, InputError, StoreError
+from bench.core.outputs import replacing
 
 __all__ = ["main", "build_parser", "COMMAND_MODULES", "DEFAULT_STORE"]
 
@@ -151,7 +152,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                             format="%(levelname)s %(name)s: %(message)s")
         func: Callable[[argparse.Namespace], int] = args.func
         try:
-            code = func(args)
+            if hasattr(args, "force"):  # a command that writes files: --force alone replaces them
+                check_outputs(args)
+                with replacing(args.force):
+                    code = func(args)
+            else:
+                code = func(args)
         finally:
             stop_announcing()
         sys.stdout.flush()  # a closed pipe shows here, inside the handlers, not at interpreter exit

@@ -12,7 +12,7 @@ import argparse
 from typing import Any
 
 from bench.cli.argtypes import real
-from bench.cli.common import check_output, emit_json, output_file
+from bench.cli.common import add_force_option, check_output, emit_json, output_file
 from bench.core.errors import InputError
 
 __all__ = ["add_design_options", "add_adaptive_options", "refuse_unused", "cmd_plan_design", "cmd_scan_adaptive", "open_design",
@@ -57,6 +57,7 @@ def add_design_options(parser: argparse.ArgumentParser) -> None:
                    "\"plastic:alpha=?,kd=?\" (the ? parameters), instead of checking PLAN.toml (default: none, check PLAN.toml)")
     g.add_argument("--out", type=output_file((".toml",)), metavar="PLAN.toml", help="--design: the plan file to write (no default: required with --design)")
     g.add_argument("--compare", metavar="PLAN.toml", help="--design: also predict the interval widths of this plan (default: none)")
+    add_force_option(parser, "out")
     _add_common(g, "--design")
 
 

@@ -22,7 +22,8 @@ from typing import Any
 from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds,
                                 incidence, rays, real, seed, stderr_is_terminal, wavelengths)
 from bench.cli.commands import command_help
-from bench.cli.common import PLOT_SUFFIXES, announce_compilation, emit_json, output_file, warn_if_radians
+from bench.cli.common import (PLOT_SUFFIXES, add_force_option, announce_compilation, emit_json, output_file,
+                              warn_if_radians)
 from bench.core.errors import InputError
 
 # numpy and everything heavier are imported inside the functions that use them: `bench rays`
@@ -392,7 +393,8 @@ def _store_record(path: str, record: Any, seed: int | None, options: dict[str, A
     from bench.cli.common import open_store
 
     plan = {"name": command, "command": f"bench {command}",
-            "options": {k: v for k, v in options.items() if k not in ("func", "store", "csv", "plot", "json")}}
+            "options": {k: v for k, v in options.items()
+                        if k not in ("func", "store", "csv", "plot", "json", "force", "output_dests")}}
     with open_store(path) as store:
         rid = store.create_run("virtual", plan=plan, seed=seed, n_planned=1,
                                meta={k: v for k, v in record.meta.items() if k != "totals"})
@@ -461,6 +463,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--csv", type=output_file(), metavar="FILE", help="also write the spectrum as CSV (default: none)")
     s.add_argument("--store", metavar="FILE.sqlite", default=None,
                    help="also store the spectrum as a run (bench runs/show/export/serve read it; default: not stored)")
+    add_force_option(s, "csv", "plot")
     s.set_defaults(func=cmd_spectro)
 
     g = sub.add_parser("gonio", help=command_help("gonio"))
@@ -496,4 +499,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also store the record as a run (bench runs/show/export/serve read it; default: not stored)")
     g.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw a polar plot to this image (png, pdf, svg, ...; default: none)")
+    add_force_option(g, "csv", "plot")
     g.set_defaults(func=cmd_gonio)

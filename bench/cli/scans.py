@@ -14,8 +14,8 @@ from typing import Any
 from bench.cli.argtypes import RegistryChoices, real, run_id, seed
 from bench.cli.commands import command_help
 from bench.cli.design import add_adaptive_options, add_design_options, refuse_unused
-from bench.cli.common import (DEFAULT_STORE, add_bench_options, announce_compilation, check_output, emit_json, hms,
-                               open_store, report_run, warn_if_radians)
+from bench.cli.common import (DEFAULT_STORE, add_bench_options, add_force_option, announce_compilation, check_output,
+                               emit_json, hms, open_store, report_run, warn_if_radians)
 from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_plan", "cmd_scan", "cmd_resume", "cmd_runs", "cmd_show", "cmd_export"]
@@ -314,12 +314,19 @@ def fault_summary(faults: dict) -> str:
 
 def export_format(fmt: str | None, out: str | None) -> str:
     """The format of an export: ``--format``, else the suffix of ``--out``, else ``csv``; a
-    suffix that names another format than ``--format`` is refused (one line, exit 2)."""
-    from bench.io.registry import suffix_format
+    suffix that names another format than ``--format``, and one that names no format without
+    ``--format`` (``--out run.xlsx``), are refused (one line, exit 2)."""
+    from pathlib import Path
+
+    from bench.io.registry import suffix_format, suffixes
 
     by_suffix = suffix_format(out) if out else None
     if fmt is not None and by_suffix is not None and by_suffix != fmt:
         raise InputError(f"--out {out} names format {by_suffix} but --format is {fmt}: drop one of them")
+    if out and fmt is None and by_suffix is None:
+        known = ", ".join(suffixes(writable=True))
+        raise InputError(f"--out {out}: no export format has the suffix {Path(out).suffix or '(none)'!r}; "
+                         f"use one of {known}, or name the format with --format")
     return fmt or by_suffix or "csv"
 
 
@@ -370,7 +377,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from bench.io import default_suffix, export_record, record_to_zemax_files
+    from bench.io.files import require_bsdf
 
+    if args.out is not None:  # the path itself first (empty, a folder, a device), then its suffix
+        check_output(args.out, force=args.force)
     fmt = export_format(args.format, args.out)
     if args.wavelength is not None and fmt != "zemax":
         raise InputError(f"--wavelength selects the wavelength of a Zemax file; --format {fmt} holds every wavelength")
@@ -379,15 +389,26 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.hemisphere == "both" and fmt == "zemax":
         raise InputError("a Zemax file holds one side: --hemisphere R (BRDF) or T (BTDF)")
     default_name = Path(args.run).name.split(".")[0] if Path(args.run).is_file() else args.run
-    out = check_output(f"{default_name}{default_suffix(fmt)}" if args.out is None else args.out)  # before reading
-    paths = []
-    for specimen, record in _records_to_export(args):
+    out = check_output(f"{default_name}{default_suffix(fmt)}" if args.out is None else args.out,
+                       force=args.force)  # before reading: a device, a missing folder, a file without --force
+    if fmt == "csv":
+        check_output(f"{out}.json", force=args.force)  # the sidecar
+    records = _records_to_export(args)
+    targets = []
+    for specimen, record in records:
         target = out
         if specimen is not None:  # one file per specimen: <stem>-<specimen><suffix>
             suffix = default_suffix(fmt) if out.name.endswith(default_suffix(fmt)) else out.suffix
             stem = out.name[:len(out.name) - len(suffix)] if suffix else out.name
-            target = out.with_name(f"{stem}-{_slug(specimen)}{suffix}")
+            target = check_output(out.with_name(f"{stem}-{_slug(specimen)}{suffix}"), force=args.force)
+            if fmt == "csv":
+                check_output(f"{target}.json", force=args.force)
         record = _side(record, args.hemisphere, fmt)
+        if fmt in ("astm", "zemax"):  # a reflectance is never written as a BRDF: refused before any file
+            require_bsdf(record, "the ASTM layout" if fmt == "astm" else "a Zemax tabular BSDF")
+        targets.append((target, record))
+    paths = []
+    for target, record in targets:
         if fmt == "zemax":  # one wavelength per file: --wavelength, or one file per wavelength
             paths += record_to_zemax_files(record, target, wavelength_nm=args.wavelength, fill=args.fill,
                                            scatter_type="BTDF" if args.hemisphere == "T" else "BRDF")
@@ -466,4 +487,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "(default: refused; when asked, recorded in the file's header)")
     ex.add_argument("--wavelength", type=real(0.0, 1e6, lo_open=True), metavar="NM",
                     help="zemax: the wavelength to write, nm (default: one file per wavelength, FILE-<w>nm.bsdf)")
+    add_force_option(ex)  # the files are named once the records are known: checked in cmd_export
     ex.set_defaults(func=cmd_export)

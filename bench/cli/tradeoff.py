@@ -24,7 +24,7 @@ from typing import Any
 
 from bench.cli.argtypes import count, int_list, seed, stderr_is_terminal
 from bench.cli.commands import command_help
-from bench.cli.common import BODIES, PLOT_SUFFIXES, announce_compilation, emit_json, output_file
+from bench.cli.common import BODIES, PLOT_SUFFIXES, add_force_option, announce_compilation, emit_json, output_file
 from bench.core.errors import InputError
 
 __all__ = ["register", "cmd_tradeoff"]
@@ -60,6 +60,7 @@ def register(subparsers: Any) -> None:
                    "parameters (default: the family's declared defaults)")
     g.add_argument("--methods", metavar="M,M,...", help="--design: methods to measure, some of uniform, "
                    "uniform-half, designed, designed-half, designed-A, sequential; uniform always (default: all)")
+    add_force_option(t, "plot")
     t.set_defaults(func=cmd_tradeoff)
 
 

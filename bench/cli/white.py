@@ -22,7 +22,7 @@ import argparse
 
 from bench.cli.argtypes import count, real, run_id
 from bench.cli.commands import command_help
-from bench.cli.common import DEFAULT_STORE, add_bench_options, emit_json, open_store, output_file
+from bench.cli.common import DEFAULT_STORE, add_bench_options, add_force_option, emit_json, open_store, output_file
 from bench.core.errors import InputError
 
 #: bench.core.schemas.MAX_WHITE_REPEATS (not imported: the CLI starts without pydantic)
@@ -111,4 +111,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the white standard is mounted (the operator confirms it): measure without asking at a "
                         "terminal (default: ask)")
     w.add_argument("--json", action="store_true", help="one JSON object with stable keys")
+    add_force_option(w, "out")
     w.set_defaults(func=cmd_white)

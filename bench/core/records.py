@@ -87,16 +87,22 @@ def record_identity(meta: Mapping[str, Any]) -> dict[str, str | None]:
 
 def record_provenance(meta: Mapping[str, Any]) -> dict[str, str]:
     """Where a record comes from, as text: ``run_id``, ``bench`` (its name), ``body`` (virtual,
-    emulated or real) and ``plan`` (its name); keys the metadata does not state are left out."""
+    emulated or real), ``plan`` (its name) and ``sample_name`` (the lab's name of the mounted
+    specimen, ``[specimen] name``, when it differs from the specimen's model); keys the metadata
+    does not state are left out."""
     def mapping(key: str) -> Mapping[str, Any]:
         v = meta.get(key)
         return v if isinstance(v, Mapping) else {}
 
     bench, desc, plan = mapping("bench"), mapping("bench_description"), mapping("plan")
+    mounted = bench.get("specimen") if isinstance(bench.get("specimen"), Mapping) else {}
     found = {"run_id": meta.get("run_id"),
              "bench": meta.get("bench_name") or desc.get("name") or bench.get("name"),
              "body": meta.get("body") or meta.get("bench_kind") or desc.get("kind") or bench.get("kind"),
-             "plan": meta.get("plan_name") or plan.get("name")}
+             "plan": meta.get("plan_name") or plan.get("name"),
+             "sample_name": meta.get("sample_name") or meta.get("specimen_name") or mounted.get("name")}
+    if found["sample_name"] is not None and str(found["sample_name"]) == record_identity(meta)["specimen"]:
+        found["sample_name"] = None  # no name besides the model: the specimen column says it
     return {k: str(v) for k, v in found.items() if v not in (None, "")}
 
 

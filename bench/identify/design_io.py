@@ -16,6 +16,7 @@ from typing import Any, Mapping, Sequence
 import tomli_w
 
 from bench.core.errors import InputError, SpecimenError
+from bench.core.outputs import atomic_write
 from bench.identify.design import Design, ModelPoint, integration_choices
 from bench.identify.model_spec import parse_model_spec
 from bench.identify.time_model import ReadingSettings
@@ -116,5 +117,6 @@ def write_design(path: str | Path, design: Design, model_text: str, bench_name: 
         f"{est['acquisition_s']:.3g} s, references {est['references_s']:.3g} s) of a {seconds:g} s budget.",
         f"# Predicted 95% interval widths (Cramer-Rao, 2 x 1.96 x se): {widths_text(design.widths)}.",
     ]
-    p.write_text("\n".join(header) + "\n" + tomli_w.dumps(table), encoding="utf-8")
+    text = "\n".join(header) + "\n" + tomli_w.dumps(table)
+    atomic_write(p, lambda tmp: tmp.write_text(text, encoding="utf-8"))
     return p

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 from bench.core.errors import InputError
+from bench.core.outputs import save_figure
 
 __all__ = ["METHODS", "SEEDS", "UNIFORM", "measure", "summary", "rows", "header", "plot_study", "truth_of",
            "parse_methods"]
@@ -271,6 +272,6 @@ def plot_study(m: Mapping[str, Any], path: str | Path) -> Any:
     fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 3), fontsize=8,
                title=f"method: median over {len(m['seeds'])} seed(s); bars: the seeds' range", title_fontsize=8)
     fig.suptitle("Accuracy per bench-minute: " + describe(m), fontsize=9, wrap=True)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return fig

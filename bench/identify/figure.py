@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.core.outputs import save_figure
 from bench.identify.fit import FitResult
 
 __all__ = ["plot_residuals", "MAX_PANELS"]
@@ -41,6 +42,6 @@ def plot_residuals(result: FitResult, path: str | Path) -> Path:
     fig.suptitle(f"{result.specimen}: chi2 {result.chi2:.4g}, dof {result.dof}{more}", fontsize=9)
     fig.tight_layout()
     out = Path(path)
-    fig.savefig(out)
+    save_figure(fig, out)
     plt.close(fig)
     return out

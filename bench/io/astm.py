@@ -25,7 +25,7 @@ import numpy as np
 
 from bench.core.errors import InputError
 from bench.core.records import BSDFRecord
-from bench.io.files import check_record, meta_json, write_text
+from bench.io.files import check_record, meta_json, require_bsdf, write_text
 from bench.io.reading import bad, complete, is_float, read_lines
 
 __all__ = ["record_to_astm", "read_astm"]
@@ -59,6 +59,7 @@ def record_to_astm(record: BSDFRecord, path: str | Path, *, sample_name: str | N
     hemisphere : ``"R"`` or ``"T"`` to write one side only (libbsdf's reader, for one, clamps
         theta_s to pi/2 and expects one side per file); default both
     """
+    require_bsdf(record, "the ASTM layout")
     table = check_record(record)
     if hemisphere is not None:
         if hemisphere not in ("R", "T"):

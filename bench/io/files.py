@@ -1,55 +1,36 @@
-"""Writing files safely: the one atomic writer, the one CSV writer and the JSON of metadata.
+"""Writing files safely: the one writer every output goes through, the one CSV writer and the
+JSON of metadata.
 
-Every export of :mod:`bench.io` goes through :func:`atomic_write`: the file is written to a
-temporary file in the same folder, flushed and fsynced, then moved over the target with
-:func:`os.replace`, so a reader (or a crash) never sees a half-written export. CSV tables (tidy
-records, spectra, ``bench gonio --csv``) are all written by :func:`write_csv`.
+Every file goniobench writes on a user's behalf -- exports, the sidecar, ``bench spectro --csv``,
+white reference files, plots (:func:`save_figure`) -- goes through :func:`atomic_write` (which
+lives in :mod:`bench.core.outputs`, so the layers below ``bench.io`` write through it too):
+
+* a path that exists and is not a regular file (a device node such as ``/dev/full``, a FIFO, a
+  socket, a folder) is refused in one line (:class:`~bench.core.errors.InputError`, exit 2): a
+  device is never replaced by a file, nor written into;
+* an existing file is replaced only when replacing is allowed (:func:`replacing`: the CLI's
+  ``--force``; the Python API replaces by default); otherwise one line naming the file (exit 2);
+* the folder must exist: no folder is created unasked;
+* the bytes go to a temporary file in the same folder, flushed and fsynced, then moved over the
+  target with :func:`os.replace`, so a reader (or a crash) never sees a half-written file;
+* a full disk or an I/O error (ENOSPC, EDQUOT, EFBIG, EIO, EROFS) is one line,
+  :class:`WriteFailed` (exit 1), with the temporary file removed and the target as it was.
+
+CSV tables (tidy records, spectra, white references) are all written by :func:`write_csv`.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 from bench.core.errors import InputError
+from bench.core.outputs import WriteFailed, atomic_write, check_target, replacing, save_figure
 from bench.core.records import BSDFRecord, json_default
 
-__all__ = ["atomic_write", "write_text", "write_csv", "meta_json", "check_record"]
-
-
-def atomic_write(path: str | Path, write: Callable[[Path], Any]) -> Path:
-    """Call ``write(tmp_path)`` on a temporary file beside ``path``, fsync it, then
-    ``os.replace`` it onto ``path`` (parent folders created). The file gets the mode a plain
-    ``open`` would give (``0666`` less the umask: 0644 usually), not ``mkstemp``'s 0600. On any
-    error the temporary file is removed and ``path`` is left as it was. Returns ``path``."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
-    try:
-        os.chmod(tmp_path, 0o666 & ~_umask())  # mkstemp makes 0600; a file people share reads as any other
-        write(tmp_path)
-        with open(tmp_path, "rb+") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp_path, p)
-    except BaseException:
-        try:
-            tmp_path.unlink()
-        except FileNotFoundError:
-            pass
-        raise
-    return p
-
-
-def _umask() -> int:
-    """The process umask (read by setting it and putting it back)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+__all__ = ["atomic_write", "write_text", "write_csv", "save_figure", "meta_json", "check_record", "check_target",
+           "replacing", "WriteFailed", "require_bsdf", "BSDF_QUANTITIES"]
 
 
 def write_text(path: str | Path, text: str) -> Path:
@@ -94,3 +75,34 @@ def check_record(record: Any, need: Sequence[str] = ("wavelength_nm", "theta_i",
         raise InputError(f"record has no column(s) {', '.join(missing)}")
     return record.table
 
+
+
+#: what ``quantity`` says of a BSDF (values in 1/sr, per viewing direction)
+BSDF_QUANTITIES = frozenset({"bsdf", "brdf", "btdf", "1/sr"})
+
+
+def require_bsdf(record: Any, fmt: str) -> Any:
+    """Refuse (one line naming the record's kind) a record that is not a BSDF for a format that
+    can only say BSDF (ASTM, Zemax): a spectrophotometer's reflectance or transmittance (8/d,
+    d/8, 45/0: unitless, with no viewing direction) is never written as a BRDF. Returns the table."""
+    import numpy as np
+    import pandas as pd
+
+    if not isinstance(record, BSDFRecord) or not isinstance(record.table, pd.DataFrame):
+        raise InputError(f"expected a BSDFRecord with a pandas table, got {type(record).__name__}")
+    t, meta = record.table, record.meta
+    qs = ([str(q) for q in dict.fromkeys(t["quantity"]) if q is not None and q == q] if "quantity" in t.columns
+          else [])
+    qs = qs or [str(meta.get("quantity") or "BSDF")]
+    other = [q for q in qs if q.strip().lower() not in BSDF_QUANTITIES]
+    geometry = meta.get("geometry") if isinstance(meta.get("geometry"), str) else None
+    if geometry is None and "geometry" in t.columns:
+        geometry = next((str(g) for g in t["geometry"] if g is not None and g == g), None)
+    where = f"{geometry} geometry: " if geometry else ""
+    if other:
+        raise InputError(f"this record holds a {' and '.join(dict.fromkeys(other))} ({where}unitless, no viewing "
+                         f"direction), not a BSDF: {fmt} holds BSDF values in 1/sr; export it as csv or parquet")
+    if not {"theta_r", "phi_r"} <= set(t.columns) or not np.isfinite(t[["theta_r", "phi_r"]].to_numpy(float)).any():
+        raise InputError(f"this record has no viewing direction (theta_r, phi_r): {fmt} holds a BSDF per viewing "
+                         f"direction; export it as csv or parquet")
+    return t

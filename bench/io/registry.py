@@ -25,7 +25,7 @@ from bench.io.tidy import (CSV_MAGIC, SPECTRUM_COLUMNS, read_parquet, read_spect
 from bench.io.zemax import read_zemax, record_to_zemax
 
 __all__ = ["FileFormat", "FORMATS", "register_format", "formats", "infer_format", "read_record",
-           "export_record", "default_suffix", "suffix_format"]
+           "export_record", "default_suffix", "suffix_format", "suffixes"]
 
 
 @dataclass(frozen=True)
@@ -103,6 +103,12 @@ register_format(FileFormat("gonio-json", (".json",), read_gonio_json, None, is_g
 #: the project's own formats that write a record of a run (``bench export --format`` also offers
 #: those of installed plugins: :func:`formats` with ``writable=True``)
 FORMATS = tuple(n for n, f in _REGISTRY.items() if f.writer is not None)
+
+
+def suffixes(*, writable: bool | None = None) -> tuple[str, ...]:
+    """Every suffix of the registered formats (optionally only of those with a writer)."""
+    return tuple(s for f in _registry().values() if writable is None or (f.writer is not None) == writable
+                 for s in f.suffixes)
 
 
 def default_suffix(fmt: str) -> str:

@@ -3,18 +3,21 @@
 tidy CSV (:func:`record_to_csv`)
     One header row of column names, then one row per record row, so plain
     ``pandas.read_csv(path)`` reads it. Floats are written with Python's shortest round-trip repr,
-    so values read back exactly. Columns no row fills are left out; the record's identity travels
-    in every row (``specimen``, ``collector``, ``quantity``, ``geometry`` and, when the metadata
-    knows them, ``run_id``, ``bench``, ``body``, ``plan``: :func:`bench.core.records.record_provenance`).
+    so values read back exactly. Columns no row fills are left out (an identity key too: a
+    spectrophotometer's record has no ``collector``); the record's identity travels in every row
+    (``specimen``, ``collector``, ``quantity``, ``geometry`` and, when the metadata knows them,
+    ``run_id``, ``bench``, ``body``, ``plan``, ``sample_name``: :func:`bench.core.records.record_provenance`).
     Metadata (instrument settings, calibration, versions ...) and ``column_units`` (column ->
     unit, :func:`column_units`) go by default into a sidecar JSON ``<file>.json`` beside the CSV;
     ``meta="header"`` writes the older commented header instead (``# goniobench-record 1``,
     ``# meta: <JSON>``, ``# units: <JSON>``; ``pandas.read_csv(path, comment="#")``), which
     :func:`read_tidy_csv` still reads.
 Parquet (:func:`record_to_parquet`)
-    The table via pyarrow; the metadata as JSON under the key ``goniobench.meta`` and the column
-    units under ``goniobench.units`` of the schema's key-value metadata (next to pandas' own
-    ``pandas`` key).
+    The same table as the tidy CSV (the same columns), via pyarrow; the metadata as JSON under the
+    key ``goniobench.meta`` and the column units under ``goniobench.units`` of the schema's
+    key-value metadata, and the units with the record's identity under pandas' ``PANDAS_ATTRS``,
+    which ``pandas.read_parquet`` (and :func:`read_parquet`) put in ``DataFrame.attrs``
+    (:func:`frame_attrs`).
 
 Both carry the identity key columns (``specimen``, ``collector``, ``geometry``, ``quantity``;
 :func:`bench.core.records.with_keys`), written from the metadata when the table lacks them; a
@@ -33,10 +36,10 @@ from bench.core.errors import InputError
 from bench.core.records import (BSDF_COLUMNS, COLUMN_UNITS, IDENTITY_KEYS, BSDFRecord, json_default, record_provenance,
                                  value_unit, with_keys)
 from bench.core.roles import Spectrum
-from bench.io.files import atomic_write, check_record, meta_json, write_csv, write_text
+from bench.io.files import atomic_write, check_record, check_target, meta_json, write_csv, write_text
 from bench.io.reading import bad, complete, read_lines
 
-__all__ = ["tidy_table", "PROVENANCE_COLUMNS", "RAW_UNITS", "sidecar_path", "CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
+__all__ = ["tidy_table", "frame_attrs", "PROVENANCE_COLUMNS", "RAW_UNITS", "sidecar_path", "CSV_MAGIC", "PARQUET_META_KEY", "PARQUET_UNITS_KEY", "column_units", "spectrum_table", "spectrum_to_csv", "record_to_csv",
            "record_to_parquet", "read_tidy_csv", "read_parquet", "SPECTRUM_COLUMNS", "read_spectrum_csv"]
 
 PARQUET_META_KEY = b"goniobench.meta"
@@ -60,19 +63,33 @@ def column_units(record: BSDFRecord) -> dict[str, str]:
 #: units of the raw columns a stored run's record carries besides :data:`COLUMN_UNITS`'
 RAW_UNITS = {"signal": "counts", "dark": "counts", "white": "counts", "saturated": "pixels", "idx": "point index"}
 #: the provenance columns every tidy export carries when the metadata knows them
-PROVENANCE_COLUMNS = ("run_id", "bench", "body", "plan")
+PROVENANCE_COLUMNS = ("run_id", "bench", "body", "plan", "sample_name")
 
 
 def tidy_table(record: BSDFRecord) -> Any:
-    """The table a tidy CSV holds: the record's columns less those no row fills, then its
-    identity and provenance columns (:func:`bench.core.records.record_provenance`)."""
+    """The table a tidy CSV and a Parquet file hold: the record's columns less those no row fills
+    (identity keys included), then its provenance columns (:func:`bench.core.records.record_provenance`)."""
     t = with_keys(record).table
-    keep = (*IDENTITY_KEYS, "quantity", "hemisphere")
-    t = t[[c for c in t.columns if c in keep or t[c].notna().any()]].copy()
+    t = t[[c for c in t.columns if c in ("quantity", "hemisphere") or t[c].notna().any()]].copy()
     for k, v in record_provenance(record.meta).items():
         if k not in t.columns or t[k].isna().all():
             t[k] = v
     return t
+
+
+def frame_attrs(record: BSDFRecord, units: dict[str, str]) -> dict[str, Any]:
+    """What ``DataFrame.attrs`` holds when a Parquet export is read back: ``column_units``, the
+    record's ``quantity`` and identity (``specimen``, ``collector``, ``geometry`` when one value),
+    provenance (``run_id``, ``bench``, ``body``, ``plan``, ``sample_name``). The full metadata stays
+    under :data:`PARQUET_META_KEY` (``attrs`` is copied along by pandas operations: kept small)."""
+    t = with_keys(record).table
+    out: dict[str, Any] = {"column_units": dict(units)}
+    for k in (*IDENTITY_KEYS, "quantity"):
+        vals = [v for v in dict.fromkeys(t[k]) if v is not None]
+        if len(vals) == 1:
+            out[k] = str(vals[0])
+    out.update(record_provenance(record.meta))
+    return out
 
 
 def spectrum_table(s: Spectrum) -> Any:
@@ -102,7 +119,7 @@ SPECTRUM_COLUMNS = ("wavelength_nm", "reflectance", "reflectance_lo", "reflectan
 
 
 def spectrum_to_csv(s: Spectrum, path: str | Path) -> Path:
-    """Write :func:`spectrum_table` as CSV (parent folders created, atomic); return the path."""
+    """Write :func:`spectrum_table` as CSV (atomically, :func:`bench.io.files.atomic_write`); return the path."""
     return write_csv(spectrum_table(s), path, float_format="%.8g")
 
 
@@ -126,6 +143,9 @@ def record_to_csv(record: BSDFRecord, path: str | Path, *, meta: str = "sidecar"
     record = BSDFRecord(table, dict(record.meta))
     if meta not in ("header", "sidecar", "none"):
         raise InputError(f"meta must be 'header', 'sidecar' or 'none', got {meta!r}")
+    check_target(path)  # both files refused before either is written
+    if meta == "sidecar":
+        check_target(sidecar_path(path))
     units = column_units(record)
     header = ([CSV_MAGIC, f"# meta: {meta_json(record.meta)}", f"# units: {json.dumps(units)}"]
               if meta == "header" else [])
@@ -140,11 +160,8 @@ def record_to_parquet(record: BSDFRecord, path: str | Path) -> Path:
     """Write a record as Parquet; ``meta`` as JSON under :data:`PARQUET_META_KEY` in the
     schema's key-value metadata. Needs pyarrow (``pip install goniobench[parquet]``)."""
     check_record(record, ("wavelength_nm",))
-    record = with_keys(record)
-    table = record.table
-    for k, v in record_provenance(record.meta).items():
-        if k not in table.columns:
-            table[k] = v
+    table = tidy_table(record)
+    record = BSDFRecord(table, dict(record.meta))
     try:
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -153,7 +170,9 @@ def record_to_parquet(record: BSDFRecord, path: str | Path) -> Path:
     t = pa.Table.from_pandas(table, preserve_index=False)
     md = dict(t.schema.metadata or {})
     md[PARQUET_META_KEY] = meta_json(record.meta).encode()
-    md[PARQUET_UNITS_KEY] = json.dumps(column_units(record)).encode()
+    units = column_units(record)
+    md[PARQUET_UNITS_KEY] = json.dumps(units).encode()
+    md[b"PANDAS_ATTRS"] = json.dumps(frame_attrs(record, units), default=json_default).encode()
     t = t.replace_schema_metadata(md)
     return atomic_write(path, lambda tmp: pq.write_table(t, tmp))
 
@@ -222,7 +241,13 @@ def read_parquet(path: str | Path) -> BSDFRecord:
     units = (t.schema.metadata or {}).get(PARQUET_UNITS_KEY)
     if units:
         meta["column_units"] = json.loads(units.decode())
-    return with_keys(BSDFRecord(t.to_pandas(), meta))
+    attrs = (t.schema.metadata or {}).get(b"PANDAS_ATTRS")
+    rec = with_keys(BSDFRecord(t.to_pandas(), meta))
+    try:
+        rec.table.attrs = json.loads(attrs.decode()) if attrs else {"column_units": meta.get("column_units", {})}
+    except json.JSONDecodeError as e:
+        raise InputError(f"{p}: PANDAS_ATTRS is not valid JSON ({e})") from None
+    return rec
 
 
 

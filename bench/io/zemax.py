@@ -28,7 +28,7 @@ import numpy as np
 
 from bench.core.errors import InputError
 from bench.core.records import BSDFRecord
-from bench.io.files import check_record, write_text
+from bench.io.files import check_record, check_target, require_bsdf, write_text
 from bench.io.reading import bad, complete, is_float, read_lines
 from bench.io.specular import directions, from_specular
 
@@ -143,6 +143,7 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
         For the in-plane case above, with the reason and the way out.
     """
 
+    require_bsdf(record, "a Zemax tabular BSDF")
     table = check_record(record)
     st = str(scatter_type).upper()
     if st not in ("BRDF", "BTDF"):
@@ -316,12 +317,25 @@ def record_to_zemax_files(record: BSDFRecord, path: str | Path, *, wavelength_nm
     one wavelength) at ``path``; else one file per wavelength, ``<stem>-<w>nm<suffix>`` beside
     ``path`` (a Zemax tabular BSDF holds one wavelength). ``options`` go to :func:`record_to_zemax`."""
     p = Path(path)
+    require_bsdf(record, "a Zemax tabular BSDF")
     wls = wavelengths_of(record)
     if wavelength_nm is not None or len(wls) == 1:
         return [record_to_zemax(record, p, wavelength_nm=wavelength_nm, **options)]
     name = p.name[:-len(p.suffix)] if p.suffix else p.name
-    return [record_to_zemax(record, p.with_name(f"{name}-{w:g}nm{p.suffix or '.bsdf'}"), wavelength_nm=w, **options)
-            for w in wls]
+    targets = {w: p.with_name(f"{name}-{w:g}nm{p.suffix or '.bsdf'}") for w in wls}
+    for target in targets.values():  # every file refused before any is written
+        check_target(target)
+    new = [t for t in targets.values() if not t.exists()]
+    written: list[Path] = []
+    try:
+        for w, target in targets.items():
+            written.append(record_to_zemax(record, target, wavelength_nm=w, **options))
+    except BaseException:  # a full disk at the third wavelength: the files this call created go too
+        for t in new:
+            if t in written:
+                t.unlink(missing_ok=True)
+        raise
+    return written
 
 
 # --- Zemax ---------------------------------------------------------------------------------

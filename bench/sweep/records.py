@@ -16,27 +16,51 @@ from bench.core.records import BSDFRecord
 from bench.core.roles import Spectrum
 from bench.sweep.executor import sweep_readings
 
-__all__ = ["sweep_record"]
+__all__ = ["sweep_record", "sweep_table"]
+
+
+def _base(info: dict[str, Any], run_id: str) -> dict[str, Any]:
+    """What every record of a sweep states: run, seed, the sweep (its name as the plan's) and
+    the virtual bench that ran it (``virtual-gonio`` / ``virtual-spectro``, as ``bench gonio`` and
+    ``bench spectro`` name theirs)."""
+    meta = info.get("meta") or {}
+    plan = (info.get("plan") or {}).get("sweep", {})
+    instrument = meta.get("instrument") or plan.get("instrument")
+    return {"run_id": run_id, "kind": "sweep", "source": "virtual", "seed": info.get("seed"),
+            "delta": float(plan.get("delta", 0.01)), "sweep": meta.get("sweep"), "instrument": instrument,
+            "plan_name": meta.get("sweep") or plan.get("name"), "bench_name": f"virtual-{instrument or 'gonio'}",
+            "body": "virtual"}
 
 
 def sweep_record(store: Any, run_id: str) -> BSDFRecord | tuple[Spectrum, ...]:
     """A sweep run as a keyed record (see the module docstring)."""
     info = store.run(run_id)
-    meta = info.get("meta") or {}
-    plan = (info.get("plan") or {}).get("sweep", {})
-    delta = float(plan.get("delta", 0.01))
+    if (info.get("meta") or {}).get("instrument") == "spectro":
+        base = _base(info, run_id)
+        return _sweep_spectra(sweep_readings(store, run_id), base, base["delta"])
+    return sweep_table(store, run_id)
+
+
+def sweep_table(store: Any, run_id: str) -> BSDFRecord:
+    """A sweep run as one table whose rows carry their task's keys: a goniophotometric sweep's
+    ``specimen`` and ``collector`` (``quantity`` BSDF), a spectrophotometric sweep's ``specimen``,
+    CIE ``geometry`` and measured ``quantity`` (a reflectance: unitless, no viewing direction)."""
+    info = store.run(run_id)
+    base = _base(info, run_id)
     df = sweep_readings(store, run_id)
-    base = {"run_id": run_id, "kind": "sweep", "source": "virtual", "seed": info.get("seed"), "delta": delta,
-            "sweep": meta.get("sweep"), "instrument": meta.get("instrument")}
-    if meta.get("instrument") == "spectro":
-        return _sweep_spectra(df, base, delta)
     rec = store.to_record(run_id)
     t = rec.table
-    for k in ("specimen", "collector"):
+    spectro = base["instrument"] == "spectro"
+    for k in ("specimen", "collector", "geometry") if spectro else ("specimen", "collector"):
         t[k] = df[k].to_numpy() if k in df.columns else None
-    t["geometry"] = None
-    t["quantity"] = "BSDF"
-    return BSDFRecord(t, {**rec.meta, **base})
+    if not spectro:
+        t["geometry"] = None
+    t["quantity"] = df["quantity"].to_numpy() if spectro and "quantity" in df.columns else (
+        "reflectance" if spectro else "BSDF")
+    meta = {**rec.meta, **base}
+    if spectro:
+        meta["quantity"] = "reflectance"
+    return BSDFRecord(t, meta)
 
 
 def _sweep_spectra(df: pd.DataFrame, base: dict[str, Any], delta: float) -> tuple[Spectrum, ...]:
