@@ -20,7 +20,7 @@ Config (beside ``[specimen]`` and ``[white]``, see :mod:`bench.config`)::
     bandwidth_nm = 10
     aperture_deg = 1.0       # detector half-angle (an [instrument] aperture_deg is the same declaration:
                              # bench.builders.instrument.declared_aperture, read by every body)
-    seed = 7                 # emulator noise
+    seed = 7                 # emulator noise (a run's --seed wins)
     [arm]                    # drivers.dynamixel ArmConfig keys (optional overrides)
     [turntable]              # drivers.modbus AxisConfig keys
     [spectrometer]           # drivers.ocean OceanConfig keys
@@ -214,7 +214,9 @@ class Emulators:
         self.description = dict(d)
         e = dict(d.get("emulated", {}))
         self.time_scale = float(e.get("time_scale", 20.0))
-        emu_seed = int(e.get("seed", seed if seed is not None else 7))
+        # the run's seed (``--seed``) governs the emulators' noise; else the description's, else 7
+        emu_seed = int(seed) if seed is not None else int(e.get("seed") if e.get("seed") is not None else 7)
+        self.seed = emu_seed
         self.white = WhiteStandard.from_dict(d.get("white", {}))
         bands = described_bands(d)  # [bands] or [emulated] bands, checked against a declared [detector]
         self.bands = bands if bands is not None else (EmulatedTable().bands, EmulatedTable().bandwidth_nm)

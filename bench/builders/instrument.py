@@ -201,7 +201,9 @@ class ApertureReading:
     ``gain t sqrt(p (1 - p) / N) / Omega`` at the observed ``p``, as the goniophotometer scales a
     patch count. Counts are drawn from numpy's PCG64 keyed by the instrument's seed, the
     geometry (millidegrees) and the wavelength (pm), so a repeated or resumed reading draws the
-    same count on any CPU, as the collector's cached simulation does. A specimen without a
+    same count on any CPU, as the collector's cached simulation does; a repeated trigger at the
+    same geometry (the k-th, k > 0, since the bench was built) adds k to the key, so repeated
+    readings scatter as the reported standard deviation says. A specimen without a
     density (no ``has_density``) cannot be integrated over the cone: its reading stays the
     collector patch's, logged once and stated by :meth:`describe` (``detector_reads``)."""
 
@@ -209,6 +211,7 @@ class ApertureReading:
         self._inner = inner
         self.half_angle_deg = float(half_angle_deg)
         self.omega = 2.0 * math.pi * (1.0 - math.cos(math.radians(self.half_angle_deg)))
+        self._triggers: dict[tuple[int, ...], int] = {}  # lit readings taken so far at each geometry
         self.reads_cone = bool(getattr(inner.specimen, "has_density", False))
         if not self.reads_cone:
             log.info("detector aperture %g deg: specimen %s has no density, so the virtual detector reads the "
@@ -222,9 +225,12 @@ class ApertureReading:
         return np.array([float(w_cos @ np.asarray(self._inner.specimen.bsdf(wi, dirs, float(w)), dtype=float))
                          for w in np.asarray(wavelengths, dtype=float)])
 
-    def _stream(self, g: Geometry, wavelength_nm: float) -> np.random.Generator:
-        key = (_CONE_STREAM, *(int(round((a % 360.0) * 1000)) for a in (g.theta_i, g.phi_i, g.theta_r, g.phi_r)),
-               int(round(wavelength_nm * 1000)))
+    @staticmethod
+    def _where(g: Geometry) -> tuple[int, ...]:
+        return tuple(int(round((a % 360.0) * 1000)) for a in (g.theta_i, g.phi_i, g.theta_r, g.phi_r))
+
+    def _stream(self, g: Geometry, wavelength_nm: float, repeat: int = 0) -> np.random.Generator:
+        key = (_CONE_STREAM, *self._where(g), int(round(wavelength_nm * 1000)), *((repeat,) if repeat else ()))
         return np.random.default_rng(np.random.SeedSequence(int(self._inner.seed), spawn_key=key))
 
     def acquire(self, integration_s: float, averages: int = 1) -> Reading:
@@ -238,7 +244,10 @@ class ApertureReading:
         wl = np.asarray(self._inner.wavelengths, dtype=float)
         p = np.clip(self.omega * self.expected(g, wl), 0.0, 1.0)
         n = int(self._inner.rays)
-        counts = np.array([self._stream(g, float(w)).binomial(n, pk) for w, pk in zip(wl, p)], dtype=float)
+        where = self._where(g)
+        repeat = self._triggers.get(where, 0)
+        self._triggers[where] = repeat + 1
+        counts = np.array([self._stream(g, float(w), repeat).binomial(n, pk) for w, pk in zip(wl, p)], dtype=float)
         observed = counts / n
         scale = float(self._inner.gain) * float(integration_s) / self.omega
         return Reading(wavelengths=wl, signal=scale * observed, saturated=np.zeros(wl.size, dtype=bool),

@@ -48,6 +48,9 @@ def build_real_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     for table in ("arm", "spectrometer"):
         if "port" not in d.get(table, {}):
             raise ConfigError(f"real bench: [{table}] port = \"...\" is required")
+    if seed is not None:  # nothing here draws noise: say so rather than record a seed that governs nothing
+        log.warning("seed %d is recorded with the run; bench %r is hardware: its noise is its own", seed,
+                    str(d.get("name", "real")))
     motion = motion_profile(d.get("arm"), d.get("turntable"))  # from the config, before any port opens
     described_bands(d)  # bands on the declared [detector], before any port opens
     lamp = light_settings(d.get("light"))

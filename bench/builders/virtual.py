@@ -56,6 +56,8 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     standard.rays = gonio.rays * (1000 if standard.uses_fast_path() else 10)
 
     effects = declared_effects(d)  # declared effects only; none: the bare instrument
+    if effects is not None and seed is not None:  # the run's seed governs the detector's noise too
+        effects = effects.model_copy(update={"seed": int(seed)})
     saturation = float(det.saturation_counts) if det is not None else None
     detector = DetectorEffects(effects, stream=1, saturation=saturation) if effects is not None else None
     aperture = declared_aperture(d)  # the detector's cone (0: the collector patch of the viewing direction)
