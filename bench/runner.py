@@ -37,6 +37,7 @@ from bench.core.errors import BenchError, DeviceError, RunInterrupted, StoreErro
 from bench.core.geometry import Geometry
 from bench.core.roles import Reading
 from bench.builders.homing import HOME_AXIS, home_axis, homeable_axes
+from bench.exposure import check_exposure
 from bench.builders.ownership import note_run
 from bench.plans import Plan, order_for_travel, plan_from_dict, validate
 from bench.calibration_chain import acquire_dark, decide_calibration, resumed_calibration, stored_white
@@ -44,7 +45,7 @@ from bench.calibration_chain import acquire_dark, decide_calibration, resumed_ca
 log = logging.getLogger(__name__)
 
 __all__ = ["run_scan", "resume_scan", "ScanResult", "point_rows", "point_budgets", "acquire_dark", "measure_calibration",
-           "stored_white"]
+           "stored_white", "masked_readings"]
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,11 @@ class ScanResult:
     points_done: int
     points_planned: int
     seconds: float
+    #: readings without a value (a calibrated run's masked ones) and the saturated among them
+    masked: int = 0
+    saturated: int = 0
+    #: why a completed run is not plainly completed: ``N of M readings masked (S saturated)``
+    reason: str | None = None
 
 
 def point_rows(reading: Reading, cal: Calibration | None, geometry: Geometry, dark: Reading | None,
@@ -139,6 +145,7 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))
     order = [i for i in order if i not in skipped]
     chain = decide_calibration(bench, plan)  # which white, which darks: refused here, before any motion
+    check_exposure(plan, bench.config)  # and a plan whose readings would saturate the detector
     homed = _home(bench, plan)
     cal = chain.take()
     specimen = bench.config.get("specimen") or {}
@@ -231,8 +238,21 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
         raise
     finally:
         bar.close()
-    store.set_status(run_id, "completed", None)
-    return ScanResult(run_id, "completed", k, len(order), time.perf_counter() - t_run)
+    masked, saturated, reason = masked_readings(store, run_id, calibrated=cal is not None)
+    store.set_status(run_id, "completed", reason)  # a run with masked readings says so wherever it is shown
+    return ScanResult(run_id, "completed", k, len(order), time.perf_counter() - t_run, masked, saturated, reason)
+
+
+def masked_readings(store: Any, run_id: str, calibrated: bool) -> tuple[int, int, str | None]:
+    """How many readings of run ``run_id`` are masked (no value, in a calibrated run; a
+    saturated one in any run) and saturated, and the reason a completed run then records
+    (``N of M readings masked (S saturated)``; None when every reading holds a value)."""
+    s = store.summary(run_id)
+    saturated = int(s["saturated"] or 0)
+    masked = int(s["value"]["n_missing"]) if calibrated else saturated
+    if not masked:
+        return 0, 0, None
+    return masked, saturated, f"{masked} of {s['readings']} readings masked ({saturated} saturated)"
 
 
 class PointFaults:

@@ -163,11 +163,15 @@ def stop_announcing() -> None:
 
 
 def report_run(result: Any, as_json: bool) -> int:
-    """What scan and resume print: the run id (or the result as JSON)."""
+    """What scan and resume print: the run id (or the result as JSON); a run that completed with
+    masked readings says so on stderr (its JSON has ``masked``, ``saturated`` and ``reason``)."""
     if as_json:
         emit_json(result.__dict__)
     else:
         print(result.run_id)
+    reason = getattr(result, "reason", None)
+    if reason and not as_json:
+        print(f"run {result.run_id} {result.status} with {reason}: see `bench show {result.run_id}`", file=sys.stderr)
     return 0
 
 
