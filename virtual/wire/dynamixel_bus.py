@@ -67,7 +67,7 @@ from typing import Any, Mapping, Sequence
 from bench.core.errors import DeviceError
 
 from virtual.wire.dxl_bus import DynamixelBus
-from virtual.wire.pty import EmulatorProcess, open_pty, write_all
+from virtual.wire.pty import EmulatorProcess, open_pty, starting_parent, write_all
 
 
 __all__ = ["BusControl", "start_bus", "serve", "main"]
@@ -250,7 +250,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="keep running when the starting process dies (default: exit)")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
-    parent = None if a.no_orphan else os.getppid()
+    parent = None if a.no_orphan else (starting_parent() or os.getppid())
     ids = [int(x) for x in a.ids.split(",") if x.strip()]
     positions = {int(k): int(v) for k, v in (kv.split(":") for kv in a.positions.split(",") if kv)}
     bus = DynamixelBus(ids, positions, time_scale=a.time_scale, seed=a.seed,

@@ -25,11 +25,43 @@ from typing import Any, Sequence
 
 from bench.core.errors import DeviceError, PortGoneError
 
-__all__ = ["open_pty", "open_raw_pty", "write_all", "EmulatorProcess", "EmulatorStartError", "PipeEmulator"]
+__all__ = ["open_pty", "open_raw_pty", "write_all", "EmulatorProcess", "EmulatorStartError", "PipeEmulator",
+           "PARENT_ENV", "starting_parent", "exit_with_parent"]
+
+#: environment variable by which an emulator process learns the pid of the process that started it
+PARENT_ENV = "GONIOBENCH_EMULATOR_PARENT"
 
 log = logging.getLogger(__name__)
 
 _ROOT = Path(__file__).resolve().parents[2]
+
+
+def starting_parent() -> int | None:
+    """The pid of the process that started this emulator (:data:`PARENT_ENV`), or None when it
+    was started by hand. Read from the environment, not ``os.getppid()``: a parent killed while
+    this interpreter was still starting has already left us to init."""
+    try:
+        return int(os.environ[PARENT_ENV])
+    except (KeyError, ValueError):
+        return None
+
+
+def exit_with_parent(poll_s: float = 0.2) -> None:
+    """Exit this emulator process once the process that started it is gone (killed, however),
+    so no emulator outlives its owner: a daemon thread checks every ``poll_s`` s that we still
+    are its child (a dead parent's children are re-parented). Nothing when started by hand."""
+    import threading
+
+    parent = starting_parent()
+    if parent is None:
+        return
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_s)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 class EmulatorStartError(RuntimeError):
@@ -204,6 +236,7 @@ class EmulatorProcess:
                  stdin_data: bytes | None = None) -> None:
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join([str(_ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+        env[PARENT_ENV] = str(os.getpid())  # the child exits when we are gone (exit_with_parent)
         # stderr goes to a file, never a pipe nobody drains (a chatty emulator would block)
         self._stderr = tempfile.TemporaryFile()
         self.proc = subprocess.Popen(

@@ -8,7 +8,8 @@ stdin -- ``(authkey, cwd, target, head, tail)``, the target a module-level funct
 reference -- and we open a ``multiprocessing.connection.Listener`` on 127.0.0.1, announce its
 address as one JSON line on stdout, accept the parent's one connection, move to the parent's
 working directory (relative paths mean what they meant there) and call
-``target(*head, conn, *tail)``. Nothing of the parent's script is ever imported.
+``target(*head, conn, *tail)``. Nothing of the parent's script is ever imported. We exit when
+the parent is gone, however it ended (:func:`~virtual.wire.pty.exit_with_parent`).
 """
 
 from __future__ import annotations
@@ -19,10 +20,13 @@ import pickle
 import sys
 from multiprocessing.connection import Listener
 
+from virtual.wire.pty import exit_with_parent
+
 __all__ = ["main"]
 
 
 def main() -> int:
+    exit_with_parent()  # first: a parent killed while we start must not leave us waiting in accept()
     authkey, cwd, target, head, tail = pickle.load(sys.stdin.buffer)
     with Listener(("127.0.0.1", 0), authkey=authkey) as listener:
         host, port = listener.address
