@@ -49,10 +49,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from bench.builders.detector import RESPONSE_GAIN, DetectorTable, detector_settings
+from bench.builders.detector import RESPONSE_GAIN, DetectorTable, described_bands, detector_settings
 from bench.config import Bench
 from bench.core.calibration import Calibration
 from bench.core.errors import BenchError, CalibrationRefused
+from bench.core.parsing import parse_wavelengths
 from bench.core.roles import Reading
 from bench.io.white import WhiteReference, read_white_reference
 from bench.plans import Plan
@@ -85,8 +86,12 @@ def detector_identity(bench: Bench) -> dict[str, Any]:
     det = detector_settings(bench.config)
     if det is None and bench.kind == "emulated":
         det = DetectorTable()  # the emulator's unit: the table's defaults are its own
+    wl = getattr(bench.spectrometer, "wavelengths", None)
+    if wl is None:  # a bench that is its description only (planning): the bands it declares, if any
+        bands = described_bands(bench.config)
+        wl = None if bands is None else parse_wavelengths(bands[0])
     return {"model": str(info.model), "serial": str(info.serial),
-            "wavelengths_nm": [float(w) for w in np.asarray(bench.spectrometer.wavelengths, float)],
+            "wavelengths_nm": None if wl is None else [float(w) for w in np.asarray(wl, float)],
             "counts_per_ms": None if det is None else float(det.counts_per_ms)}
 
 
@@ -112,13 +117,14 @@ def check_origin(where: str, origin: Mapping[str, Any] | None, bench: Bench) -> 
                                  f"{bench.kind} body and a white is applied only to readings of the body that "
                                  f"measured it: {hint}")
     held, now = origin["detector"], detector_identity(bench)
-    wl_held = [float(w) for w in held.get("wavelengths_nm") or []]
-    if len(wl_held) != len(now["wavelengths_nm"]) or not np.allclose(wl_held, now["wavelengths_nm"], atol=1e-6):
+    wl_held, wl_now = [float(w) for w in held.get("wavelengths_nm") or []], now["wavelengths_nm"]
+    if wl_now is not None and (len(wl_held) != len(wl_now) or not np.allclose(wl_held, wl_now, atol=1e-6)):
         span = lambda w: f"{len(w)} at {w[0]:g}..{w[-1]:g} nm" if w else "none"  # noqa: E731
         raise CalibrationRefused(f"{where} holds wavelengths {span(wl_held)}; the detector of bench {bench.name!r} "
-                                 f"reads {span(now['wavelengths_nm'])}: take it again with {_retake(bench)}")
+                                 f"reads {span(wl_now)}: take it again with {_retake(bench)}")
+    opened = bool(now["serial"])  # a described bench (planning) has not read its unit's serial yet
     same_unit = held.get("model") == now["model"] and (bench.kind == "virtual" or held.get("serial") == now["serial"])
-    if not same_unit:  # a virtual detector's serial names its seed: any seed reads the same twin
+    if opened and not same_unit:  # a virtual detector's serial names its seed: any seed reads the same twin
         raise CalibrationRefused(f"{where} was read with detector {held.get('model')} #{held.get('serial')}; bench "
                                  f"{bench.name!r} reads with {now['model']} #{now['serial']}: take it again with "
                                  f"{_retake(bench)}")

@@ -14,7 +14,6 @@ the run records it.
 
 from __future__ import annotations
 
-import math
 import sys
 from typing import Any, Mapping
 
@@ -28,6 +27,10 @@ __all__ = ["check_calibration_steps", "check_white_reference", "dark_step", "cal
 
 _DARK_STEP = {"once": "a dark", "per-incidence": "darks per incidence", "per-point": "darks per point"}
 _GEOMETRY_KEYS = ("theta_i", "phi_i", "theta_r", "phi_r")
+#: spectrometers set their integration in whole milliseconds (the Ocean protocol's ``I`` command):
+#: a white taken with ``--integration-s 0.03862`` holds 0.039 s, as the plan's readings will; a
+#: stored white within half of it of the plan's integration is the plan's (calibration divides rates)
+INTEGRATION_RESOLUTION_S = 0.001
 
 
 def dark_step(dark: str) -> str:
@@ -46,7 +49,8 @@ def no_light(bench: Bench, plan: Plan) -> CalibrationRefused:
 def check_white_reference(ref: WhiteReference, bench: Bench, integration_s: float, averages: int,
                           dark: str, repeats: int = 1) -> None:
     """Refuse a stored white reading that does not match the run: taken at another geometry than
-    the bench's ``[white]`` standard, with another integration time or number of averages, with
+    the bench's ``[white]`` standard, with another integration time (beyond half the detectors'
+    millisecond step, :data:`INTEGRATION_RESOLUTION_S`) or number of averages, with
     a dark where the plan takes none (or none where it takes darks), or with another number of
     repeated white readings than the plan's (``repeats``: 1 for ``white = "once"``)."""
     where = f"white reference {ref.path or '(stored reading)'}"
@@ -58,7 +62,7 @@ def check_white_reference(ref: WhiteReference, bench: Bench, integration_s: floa
         if abs(float(g[k]) - float(want[k])) > 1e-6:
             raise CalibrationRefused(f"{where} was taken at {k} = {float(g[k]):g} deg; bench {bench.name!r} "
                                    f"[white] geometry has {k} = {float(want[k]):g} deg")
-    if not math.isclose(ref.white.integration_s, integration_s, rel_tol=1e-9):
+    if abs(ref.white.integration_s - integration_s) > INTEGRATION_RESOLUTION_S / 2 + 1e-9 * integration_s:
         raise CalibrationRefused(f"{where} was taken with integration_s = {ref.white.integration_s:g} s; the plan "
                                f"integrates {integration_s:g} s: take it again with --integration-s {integration_s:g}")
     if ref.white.averages != averages:

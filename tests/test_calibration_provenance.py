@@ -237,3 +237,22 @@ def test_white_origin_of_the_virtual_body():
         o = white_origin(b)
     assert o["body"] == "virtual" and o["detector"]["counts_per_ms"] is None
     assert o["detector"]["wavelengths_nm"] == [450.0, 550.0, 650.0]
+
+
+def test_bench_plan_refuses_another_bodys_white_from_the_description_alone(tmp_path, capsys):
+    """`bench plan` on the emulated description (nothing opened: the serial is unknown there, the
+    body and bands are not) names the foreign white as the calibration refusal, exit 2."""
+    import json
+
+    import tomli_w
+
+    twin = _white(np.full(3, 1e5), origin=_origin("virtual", serial="seed-1", cpm=None))
+    white = write_white_reference(tmp_path / "w.csv", WhiteReference.from_calibration(twin, bench="twin"))
+    d = read_toml(BENCHES / "emulated.toml")
+    d["white"] = {**d["white"], "reference_file": str(white)}
+    (tmp_path / "lab.toml").write_text(tomli_w.dumps(d))
+    (tmp_path / "plan.toml").write_text(tomli_w.dumps(PLAN))
+    capsys.readouterr()
+    assert main(["plan", str(tmp_path / "plan.toml"), "--bench", str(tmp_path / "lab.toml"), "--json"]) == 2
+    shown = json.loads(capsys.readouterr().out)
+    assert "measured on the virtual body; bench 'emulated' runs on the emulated body" in shown["calibration_refused"]
