@@ -14,7 +14,8 @@ by a run) records its **origin** (:func:`white_origin`)::
      "detector": {"model": "USB2000+", "serial": "EMU00001", "wavelengths_nm": [450, 550, 650],
                   "counts_per_ms": 1500.0}}
 
-and is applied only to readings of the same body and detector (:func:`check_origin`): counts of
+and is applied only to readings of the same body and detector (:func:`bench.preflight.check_origin`,
+which every check of a stored white calls): counts of
 emulated hardware and Monte Carlo counts of the virtual twin differ by the twin's gain, so a
 white of one divided into readings of the other is wrong by that factor. No conversion rule is
 declared; the twin measures its own standard. The integration time, averages, darks and repeats
@@ -49,15 +50,15 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from bench.builders.detector import RESPONSE_GAIN, DetectorTable, described_bands, detector_settings
+from bench.builders.detector import RESPONSE_GAIN
 from bench.config import Bench
 from bench.core.calibration import Calibration
 from bench.core.errors import BenchError, CalibrationRefused
-from bench.core.parsing import parse_wavelengths
 from bench.core.roles import Reading
 from bench.io.white import WhiteReference, read_white_reference
 from bench.plans import Plan
-from bench.preflight import calibration_record, check_calibration_steps, no_light
+from bench.preflight import (calibration_record, check_calibration_steps, check_origin, detector_identity,
+                              no_light, white_origin)
 
 log = logging.getLogger(__name__)
 
@@ -76,63 +77,6 @@ DECLARED_HEADROOM = 0.10
 DECLARED_FLOOR = 0.02
 #: standard uncertainties of a ratio added to each bound (two-sided normal 1e-5 per band)
 Z_NOISE = 4.42
-
-
-def detector_identity(bench: Bench) -> dict[str, Any]:
-    """The detector a white is read with: model, serial, the wavelengths of its values and the
-    declared ``counts_per_ms`` (the emulated unit's own without ``[detector]``; None on a real or
-    virtual body that declares none)."""
-    info = bench.spectrometer.describe()
-    det = detector_settings(bench.config)
-    if det is None and bench.kind == "emulated":
-        det = DetectorTable()  # the emulator's unit: the table's defaults are its own
-    wl = getattr(bench.spectrometer, "wavelengths", None)
-    if wl is None:  # a bench that is its description only (planning): the bands it declares, if any
-        bands = described_bands(bench.config)
-        wl = None if bands is None else parse_wavelengths(bands[0])
-    return {"model": str(info.model), "serial": str(info.serial),
-            "wavelengths_nm": None if wl is None else [float(w) for w in np.asarray(wl, float)],
-            "counts_per_ms": None if det is None else float(det.counts_per_ms)}
-
-
-def white_origin(bench: Bench) -> dict[str, Any]:
-    """The origin a white measured on ``bench`` now records (module docstring)."""
-    return {"body": bench.kind, "bench": bench.name, "detector": detector_identity(bench)}
-
-
-def _retake(bench: Bench) -> str:
-    return f"`bench white --bench BENCH.toml --body {bench.kind} --out FILE --force`"
-
-
-def check_origin(where: str, origin: Mapping[str, Any] | None, bench: Bench) -> None:
-    """Refuse (one line) a white whose origin is unknown, another body's, or another detector's."""
-    if not isinstance(origin, Mapping) or not isinstance(origin.get("detector"), Mapping):
-        raise CalibrationRefused(f"{where} records no body or detector (written before goniobench recorded them): "
-                                 f"take it again on this bench with {_retake(bench)}")
-    body = origin.get("body")
-    if body != bench.kind:
-        hint = ("the virtual body measures its own standard: remove [white] reference_file (no operator is "
-                "needed)" if bench.kind == "virtual" else f"take one on this body with {_retake(bench)}")
-        raise CalibrationRefused(f"{where} was measured on the {body} body; bench {bench.name!r} runs on the "
-                                 f"{bench.kind} body and a white is applied only to readings of the body that "
-                                 f"measured it: {hint}")
-    held, now = origin["detector"], detector_identity(bench)
-    wl_held, wl_now = [float(w) for w in held.get("wavelengths_nm") or []], now["wavelengths_nm"]
-    if wl_now is not None and (len(wl_held) != len(wl_now) or not np.allclose(wl_held, wl_now, atol=1e-6)):
-        span = lambda w: f"{len(w)} at {w[0]:g}..{w[-1]:g} nm" if w else "none"  # noqa: E731
-        raise CalibrationRefused(f"{where} holds wavelengths {span(wl_held)}; the detector of bench {bench.name!r} "
-                                 f"reads {span(wl_now)}: take it again with {_retake(bench)}")
-    opened = bool(now["serial"])  # a described bench (planning) has not read its unit's serial yet
-    same_unit = held.get("model") == now["model"] and (bench.kind == "virtual" or held.get("serial") == now["serial"])
-    if opened and not same_unit:  # a virtual detector's serial names its seed: any seed reads the same twin
-        raise CalibrationRefused(f"{where} was read with detector {held.get('model')} #{held.get('serial')}; bench "
-                                 f"{bench.name!r} reads with {now['model']} #{now['serial']}: take it again with "
-                                 f"{_retake(bench)}")
-    cpm = held.get("counts_per_ms")
-    if cpm is not None and now["counts_per_ms"] is not None and not math.isclose(cpm, now["counts_per_ms"],
-                                                                                rel_tol=1e-9):
-        raise CalibrationRefused(f"{where} was read with [detector] counts_per_ms = {cpm:g}; bench {bench.name!r} "
-                                 f"declares {now['counts_per_ms']:g}: take it again with {_retake(bench)}")
 
 
 def expected_white_rate(bench: Bench, wavelengths: Any) -> np.ndarray | None:
@@ -286,12 +230,11 @@ def decide_calibration(bench: Bench, plan: Plan, use_reference_file: bool = True
     the standard). ``use_reference_file=False``: measure the standard now even when the bench names
     a file (``bench white``)."""
     ref = stored_white(bench) if plan.white != "none" and use_reference_file else None
+    # darks, light, operator; the file's origin (another body's white is never divided into these
+    # readings) and its settings against the plan's
+    check_calibration_steps(bench, plan, ref)
     if ref is not None:
-        where = f"white reference {ref.path}"
-        check_origin(where, ref.origin, bench)  # another body's white is never divided into these readings
-    check_calibration_steps(bench, plan, ref)  # darks, light, operator; the file against the plan's settings
-    if ref is not None:
-        check_white_level(where, ref.calibration(bench.white), bench)
+        check_white_level(f"white reference {ref.path}", ref.calibration(bench.white), bench)
     source = "none" if plan.white == "none" else ("file" if ref is not None else "measured")
     return CalibrationChain(bench, plan, source, ref)
 

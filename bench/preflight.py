@@ -9,21 +9,26 @@ needs either a stored reading that matches the plan (same standard geometry, int
 averages, dark treatment and number of repeated whites: :func:`check_white_reference`) or a bench that can measure its
 standard now (a virtual or emulated bench mounts it itself; a real one needs an operator at a
 terminal, or ``bench white --yes``). ``dark = "none"`` is taken only when the plan says so, and
-the run records it.
+the run records it. A stored white is taken only on the body and detector that measured it
+(:func:`check_origin`; :mod:`bench.calibration_chain` decides the chain and says why).
 """
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import Any, Mapping
 
-from bench.builders.detector import check_integration
+import numpy as np
+
+from bench.builders.detector import DetectorTable, check_integration, described_bands, detector_settings
 from bench.config import Bench
 from bench.core.errors import CalibrationRefused
+from bench.core.parsing import parse_wavelengths
 from bench.io.white import WhiteReference
 from bench.plans import Plan
 
-__all__ = ["check_calibration_steps", "check_white_reference", "dark_step", "calibration_record", "no_light"]
+__all__ = ["check_calibration_steps", "check_white_reference", "check_origin", "white_origin", "detector_identity", "dark_step", "calibration_record", "no_light"]
 
 _DARK_STEP = {"once": "a dark", "per-incidence": "darks per incidence", "per-point": "darks per point"}
 _GEOMETRY_KEYS = ("theta_i", "phi_i", "theta_r", "phi_r")
@@ -46,14 +51,73 @@ def no_light(bench: Bench, plan: Plan) -> CalibrationRefused:
         f"in the plan")
 
 
+def detector_identity(bench: Bench) -> dict[str, Any]:
+    """The detector a white is read with: model, serial, the wavelengths of its values and the
+    declared ``counts_per_ms`` (the emulated unit's own without ``[detector]``; None on a real or
+    virtual body that declares none)."""
+    info = bench.spectrometer.describe()
+    det = detector_settings(bench.config)
+    if det is None and bench.kind == "emulated":
+        det = DetectorTable()  # the emulator's unit: the table's defaults are its own
+    wl = getattr(bench.spectrometer, "wavelengths", None)
+    if wl is None:  # a bench that is its description only (planning): the bands it declares, if any
+        bands = described_bands(bench.config)
+        wl = None if bands is None else parse_wavelengths(bands[0])
+    return {"model": str(info.model), "serial": str(info.serial),
+            "wavelengths_nm": None if wl is None else [float(w) for w in np.asarray(wl, float)],
+            "counts_per_ms": None if det is None else float(det.counts_per_ms)}
+
+
+def white_origin(bench: Bench) -> dict[str, Any]:
+    """The origin a white measured on ``bench`` now records (module docstring)."""
+    return {"body": bench.kind, "bench": bench.name, "detector": detector_identity(bench)}
+
+
+def _retake(bench: Bench) -> str:
+    return f"`bench white --bench BENCH.toml --body {bench.kind} --out FILE --force`"
+
+
+def check_origin(where: str, origin: Mapping[str, Any] | None, bench: Bench) -> None:
+    """Refuse (one line) a white whose origin is unknown, another body's, or another detector's."""
+    if not isinstance(origin, Mapping) or not isinstance(origin.get("detector"), Mapping):
+        raise CalibrationRefused(f"{where} records no body or detector (written before goniobench recorded them): "
+                                 f"take it again on this bench with {_retake(bench)}")
+    body = origin.get("body")
+    if body != bench.kind:
+        hint = ("the virtual body measures its own standard: remove [white] reference_file (no operator is "
+                "needed)" if bench.kind == "virtual" else f"take one on this body with {_retake(bench)}")
+        raise CalibrationRefused(f"{where} was measured on the {body} body; bench {bench.name!r} runs on the "
+                                 f"{bench.kind} body and a white is applied only to readings of the body that "
+                                 f"measured it: {hint}")
+    held, now = origin["detector"], detector_identity(bench)
+    wl_held, wl_now = [float(w) for w in held.get("wavelengths_nm") or []], now["wavelengths_nm"]
+    if wl_now is not None and (len(wl_held) != len(wl_now) or not np.allclose(wl_held, wl_now, atol=1e-6)):
+        span = lambda w: f"{len(w)} at {w[0]:g}..{w[-1]:g} nm" if w else "none"  # noqa: E731
+        raise CalibrationRefused(f"{where} holds wavelengths {span(wl_held)}; the detector of bench {bench.name!r} "
+                                 f"reads {span(wl_now)}: take it again with {_retake(bench)}")
+    opened = bool(now["serial"])  # a described bench (planning) has not read its unit's serial yet
+    same_unit = held.get("model") == now["model"] and (bench.kind == "virtual" or held.get("serial") == now["serial"])
+    if opened and not same_unit:  # a virtual detector's serial names its seed: any seed reads the same twin
+        raise CalibrationRefused(f"{where} was read with detector {held.get('model')} #{held.get('serial')}; bench "
+                                 f"{bench.name!r} reads with {now['model']} #{now['serial']}: take it again with "
+                                 f"{_retake(bench)}")
+    cpm = held.get("counts_per_ms")
+    if cpm is not None and now["counts_per_ms"] is not None and not math.isclose(cpm, now["counts_per_ms"],
+                                                                                rel_tol=1e-9):
+        raise CalibrationRefused(f"{where} was read with [detector] counts_per_ms = {cpm:g}; bench {bench.name!r} "
+                                 f"declares {now['counts_per_ms']:g}: take it again with {_retake(bench)}")
+
+
 def check_white_reference(ref: WhiteReference, bench: Bench, integration_s: float, averages: int,
                           dark: str, repeats: int = 1) -> None:
-    """Refuse a stored white reading that does not match the run: taken at another geometry than
+    """Refuse a stored white reading that does not match the run: measured on another body or
+    detector (:func:`check_origin`), taken at another geometry than
     the bench's ``[white]`` standard, with another integration time (beyond half the detectors'
     millisecond step, :data:`INTEGRATION_RESOLUTION_S`) or number of averages, with
     a dark where the plan takes none (or none where it takes darks), or with another number of
     repeated white readings than the plan's (``repeats``: 1 for ``white = "once"``)."""
     where = f"white reference {ref.path or '(stored reading)'}"
+    check_origin(where, ref.origin, bench)  # another body's or detector's white is never taken
     g = ref.standard.get("geometry") if isinstance(ref.standard, Mapping) else None
     if not isinstance(g, Mapping) or any(k not in g for k in _GEOMETRY_KEYS):
         raise CalibrationRefused(f"{where} records no geometry: take it again with `bench white`")
