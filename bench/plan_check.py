@@ -30,8 +30,8 @@ def refuse_before_opening(plan: Plan, d: Mapping[str, Any], body: str, calibrate
         return
     bench = described_bench(d, body)
     validate(plan, bench.goniometer.check)
+    check_exposure(plan, d, white=False if calibrated else None)  # first: a white it would saturate too
     steps = replace(plan, white="none") if calibrated else plan
     check_calibration_steps(bench, steps, stored_white(bench) if steps.white != "none" else None)
-    check_exposure(plan, d, white=False if calibrated else None)
     if body == "real":
         check_ports(d)

@@ -144,8 +144,8 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     skipped = {r.index for r in refused}
     order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))
     order = [i for i in order if i not in skipped]
+    check_exposure(plan, bench.config)  # a plan whose readings (or white) would saturate the detector
     chain = decide_calibration(bench, plan)  # which white, which darks: refused here, before any motion
-    check_exposure(plan, bench.config)  # and a plan whose readings would saturate the detector
     homed = _home(bench, plan)
     cal = chain.take()
     specimen = bench.config.get("specimen") or {}
