@@ -159,3 +159,22 @@ def test_a_run_with_saturated_readings_says_so(tmp_path, capsys, monkeypatch):
     with load_bench(BENCHES / "virtual.toml") as bench, RunStore(tmp_path / "runs.sqlite") as store:
         plain = run_scan(bench, load_plan(_plan(tmp_path, 0.02, white="once")), store, seed=1)
     assert plain.reason is None and plain.masked == 0
+
+
+def test_resume_on_stale_ports_names_the_port_before_opening(tmp_path, capsys):
+    """An interrupted run of a real description whose ports are gone: `bench resume` refuses in
+    one line naming the port, and the run stays as it was."""
+    from bench.store import RunStore
+
+    real = read_toml(BENCHES / "real-template.toml", "bench config")
+    plan = load_plan(_plan(tmp_path, 0.02))
+    store = tmp_path / "runs.sqlite"
+    with RunStore(store) as s:
+        rid = s.create_run(kind="scan", plan=plan.as_dict(), bench=real, meta={"bench_kind": "real"},
+                           n_planned=len(plan.points))
+        s.set_status(rid, "interrupted", "a device fault")
+    code, out, err = run_main(capsys, "resume", rid, "--store", store)
+    line = _one_line(err)
+    assert code == 2 and "[arm] port '/dev/ttyUSB0'" in line and "no such device" in line
+    with RunStore(store) as s:
+        assert s.run(rid)["status"] == "interrupted"
