@@ -1,7 +1,10 @@
 """Stored runs as Bluesky runs in a Tiled catalog: what ``bench serve`` serves.
 
 :func:`run_documents` turns one stored run into the Bluesky documents of a run -- a start
-document whose ``uid`` is the run id (so the catalog is keyed by run id) and which carries the
+document whose ``uid`` is a UUID (:func:`run_uid`: the run's own Bluesky uid when a RunEngine
+wrote it, so a run a ``TiledWriter`` also wrote live is served once; else a UUID derived from the
+run id, the same at every start), with the run id under ``run_id`` and a ``scan_id`` (the
+RunEngine's, else the run's rank in the store), and which carries the
 run's identity (``specimen``, ``bench``, ``body``, ``plan``), its ``column_units`` and the whole
 metadata an export's sidecar JSON holds under ``goniobench``; one ``primary`` stream whose event
 rows are exactly the rows of ``bench export``'s tidy CSV (:func:`bench.io.tidy_table`, same
@@ -10,7 +13,9 @@ columns, same values); a stop document with the run's status. Those documents ar
 have the structure every Bluesky/Tiled reader expects (``client[run_id]["primary"].read()``).
 
 :class:`CatalogServer` runs a real Tiled server (the ``tiled`` extra) on 127.0.0.1 in a thread:
-a SQLite catalog with writable storage (a temporary folder, or ``--catalog DIR`` to keep it),
+a SQLite catalog keyed by start uid (find a run by id with ``search(Key("start.run_id") == RUN)``;
+a run without readings has no event stream and is not served, so ``run["primary"]`` reads for
+every served run), with writable storage (a temporary folder, or ``--catalog DIR`` to keep it),
 anonymous read access and one API key for writers, so a RunEngine can subscribe
 ``TiledWriter(from_uri(uri, api_key=KEY))`` to add its own runs next to the store's.
 """
@@ -18,22 +23,72 @@ anonymous read access and one API key for writers, so a RunEngine can subscribe
 from __future__ import annotations
 
 import json
+import logging
 import math
 import secrets
 import socket
 import tempfile
 import threading
 import time
+import uuid
 from pathlib import Path
 from typing import Any, Iterator
 
 from bench.core.errors import DeviceError, InputError
+from bench.core.outputs import atomic_write
+from bench.store.check import valid_run_id
 from bench.core.records import json_default, record_identity, record_provenance
 
-__all__ = ["run_documents", "CatalogServer", "STATUS_EXIT"]
+__all__ = ["run_documents", "run_uid", "scan_ids", "init_catalog", "CatalogServer", "STATUS_EXIT",
+           "RUN_UID_NAMESPACE"]
+
+log = logging.getLogger(__name__)
 
 #: our run status -> a stop document's exit_status
 STATUS_EXIT = {"completed": "success", "interrupted": "abort", "running": "abort", "failed": "fail"}
+
+
+#: the namespace of the UUIDs (version 5) derived from run ids of runs no RunEngine wrote
+RUN_UID_NAMESPACE = uuid.UUID("6f1c2d52-3b0e-5a8e-9f57-2f1d4c0b9a61")
+
+
+def run_uid(info: Any) -> str:
+    """The start uid a stored run is served with: the Bluesky uid its RunEngine gave it (a
+    ``bluesky`` run written by :class:`~bench.bluesky.StoreWriter`), else a UUID derived from
+    the run id (stable: a kept catalog recognises the run at the next start)."""
+    meta = info.get("meta") or {}
+    uid = meta.get("bluesky_uid") if isinstance(meta, dict) else None
+    if isinstance(uid, str) and uid:
+        return uid
+    return str(uuid.uuid5(RUN_UID_NAMESPACE, str(info["run_id"])))
+
+
+def scan_ids(store: Any) -> dict[str, int]:
+    """Each stored run's ``scan_id``: the RunEngine's for a Bluesky run, else its rank (1, 2, ...)
+    in the store's creation order."""
+    out = {}
+    for rank, row in enumerate(store.runs(), start=1):
+        out[row["run_id"]] = rank
+    return out
+
+
+#: the file of a catalog folder that says from which state of its run each served run was written
+#: (recorded after the run's stop document), so a kept ``--catalog`` follows the store
+LEDGER = "goniobench-served.json"
+
+
+def served_state(row: dict[str, Any]) -> list[Any]:
+    """What a served copy of a run must match (a row of ``RunStore.runs()``): status, reason,
+    points done and finish time -- a resumed run that ended again differs."""
+    return [row.get("status"), row.get("reason"), row.get("points_done"), row.get("finished_utc")]
+
+
+def _catalog_key(uid: Any) -> bool:
+    """Whether ``uid`` may name a node of the catalog (a URL path segment): a UUID."""
+    try:
+        return isinstance(uid, str) and str(uuid.UUID(uid)) == uid.lower()
+    except ValueError:
+        return False
 
 
 def _data_key(column: Any, unit: str | None) -> dict[str, Any]:
@@ -53,8 +108,9 @@ def _column_values(column: Any) -> list[Any]:
     return ["" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v) for v in column]
 
 
-def run_documents(store: Any, run_id: str) -> Iterator[tuple[str, dict[str, Any]]]:
-    """The Bluesky documents of stored run ``run_id`` (see the module docstring)."""
+def run_documents(store: Any, run_id: str, scan_id: int | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
+    """The Bluesky documents of stored run ``run_id`` (see the module docstring); a run without
+    readings gives a start and a stop document only (no empty ``primary`` stream)."""
     import pandas as pd
     from event_model import compose_run
 
@@ -69,20 +125,27 @@ def run_documents(store: Any, run_id: str) -> Iterator[tuple[str, dict[str, Any]
     for _, rec in parts:
         units.update(column_units(rec))
     ident = record_provenance(meta)
-    specimens = [s for s in dict.fromkeys(table["specimen"]) if s is not None and s == s]
+    specimens = [s for s in dict.fromkeys(table.get("specimen", [])) if s is not None and s == s]
     t0 = float(info.get("created_epoch") or time.time())
     start_md = {"goniobench": json.loads(json.dumps({**meta, "column_units": units}, default=json_default)),
                 "specimen": record_identity(meta)["specimen"] or "; ".join(map(str, specimens)) or None,
                 "column_units": units, "kind": info["kind"], "status": info["status"],
                 "bench": ident.get("bench"), "body": ident.get("body"), "plan_name": ident.get("plan"),
-                "num_points": int(len(table))}
-    run = compose_run(uid=run_id, time=t0, metadata={k: v for k, v in start_md.items() if v is not None})
+                "num_points": int(len(table)), "run_id": run_id}
+    bluesky_start = meta.get("bluesky_start") if isinstance(meta.get("bluesky_start"), dict) else {}
+    if isinstance(bluesky_start.get("scan_id"), int):
+        start_md["scan_id"] = bluesky_start["scan_id"]
+    elif scan_id is not None:
+        start_md["scan_id"] = int(scan_id)
+    else:
+        start_md["scan_id"] = scan_ids(store).get(run_id)
+    run = compose_run(uid=run_uid(info), time=t0, metadata={k: v for k, v in start_md.items() if v is not None})
     yield "start", run.start_doc
-    desc = run.compose_descriptor(name="primary", data_keys={str(c): _data_key(table[c], units.get(str(c)))
-                                                             for c in table.columns})
-    yield "descriptor", desc.descriptor_doc
     n = len(table)
     if n:
+        desc = run.compose_descriptor(name="primary", data_keys={str(c): _data_key(table[c], units.get(str(c)))
+                                                                 for c in table.columns})
+        yield "descriptor", desc.descriptor_doc
         t_end = float(info.get("finished_epoch") or t0)
         data = {str(c): _column_values(table[c]) for c in table.columns}
         yield "event_page", desc.compose_event_page(
@@ -90,6 +153,37 @@ def run_documents(store: Any, run_id: str) -> Iterator[tuple[str, dict[str, Any]
             validate=False)
     yield "stop", run.compose_stop(exit_status=STATUS_EXIT.get(info["status"], "fail"),
                                    reason=info.get("reason") or "", time=float(info.get("finished_epoch") or t0))
+
+
+def init_catalog(uri: str) -> None:
+    """Create and stamp a Tiled SQLite catalog at ``uri`` unless it exists: what
+    ``tiled.catalog.from_uri(..., init_if_not_exists=True)`` does, in this process. Tiled runs it
+    as ``python -m tiled catalog init``, a second interpreter that imports tiled again: about
+    20 s of a 40-s ``bench serve`` start on a loaded 2-core machine. Called before the server's
+    thread starts (SQLite and its async engine stay in one thread here)."""
+    import asyncio
+
+    from sqlalchemy.ext.asyncio import create_async_engine
+    from tiled.alembic_utils import UninitializedDatabase, check_database, stamp_head
+    from tiled.catalog.alembic_constants import ALEMBIC_DIR, ALEMBIC_INI_TEMPLATE_PATH
+    from tiled.catalog.core import ALL_REVISIONS, REQUIRED_REVISION, initialize_database
+    from tiled.utils import ensure_specified_sql_driver
+
+    uri = ensure_specified_sql_driver(uri)
+
+    async def create() -> bool:
+        engine = create_async_engine(uri)
+        try:
+            await check_database(engine, REQUIRED_REVISION, ALL_REVISIONS)
+            return False
+        except UninitializedDatabase:
+            await initialize_database(engine)
+            return True
+        finally:
+            await engine.dispose()
+
+    if asyncio.run(create()):
+        stamp_head(ALEMBIC_INI_TEMPLATE_PATH, ALEMBIC_DIR, uri)
 
 
 def free_port() -> int:
@@ -121,7 +215,12 @@ class CatalogServer:
         from tiled.server.app import build_app
 
         self.api_key = api_key or secrets.token_hex(16)
-        self._served: set[str] | None = None  # run ids in the catalog (add_runs), listed on first use
+        self._served: set[str] | None = None  # start uids in the catalog (add_runs), listed on first use
+        self._handled: set[str] = set()  # run ids add_runs has served or passed over
+        self.unserved: list[str] = []  # run ids without readings (not served)
+        self.damaged: dict[str, str] = {}  # run ids not served: why (damaged in the store)
+        self.replaced: list[str] = []  # run ids written again whole (their copy stale or cut short)
+        self._states: dict[str, Any] = {}  # run id -> its served_state when last handled
         self.port = int(port) or free_port()
         try:
             with socket.socket() as probe:
@@ -134,7 +233,10 @@ class CatalogServer:
             (self.directory / "data").mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise InputError(f"--catalog {self.directory}: cannot create the catalog folder ({exc.strerror})") from None
-        tree = from_uri(f"sqlite:///{self.directory / 'catalog.db'}", init_if_not_exists=True,
+        self._ledger = self._load_ledger()  # start uid -> the run's served_state it was written from
+        uri = f"sqlite:///{self.directory / 'catalog.db'}"
+        init_catalog(uri)
+        tree = from_uri(uri,
                         writable_storage=[self.directory / "data", f"duckdb:///{self.directory / 'tables.duckdb'}"])
         app = build_app(tree, Authentication(allow_anonymous_access=True, single_user_api_key=self.api_key))
         self._server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning"))
@@ -159,26 +261,96 @@ class CatalogServer:
 
     def add_runs(self, store: Any, run_ids: list[str] | None = None) -> list[str]:
         """Write stored runs (default: every run not still ``running``: a run is served once it
-        has ended, complete) through ``TiledWriter``; runs already in the catalog (a kept
-        ``--catalog``, or served earlier) are left as they are. Returns the run ids written."""
+        has ended, complete) through ``TiledWriter``; runs already in the catalog under their
+        start uid (a kept ``--catalog``, served earlier, or written live by a RunEngine's
+        ``TiledWriter``) are left as they are, and runs without readings are not served (listed
+        in :attr:`unserved`). Returns the run ids written."""
         from bluesky_tiled_plugins import TiledWriter
 
-        ids = run_ids if run_ids is not None else [r["run_id"] for r in store.runs() if r["status"] != "running"]
-        if self._served is not None and self._served.issuperset(ids):
+        rows = {r["run_id"]: r for r in store.runs()}
+        ids = run_ids if run_ids is not None else [rid for rid, r in rows.items() if r["status"] != "running"]
+        ids = [rid for rid in ids if not self._damaged(rid, rows.get(rid))]  # never a URL from a damaged run
+        states = {rid: served_state(rows[rid]) for rid in ids if rid in rows}
+        # new runs, and runs served before that changed since (resumed and ended again): served whole
+        new = [rid for rid in ids if rid not in self._handled or self._states.get(rid) != states.get(rid)]
+        if not new:
             return []  # the 2-s poll of `bench serve`: nothing new, no request to the server
         client = self.client(write=True)
         if self._served is None:  # what a kept --catalog already holds, listed once
             self._served = set(client)
+        ranks = scan_ids(store)
         written = []
-        for rid in ids:
-            if rid in self._served:
+        for rid in new:
+            self._handled.add(rid)
+            self._states[rid] = states.get(rid)
+            uid = run_uid(store.run(rid))
+            if not _catalog_key(uid):
+                self.damaged[rid] = f"start uid {uid[:60]!r} is not a UUID"
+                continue
+            if self._in_step(client, rid, uid, states.get(rid)):  # already there as the store has it
+                continue
+            docs = list(run_documents(store, rid, ranks.get(rid)))
+            if not any(name in ("event", "event_page") for name, _ in docs):
+                self.unserved.append(rid)  # nothing measured: no event stream to read
                 continue
             writer = TiledWriter(client)
-            for name, doc in run_documents(store, rid):
+            for name, doc in docs:
                 writer(name, doc)
-            self._served.add(rid)
+            self._served.add(uid)
+            self._record(uid, states.get(rid))  # after the stop document: a kill before it is redone
             written.append(rid)
         return written
+
+    # -- keeping a kept catalog in step with the store -------------------------------------------
+    def _damaged(self, run_id: Any, row: dict[str, Any] | None) -> bool:
+        """Whether a run is damaged (its id not the store's format, a field that does not parse):
+        such a run is never turned into a request; listed in :attr:`damaged`."""
+        why = None if row is None else row.get("damaged")
+        if why is None and not valid_run_id(run_id):
+            why = "run id is not of the store's format"
+        if why:
+            self.damaged[str(run_id)] = str(why)
+        return bool(why)
+
+    def _in_step(self, client: Any, run_id: str, uid: str, state: list[Any] | None) -> bool:
+        """Whether the catalog holds run ``uid`` whole and as the store has it now. A copy written
+        from another state of the run (served, then resumed and completed) or cut short (no stop
+        document: the writer was killed) is deleted, to be written again whole."""
+        if self._ledger.get(uid) == state and uid in self._served:
+            return True  # written whole from this very state (recorded after its stop document)
+        if uid not in self._served and uid not in client:
+            return False
+        stop = client[uid].metadata.get("stop")
+        recorded = self._ledger.get(uid)
+        if stop and (recorded == state or (recorded is None and state is not None
+                                           and stop.get("exit_status") == STATUS_EXIT.get(state[0]))):
+            self._served.add(uid)  # whole, and as the store has it (or written live by a RunEngine)
+            self._record(uid, state)
+            return True
+        log.info("catalog: run %s is %s; writing it again whole", run_id,
+                 "cut short (no stop document)" if not stop else "from an older state of the run")
+        client.delete_contents(uid, recursive=True, external_only=False)
+        self._served.discard(uid)
+        self.replaced.append(run_id)
+        return False
+
+    def _record(self, uid: str, state: list[Any] | None) -> None:
+        """Note in the ledger that ``uid`` is in the catalog whole, written from ``state``."""
+        if self._ledger.get(uid) == state:
+            return
+        self._ledger[uid] = state
+        text = json.dumps(self._ledger, sort_keys=True, default=str)
+        atomic_write(self.directory / LEDGER, lambda tmp: tmp.write_text(text, encoding="utf-8"), force=True)
+
+    def _load_ledger(self) -> dict[str, Any]:
+        try:
+            ledger = json.loads((self.directory / LEDGER).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            return {}
+        except (OSError, ValueError) as exc:  # every served run is then checked against its stop document
+            log.warning("catalog: ignoring %s (%s)", self.directory / LEDGER, exc)
+            return {}
+        return ledger if isinstance(ledger, dict) else {}
 
     def close(self) -> None:
         """Stop the server and remove a temporary catalog. Idempotent."""

@@ -12,6 +12,8 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -51,11 +53,15 @@ def test_a_stored_run_becomes_valid_bluesky_documents_with_the_exports_rows(stor
     path, rid = store
     with RunStore(path, create=False) as s:
         docs = list(run_documents(s, rid))
+        again = next(run_documents(s, rid))[1]
     for name, doc in docs:
         schema_validators[DocumentNames[name]].validate(doc)
     assert [n for n, _ in docs] == ["start", "descriptor", "event_page", "stop"]
     start, desc, page, stop = (d for _, d in docs)
-    assert start["uid"] == rid and start["specimen"] == "lambert:albedo=0.3" and start["plan_name"] == "two-incidences"
+    # the uid is a UUID (as a RunEngine's), the same at every serve; the run id is metadata
+    assert uuid.UUID(start["uid"]).version == 5 and start["uid"] == again["uid"]
+    assert start["run_id"] == rid and start["scan_id"] == 1
+    assert start["specimen"] == "lambert:albedo=0.3" and start["plan_name"] == "two-incidences"
     assert start["body"] == "virtual" and start["column_units"]["value"] == "1/sr" and stop["exit_status"] == "success"
     assert desc["name"] == "primary" and desc["data_keys"]["value"]["units"] == "1/sr"
     assert main(["export", rid, "--store", str(path), "--out", str(tmp_path / "r.csv")]) == 0
@@ -72,14 +78,34 @@ def test_a_stored_run_becomes_valid_bluesky_documents_with_the_exports_rows(stor
             assert [g or None for g in got] == [None if v != v else v for v in exported[col]], col
 
 
+def test_a_run_without_readings_has_no_event_stream_and_a_bluesky_run_keeps_its_uid(store):
+    """A run that measured nothing (a fit, a Bluesky run that failed before its first point) gives
+    start and stop only: an empty `primary` made `run["primary"].read()` raise in tiled.client.
+    A Bluesky run keeps the RunEngine's uid and scan_id, so the live TiledWriter copy and the
+    stored one are one run in the catalog."""
+    from bench.catalog import run_uid
+
+    path, _ = store
+    with RunStore(path) as s:
+        empty = s.create_run("bluesky", n_planned=3, meta={"bluesky_uid": "0b7e1c7e-6f55-4a0e-9a43-6c1b1b6f0e11",
+                                                           "bluesky_start": {"scan_id": 17}})
+        s.set_status(empty, "failed", "HardwareError: overload (device goniometer)")
+        docs = list(run_documents(s, empty))
+        assert run_uid(s.run(empty)) == "0b7e1c7e-6f55-4a0e-9a43-6c1b1b6f0e11"
+    assert [n for n, _ in docs] == ["start", "stop"]
+    assert docs[0][1]["uid"] == "0b7e1c7e-6f55-4a0e-9a43-6c1b1b6f0e11" and docs[0][1]["scan_id"] == 17
+    assert docs[1][1]["exit_status"] == "fail"
+
+
 @pytest.mark.slow
 def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_writes_into_it(store, tmp_path):
     from bluesky import RunEngine
     from bluesky.plans import scan
     from bluesky_tiled_plugins import TiledWriter
     from tiled.client import from_uri
+    from tiled.queries import Key
 
-    from bench.bluesky import connect
+    from bench.bluesky import StoreWriter, connect
 
     path, rid = store
     assert main(["export", rid, "--store", str(path), "--out", str(tmp_path / "r.csv")]) == 0
@@ -94,15 +120,17 @@ def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_wr
         info = json.loads(line)
         assert info["uri"].startswith("http://127.0.0.1:") and info["runs"] == [rid]
         client = from_uri(info["uri"])
-        run = client[rid]
+        (run,) = client.search(Key("start.run_id") == rid).values()
         assert run.metadata["start"]["specimen"] == "lambert:albedo=0.3"
         table = run["primary"].read().to_dataframe()
         for col in ("wavelength_nm", "theta_i", "theta_r", "value", "std"):
             assert np.array_equal(table[col].to_numpy(float), exported[col].to_numpy(float)), col
         assert list(table["hemisphere"]) == list(exported["hemisphere"])
         # a Bluesky script writes into the same catalog with the served API key, and reads it back
+        # (and into the store: the run is then served once, as the RunEngine wrote it)
         RE = RunEngine({})
         RE.subscribe(TiledWriter(from_uri(info["uri"], api_key=info["api_key"])))
+        RE.subscribe(StoreWriter(path))
         with connect(ROOT / "fixtures" / "benches" / "virtual.toml", run_engine=RE, seed=1) as devs:
             (uid,) = RE(scan([devs.reflectance], devs.goniometer.theta_r, 10, 30, 2))
         written = from_uri(info["uri"])[uid]["primary"]
@@ -121,10 +149,14 @@ def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_wr
                 "value": 0.12, "std": 0.001, "ci_lo": 0.11, "ci_hi": 0.13}]), {"specimen": "lambert:albedo=0.3",
                                                                                 "bench_kind": "virtual"}))
             s.set_status(later, "completed")
-        deadline = __import__("time").monotonic() + 60
-        while later not in from_uri(info["uri"]) and __import__("time").monotonic() < deadline:
-            __import__("time").sleep(0.5)
-        assert later in from_uri(info["uri"]), "a run stored after the start was not served"
+        deadline = time.monotonic() + 60
+        while not from_uri(info["uri"]).search(Key("start.run_id") == later) and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert from_uri(info["uri"]).search(Key("start.run_id") == later), "a run stored after the start was not served"
+        every = from_uri(info["uri"])
+        assert len(every) == 3  # the stored run, the Bluesky run (once), the later one
+        for served in every.values():  # the standard reader's loop never raises
+            served["primary"].read()
     finally:
         server.terminate()
         server.wait(20)

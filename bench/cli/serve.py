@@ -1,7 +1,7 @@
 """``bench serve --store S [--port P]``: every stored run as a Bluesky run in a Tiled catalog.
 
 A real Tiled server (the ``tiled`` extra) on 127.0.0.1 only (:class:`bench.catalog.CatalogServer`);
-each stored run is written through ``bluesky_tiled_plugins.TiledWriter`` keyed by its run id,
+each stored run is written through ``bluesky_tiled_plugins.TiledWriter`` keyed by its start uid,
 its ``primary`` stream holding the rows ``bench export`` writes. Prints the URI and the API key a
 writer (a RunEngine's ``TiledWriter``) needs, then serves until Ctrl-C or SIGTERM.
 """
@@ -9,7 +9,9 @@ writer (a RunEngine's ``TiledWriter``) needs, then serves until Ctrl-C or SIGTER
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
+import sys
 
 from bench.cli.argtypes import count, real
 from bench.cli.commands import command_help
@@ -22,24 +24,29 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from bench.catalog import CatalogServer
     from bench.core.errors import InputError
 
-    try:
-        import bluesky_tiled_plugins  # noqa: F401
-        import tiled.server  # noqa: F401
-    except ImportError:
-        raise InputError("bench serve needs the tiled extra: pip install 'goniobench[tiled]'") from None
+    # found, not imported: bluesky_tiled_plugins alone takes seconds to import (its clients pull
+    # in xarray and dask); it is imported to write the runs once the server already answers
+    if any(importlib.util.find_spec(m) is None for m in ("bluesky_tiled_plugins", "tiled", "uvicorn")):
+        raise InputError("bench serve needs the tiled extra: pip install 'goniobench[tiled]'")
 
     with open_store(args.store, create=False, readonly=True) as store:
         store.runs()  # a missing or foreign store is refused before the server starts
         with CatalogServer(args.port, args.catalog, args.api_key) as server:
             written = server.add_runs(store)
-            info = {"uri": server.uri, "api_key": server.api_key, "runs": written,
+            info = {"uri": server.uri, "api_key": server.api_key, "runs": written, "unserved": server.unserved,
                     "catalog": str(server.directory) if args.catalog else None}
+            info.update(damaged=server.damaged, replaced=server.replaced)  # damaged runs: never requested
+            for rid, why in server.damaged.items():
+                print(f"bench serve: warning: run {rid} not served: damaged in the store ({why})", file=sys.stderr)
             if args.json:
                 print(json.dumps(info), flush=True)
             else:
-                print(f"Tiled catalog at {server.uri}: {len(written)} runs of {args.store} (keyed by run id)")
-                print(f"  read:  from tiled.client import from_uri; c = from_uri({server.uri!r}); "
-                      f"c[RUN]['primary'].read()")
+                print(f"Tiled catalog at {server.uri}: {len(written)} runs of {args.store} (keyed by start uid, "
+                      f"the run id in start['run_id'])")
+                if server.unserved:
+                    print(f"  not served (no readings): {', '.join(server.unserved)}")
+                print(f"  read:  from tiled.client import from_uri; from tiled.queries import Key; c = from_uri("
+                      f"{server.uri!r}); c.search(Key('start.run_id') == RUN).values().first()['primary'].read()")
                 print(f"  write: TiledWriter(from_uri({server.uri!r}, api_key={server.api_key!r}))")
                 print("  (runs that end later are added as they end; Ctrl-C stops it)", flush=True)
             # runs that end while the server runs are added as they end (every 2 s)
