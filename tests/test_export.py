@@ -111,15 +111,17 @@ def test_export_run_from_the_store_and_dispatch_by_suffix(tmp_path, lambert):
 def test_astm_layout_and_round_trip_to_printed_precision(tmp_path, lambert):
     path = record_to_astm(lambert, tmp_path / "r.astm", digits=7)
     lines = path.read_text().splitlines()
-    head = dict(line.split(" ", 1) for line in lines[:8])
+    v = next(i for i, line in enumerate(lines) if line.startswith("VARS "))
+    head = dict(line.split(" ", 1) for line in lines[:v])
     assert head["SAMPLE_NAME"] == '"lambert:reflectance=0.6,transmittance=0.2"'
+    assert head["SPECIMEN"] == head["SAMPLE_NAME"] and head["ANGLE_UNITS"] == "radians"
     assert re.fullmatch(r"\d{4}-\d\d-\d\d", head["MEAS_DATE"])
     n_geo = len(lambert.table) // 2
     assert head["NUM_POINTS"] == str(n_geo)
-    assert lines[8] == "VARS theta_i,phi_i,theta_s,phi_s,450nm,550nm"
-    first = [float(x) for x in lines[9].split(",")]
+    assert lines[v] == "VARS theta_i,phi_i,theta_s,phi_s,450nm,550nm"
+    first = [float(x) for x in lines[v + 1].split(",")]
     assert first[0] == pytest.approx(math.radians(30.0), abs=1e-15)  # radians in the file
-    assert max(float(line.split(",")[2]) for line in lines[9:]) <= math.pi
+    assert max(float(line.split(",")[2]) for line in lines[v + 1:]) <= math.pi
     back = read_astm(path).table
     key = ["theta_i", "phi_i", "theta_r", "phi_r", "wavelength_nm"]
     a = lambert.table.sort_values(key).reset_index(drop=True)

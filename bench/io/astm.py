@@ -1,10 +1,17 @@
 """The "ASTM" CSV layout (angles in radians, one channel per wavelength): writer and reader.
 
 Header keyword lines (``SOURCE``, ``SAMPLE_NAME``, ``MEAS_DATE``, ``SCATTER_TYPE``,
-``GONIOBENCH_META`` <JSON>, ``NUM_POINTS n``), then ``VARS theta_i,phi_i,theta_s,phi_s,
-<channels>`` with one channel per wavelength (``550nm``), then one comma-separated row per
-geometry: angles in RADIANS (17 significant digits), BRDF/BTDF values (1/sr) with ``digits``
-significant digits. ``theta_s > pi/2`` is the transmission side.
+``ANGLE_UNITS radians``, ``VALUE_UNITS 1/sr``, the record's identity -- ``SPECIMEN`` (its model),
+``RUN_ID``, ``BENCH``, ``BODY``, ``PLAN`` when known -- ``GONIOBENCH_META`` <JSON>,
+``NUM_POINTS n``), then ``VARS theta_i,phi_i,theta_s,phi_s,<channels>`` with one channel per
+wavelength (``550nm``), then one comma-separated row per geometry: angles in RADIANS (17
+significant digits), BRDF/BTDF values (1/sr) with ``digits`` significant digits. ``theta_s >
+pi/2`` is the transmission side.
+
+Radians are the layout's own convention (what libbsdf and the lab tools that read it expect;
+see the formats reference), the one edge of goniobench whose angles are not degrees: the file
+says so in ``ANGLE_UNITS``. Only a BSDF is written (:func:`bench.io.files.require_bsdf`): a
+spectrophotometer's reflectance has no viewing direction and no 1/sr.
 
 The standard uncertainty of every value (the record's ``std``), which the layout has no column
 for, travels in our own ``GONIOBENCH_META`` line as ``"value_std"`` (rows x channels, null for
@@ -24,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from bench.core.errors import InputError
-from bench.core.records import BSDFRecord
+from bench.core.records import BSDFRecord, record_identity, record_provenance
 from bench.io.files import check_record, meta_json, require_bsdf, write_text
 from bench.io.reading import bad, complete, is_float, read_lines
 
@@ -85,7 +92,8 @@ def record_to_astm(record: BSDFRecord, path: str | Path, *, sample_name: str | N
         sw = table.set_index(geo + ["wavelength_nm"])["std"].unstack("wavelength_nm").reindex(
             index=wide.index, columns=wide.columns)
         meta["value_std"] = [[None if not np.isfinite(x) else float(x) for x in row] for row in sw.to_numpy(float)]
-    name = sample_name or meta.get("sample_name") or meta.get("specimen") or "unnamed"
+    ident = {**record_provenance(meta), "specimen": record_identity(meta)["specimen"]}
+    name = sample_name or ident.get("sample_name") or ident.get("specimen") or "unnamed"
     if meas_date is None:
         c = meta.get("created_utc")
         meas_date = str(c)[:10] if c else datetime.now(timezone.utc).strftime("%Y-%m-%d")
@@ -93,6 +101,8 @@ def record_to_astm(record: BSDFRecord, path: str | Path, *, sample_name: str | N
         scatter_type = "BTDF" if len(table) and bool((table.theta_r > 90.0).all()) else "BRDF"
     lines = ["SOURCE goniobench", f"SAMPLE_NAME {_quote(name)}", f"MEAS_DATE {meas_date}",
              f"SCATTER_TYPE {scatter_type}", "ANGLE_UNITS radians", "VALUE_UNITS 1/sr",
+             *(f"{key.upper()} {_quote(ident[key])}" for key in ("specimen", "run_id", "bench", "body", "plan")
+               if ident.get(key)),
              f"GONIOBENCH_META {meta_json(meta)}", f"NUM_POINTS {len(wide)}",
              "VARS theta_i,phi_i,theta_s,phi_s," + ",".join(_channel(w) for w in wls)]
     ang = np.radians(np.asarray(wide.index.to_list(), dtype=float).reshape(-1, 4))

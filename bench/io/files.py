@@ -95,10 +95,11 @@ def require_bsdf(record: Any, fmt: str) -> Any:
           else [])
     qs = qs or [str(meta.get("quantity") or "BSDF")]
     other = [q for q in qs if q.strip().lower() not in BSDF_QUANTITIES]
-    geometry = meta.get("geometry") if isinstance(meta.get("geometry"), str) else None
-    if geometry is None and "geometry" in t.columns:
-        geometry = next((str(g) for g in t["geometry"] if g is not None and g == g), None)
-    where = f"{geometry} geometry: " if geometry else ""
+    geometries = ([str(g) for g in dict.fromkeys(t["geometry"]) if g is not None and g == g]
+                  if "geometry" in t.columns else [])
+    if not geometries and isinstance(meta.get("geometry"), str):
+        geometries = [meta["geometry"]]
+    where = f"{', '.join(geometries)} geometry: " if geometries else ""
     if other:
         raise InputError(f"this record holds a {' and '.join(dict.fromkeys(other))} ({where}unitless, no viewing "
                          f"direction), not a BSDF: {fmt} holds BSDF values in 1/sr; export it as csv or parquet")

@@ -27,7 +27,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from bench.core.errors import InputError
-from bench.core.records import BSDFRecord
+from bench.core.records import BSDFRecord, record_identity, record_provenance
 from bench.io.files import check_record, check_target, require_bsdf, write_text
 from bench.io.reading import bad, complete, is_float, read_lines
 from bench.io.specular import directions, from_specular
@@ -232,6 +232,15 @@ def zemax_grid(record: BSDFRecord, *, wavelength_nm: float | None = None, scatte
     return ZemaxGrid(rots, incs, az, rad, values, tis, float(wavelength_nm), st, symmetry, meta, stds, samples)
 
 
+def _identity(meta: dict[str, Any]) -> dict[str, str]:
+    """The record's identity for the header comments: specimen (model), sample name, run, bench,
+    body, plan and the quantity with its unit (a BSDF in 1/sr)."""
+    out = {"specimen": record_identity(meta)["specimen"] or meta.get("sample_name") or ""}
+    out.update(record_provenance(meta))
+    out["quantity"] = f"{record_identity(meta)['quantity']} (1/sr)"
+    return out
+
+
 def _fmt_list(values: np.ndarray) -> str:
     return "\t".join(f"{float(x):.10g}" for x in values)
 
@@ -247,7 +256,7 @@ def record_to_zemax(record: BSDFRecord | ZemaxGrid, path: str | Path, *, digits:
     meta = g.meta
     lines = ["# goniobench Zemax OpticStudio tabular BSDF export",
              f"# wavelength_nm {g.wavelength_nm:.10g}",
-             f"# specimen {meta.get('specimen', meta.get('sample_name', ''))}",
+             *(f"# {k} {v}" for k, v in _identity(meta).items()),
              "# SampleRotation = incidence azimuth phi_i (deg); AngleOfIncidence = theta_i (deg)",
              "# ScatterRadial/ScatterAzimuth about the specular direction; azimuth 0 = plane of incidence,"
              " toward the normal; 90 = +y at phi_i = 0 (libbsdf's specular frame)",
@@ -494,7 +503,12 @@ def read_zemax(path: str | Path, *, keep_beyond_horizon: bool = False) -> BSDFRe
     meta = {"format": "zemax", "source_file": str(p), "scatter_type": st,
             "symmetry": header.get("Symmetry"), "source": header.get("Source"), "tis": tis,
             "wavelength_nm": None if math.isnan(wavelength) else wavelength}
-    if comments.get("specimen"):
-        meta["specimen"] = comments["specimen"]
+    for key in ("specimen", "run_id", "bench", "body", "plan", "sample_name"):  # the identity our header states
+        if comments.get(key):
+            meta[key] = comments[key]
+    if comments.get("plan"):
+        meta["plan_name"] = comments["plan"]
+    if comments.get("bench"):
+        meta["bench_name"] = comments["bench"]
     return BSDFRecord(complete(df), meta)
 
