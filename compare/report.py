@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from bench.core.errors import InputError
+from bench.core.outputs import write_text
 from bench.core.records import json_default
 from bench.core.roles import Spectrum
 
@@ -198,10 +199,10 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     title = title or f"Virtual vs actual: {summary['actual'].get('specimen') or kind}"
     html_path, md_path, json_path = out / "report.html", out / "report.md", out / "summary.json"
     summary.update({"report_html": str(html_path), "report_md": str(md_path), "summary_json": str(json_path)})
-    html_path.write_text(_html(title, summary, comps, figures, check_results), encoding="utf-8")
-    md_path.write_text(_markdown(title, summary, comps, figures, check_results), encoding="utf-8")
+    write_text(html_path, _html(title, summary, comps, figures, check_results))
+    write_text(md_path, _markdown(title, summary, comps, figures, check_results))
     safe = _json_safe(summary)
-    json_path.write_text(json.dumps(safe, indent=1), encoding="utf-8")
+    write_text(json_path, json.dumps(safe, indent=1))
     return safe
 
 

@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterator
 from bench.core.errors import BenchError, InputError
 
 __all__ = ["WriteFailed", "MEDIUM_ERRORS", "replacing", "replace_allowed", "path_kind", "check_target",
-           "write_failed", "atomic_write", "save_figure"]
+           "write_failed", "atomic_write", "write_text", "save_figure"]
 
 #: errors of the medium, not of the request: the disk is full, over quota, too big, failing, read-only
 MEDIUM_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS})
@@ -140,3 +140,11 @@ def save_figure(fig: Any, path: str | os.PathLike[str], **savefig: Any) -> Path:
     """Save a matplotlib figure through :func:`atomic_write` (the format from ``path``'s suffix)."""
     fmt = Path(path).suffix.lstrip(".").lower() or None
     return atomic_write(path, lambda tmp: fig.savefig(tmp, format=fmt, **savefig))
+
+
+def write_text(path: str | os.PathLike[str], text: str) -> Path:
+    """Write ``text`` (UTF-8, ``\\n`` line ends) through :func:`atomic_write`; return the path."""
+    def w(tmp: Path) -> None:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
+            f.write(text)
+    return atomic_write(path, w)

@@ -26,19 +26,11 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from bench.core.errors import InputError
-from bench.core.outputs import WriteFailed, atomic_write, check_target, replacing, save_figure
+from bench.core.outputs import WriteFailed, atomic_write, check_target, replacing, save_figure, write_text
 from bench.core.records import BSDFRecord, json_default
 
 __all__ = ["atomic_write", "write_text", "write_csv", "save_figure", "meta_json", "check_record", "check_target",
            "replacing", "WriteFailed", "require_bsdf", "BSDF_QUANTITIES"]
-
-
-def write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` (UTF-8, ``\\n`` line ends) atomically; return the path."""
-    def w(tmp: Path) -> None:
-        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-    return atomic_write(path, w)
 
 
 def write_csv(table: Any, path: str | Path, *, header_lines: Sequence[str] = (),
