@@ -256,3 +256,26 @@ def test_bench_plan_refuses_another_bodys_white_from_the_description_alone(tmp_p
     assert main(["plan", str(tmp_path / "plan.toml"), "--bench", str(tmp_path / "lab.toml"), "--json"]) == 2
     shown = json.loads(capsys.readouterr().out)
     assert "measured on the virtual body; bench 'emulated' runs on the emulated body" in shown["calibration_refused"]
+
+
+def test_bench_white_out_needs_force_and_then_compares_with_the_white_it_replaces(tmp_path, capsys):
+    """`--out` names an existing white: refused without `--force` (the file unchanged); with it,
+    the new white is compared with the one it replaces: a standard read at 0.80 of it is refused
+    and the accepted file kept; the same standard again replaces it."""
+    import tomli_w
+
+    d = read_toml(BENCHES / "emulated.toml")
+    lab = tmp_path / "lab.toml"
+    lab.write_text(tomli_w.dumps(d))
+    out = tmp_path / "w.csv"
+    args = ["white", "--bench", str(lab), "--body", "virtual", "--out", str(out)]
+    assert main(args) == 0
+    before = out.read_text()
+    capsys.readouterr()
+    assert main(args) == 2 and "--force" in capsys.readouterr().err and out.read_text() == before
+    lab.write_text(tomli_w.dumps({**d, "white": {**d["white"], "reflectance_factor": 0.8}}))
+    assert main(args + ["--force"]) == 2
+    err = capsys.readouterr().err
+    assert f"x the accepted white {out}" in err and out.read_text() == before
+    lab.write_text(tomli_w.dumps(d))
+    assert main(args + ["--force"]) == 0 and out.read_text() != before
