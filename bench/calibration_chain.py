@@ -29,8 +29,10 @@ A white that does not look like the standard is refused (:func:`check_white_leve
   unit without ``[detector]``) and the certificate give the dark-corrected rate of the standard
   at the lamp's peak, ``RESPONSE_GAIN * counts_per_ms * R_w / pi * cos(theta_w)`` per ms. The lamp's
   spectrum is not declared, so a band may read less (the lamp's relative output there) but never
-  more: a band above ``1 + DECLARED_HEADROOM`` of it, or a brightest band below
-  ``DECLARED_FLOOR`` of it (lamp off, arm away from the standard), is refused;
+  more: a band above ``1 + DECLARED_HEADROOM`` of it (times ``1 + |lamp_drift| (N - 1)`` for
+  ``N`` repeated whites under a declared ``[instrument] lamp_drift``), or a brightest unsaturated
+  band below ``DECLARED_FLOOR`` of it (lamp off, arm away from the standard), is refused;
+  saturated bands are masked by the calibration and say so themselves;
 * against the last accepted white of the same body and detector (``bench white`` compares with the
   file it replaces, else the bench's ``[white] reference_file``): the band-median of the rate
   ratio must be within ``LEVEL_TOLERANCE`` of 1 (a Lambertian 0.8 specimen mounted in place of
@@ -103,18 +105,22 @@ def check_white_level(where: str, cal: Calibration, bench: Bench, previous: Cali
     net, u, ok = _rate(cal)
     wl = np.asarray(cal.white.wavelengths, float)
     expected = expected_white_rate(bench, wl)
-    if expected is not None:
+    unsaturated = ~np.asarray(cal.white.saturated, bool)  # a saturated band is masked, and says so itself
+    if expected is not None and unsaturated.any():
+        # a declared lamp drift may brighten the k-th lit white reading by |drift| k
+        drift = abs(float((bench.config.get("instrument") or {}).get("lamp_drift", 0.0)))
+        headroom = (1.0 + DECLARED_HEADROOM) * (1.0 + drift * (cal.n_whites - 1))
         r, u_r = net / expected, u / expected
-        over = np.flatnonzero((r - Z_NOISE * u_r > 1.0 + DECLARED_HEADROOM) & ~np.asarray(cal.white.saturated))
+        over = np.flatnonzero((r - Z_NOISE * u_r > headroom) & unsaturated)
         if over.size:
             i = int(over[np.argmax(r[over])])
             raise CalibrationRefused(
                 f"{where} reads {r[i]:.2f} x the declared detector's response to the standard at {wl[i]:g} nm "
                 f"(counts_per_ms and the certificate's {bench.white.rf(wl)[i]:g}): more than the standard can "
                 f"give; mount the white standard and take it again (or correct [detector] counts_per_ms)")
-        top = int(np.argmax(np.where(ok, r, -np.inf))) if ok.any() else None
-        if top is None or r[top] + Z_NOISE * u_r[top] < DECLARED_FLOOR:
-            level = 0.0 if top is None else r[top]
+        top = int(np.argmax(np.where(unsaturated, r + Z_NOISE * u_r, -np.inf)))
+        if r[top] + Z_NOISE * u_r[top] < DECLARED_FLOOR:
+            level = max(float(r[top]), 0.0)
             raise CalibrationRefused(
                 f"{where}: its brightest band reads {level:.3f} x the declared detector's response to the "
                 f"standard (at least {DECLARED_FLOOR:g} expected): lamp off, the arm away from the standard or "

@@ -187,6 +187,18 @@ def test_the_declared_level_refuses_more_light_than_the_standard_gives_and_none(
     assert DECLARED_FLOOR > 0.01
     # a real body that declares no counts_per_ms: no declared level to compare with
     check_white_level("w", _white(np.full(3, 10 * peak)), _fake_bench("real"))
+    # a saturated white is masked by the calibration (and says so), not refused as "no light"
+    sat = _white(np.full(3, 3 * peak))
+    sat = Calibration(sat.standard, Reading(WL, sat.white.signal, np.ones(3, bool), 0.02, 2, std=sat.white.std),
+                      sat.white_dark)
+    check_white_level("w", sat, bench)
+    # five repeated whites under a declared lamp drift of 5 % per lit reading: the mean reads 1.1 x
+    reps = [_reading(np.full(3, peak * (1 + 0.05 * j) * 0.02 + 1000.0)) for j in range(5)]
+    drifting = Calibration.from_repeats(WhiteStandard(0.99), reps, _reading(np.full(3, 1000.0), dark=True))
+    check_white_level("w", drifting, _fake_bench(config={"detector": DETECTOR, "instrument": {"lamp_drift": 0.05}}))
+    with pytest.raises(CalibrationRefused, match="more than the standard can give"):
+        check_white_level("w", Calibration.from_repeats(WhiteStandard(0.99), [_reading(r.signal * 1.2) for r in reps],
+                                                        _reading(np.full(3, 1000.0), dark=True)), bench)
 
 
 def test_the_last_accepted_white_refuses_a_specimen_and_another_shape():
