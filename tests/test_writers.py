@@ -262,3 +262,11 @@ def test_check_target_names_the_kind():
     if Path("/dev/full").exists():
         with pytest.raises(InputError, match="/dev/full is a character device, not a regular file"):
             check_target("/dev/full", force=True)
+
+
+def test_gonio_csv_sidecar_is_checked_before_measuring(tmp_path, capsys):
+    (tmp_path / "g.csv.json").write_text("{}")
+    code, out, err = run_main(capsys, "gonio", "--specimen", "lambert:albedo=0.5", "--rays", "1000", "--seed", "1",
+                              "--csv", tmp_path / "g.csv")
+    assert code == 2 and out == "" and "g.csv.json exists: pass --force" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["g.csv.json"]

@@ -122,22 +122,26 @@ def output_file(suffixes: Sequence[str] | None = None) -> Callable[[str], str]:
 output_dir = _output_type("output folder", directory=True)
 
 
-def add_force_option(parser: argparse.ArgumentParser, *outputs: str) -> None:
+def add_force_option(parser: argparse.ArgumentParser, *outputs: str, sidecars: Sequence[str] = ()) -> None:
     """``--force``: replace output files that exist. ``outputs`` name the arguments holding the
-    command's output files, checked by :func:`check_outputs` before any work."""
+    command's output files, checked by :func:`check_outputs` before any work; ``sidecars`` those
+    of them that also write ``FILE.json`` (a tidy CSV's metadata)."""
     parser.add_argument("--force", action="store_true",
                         help="replace output files that exist (default: refused); a device, FIFO, socket or "
                              "folder is never replaced")
-    parser.set_defaults(output_dests=outputs)
+    parser.set_defaults(output_dests=outputs, output_sidecars=tuple(sidecars))
 
 
 def check_outputs(args: argparse.Namespace) -> None:
     """Refuse, before any work, the output files of a command with ``--force``
-    (:func:`add_force_option`) that exist when ``--force`` is not given."""
+    (:func:`add_force_option`) that exist when ``--force`` is not given, or are not regular files."""
+    force = bool(getattr(args, "force", False))
     for dest in getattr(args, "output_dests", ()):
         value = getattr(args, dest, None)
         if value:
-            check_output(value, force=bool(getattr(args, "force", False)))
+            check_output(value, force=force)
+            if dest in getattr(args, "output_sidecars", ()):
+                check_output(f"{value}.json", force=force)
 
 
 _ANNOUNCED: list = []  # the command's open compile_progress context, if any

@@ -394,7 +394,7 @@ def _store_record(path: str, record: Any, seed: int | None, options: dict[str, A
 
     plan = {"name": command, "command": f"bench {command}",
             "options": {k: v for k, v in options.items()
-                        if k not in ("func", "store", "csv", "plot", "json", "force", "output_dests")}}
+                        if k not in ("func", "store", "csv", "plot", "json", "force", "output_dests", "output_sidecars")}}
     with open_store(path) as store:
         rid = store.create_run("virtual", plan=plan, seed=seed, n_planned=1,
                                meta={k: v for k, v in record.meta.items() if k != "totals"})
@@ -499,5 +499,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also store the record as a run (bench runs/show/export/serve read it; default: not stored)")
     g.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw a polar plot to this image (png, pdf, svg, ...; default: none)")
-    add_force_option(g, "csv", "plot")
+    add_force_option(g, "csv", "plot", sidecars=("csv",))
     g.set_defaults(func=cmd_gonio)
