@@ -31,7 +31,8 @@ A white that does not look like the standard is refused (:func:`check_white_leve
   spectrum is not declared, so a band may read less (the lamp's relative output there) but never
   more: a band above ``1 + DECLARED_HEADROOM`` of it (times ``1 + |lamp_drift| (N - 1)`` for
   ``N`` repeated whites under a declared ``[instrument] lamp_drift``), or a brightest unsaturated
-  band below ``DECLARED_FLOOR`` of it (lamp off, arm away from the standard), is refused;
+  band below ``DECLARED_FLOOR`` of it (lamp off, arm away from the standard), is refused (the
+  upper bound only for a white taken with its dark: without one its counts hold the dark level);
   saturated bands are masked by the calibration and say so themselves;
 * against the last accepted white of the same body and detector (``bench white`` compares with the
   file it replaces, else the bench's ``[white] reference_file``): the band-median of the rate
@@ -111,8 +112,9 @@ def check_white_level(where: str, cal: Calibration, bench: Bench, previous: Cali
         drift = abs(float((bench.config.get("instrument") or {}).get("lamp_drift", 0.0)))
         headroom = (1.0 + DECLARED_HEADROOM) * (1.0 + drift * (cal.n_whites - 1))
         r, u_r = net / expected, u / expected
-        over = np.flatnonzero((r - Z_NOISE * u_r > headroom) & unsaturated)
-        if over.size:
+        # a white without its dark holds the detector's dark level too: only its light is bounded
+        over = np.flatnonzero((r - Z_NOISE * u_r > headroom) & unsaturated) if cal.white_dark is not None else []
+        if len(over):
             i = int(over[np.argmax(r[over])])
             raise CalibrationRefused(
                 f"{where} reads {r[i]:.2f} x the declared detector's response to the standard at {wl[i]:g} nm "

@@ -291,3 +291,14 @@ def test_bench_white_out_needs_force_and_then_compares_with_the_white_it_replace
     assert f"x the accepted white {out}" in err and out.read_text() == before
     lab.write_text(tomli_w.dumps(d))
     assert main(args + ["--force"]) == 0 and out.read_text() != before
+
+
+def test_a_white_without_its_dark_is_bounded_below_only():
+    """``--dark none``: the white's counts hold the detector's dark level (at 2 ms, 1000 counts of
+    dark are half the standard's light), so only the floor applies."""
+    bench = _fake_bench(config={"detector": DETECTOR})
+    t = 0.002
+    s = np.array([0.145, 0.499, 0.886]) * _expected_peak() * t + 1000.0
+    check_white_level("w", Calibration(WhiteStandard(0.99), _reading(s, t)), bench)
+    with pytest.raises(CalibrationRefused, match="brightest band"):
+        check_white_level("w", Calibration(WhiteStandard(0.99), _reading(np.full(3, 0.5), t)), bench)
