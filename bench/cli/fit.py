@@ -17,7 +17,7 @@ from typing import Any
 
 from bench.cli.argtypes import count, real, seed
 from bench.cli.commands import command_help
-from bench.cli.common import DEFAULT_STORE, PLOT_SUFFIXES, emit_json, open_store, output_file
+from bench.cli.common import DEFAULT_STORE, PLOT_SUFFIXES, add_force_option, emit_json, open_store, output_file
 from bench.core.errors import InputError
 
 
@@ -167,4 +167,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="fit a stored run that did not complete (interrupted, failed, running) on the points it has "
                         "(default: refused)")
     p.add_argument("--json", action="store_true", help="one JSON object with stable keys")
+    add_force_option(p, "figure")
     p.set_defaults(func=cmd_fit)
