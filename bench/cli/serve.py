@@ -55,17 +55,17 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 #: what Tiled accepts as its single-user API key (ASCII letters and digits; it refuses anything else
-#: only once the server starts, with a page of traceback), and a length that is a secret
+#: only once the server starts, with a page of traceback), and a bound on its length
 API_KEY_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789")
-API_KEY_LENGTH = (8, 256)
+API_KEY_LENGTH = (1, 256)
 
 
 def api_key(text: str) -> str:
-    """``--api-key``: 8 to 256 ASCII letters and digits, checked before anything starts (an empty
+    """``--api-key``: 1 to 256 ASCII letters and digits, checked before anything starts (an empty
     key is refused, never replaced by a random one)."""
     lo, hi = API_KEY_LENGTH
     if not text:
-        raise argparse.ArgumentTypeError("an empty key would let no writer in; give 8 to 256 letters and digits, "
+        raise argparse.ArgumentTypeError("an empty key would let no writer in; give 1 to 256 letters and digits, "
                                          "or leave --api-key out for a random key (printed)")
     bad = sorted(set(text) - API_KEY_CHARS)
     if bad:
@@ -86,7 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--catalog", metavar="DIR", default=None,
                    help="keep the Tiled catalog (and runs written into it) in DIR (default: a temporary folder)")
     p.add_argument("--api-key", type=api_key, default=None, metavar="KEY",
-                   help="the API key writers pass, 8 to 256 ASCII letters and digits (default: a random one, printed)")
+                   help="the API key writers pass, 1 to 256 ASCII letters and digits (default: a random one, printed)")
     p.add_argument("--seconds", type=real(0.0, 1e7), help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--json", action="store_true", help="uri, api_key and the runs served as one JSON object")
     p.set_defaults(func=cmd_serve)
