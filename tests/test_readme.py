@@ -12,7 +12,8 @@ that takes more than ~10 CPU-seconds says ``# test: slow`` and runs in ``make te
 both), compared in full.
 
 Every ```python block is a script: it runs piped into ``python -`` in the same scratch folder
-(a non-interactive matplotlib backend) and must exit 0 printing every ``LiveTable`` field it names;
+(a non-interactive matplotlib backend) and must exit 0 printing every ``LiveTable`` field it names,
+and end by printing the lines its ``# prints:`` comment lists (numbers to 6 significant digits);
 a block opening with ``# with `bench serve ...` running`` needs a server: test_catalog.py runs its steps.
 
 Examples that need a store, a run id or long-running emulators (``scan``, ``runs``, ``resume``,
@@ -172,6 +173,19 @@ def python_blocks() -> list[tuple[int, str]]:
     return out
 
 
+def printed_lines(source: str) -> list[str]:
+    """The lines a python block says it prints: the comment lines after a ``# prints:`` line."""
+    lines = source.splitlines()
+    if "# prints:" not in lines:
+        return []
+    return [line[2:] for line in lines[lines.index("# prints:") + 1:] if line.startswith("# ")]
+
+
+def test_the_adaptive_fit_block_says_what_it_prints():
+    blocks = [src for _, src in python_blocks() if "adaptive_fit(" in src]
+    assert blocks and printed_lines(blocks[0]), "the README's adaptive_fit block names no printed line"
+
+
 @pytest.mark.slow  # ~7-12 CPU-s a block (bluesky, matplotlib, a scan); fast twin: test_bluesky.py live views
 @pytest.mark.parametrize("start,source", python_blocks(), ids=[f"L{n}" for n, _ in python_blocks()])
 def test_readme_python_block_runs_from_stdin(start, source, scratch):
@@ -179,6 +193,11 @@ def test_readme_python_block_runs_from_stdin(start, source, scratch):
                        text=True, cwd=scratch, timeout=600,
                        env={**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"})
     assert r.returncode == 0, f"README line {start}: the block failed:\n{r.stdout[-3000:]}"
+    expected = printed_lines(source)
+    if expected:  # the block's `# prints:` lines are its last printed lines, number by number
+        got = [line for line in r.stdout.splitlines() if line.strip()][-len(expected):]
+        assert len(got) == len(expected) and all(same(e, g) for e, g in zip(expected, got)), \
+            f"README line {start}: expected\n  " + "\n  ".join(expected) + "\nprinted\n  " + "\n  ".join(got)
     for fields in re.findall(r"LiveTable\(\[([^\]]*)\]", source):
         for field in re.findall(r"\"([^\"]+)\"", fields):
             header = [line for line in r.stdout.splitlines() if f" {field} " in line]
