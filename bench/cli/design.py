@@ -21,6 +21,8 @@ __all__ = ["add_design_options", "add_adaptive_options", "refuse_unused", "cmd_p
 #: integration times a design chooses from by default (s): the shipped in-plane plan's 0.02 s and
 #: shorter and longer ones (shorter buys more points, longer less noise per point)
 DEFAULT_INTEGRATIONS = "0.005,0.01,0.02,0.05"
+#: wall-clock limit of ``bench plan --design`` (s): the search then writes its best design so far
+DEFAULT_MAX_SECONDS = 120.0
 
 
 def _times(text: str) -> str:
@@ -57,6 +59,9 @@ def add_design_options(parser: argparse.ArgumentParser) -> None:
                    "\"plastic:alpha=?,kd=?\" (the ? parameters), instead of checking PLAN.toml (default: none, check PLAN.toml)")
     g.add_argument("--out", type=output_file((".toml",)), metavar="PLAN.toml", help="--design: the plan file to write (no default: required with --design)")
     g.add_argument("--compare", metavar="PLAN.toml", help="--design: also predict the interval widths of this plan (default: none)")
+    g.add_argument("--max-seconds", type=real(0.0, 1e6, lo_open=True), metavar="S",
+                   help="--design: wall-clock limit of the search, s: past it the best design so far is written and "
+                        f"the exit status is 1 (default {DEFAULT_MAX_SECONDS:g})")
     add_force_option(parser, "out")
     _add_common(g, "--design")
 
@@ -73,10 +78,10 @@ def add_adaptive_options(parser: argparse.ArgumentParser) -> None:
 
 def refuse_unused(args: argparse.Namespace, flag: str) -> None:
     """A design option given without ``flag`` (``--design`` / ``--adaptive``) would be ignored: refuse it."""
-    given = [name for name in ("seconds", "out", "compare", "prior", "like", "target")
+    given = [name for name in ("seconds", "out", "compare", "prior", "like", "target", "max_seconds")
              if getattr(args, name, None) is not None]
     if given:
-        raise InputError(f"--{given[0]} applies to {flag} MODEL only")
+        raise InputError(f"--{given[0].replace('_', '-')} applies to {flag} MODEL only")
 
 
 def _model(args: argparse.Namespace, text: str) -> tuple[Any, Any, list[Any]]:
@@ -134,7 +139,8 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     """Design, write and check a plan. JSON keys: ``plan`` (path), ``model``, ``prior``,
     ``criterion``, ``budget_s``, ``seconds``, ``motion_s``, ``points``, ``candidates``, ``widths``
     (predicted 95 % interval widths), ``compare`` (null, or the compared plan's ``plan``,
-    ``seconds``, ``points``, ``widths``)."""
+    ``seconds``, ``points``, ``widths``), ``stopped`` (null, or why ``--max-seconds`` cut the search
+    short: the best design so far is written and the exit status is 1)."""
     from bench.core.errors import PlanError
     from bench.identify.design import design_for_bench, information, interval_widths
     from bench.identify.design_io import widths_text, write_design
@@ -154,7 +160,8 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
         candidates = reachable(candidate_grid(args.step), check, settings[0])
         if not candidates:
             raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
-        design = design_for_bench(point, bench, candidates, args.seconds, settings, args.criterion)
+        design = design_for_bench(point, bench, candidates, args.seconds, settings, args.criterion,
+                                  max_seconds=args.max_seconds or DEFAULT_MAX_SECONDS)
         write_design(out, design, spec.text, bench.name, bench.kind, len(candidates), args.seconds)
         written = load_plan(out)
         refused = refusals(written, check)
@@ -172,10 +179,15 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     result = {"plan": str(out), "model": spec.text, "prior": dict(point.values), "criterion": design.criterion,
               "budget_s": args.seconds, "seconds": design.seconds, "motion_s": design.estimate["motion_s"],
               "points": len(design.points), "candidates": len(candidates), "integration_s": design.settings.integration_s,
-              "averages": design.settings.averages, "widths": design.widths, "compare": other}
+              "averages": design.settings.averages, "widths": design.widths, "compare": other,
+              "stopped": design.stopped}
+    if design.stopped:  # the best design so far is written: say why it may not be the best there is
+        import sys
+
+        print(f"bench plan: stopped: {design.stopped}; {out} holds the best design so far", file=sys.stderr)
     if args.json:
         emit_json(result)
-        return 0
+        return 1 if design.stopped else 0
     print(f"wrote {out}: {len(design.points)} points ({design.criterion}-optimal for {spec.text}) of "
           f"{len(candidates)} reachable on bench {bench.name}, {design.settings.integration_s:g} s x "
           f"{design.settings.averages} per point, estimated {design.seconds:.4g} s of {args.seconds:g} s")
@@ -183,4 +195,4 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     if other is not None:
         print(f"  plan {other['plan']}: {other['points']} points, {other['seconds']:.4g} s, widths "
               f"{widths_text(other['widths'])}")
-    return 0
+    return 1 if design.stopped else 0

@@ -4,8 +4,8 @@ model with intervals and a goodness of fit (:func:`bench.identify.fit_record`).
 RECORD is a file any registered loader reads (tidy CSV, Parquet, ASTM, Zemax, ``bench spectro
 --csv``, ``bench gonio --json``) or a run id in ``--store``. With ``--store`` the fit is kept as
 a run of kind ``fit`` whose metadata links the record (``bench runs`` / ``bench show`` list it).
-Exit 0 for a converged fit, 1 (with the best point reached) for one that did not converge, 2 for
-input the user can fix.
+Exit 0 for a converged fit, 1 (with the best point reached) for one that did not converge or was
+stopped by ``--max-seconds`` (default 60 s), 2 for input the user can fix.
 """
 
 from __future__ import annotations
@@ -19,6 +19,9 @@ from bench.cli.argtypes import count, real, seed
 from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, PLOT_SUFFIXES, add_force_option, emit_json, open_store, output_file
 from bench.core.errors import InputError
+
+#: wall-clock limit of ``bench fit`` (s): a fit that has not finished by then shows its best point
+DEFAULT_MAX_SECONDS = 60.0
 
 
 def _record(ref: str, store_path: str, partial: bool = False) -> tuple[Any, str | None, dict[str, int]]:
@@ -74,11 +77,21 @@ def dropped_readings(record: Any, lik: Any, masked: dict[str, int]) -> dict[str,
     return {"dropped": n, "of": int(values.size), "reasons": reasons}
 
 
+def _fit_json(result: Any) -> dict[str, Any]:
+    """``result.to_json()`` with the intervals a fit stopped by its time limit lacks as null."""
+    import math
+
+    doc = result.to_json()
+    for p in doc["parameters"].values():
+        p["ci"] = [c if c is not None and math.isfinite(c) else None for c in p["ci"]]
+    return doc
+
+
 def _store_fit(store_path: str, result: Any, ref: str, run_id: str | None, args: argparse.Namespace,
                dropped: dict[str, Any] | None = None) -> str:
     """Keep the fit as a run of kind ``fit`` linked to its record (with the readings it left out
     and whether it fitted part of a run); return its id."""
-    meta = {"fit": result.to_json(), "specimen": result.specimen, "record": run_id or str(Path(ref).resolve()),
+    meta = {"fit": _fit_json(result), "specimen": result.specimen, "record": run_id or str(Path(ref).resolve()),
             "record_run_id": run_id, "fit_seed": args.seed, "starts": args.starts, "dropped": dropped,
             "partial": bool(run_id is not None and args.partial)}
     with open_store(store_path) as store:
@@ -123,7 +136,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise InputError(f"{args.record}: {lik.n_data(None)} readings for {n_free} free parameter(s): no degrees of "
                          f"freedom left to judge the fit (dof <= 0); measure more, or fix parameters")
     result = fit_record(record, spec, confidence=args.confidence, interval=args.interval, starts=args.starts,
-                        seed=args.seed, likelihood=lik)
+                        seed=args.seed, likelihood=lik, max_seconds=args.max_seconds)
     if result.dof <= 0:
         raise InputError(f"{args.record}: {result.dof} degrees of freedom for {n_free} free parameter(s): the record "
                          f"cannot judge the fit (dof <= 0); measure more, or fix parameters")
@@ -135,7 +148,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         rid = _store_fit(args.store, result, args.record, run_id, args, dropped)
         print(f"bench fit: stored as run {rid} in {args.store}", file=sys.stderr)
     if args.json:
-        emit_json(result.to_json())
+        emit_json(_fit_json(result))
     else:
         _print(result)
     if not result.converged:
@@ -163,6 +176,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed, default=0, help="seed of the Sobol points (default %(default)s)")
     p.add_argument("--figure", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw the residuals per incidence/wavelength (default: none)")
+    p.add_argument("--max-seconds", type=real(0.0, 1e6, lo_open=True), default=DEFAULT_MAX_SECONDS, metavar="S",
+                   help="wall-clock limit of the fit, s: past it the best point so far is shown, without intervals, "
+                        "and the exit status is 1 (default %(default)g)")
     p.add_argument("--partial", action="store_true",
                    help="fit a stored run that did not complete (interrupted, failed, running) on the points it has "
                         "(default: refused)")

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from time import monotonic
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -189,12 +190,17 @@ class Design:
     fisher: np.ndarray
     model: ModelPoint
     settings: ReadingSettings
+    #: why the search stopped before it was done (its time limit), or None: it finished
+    stopped: str | None = None
 
 
 def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: ReadingModel, time: TimeModel,
                 seconds: float, criterion_name: str = "D", seed_points: Sequence[Geometry] = (),
-                sens: Sensitivities | None = None, shared_scale: bool = True) -> Design:
+                sens: Sensitivities | None = None, shared_scale: bool = True, deadline: float | None = None) -> Design:
     """Choose points among ``candidates`` that maximise the criterion within ``seconds`` of bench time.
+
+    Past ``deadline`` (``time.monotonic()``), once a point is chosen, the search stops with the
+    points chosen so far (within the budget) and says so in :attr:`Design.stopped`.
 
     ``seed_points`` are measured already (a sequential design's earlier steps): they count in the
     information, not in the time. ``sens``: the sensitivities of ``candidates + seed_points``
@@ -216,7 +222,11 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
 
     chosen: list[int] = []
     spent = 0.0
+    stopped = None
     while True:
+        if deadline is not None and len(chosen) >= p and monotonic() > deadline:
+            stopped = f"the time limit passed while choosing points ({len(chosen)} chosen)"
+            break
         free = np.array([k for k in range(n_cand) if k not in chosen], dtype=int)
         if free.size == 0:
             break
@@ -234,7 +244,9 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
         chosen.append(int(free[best]))
         spent += float(cost[best])
 
-    chosen = _exchange(info, pool, chosen, fixed, n_cand, time, seconds, criterion_name, ridge)
+    if stopped is None:
+        chosen, stopped = _exchange(info, pool, chosen, fixed, n_cand, time, seconds, criterion_name, ridge,
+                                    deadline=deadline)
     while chosen and time.seconds([pool[i] for i in chosen])["seconds"] > seconds:
         # the marginal costs were approximate: drop the point whose loss hurts least
         losses = [criterion(info.total(fixed + chosen[:j] + chosen[j + 1:]) + ridge, criterion_name)
@@ -250,21 +262,25 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
     points = [pool[i] for i in chosen]
     est = time.seconds(points)
     return Design(points, float(est["seconds"]), est, criterion_name, value,
-                  interval_widths(fisher, model.free), fisher, model, readings.settings)
+                  interval_widths(fisher, model.free), fisher, model, readings.settings, stopped)
 
 
 def _exchange(info: Information, pool: Sequence[Geometry], chosen: list[int], fixed: list[int], n_cand: int,
-              time: TimeModel, seconds: float, name: str, ridge: np.ndarray, rounds: int = 3) -> list[int]:
+              time: TimeModel, seconds: float, name: str, ridge: np.ndarray, rounds: int = 3,
+              deadline: float | None = None) -> tuple[list[int], str | None]:
     """Fedorov-style exchange: swap a chosen point for an unchosen one when the criterion rises and
-    the plan's estimated time stays within the budget."""
+    the plan's estimated time stays within the budget. Returns the points and why the exchange
+    stopped early (past ``deadline``), or None."""
     chosen = list(chosen)
     for _ in range(rounds):
         improved = False
         for j in range(len(chosen)):
+            if deadline is not None and monotonic() > deadline:
+                return chosen, "the time limit passed while exchanging points"
             rest = chosen[:j] + chosen[j + 1:]
             free = np.array([k for k in range(n_cand) if k not in chosen], dtype=int)
             if free.size == 0:
-                return chosen
+                return chosen, None
             now = criterion(info.total(fixed + chosen) + ridge, name)
             vals = criterion(info.with_each(fixed + rest, free) + ridge[None], name)
             for k in np.argsort(-vals)[:5]:  # the best few swaps, checked against the budget
@@ -277,15 +293,18 @@ def _exchange(info: Information, pool: Sequence[Geometry], chosen: list[int], fi
                     break
         if not improved:
             break
-    return chosen
+    return chosen, None
 
 
 def design_for_bench(model: ModelPoint, bench: Any, candidates: Sequence[Geometry], seconds: float,
                      settings: Sequence[ReadingSettings], criterion_name: str = "D",
-                     seed_points: Sequence[Geometry] = (), shared_scale: bool = True) -> Design:
+                     seed_points: Sequence[Geometry] = (), shared_scale: bool = True,
+                     max_seconds: float | None = None) -> Design:
     """The best design over several ways of reading the points (e.g. integration times): each
     has its own noise and time per point; the one with the largest criterion wins. Raises as
-    :func:`design_plan` when none fits the budget."""
+    :func:`design_plan` when none fits the budget. With ``max_seconds`` (wall clock) the search
+    stops once a design exists and the time has passed, with the best design so far and the
+    reason in :attr:`Design.stopped`."""
     from bench.identify.design_noise import bench_reading_model
     from bench.identify.time_model import bench_time_model
 
@@ -293,22 +312,32 @@ def design_for_bench(model: ModelPoint, bench: Any, candidates: Sequence[Geometr
     best: Design | None = None
     error: ConfigError | None = None
     sens = None
+    deadline = None if max_seconds is None else monotonic() + float(max_seconds)
+    cut: str | None = None  # why a design_plan stopped early
+    tried = 0
     for s in settings:
+        if best is not None and deadline is not None and monotonic() > deadline:
+            break
+        tried += 1
         readings = bench_reading_model(bench, s)
         sens = sens or sensitivities(model, pool, readings.wavelengths, readings.aperture_deg,
                                     readings.standard.geometry)
         try:
             d = design_plan(model, candidates, readings, bench_time_model(bench, s), seconds, criterion_name,
-                            seed_points, sens, shared_scale)
+                            seed_points, sens, shared_scale, deadline)
         except ConfigError as exc:
             error = error or exc
             continue
+        cut = cut or d.stopped
         if best is None or d.value > best.value:
             best = d
     if best is None:
         assert error is not None
         raise error
-    return best
+    if cut is None and tried == len(settings):
+        return replace(best, stopped=None)
+    return replace(best, stopped=f"the time limit of {max_seconds:g} s passed{': ' + cut if cut else ''}; the best "
+                                 f"design of {tried} of {len(settings)} integration times")
 
 
 def integration_choices(base: ReadingSettings, times: Sequence[float]) -> list[ReadingSettings]:
