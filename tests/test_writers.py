@@ -270,3 +270,19 @@ def test_gonio_csv_sidecar_is_checked_before_measuring(tmp_path, capsys):
                               "--csv", tmp_path / "g.csv")
     assert code == 2 and out == "" and "g.csv.json exists: pass --force" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["g.csv.json"]
+
+
+def test_a_sidecar_that_cannot_be_written_takes_its_new_csv_with_it(tmp_path, monkeypatch):
+    real_fsync = os.fsync
+
+    def fsync(fd):  # the disk fills up between the CSV and its sidecar
+        if ".json." in os.readlink(f"/proc/self/fd/{fd}"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real_fsync(fd)
+
+    if not Path("/proc/self/fd").is_dir():
+        pytest.skip("needs /proc/self/fd to tell the sidecar's file from the CSV's")
+    monkeypatch.setattr(os, "fsync", fsync)
+    with pytest.raises(WriteFailed, match="r.csv.json"):
+        record_to_csv(_record(), tmp_path / "r.csv")
+    assert _only_files(tmp_path) == []

@@ -149,10 +149,16 @@ def record_to_csv(record: BSDFRecord, path: str | Path, *, meta: str = "sidecar"
     units = column_units(record)
     header = ([CSV_MAGIC, f"# meta: {meta_json(record.meta)}", f"# units: {json.dumps(units)}"]
               if meta == "header" else [])
+    new = not Path(path).exists()
     out = write_csv(table, path, header_lines=header)
     if meta == "sidecar":
         side = {**record.meta, "column_units": units}
-        write_text(sidecar_path(out), json.dumps(side, default=json_default, indent=1) + "\n")
+        try:
+            write_text(sidecar_path(out), json.dumps(side, default=json_default, indent=1) + "\n")
+        except BaseException:  # a table without its metadata is half an export: a new one goes too
+            if new:
+                out.unlink(missing_ok=True)
+            raise
     return out
 
 
