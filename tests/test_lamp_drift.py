@@ -258,7 +258,7 @@ def test_white_reference_file_keeps_the_repeats_and_runs_must_match_it(tmp_path,
                       | {"white": "once"}):
             with pytest.raises(CalibrationRefused, match=f"holds {N} white reading"):
                 check_calibration_steps(b, plan_from_dict(other), ref)
-    assert main(["white", "--bench", str(bench), "--out", str(out), "--repeats", "2"]) == 2
+    assert main(["white", "--bench", str(bench), "--out", str(out), "--repeats", "2", "--force"]) == 2
     assert "--repeats" in capsys.readouterr().err
     from bench.cli.white import MAX_WHITE_REPEATS as cli_max
     from bench.core.schemas import MAX_WHITE_REPEATS
