@@ -286,3 +286,20 @@ def test_a_sidecar_that_cannot_be_written_takes_its_new_csv_with_it(tmp_path, mo
     with pytest.raises(WriteFailed, match="r.csv.json"):
         record_to_csv(_record(), tmp_path / "r.csv")
     assert _only_files(tmp_path) == []
+
+
+def test_a_file_that_appears_while_writing_is_not_replaced_without_force(tmp_path):
+    target = tmp_path / "r.csv"
+
+    def write(tmp):  # another process creates the target while this export is being written
+        Path(tmp).write_text("ours\n")
+        target.write_text("theirs\n")
+
+    with replacing(False):
+        with pytest.raises(InputError, match="exists: pass --force"):
+            atomic_write(target, write)
+    assert target.read_text() == "theirs\n" and _only_files(tmp_path) == ["r.csv"]
+    with replacing(False):
+        atomic_write(tmp_path / "new.csv", lambda tmp: Path(tmp).write_text("new\n"))
+    assert (tmp_path / "new.csv").read_text() == "new\n" and _only_files(tmp_path) == ["new.csv", "r.csv"]
+    assert oct((tmp_path / "new.csv").stat().st_mode & 0o777) != oct(0o600)  # a plain file's mode, not mkstemp's

@@ -116,7 +116,10 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], Any], *, 
         with open(tmp_path, "rb+") as f:
             os.fsync(f.fileno())
         check_target(p, force=force)  # a device or FIFO that appeared meanwhile is never replaced
-        os.replace(tmp_path, p)
+        if (replace_allowed() if force is None else force):
+            os.replace(tmp_path, p)
+        else:
+            _link_new(tmp_path, p)
     except BaseException as exc:
         try:
             tmp_path.unlink()
@@ -127,6 +130,21 @@ def atomic_write(path: str | os.PathLike[str], write: Callable[[Path], Any], *, 
             raise failed from None
         raise
     return p
+
+
+def _link_new(tmp: Path, p: Path) -> None:
+    """Move ``tmp`` to ``p`` only if ``p`` does not exist, atomically (a hard link fails on an
+    existing name, so a file another process wrote meanwhile is never replaced)."""
+    try:
+        os.link(tmp, p)
+    except FileExistsError:
+        raise InputError(f"output {p} exists: pass --force to replace it") from None
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EXDEV, errno.EMLINK):
+            raise
+        os.replace(tmp, p)  # a filesystem without hard links: the check above is what we have
+        return
+    tmp.unlink()
 
 
 def _umask() -> int:
