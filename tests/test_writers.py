@@ -303,3 +303,18 @@ def test_a_file_that_appears_while_writing_is_not_replaced_without_force(tmp_pat
         atomic_write(tmp_path / "new.csv", lambda tmp: Path(tmp).write_text("new\n"))
     assert (tmp_path / "new.csv").read_text() == "new\n" and _only_files(tmp_path) == ["new.csv", "r.csv"]
     assert oct((tmp_path / "new.csv").stat().st_mode & 0o777) != oct(0o600)  # a plain file's mode, not mkstemp's
+
+
+def test_white_out_refuses_nodes_and_existing_files_before_any_work(tmp_path, capsys):
+    fifo = tmp_path / "w.csv"
+    os.mkfifo(fifo)
+    missing = tmp_path / "none.sqlite"  # never opened: the output is refused first
+    code, out, err = run_main(capsys, "white", "--from-run", "20261206-0000-abcd", "--store", missing, "--out", fifo)
+    assert code == 2 and "is a FIFO, not a regular file" in err and len(err.strip().splitlines()) == 1
+    old = tmp_path / "old.csv"
+    old.write_text("# goniobench-white 1\n")
+    code, out, err = run_main(capsys, "white", "--from-run", "20261206-0000-abcd", "--store", missing, "--out", old)
+    assert code == 2 and "exists: pass --force" in err and old.read_text() == "# goniobench-white 1\n"
+    code, out, err = run_main(capsys, "white", "--from-run", "20261206-0000-abcd", "--store", missing, "--out", old,
+                              "--force")
+    assert code == 2 and "exists" not in err and not missing.exists()  # past the output check: the store is missing
