@@ -65,8 +65,8 @@ from bench.preflight import (calibration_record, check_calibration_steps, check_
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CalibrationChain", "decide_calibration", "acquire_dark", "resumed_calibration", "stored_white", "white_origin",
-           "detector_identity", "check_origin", "check_white_level", "expected_white_rate", "previous_white",
+__all__ = ["CalibrationChain", "decide_calibration", "acquire_dark", "resumed_calibration", "check_resume_body",
+           "stored_white", "white_origin", "detector_identity", "check_origin", "check_white_level", "expected_white_rate", "previous_white",
            "LEVEL_TOLERANCE", "SHAPE_TOLERANCE", "DECLARED_HEADROOM", "DECLARED_FLOOR", "Z_NOISE"]
 
 #: the band-median ratio of a new white to the last accepted one may differ from 1 by this much
@@ -247,17 +247,25 @@ def decide_calibration(bench: Bench, plan: Plan, use_reference_file: bool = True
     return CalibrationChain(bench, plan, source, ref)
 
 
+def check_resume_body(run_id: str, info: Mapping[str, Any], body: str) -> None:
+    """Refuse (one line) to resume run ``run_id`` (``info``: its store record) on ``body`` when its
+    white was measured on another body (its calibration's origin, else the body the run started
+    on); from the record alone, before anything is opened."""
+    if not info.get("calibration"):
+        return
+    origin = info["calibration"].get("origin")
+    held = origin.get("body") if isinstance(origin, Mapping) else (info.get("meta") or {}).get("bench_kind")
+    if held is not None and held != body:
+        raise CalibrationRefused(f"run {run_id} was calibrated on the {held} body; resuming it on the {body} body "
+                                 f"would divide that white into another body's readings: resume it with --body {held}")
+
+
 def resumed_calibration(bench: Bench, plan: Plan, run_id: str, info: Mapping[str, Any]) -> Calibration | None:
     """The calibration an interrupted run (``info``: its store record) keeps, checked before any
     motion: it was measured on the body that resumes it, and the plan's remaining steps (darks)
     can be taken."""
     cal = Calibration.from_dict(info["calibration"]) if info.get("calibration") else None
-    meta = info.get("meta") or {}
-    body = (cal.origin or {}).get("body") if cal is not None and cal.origin else meta.get("bench_kind")
-    if cal is not None and body is not None and body != bench.kind:
-        raise CalibrationRefused(f"run {run_id} was calibrated on the {body} body; resuming it on "
-                                 f"the {bench.kind} body would divide that white into another body's readings: "
-                                 f"resume it with --body {body}")
+    check_resume_body(run_id, info, bench.kind)
     if cal is not None and cal.origin is not None:
         check_origin(f"the white of run {run_id}", cal.origin, bench)
     check_calibration_steps(bench, plan if cal is None else replace(plan, white="none"), None)

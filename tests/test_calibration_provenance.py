@@ -302,3 +302,24 @@ def test_a_white_without_its_dark_is_bounded_below_only():
     check_white_level("w", Calibration(WhiteStandard(0.99), _reading(s, t)), bench)
     with pytest.raises(CalibrationRefused, match="brightest band"):
         check_white_level("w", Calibration(WhiteStandard(0.99), _reading(np.full(3, 0.5), t)), bench)
+
+
+def test_bench_resume_on_another_body_is_refused_before_opening(tmp_path, capsys, monkeypatch):
+    """A virtual run interrupted after its first point, resumed with `--body emulated`: refused in
+    one line from the run's record, before any emulator starts."""
+    from bench.core.errors import RunInterrupted
+
+    def interrupt(k, idx):
+        raise KeyboardInterrupt
+
+    with _virtual_bench() as b, RunStore(tmp_path / "r.sqlite") as store:
+        with pytest.raises(RunInterrupted):
+            run_scan(b, plan_from_dict(PLAN), store, on_point=interrupt)
+        run = store.runs()[0]["run_id"]
+    import bench.config
+
+    monkeypatch.setattr(bench.config, "load_bench", lambda *a, **k: pytest.fail("a body was built"))
+    capsys.readouterr()
+    assert main(["resume", run, "--store", str(tmp_path / "r.sqlite"), "--body", "emulated"]) == 2
+    err = capsys.readouterr().err
+    assert f"run {run} was calibrated on the virtual body" in err and len(err.strip().splitlines()) == 1

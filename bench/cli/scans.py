@@ -134,6 +134,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
     from bench.plans import plan_from_dict
     from bench.runner import resume_scan
 
+    from bench.calibration_chain import check_resume_body
     with open_store(args.store, create=False, readonly=True) as store:
         stored = store.run(args.run)
     kind = stored["kind"]
@@ -158,6 +159,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
         with bench:
             result = resume_scan(bench, store, args.run, progress=not args.quiet and sys.stderr.isatty())
     return report_run(result, args.json)
+            check_resume_body(args.run, info, body)  # its white on another body: refused before opening
 
 
 def run_identity(info: dict[str, Any]) -> dict[str, str | None]:
