@@ -129,12 +129,12 @@ def cmd_scan(args: argparse.Namespace) -> int:
 
 
 def cmd_resume(args: argparse.Namespace) -> int:
+    from bench.calibration_chain import check_resume_body
     from bench.config import load_bench, load_description
     from bench.plan_check import refuse_before_opening
     from bench.plans import plan_from_dict
     from bench.runner import resume_scan
 
-    from bench.calibration_chain import check_resume_body
     with open_store(args.store, create=False, readonly=True) as store:
         stored = store.run(args.run)
     kind = stored["kind"]
@@ -154,12 +154,12 @@ def cmd_resume(args: argparse.Namespace) -> int:
         d, body = load_description(config, body)
         plan = plan_from_dict(info["plan"], name=info["plan"].get("name", "plan"))
         if info["status"] != "completed":  # (a completed run is refused by resume_scan, naming it)
+            check_resume_body(args.run, info, body)  # its white on another body: refused before opening
             refuse_before_opening(plan, d, body, calibrated=bool(info.get("calibration")))
         bench = load_bench(d, seed=info.get("seed"), body=body)
         with bench:
             result = resume_scan(bench, store, args.run, progress=not args.quiet and sys.stderr.isatty())
     return report_run(result, args.json)
-            check_resume_body(args.run, info, body)  # its white on another body: refused before opening
 
 
 def run_identity(info: dict[str, Any]) -> dict[str, str | None]:
