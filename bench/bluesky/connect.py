@@ -151,7 +151,7 @@ def connect(config: str | Path | Mapping[str, Any], run_engine: Any = None, *, s
         start = worker.call(bench.goniometer.position)
         gonio = GoniometerDevice(bench.goniometer, worker, start, name="goniometer")
         settings = ReadingSettings.for_bench(bench)  # one detector: one integration time for both
-        spectrometer = SpectrometerDevice(bench, worker, name="spectrometer", settings=settings)
+        spectrometer = SpectrometerDevice(bench, worker, name="spectrometer", settings=settings, mover=gonio.mover)
         reflectance = ReflectanceDevice(bench, worker, gonio.mover, name="reflectance", settings=settings)
         light = LightDevice(bench, worker, name="light") if bench.light is not None else None
         actual_seed = getattr(bench.goniometer, "seed", seed)

@@ -6,7 +6,9 @@
                         ``["wavelength_nm"]``, the axis itself in the configuration), its
                         standard deviation, the saturation mask and the dark flag; hinted
                         scalars ``mean_counts`` and ``peak_counts`` (and ``n_saturated``) so
-                        BestEffortCallback / LiveTable show something per point.
+                        BestEffortCallback / LiveTable show something per point; and the
+                        geometry it read at (``theta_i`` ... ``phi_r``, the goniometer axes'
+                        convention), so every stored reading has one.
 ``ReflectanceDevice``   Triggerable, Readable, Configurable, Stageable: BRDF (sr^-1) and
                         reflectance factor per wavelength with standard uncertainty. ``stage()``
                         measures the white (and dark) reference exactly as ``bench scan`` does
@@ -39,7 +41,7 @@ from ophyd_async.core import (
 )
 from ophyd_async.core import StandardReadableFormat as Format
 
-from bench.bluesky.goniometer import Mover
+from bench.bluesky.goniometer import AXES, Mover
 from bench.bluesky.worker import BenchWorker
 from bench.config import Bench
 from bench.core.calibration import Calibration
@@ -85,6 +87,21 @@ def band_mean(values: np.ndarray, std: np.ndarray, masked: np.ndarray) -> tuple[
     if not ok.any():
         return math.nan, math.nan
     return float(np.mean(values[ok])), float(np.mean(np.asarray(std)[ok]))
+
+
+def _geometry_signals(device: Any, setters: dict[str, Any]) -> None:
+    """Give ``device`` read-only ``theta_i`` ... ``phi_r`` signals (deg), their setters in ``setters``."""
+    for axis in AXES:
+        sig, setter = soft_signal_r_and_setter(float, 0.0, units="deg")
+        setattr(device, axis, sig)
+        setters[axis] = setter
+
+
+def _publish_geometry(mover: Mover, setters: dict[str, Any]) -> None:
+    """The geometry the goniometer reached, in its axes' sign convention (``theta_r`` signed in
+    the plane of the requested ``phi_r``), so an event holding the axes and a detector agrees."""
+    for axis, value in mover.axes_of(mover.reached).items():
+        setters[axis](float(value))
 
 
 def _check_reading_settings(integration_s: float, averages: int) -> None:
@@ -138,9 +155,10 @@ class SpectrometerDevice(_SpectralReadable):
     """The bench's spectrometer (raw counts per wavelength)."""
 
     def __init__(self, bench: Bench, worker: BenchWorker, name: str = "",
-                 settings: ReadingSettings | None = None) -> None:
-        self._bench, self._worker = bench, worker
+                 settings: ReadingSettings | None = None, mover: Mover | None = None) -> None:
+        self._bench, self._worker, self._mover = bench, worker, mover
         self.settings = settings if settings is not None else ReadingSettings.for_bench(bench)
+        self._geometry_setters: dict[str, Any] = {}
         wl = np.asarray(bench.spectrometer.wavelengths, dtype=float)
         self._n = wl.size
         with self.add_children_as_readables(Format.UNCACHED_SIGNAL):
@@ -149,6 +167,8 @@ class SpectrometerDevice(_SpectralReadable):
             self.saturated, self._set_saturated = _array(self._n, None, np.bool_)
             self.dark, self._set_dark = soft_signal_r_and_setter(bool, False)
             self.n_saturated, self._set_n_saturated = soft_signal_r_and_setter(int, 0)
+            if mover is not None:  # where it read: a record needs the geometry of every reading
+                _geometry_signals(self, self._geometry_setters)
         with self.add_children_as_readables(Format.HINTED_UNCACHED_SIGNAL):
             self.mean_counts, self._set_mean = soft_signal_r_and_setter(float, 0.0, units="counts")
             self.peak_counts, self._set_peak = soft_signal_r_and_setter(float, 0.0, units="counts")
@@ -171,6 +191,8 @@ class SpectrometerDevice(_SpectralReadable):
         self._set_mean(float(signal.mean()) if signal.size else math.nan)
         self._set_peak(float(signal.max()) if signal.size else math.nan)
         self._set_n_saturated(int(saturated.sum()))
+        if self._mover is not None:
+            _publish_geometry(self._mover, self._geometry_setters)
 
 
 class ReflectanceDevice(_SpectralReadable):
@@ -211,11 +233,8 @@ class ReflectanceDevice(_SpectralReadable):
             self.dark_std, self._set_dark_std = _array(self._n, "counts")
             self.has_dark, self._set_has_dark = soft_signal_r_and_setter(bool, False)
             self.saturated, self._set_saturated = _array(self._n, None, np.bool_)
-            self._geometry_setters = {}
-            for axis in ("theta_i", "phi_i", "theta_r", "phi_r"):
-                sig, setter = soft_signal_r_and_setter(float, 0.0, units="deg")
-                setattr(self, axis, sig)
-                self._geometry_setters[axis] = setter
+            self._geometry_setters: dict[str, Any] = {}
+            _geometry_signals(self, self._geometry_setters)
         with self.add_children_as_readables(Format.HINTED_UNCACHED_SIGNAL):
             self.rf_mean, self._set_rf_mean = soft_signal_r_and_setter(float, math.nan, precision=4)
             self.rf_mean_std, self._set_rf_mean_std = soft_signal_r_and_setter(float, math.nan, precision=4)
@@ -328,8 +347,7 @@ class ReflectanceDevice(_SpectralReadable):
         self._set_dark(np.zeros(self._n) if d is None else np.asarray(d.signal, dtype=float))
         self._set_dark_std(nan if d is None or d.std is None else np.asarray(d.std, dtype=float))
         self._set_saturated(np.asarray(reading.saturated, dtype=bool))
-        for axis, value in self._mover.axes_of(g).items():  # the goniometer's sign convention
-            self._geometry_setters[axis](float(value))
+        _publish_geometry(self._mover, self._geometry_setters)
 
 
 def _on_off(value: Any) -> bool:
