@@ -1,7 +1,8 @@
 """Cells of the calibration seam (body x calibration source): a white belongs to the body that
 measured it (:mod:`bench.calibration_chain`).
 
-* a white measured in the run, and a stored file of the same body: the run holds the invariant;
+* a white measured in the run, a stored file of the same body, and the white of a completed run
+  (``bench white --from-run``): the run holds the invariant;
 * a stored file measured on another body (``foreign-file``: the emulated body's white handed to
   the virtual twin or to the real description over the emulators): refused in one line, exit 2,
   before any motion, nothing stored -- it read 40-280x low and said ``completed``;
@@ -23,6 +24,7 @@ FAST = [
     Cell("lambert", "virtual", "file", "once", "scan"),
 ]
 SLOW = [
+    Cell("lambert", "virtual", "run", "once", "scan"),  # `bench white --from-run`: the run's white keeps its origin
     Cell("plastic", "emulated", "file", "once", "scan"),
     Cell("lambert", "real", "file", "once", "scan"),
 ]
