@@ -93,8 +93,10 @@ def require_bsdf(record: Any, fmt: str) -> Any:
         geometries = [meta["geometry"]]
     where = f"{', '.join(geometries)} geometry: " if geometries else ""
     if other:
-        raise InputError(f"this record holds a {' and '.join(dict.fromkeys(other))} ({where}unitless, no viewing "
-                         f"direction), not a BSDF: {fmt} holds BSDF values in 1/sr; export it as csv or parquet")
+        spectro = all(q.strip().lower() in ("reflectance", "reflectance factor", "transmittance") for q in other)
+        what = f" ({where}unitless, no viewing direction)" if spectro else (f" ({where.rstrip(': ')})" if where else "")
+        raise InputError(f"this record holds a {' and '.join(dict.fromkeys(other))}{what}, not a BSDF: {fmt} "
+                         f"holds BSDF values in 1/sr; export it as csv or parquet")
     if not {"theta_r", "phi_r"} <= set(t.columns) or not np.isfinite(t[["theta_r", "phi_r"]].to_numpy(float)).any():
         raise InputError(f"this record has no viewing direction (theta_r, phi_r): {fmt} holds a BSDF per viewing "
                          f"direction; export it as csv or parquet")
