@@ -10,7 +10,8 @@ A lock is an advisory ``flock`` on a file named after the device's identity
 (:func:`drivers.transport.identity.device_identity`: the tty's resolved path, the endpoint's
 ``host:port``) in :func:`lock_dir`. The kernel releases it when its process ends, however it
 ends (SIGKILL included), so a lock never outlives its owner. The file keeps the owner's record
-(host, pid, start time, command, run id) for the refusal message; a clean release empties it. A
+(host, pid, start time, command, run id) for the refusal message; a clean release removes it
+(while still holding the lock; a taker checks that the file it locked is still the one named). A
 record left by a process that no longer runs (killed) is taken over with a warning naming it.
 
 Read-only commands (``plan``, ``show``, ``runs``, ``export``) build no bench and take no lock.
@@ -124,7 +125,31 @@ class _DeviceLock:
 
     def __init__(self, identity: str, roles: list[str]) -> None:
         self.identity, self.roles = identity, roles
-        path = _lock_path(identity)
+        self.path = path = _lock_path(identity)
+        for _ in range(20):  # a file unlinked by its owner's release between our open and flock: again
+            fd = self._open_locked(path)
+            try:
+                if os.stat(path).st_ino == os.fstat(fd).st_ino:
+                    break
+            except FileNotFoundError:
+                pass
+            os.close(fd)
+        else:  # pragma: no cover - twenty releases in a row between an open and a flock
+            raise DeviceBusy(f"{self.label}: its lock file {path} keeps changing hands; try again")
+        self.fd = fd
+        self.since = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+        previous = _read_record(fd)
+        if previous and previous.get("pid") is not None:
+            try:
+                state = process_state(str(previous.get("host")), int(previous["pid"]), previous.get("started"))
+            except (TypeError, ValueError):
+                state = "gone"
+            log.warning("%s: taking over the lock left by %s, which %s", self.label, _owner_text(previous),
+                        "no longer runs" if state == "gone" else "no longer holds it")
+        self.write()
+
+    def _open_locked(self, path: Path) -> int:
+        """``path`` opened (created) and flocked, or :class:`DeviceBusy` naming its owner."""
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
         except OSError as exc:
@@ -140,17 +165,7 @@ class _DeviceLock:
                 raise DeviceBusy(f"{self.label} is in use by {_owner_text(owner)}: refused before any motion; "
                                  f"wait for it to finish or stop it") from None
             raise InputError(f"cannot lock {path} for {self.label}: {exc.strerror}") from exc
-        self.fd = fd
-        self.since = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
-        previous = _read_record(fd)
-        if previous and previous.get("pid") is not None:
-            try:
-                state = process_state(str(previous.get("host")), int(previous["pid"]), previous.get("started"))
-            except (TypeError, ValueError):
-                state = "gone"
-            log.warning("%s: taking over the lock left by %s, which %s", self.label, _owner_text(previous),
-                        "no longer runs" if state == "gone" else "no longer holds it")
-        self.write()
+        return fd
 
     @property
     def label(self) -> str:
@@ -173,7 +188,7 @@ class _DeviceLock:
         if self.fd < 0:
             return
         try:
-            os.ftruncate(self.fd, 0)  # a clean release leaves nothing to take over
+            os.unlink(self.path)  # while still locked: a clean release leaves nothing to take over
         except OSError:
             pass
         os.close(self.fd)  # closing the descriptor drops the flock
