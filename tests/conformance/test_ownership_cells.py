@@ -7,8 +7,8 @@ process on the same devices (``bench scan``, ``bench home``) x the owner ending 
 
 Invariant: the second process is refused in one line naming the owner (pid, run) and exits 2
 before any motion (it creates no run); the first run completes with every planned point stored
-once, no reading lost or duplicated; read-only commands (``show``, ``runs``, ``export``) work
-beside the owner; after a SIGKILL the next process takes the devices over with a note naming the
+once, no reading lost or duplicated; read-only commands (``plan``, ``show``, ``runs``, ``export``)
+work beside the owner; after a SIGKILL the next process takes the devices over with a note naming the
 dead owner, and ``bench resume`` completes the run with every point exactly once.
 """
 
@@ -125,11 +125,11 @@ def test_a_second_owner_is_refused_and_the_first_run_loses_nothing(shared_bench,
         run_id = _owner_run(d, first)
         # all at once, while the first scan runs: a second scan, a homing, and read-only commands
         # (which never open or lock hardware, so they work beside the owner)
-        second, home, show, runs = _together(
+        second, home, show, runs, plan = _together(
             env, ("scan", d / "plan.toml", "--bench", d / "bench.toml", "--store", tmp_path / "other.db", "--json",
                   "--quiet"),
             ("home", "--bench", d / "bench.toml"), ("show", run_id, "--store", store, "--json"),
-            ("runs", "--store", store))
+            ("runs", "--store", store), ("plan", d / "plan.toml", "--bench", d / "bench.toml", "--json"))
         alive_meanwhile = first.poll() is None
         out, err = first.communicate(timeout=GIVE_UP_S)
     finally:
@@ -141,6 +141,7 @@ def test_a_second_owner_is_refused_and_the_first_run_loses_nothing(shared_bench,
     assert second.stdout == "" and not (tmp_path / "other.db").exists()
     _refused(home, first.pid, run_id)
     assert show.returncode == 0 and runs.returncode == 0, (show.stderr, runs.stderr)
+    assert plan.returncode == 0 and json.loads(plan.stdout)["refused"] == [], plan.stderr  # planned from the description
     assert first.returncode == 0, err
     result = json.loads(out)
     assert (result["status"], result["points_done"], result["points_planned"]) == ("completed", N_POINTS, N_POINTS)
