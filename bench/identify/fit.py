@@ -24,13 +24,13 @@ from __future__ import annotations
 
 import logging
 import math
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import numpy as np
 
 from bench.core.errors import InputError
+from bench.identify.gof import DRAWS, calibrated_p_value
 from bench.identify.likelihood import Group, Likelihood, likelihood_for
 from bench.identify.model_spec import ModelSpec, parse_model_spec
 
@@ -86,6 +86,8 @@ class FitResult:
     residuals: np.ndarray = field(repr=False)
     groups: tuple[Group, ...] = field(repr=False, default=())
     xlabel: str = ""
+    #: how ``p_value`` was found: the chi-square law, or the bootstrap of estimated Type A variances
+    p_value_method: str = "chi-square"
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -108,7 +110,7 @@ class FitResult:
                            for n, p in self.parameters.items()},
             "correlation": {a: {b: _finite(self.correlation[i, j]) for j, b in enumerate(names)}
                             for i, a in enumerate(names)},
-            "chi2": self.chi2, "dof": self.dof, "p_value": _finite(self.p_value),
+            "chi2": self.chi2, "dof": self.dof, "p_value": _finite(self.p_value), "p_value_method": self.p_value_method,
             "converged": self.converged, "method": self.method,
         }
 
@@ -117,32 +119,17 @@ def _finite(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
-class _OutOfTime(Exception):
-    """The fit's time limit passed; carries the objective (its best point so far)."""
-
-    def __init__(self, objective: "_Objective") -> None:
-        super().__init__("time limit")
-        self.objective = objective
-
-
 class _Objective:
     """Residuals of the model at free-parameter values, cached (profiles revisit points)."""
 
-    def __init__(self, spec: ModelSpec, lik: Likelihood, deadline: float | None = None) -> None:
+    def __init__(self, spec: ModelSpec, lik: Likelihood) -> None:
         self.spec, self.lik = spec, lik
         self.cache: dict[tuple[float, ...], np.ndarray] = {}
-        self.deadline = deadline  # time.monotonic() past which no new point is evaluated
-        self.best: tuple[float, tuple[float, ...]] | None = None  # (deviance, x) lowest so far
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         key = tuple(float(v) for v in x)
         if key not in self.cache:
-            if self.deadline is not None and self.best is not None and time.monotonic() > self.deadline:
-                raise _OutOfTime(self)
-            r = self.cache[key] = np.asarray(self.lik.residuals(self.spec.specimen(key)), float)
-            dev = float(r @ r)
-            if math.isfinite(dev) and (self.best is None or dev < self.best[0]):
-                self.best = (dev, key)
+            self.cache[key] = np.asarray(self.lik.residuals(self.spec.specimen(key)), float)
         return self.cache[key]
 
     def deviance(self, x: np.ndarray) -> float:
@@ -222,8 +209,7 @@ def _profile_limit(obj: _Objective, xhat: np.ndarray, dev_min: float, cov: np.nd
 
 
 def fit_record(record: Any, spec: str | ModelSpec, *, confidence: float = 0.95, interval: str = "profile",
-               starts: int | None = None, seed: int = 0, likelihood: Likelihood | None = None,
-               max_seconds: float | None = None) -> FitResult:
+               starts: int | None = None, seed: int = 0, likelihood: Likelihood | None = None) -> FitResult:
     """Fit the free parameters of ``spec`` to ``record`` by maximum likelihood.
 
     Parameters
@@ -243,10 +229,6 @@ def fit_record(record: Any, spec: str | ModelSpec, *, confidence: float = 0.95, 
         Scrambling seed of the Sobol set (the fit is deterministic given it).
     likelihood : Likelihood, optional
         Use this instead of the record's own (e.g. a caller's covariance).
-    max_seconds : float, optional
-        Wall-clock limit of the search and the intervals: past it no new point is evaluated and
-        the result is the best point so far, ``converged`` False, no intervals (NaN), and
-        ``message`` saying so (default: none).
 
     Returns
     -------
@@ -267,29 +249,48 @@ def fit_record(record: Any, spec: str | ModelSpec, *, confidence: float = 0.95, 
     starts = 4 * n if starts is None else int(starts)
     if starts < 0:
         raise InputError(f"starts must be >= 0, got {starts}")
-    if max_seconds is not None and not (isinstance(max_seconds, (int, float)) and max_seconds > 0):
-        raise InputError(f"max_seconds must be > 0, got {max_seconds!r}")
     lik = likelihood if likelihood is not None else likelihood_for(record)
     lik.defer_certification = True
-    deadline = None if max_seconds is None else time.monotonic() + float(max_seconds)
-    try:
-        result = _fit(spec, lik, confidence, interval, starts, seed, deadline)
-        if not lik.certify(spec.specimen(result.values)):
-            log.info("fit: the fast path does not certify at the optimum; fitting again certifying every evaluation")
-            lik.defer_certification = False
-            result = _fit(spec, lik, confidence, interval, starts, seed, deadline)
-    except _OutOfTime as out:
-        return _stopped(out.objective, float(max_seconds or 0.0), confidence, interval)
-    return result
+    result = _fit(spec, lik, confidence, interval, starts, seed)
+    if not lik.certify(spec.specimen(result.values)):
+        log.info("fit: the fast path does not certify at the optimum; fitting again certifying every evaluation")
+        lik.defer_certification = False
+        result = _fit(spec, lik, confidence, interval, starts, seed)
+    return _calibrated(result, spec, lik)
 
 
-def _fit(spec: ModelSpec, lik: Likelihood, confidence: float, interval: str, starts: int, seed: int,
-         deadline: float | None = None) -> FitResult:
-    """Steps 1-4 of the module docstring with one likelihood (:class:`_OutOfTime` past ``deadline``)."""
+def _model_jacobian(spec: ModelSpec, lik: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(predictions, their central-difference derivative) at ``x`` of a Gaussian likelihood."""
+    mu = lik.predictions(spec.specimen(x))
+    jac = np.empty((len(mu), len(x)))
+    for i in range(len(x)):
+        h = DIFF_STEP * (spec.upper[i] - spec.lower[i])
+        a, b = x.copy(), x.copy()
+        a[i], b[i] = max(x[i] - h, spec.lower[i]), min(x[i] + h, spec.upper[i])
+        jac[:, i] = (lik.predictions(spec.specimen(b)) - lik.predictions(spec.specimen(a))) / (b[i] - a[i])
+    return mu, jac
+
+
+def _calibrated(result: FitResult, spec: ModelSpec, lik: Likelihood) -> FitResult:
+    """``result`` with its p-value calibrated for estimated Type A variances (:mod:`bench.identify.gof`)
+    when the readings carry them."""
+    noise = getattr(lik, "noise", None)
+    if noise is None or result.dof <= 0 or not math.isfinite(result.chi2):
+        return result
+    mu, jac = _model_jacobian(spec, lik, result.values)
+    p = calibrated_p_value(result.chi2, jac, mu[:, None] * lik.scales.loadings, noise)
+    if p is None:
+        return result
+    return replace(result, p_value=p, p_value_method=f"parametric bootstrap of estimated Type A variances "
+                                                      f"({DRAWS} draws, fixed seed)")
+
+
+def _fit(spec: ModelSpec, lik: Likelihood, confidence: float, interval: str, starts: int, seed: int) -> FitResult:
+    """Steps 1-4 of the module docstring with one likelihood."""
     from scipy.stats import chi2 as chi2_dist
 
     n = len(spec.free)
-    obj = _Objective(spec, lik, deadline)
+    obj = _Objective(spec, lik)
     lo, hi = spec.lower, spec.upper
     candidates = _starts(spec, starts, seed)
     # multi-start: local fits from the declared defaults and the best screened starts (a narrow
@@ -329,26 +330,3 @@ def _fit(spec: ModelSpec, lik: Likelihood, confidence: float, interval: str, sta
                      chi2=dev_min, dof=dof, p_value=p_value, converged=bool(res.status > 0 and np.isfinite(dev_min)),
                      message=str(res.message), likelihood=lik.kind, interval=interval, confidence=float(confidence),
                      n_evaluations=len(obj.cache), residuals=r, groups=lik.groups, xlabel=lik.xlabel)
-
-
-def _stopped(obj: _Objective, max_seconds: float, confidence: float, interval: str) -> FitResult:
-    """The best point a fit stopped by its time limit reached: not converged, no intervals."""
-    from scipy.stats import chi2 as chi2_dist
-
-    spec, lik = obj.spec, obj.lik
-    assert obj.best is not None  # the limit is checked only once a point was evaluated
-    dev, key = obj.best
-    x = np.array(key, float)
-    n = len(spec.free)
-    nan = np.full((n, n), np.nan)
-    dof = int(lik.n_data(spec.specimen(x))) - n
-    params = {p.name: ParameterEstimate(p.name, float(x[i]), (math.nan, math.nan), p.unit, math.nan)
-              for i, p in enumerate(spec.free)}
-    log.info("fit: stopped at the time limit of %g s after %d evaluations", max_seconds, len(obj.cache))
-    return FitResult(model=spec.text, family=spec.family.name, specimen=spec.specimen_string(x), parameters=params,
-                     fixed=dict(spec.fixed), covariance=nan, fisher=nan.copy(), correlation=nan.copy(), chi2=dev,
-                     dof=dof, p_value=float(chi2_dist.sf(dev, dof)) if dof > 0 else math.nan, converged=False,
-                     message=f"stopped at the time limit ({max_seconds:g} s) with the best point of "
-                             f"{len(obj.cache)} evaluations; no intervals", likelihood=lik.kind, interval=interval,
-                     confidence=float(confidence), n_evaluations=len(obj.cache), residuals=obj(x), groups=lik.groups,
-                     xlabel=lik.xlabel)

@@ -44,6 +44,7 @@ from bench.core.errors import InputError
 from bench.core.geometry import Geometry, cie_geometry
 from bench.core.records import BSDFRecord
 from bench.core.roles import Spectrum
+from bench.identify.gof import ReadingNoise, reading_noise, type_a_dof
 from bench.identify.prediction import (PATCH_BOUNDS, cone_nodes, directional_rt, ideal_rf, patch_nodes,
                                        record_aperture, virtual_body_patches, white_geometry)
 from bench.identify.scales import SharedScales, split_scales
@@ -422,10 +423,14 @@ class GaussianReadings(Likelihood):
         self.values, cov = readings_and_covariance(record)
         #: shared scales (white certificate, white reading, lamp drift) fitted, not in the covariance
         self.scales = SharedScales((), np.zeros((len(self.values), 0)))
+        #: the covariance's parts and Type A dof, for the p-value (:mod:`bench.identify.gof`)
+        self.noise: ReadingNoise | None = None
         if isinstance(record, BSDFRecord) and "uncertainty_budget" in record.table.columns:
             t = _measured(record)
             std = t["std"].to_numpy(float) if "std" in t.columns else np.full(len(t), np.nan)
             cov, self.scales = split_scales(list(t["uncertainty_budget"]), std)
+            self.noise = reading_noise(list(t["uncertainty_budget"]), std,
+                                       type_a_dof(meta, t["wavelength_nm"].to_numpy(float)))
         self.chol = cholesky(cov, lower=True)
         self.xlabel = "reading" if isinstance(record, BSDFRecord) else "wavelength (nm)"
         groups: list[Group] = []
