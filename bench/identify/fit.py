@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
@@ -119,17 +120,32 @@ def _finite(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
+class _OutOfTime(Exception):
+    """The fit's time limit passed; carries the objective (its best point so far)."""
+
+    def __init__(self, objective: "_Objective") -> None:
+        super().__init__("time limit")
+        self.objective = objective
+
+
 class _Objective:
     """Residuals of the model at free-parameter values, cached (profiles revisit points)."""
 
-    def __init__(self, spec: ModelSpec, lik: Likelihood) -> None:
+    def __init__(self, spec: ModelSpec, lik: Likelihood, deadline: float | None = None) -> None:
         self.spec, self.lik = spec, lik
         self.cache: dict[tuple[float, ...], np.ndarray] = {}
+        self.deadline = deadline  # time.monotonic() past which no new point is evaluated
+        self.best: tuple[float, tuple[float, ...]] | None = None  # (deviance, x) lowest so far
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         key = tuple(float(v) for v in x)
         if key not in self.cache:
-            self.cache[key] = np.asarray(self.lik.residuals(self.spec.specimen(key)), float)
+            if self.deadline is not None and self.best is not None and time.monotonic() > self.deadline:
+                raise _OutOfTime(self)
+            r = self.cache[key] = np.asarray(self.lik.residuals(self.spec.specimen(key)), float)
+            dev = float(r @ r)
+            if math.isfinite(dev) and (self.best is None or dev < self.best[0]):
+                self.best = (dev, key)
         return self.cache[key]
 
     def deviance(self, x: np.ndarray) -> float:
@@ -209,7 +225,8 @@ def _profile_limit(obj: _Objective, xhat: np.ndarray, dev_min: float, cov: np.nd
 
 
 def fit_record(record: Any, spec: str | ModelSpec, *, confidence: float = 0.95, interval: str = "profile",
-               starts: int | None = None, seed: int = 0, likelihood: Likelihood | None = None) -> FitResult:
+               starts: int | None = None, seed: int = 0, likelihood: Likelihood | None = None,
+               max_seconds: float | None = None) -> FitResult:
     """Fit the free parameters of ``spec`` to ``record`` by maximum likelihood.
 
     Parameters
@@ -229,6 +246,10 @@ def fit_record(record: Any, spec: str | ModelSpec, *, confidence: float = 0.95, 
         Scrambling seed of the Sobol set (the fit is deterministic given it).
     likelihood : Likelihood, optional
         Use this instead of the record's own (e.g. a caller's covariance).
+    max_seconds : float, optional
+        Wall-clock limit of the search and the intervals: past it no new point is evaluated and
+        the result is the best point so far, ``converged`` False, no intervals (NaN), and
+        ``message`` saying so (default: none).
 
     Returns
     -------
@@ -249,13 +270,19 @@ def fit_record(record: Any, spec: str | ModelSpec, *, confidence: float = 0.95, 
     starts = 4 * n if starts is None else int(starts)
     if starts < 0:
         raise InputError(f"starts must be >= 0, got {starts}")
+    if max_seconds is not None and not (isinstance(max_seconds, (int, float)) and max_seconds > 0):
+        raise InputError(f"max_seconds must be > 0, got {max_seconds!r}")
     lik = likelihood if likelihood is not None else likelihood_for(record)
     lik.defer_certification = True
-    result = _fit(spec, lik, confidence, interval, starts, seed)
-    if not lik.certify(spec.specimen(result.values)):
-        log.info("fit: the fast path does not certify at the optimum; fitting again certifying every evaluation")
-        lik.defer_certification = False
-        result = _fit(spec, lik, confidence, interval, starts, seed)
+    deadline = None if max_seconds is None else time.monotonic() + float(max_seconds)
+    try:
+        result = _fit(spec, lik, confidence, interval, starts, seed, deadline)
+        if not lik.certify(spec.specimen(result.values)):
+            log.info("fit: the fast path does not certify at the optimum; fitting again certifying every evaluation")
+            lik.defer_certification = False
+            result = _fit(spec, lik, confidence, interval, starts, seed, deadline)
+    except _OutOfTime as out:
+        return _stopped(out.objective, float(max_seconds or 0.0), confidence, interval)
     return _calibrated(result, spec, lik)
 
 
@@ -285,12 +312,13 @@ def _calibrated(result: FitResult, spec: ModelSpec, lik: Likelihood) -> FitResul
                                                       f"({DRAWS} draws, fixed seed)")
 
 
-def _fit(spec: ModelSpec, lik: Likelihood, confidence: float, interval: str, starts: int, seed: int) -> FitResult:
-    """Steps 1-4 of the module docstring with one likelihood."""
+def _fit(spec: ModelSpec, lik: Likelihood, confidence: float, interval: str, starts: int, seed: int,
+         deadline: float | None = None) -> FitResult:
+    """Steps 1-4 of the module docstring with one likelihood (:class:`_OutOfTime` past ``deadline``)."""
     from scipy.stats import chi2 as chi2_dist
 
     n = len(spec.free)
-    obj = _Objective(spec, lik)
+    obj = _Objective(spec, lik, deadline)
     lo, hi = spec.lower, spec.upper
     candidates = _starts(spec, starts, seed)
     # multi-start: local fits from the declared defaults and the best screened starts (a narrow
@@ -330,3 +358,26 @@ def _fit(spec: ModelSpec, lik: Likelihood, confidence: float, interval: str, sta
                      chi2=dev_min, dof=dof, p_value=p_value, converged=bool(res.status > 0 and np.isfinite(dev_min)),
                      message=str(res.message), likelihood=lik.kind, interval=interval, confidence=float(confidence),
                      n_evaluations=len(obj.cache), residuals=r, groups=lik.groups, xlabel=lik.xlabel)
+
+
+def _stopped(obj: _Objective, max_seconds: float, confidence: float, interval: str) -> FitResult:
+    """The best point a fit stopped by its time limit reached: not converged, no intervals."""
+    from scipy.stats import chi2 as chi2_dist
+
+    spec, lik = obj.spec, obj.lik
+    assert obj.best is not None  # the limit is checked only once a point was evaluated
+    dev, key = obj.best
+    x = np.array(key, float)
+    n = len(spec.free)
+    nan = np.full((n, n), np.nan)
+    dof = int(lik.n_data(spec.specimen(x))) - n
+    params = {p.name: ParameterEstimate(p.name, float(x[i]), (math.nan, math.nan), p.unit, math.nan)
+              for i, p in enumerate(spec.free)}
+    log.info("fit: stopped at the time limit of %g s after %d evaluations", max_seconds, len(obj.cache))
+    return FitResult(model=spec.text, family=spec.family.name, specimen=spec.specimen_string(x), parameters=params,
+                     fixed=dict(spec.fixed), covariance=nan, fisher=nan.copy(), correlation=nan.copy(), chi2=dev,
+                     dof=dof, p_value=float(chi2_dist.sf(dev, dof)) if dof > 0 else math.nan, converged=False,
+                     message=f"stopped at the time limit ({max_seconds:g} s) with the best point of "
+                             f"{len(obj.cache)} evaluations; no intervals", likelihood=lik.kind, interval=interval,
+                     confidence=float(confidence), n_evaluations=len(obj.cache), residuals=obj(x), groups=lik.groups,
+                     xlabel=lik.xlabel)
