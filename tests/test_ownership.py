@@ -103,3 +103,15 @@ def test_one_process_opening_a_device_twice_is_refused_too(tmp_path):
             lock_devices({"spectrometer": port})
     finally:
         locks.release()
+
+
+def test_a_process_s_own_new_devices_take_a_stale_record_over_silently(tmp_path, caplog):
+    """An emulated body's emulators are new devices of this process: a record left on the same pty
+    number by a killed process is of another device, not worth a warning."""
+    port = str(tmp_path / "pts7")
+    holder = _holder(port)
+    holder.kill()
+    holder.wait()
+    with caplog.at_level(logging.WARNING, logger="bench.builders.ownership"):
+        lock_devices({"arm": port}, note_stale=False).release()
+    assert not caplog.records

@@ -297,7 +297,8 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
     closers: list[Any] = [emu.close]
     try:
         # its own emulators, locked all the same: one owner per device, whatever the body
-        locks = lock_devices({"arm": emu.bus.port, "turntable": emu.stage.url, "spectrometer": emu.spectrometer.port})
+        locks = lock_devices({"arm": emu.bus.port, "turntable": emu.stage.url, "spectrometer": emu.spectrometer.port},
+                             note_stale=False)
         closers.append(locks.release)
         turntable = ModbusStageAxis(emu.stage.url, config=emu.turntable_config, name="turntable")
         closers.append(turntable.close)

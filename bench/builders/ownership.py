@@ -123,7 +123,7 @@ def _owner_text(rec: dict[str, Any] | None) -> str:
 class _DeviceLock:
     """One held lock (an open descriptor with ``flock`` on it)."""
 
-    def __init__(self, identity: str, roles: list[str]) -> None:
+    def __init__(self, identity: str, roles: list[str], note_stale: bool = True) -> None:
         self.identity, self.roles = identity, roles
         self.path = path = _lock_path(identity)
         for _ in range(20):  # a file unlinked by its owner's release between our open and flock: again
@@ -144,8 +144,9 @@ class _DeviceLock:
                 state = process_state(str(previous.get("host")), int(previous["pid"]), previous.get("started"))
             except (TypeError, ValueError):
                 state = "gone"
-            log.warning("%s: taking over the lock left by %s, which %s", self.label, _owner_text(previous),
-                        "no longer runs" if state == "gone" else "no longer holds it")
+            (log.warning if note_stale else log.debug)(
+                "%s: taking over the lock left by %s, which %s", self.label, _owner_text(previous),
+                "no longer runs" if state == "gone" else "no longer holds it")
         self.write()
 
     def _open_locked(self, path: Path) -> int:
@@ -213,10 +214,13 @@ class DeviceLocks:
         self.locks = []
 
 
-def lock_devices(ports: Mapping[str, str | None]) -> DeviceLocks:
+def lock_devices(ports: Mapping[str, str | None], note_stale: bool = True) -> DeviceLocks:
     """Lock the devices ``ports`` names (role -> port string; None or a port that is no device,
     like ``loop://``, is skipped) before any of them is opened. All or none: if one is owned by
-    another process, the ones already taken are released and :class:`DeviceBusy` names the owner."""
+    another process, the ones already taken are released and :class:`DeviceBusy` names the owner.
+    ``note_stale``: warn when taking over a killed owner's lock (False for devices this process
+    has just created itself, its own emulators: a record there is of an earlier device that had
+    the same pty or port number)."""
     roles: dict[str, list[str]] = {}
     for role, port in ports.items():
         identity = device_identity(port) if port else None
@@ -225,7 +229,7 @@ def lock_devices(ports: Mapping[str, str | None]) -> DeviceLocks:
     taken: list[_DeviceLock] = []
     try:
         for identity in sorted(roles):
-            taken.append(_DeviceLock(identity, roles[identity]))
+            taken.append(_DeviceLock(identity, roles[identity], note_stale))
     except BaseException:
         DeviceLocks(taken).release()
         raise
