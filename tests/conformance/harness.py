@@ -297,7 +297,7 @@ def _bluesky_plan(name: str, devs: Any) -> Any:
     if name == "count":
         return bp.count([devs.reflectance, g], num=3)
     if name == "list_scan":
-        return bp.list_scan([devs.reflectance, g], g.theta_i, [30, 30, 50, 50], g.theta_r, [10, 50, 30, 70])
+        return bp.list_scan([devs.reflectance, g], g.theta_i, [30, 30, 50, 50], g.theta_r, [10, 50, 50, 70])
     return bp.grid_scan([devs.reflectance, g], g.theta_i, 30, 50, 2, g.theta_r, 10, 50, 3)
 
 
@@ -318,7 +318,7 @@ def _run_bluesky(cell: Cell, bench_toml: Path, outcome: Outcome, spy: MotionSpy)
     devs = connect(bench_toml, run_engine=RE, seed=cell.seed, body=cell.body)
     try:
         r = devs.reflectance
-        RE(bps.mv(devs.goniometer, Geometry(30, 0, 30, 180)))
+        RE(bps.mv(devs.goniometer, Geometry(50, 0, 50, 180)))  # count reads here: the GGX peak of the plan
         before = spy.moves
         token = RE.subscribe(StoreWriter(outcome.store))
         try:

@@ -10,6 +10,8 @@ seam still fails is a strict xfail naming the seam (:func:`matrix.seam`).
 
 from __future__ import annotations
 
+import copy
+
 import pytest
 
 import matrix
@@ -38,9 +40,16 @@ def test_fast_slice(conform, cell):
     assert bad == [], f"{cell.id}: {bad}"
 
 
-def test_power_a_truth_3_percent_off_is_caught(tmp_path):
+@pytest.fixture(scope="module")
+def two_seeds(tmp_path_factory):
+    """One nominal scan cell of the virtual body at two seeds (shared by the power checks)."""
+    return [run_cell(Cell("lambert", "virtual", "once", "once", "scan", seed=s), tmp_path_factory.mktemp(f"s{s}"))
+            for s in (41, 42)]
+
+
+def test_power_a_truth_3_percent_off_is_caught(two_seeds):
     """The same record judged against a truth 3 % high and 3 % low: the invariant fails both."""
-    outcome = run_cell(Cell("lambert", "emulated", "once", "once", "scan", seed=3), tmp_path)
+    outcome = two_seeds[0]
     assert check_invariant(outcome) == []
     for scale in (1.03, 0.97):
         assert any("relative bias" in b for b in check_invariant(outcome, scale=scale)), scale
@@ -51,6 +60,30 @@ def test_power_a_wrong_certificate_is_caught(conform):
     measured with: every value 3 % low, and the cell fails."""
     outcome, bad = conform(Cell("plastic", "virtual", "file", "once", "scan", perturb="certificate"))
     assert outcome.readings is not None and any("relative bias" in b for b in bad), bad
+
+
+def test_power_masked_readings_in_a_plain_completed_run_are_caught(two_seeds):
+    outcome = copy.copy(two_seeds[0])
+    df = outcome.readings.copy()
+    df.loc[:2, ["value", "std"]] = None
+    df["masked"] = df["value"].isna()
+    outcome.readings = df
+    assert any("plain 'completed'" in b for b in check_invariant(outcome))
+    outcome.statuses = ["completed (3 readings masked)"]  # a run that says so is not plain
+    assert not any("plain 'completed'" in b for b in check_invariant(outcome))
+
+
+def test_power_the_scatter_over_seeds_is_judged_both_ways(two_seeds):
+    """Two seeds scatter as the Type A budget says; the same noise twice (a seed ignored) and
+    3x the noise both fail the chi-square."""
+    assert check_repeat_scatter(two_seeds) == []
+    same = copy.copy(two_seeds[1])
+    same.readings = two_seeds[0].readings
+    assert any("scatter over 2 seeds" in b for b in check_repeat_scatter([two_seeds[0], same]))
+    noisy = copy.copy(two_seeds[1])
+    a, b = two_seeds[0].readings, two_seeds[1].readings
+    noisy.readings = b.assign(value=a["value"] + 3.0 * (b["value"] - a["value"]))
+    assert any("scatter over 2 seeds" in b for b in check_repeat_scatter([two_seeds[0], noisy]))
 
 
 @pytest.mark.slow
