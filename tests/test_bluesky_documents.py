@@ -48,3 +48,18 @@ def test_one_event_says_one_geometry_in_one_sign_convention(RE, virtual, tmp_pat
         df = store.readings(writer.run_ids[0])
     got = sorted({(r.theta_i, r.phi_i, r.theta_r, r.phi_r) for r in df.itertuples()})
     assert got == [(30.0, 0.0, 20.0, 0.0), (30.0, 0.0, 20.0, 180.0)]
+
+
+def test_every_data_key_names_the_hardware_not_a_soft_signal(RE, virtual):
+    """Data keys said `soft://NAME`; they name the bench's instrument (body, bench, role, model)."""
+    RE(bps.mv(virtual.goniometer, Geometry(30, 0, 20, 180)))
+    docs, _ = run(RE, virtual, bp.count([virtual.goniometer, virtual.reflectance, virtual.spectrometer,
+                                         virtual.light]))
+    (desc,) = docs.of("descriptor")
+    keys = dict(desc["data_keys"])
+    for conf in desc["configuration"].values():
+        keys.update(conf["data_keys"])
+    assert keys and not [k for k, v in keys.items() if v["source"].startswith("soft://")]
+    for name, key in keys.items():
+        role = {"goniometer": "goniometer", "light": "light"}.get(name.split("-")[0], "spectrometer")
+        assert key["source"].startswith(f"virtual://virtual/{role}/") and key["source"].endswith(f"#{name}"), key

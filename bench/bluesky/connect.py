@@ -37,6 +37,7 @@ from ophyd_async.core import Device
 
 from bench.bluesky.detectors import LightDevice, ReadingSettings, ReflectanceDevice, SpectrometerDevice
 from bench.bluesky.goniometer import GoniometerDevice
+from bench.bluesky.signals import hardware_source
 from bench.bluesky.worker import BenchWorker
 from bench.config import Bench, load_bench
 from bench.core.errors import BenchError, DeviceError
@@ -149,7 +150,8 @@ def connect(config: str | Path | Mapping[str, Any], run_engine: Any = None, *, s
     worker = BenchWorker(bench.name)
     try:
         start = worker.call(bench.goniometer.position)
-        gonio = GoniometerDevice(bench.goniometer, worker, start, name="goniometer")
+        gonio = GoniometerDevice(bench.goniometer, worker, start, name="goniometer",
+                                 hardware=hardware_source(bench, "goniometer"))
         settings = ReadingSettings.for_bench(bench)  # one detector: one integration time for both
         spectrometer = SpectrometerDevice(bench, worker, name="spectrometer", settings=settings, mover=gonio.mover)
         reflectance = ReflectanceDevice(bench, worker, gonio.mover, name="reflectance", settings=settings)

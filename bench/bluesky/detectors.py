@@ -36,12 +36,11 @@ from ophyd_async.core import (
     AsyncStatus,
     SignalR,
     StandardReadable,
-    soft_signal_r_and_setter,
-    soft_signal_rw,
 )
 from ophyd_async.core import StandardReadableFormat as Format
 
 from bench.bluesky.goniometer import AXES, Mover
+from bench.bluesky.signals import hardware_source, hw_signal_r, hw_signal_rw
 from bench.bluesky.worker import BenchWorker
 from bench.config import Bench
 from bench.core.calibration import Calibration
@@ -59,8 +58,8 @@ WAVELENGTH_DIM = "wavelength_nm"
 F64 = Array1D[np.float64]
 
 
-def _array(n: int, units: str | None = None, dtype: Any = np.float64) -> tuple[SignalR, Any]:
-    return soft_signal_r_and_setter(Array1D[dtype], np.zeros(n, dtype=dtype), units=units)
+def _array(hardware: str, n: int, units: str | None = None, dtype: Any = np.float64) -> tuple[SignalR, Any]:
+    return hw_signal_r(Array1D[dtype], np.zeros(n, dtype=dtype), hardware, units=units)
 
 
 class _SpectralReadable(StandardReadable):
@@ -92,7 +91,7 @@ def band_mean(values: np.ndarray, std: np.ndarray, masked: np.ndarray) -> tuple[
 def _geometry_signals(device: Any, setters: dict[str, Any]) -> None:
     """Give ``device`` read-only ``theta_i`` ... ``phi_r`` signals (deg), their setters in ``setters``."""
     for axis in AXES:
-        sig, setter = soft_signal_r_and_setter(float, 0.0, units="deg")
+        sig, setter = hw_signal_r(float, 0.0, device._hw, units="deg")
         setattr(device, axis, sig)
         setters[axis] = setter
 
@@ -144,11 +143,11 @@ class ReadingSettings:
         _check_reading_settings(self.integration_s, value)
         self.averages = int(value)
 
-    def signals(self) -> tuple[Any, Any]:
-        """New ``integration_s`` and ``averages`` signals backed by these settings."""
-        return (soft_signal_rw(float, self.integration_s, units="s", getter=lambda: self.integration_s,
-                               setter=self.set_integration_s),
-                soft_signal_rw(int, self.averages, getter=lambda: self.averages, setter=self.set_averages))
+    def signals(self, hardware: str) -> tuple[Any, Any]:
+        """New ``integration_s`` and ``averages`` signals of ``hardware`` backed by these settings."""
+        return (hw_signal_rw(float, self.integration_s, hardware, units="s", getter=lambda: self.integration_s,
+                             setter=self.set_integration_s),
+                hw_signal_rw(int, self.averages, hardware, getter=lambda: self.averages, setter=self.set_averages))
 
 
 class SpectrometerDevice(_SpectralReadable):
@@ -157,24 +156,25 @@ class SpectrometerDevice(_SpectralReadable):
     def __init__(self, bench: Bench, worker: BenchWorker, name: str = "",
                  settings: ReadingSettings | None = None, mover: Mover | None = None) -> None:
         self._bench, self._worker, self._mover = bench, worker, mover
+        self._hw = hardware_source(bench, "spectrometer")
         self.settings = settings if settings is not None else ReadingSettings.for_bench(bench)
         self._geometry_setters: dict[str, Any] = {}
         wl = np.asarray(bench.spectrometer.wavelengths, dtype=float)
         self._n = wl.size
         with self.add_children_as_readables(Format.UNCACHED_SIGNAL):
-            self.spectrum, self._set_spectrum = _array(self._n, "counts")
-            self.spectrum_std, self._set_std = _array(self._n, "counts")
-            self.saturated, self._set_saturated = _array(self._n, None, np.bool_)
-            self.dark, self._set_dark = soft_signal_r_and_setter(bool, False)
-            self.n_saturated, self._set_n_saturated = soft_signal_r_and_setter(int, 0)
+            self.spectrum, self._set_spectrum = _array(self._hw, self._n, "counts")
+            self.spectrum_std, self._set_std = _array(self._hw, self._n, "counts")
+            self.saturated, self._set_saturated = _array(self._hw, self._n, None, np.bool_)
+            self.dark, self._set_dark = hw_signal_r(bool, False, self._hw)
+            self.n_saturated, self._set_n_saturated = hw_signal_r(int, 0, self._hw)
             if mover is not None:  # where it read: a record needs the geometry of every reading
                 _geometry_signals(self, self._geometry_setters)
         with self.add_children_as_readables(Format.HINTED_UNCACHED_SIGNAL):
-            self.mean_counts, self._set_mean = soft_signal_r_and_setter(float, 0.0, units="counts")
-            self.peak_counts, self._set_peak = soft_signal_r_and_setter(float, 0.0, units="counts")
+            self.mean_counts, self._set_mean = hw_signal_r(float, 0.0, self._hw, units="counts")
+            self.peak_counts, self._set_peak = hw_signal_r(float, 0.0, self._hw, units="counts")
         with self.add_children_as_readables(Format.CONFIG_SIGNAL):
-            self.integration_s, self.averages = self.settings.signals()
-            self.wavelength_nm, set_wl = _array(self._n, "nm")
+            self.integration_s, self.averages = self.settings.signals(self._hw)
+            self.wavelength_nm, set_wl = _array(self._hw, self._n, "nm")
         set_wl(wl)
         super().__init__(name=name)
 
@@ -214,6 +214,7 @@ class ReflectanceDevice(_SpectralReadable):
     def __init__(self, bench: Bench, worker: BenchWorker, mover: Mover, name: str = "",
                  settings: ReadingSettings | None = None) -> None:
         self._bench, self._worker, self._mover = bench, worker, mover
+        self._hw = hardware_source(bench, "spectrometer")  # the spectrometer, calibrated
         self.settings = settings if settings is not None else ReadingSettings.for_bench(bench)
         wl = np.asarray(bench.spectrometer.wavelengths, dtype=float)
         self._n = wl.size
@@ -222,30 +223,30 @@ class ReflectanceDevice(_SpectralReadable):
         self._last_incidence: tuple[float, float] | None = None
         self._staged = False
         with self.add_children_as_readables(Format.UNCACHED_SIGNAL):
-            self.brdf, self._set_brdf = _array(self._n, "1/sr")
-            self.brdf_std, self._set_brdf_std = _array(self._n, "1/sr")
-            self.reflectance_factor, self._set_rf = _array(self._n, None)
-            self.reflectance_factor_std, self._set_rf_std = _array(self._n, None)
-            self.masked, self._set_masked = _array(self._n, None, np.bool_)
-            self.signal, self._set_signal = _array(self._n, "counts")
-            self.signal_std, self._set_signal_std = _array(self._n, "counts")
-            self.dark, self._set_dark = _array(self._n, "counts")
-            self.dark_std, self._set_dark_std = _array(self._n, "counts")
-            self.has_dark, self._set_has_dark = soft_signal_r_and_setter(bool, False)
-            self.saturated, self._set_saturated = _array(self._n, None, np.bool_)
+            self.brdf, self._set_brdf = _array(self._hw, self._n, "1/sr")
+            self.brdf_std, self._set_brdf_std = _array(self._hw, self._n, "1/sr")
+            self.reflectance_factor, self._set_rf = _array(self._hw, self._n, None)
+            self.reflectance_factor_std, self._set_rf_std = _array(self._hw, self._n, None)
+            self.masked, self._set_masked = _array(self._hw, self._n, None, np.bool_)
+            self.signal, self._set_signal = _array(self._hw, self._n, "counts")
+            self.signal_std, self._set_signal_std = _array(self._hw, self._n, "counts")
+            self.dark, self._set_dark = _array(self._hw, self._n, "counts")
+            self.dark_std, self._set_dark_std = _array(self._hw, self._n, "counts")
+            self.has_dark, self._set_has_dark = hw_signal_r(bool, False, self._hw)
+            self.saturated, self._set_saturated = _array(self._hw, self._n, None, np.bool_)
             self._geometry_setters: dict[str, Any] = {}
             _geometry_signals(self, self._geometry_setters)
         with self.add_children_as_readables(Format.HINTED_UNCACHED_SIGNAL):
-            self.rf_mean, self._set_rf_mean = soft_signal_r_and_setter(float, math.nan, precision=4)
-            self.rf_mean_std, self._set_rf_mean_std = soft_signal_r_and_setter(float, math.nan, precision=4)
+            self.rf_mean, self._set_rf_mean = hw_signal_r(float, math.nan, self._hw, precision=4)
+            self.rf_mean_std, self._set_rf_mean_std = hw_signal_r(float, math.nan, self._hw, precision=4)
         with self.add_children_as_readables(Format.CONFIG_SIGNAL):
-            self.integration_s, self.averages = self.settings.signals()
-            self.dark_mode = soft_signal_rw(str, self.settings.dark, getter=lambda: self.settings.dark,
+            self.integration_s, self.averages = self.settings.signals(self._hw)
+            self.dark_mode = hw_signal_rw(str, self.settings.dark, self._hw, getter=lambda: self.settings.dark,
                                             setter=self._set_dark_mode)
-            self.white_mode = soft_signal_rw(str, self.settings.white, getter=lambda: self.settings.white,
+            self.white_mode = hw_signal_rw(str, self.settings.white, self._hw, getter=lambda: self.settings.white,
                                              setter=self._set_white_mode)
-            self.wavelength_nm, set_wl = _array(self._n, "nm")
-            self.calibration, self._set_calibration = soft_signal_r_and_setter(str, "null")
+            self.wavelength_nm, set_wl = _array(self._hw, self._n, "nm")
+            self.calibration, self._set_calibration = hw_signal_r(str, "null", self._hw)
         set_wl(wl)
         super().__init__(name=name)
 
@@ -368,8 +369,9 @@ class LightDevice(StandardReadable):
         if bench.light is None:
             raise ConfigError(f"bench {bench.name!r} has no light source")
         self._light, self._worker = bench.light, worker
+        self._hw = hardware_source(bench, "light")
         with self.add_children_as_readables(Format.HINTED_SIGNAL):
-            self.on, self._set_on = soft_signal_r_and_setter(bool, True)
+            self.on, self._set_on = hw_signal_r(bool, True, self._hw)
         super().__init__(name=name)
 
     @AsyncStatus.wrap

@@ -38,11 +38,10 @@ from ophyd_async.core import (
     MovableLogic,
     StandardMovable,
     StandardReadable,
-    soft_signal_r_and_setter,
-    soft_signal_rw,
 )
 from ophyd_async.core import StandardReadableFormat as Format
 
+from bench.bluesky.signals import hw_signal_r, hw_signal_rw
 from bench.bluesky.worker import BenchWorker
 from bench.core.errors import GeometryError
 from bench.core.geometry import Geometry
@@ -223,14 +222,14 @@ class _AxisLogic(MovableLogic[float]):
 class GoniometerAxis(StandardReadable, StandardMovable[float]):
     """One goniometer axis in degrees: Movable, Readable (read-back), Locatable, Stoppable."""
 
-    def __init__(self, mover: Mover, axis: str, name: str = "") -> None:
+    def __init__(self, mover: Mover, axis: str, name: str = "", hardware: str = "goniometer") -> None:
         if axis not in AXES:
             raise GeometryError(f"unknown goniometer axis {axis!r}; known: {', '.join(AXES)}")
         self._mover = mover
         self._axis = axis
         with self.add_children_as_readables(Format.HINTED_SIGNAL):
-            self.readback, self._set_readback = soft_signal_r_and_setter(float, 0.0, units="deg", precision=4)
-        self.setpoint = soft_signal_rw(float, float(mover.target[axis]), units="deg", precision=4)
+            self.readback, self._set_readback = hw_signal_r(float, 0.0, hardware, units="deg", precision=4)
+        self.setpoint = hw_signal_rw(float, float(mover.target[axis]), hardware, units="deg", precision=4)
         mover.subscribe(lambda axes: self._set_readback(float(axes[axis])))
         super().__init__(name=name)
 
@@ -247,13 +246,14 @@ class GoniometerDevice(StandardReadable):
     reached geometry as 4-lists; ``stop()`` holds the arm.
     """
 
-    def __init__(self, goniometer: Any, worker: BenchWorker, start: Geometry, name: str = "") -> None:
+    def __init__(self, goniometer: Any, worker: BenchWorker, start: Geometry, name: str = "",
+                 hardware: str = "goniometer") -> None:
         self.mover = Mover(goniometer, worker, start)
         with self.add_children_as_readables():
-            self.theta_i = GoniometerAxis(self.mover, "theta_i")
-            self.phi_i = GoniometerAxis(self.mover, "phi_i")
-            self.theta_r = GoniometerAxis(self.mover, "theta_r")
-            self.phi_r = GoniometerAxis(self.mover, "phi_r")
+            self.theta_i = GoniometerAxis(self.mover, "theta_i", hardware=hardware)
+            self.phi_i = GoniometerAxis(self.mover, "phi_i", hardware=hardware)
+            self.theta_r = GoniometerAxis(self.mover, "theta_r", hardware=hardware)
+            self.phi_r = GoniometerAxis(self.mover, "phi_r", hardware=hardware)
         super().__init__(name=name)
 
     @property
