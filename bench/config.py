@@ -140,6 +140,9 @@ def load_description(config: str | Path | Mapping[str, Any], body: str | None = 
     from bench.builders.tables import validate_driver_tables  # loads drivers only when a table needs them
 
     validate_driver_tables(d, source)
+    if kind == "real" and d.get("drift") is not None:  # declared drift is the simulated bodies' (bench.builders.drift)
+        raise ConfigError(f"{source} [drift] is simulated by the virtual and emulated bodies only; a real bench "
+                          f"drifts by itself (remove [drift] or use --body virtual|emulated)")
     return d, kind
 
 

@@ -134,8 +134,10 @@ def _progress(total: int, initial: int, enabled: bool, desc: str):
 
 
 def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, progress: bool = False,
-             on_point: Callable[[int, int], None] | None = None) -> ScanResult:
-    """Validate, then measure every point of ``plan`` on ``bench`` into ``store``.
+             on_point: Callable[[int, int], None] | None = None, kind: str = "scan",
+             extra_meta: dict[str, Any] | None = None) -> ScanResult:
+    """Validate, then measure every point of ``plan`` on ``bench`` into ``store`` as a run of
+    ``kind`` (``scan``, or ``check`` for a check standard) with ``extra_meta`` in its metadata.
 
     ``on_point(k, idx)`` is called after point number ``k`` (plan index ``idx``) is committed
     (tests use it to inject faults).
@@ -156,7 +158,8 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
             "specimen_name": specimen.get("name") or specimen.get("spec"), "plan_name": plan.name,
             "calibration_steps": chain.record(cal),
             "skipped": [r.as_dict() for r in refused]}  # unreachable = "skip": what was not measured, and why
-    run_id = store.create_run(kind="scan", plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
+    meta.update(extra_meta or {})  # e.g. the check standard a `check` run measured, the check a scan relied on
+    run_id = store.create_run(kind=kind, plan=plan.as_dict(), bench=bench.config, seed=seed, meta=meta,
                               n_planned=len(order), calibration=None if cal is None else cal.as_dict())
     return _execute(bench, plan, store, run_id, order, cal, set(), progress, on_point)
 

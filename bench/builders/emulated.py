@@ -50,6 +50,7 @@ from bench.core.parsing import parse_wavelengths
 from bench.core.schemas import EmulatedTable
 from bench.core.roles import Reading
 from bench.builders.detector import RESPONSE_GAIN, described_bands, detector_settings, emulator_settings
+from bench.builders.drift import actual_white
 from bench.builders.instrument import declared_aperture
 from bench.builders.light import LAMP_LINE, LampLine, LightTable, build_light, declares_light, light_settings
 from bench.builders.motion import motion_profile
@@ -240,7 +241,7 @@ class Emulators:
                                                   self.stage.url, steps_per_deg,
                                                   str(self.turntable_config.get("register_map", "oriental_az"))),
                 response=functools.partial(emulated_response, specimen=spec,
-                                           white_rf=self.white.as_dict()["reflectance_factor"],
+                                           white_rf=actual_white(self.white.as_dict()["reflectance_factor"], d),
                                            mount_file=str(self.mount), aperture_deg=declared_aperture(d)),
                 seed=emu_seed, time_scale=max(1.0, self.time_scale), **self.detector)
             self._closers.append(self.spectrometer.stop)

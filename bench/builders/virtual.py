@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from bench.builders.detector import described_bands, detector_settings, virtual_gain
+from bench.builders.drift import actual_white
 from bench.builders.instrument import (ApertureReading, DetectorEffects, EffectsSpectrometer, PositioningError,
                                       declared_aperture, declared_effects)
 from bench.builders.light import declares_light
@@ -47,7 +48,7 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     gonio = VirtualGoniophotometer(spec, **v)
     white = WhiteStandard.from_dict(d.get("white", {}))
     v["seed"] = gonio.seed + 1  # the standard's rays are independent of the specimen's
-    rf = white.reflectance_factor
+    rf = actual_white(white.reflectance_factor, d)  # the certificate's, unless a declared [drift] soils it
     standard = VirtualGoniophotometer(Lambertian(reflectance=rf if isinstance(rf, (int, float)) else rf),
                                       **{**v, "method": v.get("method", "auto")})
     # A lab measures its standard with care: the reference is one reading every point divides

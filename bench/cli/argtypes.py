@@ -216,6 +216,16 @@ def listen_address(text: str) -> str:
 _RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$")
 
 
+def iso_date(text: str) -> str:
+    """A date YYYY-MM-DD (ISO 8601), returned in that form."""
+    import datetime as dt
+
+    try:
+        return dt.date.fromisoformat(text).isoformat()
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a date YYYY-MM-DD, got {text!r}") from None
+
+
 def run_id(text: str) -> str:
     """A run id as ``bench runs`` prints it (letters, digits, ``-._:``; at most 128 characters)."""
     if not _RUN_ID.match(str(text)):

@@ -37,6 +37,8 @@ COMMANDS: dict[str, Command] = {
     "home": Command("bench.cli.home", "return the turntable (or another axis) to its home position"),
     "white": Command("bench.cli.white", "save a white reference file (measured now or from a completed run)"),
     "fit": Command("bench.cli.fit", "fit a model's parameters to a record: maximum likelihood, intervals, goodness of fit"),
+    "check": Command("bench.cli.assurance", "measure the bench's check standards: E_n of each reading, a run of kind check"),
+    "chart": Command("bench.cli.assurance", "control charts of the check standards (Western Electric / Nelson rules)"),
     "specimens": Command("bench.cli.specimens", "list every specimen family and its parameters (range, unit, default)"),
 }
 

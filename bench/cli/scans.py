@@ -11,7 +11,7 @@ import argparse
 import sys
 from typing import Any
 
-from bench.cli.argtypes import RegistryChoices, real, run_id, seed
+from bench.cli.argtypes import RegistryChoices, iso_date, real, run_id, seed
 from bench.cli.commands import command_help
 from bench.cli.design import add_adaptive_options, add_design_options, refuse_unused
 from bench.cli.common import (DEFAULT_STORE, add_bench_options, add_force_option, announce_compilation, check_output,
@@ -25,6 +25,7 @@ def _plan_and_bench(args: argparse.Namespace, planning: bool = False):
     """The plan and the bench that runs it, refused first from the description alone (nothing
     opened); ``planning``: the bench as the description alone gives it (:mod:`bench.builders.described`)."""
     from bench.builders.described import planning_bench
+    from bench.builders.drift import on_day
     from bench.config import load_bench, load_description
     from bench.plan_check import refuse_before_opening
     from bench.plans import load_plan
@@ -36,6 +37,7 @@ def _plan_and_bench(args: argparse.Namespace, planning: bool = False):
     if planning:
         return plan, planning_bench(args.bench, seed=seed, body=args.body)
     d, body = load_description(args.bench, args.body)
+    d = on_day(d, getattr(args, "date", None))  # a declared [drift] simulated on --date
     refuse_before_opening(plan, d, body)
     return plan, load_bench(d, seed=seed, body=body)
 
@@ -117,14 +119,18 @@ def cmd_scan(args: argparse.Namespace) -> int:
     refuse_unused(args, "--adaptive")
     from bench.runner import run_scan
 
+    from bench.cli.assurance import scan_gate
+
     plan, bench = _plan_and_bench(args)
+    assurance = scan_gate(bench.config, args.store, bench.kind, args.date)  # the checks it relies on, or refused
     if args.uncertainty_method:  # the run stores its description, so a resume evaluates budgets alike
         bench.config["uncertainty"] = {**dict(bench.config.get("uncertainty") or {}), "method": args.uncertainty_method}
     if bench.kind == "virtual":
         announce_compilation()
     with bench, open_store(args.store) as store:
         result = run_scan(bench, plan, store, seed=getattr(bench.goniometer, "seed", args.seed),
-                          progress=not args.quiet and sys.stderr.isatty())
+                          progress=not args.quiet and sys.stderr.isatty(),
+                          extra_meta=None if assurance is None else {"assurance": assurance})
     return report_run(result, args.json)
 
 
@@ -252,6 +258,8 @@ def cmd_show(args: argparse.Namespace) -> int:
     s["value"]["unit"] = value_unit(info.get("meta") or {})
     held = (info.get("meta") or {}).get("device_faults") or {}
     s["device_faults"] = {"points": len(held.get("points") or {}), "total": held.get("total") or {}}
+    s["assurance"] = (info.get("meta") or {}).get("assurance")  # the check standards this run relied on
+    s["check"] = (info.get("meta") or {}).get("check") if s["kind"] == "check" else None
     if args.json:
         emit_json(s)
         return 0
@@ -279,6 +287,11 @@ def cmd_show(args: argparse.Namespace) -> int:
     print(f"  value {rounded(v['min'], u)} .. {rounded(v['max'], u)} {v['unit']} ({v['n']} values, "
           f"{v['n_missing']} masked; smallest standard uncertainty {'n/a' if u is None else f'{u:.2g}'} "
           f"{v['unit']}), saturated {s['saturated']}")
+    for name, c in ((s["assurance"] or {}).get("checks") or {}).items():
+        print(f"  check standard {name}: {c['state']}" + (f" (run {c['run']} of {c['date']})" if c.get("run") else ""))
+    if s["check"] and "value" in s["check"]:
+        c = s["check"]
+        print(f"  check {c['check']} on {c['date']}: value {c['value']:.5f} x reference, max |E_n| {c['max_abs_E_n']:.2f}")
     steps = s.get("calibration_steps")
     if steps:
         print(f"  calibration: dark {steps['dark']}, white {steps['white']} ({steps['white_source']}), "
@@ -448,6 +461,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "bench's, else a fresh one)")
     sc.add_argument("--quiet", "-q", action="store_true", help="no progress bar (shown only on a terminal)")
     sc.add_argument("--json", action="store_true", help="the run result as one JSON object")
+    sc.add_argument("--date", type=iso_date, default=None, metavar="YYYY-MM-DD",
+                    help="the simulated day of this scan: its check standards are judged on it and a declared "
+                         "[drift] acts on it (virtual and emulated bodies only; default: today)")
     sc.add_argument("--uncertainty-method", choices=("linear", "mc"),
                     help="each reading's GUM budget: law of propagation (linear) or Supplement 1 Monte Carlo "
                          "(mc); default: the bench's [uncertainty] method, else linear")

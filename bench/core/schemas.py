@@ -194,6 +194,65 @@ class UncertaintyTable(Table):
     nonlinearity: Annotated[Finite, Field(ge=0, le=1)] = 0.0  # relative: detector response
 
 
+class CheckTable(Table):
+    """``[[check]]``: a check standard the bench measures on a schedule (``bench check``), its
+    results kept on a control chart (``bench chart``). The reference is the standard's model
+    (``specimen``, evaluated at each reading's geometry and wavelength) or a certified BRDF
+    (``reference``, 1/sr, the same at every geometry of the check); ``reference_uncertainty`` is
+    its relative standard uncertainty. ``every``: ``"run"`` (before each scan), ``"day"``, or a
+    number of scans."""
+
+    name: Annotated[str, Field(min_length=1, max_length=80, pattern=r"^[A-Za-z0-9][A-Za-z0-9 ._:-]*$")]
+    specimen: str = ""
+    reference: Annotated[Finite, Field(gt=0, le=1e6)] | None = None
+    reference_uncertainty: Annotated[Finite, Field(ge=0, lt=1)] = 0.005
+    geometries: Annotated[list[Annotated[list[Finite], Field(min_length=4, max_length=4)]],
+                          Field(min_length=1, max_length=100)] = [[30.0, 0.0, 20.0, 180.0]]
+    every: Union[Literal["run", "day"], Annotated[Whole, Field(ge=1, le=100000)]] = "day"
+    integration_s: Annotated[Finite, Field(gt=0, le=MAX_INTEGRATION_S)] = 0.02
+    averages: Annotated[Whole, Field(ge=1, le=MAX_AVERAGES)] = 4
+    #: points of the chart's baseline (its centre and limits), unless ``centre`` and ``sigma`` are declared
+    baseline: Annotated[Whole, Field(ge=2, le=1000)] = 20
+    centre: Finite | None = None
+    sigma: Annotated[Finite, Field(gt=0)] | None = None
+
+    @model_validator(mode="after")
+    def _one_reference(self) -> "CheckTable":
+        if bool(self.specimen) == (self.reference is not None):
+            raise ValueError("give the check standard's specimen model or its certified reference, not both or neither")
+        if (self.centre is None) != (self.sigma is None):
+            raise ValueError("declare the chart's centre and sigma together, or neither")
+        return self
+
+
+def _iso_date(v: Any) -> Any:
+    import datetime as _dt
+
+    if isinstance(v, _dt.date):
+        return v.isoformat()
+    if not isinstance(v, str):
+        raise ValueError("expected a date YYYY-MM-DD")
+    try:
+        return _dt.date.fromisoformat(v).isoformat()
+    except ValueError:
+        raise ValueError(f"expected a date YYYY-MM-DD, got {v!r}") from None
+
+
+IsoDate = Annotated[str, BeforeValidator(_iso_date)]
+
+
+class DriftTable(Table):
+    """``[drift]``: a declared, day-by-day change of the physical bench that the virtual and
+    emulated bodies simulate (the real body has its own): from ``start`` on, the working white
+    standard's actual reflectance changes by ``white_per_day`` (relative) each day -- soiling or
+    ageing the white calibration cannot see, its certificate unchanged. ``on``: the day simulated
+    (``bench check --date`` / ``bench scan --date`` set it; default today)."""
+
+    start: IsoDate
+    white_per_day: Annotated[Finite, Field(ge=-0.1, le=0.1)] = 0.0
+    on: IsoDate | None = None
+
+
 #: the bodies a bench description may be built as (``kind`` of a bench file)
 BenchKind = Literal["virtual", "emulated", "real"]
 BENCH_KINDS: tuple[str, ...] = get_args(BenchKind)
@@ -221,6 +280,10 @@ class BenchFile(BaseModel):
     instrument: dict[str, Any] | None = None  # declared effects of the virtual body (bench.builders.instrument)
     uncertainty: UncertaintyTable | None = None  # the GUM budget's declared components (bench.core.budget)
     detector: dict[str, Any] | None = None  # the detector of every body (bench.builders.detector)
+    check: list[CheckTable] = []  # check standards (bench check, bench chart)
+    drift: DriftTable | None = None  # simulated bodies: a declared drift over days
+    #: what `bench scan` does when the latest check is out of control or overdue
+    assurance: Literal["off", "warn", "refuse"] = "off"
 
     @field_validator("arm", "turntable", "spectrometer", "light", "instrument", "detector", mode="before")
     @classmethod

@@ -21,7 +21,7 @@ from bench.core.records import json_default
 __all__ = ["SCHEMA_VERSION", "RUN_KINDS", "RUN_STATUSES", "READING_COLUMNS", "new_run_id", "package_versions"]
 
 SCHEMA_VERSION = 1
-RUN_KINDS = ("scan", "sweep", "calibration", "import", "virtual", "bluesky", "fit")
+RUN_KINDS = ("scan", "sweep", "calibration", "import", "virtual", "bluesky", "fit", "check")
 RUN_STATUSES = ("running", "completed", "interrupted", "failed")
 #: allowed status changes (same status again is a no-op that may update the reason)
 _TRANSITIONS = {
