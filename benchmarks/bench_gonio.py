@@ -285,7 +285,8 @@ def spectral_rows(n: int = N_RAYS, w: int = SPECTRAL_W) -> list[dict]:
         kernel = gonio_kernel_for(model, BEAM.disk_code, params=params[0])
         gonio_counts(model, params[0], BEAM.code, BEAM.disk_code, args, cargs, 1000, measurement_seed(1))
         seconds, _ = best_of(single, 2)
-        rows.append(_row(f"ours-{family}-1wl", family, "block float32" if kernel == "block32" else kernel, seconds, n))
+        rows.append({**_row(f"ours-{family}-1wl", family, "block float32" if kernel == "block32" else kernel, seconds, n),
+                     "code": numba_code(model, kernel)})
     return rows
 
 
