@@ -13,7 +13,7 @@ import textwrap
 import pytest
 
 from bench.builders.ownership import DeviceBusy, LOCK_DIR_ENV, lock_devices, note_run, read_owner
-from drivers.transport.identity import device_identity
+from drivers.identity import device_identity
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -7,7 +7,7 @@ second process is refused in one line naming the owner (pid, command, run) -- ex
 moved.
 
 A lock is an advisory ``flock`` on a file named after the device's identity
-(:func:`drivers.transport.identity.device_identity`: the tty's resolved path, the endpoint's
+(:func:`drivers.identity.device_identity`: the tty's resolved path, the endpoint's
 ``host:port``) in :func:`lock_dir`. The kernel releases it when its process ends, however it
 ends (SIGKILL included), so a lock never outlives its owner. The file keeps the owner's record
 (host, pid, start time, command, run id) for the refusal message; a clean release removes it
@@ -34,7 +34,7 @@ from typing import Any, Mapping
 
 from bench.core.errors import InputError
 from bench.store.owner import process_identity, process_state
-from drivers.transport.identity import device_identity
+from drivers.identity import device_identity
 
 log = logging.getLogger(__name__)
 
