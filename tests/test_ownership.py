@@ -115,3 +115,15 @@ def test_a_process_s_own_new_devices_take_a_stale_record_over_silently(tmp_path,
     with caplog.at_level(logging.WARNING, logger="bench.builders.ownership"):
         lock_devices({"arm": port}, note_stale=False).release()
     assert not caplog.records
+
+
+def test_the_runner_notes_runs_without_loading_the_drivers():
+    """Every scan imports the lock registry; a virtual one must not pull pyserial, the Dynamixel
+    SDK or pymodbus in with it (the power: the transports package does load pyserial)."""
+    code = ("import sys, bench.runner\nprint(sorted({m.split('.')[0] for m in sys.modules} & "
+            "{'serial', 'dynamixel_sdk', 'pymodbus'}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True).stdout
+    assert out.strip() == "[]"
+    code = "import sys, drivers.transport\nprint('serial' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True).stdout
+    assert out.strip() == "True"
