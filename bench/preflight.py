@@ -21,7 +21,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from bench.builders.detector import DetectorTable, check_integration, described_bands, detector_settings
+from bench.builders.detector import (RESPONSE_GAIN, DetectorTable, check_integration, described_bands,
+                                     detector_settings)
 from bench.config import Bench
 from bench.core.errors import CalibrationRefused
 from bench.core.parsing import parse_wavelengths
@@ -53,19 +54,24 @@ def no_light(bench: Bench, plan: Plan) -> CalibrationRefused:
 
 def detector_identity(bench: Bench) -> dict[str, Any]:
     """The detector a white is read with: model, serial, the wavelengths of its values and the
-    declared ``counts_per_ms`` (the emulated unit's own without ``[detector]``; None on a real or
-    virtual body that declares none)."""
+    declared ``counts_per_ms`` (without ``[detector]``: the emulated unit's own; on the virtual
+    body its goniophotometer's gain in the same unit, ``gain / (RESPONSE_GAIN * 1000)``, as
+    :func:`bench.builders.detector.virtual_gain` inverts; None on a real body that declares none)."""
     info = bench.spectrometer.describe()
     det = detector_settings(bench.config)
     if det is None and bench.kind == "emulated":
         det = DetectorTable()  # the emulator's unit: the table's defaults are its own
+    cpm = None if det is None else float(det.counts_per_ms)
+    gain = getattr(bench.spectrometer, "gain", None) if bench.kind == "virtual" else None
+    if isinstance(gain, (int, float)) and gain > 0:  # the twin's response, declared or its default
+        cpm = float(gain) / (RESPONSE_GAIN * 1000.0)
     wl = getattr(bench.spectrometer, "wavelengths", None)
     if wl is None:  # a bench that is its description only (planning): the bands it declares, if any
         bands = described_bands(bench.config)
         wl = None if bands is None else parse_wavelengths(bands[0])
     return {"model": str(info.model), "serial": str(info.serial),
             "wavelengths_nm": None if wl is None else [float(w) for w in np.asarray(wl, float)],
-            "counts_per_ms": None if det is None else float(det.counts_per_ms)}
+            "counts_per_ms": cpm}
 
 
 def white_origin(bench: Bench) -> dict[str, Any]:

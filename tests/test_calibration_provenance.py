@@ -247,8 +247,12 @@ def test_bench_white_refuses_a_white_unlike_the_accepted_one_and_writes_nothing(
 def test_white_origin_of_the_virtual_body():
     with _virtual_bench() as b:
         o = white_origin(b)
-    assert o["body"] == "virtual" and o["detector"]["counts_per_ms"] is None
+    assert o["body"] == "virtual" and o["detector"]["counts_per_ms"] == 1.0e4 / (RESPONSE_GAIN * 1000.0)  # its gain
     assert o["detector"]["wavelengths_nm"] == [450.0, 550.0, 650.0]
+    with _virtual_bench(detector=DETECTOR) as b:  # a declared detector sets the twin's gain
+        assert white_origin(b)["detector"]["counts_per_ms"] == 1500.0
+        with pytest.raises(CalibrationRefused, match="counts_per_ms = 5; bench 'emulated' declares 1500"):
+            check_origin("w", o, b)
 
 
 def test_bench_plan_refuses_another_bodys_white_from_the_description_alone(tmp_path, capsys):
