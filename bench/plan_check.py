@@ -20,17 +20,21 @@ from bench.runner import stored_white
 __all__ = ["refuse_before_opening"]
 
 
-def refuse_before_opening(plan: Plan, d: Mapping[str, Any], body: str, calibrated: bool = False) -> None:
+def refuse_before_opening(plan: Plan, d: Mapping[str, Any], body: str, calibrated: bool = False,
+                          resuming: bool = False) -> None:
     """Raise the one-line refusal (:class:`~bench.core.errors.PlanError`,
     :class:`~bench.core.errors.CalibrationRefused`, :class:`~bench.core.errors.ConfigError`)
     ``plan`` meets on description ``d`` executed by ``body``, before anything is opened.
-    ``calibrated``: the run already holds its calibration (a resume): no white step is checked."""
-    if body == "virtual":
-        check_exposure(plan, d, white=False if calibrated else None)
+    ``calibrated``: the run already holds its calibration: no white step is checked.
+    ``resuming``: the run was started (its exposure decided then, its first points measured
+    with it): finishing it is not refused for its exposure."""
+    bench = None if body == "virtual" else described_bench(d, body)  # the virtual body's own checks refuse alike
+    if bench is not None:
+        validate(plan, bench.goniometer.check)
+    if not resuming:
+        check_exposure(plan, d)  # before the calibration steps: the white would saturate too
+    if bench is None:
         return
-    bench = described_bench(d, body)
-    validate(plan, bench.goniometer.check)
-    check_exposure(plan, d, white=False if calibrated else None)  # first: a white it would saturate too
     steps = replace(plan, white="none") if calibrated else plan
     check_calibration_steps(bench, steps, stored_white(bench) if steps.white != "none" else None)
     if body == "real":

@@ -161,7 +161,7 @@ def cmd_resume(args: argparse.Namespace) -> int:
         plan = plan_from_dict(info["plan"], name=info["plan"].get("name", "plan"))
         if info["status"] != "completed":  # (a completed run is refused by resume_scan, naming it)
             check_resume_body(args.run, info, body)  # its white on another body: refused before opening
-            refuse_before_opening(plan, d, body, calibrated=bool(info.get("calibration")))
+            refuse_before_opening(plan, d, body, calibrated=bool(info.get("calibration")), resuming=True)
         bench = load_bench(d, seed=info.get("seed"), body=body)
         with bench:
             result = resume_scan(bench, store, args.run, progress=not args.quiet and sys.stderr.isatty())
