@@ -40,7 +40,8 @@ README = ROOT / "README.md"
 #: command words not run here, and the tests that cover them
 NOT_RUN = {"scan": "test_runner.py / test_cli.py", "runs": "test_store.py", "resume": "test_runner.py",
            "white": "test_home_white.py", "home": "test_home_white.py",
-           "show": "test_store.py", "export": "test_export.py", "emulate": "test_emulated_bench.py"}
+           "show": "test_store.py", "export": "test_export.py", "emulate": "test_emulated_bench.py",
+           "check": "test_assurance.py", "chart": "test_assurance.py"}
 
 _NUMBER = re.compile(r"[-+]?(?:\d[\d,]*\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 

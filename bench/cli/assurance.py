@@ -145,20 +145,27 @@ def _plot(charts: list[tuple[Any, list, Any]], path: str, bench_name: str) -> No
 
     from bench.core.outputs import save_figure
 
-    fig, axes = plt.subplots(len(charts), 1, figsize=(8, 3 * len(charts)), squeeze=False)
-    for ax, (check, _history, ch) in zip(axes[:, 0], charts):
-        x = list(range(1, len(ch.values) + 1))
-        ax.plot(x, ch.values, "o-", color="tab:blue", ms=4)
-        ax.axhline(ch.centre, color="k", lw=1)
-        for k, style in ((3, "-"), (2, "--"), (1, ":")):
+    fig, axes = plt.subplots(len(charts), 1, figsize=(9, 3.4 * len(charts)), squeeze=False)
+    for ax, (check, history, ch) in zip(axes[:, 0], charts):
+        x = list(range(len(ch.values)))
+        if not ch.declared:  # the points the centre and limits come from
+            ax.axvspan(-0.5, ch.baseline - 0.5, color="0.93", zorder=0, label=f"baseline ({ch.baseline} runs)")
+        ax.plot(x, ch.values, "o-", color="tab:blue", ms=4, label="check value")
+        ax.axhline(ch.centre, color="k", lw=1, label="centre")
+        for k, style, colour in ((3, "-", "tab:red"), (2, "--", "grey"), (1, ":", "grey")):
             for sgn in (1, -1):
-                ax.axhline(ch.centre + sgn * k * ch.sigma, color="tab:red" if k == 3 else "grey", ls=style, lw=0.8)
-        for v in ch.violations:
-            ax.plot(v.index + 1, ch.values[v.index], "s", color="tab:red", ms=8, mfc="none")
-        ax.set_title(f"check {check.name}, bench {bench_name}: Shewhart chart "
+                ax.axhline(ch.centre + sgn * k * ch.sigma, color=colour, ls=style, lw=0.8,
+                           label=f"centre +- {k} sigma" if sgn == 1 else None)
+        for i, v in enumerate(ch.violations):
+            ax.plot(v.index, ch.values[v.index], "s", color="tab:red", ms=9, mfc="none",
+                    label="rule broken" if i == 0 else None)
+        step = max(1, len(x) // 12)
+        ax.set_xticks(x[::step], [str(h["date"] or "")[5:] for h in history][::step])
+        ax.set_title(f"check {check.name}, bench {bench_name}: Shewhart chart, Western Electric / Nelson rules "
                      f"({'in control' if ch.in_control else 'out of control'})", fontsize=9)
-        ax.set_xlabel("check run (by date)")
+        ax.set_xlabel("check run (date)")
         ax.set_ylabel("reading / reference")
+        ax.legend(fontsize=7, loc="upper left", ncol=3)
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
@@ -170,7 +177,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_bench_options(c, "the bench whose [[check]] standards to measure (required)")
     c.add_argument("--check", action="append", metavar="NAME", help="measure only this check (repeatable; default: all)")
     c.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite", help="run store (default %(default)s)")
-    c.add_argument("--seed", type=seed, default=None, help="seed of the virtual and emulated bodies' noise")
+    c.add_argument("--seed", type=seed, default=None, help="seed of the virtual and emulated bodies' noise, integer 0..2^63-1 (default: the bench's, "
+                        "else a fresh one)")
     add_date_option(c, "check")
     c.add_argument("--json", action="store_true", help="one JSON object with stable keys")
     c.set_defaults(func=cmd_check)
