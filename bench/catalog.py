@@ -6,11 +6,16 @@ wrote it, so a run a ``TiledWriter`` also wrote live is served once; else a UUID
 run id, the same at every start), with the run id under ``run_id`` and a ``scan_id`` (the
 RunEngine's, else the run's rank in the store), and which carries the
 run's identity (``specimen``, ``bench``, ``body``, ``plan``), its ``column_units`` and the whole
-metadata an export's sidecar JSON holds under ``goniobench``; one ``primary`` stream whose event
-rows are exactly the rows of ``bench export``'s tidy CSV (:func:`bench.io.tidy_table`, same
-columns, same values); a stop document with the run's status. Those documents are written with
+metadata an export's sidecar JSON holds under ``goniobench``; one ``primary`` stream with one
+event per measured point (per spectrum: a point's R and T sides are two), stamped with the time
+the point was measured, its geometry and identity as scalars and every other column of ``bench
+export``'s tidy CSV (:func:`bench.io.tidy_table`, same values) as an array over the run's
+``wavelength_nm`` grid (NaN, False or "" where a point has no reading); rows that are not spectra
+(a point holding one wavelength twice) are served one event per row; a stop document with the
+run's status. Those documents are written with
 ``bluesky_tiled_plugins.TiledWriter`` -- the callback a beamline's RunEngine uses -- so the runs
-have the structure every Bluesky/Tiled reader expects (``client[run_id]["primary"].read()``).
+have the structure every Bluesky/Tiled reader expects (``run["primary"].read()``; the arrays are
+written as arrays, ``max_array_size=0``, where TiledWriter would keep short ones as text).
 
 :class:`CatalogServer` runs a real Tiled server (the ``tiled`` extra) on 127.0.0.1 in a thread:
 a SQLite catalog keyed by start uid (find a run by id with ``search(Key("start.run_id") == RUN)``;
@@ -100,12 +105,100 @@ def _data_key(column: Any, unit: str | None) -> dict[str, Any]:
     return key
 
 
+#: columns that say which spectrum a row belongs to (the point, its geometry and side, the
+#: record's identity); every other column becomes an array over ``wavelength_nm``, one event per
+#: spectrum
+_SPECTRUM_KEYS = ("idx", "theta_i", "phi_i", "theta_r", "phi_r", "theta_min", "theta_max", "phi_min", "phi_max",
+                  "psa", "hemisphere", "quantity", "specimen", "sample_name", "geometry", "collector", "run_id",
+                  "bench", "body", "plan", "task")
+
+
+def _spectra(table: Any) -> tuple[list[str], list[str], Any, list[Any]] | None:
+    """``(key columns, array columns, wavelength grid, groups)``: the rows of each measured point
+    (its geometry, side, quantity, specimen) as one spectrum over the run's wavelength grid, in
+    the rows' order; None when a point holds one wavelength twice (then one event per row)."""
+    import numpy as np
+
+    if "wavelength_nm" not in table.columns:
+        return None
+    keys = [str(c) for c in table.columns if c in _SPECTRUM_KEYS]
+    arrays = [str(c) for c in table.columns if c not in keys and c != "wavelength_nm"]
+    grid = np.unique(table["wavelength_nm"].to_numpy(float))
+    groups = list(table.groupby(keys, sort=False, dropna=False).groups.values()) if keys else [table.index]
+    for rows in groups:
+        if table.loc[rows, "wavelength_nm"].duplicated().any():
+            return None
+    return keys, arrays, grid, groups
+
+
+def _array_key(column: Any, unit: str | None, n: int) -> dict[str, Any]:
+    kind = column.dtype.kind
+    key: dict[str, Any] = {"dtype": "array", "shape": [n], "dims": ["wavelength_nm"], "source": "goniobench-store"}
+    if kind in "biuf":
+        key["dtype_numpy"] = "|b1" if kind == "b" else "<f8"
+    if unit:
+        key["units"] = unit
+    return key
+
+
+def _spectrum_values(table: Any, rows: Any, column: str, grid: Any) -> list[Any]:
+    """A column's values of ``rows`` over ``grid`` (NaN, or False for flags, where not measured)."""
+    import numpy as np
+
+    col = table.loc[rows, column]
+    where = np.searchsorted(grid, table.loc[rows, "wavelength_nm"].to_numpy(float))
+    if col.dtype.kind == "b":
+        out = np.zeros(grid.size, dtype=bool)
+        out[where] = col.to_numpy(bool)
+    elif col.dtype.kind not in "iuf":  # text (a mask reason, a budget): "" where not measured
+        text = [""] * grid.size
+        for i, v in zip(where, _column_values(col)):
+            text[int(i)] = v
+        return text
+    else:
+        out = np.full(grid.size, np.nan)
+        out[where] = col.to_numpy(float)
+    return out.tolist()
+
+
+def _point_events(table: Any, units: dict[str, str], times: dict[int, float], t_end: float) -> Any:
+    """``(data_keys, [(data, time), ...])``: one event per measured point, its spectra as arrays
+    over ``wavelength_nm`` stamped with the point's end time (``times`` by point index; the run's
+    end without one); None when the rows are not spectra (see :func:`_spectra`)."""
+    found = _spectra(table)
+    if found is None:
+        return None
+    keys, arrays, grid, groups = found
+    data_keys = {c: _data_key(table[c], units.get(c)) for c in keys}
+    data_keys.update({c: _array_key(table[c], units.get(c), grid.size) for c in arrays})
+    data_keys["wavelength_nm"] = {**_array_key(table["wavelength_nm"], units.get("wavelength_nm"), grid.size)}
+    events = []
+    for rows in groups:
+        first = table.loc[rows[0]]
+        data = {c: _column_values(table.loc[rows[:1], c])[0] for c in keys}
+        data.update({c: _spectrum_values(table, rows, c, grid) for c in arrays})
+        data["wavelength_nm"] = grid.tolist()
+        idx = first.get("idx") if "idx" in table.columns else None
+        t = times.get(int(idx), t_end) if idx is not None and idx == idx else t_end
+        events.append((data, float(t)))
+    return data_keys, events
+
+
 def _column_values(column: Any) -> list[Any]:
     """A column as JSON-able values: strings for text (an absent key as ""), numbers as floats or ints."""
     kind = column.dtype.kind
     if kind in "biuf":
         return column.to_numpy().tolist()
     return ["" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v) for v in column]
+
+
+def _point_times(store: Any, run_id: str) -> dict[int, float]:
+    """When each point of the run was measured (its ``t_end``), by point index."""
+    try:
+        pts = store.points(run_id)
+    except (AttributeError, KeyError):
+        return {}
+    return {int(i): float(t) for i, t in zip(pts["idx"], pts["t_end"]) if t == t and t is not None}
 
 
 def run_documents(store: Any, run_id: str, scan_id: int | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
@@ -142,11 +235,18 @@ def run_documents(store: Any, run_id: str, scan_id: int | None = None) -> Iterat
     run = compose_run(uid=run_uid(info), time=t0, metadata={k: v for k, v in start_md.items() if v is not None})
     yield "start", run.start_doc
     n = len(table)
-    if n:
+    t_end = float(info.get("finished_epoch") or t0)
+    points = _point_events(table, units, _point_times(store, run_id), t_end) if n else None
+    if points is not None:  # one event per point, stamped when it was measured
+        data_keys, events = points
+        desc = run.compose_descriptor(name="primary", data_keys=data_keys)
+        yield "descriptor", desc.descriptor_doc
+        for data, t in events:
+            yield "event", desc.compose_event(data=data, timestamps=dict.fromkeys(data, t), time=t, validate=False)
+    elif n:  # rows that are not spectra (no wavelength, or one twice at a point): one event per row
         desc = run.compose_descriptor(name="primary", data_keys={str(c): _data_key(table[c], units.get(str(c)))
                                                                  for c in table.columns})
         yield "descriptor", desc.descriptor_doc
-        t_end = float(info.get("finished_epoch") or t0)
         data = {str(c): _column_values(table[c]) for c in table.columns}
         yield "event_page", desc.compose_event_page(
             data=data, timestamps={k: [t_end] * n for k in data}, seq_num=list(range(1, n + 1)), time=[t_end] * n,
@@ -293,7 +393,7 @@ class CatalogServer:
             if not any(name in ("event", "event_page") for name, _ in docs):
                 self.unserved.append(rid)  # nothing measured: no event stream to read
                 continue
-            writer = TiledWriter(client)
+            writer = TiledWriter(client, max_array_size=0)  # spectra as arrays (zarr), not text in the table
             for name, doc in docs:
                 writer(name, doc)
             self._served.add(uid)

@@ -56,24 +56,42 @@ def test_a_stored_run_becomes_valid_bluesky_documents_with_the_exports_rows(stor
         again = next(run_documents(s, rid))[1]
     for name, doc in docs:
         schema_validators[DocumentNames[name]].validate(doc)
-    assert [n for n, _ in docs] == ["start", "descriptor", "event_page", "stop"]
-    start, desc, page, stop = (d for _, d in docs)
+    names = [n for n, _ in docs]
+    # one event per measured spectrum (each point's R and T sides), not one per wavelength
+    assert names == ["start", "descriptor", "event", "event", "event", "event", "stop"]
+    start, desc, *events, stop = (d for _, d in docs)
     # the uid is a UUID (as a RunEngine's), the same at every serve; the run id is metadata
     assert uuid.UUID(start["uid"]).version == 5 and start["uid"] == again["uid"]
     assert start["run_id"] == rid and start["scan_id"] == 1
     assert start["specimen"] == "lambert:albedo=0.3" and start["plan_name"] == "two-incidences"
     assert start["body"] == "virtual" and start["column_units"]["value"] == "1/sr" and stop["exit_status"] == "success"
     assert desc["name"] == "primary" and desc["data_keys"]["value"]["units"] == "1/sr"
+    value = desc["data_keys"]["value"]
+    assert value["dtype"] == "array" and value["shape"] == [2] and value["dims"] == ["wavelength_nm"]
+    # each event stamped when its point was measured (the store's point end times), in order
+    with RunStore(path, create=False) as s:
+        ends = dict(zip(s.points(rid)["idx"], s.points(rid)["t_end"]))
+    assert [e["time"] for e in events] == [ends[e["data"]["idx"]] for e in events]
+    # the events hold exactly the rows `bench export` writes, spectra spread over wavelength_nm
     assert main(["export", rid, "--store", str(path), "--out", str(tmp_path / "r.csv")]) == 0
     capsys.readouterr()
     exported = pd.read_csv(tmp_path / "r.csv")
-    assert set(page["data"]) == set(exported.columns)
+    assert set(desc["data_keys"]) == set(exported.columns)
+    rows = []
+    for e in events:
+        for i, wl in enumerate(e["data"]["wavelength_nm"]):
+            rows.append({c: (v[i] if isinstance(v, list) else v) for c, v in e["data"].items()} | {"wavelength_nm": wl})
+    served = pd.DataFrame(rows)
+    assert len(served) == len(exported)
+    order = ["idx", "hemisphere", "wavelength_nm"]
+    served = served.sort_values(order).reset_index(drop=True)
+    exported = exported.sort_values(order).reset_index(drop=True)
     for col in exported.columns:
-        got = page["data"][col]
+        got = served[col]
         if exported[col].isna().all():  # a key no row fills (collector, geometry): empty text
             assert set(got) == {""}, col
         elif exported[col].dtype.kind in "if":
-            assert np.array_equal(np.asarray(got, float), exported[col].to_numpy(float), equal_nan=True), col
+            assert np.array_equal(got.to_numpy(float), exported[col].to_numpy(float), equal_nan=True), col
         else:
             assert [g or None for g in got] == [None if v != v else v for v in exported[col]], col
 
@@ -122,10 +140,14 @@ def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_wr
         client = from_uri(info["uri"])
         (run,) = client.search(Key("start.run_id") == rid).values()
         assert run.metadata["start"]["specimen"] == "lambert:albedo=0.3"
-        table = run["primary"].read().to_dataframe()
-        for col in ("wavelength_nm", "theta_i", "theta_r", "value", "std"):
-            assert np.array_equal(table[col].to_numpy(float), exported[col].to_numpy(float)), col
-        assert list(table["hemisphere"]) == list(exported["hemisphere"])
+        primary = run["primary"].read()  # one event per spectrum, arrays over wavelength_nm
+        value = np.asarray(primary["value"], float)  # (events, wavelengths): arrays, not text
+        assert value.shape == (4, 2)
+        spectra = exported.sort_values("wavelength_nm", kind="stable").groupby(["idx", "hemisphere"], sort=False)
+        want = {k: g["value"].to_numpy(float) for k, g in spectra}
+        got = {(int(i), str(h)): v for i, h, v in zip(np.asarray(primary["idx"]), np.asarray(primary["hemisphere"]),
+                                                       value)}
+        assert got.keys() == want.keys() and all(np.array_equal(got[k], want[k]) for k in want)
         # a Bluesky script writes into the same catalog with the served API key, and reads it back
         # (and into the store: the run is then served once, as the RunEngine wrote it)
         RE = RunEngine({})
