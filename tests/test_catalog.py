@@ -182,3 +182,28 @@ def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_wr
     finally:
         server.terminate()
         server.wait(20)
+
+
+@pytest.mark.slow  # imports tiled's catalog (~4 CPU-s)
+def test_the_catalog_is_initialised_in_this_process(tmp_path, monkeypatch):
+    """Tiled's own init runs `python -m tiled catalog init` in a second interpreter (about half of
+    a 40-s `bench serve` start on a loaded 2-core machine): ours creates and stamps it here, once."""
+    import sqlite3
+
+    from bench.catalog import init_catalog
+
+    def no_subprocess(*args, **kwargs):
+        raise AssertionError(f"a subprocess was started: {args}")
+
+    monkeypatch.setattr(subprocess, "run", no_subprocess)
+    monkeypatch.setattr(subprocess, "Popen", no_subprocess)
+    uri = f"sqlite:///{tmp_path / 'catalog.db'}"
+    init_catalog(uri)
+    with sqlite3.connect(tmp_path / "catalog.db") as db:
+        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        (stamp,) = db.execute("SELECT version_num FROM alembic_version").fetchone()
+    assert {"nodes", "alembic_version"} <= tables and stamp
+    init_catalog(uri)  # an existing catalog is left as it is
+    from tiled.catalog import from_uri
+
+    from_uri(uri)  # and tiled opens it without initialising it again
