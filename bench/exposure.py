@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -43,7 +43,7 @@ from bench.plans import Plan
 from virtual.specimens import parse_specimen
 from virtual.wire.ocean_model import SpectrometerConfig
 
-__all__ = ["Exposure", "predict_exposure", "check_exposure", "MARGIN_SD", "has_full_scale"]
+__all__ = ["Exposure", "predict_exposure", "check_exposure", "resolve_integration", "MARGIN_SD", "has_full_scale"]
 
 log = logging.getLogger(__name__)
 
@@ -178,3 +178,37 @@ def check_exposure(plan: Plan, d: Mapping[str, Any], white: bool | None = None) 
     if e is not None and e.saturates:
         raise PlanError(e.refusal(plan.name, str(d.get("name", "bench"))))
     return e
+
+
+def resolve_integration(plan: Plan, d: Mapping[str, Any]) -> Plan:
+    """``plan`` with ``integration_s = "auto"`` resolved on description ``d``: the longest
+    integration the declared detector takes (``[detector] integration_s``) at which the brightest
+    predicted scan keeps its margin below full scale, two significant digits, rounded down;
+    recorded in the plan's source, so the run (and its resume) keep the number. A plan with a
+    number is returned as it is. Refused (one line) on a description without full scale, or
+    when even the detector's shortest integration saturates."""
+    if not plan.integration_auto:
+        return plan
+    bench = str(d.get("name", "bench"))
+    if not has_full_scale(d):
+        raise PlanError(f"plan {plan.name!r} asks for integration_s = \"auto\"; bench {bench!r} has no detector with a "
+                        f"full scale to choose it from (declare [detector]): give integration_s in seconds")
+    lo, hi = (detector_settings(d) or DetectorTable()).integration_s
+    e = predict_exposure(replace(plan, integration_s=float(hi), integration_auto=False), d)
+    if e is None:
+        raise PlanError(f"plan {plan.name!r} asks for integration_s = \"auto\"; bench {bench!r} names no specimen "
+                        f"model with a density and the plan takes no white: nothing to predict the counts from")
+    longest = e.longest_integration()
+    t = min(float(hi), _floor_2_digits(longest))
+    if t < lo or longest <= 0:
+        raise PlanError(f"plan {plan.name!r}: even the detector's shortest integration ({lo:g} s) would saturate "
+                        f"on {e.brightest} (bench {bench!r})")
+    log.info("plan %s: integration_s = %g s chosen (auto; the brightest reading %s)", plan.name, t, e.brightest)
+    return replace(plan, integration_s=t, integration_auto=False, source={**dict(plan.source), "integration_s": t})
+
+
+def _floor_2_digits(x: float) -> float:
+    if x <= 0:
+        return 0.0
+    digits = 1 - math.floor(math.log10(x))
+    return round(math.floor(x * 10.0**digits + 1e-9) / 10.0**digits, digits)

@@ -74,6 +74,8 @@ class Plan:
     source: Mapping[str, Any] = field(default_factory=dict)
     unreachable: str = "refuse"  # "skip": measure the reachable points, record the others as skipped
     white_repeats: int = DEFAULT_WHITE_REPEATS  # white readings taken when white = "repeated"
+    #: the plan says integration_s = "auto": the bench chooses it (:func:`bench.exposure.resolve_integration`)
+    integration_auto: bool = False
 
     @property
     def n_whites(self) -> int:
@@ -193,8 +195,9 @@ def plan_from_dict(d: Mapping[str, Any], name: str = "plan", source: str | None 
         table = {"points": d["points"]}
     if not isinstance(table, Mapping):
         raise ConfigError(f"plan [{kind}] must be a table")
+    auto = d.get("integration_s") == "auto"  # chosen by the bench: bench.exposure.resolve_integration
     try:
-        integration = float(d.get("integration_s", 0.1))
+        integration = 0.1 if auto else float(d.get("integration_s", 0.1))
         averages = int(d.get("averages", 1))
     except (TypeError, ValueError):
         raise ConfigError("plan integration_s must be a number and averages an integer") from None
@@ -218,7 +221,7 @@ def plan_from_dict(d: Mapping[str, Any], name: str = "plan", source: str | None 
     pts = _points(kind, table)
     return Plan(name=str(d.get("name", name)), kind=kind, points=tuple(pts), integration_s=integration,
                 averages=averages, dark=dark, white=white, order=order, home=home, source=d,
-                unreachable=str(d.get("unreachable", "refuse")), white_repeats=repeats)
+                unreachable=str(d.get("unreachable", "refuse")), white_repeats=repeats, integration_auto=auto)
 
 
 def load_plan(path: str | Path) -> Plan:

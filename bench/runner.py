@@ -37,7 +37,7 @@ from bench.core.errors import BenchError, DeviceError, RunInterrupted, StoreErro
 from bench.core.geometry import Geometry
 from bench.core.roles import Reading
 from bench.builders.homing import HOME_AXIS, home_axis, homeable_axes
-from bench.exposure import check_exposure
+from bench.exposure import check_exposure, resolve_integration
 from bench.builders.ownership import note_run
 from bench.plans import Plan, order_for_travel, plan_from_dict, validate
 from bench.calibration_chain import acquire_dark, decide_calibration, resumed_calibration, stored_white
@@ -142,6 +142,7 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     ``on_point(k, idx)`` is called after point number ``k`` (plan index ``idx``) is committed
     (tests use it to inject faults).
     """
+    plan = resolve_integration(plan, bench.config)  # integration_s = "auto": the bench's longest unsaturated
     refused = validate(plan, bench.goniometer.check)  # refuse the whole plan before any motion, or skip
     skipped = {r.index for r in refused}
     order = order_for_travel(plan.points) if plan.order == "travel" else list(range(len(plan.points)))

@@ -178,3 +178,31 @@ def test_resume_on_stale_ports_names_the_port_before_opening(tmp_path, capsys):
     assert code == 2 and "[arm] port '/dev/ttyUSB0'" in line and "no such device" in line
     with RunStore(store) as s:
         assert s.run(rid)["status"] == "interrupted"
+
+
+def test_auto_integration_takes_the_longest_unsaturated(tmp_path, capsys):
+    """integration_s = "auto": the bench chooses the longest integration whose brightest scan
+    keeps its margin (two digits, rounded down), records it, and the run reads unsaturated; a
+    description without full scale refuses it in one line."""
+    doc = {"name": "auto", "kind": "in-plane", "integration_s": "auto", "averages": 2, "dark": "none",
+           "white": "none", "in_plane": {"theta_i": [30], "theta_r": [0, 30, 60], "phi_i": 0}}
+    plan = tmp_path / "auto.toml"
+    plan.write_text(tomli_w.dumps(doc))
+    code, out, err = run_main(capsys, "plan", plan, "--bench", BENCHES / "virtual.toml", "--json")
+    assert code == 0, err
+    got = json.loads(out)
+    t = got["integration_s"]
+    fixed = predict_exposure(dataclasses.replace(load_plan(plan), integration_s=t, integration_auto=False),
+                             read_toml(BENCHES / "virtual.toml", "bench config"))
+    assert not fixed.saturates and fixed.saturates_at(t * 1.02) and got["exposure"]["fraction_of_full_scale"] > 0.9
+    code, out, err = run_main(capsys, "scan", plan, "--bench", BENCHES / "virtual.toml", "--store",
+                              tmp_path / "runs.sqlite", "--json", "-q")
+    assert code == 0 and json.loads(out)["masked"] == 0, err
+    from bench.store import RunStore
+
+    with RunStore(tmp_path / "runs.sqlite") as s:
+        assert s.run(json.loads(out)["run_id"])["plan"]["integration_s"] == t  # recorded: a resume keeps it
+    plain = tmp_path / "plain.toml"
+    plain.write_text(tomli_w.dumps({"name": "v", "kind": "virtual", "specimen": {"spec": "lambert:albedo=0.8"}}))
+    code, out, err = run_main(capsys, "plan", plan, "--bench", plain)
+    assert code == 2 and "no detector with a full scale" in _one_line(err)

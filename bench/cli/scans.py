@@ -27,6 +27,7 @@ def _plan_and_bench(args: argparse.Namespace, planning: bool = False):
     from bench.builders.described import planning_bench
     from bench.builders.drift import on_day
     from bench.config import load_bench, load_description
+    from bench.exposure import resolve_integration
     from bench.plan_check import refuse_before_opening
     from bench.plans import load_plan
 
@@ -35,9 +36,11 @@ def _plan_and_bench(args: argparse.Namespace, planning: bool = False):
     warn_if_radians(f"plan {args.plan} theta_i/theta_r", sorted(set(thetas)))
     seed = getattr(args, "seed", None)
     if planning:
-        return plan, planning_bench(args.bench, seed=seed, body=args.body)
+        bench = planning_bench(args.bench, seed=seed, body=args.body)
+        return resolve_integration(plan, bench.config), bench  # integration_s = "auto": chosen here
     d, body = load_description(args.bench, args.body)
     d = on_day(d, getattr(args, "date", None))  # a declared [drift] simulated on --date
+    plan = resolve_integration(plan, d)
     refuse_before_opening(plan, d, body)
     return plan, load_bench(d, seed=seed, body=body)
 

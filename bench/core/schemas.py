@@ -111,7 +111,8 @@ class PlanFile(Table):
 
     name: str = "plan"
     kind: Literal["spectral", "in-plane", "hemispherical", "half-vector", "list"]
-    integration_s: Annotated[Finite, Field(gt=0, le=MAX_INTEGRATION_S)] = 0.1
+    #: seconds, or "auto": the longest the bench's detector takes without saturating (bench.exposure)
+    integration_s: Union[Annotated[Finite, Field(gt=0, le=MAX_INTEGRATION_S)], Literal["auto"]] = 0.1
     averages: Annotated[Whole, Field(ge=1, le=MAX_AVERAGES)] = 1
     dark: Literal["none", "once", "per-incidence", "per-point"] = "once"
     white: Literal["none", "once", "repeated"] = "once"
