@@ -196,7 +196,7 @@ def test_json_keys_store_and_figure(capsys, tmp_path):
     assert code == 0, err
     doc = json.loads(out)
     assert list(doc) == ["model", "parameters", "correlation", "chi2", "dof", "p_value", "p_value_method", "converged",
-                         "method"]
+                         "method", "identifiability", "outliers"]
     assert list(doc["parameters"]["reflectance"]) == ["value", "ci", "unit"]
     lo, hi = doc["parameters"]["reflectance"]["ci"]
     assert lo < 0.6 < hi and doc["converged"] is True and fig.stat().st_size > 0

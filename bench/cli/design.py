@@ -145,6 +145,7 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     from bench.identify.design import design_for_bench, information, interval_widths
     from bench.identify.design_io import widths_text, write_design
     from bench.identify.design_noise import bench_reading_model
+    from bench.identify.identifiability import refuse_unidentifiable
     from bench.identify.time_model import ReadingSettings, bench_time_model, candidate_grid, reachable
     from bench.plans import load_plan, refusal_message, refusals
 
@@ -160,6 +161,8 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
         candidates = reachable(candidate_grid(args.step), check, settings[0])
         if not candidates:
             raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
+        everything = information(point, candidates, bench_reading_model(bench, settings[0])).total(range(len(candidates)))
+        refuse_unidentifiable(everything, spec.names, spec.upper - spec.lower, bench.name)
         design = design_for_bench(point, bench, candidates, args.seconds, settings, args.criterion,
                                   max_seconds=args.max_seconds or DEFAULT_MAX_SECONDS)
         write_design(out, design, spec.text, bench.name, bench.kind, len(candidates), args.seconds)

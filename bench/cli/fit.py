@@ -102,18 +102,30 @@ def _store_fit(store_path: str, result: Any, ref: str, run_id: str | None, args:
 
 
 def _print(result: Any) -> None:
+    from bench.identify.fit import OUTLIER_Z
+
     print(f"model {result.model}  ({result.method}, {result.confidence:g} confidence)")
     for name, p in result.parameters.items():
         unit = f" {p.unit}" if p.unit else ""
-        print(f"  {name:10s} {p.value:.6g}{unit}  [{p.ci[0]:.6g}, {p.ci[1]:.6g}]")
+        print(f"  {result.label(name):10s} {p.value:.6g}{unit}  [{p.ci[0]:.6g}, {p.ci[1]:.6g}]")
     if len(result.parameters) > 1:
-        names = list(result.parameters)
+        names = [result.label(n) for n in result.parameters]
         pairs = [f"{a}/{b} {result.correlation[i, j]:+.3f}" for i, a in enumerate(names)
                  for j, b in enumerate(names) if j > i]
         print("  correlation: " + ", ".join(pairs))
     p = f"{result.p_value:.3g}" if result.p_value == result.p_value else "n/a"
+    ident = result.identifiability
+    unidentified = f", but NOT identified: {ident.text()}" if ident is not None and ident.unidentified else ""
     print(f"  chi2 {result.chi2:.4g}, dof {result.dof}, p {p}; "
-          + ("converged" if result.converged else f"NOT converged ({result.message})"))
+          + (f"converged{unidentified}" if result.converged else f"NOT converged ({result.message})"))
+    if result.outliers:
+        print(f"  {len(result.outliers)} reading(s) more than {OUTLIER_Z:g} standard uncertainties from the fitted model"
+              + (", the 5 largest:" if len(result.outliers) > 5 else ":"))
+    for o in result.outliers[:5]:
+        where = (f"theta_i {o['theta_i']:g}, theta_r {o['theta_r']:g} deg" if "theta_r" in o
+                 else str(o.get("geometry", "")))
+        print(f"  outlier: reading {o['reading']} ({where}, {o['wavelength_nm']:g} nm) value {o['value']:.6g}, "
+              f"z {o['z']:+.1f}")
     print(f"  best-fit specimen: {result.specimen}")
 
 

@@ -59,6 +59,7 @@ def model_point(spec: Any, prior: Mapping[str, float] | None = None) -> ModelPoi
     free = {p.name: p for p in spec.free}
     values.update({p.name: float(p.start()) for p in spec.free})
     for k, v in (prior or {}).items():
+        k = spec.canonical(k) if spec.canonical(k) in free else k  # an alias (albedo) names its parameter
         if k not in free:
             raise InputError(f"--prior {k}={v:g}: {k} is not a free parameter of {spec.text!r} "
                              f"(free: {', '.join(free)})")

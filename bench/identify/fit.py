@@ -30,8 +30,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from bench.core.errors import InputError
+from bench.core.errors import InputError, SpecimenError
 from bench.identify.gof import DRAWS, calibrated_p_value
+from bench.identify.identifiability import Identifiability, flat_profiles, identifiability
 from bench.identify.likelihood import Group, Likelihood, likelihood_for
 from bench.identify.model_spec import ModelSpec, parse_model_spec
 
@@ -47,6 +48,12 @@ RAYS_DIFF_STEP = 1e-2
 PROFILE_TOL = 1e-8
 #: evaluations a local fit may take, per free parameter plus one (beyond: not converged)
 MAX_EVALUATIONS = 100
+
+#: each residual at a point the model family refuses (outside its joint constraints)
+REFUSED = 1e6
+#: a calibrated reading this many of its own standard uncertainties from the fitted model is named
+#: an outlier (a correct model puts |z| > 5 on one reading of 1.7 million)
+OUTLIER_Z = 5.0
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +96,15 @@ class FitResult:
     xlabel: str = ""
     #: how ``p_value`` was found: the chi-square law, or the bootstrap of estimated Type A variances
     p_value_method: str = "chi-square"
+    #: which parameters the record does not identify, and why (None: not assessed, a stopped fit)
+    identifiability: Identifiability | None = None
+    #: declared name -> the name as the model string wrote it (the JSON and the printout use it)
+    labels: dict[str, str] = field(default_factory=dict)
+    #: readings more than :data:`OUTLIER_Z` standard uncertainties from the fitted model (calibrated readings)
+    outliers: tuple[dict[str, Any], ...] = ()
+
+    def label(self, name: str) -> str:
+        return self.labels.get(name, name)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -107,12 +123,14 @@ class FitResult:
         names = self.names
         return {
             "model": self.model,
-            "parameters": {n: {"value": p.value, "ci": [p.ci[0], p.ci[1]], "unit": p.unit}
+            "parameters": {self.label(n): {"value": p.value, "ci": [p.ci[0], p.ci[1]], "unit": p.unit}
                            for n, p in self.parameters.items()},
-            "correlation": {a: {b: _finite(self.correlation[i, j]) for j, b in enumerate(names)}
+            "correlation": {self.label(a): {self.label(b): _finite(self.correlation[i, j]) for j, b in enumerate(names)}
                             for i, a in enumerate(names)},
             "chi2": self.chi2, "dof": self.dof, "p_value": _finite(self.p_value), "p_value_method": self.p_value_method,
             "converged": self.converged, "method": self.method,
+            "identifiability": None if self.identifiability is None else self.identifiability.as_dict(),
+            "outliers": [dict(o) for o in self.outliers],
         }
 
 
@@ -136,13 +154,23 @@ class _Objective:
         self.cache: dict[tuple[float, ...], np.ndarray] = {}
         self.deadline = deadline  # time.monotonic() past which no new point is evaluated
         self.best: tuple[float, tuple[float, ...]] | None = None  # (deviance, x) lowest so far
+        self.size: int | None = None  # residuals per evaluation, once one succeeded
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         key = tuple(float(v) for v in x)
         if key not in self.cache:
             if self.deadline is not None and self.best is not None and time.monotonic() > self.deadline:
                 raise _OutOfTime(self)
-            r = self.cache[key] = np.asarray(self.lik.residuals(self.spec.specimen(key)), float)
+            try:
+                specimen = self.spec.specimen(key)
+            except SpecimenError:
+                if self.size is None:
+                    raise
+                # a point the family refuses (e.g. reflectance + transmittance > 1): a wall the search backs off from
+                self.cache[key] = np.full(self.size, REFUSED)
+                return self.cache[key]
+            r = self.cache[key] = np.asarray(self.lik.residuals(specimen), float)
+            self.size = len(r)
             dev = float(r @ r)
             if math.isfinite(dev) and (self.best is None or dev < self.best[0]):
                 self.best = (dev, key)
@@ -283,7 +311,38 @@ def fit_record(record: Any, spec: str | ModelSpec, *, confidence: float = 0.95, 
             result = _fit(spec, lik, confidence, interval, starts, seed, deadline)
     except _OutOfTime as out:
         return _stopped(out.objective, float(max_seconds or 0.0), confidence, interval)
-    return _calibrated(result, spec, lik)
+    return _identified(_calibrated(result, spec, lik), spec, lik)
+
+
+def _identified(result: FitResult, spec: ModelSpec, lik: Likelihood) -> FitResult:
+    """``result`` with what its Fisher information and intervals say it does not identify."""
+    ranges = spec.upper - spec.lower
+    ident = identifiability(result.fisher, spec.names, ranges)
+    ident = flat_profiles(ident, {k: p.ci for k, p in result.parameters.items()},
+                          {p.name: (p.lo, p.hi) for p in spec.free})
+    if ident.unidentified:
+        log.warning("fit: not identified by the record: %s", ident.text())
+    ident = Identifiability(ident.rank, ident.condition,
+                            {spec.labels.get(k, k): why for k, why in ident.unidentified.items()})
+    return replace(result, identifiability=ident, labels=spec.labels, outliers=_outliers(result, spec, lik))
+
+
+def _outliers(result: FitResult, spec: ModelSpec, lik: Likelihood) -> tuple[dict[str, Any], ...]:
+    """Calibrated readings whose residual from the fitted model (its shared scales applied) exceeds
+    :data:`OUTLIER_Z` times their own standard uncertainty (the covariance's diagonal less the
+    shared scales): each with its index, geometry, wavelength and z, largest |z| first."""
+    rows = getattr(lik, "rows", None)
+    if rows is None or not hasattr(lik, "predictions"):
+        return ()
+    mu = lik.predictions(spec.specimen(result.values))
+    _r, z = lik.scales.profile(lik.chol, lik.values, mu)
+    fitted = mu * (1.0 + lik.scales.loadings @ z) if lik.scales.count else mu
+    u = np.sqrt(np.einsum("ij,ij->i", lik.chol, lik.chol))
+    zs = (lik.values - fitted) / u
+    keys = ("quantity", "geometry", "theta_i", "phi_i", "theta_r", "phi_r", "wavelength_nm", "value")
+    out = [{"reading": int(i), **{k: rows[i][k] for k in keys if k in rows[i]}, "z": float(zs[i])}
+           for i in np.flatnonzero(np.abs(zs) > OUTLIER_Z)]
+    return tuple(sorted(out, key=lambda o: -abs(o["z"])))
 
 
 def _model_jacobian(spec: ModelSpec, lik: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -130,6 +130,9 @@ def calibrated_p_value(chi2: float, jac: np.ndarray, scales: np.ndarray, noise: 
     rng = np.random.default_rng(seed)
     n = len(noise.own2)
     free = np.asarray(jac, float).reshape(n, -1)
+    if free.size:  # the fit's span only: a parameter no reading depends on adds no column
+        u, sv, _ = np.linalg.svd(free, full_matrices=False)
+        free = u[:, sv > 1e-10 * sv.max()] if sv.max() > 0 else free[:, :0]
     x = np.hstack([free, noise.shared, scales])
     prior = np.concatenate([np.zeros(free.shape[1]), np.ones(noise.shared.shape[1] + scales.shape[1])])
     loadings = np.hstack([noise.shared, scales])

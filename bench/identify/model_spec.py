@@ -35,10 +35,22 @@ class FreeParameter:
     hi: float
     unit: str
     default: float
+    #: the name as the model string wrote it (an alias such as ``albedo``), reported as written
+    written: str = ""
+
+    @property
+    def label(self) -> str:
+        return self.written or self.name
 
     def start(self) -> float:
-        """The declared default when strictly inside the bounds, else the bounds' midpoint."""
-        return self.default if self.lo < self.default < self.hi else 0.5 * (self.lo + self.hi)
+        """The declared default when strictly inside the bounds; a default on a bound (a
+        transmittance of 0) moved 1 % of the range inside, so that a family's joint constraint
+        (reflectance + transmittance <= 1) is not broken by the start; else the bounds' midpoint."""
+        if self.lo < self.default < self.hi:
+            return self.default
+        if self.default in (self.lo, self.hi):
+            return self.default + (0.01 if self.default == self.lo else -0.01) * (self.hi - self.lo)
+        return 0.5 * (self.lo + self.hi)
 
 
 @dataclass(frozen=True)
@@ -54,6 +66,18 @@ class ModelSpec:
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(p.name for p in self.free)
+
+    @property
+    def labels(self) -> dict[str, str]:
+        """Declared name -> the name as written, for every free parameter."""
+        return {p.name: p.label for p in self.free}
+
+    def canonical(self, name: str) -> str | None:
+        """The declared name of parameter ``name`` (itself or an alias), None when unknown."""
+        for p in self.family.parameters:
+            if name == p.name or name in p.aliases:
+                return p.name
+        return None
 
     @property
     def units(self) -> tuple[str, ...]:
@@ -106,7 +130,7 @@ def _free(token: str, value: str, p: Any) -> FreeParameter:
         if not p.lo <= lo < hi <= p.hi:
             raise InputError(f"model token {token!r}: bounds [{lo:g}, {hi:g}] must be increasing and inside "
                              f"{p.name}'s declared range [{p.lo:.10g}, {p.hi:.10g}]{u}")
-    return FreeParameter(p.name, float(lo), float(hi), p.unit, float(p.default))
+    return FreeParameter(p.name, float(lo), float(hi), p.unit, float(p.default), token.partition("=")[0].strip())
 
 
 def parse_model_spec(text: str) -> ModelSpec:
