@@ -132,7 +132,8 @@ def test_no_normalization_bias_over_100_emulated_records():
     those (two-sided false alarm <= 0.1 %). Power: the smeared method's bias over the same records
     exceeds 0.5 se (measured about -0.9 se).
 
-    Measured (AMD EPYC, 2 cores, loaded): see the module's commit message."""
+    Measured (AMD EPYC, 2 cores, heavily loaded, 40 min): bias +2.9e-6 = +0.001 se (sem 0.006 se);
+    smeared -1.03 se."""
     rows = np.array([_fits(seed) for seed in range(300, 400)])
     value, se, smeared = rows[:, 0], float(np.median(rows[:, 1])), rows[:, 2]
     sem = float(value.std(ddof=1)) / math.sqrt(len(value))
