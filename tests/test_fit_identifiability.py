@@ -42,6 +42,9 @@ def test_a_fit_says_transmittance_is_not_identified_by_reflection_readings():
     assert doc["identifiability"]["unidentified"] == {"transmittance": "no reading sees transmission"}
     assert doc["identifiability"]["rank"] == 1
     assert list(doc["parameters"]) == ["albedo", "transmittance"]  # the alias as written
+    hessian = fit_record(record, "lambert:albedo=?,transmittance=?", interval="hessian")
+    lo, hi = hessian.parameters["reflectance"].ci  # the blind parameter does not blind the other's interval
+    assert 0.0 < lo < hi < 1.0 and hessian.identifiability.unidentified == {"transmittance": "no reading sees transmission"}
 
 
 def test_the_cli_names_what_is_not_identified_and_the_outlier(capsys, tmp_path):

@@ -394,8 +394,15 @@ def _fit(spec: ModelSpec, lik: Likelihood, confidence: float, interval: str, sta
     fisher = jac.T @ jac
     try:
         cov = np.linalg.inv(fisher)
-    except np.linalg.LinAlgError:
+    except np.linalg.LinAlgError:  # a parameter no reading depends on: the others' covariance stands
+        blind = np.diag(fisher) <= 1e-12 * max(float(np.max(np.diag(fisher))), 1e-300)
         cov = np.full((n, n), np.inf)
+        if (~blind).any() and blind.any():
+            keep = np.flatnonzero(~blind)
+            try:
+                cov[np.ix_(keep, keep)] = np.linalg.inv(fisher[np.ix_(keep, keep)])
+            except np.linalg.LinAlgError:
+                pass
     se = np.sqrt(np.where(np.diag(cov) > 0, np.diag(cov), np.nan))
     q = float(chi2_dist.ppf(confidence, 1))
     cis = []
