@@ -186,7 +186,11 @@ class Mover:
         return g
 
     async def stop(self) -> None:
-        """Hold the goniometer (after any move in the worker has ended), then read back."""
+        """Hold the goniometer (after any move in the worker has ended), then read back. A closed
+        bench's goniometer was stopped when it closed (:meth:`Devices.close`): nothing to do (the
+        RunEngine stops every device it moved when a plan ends, even one the plan closed)."""
+        if self.worker.closed:
+            return
         await self.worker.run(self.goniometer.stop)
         await self.refresh()
 

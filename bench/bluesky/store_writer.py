@@ -3,10 +3,12 @@
 One Bluesky run becomes one run of kind ``bluesky`` in the same tables as ``bench scan``'s, so
 ``bench runs / show / export / compare`` read it unchanged:
 
-* start: the run is created with the bench config, seed and description from the start
-  document's ``goniobench`` key (set by :func:`~bench.bluesky.connect`), the plan from
-  ``goniobench_plan`` (set by :func:`~bench.bluesky.plan_from_toml`) or the Bluesky plan name and
-  arguments, and the whole start document in ``meta["bluesky_start"]``;
+* start: the run is created (of kind ``bluesky``, or the kind the start document's
+  ``goniobench_run`` key names, :data:`RUN_KEY`, with its ``meta`` merged in) with the bench
+  config, seed and description from the start document's ``goniobench`` key (set by
+  :func:`~bench.bluesky.connect`), the plan from ``goniobench_plan`` (set by
+  :func:`~bench.bluesky.plan_from_toml`) or the Bluesky plan name and arguments, and
+  the whole start document in ``meta["bluesky_start"]``;
 * descriptor (stream ``primary``): the reflectance detector's calibration (its configuration) is
   stored with the run;
 * event: one point per event, its rows made by :func:`bench.runner.point_rows` from the event's
@@ -44,7 +46,12 @@ from bench.store import RunStore
 
 log = logging.getLogger(__name__)
 
-__all__ = ["StoreWriter", "EXIT_STATUS", "fault_reason"]
+__all__ = ["StoreWriter", "EXIT_STATUS", "RUN_KEY", "fault_reason"]
+
+#: the start-document key of a plan whose runs are not plain Bluesky runs: ``{"kind": K, "meta":
+#: {...}}`` (a :data:`bench.store.RUN_KINDS` kind, and keys merged into the run's meta), e.g. the
+#: check runs of :func:`bench.bluesky.assurance.check_standards`
+RUN_KEY = "goniobench_run"
 
 #: Bluesky exit_status -> our run status
 EXIT_STATUS = {"success": "completed", "abort": "interrupted", "fail": "failed"}
@@ -106,11 +113,13 @@ class StoreWriter(DocumentRouter):
                 "bench_description": bench.get("bench_description"), "bench_kind": bench.get("bench_kind"),
                 "source": bench.get("source"), "specimen": bench.get("specimen"),
                 "plan_name": ours.get("name") or doc.get("plan_name")}
+        run = dict(doc.get(RUN_KEY) or {})
+        meta.update(run.get("meta") or {})
         n_planned = ours.get("n_planned", doc.get("num_points"))
         self._store = RunStore(self.path)
         self._description = dict(bench.get("bench") or {})  # its declared uncertainty components
-        self._run = self._store.create_run(kind="bluesky", plan=jsonable(plan), bench=bench.get("bench"),
-                                           seed=bench.get("seed"), meta=meta,
+        self._run = self._store.create_run(kind=str(run.get("kind", "bluesky")), plan=jsonable(plan),
+                                           bench=bench.get("bench"), seed=bench.get("seed"), meta=meta,
                                            n_planned=None if n_planned is None else int(n_planned))
         self.run_ids.append(self._run)
         self._streams.clear()
