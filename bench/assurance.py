@@ -129,6 +129,11 @@ def check_chart(check: CheckTable, history: Sequence[Mapping[str, Any]]) -> Char
     if check.centre is None and len(values) < 2:
         raise InputError(f"check {check.name!r} has {len(values)} completed check run(s): a chart needs at least 2 "
                          f"(or a declared centre and sigma)")
+    n = min(int(check.baseline), len(values))
+    if check.sigma is None and not np.ptp(values[:n]) > 0:  # sigma from the baseline's moving ranges: 0
+        raise InputError(f"check {check.name!r}: its first {n} check values are all {values[0]:.6g}, so its "
+                         f"chart has no spread to set limits with (the same seed and day twice?): declare its sigma "
+                         f"or measure it on other days")
     return chart(values, baseline=check.baseline, centre=check.centre, sigma=check.sigma)
 
 
