@@ -232,3 +232,28 @@ def _update() -> None:
 
 if __name__ == "__main__" and "--update" in sys.argv:
     _update()
+
+
+def demo_compare_block() -> list[str]:
+    """The README's block of the demo's last stage (``compare: emulated-hardware run ...``)."""
+    text = README.read_text(encoding="utf-8")
+    start = text.index("```\ncompare: emulated-hardware run against two virtual candidate models\n") + 4
+    return [line for line in text[start:text.index("```", start)].splitlines() if line.strip()]
+
+
+@pytest.mark.slow  # the demo's emulated scan, two virtual twins and the comparison (~35 CPU-s)
+def test_the_demo_compare_block_is_what_the_demo_prints(tmp_path):
+    """`make demo` ends with this comparison: its lines, numbers to 6 significant digits (the report
+    is written under the demo's own folder, demo-out/, there)."""
+    from bench.demo import _compare_demo, _scan_demo
+
+    scan, _ = _scan_demo(tmp_path, 20261122)
+    _, printed = _compare_demo(tmp_path, scan, 20261122)
+    printed = [line for line in printed if line.strip()]
+    expected = demo_compare_block()
+    assert len(printed) == len(expected)
+    for want, got in zip(expected, printed):
+        if want.strip().startswith("report:"):
+            assert got.strip().startswith("report:") and got.endswith("compare/report.html"), got
+        else:
+            assert same(want, got), f"expected\n  {want}\nprinted\n  {got}"
