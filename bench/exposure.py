@@ -43,7 +43,8 @@ from bench.plans import Plan
 from virtual.specimens import parse_specimen
 from virtual.wire.ocean_model import SpectrometerConfig
 
-__all__ = ["Exposure", "predict_exposure", "check_exposure", "resolve_integration", "MARGIN_SD", "has_full_scale"]
+__all__ = ["Exposure", "predict_exposure", "check_exposure", "resolve_integration", "unsaturated", "MARGIN_SD",
+           "has_full_scale"]
 
 log = logging.getLogger(__name__)
 
@@ -212,3 +213,24 @@ def _floor_2_digits(x: float) -> float:
         return 0.0
     digits = 1 - math.floor(math.log10(x))
     return round(math.floor(x * 10.0**digits + 1e-9) / 10.0**digits, digits)
+
+
+def unsaturated(points: Sequence[Geometry], d: Mapping[str, Any], integration_s: float) -> list[Geometry]:
+    """The ``points`` whose predicted scan on description ``d`` keeps its margin below full scale
+    at ``integration_s`` (every point on a description without full scale, or without a specimen
+    model to predict from): what a designed plan may choose among."""
+    if not points or not has_full_scale(d):
+        return list(points)
+    bands = d.get("bands") or d.get("emulated") or {}
+    wavelengths = np.asarray(parse_wavelengths(bands.get("centres", bands.get("bands", "450:650:100"))), dtype=float)
+    fractions = _fractions(d, points, wavelengths)
+    if fractions is None:
+        return list(points)
+    det = detector_settings(d) or DetectorTable()
+    keep = []
+    for g, f in zip(points, fractions):
+        signal = det.counts_per_ms * 1000.0 * float(f) * integration_s
+        mean = _dark(integration_s, float(det.dark_counts)) + signal
+        if mean + MARGIN_SD * _sd(signal, float(det.read_noise)) < det.saturation_counts:
+            keep.append(g)
+    return keep

@@ -78,7 +78,8 @@ def digest(path: Path) -> str:
 def store(tmp_path_factory):
     d = tmp_path_factory.mktemp("fuzzstore")
     plan = d / "p.toml"
-    plan.write_text('kind = "in-plane"\n[in_plane]\ntheta_i = [30]\ntheta_r = [-20, 40]\n')
+    # 0.05 s: the default 0.1 s would bring the twin's brightest reading within 5 sd of full scale (refused)
+    plan.write_text('kind = "in-plane"\nintegration_s = 0.05\n[in_plane]\ntheta_i = [30]\ntheta_r = [-20, 40]\n')
     db = d / "runs.sqlite"
     assert main(["scan", str(plan), "--bench", VIRTUAL, "--store", str(db), "-q", "--seed", "1"]) == 0
     with sqlite3.connect(db) as c:

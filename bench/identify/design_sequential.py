@@ -125,7 +125,8 @@ def fit_readings(spec: Any, records: Sequence[BSDFRecord]) -> Any:
 
 def session_candidates(bench: Any, step_deg: float, settings: Sequence[ReadingSettings]) -> list[Geometry]:
     """The in-plane candidate grid (``--step``) minus every point ``bench`` refuses."""
-    candidates = reachable(candidate_grid(step_deg), bench.goniometer.check, settings[0])
+    candidates = reachable(candidate_grid(step_deg), bench.goniometer.check, settings[0], bench.config,
+                           max(s.integration_s for s in settings))  # nor one the detector would saturate at
     if not candidates:
         raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
     return candidates

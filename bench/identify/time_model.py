@@ -20,6 +20,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError
 from bench.core.geometry import Geometry
+from bench.exposure import unsaturated
 from bench.plans import MotionProfile, Plan, default_joints, estimate, order_for_travel, plan_from_dict, refusals
 
 __all__ = ["ReadingSettings", "TimeModel", "candidate_grid", "reachable", "plan_of_points", "bench_time_model"]
@@ -73,12 +74,18 @@ def plan_of_points(points: Sequence[Geometry], settings: ReadingSettings, name: 
     return plan_from_dict(table, name=name)
 
 
-def reachable(points: Sequence[Geometry], check: Callable[[Geometry], Any], settings: ReadingSettings) -> list[Geometry]:
-    """The points ``check`` (a bench goniometer's) accepts, by the plan validator's own rule."""
+def reachable(points: Sequence[Geometry], check: Callable[[Geometry], Any], settings: ReadingSettings,
+              description: Mapping[str, Any] | None = None, longest_s: float | None = None) -> list[Geometry]:
+    """The points ``check`` (a bench goniometer's) accepts, by the plan validator's own rule; with
+    the bench's ``description``, only those it does not saturate at ``longest_s`` (default: the
+    settings' integration), as ``bench plan`` and ``bench scan`` refuse (:mod:`bench.exposure`)."""
     if not points:
         return []
     refused = {r.index for r in refusals(plan_of_points(points, settings), check)}
-    return [g for i, g in enumerate(points) if i not in refused]
+    kept = [g for i, g in enumerate(points) if i not in refused]
+    if description is None:
+        return kept
+    return unsaturated(kept, description, settings.integration_s if longest_s is None else longest_s)
 
 
 class TimeModel:
