@@ -55,6 +55,7 @@ def test_the_cli_names_what_is_not_identified_and_the_outlier(capsys, tmp_path):
     code, out, err = run_main(capsys, "fit", path, "--model", "lambert:albedo=?,transmittance=?")
     assert "NOT identified: transmittance: no reading sees transmission" in out, out + err
     assert "outlier: reading 8" in out and "value -5" in out, out
+    assert "1 reading(s) more than 5 standard uncertainties" in out, out  # its neighbours are not dragged in
     assert "albedo" in out and "reflectance" not in out.split("best-fit")[0]
 
 

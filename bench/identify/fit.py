@@ -31,6 +31,7 @@ from typing import Any, Callable
 import numpy as np
 
 from bench.core.errors import InputError, SpecimenError
+from bench.core.records import BSDFRecord
 from bench.identify.gof import DRAWS, calibrated_p_value
 from bench.identify.identifiability import Identifiability, flat_profiles, identifiability
 from bench.identify.likelihood import Group, Likelihood, likelihood_for
@@ -311,10 +312,10 @@ def fit_record(record: Any, spec: str | ModelSpec, *, confidence: float = 0.95, 
             result = _fit(spec, lik, confidence, interval, starts, seed, deadline)
     except _OutOfTime as out:
         return _stopped(out.objective, float(max_seconds or 0.0), confidence, interval)
-    return _identified(_calibrated(result, spec, lik), spec, lik)
+    return _identified(record, _calibrated(result, spec, lik), spec, lik)
 
 
-def _identified(result: FitResult, spec: ModelSpec, lik: Likelihood) -> FitResult:
+def _identified(record: Any, result: FitResult, spec: ModelSpec, lik: Likelihood) -> FitResult:
     """``result`` with what its Fisher information and intervals say it does not identify."""
     ranges = spec.upper - spec.lower
     ident = identifiability(result.fisher, spec.names, ranges)
@@ -324,24 +325,47 @@ def _identified(result: FitResult, spec: ModelSpec, lik: Likelihood) -> FitResul
         log.warning("fit: not identified by the record: %s", ident.text())
     ident = Identifiability(ident.rank, ident.condition,
                             {spec.labels.get(k, k): why for k, why in ident.unidentified.items()})
-    return replace(result, identifiability=ident, labels=spec.labels, outliers=_outliers(result, spec, lik))
+    return replace(result, identifiability=ident, labels=spec.labels, outliers=_outliers(record, result, spec, lik))
 
 
-def _outliers(result: FitResult, spec: ModelSpec, lik: Likelihood) -> tuple[dict[str, Any], ...]:
-    """Calibrated readings whose residual from the fitted model (its shared scales applied) exceeds
-    :data:`OUTLIER_Z` times their own standard uncertainty (the covariance's diagonal less the
-    shared scales): each with its index, geometry, wavelength and z, largest |z| first."""
+def _zscores(spec: ModelSpec, lik: Any, x: np.ndarray, scales_from: Any = None) -> np.ndarray:
+    """Each calibrated reading's residual from the model at ``x`` (its shared scales profiled on
+    the readings of ``scales_from``, default ``lik``, and applied) over its own standard
+    uncertainty (the covariance's diagonal less the shared scales)."""
+    specimen = spec.specimen(x)
+    mu = lik.predictions(specimen)
+    src = lik if scales_from is None else scales_from
+    _r, z = src.scales.profile(src.chol, src.values, src.predictions(specimen))
+    by_name = dict(zip(src.scales.names, z))
+    z = np.array([by_name.get(n, 0.0) for n in lik.scales.names])
+    fitted = mu * (1.0 + lik.scales.loadings @ z) if lik.scales.count else mu
+    return (lik.values - fitted) / np.sqrt(np.einsum("ij,ij->i", lik.chol, lik.chol))
+
+
+def _outliers(record: Any, result: FitResult, spec: ModelSpec, lik: Likelihood) -> tuple[dict[str, Any], ...]:
+    """Calibrated readings more than :data:`OUTLIER_Z` of their own standard uncertainties from
+    every model tried: the optimum and, when some are, the refit without them (a gross reading
+    drags the optimum -- and a wavelength's shared scale -- so that its neighbours look far too):
+    each with its index, geometry, wavelength, value and z (at the refit), largest |z| first."""
     rows = getattr(lik, "rows", None)
     if rows is None or not hasattr(lik, "predictions"):
         return ()
-    mu = lik.predictions(spec.specimen(result.values))
-    _r, z = lik.scales.profile(lik.chol, lik.values, mu)
-    fitted = mu * (1.0 + lik.scales.loadings @ z) if lik.scales.count else mu
-    u = np.sqrt(np.einsum("ij,ij->i", lik.chol, lik.chol))
-    zs = (lik.values - fitted) / u
+    zs = _zscores(spec, lik, result.values)
+    far = np.abs(zs) > OUTLIER_Z
+    if far.any() and isinstance(record, BSDFRecord) and np.count_nonzero(~far) > len(spec.free):
+        t = record.table.copy()
+        measured = np.flatnonzero(np.isfinite(t["value"].to_numpy(float)))
+        t.loc[t.index[measured[far]], "value"] = np.nan
+        try:
+            kept = likelihood_for(BSDFRecord(t, dict(record.meta)))
+            refit = _fit(spec, kept, result.confidence, "hessian", 0, 0)
+            zs = _zscores(spec, lik, refit.values, scales_from=kept)
+            far &= np.abs(zs) > OUTLIER_Z
+        except (InputError, np.linalg.LinAlgError, ValueError):
+            pass  # the optimum's verdict stands
     keys = ("quantity", "geometry", "theta_i", "phi_i", "theta_r", "phi_r", "wavelength_nm", "value")
     out = [{"reading": int(i), **{k: rows[i][k] for k in keys if k in rows[i]}, "z": float(zs[i])}
-           for i in np.flatnonzero(np.abs(zs) > OUTLIER_Z)]
+           for i in np.flatnonzero(far)]
     return tuple(sorted(out, key=lambda o: -abs(o["z"])))
 
 
