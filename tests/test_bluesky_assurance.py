@@ -104,3 +104,48 @@ def test_the_emulated_body_checks_through_the_run_engine_as_bench_check_does(RE,
         assert s.run(bs["run"])["kind"] == "check"
     # the emulator's noise is its own (its processes are seeded per start): the same drift, within noise
     assert bs["value"] == pytest.approx(cli["value"], rel=3e-3) and bs["value"] == pytest.approx(1 / 0.95, rel=0.01)
+
+
+@pytest.mark.slow  # a real Tiled server: ~10 CPU-s of imports and start-up
+def test_check_runs_are_served_by_bench_serve_and_read_with_tiled_clients_default_readers(RE, capsys, tmp_path):
+    """A check run of bench check and one of check_standards, served like any run: found by kind,
+    their check (value, max |E_n|, date) in the start document, their readings in ``primary``."""
+    import os
+    import subprocess
+    import sys
+
+    from tiled.client import from_uri
+    from tiled.queries import Key
+
+    from tests.helpers.cli import ROOT
+
+    bench, store = _bench(tmp_path), tmp_path / "s.sqlite"
+    code, out, err = run_main(capsys, "check", "--bench", bench, "--store", store, "--seed", 1, "--date", "2026-12-01",
+                              "--json")
+    assert code == 0, err
+    (bs,) = RE(check_standards(bench, store=store, seed=2, date="2026-12-02", run_engine=RE)).plan_result
+    runs = {json.loads(out)["checks"][0]["run"]: "2026-12-01", bs["run"]: "2026-12-02"}
+    env = {"PYTHONPATH": str(ROOT), **{k: v for k, v in os.environ.items() if k != "PYTHONPATH"}}
+    server = subprocess.Popen([sys.executable, "-m", "bench.cli", "serve", "--store", str(store), "--port", "0",
+                               "--json", "--seconds", "300"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True, env=env)
+    try:
+        line = server.stdout.readline()
+        assert line, server.stderr.read()[-3000:]
+        client = from_uri(json.loads(line)["uri"])
+        served = client.search(Key("start.kind") == "check")
+        assert len(served) == 2
+        with RunStore(store, create=False) as s:
+            for run in served.values():
+                start = run.metadata["start"]
+                rid = start["run_id"]
+                check = s.run(rid)["meta"]["check"]
+                assert start["kind"] == "check" and start["specimen"] == "lambert:albedo=0.5"
+                assert start["goniobench"]["check"]["date"] == runs[rid] == check["date"]
+                assert start["goniobench"]["check"]["value"] == check["value"]
+                primary = run["primary"].read()  # one event per point, arrays over wavelength_nm
+                got = np.sort(np.asarray(primary["value"], float).ravel())
+                assert got.size == 6 and np.array_equal(got, np.sort(s.readings(rid)["value"].to_numpy(float)))
+    finally:
+        server.terminate()
+        server.wait(20)
