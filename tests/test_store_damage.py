@@ -73,6 +73,7 @@ CORPUS = {
     "bench a number": ("UPDATE runs SET bench = '3' WHERE run_id = :r", READS, ["runs.bench"]),
     "created_epoch text": ("UPDATE runs SET created_epoch = 'yesterday' WHERE run_id = :r", READS,
                            ["runs.created_epoch"]),
+    "kind unknown": ("UPDATE runs SET kind = '' WHERE run_id = :r", READS, ["runs.kind"]),
     "n_planned negative": ("UPDATE runs SET n_planned = -3 WHERE run_id = :r", READS, ["runs.n_planned"]),
     "extra not JSON": (f"UPDATE readings SET extra = 'garbage' WHERE run_id = :r {ONE}", READS,
                        ["point 1", "550 nm", "readings.extra"]),

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from bench.core.errors import StoreError
+from bench.store.schema import RUN_KINDS, RUN_STATUSES
 
 __all__ = ["DamagedRun", "RUN_ID_PATTERN", "valid_run_id", "run_field", "check_run_row", "check_frame",
            "reading_extra", "check_budget"]
@@ -102,11 +103,15 @@ def run_field(run_id: str, field: str, text: Any) -> Any:
 
 
 def check_run_row(run_id: str, row: Mapping[str, Any]) -> None:
-    """The scalar columns of a ``runs`` row: epochs finite numbers (or NULL where allowed),
-    ``n_planned`` an integer >= 0, ``seed`` an integer, ``kind`` and ``status`` text."""
+    """The scalar columns of a ``runs`` row: ``kind`` and ``status`` among the store's own, epochs
+    finite numbers (or NULL where allowed), ``n_planned`` an integer >= 0, ``seed`` an integer."""
     for key in ("kind", "status", "created_utc"):
         if not isinstance(row.get(key), str):
             raise damaged(run_id, f"runs.{key} is {_shown(row.get(key))}, not text")
+    if row["kind"] not in RUN_KINDS:
+        raise damaged(run_id, f"runs.kind is {_shown(row['kind'])}, not one of {', '.join(RUN_KINDS)}")
+    if row["status"] not in RUN_STATUSES:
+        raise damaged(run_id, f"runs.status is {_shown(row['status'])}, not one of {', '.join(RUN_STATUSES)}")
     for key in ("created_epoch", "started_epoch", "finished_epoch"):
         v = row.get(key)
         if (v is not None or key == "created_epoch") and not _finite(v):
