@@ -195,7 +195,7 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     print(f"wrote {out}: {len(design.points)} points ({design.criterion}-optimal for {spec.text}) of "
           f"{len(candidates)} reachable on bench {bench.name}, {design.settings.integration_s:g} s x "
           f"{design.settings.averages} per point, estimated {design.seconds:.4g} s of {args.seconds:g} s")
-    print(f"  predicted 95% interval widths: {widths_text(design.widths)}")
+    print(f"  predicted 95% interval widths (Cramer-Rao, conditional on the prior): {widths_text(design.widths)}")
     if other is not None:
         print(f"  plan {other['plan']}: {other['points']} points, {other['seconds']:.4g} s, widths "
               f"{widths_text(other['widths'])}")

@@ -116,7 +116,8 @@ def write_design(path: str | Path, design: Design, model_text: str, bench_name: 
         f"# prior {', '.join(f'{k}={v:g}' for k, v in design.model.values.items())}.",
         f"# Estimated bench time {est['seconds']:.4g} s (motion {est['motion_s']:.3g} s, acquisition "
         f"{est['acquisition_s']:.3g} s, references {est['references_s']:.3g} s) of a {seconds:g} s budget.",
-        f"# Predicted 95% interval widths (Cramer-Rao, 2 x 1.96 x se): {widths_text(design.widths)}.",
+        f"# Predicted 95% interval widths (Cramer-Rao, 2 x 1.96 x se): {widths_text(design.widths)}; conditional "
+        "on the prior: the fits' widths may differ severalfold when the specimen is far from it.",
     ]
     text = "\n".join(header) + "\n" + tomli_w.dumps(table)
     atomic_write(p, lambda tmp: tmp.write_text(text, encoding="utf-8"))
