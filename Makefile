@@ -33,7 +33,7 @@ $(BIN)/python:
 # compile every imported module from source in every process. (A file it cannot compile -- some
 # packages ship Python 2 fixtures -- is skipped as pip skips it.)
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet --no-compile -e ".[test,scale,parquet,mitsuba,bluesky,tiled]"
+	$(BIN)/python -m pip install --quiet --no-compile -e ".[test,scale,parquet,mitsuba,bluesky,tiled,docs]"
 	@$(BIN)/python -m compileall -q -j 0 "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" \
 	  >/dev/null 2>&1 || true
 	touch $(STAMP)
@@ -65,9 +65,11 @@ SOAK_MINUTES ?= 60
 soak: install
 	$(BIN)/python -m benchmarks soak --minutes $(SOAK_MINUTES) --json
 
-# The README's generated blocks (the specimen-family table) rewritten from the declarations.
+# The generated blocks of the README and docs/ (the specimen-family table) rewritten from the
+# declarations, then the docs site (mkdocs.yml) built into build/site with warnings as errors.
 docs: $(STAMP)
 	$(BIN)/python -m bench.docs
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict --quiet
 
 clean:
 	rm -rf $(VENV) demo-out .pytest_cache

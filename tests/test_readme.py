@@ -1,7 +1,9 @@
-"""The README's examples are run and their printed numbers compared with the README text.
+"""The examples of the README and of the docs site are run and their printed numbers compared
+with the text.
 
-Every ``$ bench ...`` line of a README code block is an example; the lines after it (up to the
-next ``$`` line or the end of the block) are what it prints. Each example runs here, in README
+The documents are ``README.md`` and every page under ``docs/`` (:data:`DOCUMENTS`), each read the
+same way. Every ``$ bench ...`` line of a code block is an example; the lines after it (up to the
+next ``$`` line or the end of the block) are what it prints. Each example runs here, in document
 order, in one scratch folder where ``fixtures`` points at the repository's (stdout and stderr
 together, through a shell for ``; echo "exit $?"`` and ``&&``) and every expected
 line must match the printed line token for token: the text exactly, each number to 6 significant
@@ -19,7 +21,7 @@ a block opening with ``# with `bench serve ...` running`` needs a server: test_c
 Examples that need a store, a run id or long-running emulators (``scan``, ``runs``, ``resume``,
 ``show``, ``export``, ``emulate``) are listed in :data:`NOT_RUN` with the test that covers them.
 
-``python tests/test_readme.py --update`` rewrites the README's outputs from a fresh run (review
+``python tests/test_readme.py --update`` rewrites the documents' outputs from a fresh run (review
 the diff before committing).
 """
 
@@ -36,6 +38,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
+#: the documents whose examples run: the README, then the docs site's pages in path order
+DOCUMENTS = [README, *sorted((ROOT / "docs").rglob("*.md"))]
 
 #: command words not run here, and the tests that cover them
 NOT_RUN = {"scan": "test_runner.py / test_cli.py", "runs": "test_store.py", "resume": "test_runner.py",
@@ -52,14 +56,19 @@ class Example:
     command: str
     expected: list[str]
     small: str | None
+    page: str = "README.md"  # the document, relative to the repository
 
 
-def examples() -> list[Example]:
-    """The README's ``$ bench`` examples with their expected output lines."""
+def _page(path: Path) -> str:
+    return path.relative_to(ROOT).as_posix()
+
+
+def examples(path: Path = README) -> list[Example]:
+    """The ``$ bench`` examples of one document with their expected output lines."""
     out: list[Example] = []
     in_block = False
     current: Example | None = None
-    for n, raw in enumerate(README.read_text(encoding="utf-8").splitlines(), start=1):
+    for n, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
         if raw.startswith("```"):
             if in_block and current:
                 out.append(current)
@@ -73,7 +82,7 @@ def examples() -> list[Example]:
                 out.append(current)
             cmd, _, note = raw[2:].partition("# test:")
             cmd = cmd.rstrip()
-            current = Example(n, cmd, [], note.strip() or None) if cmd.startswith("bench ") else None
+            current = Example(n, cmd, [], note.strip() or None, _page(path)) if cmd.startswith("bench ") else None
         elif current is not None and raw.strip():
             current.expected.append(raw)
     return out
@@ -125,7 +134,12 @@ def same(expected: str, got: str) -> bool:
         a == b or abs(a - b) <= 1e-6 * max(abs(a), abs(b)) for a, b in zip(ne, ng))
 
 
-EXAMPLES = examples()
+EXAMPLES = [ex for path in DOCUMENTS for ex in examples(path)]
+
+
+def _where(page: str, line: int) -> str:
+    """A test id: ``L12`` in the README (as before the docs site), ``docs/fit.md:L12`` elsewhere."""
+    return f"L{line}" if page == "README.md" else f"{page}:L{line}"
 
 
 def test_readme_has_examples():
@@ -139,7 +153,7 @@ def scratch(tmp_path_factory):
 
 
 @pytest.mark.parametrize("ex", [pytest.param(e, marks=[pytest.mark.slow] if e.small == "slow" else [])
-                                for e in EXAMPLES], ids=[f"L{e.line}:{e.command[:40]}" for e in EXAMPLES])
+                                for e in EXAMPLES], ids=[f"{_where(e.page, e.line)}:{e.command[:40]}" for e in EXAMPLES])
 def test_readme_example_prints_what_the_readme_says(ex, scratch):
     why = _skipped(ex)
     if why:
@@ -147,21 +161,21 @@ def test_readme_example_prints_what_the_readme_says(ex, scratch):
     got = run(ex, scratch)
     smaller = ex.small is not None and ex.small != "slow"  # a smaller budget than the README's
     expected = ex.expected[:1] if smaller else ex.expected
-    assert len(got) >= len(expected), f"README line {ex.line}: {ex.command}\nprinted:\n" + "\n".join(got)
+    assert len(got) >= len(expected), f"{ex.page} line {ex.line}: {ex.command}\nprinted:\n" + "\n".join(got)
     for i, line in enumerate(expected):
         if smaller and i == 0:
             continue  # a smaller budget changes N in the header; the header's shape is checked below
-        assert same(line, got[i]), f"README line {ex.line + 1 + i}: expected\n  {line}\nprinted\n  {got[i]}"
+        assert same(line, got[i]), f"{ex.page} line {ex.line + 1 + i}: expected\n  {line}\nprinted\n  {got[i]}"
     if smaller:
         assert _tokens(expected[0])[0] == _tokens(got[0])[0]
 
 
-def python_blocks() -> list[tuple[int, str]]:
-    """The README's ```python blocks as ``(first line number, source)``."""
+def python_blocks(path: Path = README) -> list[tuple[int, str]]:
+    """The ```python blocks of one document as ``(first line number, source)``."""
     out: list[tuple[int, str]] = []
     block: list[str] | None = None
     start = 0
-    for n, raw in enumerate(README.read_text(encoding="utf-8").splitlines(), start=1):
+    for n, raw in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
         if block is None and raw.strip() == "```python":
             block, start = [], n + 1
         elif block is not None and not block and raw.startswith("# with `bench serve"):
@@ -182,27 +196,31 @@ def printed_lines(source: str) -> list[str]:
     return [line[2:] for line in lines[lines.index("# prints:") + 1:] if line.startswith("# ")]
 
 
+#: every document's python blocks as ``(page, first line number, source)``
+PYTHON_BLOCKS = [(_page(path), n, src) for path in DOCUMENTS for n, src in python_blocks(path)]
+
+
 def test_the_adaptive_fit_block_says_what_it_prints():
-    blocks = [src for _, src in python_blocks() if "adaptive_fit(" in src]
-    assert blocks and printed_lines(blocks[0]), "the README's adaptive_fit block names no printed line"
+    blocks = [src for _, _, src in PYTHON_BLOCKS if "adaptive_fit(" in src]
+    assert blocks and printed_lines(blocks[0]), "the docs' adaptive_fit block names no printed line"
 
 
 @pytest.mark.slow  # ~7-12 CPU-s a block (bluesky, matplotlib, a scan); fast twin: test_bluesky.py live views
-@pytest.mark.parametrize("start,source", python_blocks(), ids=[f"L{n}" for n, _ in python_blocks()])
-def test_readme_python_block_runs_from_stdin(start, source, scratch):
+@pytest.mark.parametrize("page,start,source", PYTHON_BLOCKS, ids=[_where(p, n) for p, n, _ in PYTHON_BLOCKS])
+def test_readme_python_block_runs_from_stdin(page, start, source, scratch):
     r = subprocess.run([sys.executable, "-"], input=source, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                        text=True, cwd=scratch, timeout=600,
                        env={**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"})
-    assert r.returncode == 0, f"README line {start}: the block failed:\n{r.stdout[-3000:]}"
+    assert r.returncode == 0, f"{page} line {start}: the block failed:\n{r.stdout[-3000:]}"
     expected = printed_lines(source)
     if expected:  # the block's `# prints:` lines are its last printed lines, number by number
         got = [line for line in r.stdout.splitlines() if line.strip()][-len(expected):]
         assert len(got) == len(expected) and all(same(e, g) for e, g in zip(expected, got)), \
-            f"README line {start}: expected\n  " + "\n  ".join(expected) + "\nprinted\n  " + "\n  ".join(got)
+            f"{page} line {start}: expected\n  " + "\n  ".join(expected) + "\nprinted\n  " + "\n  ".join(got)
     for fields in re.findall(r"LiveTable\(\[([^\]]*)\]", source):
         for field in re.findall(r"\"([^\"]+)\"", fields):
             header = [line for line in r.stdout.splitlines() if f" {field} " in line]
-            assert header, f"README line {start}: LiveTable printed no column {field!r}:\n{r.stdout[-3000:]}"
+            assert header, f"{page} line {start}: LiveTable printed no column {field!r}:\n{r.stdout[-3000:]}"
             # the rows under the header hold numbers in that column, not blanks
             col = header[0].split("|").index(f" {field} ") if "|" in header[0] else None
             rows = [line.split("|") for line in r.stdout.splitlines() if re.match(r"\|\s+\d+ \|", line)]
@@ -213,10 +231,16 @@ def test_readme_python_block_runs_from_stdin(start, source, scratch):
 def _update() -> None:
     import tempfile
 
-    lines = README.read_text(encoding="utf-8").splitlines()
     cwd = workdir(Path(tempfile.mkdtemp(prefix="readme-")))
-    outputs = {ex.line: run(ex, cwd) for ex in EXAMPLES if not (_skipped(ex) or (ex.small and ex.small != "slow"))}
-    for ex in reversed(EXAMPLES):
+    for path in DOCUMENTS:
+        _update_document(path, cwd)
+
+
+def _update_document(path: Path, cwd: Path) -> None:
+    lines = path.read_text(encoding="utf-8").splitlines()
+    found = examples(path)
+    outputs = {ex.line: run(ex, cwd) for ex in found if not (_skipped(ex) or (ex.small and ex.small != "slow"))}
+    for ex in reversed(found):
         if ex.line not in outputs:
             continue
         got = outputs[ex.line]
@@ -227,7 +251,7 @@ def _update() -> None:
         while end > start and not lines[end - 1].strip():  # keep the blank lines between examples
             end -= 1
         lines[start:end] = got
-    README.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
 if __name__ == "__main__" and "--update" in sys.argv:
@@ -235,9 +259,11 @@ if __name__ == "__main__" and "--update" in sys.argv:
 
 
 def demo_compare_block() -> list[str]:
-    """The README's block of the demo's last stage (``compare: emulated-hardware run ...``)."""
-    text = README.read_text(encoding="utf-8")
-    start = text.index("```\ncompare: emulated-hardware run against two virtual candidate models\n") + 4
+    """The docs' block of the demo's last stage (``compare: emulated-hardware run ...``), in the
+    README or the page under docs/ that holds it."""
+    opening = "```\ncompare: emulated-hardware run against two virtual candidate models\n"
+    text = next(t for t in (p.read_text(encoding="utf-8") for p in DOCUMENTS) if opening in t)
+    start = text.index(opening) + 4
     return [line for line in text[start:text.index("```", start)].splitlines() if line.strip()]
 
 

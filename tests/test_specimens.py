@@ -438,24 +438,25 @@ def test_a_declaration_is_checked_when_registered():
 
 
 def test_readme_specimen_table_is_the_generated_one():
-    """The README's table is generated from the declarations of the project's own families (one
-    place per idea; families registered by tests or plugins are left out): `make docs`
-    (``python -m bench.docs``) rewrites it when a family or parameter changes."""
-    from bench.docs import README, regenerate
+    """The docs' table (README.md or a page under docs/) is generated from the declarations of the
+    project's own families (one place per idea; families registered by tests or plugins are left
+    out): `make docs` (``python -m bench.docs``) rewrites it when a family or parameter changes."""
+    from bench.docs import page_holding, regenerate
 
-    text = README.read_text(encoding="utf-8")
-    assert regenerate(text)[1] == [], "README.md's specimen table is out of date: run `make docs`"
+    page = page_holding("specimen-table")
+    assert regenerate(page.read_text(encoding="utf-8"))[1] == [], f"{page.name}'s specimen table is out of date: run `make docs`"
 
 
 def test_the_readme_generator_rewrites_a_stale_table_and_tells_a_family_added_by_a_plugin(tmp_path):
-    from bench.docs import README, main
+    from bench.docs import main, page_holding
     from virtual.specimens import specimen_table_markdown
 
-    stale = tmp_path / "README.md"
-    stale.write_text(README.read_text(encoding="utf-8").replace("| lambert |", "| lambertian |"), encoding="utf-8")
+    page = page_holding("specimen-table")
+    stale = tmp_path / page.name
+    stale.write_text(page.read_text(encoding="utf-8").replace("| lambert |", "| lambertian |"), encoding="utf-8")
     assert main(["--check", "--readme", str(stale)]) == 1
     assert main(["--readme", str(stale)]) == 0 and main(["--check", "--readme", str(stale)]) == 0
-    assert stale.read_text(encoding="utf-8") == README.read_text(encoding="utf-8")
+    assert stale.read_text(encoding="utf-8") == page.read_text(encoding="utf-8")
     fam = type("Velvet", (DeclaredSpecimen,), {"__module__": "labmodels.velvet", "name": "test-velvet-docs",
                                                "model": MODEL_PYTHON, "parameters": (Param("sheen", 0.5, 0.0, 1.0),)})
     register_specimen(fam)
