@@ -17,11 +17,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from bench.cli import main
+from bench.docs import documents
 from bench.io import read_parquet, read_record
 from helpers.cli import run_main
 from helpers.export_records import SAMPLE_NAME, stored_runs
 
-README = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+#: the README or the docs page that describes the formats
+README = next(t for t in (p.read_text(encoding="utf-8") for p in documents(Path(__file__).resolve().parents[1]))
+              if "Exports. `bench export RUN|FILE`" in t)
 EXPORTS = README[README.index("Exports. `bench export RUN|FILE`"):]
 EXPORTS = EXPORTS[:EXPORTS.index("\n\n")]
 

@@ -8,21 +8,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.docs import documents
 from virtual.beam import DISK_POLAR, DISK_REJECTION
 from virtual.engine import gonio_kernel_for
 from virtual.routing import ROUTING_MARK, routing_table
 from virtual.specimens import SPECIMENS, parse_specimen
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_readme_table_is_the_generated_one() -> None:
-    text = README.read_text(encoding="utf-8")
-    assert ROUTING_MARK in text, "README lost the routing table's mark"
+    """The table under the mark, in the README or the docs page that holds it."""
+    texts = [t for t in (p.read_text(encoding="utf-8") for p in documents(ROOT)) if ROUTING_MARK in t]
+    assert len(texts) == 1, "the routing table's mark must be in exactly one of README.md and docs/"
+    text = texts[0]
     own = {name: cls for name, cls in SPECIMENS.items() if cls.__module__.startswith("virtual.specimens.")}
     table = routing_table(own)  # the project's families (a test may have registered its own)
     start = text.index(ROUTING_MARK) + len(ROUTING_MARK) + 1
-    assert text[start:start + len(table)] == table, "README's routing table differs from virtual.routing.routing_table"
+    assert text[start:start + len(table)] == table, "the docs' routing table differs from virtual.routing.routing_table"
 
 
 @pytest.mark.parametrize("spec, expected", [
