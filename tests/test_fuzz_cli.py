@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import sqlite3
+from contextlib import closing
 import tomllib
 from pathlib import Path
 
@@ -375,6 +376,48 @@ def test_readers_with_fuzzed_run_ids_exit_2_and_leave_the_store_alone(tmp_path, 
     assert digest(db) == before
 
 
+# --- 8. a damaged store: one field of the run set to a fuzzed value; readers exit 0 or 2, never 70 ----------
+
+JSON_FIELDS = {("runs", c) for c in ("plan", "bench", "versions", "calibration", "meta")} | {("readings", "extra")}
+NUMERIC_FIELDS = {("points", c) for c in ("theta_i", "phi_i", "theta_r", "phi_r")} | {
+    ("readings", c) for c in ("wavelength_nm", "value", "std", "signal", "dark", "white", "saturated", "count", "N")}
+DAMAGEABLE = sorted(JSON_FIELDS | NUMERIC_FIELDS | {("runs", c) for c in ("created_epoch", "finished_epoch", "n_planned",
+                                                                          "seed", "kind", "reason")})
+DAMAGE = st.one_of(st.sampled_from([None, "", "{", "[]", "null", "abc", '{"uncertainty_budget": "x"}', "1e999",
+                                    '{"uncertainty_budget": {"components": [], "combined": -1, "expanded": 0, "k": 2}}']),
+                   st.floats(), st.integers(min_value=-10**18, max_value=10**18), st.text(max_size=12))
+
+
+@settings(FUZZ, max_examples=60)
+@given(field=st.sampled_from(DAMAGEABLE), value=DAMAGE, cmd=st.sampled_from(["show", "show --json", "export", "runs"]))
+def test_a_damaged_store_is_refused_in_one_line_or_read_never_a_traceback(tmp_path, store, field, value, cmd):
+    db, rid, _ = store
+    copy = tmp_path / "damaged.sqlite"
+    for leftover in (copy, tmp_path / "damaged.sqlite-wal", tmp_path / "damaged.sqlite-shm"):
+        leftover.unlink(missing_ok=True)  # the last example's WAL must not replay onto this copy
+    with closing(sqlite3.connect(db)) as src, closing(sqlite3.connect(copy)) as dst:
+        src.backup(dst)
+    table, column = field
+    with closing(sqlite3.connect(copy)) as c, c:
+        try:
+            c.execute(f"UPDATE {table} SET {column} = ? WHERE run_id = ?"
+                      + (" AND idx = (SELECT MIN(idx) FROM points WHERE run_id = ?)" if table != "runs" else ""),
+                      (value, rid, rid) if table != "runs" else (value, rid))
+        except sqlite3.Error:  # a NOT NULL or CHECK constraint the store keeps itself
+            return
+    before = digest(copy)
+    argv = {"show": ["show", rid], "show --json": ["show", rid, "--json"], "runs": ["runs"],
+            "export": ["export", rid, "--out", tmp_path / "x.csv", "--force"]}[cmd]
+    code, _, err = bench(*argv, "--store", copy)
+    check_policy(code, err, (0, 2), "damaged stores")
+    unparsable_json = field in JSON_FIELDS and isinstance(value, str) and value not in ("null", "[]") and \
+        not value.startswith('{"')
+    read = cmd != "runs" or table == "runs"  # `bench runs` reads the runs rows, not every reading
+    if read and (unparsable_json or (field in NUMERIC_FIELDS and isinstance(value, str) and value in ("abc", "{"))):
+        assert code == 2 and rid in err, (field, value, cmd, err)  # named, never read as NaN
+    assert digest(copy) == before
+
+
 def test_zz_fuzz_tally(capsys):
     """Report the tally (cases, refused, accepted per family); the suite asserts at least 500."""
     total = sum(t["cases"] for t in TALLY.values())
@@ -382,5 +425,5 @@ def test_zz_fuzz_tally(capsys):
         print(f"\nfuzz tally: {total} cases, all clean: "
               + "; ".join(f"{k} {v['cases']} ({v['refused']} refused, {v['accepted']} accepted)"
                           for k, v in sorted(TALLY.items())))
-    if len(TALLY) == 7:  # the whole file ran (not a -k selection)
+    if len(TALLY) == 8:  # the whole file ran (not a -k selection)
         assert total >= 500
