@@ -201,9 +201,10 @@ class ApertureReading:
     ``gain t sqrt(p (1 - p) / N) / Omega`` at the observed ``p``, as the goniophotometer scales a
     patch count. Counts are drawn from numpy's PCG64 keyed by the instrument's seed, the
     geometry (millidegrees) and the wavelength (pm), so a repeated or resumed reading draws the
-    same count on any CPU, as the collector's cached simulation does; a repeated trigger at the
-    same geometry (the k-th, k > 0, since the bench was built) adds k to the key, so repeated
-    readings scatter as the reported standard deviation says. A specimen without a
+    same count on any CPU, as the collector's cached simulation does; a repeated trigger without
+    a move in between (the k-th at the geometry, k > 0) adds k to the key, so repeated readings
+    scatter as the reported standard deviation says, while a scan reading each point once draws
+    what it always drew, whatever was read before. A specimen without a
     density (no ``has_density``) cannot be integrated over the cone: its reading stays the
     collector patch's, logged once and stated by :meth:`describe` (``detector_reads``)."""
 
@@ -211,7 +212,9 @@ class ApertureReading:
         self._inner = inner
         self.half_angle_deg = float(half_angle_deg)
         self.omega = 2.0 * math.pi * (1.0 - math.cos(math.radians(self.half_angle_deg)))
-        self._triggers: dict[tuple[int, ...], int] = {}  # lit readings taken so far at each geometry
+        #: (the goniometer's position since its last move, lit readings taken there): move_to sets a
+        #: new position object, so a repeat is a trigger without a move in between
+        self._repeat: tuple[Geometry, int] | None = None
         self.reads_cone = bool(getattr(inner.specimen, "has_density", False))
         if not self.reads_cone:
             log.info("detector aperture %g deg: specimen %s has no density, so the virtual detector reads the "
@@ -244,9 +247,8 @@ class ApertureReading:
         wl = np.asarray(self._inner.wavelengths, dtype=float)
         p = np.clip(self.omega * self.expected(g, wl), 0.0, 1.0)
         n = int(self._inner.rays)
-        where = self._where(g)
-        repeat = self._triggers.get(where, 0)
-        self._triggers[where] = repeat + 1
+        repeat = self._repeat[1] if self._repeat is not None and self._repeat[0] is g else 0
+        self._repeat = (g, repeat + 1)
         counts = np.array([self._stream(g, float(w), repeat).binomial(n, pk) for w, pk in zip(wl, p)], dtype=float)
         observed = counts / n
         scale = float(self._inner.gain) * float(integration_s) / self.omega
