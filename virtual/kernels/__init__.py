@@ -281,8 +281,9 @@ def jit(fn: Callable | None = None, /, **options: Any) -> Any:
 
     def compile_(f: Callable) -> Any:
         setattr(f, MARK, True)
-        if family is not None:
-            vector_width.register(f.__module__, f.__qualname__, family)
+        chosen = family or vector_width.MODULE_FAMILY.get(f.__module__)
+        if chosen is not None:
+            vector_width.register(f.__module__, f.__qualname__, chosen)
         return numba.njit(cache=True, fastmath=set(FASTMATH), **options)(f)
 
     return compile_ if fn is None else compile_(fn)

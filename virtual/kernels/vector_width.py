@@ -6,7 +6,8 @@ AVX-512 exists (the ``prefer-256-bit`` tuning flag), for AMD Zen 4/5 it uses 512
 kernel then ran at two speeds on two AVX-512 machines for a reason that was neither's hardware.
 Each block kernel instead carries LLVM's function attribute ``"prefer-vector-width"``, which
 overrides the tuning for that function (LLVM's X86 subtarget reads it per function), from the
-declared table :data:`FAMILY_WIDTH`:
+declared table :data:`FAMILY_WIDTH` (a kernel names its family; the other functions of a block
+kernel's module take the module's, :data:`MODULE_FAMILY`):
 
 * AVX-512 hosts compile every family for 512-bit vectors: on an Intel Xeon (Emerald Rapids) the
   512-bit build ran GGX 2.39x, Lambertian 3.33x, plastic 1.14x, leaf 1.10x, dielectric 1.47x,
@@ -40,7 +41,7 @@ from typing import Any
 
 from numba.core import base
 
-__all__ = ["FAMILY_WIDTH", "ENV", "register", "width_of", "stamp", "install", "compiled_width", "target"]
+__all__ = ["FAMILY_WIDTH", "MODULE_FAMILY", "ENV", "register", "width_of", "stamp", "install", "compiled_width", "target"]
 
 #: Preferred vector width in bits, per kernel family (the module docstring says why).
 FAMILY_WIDTH: dict[str, int] = {
@@ -49,6 +50,21 @@ FAMILY_WIDTH: dict[str, int] = {
     "spectral32": 512,  # float32 spectral batches (Lambertian, GGX)
     "block64": 512,     # float64 block kernels (plain and coated) and spectral batches
     "xoshiro": 512,     # the 64-lane xoshiro fills every block kernel draws its uniforms from
+}
+#: The family of every other function compiled in a block kernel's module (the helpers a kernel
+#: calls rather than inlines: finishing a block, reading tables): their loops vectorize at the
+#: family's width too, not at the tuning's.
+MODULE_FAMILY: dict[str, str] = {
+    "virtual.kernels.block32": "block32",
+    "virtual.kernels.f32": "block32",
+    "virtual.kernels.branchfree32": "block32",
+    "virtual.kernels.block32_coat": "coat32",
+    "virtual.kernels.branchfree32_rough": "coat32",
+    "virtual.kernels.spectral32": "spectral32",
+    "virtual.kernels.block64": "block64",
+    "virtual.kernels.block_coat": "block64",
+    "virtual.kernels.coat": "block64",
+    "virtual.kernels.xoshiro": "xoshiro",
 }
 #: Environment variable overriding the table for the whole process: ``256`` or ``512``.
 ENV = "GONIOBENCH_VECTOR_WIDTH"
