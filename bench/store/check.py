@@ -126,6 +126,28 @@ def _finite(x: Any) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
+_INF = math.inf
+
+
+def _fine(x: Any, lo: float) -> bool:
+    """The fast path's test: a float in [lo, inf) (NaN fails); anything else goes the slow way."""
+    return type(x) is float and lo <= x < _INF
+
+
+def _check_components(run_id: str, idx: Any, wl: Any, field: str, comps: list[Any]) -> None:
+    """Name the first component of a budget that is not an object with text ``name`` and finite
+    numbers (``standard_uncertainty`` and ``contribution`` >= 0)."""
+    for j, c in enumerate(comps):
+        if not isinstance(c, Mapping):
+            raise damaged(run_id, f"{field}.components[{j}] is {_shown(c)}, not an object", idx, wl)
+        for key in ("standard_uncertainty", "sensitivity", "contribution"):
+            if not _finite(c.get(key)) or (key != "sensitivity" and c[key] < 0):
+                raise damaged(run_id, f"{field}.components[{j}].{key} is {_shown(c.get(key))}, not a finite number"
+                              + ("" if key == "sensitivity" else " >= 0"), idx, wl)
+        if not isinstance(c.get("name"), str):
+            raise damaged(run_id, f"{field}.components[{j}].name is {_shown(c.get('name'))}, not text", idx, wl)
+
+
 def check_budget(run_id: str, idx: Any, wl: Any, budget: Any, std: Any = None) -> dict[str, Any] | None:
     """A reading's GUM budget as stored (:meth:`bench.core.budget.Budget.as_dict`), checked: an
     object with components (each with finite numbers, ``standard_uncertainty >= 0``), finite
@@ -139,15 +161,9 @@ def check_budget(run_id: str, idx: Any, wl: Any, budget: Any, std: Any = None) -
     comps = budget.get("components")
     if not isinstance(comps, list):
         raise damaged(run_id, f"{field}.components is {_shown(comps)}, not a list", idx, wl)
-    for j, c in enumerate(comps):
-        if not isinstance(c, Mapping):
-            raise damaged(run_id, f"{field}.components[{j}] is {_shown(c)}, not an object", idx, wl)
-        for key in ("standard_uncertainty", "sensitivity", "contribution"):
-            if not _finite(c.get(key)) or (key != "sensitivity" and c[key] < 0):
-                raise damaged(run_id, f"{field}.components[{j}].{key} is {_shown(c.get(key))}, not a finite number"
-                              + ("" if key == "sensitivity" else " >= 0"), idx, wl)
-        if not isinstance(c.get("name"), str):
-            raise damaged(run_id, f"{field}.components[{j}].name is {_shown(c.get('name'))}, not text", idx, wl)
+    if not all(type(c) is dict and type(c.get("name")) is str and _fine(c.get("standard_uncertainty"), 0.0)
+               and _fine(c.get("sensitivity"), -_INF) and _fine(c.get("contribution"), 0.0) for c in comps):
+        _check_components(run_id, idx, wl, field, comps)  # the slow path names what is wrong
     for key, positive in (("combined", False), ("expanded", False), ("k", True)):
         v = budget.get(key)
         if not _finite(v) or v < 0 or (positive and v == 0):

@@ -93,18 +93,7 @@ class RunReader:
         """
         import pandas as pd  # lazily: neither a scan loop nor `bench runs` needs pandas
 
-        self._status(run_id)
-        value_cols = [c for c in READING_COLUMNS if c not in ("wavelength_nm", "theta_r", "phi_r")]
-        sql = ("SELECT r.idx AS idx, p.theta_i AS theta_i, p.phi_i AS phi_i, "
-               "COALESCE(r.theta_r, p.theta_r) AS theta_r, COALESCE(r.phi_r, p.phi_r) AS phi_r, "
-               "r.wavelength_nm AS wavelength_nm, "
-               + ", ".join(f"r.{c} AS {c}" for c in value_cols)
-               + ", p.t_start AS t_start, p.t_end AS t_end, p.status AS point_status, r.extra AS extra "
-               "FROM readings r JOIN points p ON p.run_id = r.run_id AND p.idx = r.idx "
-               "WHERE r.run_id = ? ORDER BY r.idx, r.rowid")
-        df = pd.read_sql_query(sql, self._db, params=(run_id,))
-        self._check_points(run_id)
-        check_frame(run_id, df)  # before any coercion: a text or an out-of-range number is named, not NaN
+        df = self._checked_rows(run_id)
         float_cols = [c for c in ("theta_i", "phi_i", "theta_r", "phi_r", "wavelength_nm", "signal", "dark",
                                   "white", "value", "std", "ci_lo", "ci_hi", "theta_min", "theta_max",
                                   "phi_min", "phi_max", "psa", "t_start", "t_end")]
@@ -176,11 +165,34 @@ class RunReader:
             "WHERE run_id = ? AND value IS NULL GROUP BY 1", (run_id,)).fetchall()
         return {("no value" if why is None else str(why)): int(n) for why, n in rows}
 
+    def _checked_rows(self, run_id: str) -> Any:
+        """The raw readings rows of a run (a DataFrame, columns as SQLite returned them), the
+        points and every number checked before any coercion: a text or an out-of-range number
+        is named (:func:`bench.store.check.check_frame`), never turned into NaN."""
+        import pandas as pd
+
+        self._status(run_id)
+        value_cols = [c for c in READING_COLUMNS if c not in ("wavelength_nm", "theta_r", "phi_r")]
+        sql = ("SELECT r.idx AS idx, p.theta_i AS theta_i, p.phi_i AS phi_i, "
+               "COALESCE(r.theta_r, p.theta_r) AS theta_r, COALESCE(r.phi_r, p.phi_r) AS phi_r, "
+               "r.wavelength_nm AS wavelength_nm, "
+               + ", ".join(f"r.{c} AS {c}" for c in value_cols)
+               + ", p.t_start AS t_start, p.t_end AS t_end, p.status AS point_status, r.extra AS extra "
+               "FROM readings r JOIN points p ON p.run_id = r.run_id AND p.idx = r.idx "
+               "WHERE r.run_id = ? ORDER BY r.idx, r.rowid")
+        df = pd.read_sql_query(sql, self._db, params=(run_id,))
+        self._check_points(run_id)
+        check_frame(run_id, df)
+        return df
+
     def check_run(self, run_id: str) -> None:
         """Read every field of a run and refuse it (:class:`bench.store.check.DamagedRun`, one line
-        naming run, point and field) if anything does not parse or is out of range."""
+        naming run, point and field) if anything does not parse or is out of range (its
+        ``extra`` JSON and budgets are checked as :meth:`reading_budgets` reads them)."""
         self._run_row(run_id)
-        self.readings(run_id)
+        df = self._checked_rows(run_id)
+        for i, w, x, u in zip(df["idx"], df["wavelength_nm"], df["extra"], df["std"]):
+            reading_extra(run_id, i, w, x, u)
 
     def reading_budgets(self, run_id: str) -> list[dict[str, Any]]:
         """Each reading's geometry, wavelength, value and ``uncertainty_budget`` (None for a reading
