@@ -146,7 +146,7 @@ def test_a_run_with_saturated_readings_says_so(tmp_path, capsys, monkeypatch):
     from bench.runner import run_scan
     from bench.store import RunStore
 
-    plan = load_plan(_plan(tmp_path, 0.05, white="once"))
+    plan = load_plan(_plan(tmp_path, 0.05, white="once", dark="once"))  # the declared dark level taken out
     with load_bench(lab) as bench, RunStore(tmp_path / "runs.sqlite") as store:
         result = run_scan(bench, plan, store, seed=1)
     assert result.status == "completed" and result.masked > 0 and result.saturated > 0
