@@ -134,7 +134,19 @@ def same(expected: str, got: str) -> bool:
         a == b or abs(a - b) <= 1e-6 * max(abs(a), abs(b)) for a, b in zip(ne, ng))
 
 
-EXAMPLES = [ex for path in DOCUMENTS for ex in examples(path)]
+def _once(found: list[Example]) -> list[Example]:
+    """Each example once: one the README repeats from a docs page word for word runs once."""
+    seen: set[tuple] = set()
+    out = []
+    for ex in found:
+        key = (ex.command, tuple(ex.expected), ex.small)
+        if key not in seen:
+            seen.add(key)
+            out.append(ex)
+    return out
+
+
+EXAMPLES = _once([ex for path in DOCUMENTS for ex in examples(path)])
 
 
 def _where(page: str, line: int) -> str:
