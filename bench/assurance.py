@@ -27,7 +27,7 @@ from bench.core.validation import validate_document
 from compare.control import Chart, chart, en_numbers
 
 __all__ = ["checks_of", "check_plan", "check_description", "reference_values", "score", "check_history",
-           "check_chart", "Gate", "gate", "today"]
+           "check_chart", "relied_charts", "Gate", "gate", "today"]
 
 
 def today() -> str:
@@ -135,6 +135,30 @@ def check_chart(check: CheckTable, history: Sequence[Mapping[str, Any]]) -> Char
                          f"chart has no spread to set limits with (the same seed and day twice?): declare its sigma "
                          f"or measure it on other days")
     return chart(values, baseline=check.baseline, centre=check.centre, sigma=check.sigma)
+
+
+def relied_charts(store: Any, meta: Mapping[str, Any]) -> list[tuple[CheckTable, list[dict[str, Any]], Chart]]:
+    """The control charts of the check standards a run relied on (its meta's ``assurance``, as
+    ``bench scan`` records it; its bench config in ``meta["bench"]``): each check's history up to
+    the check run the scan relied on, as the scan saw it. Checks without a run or a chart yet
+    are left out; [] for a run that relied on none."""
+    relied = ((meta.get("assurance") or {}).get("checks") or {}) if isinstance(meta.get("assurance"), Mapping) else {}
+    bench = meta.get("bench")
+    if not relied or not isinstance(bench, Mapping):
+        return []
+    out = []
+    for check in checks_of(bench, (), "the run's bench config"):
+        last = (relied.get(check.name) or {}).get("run")
+        history = check_history(store, str(bench.get("name", "bench")), check.name)
+        runs = [h["run"] for h in history]
+        if last not in runs:
+            continue
+        history = history[:runs.index(last) + 1]
+        try:
+            out.append((check, history, check_chart(check, history)))
+        except InputError:  # too few runs, or no spread yet: no chart to show
+            continue
+    return out
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -71,7 +71,8 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
                     observer: str = DEFAULT_OBSERVER, checks: bool = True, on_error: str = "raise", draw_figures: bool = True,
                     map_wavelength_nm: float | None = None, map_incidence: tuple[float, float] | None = None,
                     criterion: Criterion | None = None, check_records: Mapping[str, Any] | None = None,
-                    fits: Mapping[str, Mapping[str, Any]] | None = None, **align_kwargs: Any) -> dict[str, Any]:
+                    fits: Mapping[str, Mapping[str, Any]] | None = None,
+                    extra_figures: Sequence[Mapping[str, Any]] = (), **align_kwargs: Any) -> dict[str, Any]:
     """Compare candidates (models, virtual records) with one actual record and write the report.
 
     Parameters
@@ -98,6 +99,9 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
         e.g. ``bench compare --fit MODEL``; compare never fits): model string -> ``{"fit": the
         ``bench fit --json`` document, "confidence": its intervals' confidence, "figure": a residual
         figure's path or None}``
+    extra_figures : figures the application drew into ``report_dir/figures`` (e.g. the control
+        charts of the check standards the actual run relied on), each ``{"id", "path", "group",
+        "alt", "caption"}``, shown after the report's own
     criterion : the acceptance criterion (:class:`compare.verdict.Criterion`); its ``k`` and
         instrument uncertainty win over the arguments of the same name
     **align_kwargs : ``angle_tol_deg``, ``wavelength_tol_nm``, ``match``, ``channels``
@@ -174,7 +178,7 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     figures = (report_figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence, group_tables)
                if draw_figures else [])
     fit_figures = _fit_figures(fits or {}, figdir)
-    figures += fit_figures
+    figures += fit_figures + [dict(f) for f in extra_figures]
     warnings = sorted({w for c in comps.values() for w in c.summary["warnings"]})
     for r in ranking:
         v = verdicts.get(r["name"])

@@ -15,7 +15,7 @@ from bench.cli.common import (DEFAULT_STORE, add_bench_options, add_force_option
                               open_store, output_file)
 from bench.core.errors import InputError
 
-__all__ = ["register", "cmd_check", "cmd_chart", "scan_gate", "add_date_option"]
+__all__ = ["register", "cmd_check", "cmd_chart", "scan_gate", "add_date_option", "plot_charts"]
 
 
 def add_date_option(parser: argparse.ArgumentParser, what: str) -> None:
@@ -117,7 +117,7 @@ def cmd_chart(args: argparse.Namespace) -> int:
             history = check_history(store, name, check.name)
             charts.append((check, history, check_chart(check, history)))
     if args.plot:
-        _plot(charts, args.plot, name)
+        plot_charts(charts, args.plot, name)
     if args.json:
         emit_json({"bench": name, "charts": [{"check": c.name, "runs": [{k: h[k] for k in ("run", "date", "value")}
                                                                          for h in hist], **ch.as_dict()}
@@ -137,7 +137,9 @@ def cmd_chart(args: argparse.Namespace) -> int:
     return 0
 
 
-def _plot(charts: list[tuple[Any, list, Any]], path: str, bench_name: str) -> None:
+def plot_charts(charts: list[tuple[Any, list, Any]], path: str | Any, bench_name: str) -> None:
+    """Draw ``(check, history, chart)`` triples into one PNG, a Shewhart chart per check (``bench
+    chart --plot``, and the HTML report of ``bench compare`` for the checks a run relied on)."""
     import matplotlib
 
     matplotlib.use("Agg")

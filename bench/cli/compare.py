@@ -109,6 +109,31 @@ def _fits(actual: Any, models: dict[str, Any], out: Path, draw_figures: bool) ->
     return fits
 
 
+def _assurance_figures(actual: Any, store_path: str, out: Path, draw_figures: bool) -> list[dict[str, Any]]:
+    """The control charts of the check standards the actual run relied on (a ``bench scan`` on a
+    bench declaring ``assurance``), each up to the check the scan relied on, drawn for the report."""
+    meta = (actual[0].meta if isinstance(actual, tuple) else getattr(actual, "meta", None)) or {}
+    if not draw_figures or not meta.get("assurance") or not Path(store_path).exists():
+        return []
+    from bench.assurance import relied_charts
+    from bench.cli.assurance import plot_charts
+    from bench.store import RunStore
+
+    with RunStore(store_path, create=False, readonly=True) as store:
+        charts = relied_charts(store, meta)
+    if not charts:
+        return []
+    path = out / "figures" / "fig-assurance.png"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    plot_charts(charts, str(path), str((meta.get("bench") or {}).get("name", "bench")))
+    names = ", ".join(c.name for c, _, _ in charts)
+    return [{"id": "fig-assurance", "path": str(path), "group": "assurance",
+             "alt": f"control charts of the check standards the actual run relied on ({names})",
+             "caption": f"Measurement assurance: the Shewhart charts of {names} up to the check the actual run "
+                        f"relied on (centre and 1-3 sigma limits; squares: a Western Electric / Nelson rule "
+                        f"broken)."}]
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     from compare.report import compare_records
 
@@ -132,7 +157,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         summary = compare_records(actual, candidates, out, primary_metric=opts.get("metric", "chi2_per_dof"),
                                   title=opts.get("title") or f"{', '.join(candidates)} against {actual_name}",
                                   on_error="skip" if args.skip_bad else "raise", criterion=criterion,
-                                  draw_figures=not args.no_figures, fits=fits, **align_kw)
+                                  draw_figures=not args.no_figures, fits=fits,
+                                  extra_figures=_assurance_figures(actual, args.store, out, not args.no_figures),
+                                  **align_kw)
         bar.update()
     if args.json:
         print(json.dumps(summary))
