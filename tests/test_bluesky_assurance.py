@@ -49,6 +49,9 @@ def test_a_bluesky_check_stores_bench_checks_readings_and_score_and_is_charted(R
     assert bs["value"] == pytest.approx(1 / 0.97, rel=0.01) and not bs["agree"]
     with RunStore(store, create=False) as s:
         assert [h["run"] for h in check_history(s, "virtual", "grey tile")] == [cli["run"], bs["run"]]
+    code, out, err = run_main(capsys, "show", bs["run"], "--store", store, "--json")
+    shown = json.loads(out)
+    assert code == 0 and shown["kind"] == "check" and shown["check"]["max_abs_E_n"] == pytest.approx(bs["max_abs_E_n"])
     # the same seed and day twice: a baseline without spread is refused in one line (it was a traceback)
     code, _, err = run_main(capsys, "chart", "--bench", bench, "--store", store)
     assert code == 2 and "first 2 check values are all" in err and len(err.strip().splitlines()) == 1
