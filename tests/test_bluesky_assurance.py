@@ -18,7 +18,7 @@ from bench.bluesky.assurance import check_standards
 from bench.core.errors import InputError
 from bench.store import RunStore
 from tests.helpers.cli import run_main
-from tests.test_assurance import _bench
+from tests.test_assurance import CHECK, _bench
 
 DRIFT = '[drift]\nstart = "2026-12-01"\nwhite_per_day = -0.01\n'
 
@@ -92,6 +92,12 @@ def test_check_standards_refuses_before_the_run_engine_sees_anything(RE, tmp_pat
         check_standards(certified, store=store, run_engine=RE)
     with pytest.raises(InputError, match="date must be YYYY-MM-DD"):
         check_standards(bench, store=store, date="12/04/2026", run_engine=RE)
+    (tmp_path / "real").mkdir()
+    real = _bench(tmp_path / "real", "emulated.toml")
+    real.write_text(real.read_text() + CHECK.replace("grey tile", "white tile"))
+    with pytest.raises(InputError, match=r"a real bench measures the one standard mounted on it; name it with "
+                                         r"checks=\[...\] \(its checks: grey tile, white tile\)"):
+        check_standards(real, store=store, body="real", run_engine=RE)
     assert not store.exists()  # nothing opened, nothing written
 
 

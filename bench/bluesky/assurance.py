@@ -113,11 +113,11 @@ def check_standards(bench: str | Path | Mapping[str, Any] | Devices, *, store: s
     d = on_day(d, on)
     plans = [(c, plan_from_dict(check_plan(c), name=f"check {c.name}"), check_description(d, c, kind))
              for c in declared]
-    for _, plan, described in plans:  # every check refused before anything is opened
-        refuse_before_opening(plan, described, kind)
     if kind == "real" and len(plans) != 1:
         raise InputError(f"check_standards: a real bench measures the one standard mounted on it; name it with "
                          f"checks=[...] (its checks: {', '.join(c.name for c in declared)})")
+    for _, plan, described in plans:  # every check refused before anything is opened
+        refuse_before_opening(plan, described, kind)
     opened: list[Devices] = []
     try:
         for _, _, described in plans:
@@ -138,7 +138,8 @@ def check_standards(bench: str | Path | Mapping[str, Any] | Devices, *, store: s
         try:
             for (check, plan, described), devs in zip(plans, opened):
                 meta = {"plan_name": "check_standards", "plan_args": {"check": check.name, "date": on},
-                        METADATA_KEY: devs.metadata,
+                        METADATA_KEY: {**devs.metadata, "bench": described,  # the standard mounted
+                                       "specimen": (described.get("specimen") or {}).get("spec")},
                         RUN_KEY: {"kind": "check", "meta": {"check": {"check": check.name, "date": on}}},
                         **dict(md or {})}
                 # at the check's first geometry before staging: a fresh emulated arm is parked with
