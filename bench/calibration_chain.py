@@ -42,6 +42,16 @@ A white that does not look like the standard is refused (:func:`check_white_leve
 
 Each bound is widened by ``Z_NOISE`` standard uncertainties of the ratio (normal, two-sided
 1e-5 per band), so a good white is refused by noise at a rate below 1e-4 over a 10-band record.
+
+A calibrated plan without darks (``dark = "none"``) on a detector with a dark level
+(:func:`dark_level`: a declared ``[detector] dark_counts`` on any body, the virtual body's
+``[instrument] dark_counts``, the emulated unit's 1000 counts on the emulated and real bodies
+without ``[detector]``) is refused (:func:`check_dark_level`): its readings and its white would
+both hold the dark, which does not cancel in their ratio (tens of standard uncertainties at a
+specular peak). It is refused rather than corrected: no description declares the dark level
+with an uncertainty a budget could carry (the data sheet's number is nominal, the real level
+drifts with temperature), and a dark costs one reading with the light off. A white with
+saturated bands is not kept as a reference (:func:`check_white_unsaturated`, ``bench white``).
 """
 
 from __future__ import annotations
@@ -53,7 +63,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from bench.builders.detector import RESPONSE_GAIN
+from bench.builders.detector import RESPONSE_GAIN, DetectorTable, detector_settings
+from bench.builders.instrument import instrument_effects
 from bench.config import Bench
 from bench.core.calibration import Calibration
 from bench.core.errors import BenchError, CalibrationRefused
@@ -66,7 +77,7 @@ from bench.preflight import (calibration_record, check_calibration_steps, check_
 log = logging.getLogger(__name__)
 
 __all__ = ["CalibrationChain", "decide_calibration", "acquire_dark", "resumed_calibration", "check_resume_body",
-           "stored_white", "white_origin", "detector_identity", "check_origin", "check_white_level", "expected_white_rate", "previous_white",
+           "stored_white", "white_origin", "dark_level", "check_dark_level", "check_white_unsaturated", "detector_identity", "check_origin", "check_white_level", "expected_white_rate", "previous_white",
            "LEVEL_TOLERANCE", "SHAPE_TOLERANCE", "DECLARED_HEADROOM", "DECLARED_FLOOR", "Z_NOISE"]
 
 #: the band-median ratio of a new white to the last accepted one may differ from 1 by this much
@@ -232,15 +243,55 @@ def acquire_dark(bench: Bench, plan: Plan) -> Reading:
         bench.light.on()
 
 
+def dark_level(bench: Bench) -> float:
+    """The dark level (counts per scan) of ``bench``'s detector: a declared ``[detector]``'s (every
+    body); else the virtual body's ``[instrument] dark_counts`` (0 undeclared: the bare twin), the
+    emulated and real bodies' the emulated unit's (its data sheet's, :class:`DetectorTable`)."""
+    d = bench.config
+    det = detector_settings(d)
+    if det is not None:
+        return float(det.dark_counts)
+    if bench.kind == "virtual":
+        effects = instrument_effects(d.get("instrument"))
+        return 0.0 if effects is None else float(effects.dark_counts)
+    return float(DetectorTable().dark_counts)
+
+
+def check_dark_level(bench: Bench, plan: Plan) -> None:
+    """Refuse (one line) a calibrated plan that takes no dark on a detector with a dark level
+    (module docstring). A plan without white stores no values (its readings are raw counts)."""
+    if plan.dark != "none" or plan.white == "none":
+        return
+    level = dark_level(bench)
+    if level > 0:
+        raise CalibrationRefused(
+            f"plan {plan.name!r} takes no dark, but the detector of bench {bench.name!r} reads a dark level of "
+            f"{level:g} counts: its readings would be offset by it; use dark = \"once\" or \"per-incidence\""
+            + (" (bench white --dark once)" if plan.name == "white" else ""))
+
+
+def check_white_unsaturated(where: str, cal: Calibration) -> None:
+    """Refuse (one line) a white with saturated bands as a stored reference: every reading a run
+    calibrates with it would be masked in those bands."""
+    sat = np.asarray(cal.white.saturated, bool)
+    if sat.any():
+        wl = np.asarray(cal.white.wavelengths, float)
+        raise CalibrationRefused(
+            f"{where} is saturated in {int(sat.sum())} of {sat.size} bands (first at {wl[sat][0]:g} nm) at "
+            f"integration_s = {cal.white.integration_s:g}: take it again with a shorter integration")
+
+
 def decide_calibration(bench: Bench, plan: Plan, use_reference_file: bool = True) -> CalibrationChain:
     """Decide the plan's calibration chain on ``bench`` before any motion, or refuse it in one line
-    (a bad or foreign white file, a step the bench cannot take, a white that does not look like
-    the standard). ``use_reference_file=False``: measure the standard now even when the bench names
-    a file (``bench white``)."""
+    (a bad or foreign white file, a step the bench cannot take, no dark on a detector with a dark
+    level, a white that does not look like the standard).
+    ``use_reference_file=False``: measure the standard now even when the bench names a file
+    (``bench white``)."""
     ref = stored_white(bench) if plan.white != "none" and use_reference_file else None
     # darks, light, operator; the file's origin (another body's white is never divided into these
     # readings) and its settings against the plan's
     check_calibration_steps(bench, plan, ref)
+    check_dark_level(bench, plan)
     if ref is not None:
         check_white_level(f"white reference {ref.path}", ref.calibration(bench.white), bench)
     source = "none" if plan.white == "none" else ("file" if ref is not None else "measured")
@@ -266,6 +317,7 @@ def resumed_calibration(bench: Bench, plan: Plan, run_id: str, info: Mapping[str
     can be taken."""
     cal = Calibration.from_dict(info["calibration"]) if info.get("calibration") else None
     check_resume_body(run_id, info, bench.kind)
+    check_dark_level(bench, plan)
     if cal is not None and cal.origin is not None:
         check_origin(f"the white of run {run_id}", cal.origin, bench)
     check_calibration_steps(bench, plan if cal is None else replace(plan, white="none"), None)

@@ -12,6 +12,7 @@ from dataclasses import replace
 from typing import Any, Mapping
 
 from bench.builders.described import check_ports, described_bench
+from bench.calibration_chain import check_dark_level
 from bench.exposure import check_exposure
 from bench.plans import Plan, validate
 from bench.preflight import check_calibration_steps
@@ -37,5 +38,6 @@ def refuse_before_opening(plan: Plan, d: Mapping[str, Any], body: str, calibrate
         return
     steps = replace(plan, white="none") if calibrated else plan
     check_calibration_steps(bench, steps, stored_white(bench) if steps.white != "none" else None)
+    check_dark_level(bench, plan)  # the chain's own rule (a resumed run's too: its readings hold the dark)
     if body == "real":
         check_ports(d)

@@ -5,7 +5,8 @@ The real-bench config ``bench emulate`` prints for the emulators (the real drive
 shipped in-plane plan (``dark = "per-incidence"``) on a Lambertian 0.8: every calibrated value
 must hold 0.8/pi = 0.2546 1/sr within its reported uncertainty. The same bench with its lamp
 undeclared is refused before any motion, in one line naming the step and the missing part; a
-stored white that does not match the plan is refused; ``dark = "none"`` is explicit and recorded.
+stored white that does not match the plan is refused; ``dark = "none"`` is refused on a detector
+with a dark level, and explicit and recorded where the description declares none.
 
 Statistics: each value's z = (value - 0.8/pi) / std, asserted |z| < z* with z* the two-sided
 Bonferroni bound for a family-wise false-alarm rate of 1e-3 over every value of the run (the
@@ -126,9 +127,12 @@ def test_real_bench_workflow_is_right_or_refused(emulators, tmp_path, capsys):
     assert code == 2 and "integration_s = 0.05" in out and "integrates 0.02" in out
 
 
-def test_without_darks_only_when_the_plan_says_so(emulators, tmp_path, capsys):
-    """Power of the workflow check: dark = "none" (explicit, recorded) on the same bench gives the
-    issue's excess at large theta_r, which the same bound detects."""
+def test_without_darks_refused_on_a_detector_with_a_dark_level(emulators, tmp_path, capsys):
+    """A bench without a switchable light takes no dark, and its detector (undeclared: the
+    emulated unit's) reads a dark level of 1000 counts: a white or a plan without darks is refused
+    in one line, nothing written. Power of the workflow check: the same bench declaring no dark
+    level (``[detector] dark_counts = 0``, wrongly) is taken with dark = "none" (explicit,
+    recorded) and gives the issue's excess at large theta_r, which the same bound detects."""
     import json
 
     config = {k: v for k, v in emulators.real_bench_config().items() if k != "light"}
@@ -136,7 +140,13 @@ def test_without_darks_only_when_the_plan_says_so(emulators, tmp_path, capsys):
     white = tmp_path / "white.csv"
     assert _store_white(emulators, lab, white) == 2  # a dark without a lamp: refused ...
     assert "--dark none" not in capsys.readouterr().out
-    assert _store_white(emulators, lab, white, "--dark", "none") == 0  # ... unless asked for none
+    assert _store_white(emulators, lab, white, "--dark", "none") == 2  # ... and none on a dark level too
+    err = capsys.readouterr().err
+    assert "takes no dark" in err and "dark level of 1000 counts" in err and len(err.strip().splitlines()) == 1
+    assert not white.exists()
+    config = {**config, "detector": {"dark_counts": 0.0}}  # the lab declares no dark level
+    lab = _write(tmp_path / "lab.toml", config)
+    assert _store_white(emulators, lab, white, "--dark", "none") == 0
     lab = _write(tmp_path / "lab.toml", {**config, "white": {**config["white"], "reference_file": str(white)}})
     plan = IN_PLANE.read_text().replace('dark = "per-incidence"', 'dark = "none"')
     plan_file = tmp_path / "in-plane-no-dark.toml"

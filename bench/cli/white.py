@@ -11,7 +11,8 @@ the lamp drift's Type A estimate.
 
 The file records the white's origin (body, bench, detector: :mod:`bench.calibration_chain`);
 runs on another body or detector refuse it. A white that does not look like the standard is
-refused and nothing is written: against the declared detector's response to the certificate,
+refused and nothing is written: a white with saturated bands (predicted before it is measured,
+or found in it), and against the declared detector's response to the certificate,
 and against the last accepted white of the same body and detector (the file ``--out`` replaces,
 else the bench's ``[white] reference_file``): its level and spectral shape.
 """
@@ -34,7 +35,7 @@ __all__ = ["register", "cmd_white"]
 def _measure(args: argparse.Namespace) -> tuple[object, str]:
     from pathlib import Path
 
-    from bench.calibration_chain import check_white_level, previous_white
+    from bench.calibration_chain import check_white_level, check_white_unsaturated, previous_white
     from bench.config import load_bench
     from bench.plans import Plan
     from bench.runner import measure_calibration
@@ -48,6 +49,7 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
     with load_bench(args.bench, body=args.body) as bench:
         bench.operator_confirmed = args.yes
         cal = measure_calibration(bench, plan, use_reference_file=False)  # checked against the declared level
+        check_white_unsaturated(f"the white measured on bench {bench.name!r}", cal)
         previous = previous_white(bench, args.out if Path(args.out).is_file() else None)
         if previous is not None:  # and against the last accepted white of this body and detector
             check_white_level(f"the white measured on bench {bench.name!r}", cal, bench, *previous)
@@ -55,6 +57,7 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
 
 
 def _from_run(args: argparse.Namespace) -> tuple[object, str]:
+    from bench.calibration_chain import check_white_unsaturated
     from bench.core.calibration import Calibration
 
     with open_store(args.store, create=False) as store:
@@ -63,7 +66,9 @@ def _from_run(args: argparse.Namespace) -> tuple[object, str]:
         raise InputError(f"run {args.from_run} is {info['status']}: take the white reference of a completed run")
     if not info.get("calibration"):
         raise InputError(f"run {args.from_run} has no white reference (its plan had white = \"none\")")
-    return Calibration.from_dict(info["calibration"]), str((info.get("bench") or {}).get("name", ""))
+    cal = Calibration.from_dict(info["calibration"])
+    check_white_unsaturated(f"the white of run {args.from_run}", cal)
+    return cal, str((info.get("bench") or {}).get("name", ""))
 
 
 def cmd_white(args: argparse.Namespace) -> int:
