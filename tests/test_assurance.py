@@ -125,3 +125,15 @@ def test_the_emulated_body_drifts_as_declared(capsys, tmp_path):
     first = _check(capsys, bench, store, 1, 1)["value"]
     later = _check(capsys, bench, store, 12, 2)["value"]
     assert later / first == pytest.approx(1 / (1 - 0.004 * 10), rel=2e-3)
+
+
+def test_each_simulated_day_draws_noise_of_its_own_and_the_same_day_the_same(capsys, tmp_path):
+    """Without --seed a bench's fixed seed would repeat one day's noise on every --date."""
+    bench, store = _bench(tmp_path), tmp_path / "s.sqlite"
+    values = []
+    for day in (1, 2, 1):
+        code, out, err = run_main(capsys, "check", "--bench", bench, "--store", store, "--date", f"2026-12-0{day}",
+                                  "--json")
+        assert code == 0, err
+        values.append(json.loads(out)["checks"][0]["value"])
+    assert values[0] != values[1] and values[0] == values[2]

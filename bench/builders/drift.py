@@ -6,12 +6,13 @@ one: :func:`bench.config.load_description`)."""
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 from typing import Any, Mapping
 
 from bench.core.schemas import DriftTable
 from bench.core.validation import validate_document
 
-__all__ = ["white_factor", "actual_white", "on_day"]
+__all__ = ["white_factor", "actual_white", "on_day", "day_seed"]
 
 
 def _table(d: Mapping[str, Any]) -> DriftTable | None:
@@ -47,3 +48,15 @@ def on_day(d: Mapping[str, Any], day: str | None) -> dict[str, Any]:
     if day is not None and out.get("drift") is not None:
         out["drift"] = {**dict(out["drift"]), "on": day}
     return out
+
+
+def day_seed(d: Mapping[str, Any], day: str | None, seed: int | None) -> int | None:
+    """The noise seed of a simulated day: ``seed`` when given; else, for a ``--date``, one derived
+    from the bench's own seed (``seed`` or ``[emulated] seed``) and the day, so each simulated day
+    draws noise of its own (a bench with a fixed seed would otherwise repeat one day's noise every
+    day, and a chart of those days has no spread) and the same day draws the same again."""
+    if seed is not None or day is None:
+        return seed
+    base = d.get("seed", (d.get("emulated") or {}).get("seed", 0))
+    digest = hashlib.sha256(f"{base}:{day}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1  # 63 bits, as every seed

@@ -55,7 +55,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     print every reading's E_n; JSON: ``{"checks": [{check, run, date, value, max_abs_E_n, agree,
     masked, readings: [{point, wavelength_nm, value, reference, E_n}]}]}``."""
     from bench.assurance import check_description, check_plan, checks_of, score, today
-    from bench.builders.drift import on_day
+    from bench.builders.drift import day_seed, on_day
     from bench.builders.instrument import declared_aperture
     from bench.config import load_bench, load_description
     from bench.plan_check import refuse_before_opening
@@ -76,9 +76,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     out = []
     with open_store(args.store) as store:
         for check, plan, described in plans:
-            bench = load_bench(described, seed=args.seed, body=body)
+            seed = day_seed(d, args.date, args.seed)  # a simulated day draws noise of its own
+            bench = load_bench(described, seed=seed, body=body)
             with bench:
-                result = run_scan(bench, plan, store, seed=getattr(bench.goniometer, "seed", args.seed),
+                result = run_scan(bench, plan, store, seed=getattr(bench.goniometer, "seed", seed),
                                   kind="check", extra_meta={"check": {"check": check.name, "date": on}})
             if result.status != "completed":
                 raise InputError(f"check {check.name!r}: run {result.run_id} {result.status} ({result.reason}); "
