@@ -9,7 +9,6 @@ CPU-s of imports and start-ups): the catalog kept in step.
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import pytest
 

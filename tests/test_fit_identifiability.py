@@ -3,7 +3,6 @@ named; a parameter's alias is accepted and reported as written."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
