@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -42,14 +42,15 @@ from ophyd_async.core import StandardReadableFormat as Format
 from bench.bluesky.goniometer import AXES, Mover
 from bench.bluesky.signals import hardware_source, hw_signal_r, hw_signal_rw
 from bench.bluesky.worker import BenchWorker
+from bench.calibration_chain import decide_calibration, stored_white
 from bench.config import Bench
 from bench.core.calibration import Calibration
 from bench.core.errors import BenchError, ConfigError
 from bench.core.records import json_default
 from bench.core.roles import Reading
+from bench.exposure import check_exposure
 from bench.plans import DARK_MODES, WHITE_MODES, Plan
-from bench.preflight import check_calibration_steps
-from bench.runner import acquire_dark, measure_calibration, stored_white
+from bench.runner import acquire_dark, measure_calibration
 
 __all__ = ["SpectrometerDevice", "ReflectanceDevice", "LightDevice", "ReadingSettings", "WAVELENGTH_DIM",
            "band_mean"]
@@ -278,13 +279,19 @@ class ReflectanceDevice(_SpectralReadable):
         """Measure the white reference (and its dark), then the run's dark when ``once``; then
         return the arm to the goniometer's setpoint if measuring the white moved it.
 
-        The settings are checked first, synchronously: a step the bench cannot take or a stored
-        white taken with other settings raises its one-line
+        The settings are checked first, synchronously: a step the bench cannot take, a stored
+        white taken with other settings, or an exposure predicted to saturate the detector on the
+        white it measures now or at the setpoint the first trigger reads at (:mod:`bench.exposure`,
+        as ``bench scan`` refuses a plan; a Bluesky plan's later points are not known here: their
+        saturated readings are masked and the stored run says so) raises its one-line
         :class:`~bench.core.errors.CalibrationRefused` (or ``ConfigError``) straight out of
         ``RE(...)``, before any motion, instead of failing a status."""
         plan = self._settings()
         try:
-            check_calibration_steps(self._bench, plan, stored_white(self._bench) if plan.white != "none" else None)
+            decide_calibration(self._bench, plan)  # the runner's decision: which white, which darks
+            # the white it measures now and the first trigger, at the setpoint (a count reads only there),
+            # predicted as bench scan predicts a plan's: refused before any motion when they would saturate
+            check_exposure(replace(plan, points=(self._mover.reached,)), self._bench.config)
         except BenchError as exc:
             raise type(exc)(f"{self.name} (integration_s {plan.integration_s:g} s, averages {plan.averages}, "
                             f"dark_mode {plan.dark!r}, white_mode {plan.white!r}): {exc}") from None

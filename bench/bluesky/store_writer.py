@@ -15,7 +15,8 @@ One Bluesky run becomes one run of kind ``bluesky`` in the same tables as ``benc
   raw signal, dark and geometry: the very function ``bench scan`` stores with, so the values are
   the same (a spectrometer-only run stores signals, values masked "no white reference");
 * stop: ``success`` -> ``completed``, ``abort`` -> ``interrupted``, ``fail`` -> ``failed``, with
-  the stop document's reason; a failed status's repr (``<AsyncStatus, device: X, ...,
+  the stop document's reason (a completed run with masked readings: ``N of M readings masked (S
+  saturated)``, as ``bench scan`` records it); a failed status's repr (``<AsyncStatus, device: X, ...,
   errored: HardwareError('...')>``) is stored as ``HardwareError: ... (device X)`` as ``bench
   scan`` words a fault (the stop document itself is kept verbatim in ``meta["bluesky_stop"]``).
 
@@ -41,7 +42,7 @@ from bench.bluesky.goniometer import AXES, Mover
 from bench.core.calibration import Calibration
 from bench.core.geometry import Geometry
 from bench.core.roles import Reading
-from bench.runner import point_budgets, point_rows
+from bench.runner import masked_readings, point_budgets, point_rows
 from bench.store import RunStore
 
 log = logging.getLogger(__name__)
@@ -174,6 +175,9 @@ class StoreWriter(DocumentRouter):
             reason = fault_reason(doc["reason"]) if doc.get("reason") else None
             if status != "completed" and not reason:
                 reason = f"bluesky run ended with exit_status {doc.get('exit_status')!r}"
+            elif status == "completed" and not reason:  # masked readings say so, as the runner's run does
+                calibrated = any(s.calibration is not None for s in self._streams.values())
+                reason = masked_readings(self._store, self._run, calibrated)[2]
             self._store.update_meta(self._run, bluesky_stop=jsonable(doc))
             self._store.set_status(self._run, status, reason)
         finally:
