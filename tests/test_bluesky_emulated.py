@@ -192,10 +192,10 @@ def test_staging_returns_the_arm_to_the_setpoint_after_measuring_the_white(RE, e
     assert np.allclose(loc["readback"], loc["setpoint"], atol=0.1), loc
 
 
-def test_staging_at_a_parked_arm_is_refused_in_one_line_naming_the_setpoint(RE):
+def test_a_count_at_a_parked_arm_is_refused_in_one_line_naming_the_setpoint(RE):
     """Fresh from connect() the emulated arm is parked (detector in the beam): the white moves it
-    away, and it cannot be returned to a geometry nothing can be measured at -- refused in one
-    line, not read at the white geometry."""
+    away and it is not returned to a geometry nothing can be measured at (a scan moves it after
+    staging); a count there is refused in one line, not read at the white geometry."""
     devs = connect(BENCHES / "emulated.toml", run_engine=RE)
     try:
         reset_reflectance(RE, devs)
@@ -203,7 +203,7 @@ def test_staging_at_a_parked_arm_is_refused_in_one_line_naming_the_setpoint(RE):
             RE(bp.count([devs.reflectance]))
         exc = info.value.__cause__ or info.value
         assert isinstance(exc, GeometryError), repr(exc)
-        assert "not a measuring geometry" in str(exc) and "\n" not in str(exc), str(exc)
+        assert "not at the goniometer's setpoint" in str(exc) and "\n" not in str(exc), str(exc)
     finally:
         devs.close()
 

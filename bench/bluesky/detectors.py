@@ -321,6 +321,7 @@ class ReflectanceDevice(_SpectralReadable):
     async def trigger(self) -> None:
         if not self._staged:  # a bare trigger (no stage): calibrate first, as a plan would
             await self.stage()
+        self._mover.check_at_setpoint()  # no reading where the white left a parked arm
         plan = self._settings()
         target = self._mover.geometry_of(self._mover.target)
         incidence = (target.theta_i, target.phi_i)

@@ -59,6 +59,9 @@ def _azimuth_gap(a: float, b: float) -> float:
 
 #: read-backs closer than this (deg, under one servo step) are the same place
 _SAME_PLACE_DEG = 0.01
+#: a read-back this close to the setpoint (deg: a few servo steps, the goniometers' conformance
+#: tolerance) is the arm at its setpoint
+_AT_SETPOINT_DEG = 0.5
 
 
 def _same_place(a: Geometry, b: Geometry) -> bool:
@@ -156,17 +159,17 @@ class Mover:
         """Return the arm to the setpoint if something other than a move (measuring the white
         standard) left it away from ``before``, the read-back it had; returns the geometry reached.
 
-        Raises :class:`~bench.core.errors.GeometryError` (no motion) when the setpoint is not a
-        geometry the bench measures at (a parked arm: the detector in the beam)."""
+        A setpoint that is not a geometry the bench measures at (a parked arm: the detector in
+        the beam) is not returned to: the plan moves the arm before its first trigger (a scan's
+        motors move after staging), and :meth:`check_at_setpoint` refuses a trigger away from it."""
         now = await self.refresh()
         if _same_place(now, before):
             return now
         g = self.geometry_of(self.target)
         try:
             self.goniometer.check(g)
-        except GeometryError as exc:
-            raise GeometryError(f"the goniometer's setpoint {g} is not a measuring geometry ({exc}); "
-                                f"move it to one before the first trigger") from None
+        except GeometryError:
+            return now
         self.moves += 1
         try:
             reached = await self.worker.run(self.goniometer.move_to, g)
@@ -175,6 +178,20 @@ class Mover:
             raise
         self._publish(reached)
         return reached
+
+    def check_at_setpoint(self) -> Geometry:
+        """The geometry a trigger reads at: the read-back, refused (no reading) when it is not the
+        setpoint -- a count would otherwise read where the white left the arm while ``locate()``
+        reports the setpoint."""
+        g, r = self.geometry_of(self.target), self.reached
+        near = (abs(r.theta_i - g.theta_i) <= _AT_SETPOINT_DEG and abs(r.theta_r - g.theta_r) <= _AT_SETPOINT_DEG
+                and (min(r.theta_i, g.theta_i) < 1e-6 or _azimuth_gap(r.phi_i, g.phi_i) <= _AT_SETPOINT_DEG)
+                and (min(r.theta_r, g.theta_r) < 1e-6 or _azimuth_gap(r.phi_r, g.phi_r) <= _AT_SETPOINT_DEG))
+        if not near:
+            raise GeometryError(f"the arm is at {self.reached}, not at the goniometer's setpoint {g} (a parked "
+                                f"arm is not returned to after the white): move it to a measuring geometry "
+                                f"before the first trigger")
+        return self.reached
 
     async def refresh(self) -> Geometry:
         """Read the position back (after a fault, a stop or a calibration that moved the arm)."""
