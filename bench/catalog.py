@@ -42,7 +42,7 @@ from typing import Any, Iterator
 from bench.core.errors import DeviceError, InputError
 from bench.core.outputs import atomic_write
 from bench.store.check import valid_run_id
-from bench.core.records import json_default, record_identity, record_provenance
+from bench.core.records import GEOMETRY_COLUMNS, hardware_name, json_default, record_identity, record_provenance
 
 __all__ = ["run_documents", "run_uid", "scan_ids", "init_catalog", "CatalogServer", "STATUS_EXIT",
            "RUN_UID_NAMESPACE"]
@@ -96,10 +96,40 @@ def _catalog_key(uid: Any) -> bool:
         return False
 
 
-def _data_key(column: Any, unit: str | None) -> dict[str, Any]:
+#: the source of a stored column no instrument gave (the record's identity, a patch's bounds)
+STORE_SOURCE = "goniobench-store"
+
+
+def column_sources(meta: dict[str, Any]) -> Any:
+    """``column -> source`` of a stored run: the goniometer for the geometry columns and the
+    spectrometer for the readings, named as the live devices name them
+    (:func:`bench.core.records.hardware_name`, from the run's stored bench description); the
+    store for the record's identity and for a run no bench measured (a virtual record)."""
+    desc = meta.get("bench_description") if isinstance(meta.get("bench_description"), dict) else None
+    if not desc:
+        return lambda column: f"{STORE_SOURCE}#{column}"
+
+    def role(name: str) -> str:
+        info = desc.get(name) if isinstance(desc.get(name), dict) else {}
+        return hardware_name(desc.get("kind", "bench"), desc.get("name", "bench"), name, info.get("model"),
+                             info.get("serial"))
+
+    gonio, spectro = role("goniometer"), role("spectrometer")
+
+    def source(column: str) -> str:
+        if column in GEOMETRY_COLUMNS:
+            return f"{gonio}#{column}"
+        if column in _SPECTRUM_KEYS:  # the record's identity and a patch's bounds
+            return f"{STORE_SOURCE}#{column}"
+        return f"{spectro}#{column}"
+
+    return source
+
+
+def _data_key(column: Any, unit: str | None, source: str = STORE_SOURCE) -> dict[str, Any]:
     kind = column.dtype.kind
     dtype = "boolean" if kind == "b" else "integer" if kind in "iu" else "number" if kind == "f" else "string"
-    key: dict[str, Any] = {"dtype": dtype, "shape": [], "source": "goniobench-store"}
+    key: dict[str, Any] = {"dtype": dtype, "shape": [], "source": source}
     if unit:
         key["units"] = unit
     return key
@@ -131,9 +161,9 @@ def _spectra(table: Any) -> tuple[list[str], list[str], Any, list[Any]] | None:
     return keys, arrays, grid, groups
 
 
-def _array_key(column: Any, unit: str | None, n: int) -> dict[str, Any]:
+def _array_key(column: Any, unit: str | None, n: int, source: str = STORE_SOURCE) -> dict[str, Any]:
     kind = column.dtype.kind
-    key: dict[str, Any] = {"dtype": "array", "shape": [n], "dims": ["wavelength_nm"], "source": "goniobench-store"}
+    key: dict[str, Any] = {"dtype": "array", "shape": [n], "dims": ["wavelength_nm"], "source": source}
     if kind in "biuf":
         key["dtype_numpy"] = "|b1" if kind == "b" else "<f8"
     if unit:
@@ -161,7 +191,8 @@ def _spectrum_values(table: Any, rows: Any, column: str, grid: Any) -> list[Any]
     return out.tolist()
 
 
-def _point_events(table: Any, units: dict[str, str], times: dict[int, float], t_end: float) -> Any:
+def _point_events(table: Any, units: dict[str, str], times: dict[int, float], t_end: float,
+                  source: Any = lambda c: STORE_SOURCE) -> Any:
     """``(data_keys, [(data, time), ...])``: one event per measured point, its spectra as arrays
     over ``wavelength_nm`` stamped with the point's end time (``times`` by point index; the run's
     end without one); None when the rows are not spectra (see :func:`_spectra`)."""
@@ -169,9 +200,10 @@ def _point_events(table: Any, units: dict[str, str], times: dict[int, float], t_
     if found is None:
         return None
     keys, arrays, grid, groups = found
-    data_keys = {c: _data_key(table[c], units.get(c)) for c in keys}
-    data_keys.update({c: _array_key(table[c], units.get(c), grid.size) for c in arrays})
-    data_keys["wavelength_nm"] = {**_array_key(table["wavelength_nm"], units.get("wavelength_nm"), grid.size)}
+    data_keys = {c: _data_key(table[c], units.get(c), source(c)) for c in keys}
+    data_keys.update({c: _array_key(table[c], units.get(c), grid.size, source(c)) for c in arrays})
+    data_keys["wavelength_nm"] = _array_key(table["wavelength_nm"], units.get("wavelength_nm"), grid.size,
+                                            source("wavelength_nm"))
     events = []
     for rows in groups:
         first = table.loc[rows[0]]
@@ -236,7 +268,8 @@ def run_documents(store: Any, run_id: str, scan_id: int | None = None) -> Iterat
     yield "start", run.start_doc
     n = len(table)
     t_end = float(info.get("finished_epoch") or t0)
-    points = _point_events(table, units, _point_times(store, run_id), t_end) if n else None
+    source = column_sources(meta)
+    points = _point_events(table, units, _point_times(store, run_id), t_end, source) if n else None
     if points is not None:  # one event per point, stamped when it was measured
         data_keys, events = points
         desc = run.compose_descriptor(name="primary", data_keys=data_keys)
@@ -244,7 +277,8 @@ def run_documents(store: Any, run_id: str, scan_id: int | None = None) -> Iterat
         for data, t in events:
             yield "event", desc.compose_event(data=data, timestamps=dict.fromkeys(data, t), time=t, validate=False)
     elif n:  # rows that are not spectra (no wavelength, or one twice at a point): one event per row
-        desc = run.compose_descriptor(name="primary", data_keys={str(c): _data_key(table[c], units.get(str(c)))
+        desc = run.compose_descriptor(name="primary", data_keys={str(c): _data_key(table[c], units.get(str(c)),
+                                                                                   source(str(c)))
                                                                  for c in table.columns})
         yield "descriptor", desc.descriptor_doc
         data = {str(c): _column_values(table[c]) for c in table.columns}

@@ -207,3 +207,25 @@ def test_the_catalog_is_initialised_in_this_process(tmp_path, monkeypatch):
     from tiled.catalog import from_uri
 
     from_uri(uri)  # and tiled opens it without initialising it again
+
+
+def test_a_stored_runs_data_keys_name_the_instruments_that_measured_them(tmp_path, capsys):
+    """A served stored run says where each value came from as the live devices do
+    (``BODY://BENCH/ROLE/MODEL/SERIAL#KEY``): geometry from the goniometer, readings from the
+    spectrometer; only the record's identity is the store's."""
+    from bench.catalog import run_documents
+    from bench.store import RunStore
+    from tests.helpers.cli import run_main
+
+    plan = tmp_path / "plan.toml"
+    plan.write_text('name = "tiny"\nkind = "list"\nintegration_s = 0.02\npoints = [[30, 0, 20, 180]]\n')
+    store = tmp_path / "s.sqlite"
+    code, out, err = run_main(capsys, "scan", plan, "--bench", ROOT / "fixtures" / "benches" / "virtual.toml",
+                              "--store", store, "--seed", 1, "--quiet")
+    assert code == 0, err
+    with RunStore(store, create=False, readonly=True) as s:
+        docs = list(run_documents(s, out.strip().splitlines()[-1]))
+    keys = next(doc for name, doc in docs if name == "descriptor")["data_keys"]
+    assert keys["theta_r"]["source"].startswith("virtual://virtual/goniometer")
+    assert keys["value"]["source"].startswith("virtual://virtual/spectrometer")
+    assert keys["value"]["source"].endswith("#value") and keys["run_id"]["source"] == "goniobench-store#run_id"

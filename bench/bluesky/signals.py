@@ -10,28 +10,25 @@ script made up. :class:`HardwareBackend` is a soft backend whose ``source`` is t
 
 from __future__ import annotations
 
-import re
 from typing import Any, Callable
 
 from ophyd_async.core import SignalR, SignalRW, SoftSignalBackend
 
 from bench.core.errors import BenchError
+from bench.core.records import hardware_name
 
 __all__ = ["HardwareBackend", "hardware_source", "hw_signal_r", "hw_signal_rw"]
 
-_UNSAFE = re.compile(r"[^A-Za-z0-9._+-]+")
-
-
 def hardware_source(bench: Any, role: str) -> str:
     """``BODY://BENCH/ROLE/MODEL/SERIAL`` of the bench's ``role`` (its ``describe()``; a part it
-    cannot describe is named by the role alone)."""
-    parts = [role]
+    cannot describe is named by the role alone): :func:`bench.core.records.hardware_name`."""
+    model = serial = None
     try:
         info = getattr(bench, role).describe()
-        parts += [p for p in (info.model, info.serial) if p]
+        model, serial = info.model, info.serial
     except (BenchError, OSError, AttributeError):  # a name only: the device reports its own faults
         pass
-    return f"{bench.kind}://{_UNSAFE.sub('_', str(bench.name))}/" + "/".join(_UNSAFE.sub("_", str(p)) for p in parts)
+    return hardware_name(bench.kind, bench.name, role, model, serial)
 
 
 class HardwareBackend(SoftSignalBackend):

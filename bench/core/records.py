@@ -37,12 +37,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+import re
 from typing import Any, Mapping
 
 import numpy as np
 
 __all__ = ["Reading", "Spectrum", "BSDFRecord", "BSDF_COLUMNS", "json_default", "IDENTITY_KEYS", "KEY_COLUMNS",
-           "COLUMN_UNITS", "record_identity", "record_provenance", "value_unit", "with_keys"]
+           "COLUMN_UNITS", "record_identity", "record_provenance", "value_unit", "with_keys", "hardware_name",
+           "GEOMETRY_COLUMNS"]
 
 BSDF_COLUMNS = ["wavelength_nm", "theta_i", "phi_i", "theta_r", "phi_r", "hemisphere", "value", "std",
                 "ci_lo", "ci_hi", "theta_min", "theta_max", "phi_min", "phi_max", "psa", "count", "N"]
@@ -57,6 +59,19 @@ COLUMN_UNITS = {"wavelength_nm": "nm", "theta_i": "deg", "phi_i": "deg", "theta_
                 "theta_min": "deg", "theta_max": "deg", "phi_min": "deg", "phi_max": "deg", "psa": "sr",
                 "value": "1/sr", "std": "1/sr", "ci_lo": "1/sr", "ci_hi": "1/sr", "count": "rays", "N": "rays",
                 "u_c": "1/sr", "U": "1/sr", "k": "1", "hemisphere": "R|T", "specimen": "", "collector": "", "geometry": "", "quantity": ""}
+
+
+#: the columns a goniometer's read-back gives (the rest of a reading, the spectrometer's)
+GEOMETRY_COLUMNS = ("theta_i", "phi_i", "theta_r", "phi_r")
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9._+-]+")
+
+
+def hardware_name(body: Any, bench: Any, role: str, model: Any = None, serial: Any = None) -> str:
+    """``BODY://BENCH/ROLE/MODEL/SERIAL``: the instrument a value came from, as a Bluesky data
+    key's ``source`` names it (a live device's and a stored run's alike)."""
+    parts = [p for p in (role, model, serial) if p]
+    return f"{body}://{_UNSAFE.sub('_', str(bench))}/" + "/".join(_UNSAFE.sub("_", str(p)) for p in parts)
 
 
 def _label(v: Any) -> str | None:
