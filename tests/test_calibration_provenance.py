@@ -234,12 +234,12 @@ def test_bench_white_refuses_a_white_unlike_the_accepted_one_and_writes_nothing(
     lab = tmp_path / "lab.toml"
     lab.write_text(tomli_w.dumps(d))
     first = tmp_path / "w.csv"
-    assert main(["white", "--bench", str(lab), "--body", "virtual", "--out", str(first)]) == 0
+    assert main(["white", "--bench", str(lab), "--body", "virtual", "--out", str(first), "--integration-s", "0.05"]) == 0
     d["white"] = {**d["white"], "reflectance_factor": 0.8, "reference_file": str(first)}
     lab.write_text(tomli_w.dumps(d))
     capsys.readouterr()
     out = tmp_path / "w2.csv"
-    assert main(["white", "--bench", str(lab), "--body", "virtual", "--out", str(out)]) == 2
+    assert main(["white", "--bench", str(lab), "--body", "virtual", "--out", str(out), "--integration-s", "0.05"]) == 2
     err = capsys.readouterr().err
     assert "x the accepted white" in err and len(err.strip().splitlines()) == 1 and not out.exists()
 
@@ -284,7 +284,7 @@ def test_bench_white_out_needs_force_and_then_compares_with_the_white_it_replace
     lab = tmp_path / "lab.toml"
     lab.write_text(tomli_w.dumps(d))
     out = tmp_path / "w.csv"
-    args = ["white", "--bench", str(lab), "--body", "virtual", "--out", str(out)]
+    args = ["white", "--bench", str(lab), "--body", "virtual", "--out", str(out), "--integration-s", "0.05"]
     assert main(args) == 0
     before = out.read_text()
     capsys.readouterr()

@@ -11,8 +11,8 @@ the lamp drift's Type A estimate.
 
 The file records the white's origin (body, bench, detector: :mod:`bench.calibration_chain`);
 runs on another body or detector refuse it. A white that does not look like the standard is
-refused and nothing is written: a white with saturated bands (predicted before it is measured,
-or found in it), and against the declared detector's response to the certificate,
+refused and nothing is written: a white predicted to saturate the detector (before any motion, as
+``bench scan`` predicts a plan's white) or found saturated in a band, and against the declared detector's response to the certificate,
 and against the last accepted white of the same body and detector (the file ``--out`` replaces,
 else the bench's ``[white] reference_file``): its level and spectral shape.
 """
@@ -37,6 +37,7 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
 
     from bench.calibration_chain import check_white_level, check_white_unsaturated, previous_white
     from bench.config import load_bench
+    from bench.exposure import check_exposure
     from bench.plans import Plan
     from bench.runner import measure_calibration
 
@@ -48,6 +49,7 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
                 dark=args.dark, white="repeated" if args.repeats > 1 else "once", white_repeats=max(args.repeats, 3))
     with load_bench(args.bench, body=args.body) as bench:
         bench.operator_confirmed = args.yes
+        check_exposure(plan, bench.config, white=True)  # as bench scan predicts a plan's white: before motion
         cal = measure_calibration(bench, plan, use_reference_file=False)  # checked against the declared level
         check_white_unsaturated(f"the white measured on bench {bench.name!r}", cal)
         previous = previous_white(bench, args.out if Path(args.out).is_file() else None)

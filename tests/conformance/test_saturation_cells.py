@@ -7,7 +7,8 @@ declared detector (``[detector]``, the emulated unit's data sheet: every body sa
 * A Bluesky plan's later points are not known at stage: a reading that saturates there is masked,
   and the stored run says so in its reason (``N of M readings masked (S saturated)``), never a
   plain ``completed``.
-* ``bench white`` refuses a white with saturated bands, nothing written.
+* ``bench white`` refuses a white predicted to saturate before any motion (as ``bench scan``
+  predicts a plan's white), and one found saturated in a band; nothing written.
 
 GGX (alpha 0.3) peaks at 1.19 sr^-1 x cos at (50, 0, 50, 180); the white standard at 0/45 gives
 0.22: at 36 ms x 2 the peak is predicted at twice full scale, the white at 37 %.
@@ -18,6 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import bluesky.plan_stubs as bps
+import numpy as np
 import bluesky.plans as bp
 import pytest
 from bluesky import RunEngine
@@ -100,4 +102,23 @@ def test_bench_white_refuses_a_saturated_white_and_writes_nothing(tmp_path, inte
     if ok:
         assert code == 0 and out.exists(), err
         return
-    assert code == 2 and len(err.strip().splitlines()) == 1 and "saturated in" in err and not out.exists(), err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and not out.exists(), err
+    assert "would saturate the detector" in err and "the white standard is predicted at" in err, err
+
+
+def test_a_white_found_saturated_is_refused_as_a_reference():
+    """The backstop after the prediction (a white read brighter than predicted, or a completed run's
+    white taken by ``bench white --from-run``): any saturated band refuses it, naming the band."""
+    from bench.calibration_chain import check_white_unsaturated
+    from bench.core.calibration import Calibration, WhiteStandard
+    from bench.core.errors import CalibrationRefused
+    from bench.core.roles import Reading
+
+    wl, s = np.array([450.0, 550.0, 650.0]), np.array([3e4, 5e4, 65535.0])
+
+    def white(saturated):
+        return Calibration(WhiteStandard(0.99), Reading(wl, s, np.array(saturated), 0.05, 2, timestamp=0.0))
+
+    check_white_unsaturated("w", white([False, False, False]))
+    with pytest.raises(CalibrationRefused, match="w is saturated in 1 of 3 bands .first at 650 nm. at integration_s = 0.05"):
+        check_white_unsaturated("w", white([False, False, True]))
