@@ -7,8 +7,7 @@ checks: about 27 s of test time on 2 loaded cores. The whole matrix (``@pytest.m
 sweeps among them; 45 calibration x darks x body; 27 exposure x body x specimen; 9 fits; 1
 adaptive session at the edge of full scale) and 9 seed groups of 3 scans: 166 runs, about 17 min
 (1020 s for this file, 2 loaded cores). A cell a broken seam still fails is a strict xfail naming
-the seam (:func:`matrix.seam`): 24 of them today (20 darks-without-dark-level, 3 Bluesky over
-full scale, 1 adaptive design); the mark goes when the seam is fixed.
+the seam (:func:`matrix.seam`): none today; the mark goes when the seam is fixed.
 """
 
 from __future__ import annotations
