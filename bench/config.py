@@ -133,7 +133,7 @@ def load_description(config: str | Path | Mapping[str, Any], body: str | None = 
         d, source = dict(config), "bench config"
     else:
         d, source = read_toml(config, "bench config"), f"bench config {config}"
-    described = validate_document(BenchFile, d, source).kind  # type: ignore[attr-defined]
+    described = validate_document(BenchFile, d, source).kind
     kind = str(body or described)  # the body executing the description (default: its kind)
     if kind not in BUILDERS:
         raise ConfigError(f"bench body must be one of {', '.join(BUILDERS)}, got {kind!r}")

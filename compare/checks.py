@@ -132,8 +132,8 @@ def _pairs_with_z(rows: list[dict[str, Any]], first: str, second: str, u_rel: fl
     """The pairs as a frame with the z-score of ``f_<first>`` against ``f_<second>``."""
     ev = pd.DataFrame(rows)
     if not ev.empty:
-        ev["z"] = _pair_z(*(ev[f"{q}_{side}"].to_numpy(float) for side in (first, second) for q in ("f", "std")),
-                          u_rel)
+        f1, s1, f2, s2 = (ev[f"{q}_{side}"].to_numpy(float) for side in (first, second) for q in ("f", "std"))
+        ev["z"] = _pair_z(f1, s1, f2, s2, u_rel)
     return ev
 
 

@@ -83,7 +83,7 @@ def _side(z: np.ndarray, threshold: float) -> np.ndarray:
     return np.where(z > threshold, 1, np.where(z < -threshold, -1, 0))
 
 
-def violations(values: Sequence[float], centre: float, sigma: float,
+def violations(values: Sequence[float] | np.ndarray, centre: float, sigma: float,
                rules: Sequence[str] = tuple(RULES)) -> list[Violation]:
     """Every firing of ``rules`` in ``values`` against ``centre`` and ``sigma``, in point order
     (a rule fires at the last point of its pattern; a point fires each rule at most once)."""

@@ -167,7 +167,8 @@ def _polar_patches(ax: Any, pmin: np.ndarray, pmax: np.ndarray, tmin: np.ndarray
     phi = pmin[:, None] + (pmax - pmin)[:, None] * f[None, :]           # (patches, arc_points)
     inner = np.stack([phi, np.broadcast_to(tmin[:, None], phi.shape)], axis=-1)
     outer = np.stack([phi[:, ::-1], np.broadcast_to(tmax[:, None], phi.shape)], axis=-1)
-    ax.add_collection(PolyCollection(np.concatenate([inner, outer], axis=1), facecolors=colours,
+    verts: Any = np.concatenate([inner, outer], axis=1)  # one (N, M, 2) array: matplotlib's fast path
+    ax.add_collection(PolyCollection(verts, facecolors=colours,
                                      edgecolors="none", linewidths=0.0))
 
 
@@ -329,7 +330,8 @@ def _bsdf_figures(act: BSDFRecord, comps: dict[str, Comparison], recs: dict[str,
                   map_wl: float | None, map_inc: tuple[float, float] | None) -> list[dict[str, Any]]:
     t = act.table
     wl = float(t.wavelength_nm.iloc[0]) if map_wl is None else float(map_wl)
-    inc = (float(t.theta_i.iloc[0]), float(t.phi_i.iloc[0])) if map_inc is None else tuple(map(float, map_inc))
+    inc: tuple[float, float] = ((float(t.theta_i.iloc[0]), float(t.phi_i.iloc[0])) if map_inc is None
+                                else (float(map_inc[0]), float(map_inc[1])))
     figs: list[dict[str, Any]] = []
     # in-plane curves
     first = next(iter(comps.values()))

@@ -17,10 +17,13 @@ from bench.core.errors import InputError
 from bench.core.records import BSDFRecord, with_keys
 from bench.core.roles import Spectrum
 
-__all__ = ["as_record", "record_kind", "record_quantity", "record_meta", "is_virtual", "angular_distance_deg"]
+#: what the comparison takes: a BSDF record, a spectrum, or a set of spectra (a spectro sweep)
+Record = BSDFRecord | Spectrum | tuple[Spectrum, ...]
+
+__all__ = ["Record", "as_record", "record_kind", "record_quantity", "record_meta", "is_virtual", "angular_distance_deg"]
 
 
-def as_record(obj: Any) -> BSDFRecord | Spectrum:
+def as_record(obj: Any) -> Record:
     """Accept a :class:`BSDFRecord`, a :class:`Spectrum`, a sequence of spectra, or a ``pandas.DataFrame`` with the BSDF
     columns (wrapped as a record with empty metadata); anything else is an :class:`InputError`."""
     if isinstance(obj, (BSDFRecord, Spectrum)):
@@ -36,7 +39,7 @@ def as_record(obj: Any) -> BSDFRecord | Spectrum:
     raise InputError(f"expected a BSDFRecord or Spectrum, got {type(obj).__name__}{hint}")
 
 
-def record_kind(rec: BSDFRecord | Spectrum) -> str:
+def record_kind(rec: Record) -> str:
     """``"spectrum"`` or ``"bsdf"``."""
     return "spectrum" if isinstance(rec, (Spectrum, tuple)) else "bsdf"
 
@@ -44,7 +47,7 @@ def record_kind(rec: BSDFRecord | Spectrum) -> str:
 _BSDF_ALIASES = {"bsdf": "BSDF", "brdf": "BSDF", "btdf": "BSDF", "1/sr": "BSDF"}
 
 
-def record_quantity(rec: BSDFRecord | Spectrum) -> str:
+def record_quantity(rec: Record) -> str:
     """The measured quantity, normalized: ``"reflectance"``, ``"reflectance factor"`` (spectra),
     ``"BSDF"`` (BRDF/BTDF in 1/sr), or whatever else ``meta["quantity"]`` says (e.g. ``"DSF"``)."""
     if isinstance(rec, tuple):
@@ -56,7 +59,7 @@ def record_quantity(rec: BSDFRecord | Spectrum) -> str:
     return _BSDF_ALIASES.get(q.lower(), q)
 
 
-def record_meta(rec: BSDFRecord | Spectrum | tuple) -> dict[str, Any]:
+def record_meta(rec: Record) -> dict[str, Any]:
     """A record's metadata; for a set of spectra, the first one's with ``n_spectra``, the
     ``specimens`` and the ``geometries`` of the set."""
     if isinstance(rec, tuple):
@@ -66,14 +69,14 @@ def record_meta(rec: BSDFRecord | Spectrum | tuple) -> dict[str, Any]:
     return dict(rec.meta)
 
 
-def _unit(rec: BSDFRecord | Spectrum) -> str | None:
+def _unit(rec: Record) -> str | None:
     if isinstance(rec, tuple):
         return _unit(rec[0])
     u = rec.meta.get("unit", rec.meta.get("units"))
     return None if u is None else str(u).strip()
 
 
-def is_virtual(rec: BSDFRecord | Spectrum) -> bool:
+def is_virtual(rec: Record) -> bool:
     """True for a Monte Carlo record (``meta["source"] == "virtual"`` or, for a spectrum, ``N > 0``)."""
     if isinstance(rec, tuple):
         return all(is_virtual(x) for x in rec)

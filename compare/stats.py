@@ -470,9 +470,9 @@ def rank(summaries: Mapping[str, Mapping[str, Any]], primary: str = "chi2_per_do
             return None if s.get("bias") is None else abs(float(s["bias"]))
         return _f(s.get(m))
 
-    rows = []
+    rows: list[dict[str, Any]] = []
     for name, s in summaries.items():
-        row = {"name": name, "primary": primary, "primary_value": metric(s, primary)}
+        row: dict[str, Any] = {"name": name, "primary": primary, "primary_value": metric(s, primary)}
         for m in RANK_METRICS:
             row[m] = metric(s, m)
         row["p_value"] = _f(s.get("p_value"))

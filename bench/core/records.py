@@ -110,7 +110,8 @@ def record_provenance(meta: Mapping[str, Any]) -> dict[str, str]:
         return v if isinstance(v, Mapping) else {}
 
     bench, desc, plan = mapping("bench"), mapping("bench_description"), mapping("plan")
-    mounted = bench.get("specimen") if isinstance(bench.get("specimen"), Mapping) else {}
+    specimen = bench.get("specimen")
+    mounted = specimen if isinstance(specimen, Mapping) else {}
     found = {"run_id": meta.get("run_id"),
              "bench": meta.get("bench_name") or desc.get("name") or bench.get("name"),
              "body": meta.get("body") or meta.get("bench_kind") or desc.get("kind") or bench.get("kind"),

@@ -9,7 +9,7 @@ the devices (reachability, specimen parameters); the shape of the file is checke
 
 from __future__ import annotations
 
-from typing import Annotated, Any, ClassVar, Literal, Mapping, Union, get_args
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Mapping, TypeVar, Union, get_args
 
 from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, create_model,
                       field_validator, model_validator)
@@ -308,9 +308,9 @@ class _SweepCommon(Table):
     cone_deg: Annotated[Finite, Field(gt=0, lt=90)] | None = None
 
 
-def _one_or_many(item: Any) -> Any:
-    """A value or a non-empty list of values (at most MAX_SWEEP_SERIES)."""
-    return Union[item, Annotated[list[item], Field(min_length=1, max_length=MAX_SWEEP_SERIES)]]
+_Item = TypeVar("_Item")
+#: a value or a non-empty list of values (at most MAX_SWEEP_SERIES)
+_OneOrMany = Union[_Item, Annotated[list[_Item], Field(min_length=1, max_length=MAX_SWEEP_SERIES)]]
 
 
 class SweepTable(_SweepCommon):
@@ -319,10 +319,10 @@ class SweepTable(_SweepCommon):
     name: str = "sweep"
     seed: Annotated[Whole, Field(ge=0, lt=2**63)] | None = None
     instrument: Literal["gonio", "spectro"] = "gonio"
-    specimens: _one_or_many(str) | None = None
-    incidences: _one_or_many(Incidence) | None = None
-    geometries: _one_or_many(str) | None = None
-    collectors: _one_or_many(CollectorSpec) | None = None
+    specimens: _OneOrMany[str] | None = None
+    incidences: _OneOrMany[Incidence] | None = None
+    geometries: _OneOrMany[str] | None = None
+    collectors: _OneOrMany[CollectorSpec] | None = None
     wavelengths_per_task: Annotated[Whole, Field(ge=0, le=10_000)] | None = None
     common_random_numbers: StrictBool = False  # one stream for every specimen (lower-variance model comparisons)
 
@@ -447,12 +447,15 @@ def _effect(model: Any) -> Any:
 
 
 def _effects_table(schemas: Mapping[str, type[SceneEffect]]) -> type[BaseModel]:
-    return create_model("EffectsTable", __base__=Table,
-                        **{name: (_effect(model), None) for name, model in schemas.items()})
+    fields: dict[str, Any] = {name: (_effect(model), None) for name, model in schemas.items()}
+    return create_model("EffectsTable", __base__=Table, **fields)
 
 
 #: ``[effects]``: one optional table per declared effect (``true``: its defaults, ``false``: absent)
-EffectsTable = _effects_table(EFFECT_SCHEMAS)
+if TYPE_CHECKING:  # built from the declared effects at import: statically, a table
+    EffectsTable = Table
+else:
+    EffectsTable = _effects_table(EFFECT_SCHEMAS)
 
 
 class SceneBeam(Table):

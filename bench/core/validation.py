@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from typing import Annotated, Any, ClassVar, Mapping
+from typing import Annotated, Any, ClassVar, Mapping, TypeVar
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, ValidationError
 
@@ -127,7 +127,10 @@ def _known_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
     return sorted(getattr(current, "model_fields", {}))
 
 
-def validate_document(model: type[BaseModel], data: Mapping[str, Any], source: str) -> BaseModel:
+_Model = TypeVar("_Model", bound=BaseModel)
+
+
+def validate_document(model: type[_Model], data: Mapping[str, Any], source: str) -> _Model:
     """Validate ``data`` (a parsed file) against ``model``; the first problem becomes one
     :class:`ConfigError` line: ``SOURCE: key a.b: problem (got VALUE)``."""
     if not isinstance(data, Mapping):

@@ -18,6 +18,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from bench.config import Bench
 from bench.core.errors import ConfigError
 from bench.core.geometry import Geometry
 from bench.exposure import unsaturated
@@ -144,6 +145,6 @@ class TimeModel:
         return out
 
 
-def bench_time_model(bench: Any, settings: ReadingSettings) -> TimeModel:
+def bench_time_model(bench: Bench, settings: ReadingSettings) -> TimeModel:
     """The time model of an open bench (its profile and joint map; a virtual bench moves in no time)."""
     return TimeModel(bench.motion or MotionProfile.instantaneous(), settings, bench.joints)

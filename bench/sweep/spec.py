@@ -170,7 +170,7 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: s
     # the declared shape (bench.core.schemas.SweepFile), checked once: unknown keys with "did you
     # mean", types, non-finite and out-of-range numbers, bounded rays, collectors and wavelengths;
     # what follows reads the validated tables (only the keys the file gave)
-    doc: SweepFile = validate_document(SweepFile, d, source)  # type: ignore[assignment]
+    doc: SweepFile = validate_document(SweepFile, d, source)
     s = doc.sweep.model_dump(exclude_unset=True)
     instrument = doc.sweep.instrument
     seed = s["seed"] = fresh_seed() if doc.sweep.seed is None else doc.sweep.seed

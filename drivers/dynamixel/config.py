@@ -91,7 +91,7 @@ class AxisConfig(Settings):
             raise ConfigError(f"axes.{joint}: expected a table of keys, got {type(d).__name__}")
         if "joint" in d:
             raise ConfigError(f"axes.{joint}: unknown key 'joint'")
-        return cls(_source=f"axes.{joint}", joint=joint, **{str(k): v for k, v in d.items()})
+        return super().from_dict({**d, "joint": joint}, f"axes.{joint}")
 
     @property
     def ticks_per_degree(self) -> float:
@@ -165,7 +165,7 @@ class ArmConfig(Settings):
         return self
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any], source: str | None = None) -> "ArmConfig":  # type: ignore[override]
+    def from_dict(cls, d: Mapping[str, Any], source: str | None = None) -> "ArmConfig":
         """Build from a dict (TOML table); unknown keys raise :class:`ConfigError`."""
         if not isinstance(d, Mapping):
             raise ConfigError(f"arm config: expected a table of keys, got {type(d).__name__}")
@@ -175,7 +175,7 @@ class ArmConfig(Settings):
             raise ConfigError("arm config needs an [axes] table with one table per joint")
         axes = {j: AxisConfig.from_dict(j, a) for j, a in axes_d.items()}
         kc = KinematicsConfig.from_dict(d.pop("kinematics", None))
-        return cls(_source=source, axes=axes, kinematics=kc, **{str(k): v for k, v in d.items()})
+        return super().from_dict({**d, "axes": axes, "kinematics": kc}, source)
 
     def axis_list(self) -> list[AxisConfig]:
         """Servo axes in :data:`drivers.kinematics.JOINTS` order (external joints left out)."""

@@ -38,7 +38,7 @@ class TransportModbusClient(ModbusSerialClient):
         self.socket = None
 
     def connect(self) -> bool:
-        self.socket = self._transport  # type: ignore[assignment]
+        self.socket = self._transport
         return True
 
     def close(self) -> None:

@@ -10,7 +10,7 @@ The bits come from the axis' register map.
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bench.core.errors import (
     ChecksumError,
@@ -33,6 +33,15 @@ class HomingMixin:
     config: Any
     name: str
     _fault: Any
+
+    if TYPE_CHECKING:  # what the axis provides, declared for the type checker only
+        def status(self) -> dict[str, Any]: ...
+        def write_int32(self, key: str, value: int) -> None: ...
+        def position_deg(self) -> float: ...
+        def stop(self) -> None: ...
+        def _check_latch(self) -> None: ...
+        def _raise_alarm(self, st: dict[str, Any], during: str) -> None: ...
+        def _set_fault(self, kind: str, message: str) -> None: ...
 
     def home(self, timeout_s: float | None = None) -> float:
         """Return to home: a rising edge of ZHOME, then wait for HOME-END; return the position.

@@ -92,13 +92,16 @@ class ModbusStageAxis(HomingMixin, InstrumentBase):
         self._gone: str | None = None
         self._closed = False
         cfg = base
+        self._client: Any
         if client is not None:
             self._client = client
             self.link = "tcp" if isinstance(client, ModbusTcpClient) else "rtu"
         elif transport is not None:
-            self._client: Any = TransportModbusClient(transport, timeout=cfg.timeout_s,
-                                                      trace_packet=self._trace)
+            self._client = TransportModbusClient(transport, timeout=cfg.timeout_s,
+                                                trace_packet=self._trace)
             self.link = "rtu"
+        elif port is None:  # pragma: no cover - excluded by the one-of check above
+            raise InputError("give exactly one of port=, transport= or client=")
         elif port.startswith("tcp://"):
             hostport = port[len("tcp://"):]
             host, _, p = hostport.rpartition(":")
@@ -233,7 +236,7 @@ class ModbusStageAxis(HomingMixin, InstrumentBase):
         if self._transport is not None:
             self._transport.reset_input()
             return
-        sock = getattr(self._client, "socket", None)
+        sock: Any = getattr(self._client, "socket", None)
         try:
             if hasattr(sock, "reset_input_buffer"):
                 sock.reset_input_buffer()
@@ -431,7 +434,7 @@ class ModbusStageAxis(HomingMixin, InstrumentBase):
         return InstrumentInfo(
             kind="stage-axis", model=f"modbus:{self.rmap.name}", serial="", firmware="",
             uncertainty=step / math.sqrt(12.0),
-            ranges={f"position_{cfg.unit}": tuple(cfg.limits),
+            ranges={f"position_{cfg.unit}": (float(cfg.limits[0]), float(cfg.limits[1])),
                     f"speed_{cfg.unit}_s": (0.0, float(cfg.speed))},
             extra={"name": self.name, "port": self.port, "link": self.link,
                    "device_id": cfg.device_id, "steps_per_unit": cfg.steps_per_unit,

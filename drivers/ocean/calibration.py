@@ -20,7 +20,7 @@ def wavelength_polynomial(coeffs: Sequence[float], pixels: int) -> np.ndarray:
     return c[0] + c[1] * p + c[2] * p**2 + c[3] * p**3
 
 
-def nonlinearity_factor(coeffs: Sequence[float], counts: np.ndarray) -> np.ndarray:
+def nonlinearity_factor(coeffs: Sequence[float] | np.ndarray, counts: np.ndarray) -> np.ndarray:
     """sum_i k_i counts^i (Horner)."""
     x = np.asarray(counts, dtype=float)
     acc = np.zeros_like(x)

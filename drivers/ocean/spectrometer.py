@@ -316,7 +316,7 @@ class OceanSpectrometer(InstrumentBase):
         if first != STX:
             raise Retry(ChecksumError(f"{self.name}: {what}: expected STX, got 0x{first:02X}"))
         npix = self.config.pixels or 0
-        kw = dict(checksum=self.checksum_on, convention=self.dword_checksum,
+        kw: dict[str, Any] = dict(checksum=self.checksum_on, convention=self.dword_checksum,
                   expect_scans=scans, expect_integration_ms=integration_ms)
         try:
             if self.link.mode == "ascii":

@@ -10,8 +10,6 @@ import serial
 
 Pair = tuple[bytes, bytes]
 
-Pair = tuple[bytes, bytes]
-
 try:
     from termios import error as _TermiosError
 except ImportError:  # pragma: no cover - not POSIX

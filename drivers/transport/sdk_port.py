@@ -12,9 +12,9 @@ from drivers.transport.base import Transport
 try:  # the SDK is a declared dependency, but keep the plain transports importable without it
     from dynamixel_sdk import PortHandler as _SdkPortHandler
 except ImportError:  # pragma: no cover
-    _SdkPortHandler = object  # type: ignore[misc,assignment]
+    _SdkPortHandler = object
 
-class TransportPortHandler(_SdkPortHandler):  # type: ignore[misc,valid-type]
+class TransportPortHandler(_SdkPortHandler):
     """A ``dynamixel_sdk.PortHandler`` that does its I/O through a :class:`Transport`.
 
     The SDK's receive loop calls ``readPort(k)`` then ``isPacketTimeout()`` until it has a

@@ -25,7 +25,7 @@ __all__ = ["scene_from_dict", "load_scene"]
 
 def scene_from_dict(d: Mapping[str, Any], name: str = "scene", source: str = "scene") -> Scene:
     """Build a :class:`Scene` from its TOML table (``source`` names it in errors)."""
-    doc: SceneFile = validate_document(scene_schema(), d, source)  # type: ignore[assignment]
+    doc: SceneFile = validate_document(scene_schema(), d, source)
     given = doc.model_fields_set
     specimen = parse_specimen(doc.specimen if isinstance(doc.specimen, str) else doc.specimen.spec)
     beam = Beam(kind=doc.beam) if isinstance(doc.beam, str) else Beam(**doc.beam.model_dump(exclude_unset=True))
