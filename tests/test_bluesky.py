@@ -14,7 +14,6 @@ import bluesky.plan_stubs as bps
 import bluesky.plans as bp
 import numpy as np
 import pytest
-from bluesky import RunEngine
 from bluesky.utils import FailedStatus
 
 from bench.bluesky import connect, plan_from_toml
@@ -26,18 +25,6 @@ from bench.plans import load_plan, order_for_travel
 from bench.runner import run_scan
 from bench.store import RunStore
 from bluesky_support import BENCHES, IN_PLANE, STANDARD, check_protocols, reset_reflectance, run, spy
-
-
-@pytest.fixture(scope="module")
-def RE():
-    return RunEngine({})
-
-
-@pytest.fixture(scope="module")
-def virtual(RE):
-    devs = connect(BENCHES / "virtual.toml", run_engine=RE, seed=3)
-    yield devs
-    devs.close()
 
 
 def test_every_virtual_device_satisfies_the_bluesky_protocols(virtual):

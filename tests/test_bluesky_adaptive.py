@@ -34,35 +34,30 @@ def _bench_file(folder: Path) -> Path:
     return p
 
 
-def _run(RE: RunEngine, plan) -> tuple[Docs, object]:
+def _run(RE_with_result: RunEngine, plan) -> tuple[Docs, object]:
     docs = Docs()
-    token = RE.subscribe(docs)
+    token = RE_with_result.subscribe(docs)
     try:
-        result = RE(plan)
+        result = RE_with_result(plan)
     finally:
-        RE.unsubscribe(token)
+        RE_with_result.unsubscribe(token)
     return docs, result.plan_result
 
 
 @pytest.fixture(scope="module")
-def RE():
-    return RunEngine({}, call_returns_result=True)
-
-
-@pytest.fixture(scope="module")
-def devs(RE, tmp_path_factory):
+def devs(RE_with_result, tmp_path_factory):
     folder = tmp_path_factory.mktemp("adaptive")
-    d = connect(_bench_file(folder), run_engine=RE, body="virtual")
+    d = connect(_bench_file(folder), run_engine=RE_with_result, body="virtual")
     d.folder = folder  # type: ignore[attr-defined]
     yield d
     d.close()
 
 
 @pytest.fixture(scope="module")
-def session(RE, devs):
+def session(RE_with_result, devs):
     """One whole session of the plan into a fresh store: (documents, result, store)."""
     store = devs.folder / "bluesky.sqlite"
-    docs, result = _run(RE, adaptive_fit(MODEL, devs, store=store, **OPTIONS))
+    docs, result = _run(RE_with_result, adaptive_fit(MODEL, devs, store=store, **OPTIONS))
     return docs, result, store
 
 
@@ -121,30 +116,30 @@ def test_the_plan_finds_what_bench_scan_adaptive_finds(session, devs, tmp_path):
         assert result.widths[n] == pytest.approx(cli.widths[n], rel=1e-6)
 
 
-def test_a_target_width_stops_early(session, RE, devs, tmp_path):
+def test_a_target_width_stops_early(session, RE_with_result, devs, tmp_path):
     _, full, _ = session
     # the untargeted session's first fit is narrower than this: the target stops it after step 0
     # (power: without the target, the same session ran further, asserted by the first test)
     assert full.steps[0].widths["alpha"] < 0.01 and len(full.steps) >= 2
     # a fresh bench of the same file: repeated triggers at one geometry draw counts of their own,
     # so the module's bench (which measured the session's points already) would read other counts
-    with connect(_bench_file(tmp_path), run_engine=RE, body="virtual") as fresh:
-        docs, result = _run(RE, adaptive_fit(MODEL, fresh, store=tmp_path / "t.sqlite", target={"alpha": 0.01},
+    with connect(_bench_file(tmp_path), run_engine=RE_with_result, body="virtual") as fresh:
+        docs, result = _run(RE_with_result, adaptive_fit(MODEL, fresh, store=tmp_path / "t.sqlite", target={"alpha": 0.01},
                                              **OPTIONS))
     assert result.stopped == "target" and len(result.steps) == 1 and len(docs.of("start")) == 1
     assert result.estimates == pytest.approx(full.steps[0].estimates, rel=1e-8)  # the same first step
     assert _fit_events(docs)[-1]["fit-stopped"] == "target"
 
 
-def test_a_rerun_reuses_the_stored_steps_without_measuring(session, RE, devs):
+def test_a_rerun_reuses_the_stored_steps_without_measuring(session, RE_with_result, devs):
     docs, result, store = session
-    again_docs, again = _run(RE, adaptive_fit(MODEL, devs, store=store, **OPTIONS))
+    again_docs, again = _run(RE_with_result, adaptive_fit(MODEL, devs, store=store, **OPTIONS))
     assert again_docs.of("start") == [] and again.runs == result.runs
     assert again.estimates == pytest.approx(result.estimates, rel=1e-8)
 
 
 @pytest.mark.slow  # ~4-8 CPU-s: a whole session again, failed in its second step, then finished
-def test_a_session_failed_in_a_step_is_finished_by_a_rerun_as_if_uninterrupted(session, RE, devs, tmp_path):
+def test_a_session_failed_in_a_step_is_finished_by_a_rerun_as_if_uninterrupted(session, RE_with_result, devs, tmp_path):
     from bluesky.utils import FailedStatus
 
     from bench.core.errors import DeviceTimeoutError
@@ -167,16 +162,16 @@ def test_a_session_failed_in_a_step_is_finished_by_a_rerun_as_if_uninterrupted(s
         return original(g)
 
     gonio.move_to = faulty
-    token = RE.subscribe(arm)
+    token = RE_with_result.subscribe(arm)
     try:
         with pytest.raises(FailedStatus):
-            RE(adaptive_fit(MODEL, devs, store=store, **OPTIONS))
+            RE_with_result(adaptive_fit(MODEL, devs, store=store, **OPTIONS))
     finally:
-        RE.unsubscribe(token)
+        RE_with_result.unsubscribe(token)
         del gonio.move_to
     with RunStore(store) as st:
         assert [r["status"] for r in st.runs()] == ["completed", "failed"]
-    docs, result = _run(RE, adaptive_fit(MODEL, devs, store=store, **OPTIONS))
+    docs, result = _run(RE_with_result, adaptive_fit(MODEL, devs, store=store, **OPTIONS))
     starts = docs.of("start")  # step 0 reused; step 1 measured again from its stored plan; step 2 designed
     assert [s[ADAPTIVE_KEY]["step"] for s in starts] == list(range(1, len(full.steps)))
     assert [s[ADAPTIVE_KEY]["replanned"] for s in starts] == [True] + [False] * (len(starts) - 1)

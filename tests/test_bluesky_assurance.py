@@ -10,7 +10,6 @@ import json
 
 import numpy as np
 import pytest
-from bluesky import RunEngine
 
 from bench.assurance import check_history
 from bench.bluesky import connect
@@ -23,18 +22,13 @@ from tests.test_assurance import CHECK, _bench
 DRIFT = '[drift]\nstart = "2026-12-01"\nwhite_per_day = -0.01\n'
 
 
-@pytest.fixture(scope="module")
-def RE():
-    return RunEngine({}, call_returns_result=True)
-
-
-def test_a_bluesky_check_stores_bench_checks_readings_and_score_and_is_charted(RE, capsys, tmp_path):
+def test_a_bluesky_check_stores_bench_checks_readings_and_score_and_is_charted(RE_with_result, capsys, tmp_path):
     bench, store = _bench(tmp_path, assurance="refuse", drift=DRIFT), tmp_path / "s.sqlite"
     code, out, err = run_main(capsys, "check", "--bench", bench, "--store", store, "--seed", 4, "--date", "2026-12-04",
                               "--json")
     assert code == 0, err
     cli = json.loads(out)["checks"][0]
-    (bs,) = RE(check_standards(bench, store=store, seed=4, date="2026-12-04", run_engine=RE)).plan_result
+    (bs,) = RE_with_result(check_standards(bench, store=store, seed=4, date="2026-12-04", run_engine=RE_with_result)).plan_result
     assert bs["check"] == "grey tile" and bs["date"] == "2026-12-04" and bs["run"] != cli["run"]
     with RunStore(store) as s:
         info = s.run(bs["run"])
@@ -55,13 +49,13 @@ def test_a_bluesky_check_stores_bench_checks_readings_and_score_and_is_charted(R
     # the same seed and day twice: a baseline without spread is refused in one line (it was a traceback)
     code, _, err = run_main(capsys, "chart", "--bench", bench, "--store", store)
     assert code == 2 and "first 2 check values are all" in err and len(err.strip().splitlines()) == 1
-    (other,) = RE(check_standards(bench, store=store, seed=5, date="2026-12-04", run_engine=RE)).plan_result
+    (other,) = RE_with_result(check_standards(bench, store=store, seed=5, date="2026-12-04", run_engine=RE_with_result)).plan_result
     code, out, err = run_main(capsys, "chart", "--bench", bench, "--store", store, "--json")
     assert code == 0, err
     assert [r["run"] for r in json.loads(out)["charts"][0]["runs"]] == [cli["run"], bs["run"], other["run"]]
 
 
-def test_a_scan_relies_on_a_bluesky_check_and_devices_lend_their_bench(RE, capsys, tmp_path):
+def test_a_scan_relies_on_a_bluesky_check_and_devices_lend_their_bench(RE_with_result, capsys, tmp_path):
     """The devices of the bench being checked: the standard is mounted on a bench of its own
     (theirs keeps its specimen), and the scan gate of that day finds the Bluesky check."""
     bench, store = _bench(tmp_path, assurance="refuse"), tmp_path / "s.sqlite"
@@ -70,8 +64,8 @@ def test_a_scan_relies_on_a_bluesky_check_and_devices_lend_their_bench(RE, capsy
     scan = ("scan", plan, "--bench", bench, "--store", store, "--seed", 5, "--date", "2026-12-02", "--quiet")
     code, _, err = run_main(capsys, *scan)
     assert code == 2 and "'grey tile' was never measured" in err
-    with connect(bench, run_engine=RE, seed=2) as devs:
-        (c,) = RE(check_standards(devs, store=store, date="2026-12-02")).plan_result
+    with connect(bench, run_engine=RE_with_result, seed=2) as devs:
+        (c,) = RE_with_result(check_standards(devs, store=store, date="2026-12-02")).plan_result
         assert devs.bench.config["specimen"]["spec"] == "lambert:albedo=0.8"  # the bench's own, untouched
     assert c["agree"] and abs(c["value"] - 1) < 0.02
     with RunStore(store, create=False) as s:
@@ -82,33 +76,33 @@ def test_a_scan_relies_on_a_bluesky_check_and_devices_lend_their_bench(RE, capsy
     assert json.loads(out)["assurance"]["checks"]["grey tile"]["run"] == c["run"]
 
 
-def test_check_standards_refuses_before_the_run_engine_sees_anything(RE, tmp_path):
+def test_check_standards_refuses_before_the_run_engine_sees_anything(RE_with_result, tmp_path):
     bench, store = _bench(tmp_path), tmp_path / "s.sqlite"
     with pytest.raises(InputError, match="has no check named 'nope'; its checks: grey tile"):
-        check_standards(bench, store=store, checks=["nope"], run_engine=RE)
+        check_standards(bench, store=store, checks=["nope"], run_engine=RE_with_result)
     certified = tmp_path / "certified.toml"
     certified.write_text(bench.read_text().replace('specimen = "lambert:albedo=0.5"', "reference = 0.16"))
     with pytest.raises(InputError, match="gives only a certified reference: the virtual body simulates"):
-        check_standards(certified, store=store, run_engine=RE)
+        check_standards(certified, store=store, run_engine=RE_with_result)
     with pytest.raises(InputError, match="date must be YYYY-MM-DD"):
-        check_standards(bench, store=store, date="12/04/2026", run_engine=RE)
+        check_standards(bench, store=store, date="12/04/2026", run_engine=RE_with_result)
     (tmp_path / "real").mkdir()
     real = _bench(tmp_path / "real", "emulated.toml")
     real.write_text(real.read_text() + CHECK.replace("grey tile", "white tile"))
     with pytest.raises(InputError, match=r"a real bench measures the one standard mounted on it; name it with "
                                          r"checks=\[...\] \(its checks: grey tile, white tile\)"):
-        check_standards(real, store=store, body="real", run_engine=RE)
+        check_standards(real, store=store, body="real", run_engine=RE_with_result)
     assert not store.exists()  # nothing opened, nothing written
 
 
 @pytest.mark.slow
-def test_the_emulated_body_checks_through_the_run_engine_as_bench_check_does(RE, capsys, tmp_path):
+def test_the_emulated_body_checks_through_the_run_engine_as_bench_check_does(RE_with_result, capsys, tmp_path):
     bench, store = _bench(tmp_path, "emulated.toml", drift=DRIFT), tmp_path / "e.sqlite"
     code, out, err = run_main(capsys, "check", "--bench", bench, "--store", store, "--seed", 4, "--date", "2026-12-06",
                               "--json")
     assert code == 0, err
     cli = json.loads(out)["checks"][0]
-    (bs,) = RE(check_standards(bench, store=store, seed=4, date="2026-12-06", run_engine=RE)).plan_result
+    (bs,) = RE_with_result(check_standards(bench, store=store, seed=4, date="2026-12-06", run_engine=RE_with_result)).plan_result
     with RunStore(store) as s:
         assert s.run(bs["run"])["kind"] == "check"
     # the emulator's noise is its own (its processes are seeded per start): the same drift, within noise
@@ -116,7 +110,7 @@ def test_the_emulated_body_checks_through_the_run_engine_as_bench_check_does(RE,
 
 
 @pytest.mark.slow  # a real Tiled server: ~10 CPU-s of imports and start-up
-def test_check_runs_are_served_by_bench_serve_and_read_with_tiled_clients_default_readers(RE, capsys, tmp_path):
+def test_check_runs_are_served_by_bench_serve_and_read_with_tiled_clients_default_readers(RE_with_result, capsys, tmp_path):
     """A check run of bench check and one of check_standards, served like any run: found by kind,
     their check (value, max |E_n|, date) in the start document, their readings in ``primary``."""
     import os
@@ -132,7 +126,7 @@ def test_check_runs_are_served_by_bench_serve_and_read_with_tiled_clients_defaul
     code, out, err = run_main(capsys, "check", "--bench", bench, "--store", store, "--seed", 1, "--date", "2026-12-01",
                               "--json")
     assert code == 0, err
-    (bs,) = RE(check_standards(bench, store=store, seed=2, date="2026-12-02", run_engine=RE)).plan_result
+    (bs,) = RE_with_result(check_standards(bench, store=store, seed=2, date="2026-12-02", run_engine=RE_with_result)).plan_result
     runs = {json.loads(out)["checks"][0]["run"]: "2026-12-01", bs["run"]: "2026-12-02"}
     env = {"PYTHONPATH": str(ROOT), **{k: v for k, v in os.environ.items() if k != "PYTHONPATH"}}
     server = subprocess.Popen([sys.executable, "-m", "bench.cli", "serve", "--store", str(store), "--port", "0",

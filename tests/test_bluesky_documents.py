@@ -7,26 +7,11 @@ from __future__ import annotations
 
 import bluesky.plan_stubs as bps
 import bluesky.plans as bp
-import pytest
-from bluesky import RunEngine
 
-from bench.bluesky import connect
 from bench.bluesky.goniometer import AXES
 from bench.core.geometry import Geometry
 from bench.store import RunStore
-from bluesky_support import BENCHES, reset_reflectance, run
-
-
-@pytest.fixture(scope="module")
-def RE():
-    return RunEngine({})
-
-
-@pytest.fixture(scope="module")
-def virtual(RE):
-    devs = connect(BENCHES / "virtual.toml", run_engine=RE, seed=3)
-    yield devs
-    devs.close()
+from bluesky_support import reset_reflectance, run
 
 
 def test_one_event_says_one_geometry_in_one_sign_convention(RE, virtual, tmp_path):

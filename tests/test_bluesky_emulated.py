@@ -13,7 +13,6 @@ import bluesky.plans as bp
 import bluesky.preprocessors as bpp
 import numpy as np
 import pytest
-from bluesky import RunEngine
 from bluesky.utils import FailedStatus, RunEngineInterrupted
 
 from bench.bluesky import StoreWriter, connect
@@ -21,11 +20,6 @@ from bench.core.errors import GeometryError
 from bench.core.geometry import Geometry
 from bench.store import RunStore
 from bluesky_support import BENCHES, STANDARD, Docs, check_protocols, reset_reflectance, run, spy
-
-
-@pytest.fixture(scope="module")
-def RE():
-    return RunEngine({})
 
 
 @pytest.fixture(scope="module")

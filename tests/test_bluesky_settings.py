@@ -12,18 +12,12 @@ import tomllib
 import bluesky.plan_stubs as bps
 import bluesky.plans as bp
 import pytest
-from bluesky import RunEngine
 
 from bench.bluesky import connect
 from bench.core.errors import CalibrationRefused
 from bench.core.geometry import Geometry
 from bluesky_support import BENCHES, run, spy
 from helpers.cli import run_main
-
-
-@pytest.fixture(scope="module")
-def RE():
-    return RunEngine({})
 
 
 def _get(RE, signal):

@@ -15,14 +15,11 @@ from pathlib import Path
 
 import pytest
 
-from bench.cli import main
 from tests.helpers.cli import run_main
 
 ROOT = Path(__file__).resolve().parents[1]
 FIX = ROOT / "fixtures"
 VIRTUAL = str(FIX / "benches" / "virtual.toml")
-# 0.05 s: the default 0.1 s would bring the normal view within 5 sd of the detector's full scale (refused)
-SMALL_PLAN = 'name = "small"\nkind = "in-plane"\nintegration_s = 0.05\n[in_plane]\ntheta_i = [30]\ntheta_r = [-20, 0, 40]\n'
 
 
 def one_line(err: str) -> bool:
@@ -33,17 +30,6 @@ def digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-@pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    """A store holding one completed scan (made once for the module)."""
-    d = tmp_path_factory.mktemp("store")
-    plan = d / "small.toml"
-    plan.write_text(SMALL_PLAN)
-    db = d / "runs.sqlite"
-    assert main(["scan", str(plan), "--bench", VIRTUAL, "--store", str(db), "-q", "--seed", "3"]) == 0
-    with sqlite3.connect(db) as c:
-        rid = c.execute("SELECT run_id FROM runs").fetchone()[0]
-    return db, rid, plan
 
 
 # --- numbers, sizes, typos: exit 2 naming the option -------------------------------------------------
@@ -90,8 +76,8 @@ def test_the_cli_collector_bound_is_the_core_one():
     assert MAX_PATCHES == MAX_COLLECTOR_PATCHES
 
 
-def test_scan_with_a_refused_seed_leaves_no_run(capsys, tmp_path, store):
-    _, _, plan = store
+def test_scan_with_a_refused_seed_leaves_no_run(capsys, tmp_path, scanned_store):
+    _, _, plan = scanned_store
     db = tmp_path / "s.sqlite"
     code, _, err = run_main(capsys, "scan", plan, "--bench", VIRTUAL, "--store", db, "--seed", "-1")
     assert code == 2 and one_line(err)
@@ -123,16 +109,16 @@ def test_unreadable_or_malformed_plans_exit_2(capsys, tmp_path, case):
     assert str(path.name) in err or "avrages" in err
 
 
-def test_a_bench_config_with_white_as_a_string_exits_2(capsys, tmp_path, store):
+def test_a_bench_config_with_white_as_a_string_exits_2(capsys, tmp_path, scanned_store):
     _inputs(tmp_path)
-    _, _, plan = store
+    _, _, plan = scanned_store
     code, _, err = run_main(capsys, "plan", plan, "--bench", tmp_path / "white.toml")
     assert code == 2 and one_line(err) and "key white" in err
 
 
 @pytest.mark.parametrize("where", ["under a file", "a directory"])
-def test_outputs_that_cannot_be_written_exit_2_before_any_work(capsys, tmp_path, store, where):
-    db, rid, _ = store
+def test_outputs_that_cannot_be_written_exit_2_before_any_work(capsys, tmp_path, scanned_store, where):
+    db, rid, _ = scanned_store
     (tmp_path / "afile").write_text("x")
     (tmp_path / "adir").mkdir()
     out = tmp_path / ("afile/x.csv" if where == "under a file" else "adir")
@@ -142,8 +128,8 @@ def test_outputs_that_cannot_be_written_exit_2_before_any_work(capsys, tmp_path,
 
 # --- stores --------------------------------------------------------------------------------------
 
-def test_readers_never_change_the_store(capsys, tmp_path, store):
-    db, rid, _ = store
+def test_readers_never_change_the_store(capsys, tmp_path, scanned_store):
+    db, rid, _ = scanned_store
     before = digest(db)
     for argv in (["runs"], ["show", rid], ["export", rid, "--out", tmp_path / "r.csv"], ["runs", "--json"]):
         code, _, err = run_main(capsys, *argv, "--store", db)
@@ -151,8 +137,8 @@ def test_readers_never_change_the_store(capsys, tmp_path, store):
     assert digest(db) == before
 
 
-def test_a_foreign_sqlite_file_is_refused_before_anything_is_written(capsys, tmp_path, store):
-    _, _, plan = store
+def test_a_foreign_sqlite_file_is_refused_before_anything_is_written(capsys, tmp_path, scanned_store):
+    _, _, plan = scanned_store
     db = tmp_path / "foreign.sqlite"
     with sqlite3.connect(db) as c:
         c.execute("CREATE TABLE t (x)")
@@ -166,8 +152,8 @@ def test_a_foreign_sqlite_file_is_refused_before_anything_is_written(capsys, tmp
 
 
 @pytest.mark.parametrize("damage", ["dropped points", "corrupted page", "not SQLite", "missing", "a directory"])
-def test_damaged_or_missing_stores_exit_2(capsys, tmp_path, store, damage):
-    src, rid, _ = store
+def test_damaged_or_missing_stores_exit_2(capsys, tmp_path, scanned_store, damage):
+    src, rid, _ = scanned_store
     db = tmp_path / "d.sqlite"
     if damage == "a directory":
         db.mkdir()
@@ -189,19 +175,19 @@ def test_damaged_or_missing_stores_exit_2(capsys, tmp_path, store, damage):
 
 @pytest.mark.parametrize("argv", [["show", "nope"], ["resume", "nope"], ["export", "nope"],
                                   ["show", "x\udcff"]])
-def test_unknown_or_malformed_run_ids_exit_2(capsys, store, argv):
-    db, _, _ = store
+def test_unknown_or_malformed_run_ids_exit_2(capsys, scanned_store, argv):
+    db, _, _ = scanned_store
     code, _, err = run_main(capsys, *argv, "--store", db)
     assert code == 2 and one_line(err), err
 
 
-def test_resuming_a_completed_run_exits_2(capsys, store):
-    db, rid, _ = store
+def test_resuming_a_completed_run_exits_2(capsys, scanned_store):
+    db, rid, _ = scanned_store
     code, _, err = run_main(capsys, "resume", rid, "--store", db)
     assert code == 2 and one_line(err) and "completed" in err
 
 
-def test_a_killed_run_shows_process_gone_and_resumes(capsys, tmp_path, store):
+def test_a_killed_run_shows_process_gone_and_resumes(capsys, tmp_path):
     """A run whose owning process died (here: a child that creates the run and exits without a
     word, as SIGKILL would leave it) is listed as interrupted (process gone); resume finishes it."""
     db = tmp_path / "k.sqlite"
@@ -363,10 +349,10 @@ def test_bench_specimens_lists_every_family_and_parameter(capsys):
     assert code == 0 and out.strip() == specimen_table_markdown().strip()
 
 
-def test_ctrl_c_during_a_scan_exits_130_and_the_run_resumes(capsys, tmp_path, store, monkeypatch):
+def test_ctrl_c_during_a_scan_exits_130_and_the_run_resumes(capsys, tmp_path, scanned_store, monkeypatch):
     import bench.runner as runner
 
-    _, _, plan = store
+    _, _, plan = scanned_store
     db = tmp_path / "c.sqlite"
     real_rows = runner.point_rows
     calls = []

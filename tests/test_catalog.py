@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture()
-def store(tmp_path):
+def known_store(tmp_path):
     """A store with one small run of known values (two incidences, two wavelengths, R and T rows)."""
     rows = []
     for ti in (20.0, 40.0):
@@ -49,8 +49,8 @@ def store(tmp_path):
     return path, rid
 
 
-def test_a_stored_run_becomes_valid_bluesky_documents_with_the_exports_rows(store, tmp_path, capsys):
-    path, rid = store
+def test_a_stored_run_becomes_valid_bluesky_documents_with_the_exports_rows(known_store, tmp_path, capsys):
+    path, rid = known_store
     with RunStore(path, create=False) as s:
         docs = list(run_documents(s, rid))
         again = next(run_documents(s, rid))[1]
@@ -96,14 +96,14 @@ def test_a_stored_run_becomes_valid_bluesky_documents_with_the_exports_rows(stor
             assert [g or None for g in got] == [None if v != v else v for v in exported[col]], col
 
 
-def test_a_run_without_readings_has_no_event_stream_and_a_bluesky_run_keeps_its_uid(store):
+def test_a_run_without_readings_has_no_event_stream_and_a_bluesky_run_keeps_its_uid(known_store):
     """A run that measured nothing (a fit, a Bluesky run that failed before its first point) gives
     start and stop only: an empty `primary` made `run["primary"].read()` raise in tiled.client.
     A Bluesky run keeps the RunEngine's uid and scan_id, so the live TiledWriter copy and the
     stored one are one run in the catalog."""
     from bench.catalog import run_uid
 
-    path, _ = store
+    path, _ = known_store
     with RunStore(path) as s:
         empty = s.create_run("bluesky", n_planned=3, meta={"bluesky_uid": "0b7e1c7e-6f55-4a0e-9a43-6c1b1b6f0e11",
                                                            "bluesky_start": {"scan_id": 17}})
@@ -116,7 +116,7 @@ def test_a_run_without_readings_has_no_event_stream_and_a_bluesky_run_keeps_its_
 
 
 @pytest.mark.slow
-def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_writes_into_it(store, tmp_path):
+def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_writes_into_it(known_store, tmp_path):
     from bluesky import RunEngine
     from bluesky.plans import scan
     from bluesky_tiled_plugins import TiledWriter
@@ -125,7 +125,7 @@ def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_wr
 
     from bench.bluesky import StoreWriter, connect
 
-    path, rid = store
+    path, rid = known_store
     assert main(["export", rid, "--store", str(path), "--out", str(tmp_path / "r.csv")]) == 0
     exported = pd.read_csv(tmp_path / "r.csv")
     server = subprocess.Popen([sys.executable, "-m", "bench.cli", "serve", "--store", str(path), "--port", "0",

@@ -45,7 +45,8 @@ def command_modules(modules: set[str]) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory):
+def store_with_run(tmp_path_factory):
+    """The path of a store holding one (empty) run, as a string."""
     from bench.store import RunStore
 
     path = tmp_path_factory.mktemp("imports") / "runs.sqlite"
@@ -75,8 +76,8 @@ def test_specimens_lists_without_kernels_or_scipy():
     assert command_modules(mods) == ["bench.cli.specimens"]
 
 
-def test_runs_reads_the_store_without_heavy_imports(store):
-    mods = imported_by(["runs", "--store", store])
+def test_runs_reads_the_store_without_heavy_imports(store_with_run):
+    mods = imported_by(["runs", "--store", store_with_run])
     assert heavy(mods) == []
     assert not [m for m in mods if m.split(".")[0] in ("virtual", "drivers", "compare")]
     assert command_modules(mods) == ["bench.cli.scans"]

@@ -22,7 +22,6 @@ import tomli_w
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bench.cli import main
 from bench.core.errors import ConfigError, InputError
 from tests.helpers.cli import GuardedWorker
 
@@ -75,17 +74,6 @@ def digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-@pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    d = tmp_path_factory.mktemp("fuzzstore")
-    plan = d / "p.toml"
-    # 0.05 s: the default 0.1 s would bring the twin's brightest reading within 5 sd of full scale (refused)
-    plan.write_text('kind = "in-plane"\nintegration_s = 0.05\n[in_plane]\ntheta_i = [30]\ntheta_r = [-20, 40]\n')
-    db = d / "runs.sqlite"
-    assert main(["scan", str(plan), "--bench", VIRTUAL, "--store", str(db), "-q", "--seed", "1"]) == 0
-    with sqlite3.connect(db) as c:
-        rid = c.execute("SELECT run_id FROM runs").fetchone()[0]
-    return db, rid, plan
 
 
 # --- 1. argument vectors with a bad value in one option: always exit 2 -------------------------------
@@ -163,8 +151,8 @@ TOKENS = st.one_of(st.sampled_from(["rays", "runs", "show", "export", "plan", "-
 
 @settings(FUZZ, max_examples=150)
 @given(argv=st.lists(TOKENS, min_size=1, max_size=6))
-def test_arbitrary_argument_vectors_never_trace(tmp_path, store, argv):
-    db, _, _ = store
+def test_arbitrary_argument_vectors_never_trace(tmp_path, scanned_store, argv):
+    db, _, _ = scanned_store
     before = digest(db)
     argv = [a.replace("{db}", str(db)) for a in argv]
     if "--store" not in argv:
@@ -255,8 +243,8 @@ MUTATED_BENCH = st.tuples(st.sampled_from(_PATHS), st.one_of(SCALARS, st.sampled
 
 @settings(FUZZ, max_examples=120)
 @given(doc=st.one_of(BENCH, MUTATED_BENCH))
-def test_fuzzed_bench_configs_are_accepted_or_refused_in_one_line(tmp_path, store, doc):
-    _, _, plan = store
+def test_fuzzed_bench_configs_are_accepted_or_refused_in_one_line(tmp_path, scanned_store, doc):
+    _, _, plan = scanned_store
     path = tmp_path / "fuzz-bench.toml"
     path.write_text(_toml(doc), encoding="utf-8")
     code, _, err = bench("plan", plan, "--bench", path)
@@ -366,8 +354,8 @@ def test_fuzzed_scenes_are_refused_in_one_line_or_loadable(tmp_path, doc):
 @given(cmd=st.sampled_from(["show", "export", "resume"]),
        rid=st.one_of(st.text(max_size=20), st.sampled_from(["", "x\udcff", "../../etc", "a" * 500, "r'; DROP TABLE"])),
        fmt=st.sampled_from(["csv", "parquet", "astm", "zemax", "xml"]))
-def test_readers_with_fuzzed_run_ids_exit_2_and_leave_the_store_alone(tmp_path, store, cmd, rid, fmt):
-    db, _, _ = store
+def test_readers_with_fuzzed_run_ids_exit_2_and_leave_the_store_alone(tmp_path, scanned_store, cmd, rid, fmt):
+    db, _, _ = scanned_store
     before = digest(db)
     argv = [cmd, "--store", db, "--", rid] if cmd != "export" else \
         [cmd, "--store", db, "--format", fmt, "--out", tmp_path / "x.out", "--", rid]
@@ -390,8 +378,8 @@ DAMAGE = st.one_of(st.sampled_from([None, "", "{", "[]", "null", "abc", '{"uncer
 
 @settings(FUZZ, max_examples=60)
 @given(field=st.sampled_from(DAMAGEABLE), value=DAMAGE, cmd=st.sampled_from(["show", "show --json", "export", "runs"]))
-def test_a_damaged_store_is_refused_in_one_line_or_read_never_a_traceback(tmp_path, store, field, value, cmd):
-    db, rid, _ = store
+def test_a_damaged_store_is_refused_in_one_line_or_read_never_a_traceback(tmp_path, scanned_store, field, value, cmd):
+    db, rid, _ = scanned_store
     copy = tmp_path / "damaged.sqlite"
     for leftover in (copy, tmp_path / "damaged.sqlite-wal", tmp_path / "damaged.sqlite-shm"):
         leftover.unlink(missing_ok=True)  # the last example's WAL must not replay onto this copy

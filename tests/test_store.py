@@ -37,7 +37,8 @@ def _rows(idx: int, n: int = 31) -> list[dict]:
 
 
 @pytest.fixture
-def store(tmp_path):
+def run_store(tmp_path):
+    """An open run store in the test's own directory."""
     with RunStore(tmp_path / "runs.sqlite") as s:
         yield s
 
@@ -100,11 +101,11 @@ def test_bad_options_are_input_errors(tmp_path):
 # --- runs and points -----------------------------------------------------------------------
 
 
-def test_create_run_records_metadata_versions_and_readable_id(store):
-    rid = store.create_run("scan", plan={"points": np.arange(3)}, bench={"name": "virtual"}, seed=7,
+def test_create_run_records_metadata_versions_and_readable_id(run_store):
+    rid = run_store.create_run("scan", plan={"points": np.arange(3)}, bench={"name": "virtual"}, seed=7,
                            meta={"specimen": "lambert"}, n_planned=3, calibration={"white": 0.99})
     assert re.fullmatch(r"\d{8}-\d{4}-[0-9a-f]{4}", rid)
-    info = store.run(rid)
+    info = run_store.run(rid)
     assert info["status"] == "running" and info["kind"] == "scan"
     assert info["plan"] == {"points": [0, 1, 2]}
     assert info["bench"] == {"name": "virtual"} and info["seed"] == 7 and info["n_planned"] == 3
@@ -112,21 +113,21 @@ def test_create_run_records_metadata_versions_and_readable_id(store):
     assert info["versions"]["python"] and "numpy" in info["versions"] and "numba" in info["versions"]
     assert info["created_utc"].endswith("Z") and abs(info["created_epoch"] - time.time()) < 60
     assert info["points_done"] == 0 and info["events"][0]["status"] == "running"
-    ids = {store.create_run("scan") for _ in range(20)}
+    ids = {run_store.create_run("scan") for _ in range(20)}
     assert len(ids) == 20
     with pytest.raises(InputError, match="kind"):
-        store.create_run("nonsense")
+        run_store.create_run("nonsense")
     with pytest.raises(StoreError, match="already exists"):
-        store.create_run("scan", run_id=rid)
+        run_store.create_run("scan", run_id=rid)
 
 
-def test_one_transaction_per_point(store):
-    rid = store.create_run("scan")
+def test_one_transaction_per_point(run_store):
+    rid = run_store.create_run("scan")
     statements: list[str] = []
-    store._db.set_trace_callback(statements.append)
+    run_store._db.set_trace_callback(statements.append)
     for i in range(3):
-        store.add_point(rid, i, GEO, _rows(i), t_start=100.0 + i, t_end=100.5 + i)
-    store._db.set_trace_callback(None)
+        run_store.add_point(rid, i, GEO, _rows(i), t_start=100.0 + i, t_end=100.5 + i)
+    run_store._db.set_trace_callback(None)
     begins = [s for s in statements if s.strip().upper().startswith("BEGIN")]
     commits = [s for s in statements if s.strip().upper() == "COMMIT"]
     assert len(begins) == 3 and all("IMMEDIATE" in b.upper() for b in begins)
@@ -136,9 +137,9 @@ def test_one_transaction_per_point(store):
     assert not any("INSERT" in s for s in statements[:first_begin])
 
 
-def test_a_failure_inside_the_transaction_leaves_no_trace(store, monkeypatch):
-    rid = store.create_run("scan")
-    store.add_point(rid, 0, GEO, _rows(0))
+def test_a_failure_inside_the_transaction_leaves_no_trace(run_store, monkeypatch):
+    rid = run_store.create_run("scan")
+    run_store.add_point(rid, 0, GEO, _rows(0))
     good = store_mod._reading_tuples
 
     def broken(run_id, idx, rows):  # the last tuple has a wrong arity: executemany fails mid-way
@@ -147,12 +148,12 @@ def test_a_failure_inside_the_transaction_leaves_no_trace(store, monkeypatch):
 
     monkeypatch.setattr(runstore_mod, "_reading_tuples", broken)  # where add_point looks it up
     with pytest.raises(sqlite3.ProgrammingError):
-        store.add_point(rid, 1, GEO, _rows(1))
+        run_store.add_point(rid, 1, GEO, _rows(1))
     monkeypatch.undo()
-    assert store.done_indices(rid) == {0}
-    assert len(store.readings(rid)) == 31
-    store.add_point(rid, 1, GEO, _rows(1))  # the store is still usable
-    assert store.done_indices(rid) == {0, 1}
+    assert run_store.done_indices(rid) == {0}
+    assert len(run_store.readings(rid)) == 31
+    run_store.add_point(rid, 1, GEO, _rows(1))  # the store is still usable
+    assert run_store.done_indices(rid) == {0, 1}
 
 
 class _InterruptingConnection:
@@ -170,83 +171,83 @@ class _InterruptingConnection:
         raise KeyboardInterrupt
 
 
-def test_ctrl_c_in_the_middle_of_a_point_rolls_it_back(store):
-    rid = store.create_run("scan")
-    store.add_point(rid, 0, GEO, _rows(0))
-    real = store._db
-    store._db = _InterruptingConnection(real)
+def test_ctrl_c_in_the_middle_of_a_point_rolls_it_back(run_store):
+    rid = run_store.create_run("scan")
+    run_store.add_point(rid, 0, GEO, _rows(0))
+    real = run_store._db
+    run_store._db = _InterruptingConnection(real)
     try:
         with pytest.raises(KeyboardInterrupt):
-            store.add_point(rid, 1, GEO, _rows(1))
+            run_store.add_point(rid, 1, GEO, _rows(1))
     finally:
-        store._db = real
+        run_store._db = real
     assert not real.in_transaction
-    assert store.done_indices(rid) == {0} and len(store.readings(rid)) == 31
-    store.add_point(rid, 1, GEO, _rows(1))
-    assert len(store.readings(rid)) == 62
+    assert run_store.done_indices(rid) == {0} and len(run_store.readings(rid)) == 31
+    run_store.add_point(rid, 1, GEO, _rows(1))
+    assert len(run_store.readings(rid)) == 62
 
 
-def test_duplicate_index_is_refused_without_duplicate_rows(store):
-    rid = store.create_run("scan")
-    store.add_point(rid, 0, GEO, _rows(0))
+def test_duplicate_index_is_refused_without_duplicate_rows(run_store):
+    rid = run_store.create_run("scan")
+    run_store.add_point(rid, 0, GEO, _rows(0))
     with pytest.raises(StoreError, match=rf"run '{rid}' already has point 0"):
-        store.add_point(rid, 0, GEO, _rows(0))
-    assert len(store.readings(rid)) == 31
-    assert store.run(rid)["points_done"] == 1
+        run_store.add_point(rid, 0, GEO, _rows(0))
+    assert len(run_store.readings(rid)) == 31
+    assert run_store.run(rid)["points_done"] == 1
 
 
-def test_done_indices_and_bad_rows(store):
-    rid = store.create_run("scan", n_planned=10)
+def test_done_indices_and_bad_rows(run_store):
+    rid = run_store.create_run("scan", n_planned=10)
     for i in (0, 1, 2, 5, 7):
-        store.add_point(rid, i, Geometry(45, 0, 10 * i, 180), _rows(i, 3))
-    assert store.done_indices(rid) == {0, 1, 2, 5, 7}
+        run_store.add_point(rid, i, Geometry(45, 0, 10 * i, 180), _rows(i, 3))
+    assert run_store.done_indices(rid) == {0, 1, 2, 5, 7}
     with pytest.raises(InputError, match="no wavelength_nm"):
-        store.add_point(rid, 3, GEO, [{"signal": 1.0}])
+        run_store.add_point(rid, 3, GEO, [{"signal": 1.0}])
     with pytest.raises(InputError, match="signal must be a number"):
-        store.add_point(rid, 3, GEO, [{"wavelength_nm": 500.0, "signal": "lots"}])
+        run_store.add_point(rid, 3, GEO, [{"wavelength_nm": 500.0, "signal": "lots"}])
     with pytest.raises(InputError, match="index"):
-        store.add_point(rid, -1, GEO, _rows(0))
+        run_store.add_point(rid, -1, GEO, _rows(0))
     with pytest.raises(StoreError, match="unknown run 'nope'.*bench runs"):
-        store.add_point("nope", 0, GEO, _rows(0))
-    assert store.done_indices(rid) == {0, 1, 2, 5, 7}
+        run_store.add_point("nope", 0, GEO, _rows(0))
+    assert run_store.done_indices(rid) == {0, 1, 2, 5, 7}
 
 
-def test_status_transitions_and_history(store):
-    rid = store.create_run("scan", n_planned=2)
-    store.add_point(rid, 0, GEO, _rows(0))
-    store.set_status(rid, "interrupted", "Ctrl-C")
-    info = store.run(rid)
+def test_status_transitions_and_history(run_store):
+    rid = run_store.create_run("scan", n_planned=2)
+    run_store.add_point(rid, 0, GEO, _rows(0))
+    run_store.set_status(rid, "interrupted", "Ctrl-C")
+    info = run_store.run(rid)
     assert info["status"] == "interrupted" and info["reason"] == "Ctrl-C" and info["finished_utc"]
-    store.set_status(rid, "running", "resumed")
-    assert store.run(rid)["finished_utc"] is None
-    store.add_point(rid, 1, GEO, _rows(1))
-    store.set_status(rid, "completed")
-    assert [e["status"] for e in store.run(rid)["events"]] == ["running", "interrupted", "running", "completed"]
+    run_store.set_status(rid, "running", "resumed")
+    assert run_store.run(rid)["finished_utc"] is None
+    run_store.add_point(rid, 1, GEO, _rows(1))
+    run_store.set_status(rid, "completed")
+    assert [e["status"] for e in run_store.run(rid)["events"]] == ["running", "interrupted", "running", "completed"]
     with pytest.raises(StoreError, match="cannot go from 'completed' to 'running'"):
-        store.set_status(rid, "running")
+        run_store.set_status(rid, "running")
     with pytest.raises(StoreError, match="is completed"):
-        store.add_point(rid, 2, GEO, _rows(2))
+        run_store.add_point(rid, 2, GEO, _rows(2))
     with pytest.raises(InputError):
-        store.set_status(rid, "paused")
-    other = store.create_run("scan")
-    store.set_status(other, "failed", "HardwareError: overload")
-    store.set_status(other, "running")
-    store.set_status(other, "interrupted")
+        run_store.set_status(rid, "paused")
+    other = run_store.create_run("scan")
+    run_store.set_status(other, "failed", "HardwareError: overload")
+    run_store.set_status(other, "running")
+    run_store.set_status(other, "interrupted")
     with pytest.raises(StoreError, match="cannot go from 'interrupted' to 'completed'"):
-        store.set_status(other, "completed")
+        run_store.set_status(other, "completed")
 
 
-def test_runs_run_summary_and_unknown_id(store):
-    a = store.create_run("scan", n_planned=4, seed=3)
+def test_runs_run_summary_and_unknown_id(run_store):
+    a = run_store.create_run("scan", n_planned=4, seed=3)
     for i in range(3):
-        store.add_point(a, i, {"theta_i": 10.0 * i, "phi_i": 0, "theta_r": 45, "phi_r": 180},
+        run_store.add_point(a, i, {"theta_i": 10.0 * i, "phi_i": 0, "theta_r": 45, "phi_r": 180},
                         [{"wavelength_nm": w, "value": 0.1 * i + w / 1e4, "saturated": w == 700.0} for w in WL],
                         t_start=1000.0 + i, t_end=1000.25 + i)
-    b = store.create_run("sweep")
-    listed = store.runs()
+    b = run_store.create_run("sweep")
+    listed = run_store.runs()
     assert [r["run_id"] for r in listed] == [a, b]
     assert listed[0]["points_done"] == 3 and listed[0]["n_planned"] == 4
-    s = store.summary(a)
+    s = run_store.summary(a)
     assert s["status"] == "running" and s["points_done"] == 3 and s["points_planned"] == 4
     assert s["points_missing"] == 1 and s["first_missing"] == 3
     assert s["wavelengths"] == {"n": 31, "min": 400.0, "max": 700.0}
@@ -255,20 +256,20 @@ def test_runs_run_summary_and_unknown_id(store):
     assert s["value"]["min"] == pytest.approx(0.04) and s["value"]["max"] == pytest.approx(0.27)
     assert s["saturated"] == 3 and s["readings"] == 93
     with pytest.raises(StoreError, match=r"unknown run 'x'.*bench runs --store"):
-        store.run("x")
+        run_store.run("x")
     with pytest.raises(StoreError):
-        store.summary("x")
-    store.delete_run(b)
-    assert [r["run_id"] for r in store.runs()] == [a]
+        run_store.summary("x")
+    run_store.delete_run(b)
+    assert [r["run_id"] for r in run_store.runs()] == [a]
 
 
-def test_readings_are_tidy_with_geometry_extra_and_nan(store):
-    rid = store.create_run("scan")
+def test_readings_are_tidy_with_geometry_extra_and_nan(run_store):
+    rid = run_store.create_run("scan")
     rows = [{"wavelength_nm": np.float32(500.0), "signal": np.int64(12), "value": float("nan"),
              "saturated": np.bool_(True), "integration_s": 0.1, "note": "x"},
             {"wavelength_nm": 510.0, "signal": 13.0, "value": 0.2, "saturated": False}]
-    store.add_point(rid, 4, Geometry(30, 0, 20, 180), rows, t_start=1.0, t_end=2.0)
-    df = store.readings(rid)
+    run_store.add_point(rid, 4, Geometry(30, 0, 20, 180), rows, t_start=1.0, t_end=2.0)
+    df = run_store.readings(rid)
     assert list(df.idx) == [4, 4]
     assert list(df.theta_i) == [30.0, 30.0] and list(df.theta_r) == [20.0, 20.0] and list(df.phi_r) == [180.0] * 2
     assert list(df.wavelength_nm) == [500.0, 510.0] and list(df.signal) == [12.0, 13.0]
@@ -278,7 +279,7 @@ def test_readings_are_tidy_with_geometry_extra_and_nan(store):
     assert list(df.t_start) == [1.0, 1.0]
 
 
-def test_virtual_record_round_trips_through_the_store(store):
+def test_virtual_record_round_trips_through_the_store(run_store):
     from virtual.goniophotometer import VirtualGoniophotometer
 
     g = VirtualGoniophotometer("lambert:albedo=0.8", collector="equal-psa:5x12", rays=20_000, seed=2,
@@ -286,22 +287,22 @@ def test_virtual_record_round_trips_through_the_store(store):
     rec = g.measure_bsdf(30.0)
     rec2 = g.measure_bsdf(60.0, 90.0)
     both = pd.concat([rec.table, rec2.table], ignore_index=True)
-    rid = store.create_run("virtual", meta={"operator": "ci"})
-    idx = store.add_record(rid, type(rec)(both, rec.meta))
+    rid = run_store.create_run("virtual", meta={"operator": "ci"})
+    idx = run_store.add_record(rid, type(rec)(both, rec.meta))
     assert idx == [0, 1]
-    back = store.to_record(rid)
+    back = run_store.to_record(rid)
     pd.testing.assert_frame_equal(back.table[BSDF_COLUMNS], both[BSDF_COLUMNS])
     assert back.meta["seed"] == 2 and back.meta["specimen"] == rec.meta["specimen"]
     assert back.meta["operator"] == "ci" and back.meta["run_id"] == rid
     assert back.meta["totals"] == rec.meta["totals"]
-    assert store.add_record(rid, rec2, merge_meta=False) == [2]
+    assert run_store.add_record(rid, rec2, merge_meta=False) == [2]
 
 
-def test_physical_scan_to_record_fills_hemisphere_and_keeps_signal(store):
-    rid = store.create_run("scan")
-    store.add_point(rid, 0, Geometry(45, 0, 0, 0), [{"wavelength_nm": 550.0, "value": 0.3, "signal": 9.0}])
-    store.add_point(rid, 1, Geometry(45, 0, 170, 0), [{"wavelength_nm": 550.0, "value": 0.1, "signal": 3.0}])
-    rec = store.to_record(rid)
+def test_physical_scan_to_record_fills_hemisphere_and_keeps_signal(run_store):
+    rid = run_store.create_run("scan")
+    run_store.add_point(rid, 0, Geometry(45, 0, 0, 0), [{"wavelength_nm": 550.0, "value": 0.3, "signal": 9.0}])
+    run_store.add_point(rid, 1, Geometry(45, 0, 170, 0), [{"wavelength_nm": 550.0, "value": 0.1, "signal": 3.0}])
+    rec = run_store.to_record(rid)
     assert list(rec.table.hemisphere) == ["R", "T"]
     assert list(rec.table.signal) == [9.0, 3.0] and list(rec.table.idx) == [0, 1]
     assert rec.table.psa.isna().all()
