@@ -7,7 +7,6 @@ tolerances from theory (binomial intervals, stated error bounds), never tuned to
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -195,12 +194,12 @@ def test_counts_beyond_two_to_the_31_do_not_overflow():
 # --- v down to 1e-6 --------------------------------------------------------------------------------
 
 
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
 def test_tiny_uncertainty_reports_rays_and_time_instead_of_hanging():
     """Catches the naive budget that simply starts casting eq. 3.5's 2.6e12 rays (hours), or
     computes it in floating point (ceil off by one) / as a C long (overflow at m * 2.6e12)."""
     from bench.adaptive import adaptive_measure
 
-    t0 = time.perf_counter()
     rep = budget_report(1e-6, 0.01, rays_per_second=1e7)
     assert rep["N"] == 2_649_158_683_275 and isinstance(rep["N"], int)
     assert rep["seconds"] == pytest.approx(2.649158683275e5)
@@ -210,7 +209,6 @@ def test_tiny_uncertainty_reports_rays_and_time_instead_of_hanging():
     sp = VirtualSpectrophotometer("lambert:reflectance=0.5", rays=10, seed=1)
     with pytest.raises(BudgetError, match=r"2,649,158,683,275 rays .*days"):
         adaptive_measure(sp, 1e-6, 0.01, geometry="8/d", wavelengths="550", rays_per_second=2e7)
-    assert time.perf_counter() - t0 < 5.0  # bounded: it never started casting
 
 
 # --- disks larger than their distance --------------------------------------------------------------

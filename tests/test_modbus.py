@@ -231,6 +231,7 @@ def axis(emu: StageEmulator):
     a.close()
 
 
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
 def test_e2e_move_reads_back_and_takes_time(axis: ModbusStageAxis, emu: StageEmulator) -> None:
     start = axis.position_deg()
     target = 90.0 if abs(start - 90.0) > 10 else -90.0
@@ -241,7 +242,6 @@ def test_e2e_move_reads_back_and_takes_time(axis: ModbusStageAxis, emu: StageEmu
     assert axis.position_deg() == pytest.approx(reached, abs=1e-9)
     # finite speed: |target - start| at 720 deg/s
     assert dt >= 0.8 * abs(target - start) / 720.0
-    assert dt < 2.0
     st = axis.status()
     assert "IN-POS" in st["flags"] and "READY" in st["flags"] and "MOVE" not in st["flags"]
 
@@ -276,21 +276,20 @@ def test_e2e_unknown_unit_id_is_a_protocol_error(emu: StageEmulator) -> None:
             other.position_deg()
 
 
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
 def test_e2e_dropped_and_corrupted_replies_are_retried(axis: ModbusStageAxis,
                                                        emu: StageEmulator) -> None:
     p = axis.position_deg()
-    t0 = time.monotonic()
     emu.drop_replies(1)
     assert axis.position_deg() == pytest.approx(p)
     emu.corrupt_replies(1)
     assert axis.position_deg() == pytest.approx(p)
-    assert time.monotonic() - t0 < 4.0  # nominal 0.7 s; the bound is "no hang" on a loaded box
 
 
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
 def test_e2e_persistent_corruption_and_silence_are_typed(axis: ModbusStageAxis,
                                                         emu: StageEmulator) -> None:
     emu.corrupt_replies(5)
-    t0 = time.monotonic()
     with pytest.raises((ChecksumError, DeviceTimeoutError)):
         axis.position_deg()
     emu.clear_faults()
@@ -298,23 +297,23 @@ def test_e2e_persistent_corruption_and_silence_are_typed(axis: ModbusStageAxis,
     with pytest.raises(DeviceTimeoutError):
         axis.position_deg()
     emu.silence(False)
-    assert time.monotonic() - t0 < 6.0  # nominal 1.3 s
     axis.position_deg()  # recovered
 
 
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
 def test_e2e_alarm_during_move_latches_until_reset(axis: ModbusStageAxis,
                                                    emu: StageEmulator) -> None:
     start = axis.position_deg()
     target = -150.0 if start > 0 else 150.0
     timer = threading.Timer(0.1, emu.alarm, (0x30,))
     timer.start()
-    t0 = time.monotonic()
     with pytest.raises(HardwareError) as ei:
         axis.move_to_deg(target)
     timer.join()
     assert ei.value.code == 0x30 and "overload" in str(ei.value) and "ALM" in ei.value.flags
-    assert time.monotonic() - t0 < 3.0  # nominal 0.2 s
-    triggers = emu.state()["triggers"]
+    st = emu.state()
+    assert st["position"] != st["target"]  # the alarm stopped the drive short: seen during the move
+    triggers = st["triggers"]
     with pytest.raises(FaultLatchedError):
         axis.move_to_deg(0.0)
     assert emu.state()["triggers"] == triggers  # no motion command after the fault
@@ -348,16 +347,15 @@ def test_e2e_move_timeout_stops_and_latches(emu: StageEmulator) -> None:
         axis.reset_alarm()  # clears the latch once the drive reports no alarm
 
 
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_e2e_killed_emulator_is_port_gone(transport: str) -> None:
     with StageEmulator.start(transport) as e:
         axis = ModbusStageAxis(e.url, **AXIS)
         axis.position_deg()
         e.die()
-        t0 = time.monotonic()
         with pytest.raises((PortGoneError, DeviceTimeoutError)) as ei:
             axis.position_deg()
-        assert time.monotonic() - t0 < 3.0  # nominal 0.4 s
         assert isinstance(ei.value, PortGoneError), ei.value
         with pytest.raises(FaultLatchedError if axis.fault else PortGoneError):
             axis.move_to_deg(1.0)

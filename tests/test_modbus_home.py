@@ -6,7 +6,6 @@ replies matched to their request. Facts: Oriental Motor AZ Series Function Editi
 from __future__ import annotations
 
 import os
-import time
 
 import pytest
 
@@ -61,13 +60,12 @@ def test_home_is_a_zhome_rising_edge_then_home_end_byte_exactly() -> None:
     assert script.done
 
 
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
 def test_home_on_the_emulator_returns_to_zero() -> None:
     with StageEmulator.start("tcp", time_scale=20.0, initial_position=3000) as emu:
         axis = ModbusStageAxis(emu.url, **AXIS)
         assert axis.position_deg() == pytest.approx(3000 / (1000 * 10 / 360), abs=1e-6)
-        t0 = time.monotonic()
         assert axis.home() == pytest.approx(0.0, abs=0.05)
-        assert time.monotonic() - t0 < 5.0
         st = emu.state()
         assert st["homings"] == 1 and st["home_end"] is True
         assert "HOME-END" in axis.status()["flags"]
@@ -76,13 +74,12 @@ def test_home_on_the_emulator_returns_to_zero() -> None:
         axis.close()
 
 
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
 def test_home_that_never_ends_is_a_bounded_timeout_then_latched() -> None:
     with StageEmulator.start("tcp", homing=False) as emu:
         axis = ModbusStageAxis(emu.url, **AXIS)
-        t0 = time.monotonic()
         with pytest.raises(DeviceTimeoutError, match="no HOME-END.*within 0.3 s"):
             axis.home(timeout_s=0.3)
-        assert time.monotonic() - t0 < 2.0
         assert emu.state()["stops"] >= 1   # STOP sent on the timeout
         with pytest.raises(FaultLatchedError):
             axis.home()

@@ -11,7 +11,6 @@ import json
 import math
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -457,8 +456,8 @@ def test_e2e_external_trigger(emu: SpectrometerEmulator) -> None:
         s.command("T", 0)
 
 
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
 def test_e2e_faults(spec: OceanSpectrometer, emu: SpectrometerEmulator) -> None:
-    t0 = time.monotonic()
     emu.nak("S")
     spec.acquire(0.01, 1)                      # a NAK is retried
     emu.nak("S", n=2)
@@ -479,18 +478,16 @@ def test_e2e_faults(spec: OceanSpectrometer, emu: SpectrometerEmulator) -> None:
         spec.acquire(0.01, 1)
     emu.clear_faults()
     spec.acquire(0.01, 1)                      # healthy again
-    assert time.monotonic() - t0 < 8.0  # nominal 2.4 s; the bound is "no hang" on a loaded box
 
 
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
 def test_e2e_killed_emulator_is_port_gone() -> None:
     with SpectrometerEmulator.start() as e:
         s = OceanSpectrometer(e.port, model="EMU2000+", timeout_s=0.3)
         s.acquire(0.01, 1)
         e.die()
-        t0 = time.monotonic()
         with pytest.raises(PortGoneError):
             s.acquire(0.01, 1)
-        assert time.monotonic() - t0 < 3.0  # nominal < 0.1 s
         s.close()
     # (the dead emulator's pty path may already name another pty: open a path that never was)
     with pytest.raises(PortGoneError):

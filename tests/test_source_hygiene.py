@@ -12,7 +12,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCE_SUFFIXES = {".py", ".toml", ".md", ".cfg", ".ini", ".sh", ".yml", ".yaml", ".txt"}
-SKIPPED_DIRS = {".venv", ".git", "__pycache__", "build", ".pytest_cache", ".hypothesis", "demo-out"}
+SKIPPED_DIRS = {".venv", ".git", "__pycache__", "build", ".pytest_cache", ".hypothesis", ".mypy_cache", "demo-out"}
 
 #: the word issue, task, ticket, bug, PR or pull request (or a plural) before a number, "#" or not
 TRACKER_NUMBER = re.compile(r"\b(?:issues?|tasks?|tickets?|bugs?|PRs?|pull requests?)\s*#?\d+", re.IGNORECASE)

@@ -80,12 +80,22 @@ def test_collimated_and_conical_beams_give_the_same_lambertian_reflectance():
         assert np.all(np.abs(z) < 3.29)
 
 
-def test_r_plus_t_plus_absorption_is_one_ray_by_ray():
+def test_the_kernels_absorbed_tally_is_one_minus_r_minus_t_and_the_specimens_absorption():
+    """Every ray ends in exactly one tally; the kernel's own ``absorbed`` count (not derived from R
+    and T) is the record's 1 - R - T, and matches the specimen's absorption 1 - 0.5 - 0.3 = 0.2.
+    That last check is a z-test per wavelength at |z| < 3.89 (two-sided 1e-4; 2e-4 family-wise);
+    power: an absorption of 0.21 instead lies ~8.8 standard errors away and is rejected."""
     sp = VirtualSpectrophotometer("lambert:reflectance=0.5,transmittance=0.3", rays=123_457, seed=2, beam="conical")
     s = sp.measure("8/d", [500.0, 600.0])
-    for c in s.meta["counts"]:
+    counts = s.meta["counts"]
+    for c in counts:
         assert c["reflected"] + c["transmitted"] + c["absorbed"] + c["missed"] == c["N"] == 123_457
-    assert np.allclose(s.reflectance + s.transmittance + s.absorptance, 1.0, atol=0)
+    hits = np.array([c["N"] - c["missed"] for c in counts], dtype=float)
+    absorbed = np.array([c["absorbed"] for c in counts], dtype=float) / hits
+    np.testing.assert_allclose(s.absorptance, absorbed, rtol=1e-12, atol=0)
+    se = math.sqrt(0.2 * 0.8 / hits.min())
+    assert np.all(np.abs(absorbed - 0.2) / se < 3.89)
+    assert np.all(np.abs(absorbed - 0.21) / se > 3.89)  # power: a 5 % wrong absorption is caught
 
 
 def test_same_seed_same_result_and_wavelength_keyed_streams():
