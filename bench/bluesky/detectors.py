@@ -291,7 +291,8 @@ class ReflectanceDevice(_SpectralReadable):
             decide_calibration(self._bench, plan)  # the runner's decision: which white, which darks
             # the white it measures now and the first trigger, at the setpoint (a count reads only there),
             # predicted as bench scan predicts a plan's: refused before any motion when they would saturate
-            check_exposure(replace(plan, points=(self._mover.reached,)), self._bench.config)
+            setpoint = self._mover.geometry_of(self._mover.target)
+            check_exposure(replace(plan, points=(setpoint,)), self._bench.config)
         except BenchError as exc:
             raise type(exc)(f"{self.name} (integration_s {plan.integration_s:g} s, averages {plan.averages}, "
                             f"dark_mode {plan.dark!r}, white_mode {plan.white!r}): {exc}") from None
