@@ -33,7 +33,7 @@ def designed(tmp_path_factory):
     """One design on the virtual body, in-process: (bench file, the design, the uniform plan's
     information and seconds, candidates, reading model)."""
     from bench.config import load_bench
-    from bench.identify.design import design_for_bench, information
+    from bench.identify.design import design_for_bench, information, prior_information
     from bench.identify.design_io import model_point
     from bench.identify.design_noise import bench_reading_model
     from bench.identify.model_spec import parse_model_spec
@@ -50,17 +50,24 @@ def designed(tmp_path_factory):
         design = design_for_bench(point, bench, candidates, seconds, [like])
         readings = bench_reading_model(bench, like)
         fisher_uniform = information(point, list(uniform.points), readings).total(range(len(uniform.points)))
+        # the design's criterion is averaged over the prior range's points: the uniform plan's, likewise
+        prior_uniform = prior_information(point, list(uniform.points), readings).total(range(len(uniform.points)))
         refused_grid = len(candidate_grid(10.0)) - len(candidates)
     return {"path": path, "design": design, "seconds": seconds, "uniform": fisher_uniform,
+            "prior_uniform": prior_uniform,
             "refused_grid": refused_grid}
 
 
 def test_design_beats_the_uniform_plan_on_its_criterion_at_equal_time(designed):
-    from bench.identify.design import criterion
+    from bench.identify.design import PRIOR_DRAWS, criterion, mean_criterion
 
     d = designed["design"]
     assert d.seconds <= designed["seconds"]
-    assert d.value >= criterion(designed["uniform"], "D")
+    # pseudo-Bayesian by default: the criterion averaged over the guess and the prior range's draws
+    assert d.prior_points == 1 + PRIOR_DRAWS
+    assert d.value >= mean_criterion(designed["prior_uniform"], "D")
+    assert criterion(d.fisher, "D") >= criterion(designed["uniform"], "D")  # and better at the guess itself
+    assert all(lo <= d.widths[k] <= hi for k, (lo, hi) in d.width_range.items())
     assert all(np.isfinite(w) and w > 0 for w in d.widths.values())
 
 
@@ -89,6 +96,10 @@ def test_written_plan_passes_bench_plan_within_budget(designed, tmp_path, capsys
     assert made["seconds"] <= 3 and made["points"] >= 2 and made["integration_s"] in (0.01, 0.02)
     header = out.read_text()
     assert header.startswith("# Designed by `bench plan --design") and "Predicted 95% interval widths" in header
+    # the widths are the Cramer-Rao bound at the guess, said so, with their range over the prior range
+    assert "averaged over 9 parameter points of the prior range" in header and "conditional on the prior" in header
+    assert made["prior_points"] == 9 and made["prior_spread"] == 4.0
+    assert all(lo <= made["widths"][k] <= hi for k, (lo, hi) in made["width_range"].items())
     code, text, err = run_main(capsys, "plan", out, "--bench", designed["path"], "--body", "virtual", "--json")
     assert code == 0, err
     checked = json.loads(text)
@@ -116,6 +127,8 @@ def test_design_options_without_design_are_refused(tmp_path, capsys):
     bench = _bench_file(tmp_path)
     code, _, err = run_main(capsys, "plan", UNIFORM, "--bench", bench, "--seconds", "3")
     assert code == 2 and "--seconds applies to --design MODEL only" in err
+    code, _, err = run_main(capsys, "plan", UNIFORM, "--bench", bench, "--prior-spread", "2")
+    assert code == 2 and "--prior-spread applies to --design MODEL only" in err
     code, _, err = run_main(capsys, "scan", UNIFORM, "--bench", bench, "--target", "kd=0.01")
     assert code == 2 and "--target applies to --adaptive MODEL only" in err
 

@@ -15,6 +15,10 @@ from bench.cli.argtypes import real
 from bench.cli.common import add_force_option, check_output, emit_json, output_file
 from bench.core.errors import InputError
 
+#: the default prior range factor (bench.identify.design.PRIOR_SPREAD, not imported: the design code
+#: is imported only when a design is asked for); tests/test_design.py checks they agree
+PRIOR_SPREAD = 4.0
+
 __all__ = ["add_design_options", "add_adaptive_options", "refuse_unused", "cmd_plan_design", "cmd_scan_adaptive", "open_design",
            "DEFAULT_INTEGRATIONS"]
 
@@ -43,6 +47,9 @@ def _add_common(g: argparse._ArgumentGroup, what: str) -> None:
                    "direction)")
     g.add_argument("--prior", metavar="p=VALUE,...", help=f"{what}: prior guess of the free parameters "
                    "(default: the family's declared defaults)")
+    g.add_argument("--prior-spread", type=real(1.0, 1e3), metavar="F", help=f"{what}: the prior range: the "
+                   "criterion is averaged over points with each free parameter from its guess / F to its guess x F "
+                   f"(pseudo-Bayesian; default {PRIOR_SPREAD:g}; 1: at the guess alone)")
     g.add_argument("--like", metavar="PLAN.toml", help=f"{what}: read every point as this plan does "
                    "(averages, dark, white; default 2 averages, darks per incidence, one white)")
     g.add_argument("--integration-s", type=_times, default=DEFAULT_INTEGRATIONS, metavar="T[,T...]",
@@ -78,7 +85,8 @@ def add_adaptive_options(parser: argparse.ArgumentParser) -> None:
 
 def refuse_unused(args: argparse.Namespace, flag: str) -> None:
     """A design option given without ``flag`` (``--design`` / ``--adaptive``) would be ignored: refuse it."""
-    given = [name for name in ("seconds", "out", "compare", "prior", "like", "target", "max_seconds")
+    given = [name for name in ("seconds", "out", "compare", "prior", "prior_spread", "like", "target",
+                               "max_seconds")
              if getattr(args, name, None) is not None]
     if given:
         raise InputError(f"--{given[0].replace('_', '-')} applies to {flag} MODEL only")
@@ -87,7 +95,7 @@ def refuse_unused(args: argparse.Namespace, flag: str) -> None:
 def _model(args: argparse.Namespace, text: str) -> tuple[Any, Any, list[Any]]:
     from bench.identify.design_io import design_inputs
 
-    return design_inputs(text, args.prior, args.like, args.integration_s)
+    return design_inputs(text, args.prior, args.like, args.integration_s, args.prior_spread)
 
 
 def cmd_scan_adaptive(args: argparse.Namespace) -> int:
@@ -107,7 +115,8 @@ def cmd_scan_adaptive(args: argparse.Namespace) -> int:
     spec, point, settings = _model(args, args.adaptive)
     targets = parse_targets(args.target, spec.names)
     key = session_key(spec.text, args.bench, args.body, args.seconds, args.criterion, args.prior, args.integration_s,
-                      args.like, args.step, args.target, args.seed)
+                      args.like, args.step, args.target, args.seed,
+                      *([] if args.prior_spread is None else [args.prior_spread]))  # earlier sessions' keys stand
     bench = load_bench(args.bench, seed=args.seed, body=args.body)
     with bench, open_store(args.store) as store:
         candidates = session_candidates(bench, args.step, settings)
@@ -138,12 +147,14 @@ def open_design(args: argparse.Namespace) -> tuple[Any, Any, Any, Any]:
 def cmd_plan_design(args: argparse.Namespace) -> int:
     """Design, write and check a plan. JSON keys: ``plan`` (path), ``model``, ``prior``,
     ``criterion``, ``budget_s``, ``seconds``, ``motion_s``, ``points``, ``candidates``, ``widths``
-    (predicted 95 % interval widths), ``compare`` (null, or the compared plan's ``plan``,
+    (predicted 95 % interval widths at the prior guess), ``prior_spread`` and ``prior_points`` (the
+    prior range the criterion averaged over: 1 point = the guess alone), ``width_range`` (each
+    parameter's predicted [min, max] width over those points), ``compare`` (null, or the compared plan's ``plan``,
     ``seconds``, ``points``, ``widths``), ``stopped`` (null, or why ``--max-seconds`` cut the search
     short: the best design so far is written and the exit status is 1)."""
     from bench.core.errors import PlanError
     from bench.identify.design import design_for_bench, information, interval_widths
-    from bench.identify.design_io import widths_text, write_design
+    from bench.identify.design_io import prior_lines, widths_text, write_design
     from bench.identify.design_noise import bench_reading_model
     from bench.identify.identifiability import refuse_unidentifiable
     from bench.identify.time_model import ReadingSettings, bench_time_model, candidate_grid, reachable
@@ -184,6 +195,8 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
               "budget_s": args.seconds, "seconds": design.seconds, "motion_s": design.estimate["motion_s"],
               "points": len(design.points), "candidates": len(candidates), "integration_s": design.settings.integration_s,
               "averages": design.settings.averages, "widths": design.widths, "compare": other,
+              "prior_spread": point.spread, "prior_points": design.prior_points,
+              "width_range": {k: list(v) for k, v in (design.width_range or {}).items()},
               "stopped": design.stopped}
     if design.stopped:  # the best design so far is written: say why it may not be the best there is
         import sys
@@ -195,7 +208,8 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     print(f"wrote {out}: {len(design.points)} points ({design.criterion}-optimal for {spec.text}) of "
           f"{len(candidates)} reachable on bench {bench.name}, {design.settings.integration_s:g} s x "
           f"{design.settings.averages} per point, estimated {design.seconds:.4g} s of {args.seconds:g} s")
-    print(f"  predicted 95% interval widths (Cramer-Rao, conditional on the prior): {widths_text(design.widths)}")
+    for line in prior_lines(design, "  "):
+        print(line)
     if other is not None:
         print(f"  plan {other['plan']}: {other['points']} points, {other['seconds']:.4g} s, widths "
               f"{widths_text(other['widths'])}")

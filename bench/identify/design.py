@@ -13,6 +13,15 @@ better ones of no greater cost, and trims to the budget with ``bench plan``'s ow
 Criteria (maximised): ``D`` = log det F, ``A`` = -trace(F^-1), ``E`` = smallest eigenvalue of F.
 The Cramer-Rao bound ``sqrt(diag F^-1)`` gives the predicted standard errors, reported as 95 %
 interval widths (``2 x 1.96 x se``).
+
+A design at one guess of the parameters is only as good as the guess (a rough, dark plastic designed
+for at the default prior lost most of the gain over the uniform plan). By default the design is
+pseudo-Bayesian: the criterion is averaged over a fixed set of parameter points spread over a prior
+range (:meth:`ModelPoint.prior_points`: the guess and :data:`PRIOR_DRAWS` Latin-hypercube points,
+each free parameter log-uniform from guess / spread to guess x spread within its bounds), each
+point's information scaled by its readings' relative sensitivity so that no point outweighs the
+others by the size of its signal. The predicted widths are the Cramer-Rao bound at the guess itself,
+with their range over the prior points (:attr:`Design.width_range`).
 """
 
 from __future__ import annotations
@@ -24,13 +33,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from bench.core.errors import ConfigError
+from bench.core.errors import ConfigError, SpecimenError
 from bench.core.geometry import Geometry
 from bench.identify.design_noise import ReadingModel
 from bench.identify.prediction import predicted_brdf
 from bench.identify.time_model import ReadingSettings, TimeModel
 
-__all__ = ["ModelPoint", "Information", "information", "Sensitivities", "sensitivities", "criterion", "Design", "design_plan", "CRITERIA",
+__all__ = ["ModelPoint", "Information", "PriorInformation", "prior_information", "information", "prior_sensitivities",
+           "mean_criterion", "PRIOR_SPREAD", "PRIOR_DRAWS", "Sensitivities", "sensitivities", "criterion", "Design", "design_plan", "CRITERIA",
            "interval_widths", "Z95", "design_for_bench", "integration_choices"]
 
 CRITERIA = ("D", "A", "E")
@@ -38,6 +48,10 @@ CRITERIA = ("D", "A", "E")
 Z95 = 1.959963984540054
 #: relative step of the central differences (of the parameter's range when the value is 0)
 _REL_STEP = 1e-4
+#: default prior range of a design: each free parameter from its guess / 4 to its guess x 4
+PRIOR_SPREAD = 4.0
+#: parameter points drawn over the prior range (besides the guess itself), fixed seed
+PRIOR_DRAWS = 8
 
 
 @dataclass(frozen=True)
@@ -47,12 +61,40 @@ class ModelPoint:
     family: type
     values: Mapping[str, float]
     free: tuple[str, ...]
+    #: prior range factor: the design averages over guess / spread .. guess x spread (1: at the guess only)
+    spread: float = 1.0
 
     def specimen(self, values: Mapping[str, float] | None = None) -> Any:
         return self.family.from_keywords(dict(values if values is not None else self.values))
 
     def spec(self) -> str:
         return f"{self.family.name}:" + ",".join(f"{k}={v:g}" for k, v in self.values.items())
+
+    def prior_points(self, draws: int = PRIOR_DRAWS, seed: int = 0) -> list["ModelPoint"]:
+        """The guess, then ``draws`` points of a fixed-seed Latin hypercube over the prior range: each
+        free parameter log-uniform in [guess / spread, guess x spread] clipped to its declared bounds
+        (uniform from its lower bound over 1/spread of its range when the guess is 0). Points the
+        family refuses are left out. Only the guess when ``spread`` <= 1."""
+        here = replace(self, spread=1.0)
+        if self.spread <= 1.0 or not self.free or draws < 1:
+            return [here]
+        declared = {p.name: p for p in self.family.parameters}
+        rng = np.random.default_rng(seed)
+        cube = np.stack([(rng.permutation(draws) + rng.random(draws)) / draws for _ in self.free], axis=1)
+        out = [here]
+        for row in cube:
+            values = dict(self.values)
+            for k, u in zip(self.free, row):
+                p, v = declared[k], float(self.values[k])
+                lo, hi = (max(v / self.spread, p.lo), min(v * self.spread, p.hi)) if v > 0 else \
+                    (p.lo, p.lo + (p.hi - p.lo) / self.spread)
+                values[k] = lo * (hi / lo) ** u if lo > 0 else lo + (hi - lo) * u
+            try:
+                self.specimen(values)
+            except (SpecimenError, ValueError):
+                continue
+            out.append(replace(here, values=values))
+        return out
 
     def steps(self) -> dict[str, float]:
         declared = {p.name: p for p in self.family.parameters}
@@ -93,6 +135,57 @@ class Information:
         c = float(self.self_[idx].sum()) + self.self_[cand]
         return a - (self.rho2 / (1.0 + self.rho2 * c))[:, None, None] * np.einsum("ni,nj->nij", b, b)
 
+    def scaled(self, s: float) -> "Information":
+        """The information divided by ``s`` (every Fisher matrix it gives is F / s)."""
+        return replace(self, own=self.own / s, cross=self.cross / math.sqrt(s))
+
+
+@dataclass
+class PriorInformation:
+    """The information at each parameter point of a prior range, stacked: ``total`` gives
+    ``(points, p, p)`` and ``with_each`` ``(len(cand), points, p, p)``. ``parts[m]`` is point m's
+    own information, ``infos[m]`` the same scaled by the readings' relative sensitivity there
+    against the guess's (``parts[0]``, the guess, unscaled), so no point outweighs the others by
+    the size of its signal."""
+
+    parts: list[Information]
+    infos: list[Information]
+
+    def total(self, idx: Sequence[int] | np.ndarray) -> np.ndarray:
+        return np.stack([i.total(idx) for i in self.infos])
+
+    def with_each(self, idx: Sequence[int], cand: np.ndarray) -> np.ndarray:
+        return np.stack([i.with_each(idx, cand) for i in self.infos], axis=1)
+
+
+def prior_information(model: ModelPoint, pool: Sequence[Geometry], readings: ReadingModel, shared_scale: bool = True,
+                      sens: "Sensitivities | Sequence[Sensitivities] | None" = None) -> PriorInformation:
+    """The information of ``pool`` at each of ``model.prior_points()`` (:class:`PriorInformation`)."""
+    models = model.prior_points()
+    sens_all = prior_sensitivities(models, pool, readings, sens)
+    parts = [information(m, pool, readings, shared_scale, x) for m, x in zip(models, sens_all)]
+    scales = [_relative_scale(x) for x in sens_all]
+    return PriorInformation(parts, [i.scaled(s / scales[0]) for i, s in zip(parts, scales)])
+
+
+def mean_criterion(fisher: np.ndarray, name: str = "D") -> np.ndarray:
+    """The criterion averaged over the parameter points (the one-but-last two axes are each Fisher
+    matrix, the axis before them the points): the pseudo-Bayesian criterion."""
+    f = np.asarray(fisher, dtype=float)
+    p = f.shape[-1]
+    return np.asarray(criterion(f.reshape(-1, p, p), name)).reshape(f.shape[:-2]).mean(axis=-1)
+
+
+def _relative_scale(sens: "Sensitivities") -> float:
+    """How strongly the readings respond to the parameters, relative to their size (mean over the
+    readings of sum_k (dy/dk / y)^2): the scale that makes the points of a prior range comparable,
+    independent of how the points are read."""
+    f = sens.brdf[..., None]
+    ok = np.isfinite(f) & (np.abs(f) > 0) & np.isfinite(sens.jacobian)
+    r = np.where(ok, sens.jacobian / np.where(ok, f, 1.0), 0.0)
+    s = float((r**2).sum(axis=-1).mean())
+    return s if s > 0 and math.isfinite(s) else 1.0
+
 
 @dataclass(frozen=True)
 class Sensitivities:
@@ -117,6 +210,15 @@ def sensitivities(model: ModelPoint, candidates: Sequence[Geometry], wavelengths
         jac.append((predicted_brdf(model.specimen(up), candidates, wavelengths, aperture_deg, white)
                     - predicted_brdf(model.specimen(dn), candidates, wavelengths, aperture_deg, white)) / (2 * h))
     return Sensitivities(f0, np.stack(jac, axis=-1))
+
+
+def prior_sensitivities(models: Sequence[ModelPoint], pool: Sequence[Geometry], readings: ReadingModel,
+                        given: Sensitivities | Sequence[Sensitivities] | None = None) -> list[Sensitivities]:
+    """The sensitivities of ``pool`` at each of ``models`` (the prior range's points); ``given``: those
+    already computed (of the first points, or a single one: the guess's)."""
+    have = [] if given is None else [given] if isinstance(given, Sensitivities) else list(given)
+    return have[:len(models)] + [sensitivities(m, pool, readings.wavelengths, readings.aperture_deg,
+                                               readings.standard.geometry) for m in models[len(have):]]
 
 
 def information(model: ModelPoint, candidates: Sequence[Geometry], readings: ReadingModel,
@@ -192,19 +294,28 @@ class Design:
     settings: ReadingSettings
     #: why the search stopped before it was done (its time limit), or None: it finished
     stopped: str | None = None
+    #: each parameter's predicted width (min, max) over the prior range's points (the guess's alone when
+    #: the design is at the guess)
+    width_range: dict[str, tuple[float, float]] | None = None
+    #: how many parameter points the criterion averaged (1: a design at the guess alone)
+    prior_points: int = 1
 
 
 def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: ReadingModel, time: TimeModel,
                 seconds: float, criterion_name: str = "D", seed_points: Sequence[Geometry] = (),
-                sens: Sensitivities | None = None, shared_scale: bool = True, deadline: float | None = None) -> Design:
+                sens: Sensitivities | Sequence[Sensitivities] | None = None, shared_scale: bool = True,
+                deadline: float | None = None) -> Design:
     """Choose points among ``candidates`` that maximise the criterion within ``seconds`` of bench time.
 
     Past ``deadline`` (``time.monotonic()``), once a point is chosen, the search stops with the
     points chosen so far (within the budget) and says so in :attr:`Design.stopped`.
 
     ``seed_points`` are measured already (a sequential design's earlier steps): they count in the
-    information, not in the time. ``sens``: the sensitivities of ``candidates + seed_points``
-    (computed when not given). Raises :class:`ConfigError` when no free parameter is given, or
+    information, not in the time. ``sens``: the sensitivities of ``candidates + seed_points`` at
+    the prior range's points (:func:`prior_sensitivities`; computed when not given). The criterion
+    is averaged over :meth:`ModelPoint.prior_points` (the guess alone when ``model.spread`` is 1);
+    :attr:`Design.widths` are the Cramer-Rao widths at the guess. Raises :class:`ConfigError` when
+    no free parameter is given, or
     when the budget cannot buy a design that identifies every free parameter.
     """
     if not model.free:
@@ -213,13 +324,14 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
     if criterion_name not in CRITERIA:
         raise ConfigError(f"design criterion must be one of {', '.join(CRITERIA)}, got {criterion_name!r}")
     pool = list(candidates) + list(seed_points)
-    info = information(model, pool, readings, shared_scale, sens)
-    fixed = list(range(len(candidates), len(pool)))
+    info = prior_information(model, pool, readings, shared_scale, sens)
+    exact = info.parts[0]  # at the guess: the predicted widths
     n_cand = len(candidates)
     p = len(model.free)
-    scale = np.trace(info.own[:n_cand].mean(axis=0)) / p if n_cand else 1.0
-    ridge = np.eye(p) * max(scale, 1e-300) * 1e-9  # keeps log det finite until p points are chosen
-
+    fixed = list(range(len(candidates), len(pool)))
+    # keeps log det finite until p points are chosen
+    ridge = np.stack([np.eye(p) * max(np.trace(i.own[:n_cand].mean(axis=0)) / p if n_cand else 1.0, 1e-300) * 1e-9
+                      for i in info.infos])
     chosen: list[int] = []
     spent = 0.0
     stopped = None
@@ -235,8 +347,8 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
         fits = spent + cost <= seconds
         if not fits.any():
             break
-        base = criterion(info.total(fixed + chosen) + ridge, criterion_name)
-        gain = criterion(info.with_each(fixed + chosen, free) + ridge[None], criterion_name) - base
+        base = mean_criterion(info.total(fixed + chosen) + ridge, criterion_name)
+        gain = mean_criterion(info.with_each(fixed + chosen, free) + ridge[None], criterion_name) - base
         score = np.where(fits, gain / cost, -np.inf)
         best = int(np.argmax(score))
         if not np.isfinite(score[best]) or gain[best] <= 0:
@@ -249,11 +361,12 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
                                     deadline=deadline)
     while chosen and time.seconds([pool[i] for i in chosen])["seconds"] > seconds:
         # the marginal costs were approximate: drop the point whose loss hurts least
-        losses = [criterion(info.total(fixed + chosen[:j] + chosen[j + 1:]) + ridge, criterion_name)
+        losses = [mean_criterion(info.total(fixed + chosen[:j] + chosen[j + 1:]) + ridge, criterion_name)
                   for j in range(len(chosen))]
         chosen.pop(int(np.argmax(losses)))
-    fisher = info.total(fixed + chosen) if (fixed or chosen) else np.zeros((p, p))
-    value = float(criterion(fisher, criterion_name))
+    fisher = exact.total(fixed + chosen) if (fixed or chosen) else np.zeros((p, p))
+    value = float(mean_criterion(info.total(fixed + chosen), criterion_name)) if (fixed or chosen) else -math.inf
+    spread = [interval_widths(i.total(fixed + chosen), model.free) for i in info.parts] if (fixed or chosen) else []
     if not chosen or not np.isfinite(value):
         least = time.seconds([pool[i] for i in chosen[:1]] or [candidates[0]])["seconds"] if n_cand else math.nan
         raise ConfigError(f"a budget of {seconds:g} s buys no design that identifies {', '.join(model.free)} of "
@@ -262,10 +375,11 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
     points = [pool[i] for i in chosen]
     est = time.seconds(points)
     return Design(points, float(est["seconds"]), est, criterion_name, value,
-                  interval_widths(fisher, model.free), fisher, model, readings.settings, stopped)
+                  interval_widths(fisher, model.free), fisher, model, readings.settings, stopped,
+                  {k: (min(w[k] for w in spread), max(w[k] for w in spread)) for k in model.free}, len(info.parts))
 
 
-def _exchange(info: Information, pool: Sequence[Geometry], chosen: list[int], fixed: list[int], n_cand: int,
+def _exchange(info: PriorInformation, pool: Sequence[Geometry], chosen: list[int], fixed: list[int], n_cand: int,
               time: TimeModel, seconds: float, name: str, ridge: np.ndarray, rounds: int = 3,
               deadline: float | None = None) -> tuple[list[int], str | None]:
     """Fedorov-style exchange: swap a chosen point for an unchosen one when the criterion rises and
@@ -281,8 +395,8 @@ def _exchange(info: Information, pool: Sequence[Geometry], chosen: list[int], fi
             free = np.array([k for k in range(n_cand) if k not in chosen], dtype=int)
             if free.size == 0:
                 return chosen, None
-            now = criterion(info.total(fixed + chosen) + ridge, name)
-            vals = criterion(info.with_each(fixed + rest, free) + ridge[None], name)
+            now = mean_criterion(info.total(fixed + chosen) + ridge, name)
+            vals = mean_criterion(info.with_each(fixed + rest, free) + ridge[None], name)
             for k in np.argsort(-vals)[:5]:  # the best few swaps, checked against the budget
                 if not vals[k] > now + 1e-12 * max(1.0, abs(now)):
                     break
@@ -311,7 +425,7 @@ def design_for_bench(model: ModelPoint, bench: Any, candidates: Sequence[Geometr
     pool = list(candidates) + list(seed_points)
     best: Design | None = None
     error: ConfigError | None = None
-    sens = None
+    sens: list[Sensitivities] | None = None
     deadline = None if max_seconds is None else monotonic() + float(max_seconds)
     cut: str | None = None  # why a design_plan stopped early
     tried = 0
@@ -320,8 +434,7 @@ def design_for_bench(model: ModelPoint, bench: Any, candidates: Sequence[Geometr
             break
         tried += 1
         readings = bench_reading_model(bench, s)
-        sens = sens or sensitivities(model, pool, readings.wavelengths, readings.aperture_deg,
-                                    readings.standard.geometry)
+        sens = sens or prior_sensitivities(model.prior_points(), pool, readings)
         try:
             d = design_plan(model, candidates, readings, bench_time_model(bench, s), seconds, criterion_name,
                             seed_points, sens, shared_scale, deadline)

@@ -17,12 +17,12 @@ import tomli_w
 
 from bench.core.errors import InputError, SpecimenError
 from bench.core.outputs import atomic_write
-from bench.identify.design import Design, ModelPoint, integration_choices
+from bench.identify.design import PRIOR_SPREAD, Design, ModelPoint, integration_choices
 from bench.identify.model_spec import parse_model_spec
 from bench.identify.time_model import ReadingSettings
 from bench.plans import load_plan
 
-__all__ = ["model_point", "parse_prior", "parse_values", "design_table", "write_design", "widths_text", "design_inputs"]
+__all__ = ["model_point", "prior_lines", "parse_prior", "parse_values", "design_table", "write_design", "widths_text", "design_inputs"]
 
 
 def parse_values(text: str | None, option: str, what: str = "VALUE", positive: bool = False) -> dict[str, float]:
@@ -50,9 +50,11 @@ def parse_prior(text: str | None) -> dict[str, float]:
     return parse_values(text, "--prior")
 
 
-def model_point(spec: Any, prior: Mapping[str, float] | None = None) -> ModelPoint:
+def model_point(spec: Any, prior: Mapping[str, float] | None = None, spread: float = PRIOR_SPREAD) -> ModelPoint:
     """The model of a parsed model string (:class:`bench.identify.model_spec.ModelSpec`) at its
-    prior guess: fixed values, declared defaults, and ``prior`` for the free parameters."""
+    prior guess: fixed values, declared defaults, and ``prior`` for the free parameters; a design
+    averages over guess / ``spread`` .. guess x ``spread`` (:meth:`ModelPoint.prior_points`; 1: at
+    the guess alone)."""
     family = spec.family
     values = {p.name: float(p.default) for p in family.parameters if not p.choices}
     values.update({k: v for k, v in spec.fixed.items()})
@@ -67,7 +69,7 @@ def model_point(spec: Any, prior: Mapping[str, float] | None = None) -> ModelPoi
         if not p.lo <= v <= p.hi:
             raise InputError(f"--prior {k}={v:g}: outside the model's bounds [{p.lo:g}, {p.hi:g}] for {k}")
         values[k] = float(v)
-    point = ModelPoint(family, values, tuple(free))
+    point = ModelPoint(family, values, tuple(free), float(spread))
     try:
         point.specimen()
     except SpecimenError as exc:
@@ -76,12 +78,14 @@ def model_point(spec: Any, prior: Mapping[str, float] | None = None) -> ModelPoi
 
 
 def design_inputs(model: str, prior: str | Mapping[str, float] | None = None, like: str | Path | None = None,
-                  integration_s: str | Sequence[float] = "0.02") -> tuple[Any, ModelPoint, list[ReadingSettings]]:
+                  integration_s: str | Sequence[float] = "0.02",
+                  spread: float | None = None) -> tuple[Any, ModelPoint, list[ReadingSettings]]:
     """The parsed model, the model at its prior and the reading settings a design chooses from,
-    from ``--prior``, ``--like`` and ``--integration-s`` as ``bench plan --design`` / ``bench scan
-    --adaptive`` take them (``prior`` may also be a mapping, ``integration_s`` a sequence)."""
+    from ``--prior``, ``--prior-spread``, ``--like`` and ``--integration-s`` as ``bench plan --design`` /
+    ``bench scan --adaptive`` take them (``prior`` may also be a mapping, ``integration_s`` a sequence)."""
     spec = parse_model_spec(model)
-    point = model_point(spec, parse_prior(prior) if prior is None or isinstance(prior, str) else dict(prior))
+    point = model_point(spec, parse_prior(prior) if prior is None or isinstance(prior, str) else dict(prior),
+                        PRIOR_SPREAD if spread is None else spread)
     base = ReadingSettings.like(load_plan(like)) if like else ReadingSettings()
     if isinstance(integration_s, str):
         times = [float(t) for t in integration_s.split(",") if t.strip()]
@@ -94,11 +98,33 @@ def widths_text(widths: Mapping[str, float]) -> str:
     return ", ".join(f"{k} {v:.3g}" for k, v in widths.items())
 
 
+def prior_lines(design: Design, prefix: str = "") -> list[str]:
+    """What the design assumed of the parameters and the widths it predicts, said plainly: the
+    Cramer-Rao widths hold at the guess; the fits' widths are those at the specimen's true
+    parameters, which may differ severalfold."""
+    guess = ", ".join(f"{k}={design.model.values[k]:g}" for k in design.model.free)
+    if design.prior_points > 1:
+        lines = [f"Criterion {design.criterion} averaged over {design.prior_points} parameter points of the prior "
+                 f"range (pseudo-Bayesian): each free parameter from its guess / {design.model.spread:g} to its guess "
+                 f"x {design.model.spread:g} (guess {guess})."]
+    else:
+        lines = [f"Designed at the prior guess {guess} alone."]
+    lines.append(f"Predicted 95% interval widths (Cramer-Rao at the guess, 2 x 1.96 x se): "
+                 f"{widths_text(design.widths)}; conditional on the prior: the fits' widths may differ severalfold "
+                 "when the specimen is far from it.")
+    if design.prior_points > 1 and design.width_range:
+        lines.append("Over the prior range's points the predicted widths span "
+                     + ", ".join(f"{k} {lo:.3g}..{hi:.3g}" for k, (lo, hi) in design.width_range.items()) + ".")
+    return [prefix + line for line in lines]
+
+
 def design_table(design: Design, name: str, model_text: str) -> dict[str, Any]:
     """The plan table of a design (``kind = "list"``, points in travel order by ``bench scan``)."""
     prior = ",".join(f"{k}={v:g}" for k, v in design.model.values.items())
-    description = (f"{design.criterion}-optimal design for {model_text} at {prior}; "
-                   f"predicted 95% interval widths (Cramer-Rao): {widths_text(design.widths)}")
+    how = (f"averaged over the prior range (guess / {design.model.spread:g} .. x {design.model.spread:g}) "
+           f"around {prior}" if design.prior_points > 1 else f"at {prior}")
+    description = (f"{design.criterion}-optimal design for {model_text} {how}; "
+                   f"predicted 95% interval widths (Cramer-Rao at the guess): {widths_text(design.widths)}")
     return {"name": name, "kind": "list", "description": description, **design.settings.plan_table(), "order": "travel",
             "points": [[round(g.theta_i, 9), round(g.phi_i, 9), round(g.theta_r, 9), round(g.phi_r, 9)]
                        for g in design.points]}
@@ -116,8 +142,7 @@ def write_design(path: str | Path, design: Design, model_text: str, bench_name: 
         f"# prior {', '.join(f'{k}={v:g}' for k, v in design.model.values.items())}.",
         f"# Estimated bench time {est['seconds']:.4g} s (motion {est['motion_s']:.3g} s, acquisition "
         f"{est['acquisition_s']:.3g} s, references {est['references_s']:.3g} s) of a {seconds:g} s budget.",
-        f"# Predicted 95% interval widths (Cramer-Rao, 2 x 1.96 x se): {widths_text(design.widths)}; conditional "
-        "on the prior: the fits' widths may differ severalfold when the specimen is far from it.",
+        *prior_lines(design, "# "),
     ]
     text = "\n".join(header) + "\n" + tomli_w.dumps(table)
     atomic_write(p, lambda tmp: tmp.write_text(text, encoding="utf-8"))

@@ -107,10 +107,12 @@ def _fit(model: str, records: list[Any]) -> dict[str, tuple[float, float, float]
 
 def measure(model: str, description: Mapping[str, Any], *, seeds: Sequence[int] = SEEDS, body: str | None = None,
             prior: Mapping[str, float] | None = None, methods: Sequence[str] = tuple(METHODS),
-            progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+            progress: Callable[[str], None] | None = None, spread: float | None = None) -> dict[str, Any]:
     """Scan and fit every method on every seed on the bench ``description`` (a bench config dict)
     executed by ``body`` (default: its kind). Returns the model, truth (None when unknown), prior,
     designs, per-method per-seed results (``seconds``, ``fit``: parameter -> (value, lo, hi)) and cpu.
+    ``spread``: the designs' prior range factor (default that of ``bench plan --design``; 1: at the
+    guess alone).
 
     Raises :class:`InputError` (one line) for an unknown family, no free parameter, no seed, an
     unknown method, or a bench that refuses points of the uniform plan."""
@@ -131,7 +133,7 @@ def measure(model: str, description: Mapping[str, Any], *, seeds: Sequence[int] 
         raise InputError("the design study needs at least 1 seed")
     methods = parse_methods(",".join(methods))
     spec = parse_model_spec(model)
-    point = model_point(spec, prior)
+    point = model_point(spec, prior) if spread is None else model_point(spec, prior, spread)
     specimen = str(description.get("specimen", {}).get("spec", ""))
     truth = truth_of(spec, specimen) if specimen else None
     uniform = load_plan(UNIFORM)
@@ -151,7 +153,9 @@ def measure(model: str, description: Mapping[str, Any], *, seeds: Sequence[int] 
                     raise InputError(f"bench {bench.name!r} refuses the uniform plan: {refusal_message(uniform, refused)}")
                 times = bench_time_model(bench, like)
                 budget = times.seconds(list(uniform.points))["seconds"]
-                candidates = reachable(candidate_grid(), bench.goniometer.check, settings[0])
+                # the candidates bench plan --design takes: none the detector saturates at the longest integration
+                candidates = reachable(candidate_grid(), bench.goniometer.check, settings[0], bench.config,
+                                       max(INTEGRATIONS))
                 if not designs:  # the prior's designs do not depend on the seed
                     for key, (share, crit) in _DESIGNED.items():
                         if key in methods:
@@ -179,7 +183,8 @@ def measure(model: str, description: Mapping[str, Any], *, seeds: Sequence[int] 
             "units": list(spec.units), "prior": dict(point.values), "bench": str(description.get("name", "?")),
             "body": kind, "seeds": seeds,
             "designs": {n: {"points": len(x.points), "integration_s": x.settings.integration_s,
-                            "seconds": x.seconds, "predicted_widths": x.widths} for n, x in designs.items()},
+                            "seconds": x.seconds, "predicted_widths": x.widths,
+                            "prior_points": x.prior_points, "predicted_range": x.width_range} for n, x in designs.items()},
             "results": results}
 
 

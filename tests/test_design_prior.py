@@ -1,0 +1,108 @@
+"""Designs robust to the prior (``bench plan --design``'s default): the criterion averaged over a
+fixed-seed set of parameter points of a prior range (pseudo-Bayesian), and what that buys against
+the uniform in-plane plan on the emulated bench (slow)."""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.core.parsing import read_toml
+from bench.identify import design_study
+from bench.identify.design import PRIOR_DRAWS, PRIOR_SPREAD, criterion, mean_criterion
+from bench.identify.design_io import model_point
+from bench.identify.model_spec import parse_model_spec
+
+BENCHES = Path(__file__).resolve().parent.parent / "fixtures" / "benches"
+MODEL = "plastic:alpha=?,kd=?"
+
+
+def test_prior_points_are_the_guess_and_a_fixed_latin_hypercube_within_the_range_and_bounds():
+    point = model_point(parse_model_spec(MODEL))  # the declared defaults: alpha 0.1, kd 0.5
+    assert point.spread == PRIOR_SPREAD
+    pts = point.prior_points()
+    assert len(pts) == 1 + PRIOR_DRAWS and dict(pts[0].values) == dict(point.values)
+    assert [dict(p.values) for p in point.prior_points()] == [dict(p.values) for p in pts]  # fixed seed
+    assert all(p.spread == 1.0 and p.prior_points() == [p] for p in pts)  # each point is a design at itself
+    for k in point.free:
+        v = point.values[k]
+        lo, hi = max(v / PRIOR_SPREAD, 1e-4), min(v * PRIOR_SPREAD, 1.0)  # plastic's alpha, kd bounds
+        drawn = np.array([p.values[k] for p in pts[1:]])
+        assert ((drawn >= lo) & (drawn <= hi)).all(), (k, drawn)
+        # one draw per stratum of the log range: a Latin hypercube, not a cluster
+        strata = np.floor(np.log(drawn / lo) / np.log(hi / lo) * PRIOR_DRAWS).astype(int)
+        assert sorted(strata) == list(range(PRIOR_DRAWS)), (k, strata)
+    assert all(p.values["eta"] == point.values["eta"] for p in pts)  # a fixed parameter stays fixed
+    assert model_point(parse_model_spec(MODEL), spread=1.0).prior_points() == [replace_spread(point, 1.0)]
+
+
+def replace_spread(point, spread):
+    from dataclasses import replace
+
+    return replace(point, spread=spread)
+
+
+def test_mean_criterion_averages_each_points_criterion():
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(5, 3, 4, 2))
+    f = np.einsum("nmki,nmkj->nmij", a, a)  # 5 candidates x 3 prior points of 2x2 Fisher matrices
+    for name in ("D", "A", "E"):
+        want = np.array([[criterion(f[n, m], name) for m in range(3)] for n in range(5)]).mean(axis=1)
+        assert mean_criterion(f, name) == pytest.approx(want, rel=1e-12)
+        assert mean_criterion(f[0], name) == pytest.approx(want[0], rel=1e-12)
+    singular = f.copy()
+    singular[0, 1] = 0.0  # one point of the prior range learns nothing: the whole average is -inf
+    assert mean_criterion(singular, "D")[0] == -math.inf and math.isfinite(mean_criterion(singular, "D")[1])
+
+
+def test_the_cli_default_prior_range_is_the_designs():
+    from bench.cli.design import PRIOR_SPREAD as CLI_SPREAD
+
+    assert CLI_SPREAD == PRIOR_SPREAD
+
+
+def _emulated(spec: str) -> dict:
+    d = copy.deepcopy(read_toml(BENCHES / "emulated.toml", "bench config"))
+    d["specimen"]["spec"] = spec
+    return d
+
+
+def _ratios(m: dict) -> dict[int, dict[str, float]]:
+    """Per seed, each parameter's designed / uniform fitted 95 % interval width."""
+    res = m["results"]
+    return {u["seed"]: {p: (d["fit"][p][2] - d["fit"][p][1]) / (u["fit"][p][2] - u["fit"][p][1]) for p in m["parameters"]}
+            for u, d in zip(res["uniform in-plane"], res["designed"])}
+
+
+# ~10 CPU-min on 2 loaded cores: 12 emulated scans and fits, 2 designs over 9 prior points
+@pytest.mark.slow
+@pytest.mark.parametrize("truth", ["plastic:alpha=0.15,kd=0.5", "plastic:alpha=0.4,kd=0.2"])
+def test_the_default_design_beats_the_uniform_plan_by_0_7x_at_the_default_prior(truth):
+    """At the default prior (alpha 0.1, kd 0.5), in the uniform plan's bench time, the designed plan's
+    fitted 95 % intervals are at most 0.7x the uniform plan's on every seed 7, 8, 9, for a specimen
+    near the prior and for a rough, dark one far from it (alpha x4, kd /2.5: the case the design at
+    the guess alone lost, 0.72-0.89x), and hold the truth in at least 2 of 3 seeds (0.7 % false
+    alarm per parameter if they are honest). Measured (AMD EPYC, 2 loaded cores): see the README's
+    "Designed plans" section; the margins are several times the seed-to-seed spread."""
+    m = design_study.measure(MODEL, _emulated(truth), methods=("uniform", "designed"))
+    ratios = _ratios(m)
+    assert sorted(ratios) == [7, 8, 9]
+    assert all(r[p] <= 0.7 for r in ratios.values() for p in ("alpha", "kd")), ratios
+    by = {r["method"]: r for r in design_study.rows(m)}
+    assert all(by["designed"]["truth_in"][p] >= 2 for p in ("alpha", "kd")), by["designed"]
+    assert m["designs"]["designed"]["prior_points"] == 1 + PRIOR_DRAWS
+
+
+@pytest.mark.slow  # ~2 CPU-min: 2 emulated scans and fits, one design at the guess alone
+def test_power_the_design_at_the_guess_alone_loses_the_gain_far_from_it():
+    """The same rough, dark plastic, seed 7, designed at the default guess alone (``--prior-spread 1``,
+    the earlier default): measured 0.80x (alpha) and 0.88x (kd) of the uniform plan's widths, so the
+    0.7x bound above would fail for it: the bound can see what the prior range buys."""
+    m = design_study.measure(MODEL, _emulated("plastic:alpha=0.4,kd=0.2"), seeds=[7], methods=("uniform", "designed"),
+                             spread=1.0)
+    assert m["designs"]["designed"]["prior_points"] == 1
+    assert max(_ratios(m)[7].values()) > 0.7, _ratios(m)
