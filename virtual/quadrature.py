@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -51,7 +52,7 @@ CERTIFY_TOL = 3e-6
 #: the settings of :func:`certified_patch_integrals`' attempts, in order (the second: finer lobes,
 #: finer grading, a higher order, tighter cells); the first alone is what a caller that certifies
 #: later (a fit, at its optimum) integrates with
-CERTIFY_ATTEMPTS = (
+CERTIFY_ATTEMPTS: tuple[dict[str, Any], ...] = (
     {"lobe_factor": 6.0, "lobe_scale": 1.0, "lobe_grade": 0.5, "order": 5, "rtol": 1e-7, "atol": 1e-9},
     {"lobe_factor": 12.0, "lobe_scale": 0.25, "lobe_grade": 0.25, "order": 8, "rtol": 1e-8, "atol": 1e-10},
 )

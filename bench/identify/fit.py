@@ -34,7 +34,7 @@ from bench.core.errors import InputError, SpecimenError
 from bench.core.records import BSDFRecord
 from bench.identify.gof import DRAWS, calibrated_p_value
 from bench.identify.identifiability import Identifiability, flat_profiles, identifiability
-from bench.identify.likelihood import Group, Likelihood, likelihood_for
+from bench.identify.likelihood import GaussianReadings, Group, Likelihood, likelihood_for
 from bench.identify.model_spec import ModelSpec, parse_model_spec
 
 __all__ = ["ParameterEstimate", "FitResult", "fit_record", "INTERVALS"]
@@ -384,9 +384,10 @@ def _model_jacobian(spec: ModelSpec, lik: Any, x: np.ndarray) -> tuple[np.ndarra
 def _calibrated(result: FitResult, spec: ModelSpec, lik: Likelihood) -> FitResult:
     """``result`` with its p-value calibrated for estimated Type A variances (:mod:`bench.identify.gof`)
     when the readings carry them."""
-    noise = getattr(lik, "noise", None)
-    if noise is None or result.dof <= 0 or not math.isfinite(result.chi2):
+    # only calibrated readings carry estimated Type A noise
+    if not isinstance(lik, GaussianReadings) or lik.noise is None or result.dof <= 0 or not math.isfinite(result.chi2):
         return result
+    noise = lik.noise
     mu, jac = _model_jacobian(spec, lik, result.values)
     p = calibrated_p_value(result.chi2, jac, mu[:, None] * lik.scales.loadings, noise)
     if p is None:

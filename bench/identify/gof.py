@@ -138,12 +138,12 @@ def calibrated_p_value(chi2: float, jac: np.ndarray, scales: np.ndarray, noise: 
     loadings = np.hstack([noise.shared, scales])
     nu = np.where(estimated, dof, 1.0)
     known2 = noise.own2 - np.where(estimated, noise.type_a2, 0.0)
-    stats = []
+    chunks: list[np.ndarray] = []
     for start in range(0, draws, CHUNK):
         m = min(CHUNK, draws - start)
         e = (np.sqrt(noise.own2) * rng.standard_normal((m, n))
              + rng.standard_normal((m, loadings.shape[1])) @ loadings.T)
         own_hat = known2 + np.where(estimated, noise.type_a2 * rng.chisquare(nu, size=(m, n)) / nu, 0.0)
-        stats.append(_statistics(e, x, 1.0 / own_hat, prior))
-    stats = np.concatenate(stats)
+        chunks.append(_statistics(e, x, 1.0 / own_hat, prior))
+    stats = np.concatenate(chunks)
     return float((1 + np.count_nonzero(stats >= chi2)) / (draws + 1))

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -113,7 +113,7 @@ class Likelihood:
 # --- virtual counts: goniophotometer ------------------------------------------------------
 
 
-def _beam(meta: dict[str, Any]) -> Beam:
+def _beam(meta: Mapping[str, Any]) -> Beam:
     b = meta.get("beam") or {"kind": "collimated"}
     if isinstance(b, str):
         return Beam(b)

@@ -94,13 +94,13 @@ class ModelSpec:
     def start(self) -> np.ndarray:
         return np.array([p.start() for p in self.free], dtype=float)
 
-    def specimen_string(self, values: Sequence[float]) -> str:
+    def specimen_string(self, values: Sequence[float] | np.ndarray) -> str:
         """The specimen string of the model at ``values`` of the free parameters (repr floats:
         parsing it back gives exactly these values)."""
         kw = {**self.fixed, **{n: float(v) for n, v in zip(self.names, values)}}
         return f"{self.family.name}:" + ",".join(f"{k}={v!r}" for k, v in kw.items())
 
-    def specimen(self, values: Sequence[float]) -> Specimen:
+    def specimen(self, values: Sequence[float] | np.ndarray) -> Specimen:
         """The specimen at ``values`` (one per free parameter, in :attr:`names` order)."""
         return parse_specimen(self.specimen_string(values))
 
