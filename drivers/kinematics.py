@@ -57,7 +57,7 @@ TOML-friendly dict by :meth:`KinematicsConfig.from_dict`.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, ClassVar, Literal, Mapping, NamedTuple
+from typing import Annotated, Any, ClassVar, Literal, Mapping, NamedTuple, get_args
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -68,6 +68,7 @@ from bench.core.validation import Finite, Settings
 
 __all__ = [
     "JOINTS",
+    "Joint",
     "Joints",
     "KinematicsConfig",
     "geometry_to_joints",
@@ -78,7 +79,9 @@ __all__ = [
     "wrap180",
 ]
 
-JOINTS = ("turntable", "source", "detector_azimuth", "detector_elevation")
+#: a joint's name, as keys and tables name it
+Joint = Literal["turntable", "source", "detector_azimuth", "detector_elevation"]
+JOINTS: tuple[Joint, ...] = get_args(Joint)
 
 
 class Joints(NamedTuple):
@@ -93,7 +96,7 @@ class Joints(NamedTuple):
         return dict(self._asdict())
 
 
-def _default_limits() -> dict[str, tuple[float, float]]:
+def _default_limits() -> dict[Joint, tuple[float, float]]:
     return {"turntable": (-180.0, 180.0), "source": (0.0, 85.0),
             "detector_azimuth": (-180.0, 180.0), "detector_elevation": (0.0, 85.0)}
 
@@ -118,13 +121,13 @@ class KinematicsConfig(Settings):
 
     settings_of: ClassVar[str] = "kinematics"
 
-    limits: dict[Literal[JOINTS], tuple[Finite, Finite]] = Field(default_factory=_default_limits)  # type: ignore[valid-type]
+    limits: dict[Joint, tuple[Finite, Finite]] = Field(default_factory=_default_limits)
     min_retro_deg: Annotated[Finite, Field(ge=0)] = 5.0
     arm_clearance_deg: Annotated[Finite, Field(ge=0)] = 8.0
 
     @field_validator("limits")
     @classmethod
-    def _ordered_and_complete(cls, v: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+    def _ordered_and_complete(cls, v: dict[Joint, tuple[float, float]]) -> dict[Joint, tuple[float, float]]:
         for joint, (lo, hi) in v.items():
             if not lo <= hi:
                 raise ValueError(f"{joint} = [{lo:g}, {hi:g}]: expected [lo, hi] degrees with lo <= hi")
@@ -137,7 +140,8 @@ class KinematicsConfig(Settings):
 
     def with_limits(self, **limits: tuple[float, float]) -> "KinematicsConfig":
         """A copy with some joint limits replaced (validated again; every other setting kept)."""
-        return type(self)(**{**self.model_dump(), "limits": {**self.limits, **limits}})
+        merged = {str(j): lim for j, lim in self.limits.items()} | limits
+        return type(self)(**{**self.model_dump(), "limits": merged})
 
     def as_dict(self) -> dict[str, Any]:
         return {"limits": {k: list(v) for k, v in self.limits.items()},
@@ -213,8 +217,9 @@ def geometry_to_joints(g: Geometry, config: KinematicsConfig | None = None,
     t, s, d, e = _targets(g, near)
     lim = cfg.limits
     out: list[float] = []
-    for name, val, periodic in (("turntable", t, True), ("source", s, False),
-                                ("detector_azimuth", d, True), ("detector_elevation", e, False)):
+    targets: tuple[tuple[Joint, float, bool], ...] = (("turntable", t, True), ("source", s, False),
+                                                      ("detector_azimuth", d, True), ("detector_elevation", e, False))
+    for name, val, periodic in targets:
         lo, hi = lim[name]
         ref = getattr(near, name) if near is not None else None
         if periodic:

@@ -334,7 +334,7 @@ class DynamixelArm(InstrumentBase):
 
     # -- geometry <-> ticks -----------------------------------------------------------------
     def _joints_from(self, block: Mapping[int, bytes]) -> Joints:
-        vals = {}
+        vals: dict[str, float] = {}  # joint name -> degrees
         for a in self._axes:
             ticks = _field(block[a.id], _OFF_PRESENT, 4)
             vals[a.joint] = a.to_degrees(ticks)

@@ -11,7 +11,7 @@ from pydantic import Field, StrictInt, field_validator, model_validator
 
 from bench.core.errors import ConfigError
 from bench.core.validation import Finite, Settings
-from drivers.kinematics import JOINTS, KinematicsConfig
+from drivers.kinematics import JOINTS, Joint, KinematicsConfig
 
 ADDR = {"model_number": 0, "return_delay": 9, "drive_mode": 10, "operating_mode": 11, "homing_offset": 20,
         "max_position": 48, "min_position": 52, "torque_enable": 64, "status_return_level": 68, "hardware_error": 70, "profile_acceleration": 108,
@@ -67,7 +67,7 @@ class AxisConfig(Settings):
 
     settings_of: ClassVar[str] = "axes"
 
-    joint: Literal[JOINTS]  # type: ignore[valid-type]
+    joint: Joint
     id: Annotated[StrictInt, Field(ge=0, le=252)]
     zero_offset: StrictInt = 2048
     direction: Literal[1, -1] = 1
@@ -126,7 +126,7 @@ class ArmConfig(Settings):
     model_number: StrictInt | None = 1020
     torque_off_on_close: bool = False
     name: str = "dynamixel-arm"
-    external: tuple[Literal[JOINTS], ...] = ()  # type: ignore[valid-type]
+    external: tuple[Joint, ...] = ()
 
     @model_validator(mode="after")
     def _joints_ids_and_reachable_limits(self) -> "ArmConfig":

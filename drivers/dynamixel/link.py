@@ -28,7 +28,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, Sequence, TypeVar
 
 from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler
 
@@ -46,6 +46,7 @@ __all__ = ["Request", "check_status", "decode_status", "DxlLink", "STATUS_INSTRU
            "INST_SYNC_READ", "INST_SYNC_WRITE"]
 
 log = logging.getLogger(__name__)
+_T = TypeVar("_T")
 
 # Protocol 2.0 instruction codes (e-manual)
 INST_PING, INST_READ, INST_WRITE, INST_REBOOT = 0x01, 0x02, 0x03, 0x08
@@ -261,7 +262,7 @@ class DxlLink:
         pkt[8:8 + len(p)] = p
         return pkt
 
-    def _retrying(self, what: str, attempt: Callable[[], object]) -> object:
+    def _retrying(self, what: str, attempt: Callable[[], _T]) -> _T:
         """``attempt()`` with at most :attr:`retries` more after a failed one, each after a quiet
         bus (:meth:`quiet`), so a retry does not inherit the failed attempt's late statuses;
         counted in :attr:`faults`. A fault that persists is raised typed, naming device,
@@ -295,7 +296,7 @@ class DxlLink:
             self._tx(self._packet(dxl_id, instruction, params), what)
             self.port.setPacketTimeout(size)
             return self._rx(req, size)
-        return self._retrying(what, attempt)  # type: ignore[return-value]
+        return self._retrying(what, attempt)
 
     def ping(self, dxl_id: int, what: str) -> tuple[int, int]:
         """PING: ``(model number, error byte)``."""
@@ -328,7 +329,7 @@ class DxlLink:
             for k, i in enumerate(ids):
                 out[i] = self._rx(Request(f"{what} (id {i})", i, size), per * (len(ids) - k))
             return out
-        return self._retrying(what, attempt)  # type: ignore[return-value]
+        return self._retrying(what, attempt)
 
     def sync_write(self, addr: int, size: int, values: dict[int, bytes], what: str) -> None:
         """SYNC_WRITE (broadcast): no status comes back; the caller verifies by reading back."""
