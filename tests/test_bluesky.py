@@ -301,7 +301,7 @@ def test_a_slow_driver_never_blocks_the_run_engines_loop(RE, virtual):
 
 
 def test_best_effort_callback_and_live_table_show_the_hinted_reflectance(RE, virtual, capsys):
-    """Fast twin of the README's live-view block (test_readme.py runs it, slow): the hints name
+    """Fast twin of the live-view block of docs/bluesky.md (test_readme.py runs it, slow): the hints name
     scalar value and uncertainty fields, BestEffortCallback plots them against the scanned axis,
     and LiveTable prints them by string field name."""
     import matplotlib

@@ -210,7 +210,7 @@ print(json.dumps([r.stopped, r.estimates, r.widths, [[s.points, s.estimates] for
 
 @pytest.mark.slow  # four fresh interpreters, each a 3-step session (~10 CPU-s each)
 def test_a_seeded_adaptive_session_is_the_same_in_every_process(tmp_path):
-    """The README's adaptive_fit session (seed 1) and `bench scan --adaptive --seed 1` give the
+    """The adaptive_fit session of docs/bluesky.md (seed 1) and `bench scan --adaptive --seed 1` give the
     same designs and the very same estimates in processes with different hash seeds (set and
     dict orders of strings differ between them); each was reported to vary between runs."""
     import os

@@ -223,7 +223,7 @@ def test_angles_that_all_look_like_radians_are_warned_about_not_refused(capsys):
 
 
 def test_bench_specimens_prints_the_readme_tables_fields_for_every_family(capsys):
-    """Generated from the declarations as the README table is: the convention (not a cut
+    """Generated from the declarations as the specimens page's table (docs/specimens.md) is: the convention (not a cut
     docstring), choices as choices, every family and the colorchecker/mitsuba forms, no markup."""
     from virtual.specimens import specimen_families
     from virtual.specimens.strings import RESERVED_FORMS

@@ -116,7 +116,7 @@ print(json.dumps(seen))
 @pytest.mark.slow
 def test_after_the_warm_up_the_first_commands_compile_nothing(tmp_path):
     """The install step's warm-up (``python -m bench.compilation``) into an empty cache, then the
-    README's first gonio and spectro commands in a new process: numba compiles nothing."""
+    first gonio and spectro commands of docs/commands.md in a new process: numba compiles nothing."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
     env.update(NUMBA_CACHE_DIR=str(tmp_path / "cache"), PYTHONPATH=str(ROOT))
     warm = subprocess.run([sys.executable, "-m", "bench.compilation"], cwd=ROOT, env=env, capture_output=True,

@@ -161,7 +161,7 @@ def test_full_study_on_the_emulated_body(tmp_path):
     uniform plan's 95 % intervals hold the truth in at least 2 of 3 seeds for each parameter (false
     alarm 1 - 0.95^3 - 3 * 0.95^2 * 0.05 = 0.7 % per parameter if the intervals are honest); power:
     a truth moved by 0.2 % of its value (alpha 0.1503, over 5 interval widths) is held in none.
-    The designed-plan targets, measured here and in the README: the D-optimal design at most 0.7x the
+    The designed-plan targets, measured here and in docs/design.md: the D-optimal design at most 0.7x the
     uniform plan's widths in its time, narrower than it in half that time, the sequential design
     at least as good as the one-shot one, each holding the truth in at least 2 of 3 seeds (a
     design for a diagonal covariance, the earlier default, was 2.6x wider: that is the power)."""

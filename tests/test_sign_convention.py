@@ -69,7 +69,7 @@ def test_plan_file_and_bluesky_list_scan_give_identical_records(body, tmp_path):
 
 def _exports_state_the_convention(db: Path, plan_run: str, bluesky_run: str, tmp_path: Path, tol: float) -> None:
     """`bench export` (tidy CSV and ASTM CSV) of the plan's run and of the list_scan's writes
-    theta_r >= 0 with the detector's own azimuth, as the README states: the plan's signed -20
+    theta_r >= 0 with the detector's own azimuth, as docs/angles.md states: the plan's signed -20
     is theta_r = 20 at phi_r = phi_i = 0 (source side), the positive ones at phi_r = 180."""
     want = sorted((abs(t), 0.0 if t < 0 else 180.0) for t in THETA_R)
     for fmt, suffix, reader in (("csv", ".csv", read_tidy_csv), ("astm", ".astm.csv", read_astm)):

@@ -211,7 +211,7 @@ def _cli_outcome(outcome: Outcome, code: int, out: str, err: str) -> None:
         outcome.refusal = lines[0] if lines else ""
 
 
-#: the bench-time budget of an adaptive session (the README's example spends 4.33 s)
+#: the bench-time budget of an adaptive session (docs/design.md's example spends 4.33 s)
 ADAPTIVE_SECONDS = 4.5
 
 
