@@ -169,8 +169,9 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     spec, point, settings, bench = open_design(args)
     with bench:
         check = bench.goniometer.check
+        # nor one the detector saturates at the shortest integration (each longer one leaves out more)
         candidates = reachable(candidate_grid(args.step), check, settings[0], bench.config,
-                               max(s.integration_s for s in settings))  # nor one the detector would saturate at
+                               min(s.integration_s for s in settings))
         if not candidates:
             raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
         everything = information(point, candidates, bench_reading_model(bench, settings[0])).total(range(len(candidates)))

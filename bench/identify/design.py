@@ -35,6 +35,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError, SpecimenError
 from bench.core.geometry import Geometry
+from bench.exposure import unsaturated
 from bench.identify.design_noise import ReadingModel
 from bench.identify.prediction import predicted_brdf
 from bench.identify.time_model import ReadingSettings, TimeModel
@@ -418,7 +419,10 @@ def design_for_bench(model: ModelPoint, bench: Any, candidates: Sequence[Geometr
     has its own noise and time per point; the one with the largest criterion wins. Raises as
     :func:`design_plan` when none fits the budget. With ``max_seconds`` (wall clock) the search
     stops once a design exists and the time has passed, with the best design so far and the
-    reason in :attr:`Design.stopped`."""
+    reason in :attr:`Design.stopped`. Each way of reading chooses among the candidates the bench's
+    detector does not saturate at its integration time (as ``bench plan`` and ``bench scan`` refuse:
+    :func:`bench.exposure.unsaturated`), so a short integration may take a bright point a long one
+    may not."""
     from bench.identify.design_noise import bench_reading_model
     from bench.identify.time_model import bench_time_model
 
@@ -435,9 +439,15 @@ def design_for_bench(model: ModelPoint, bench: Any, candidates: Sequence[Geometr
         tried += 1
         readings = bench_reading_model(bench, s)
         sens = sens or prior_sensitivities(model.prior_points(), pool, readings)
+        config = getattr(bench, "config", None)
+        ok = set(unsaturated(list(candidates), config, s.integration_s)) if config is not None else set(candidates)
+        keep = [i for i, g in enumerate(candidates) if g in ok] + list(range(len(candidates), len(pool)))
         try:
-            d = design_plan(model, candidates, readings, bench_time_model(bench, s), seconds, criterion_name,
-                            seed_points, sens, shared_scale, deadline)
+            if not ok:
+                raise ConfigError(f"every candidate point saturates the detector at {s.integration_s:g} s")
+            d = design_plan(model, [pool[i] for i in keep if i < len(candidates)], readings,
+                            bench_time_model(bench, s), seconds, criterion_name, seed_points,
+                            [Sensitivities(x.brdf[keep], x.jacobian[keep]) for x in sens], shared_scale, deadline)
         except ConfigError as exc:
             error = error or exc
             continue

@@ -153,9 +153,10 @@ def measure(model: str, description: Mapping[str, Any], *, seeds: Sequence[int] 
                     raise InputError(f"bench {bench.name!r} refuses the uniform plan: {refusal_message(uniform, refused)}")
                 times = bench_time_model(bench, like)
                 budget = times.seconds(list(uniform.points))["seconds"]
-                # the candidates bench plan --design takes: none the detector saturates at the longest integration
+                # the candidates bench plan --design takes: none the detector saturates at the shortest
+                # integration (each longer one the design tries leaves out more)
                 candidates = reachable(candidate_grid(), bench.goniometer.check, settings[0], bench.config,
-                                       max(INTEGRATIONS))
+                                       min(INTEGRATIONS))
                 if not designs:  # the prior's designs do not depend on the seed
                     for key, (share, crit) in _DESIGNED.items():
                         if key in methods:
