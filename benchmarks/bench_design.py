@@ -3,7 +3,8 @@ the sequential design, on the emulated bench (real drivers over the wire emulato
 
 Specimen ``plastic:alpha=0.15,kd=0.5`` (eta = 1.5), model ``plastic:alpha=?,kd=?``. The designs
 start from the family's declared defaults (alpha = 0.1, kd = 0.5) as the prior -- a guess, not the
-truth; the sequential design corrects it from its own fits. Every plan is scanned on the emulated
+truth -- and average their criterion over the prior range around it (each free parameter / 4 .. x 4,
+``bench plan --design``'s default); the sequential design corrects the guess from its own fits. Every plan is scanned on the emulated
 body with emulator seeds 7, 8, 9 and fitted with the bench's likelihood
 (:func:`bench.identify.design_sequential.fit_readings`: the readings' full covariance). Bench time is
 ``bench plan``'s estimate. Reported: median and range over the seeds of each 95 % interval width,
