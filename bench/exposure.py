@@ -208,6 +208,19 @@ def resolve_integration(plan: Plan, d: Mapping[str, Any]) -> Plan:
     return replace(plan, integration_s=t, integration_auto=False, source={**dict(plan.source), "integration_s": t})
 
 
+def starting_integration(d: Mapping[str, Any], preferred: float = 0.1) -> float:
+    """The integration time (s) a detector device starts with before anyone sets one:
+    ``preferred``, or the longest below it (two significant digits, rounded down) at which the
+    white standard it measures first keeps its margin below full scale -- so a Bluesky plan run
+    with the defaults is not refused for a number nobody chose."""
+    plan = Plan(name="defaults", kind="list", points=(), integration_s=float(preferred), averages=1, dark="once",
+                white="once")
+    e = predict_exposure(plan, d, white=True)
+    if e is None or not e.saturates:
+        return float(preferred)
+    return min(float(preferred), _floor_2_digits(e.longest_integration()))
+
+
 def _floor_2_digits(x: float) -> float:
     if x <= 0:
         return 0.0

@@ -45,10 +45,10 @@ from bench.bluesky.worker import BenchWorker
 from bench.calibration_chain import decide_calibration, stored_white
 from bench.config import Bench
 from bench.core.calibration import Calibration
-from bench.core.errors import BenchError, ConfigError
+from bench.core.errors import BenchError, ConfigError, GeometryError
 from bench.core.records import json_default
 from bench.core.roles import Reading
-from bench.exposure import check_exposure
+from bench.exposure import check_exposure, starting_integration
 from bench.plans import DARK_MODES, WHITE_MODES, Plan
 from bench.runner import acquire_dark, measure_calibration
 
@@ -126,14 +126,15 @@ class ReadingSettings:
     @classmethod
     def for_bench(cls, bench: Bench) -> "ReadingSettings":
         """Defaults that match the bench's stored white reading (``[white] reference_file``):
-        its integration time, averages and dark treatment; else 0.1 s, 1, ``once``. A file that
-        cannot be read keeps the defaults (staging then refuses it in one line)."""
+        its integration time, averages and dark treatment; else 0.1 s (less where the white it
+        measures first would saturate at 0.1 s: :func:`bench.exposure.starting_integration`), 1,
+        ``once``. A file that cannot be read keeps the defaults (staging then refuses it in one line)."""
         try:
             ref = stored_white(bench)
         except (BenchError, OSError):
             ref = None
         if ref is None:
-            return cls()
+            return cls(integration_s=starting_integration(bench.config, cls.integration_s))
         return cls(float(ref.white.integration_s), int(ref.white.averages), "once" if ref.dark is not None else "none")
 
     def set_integration_s(self, value: float) -> None:
@@ -292,7 +293,12 @@ class ReflectanceDevice(_SpectralReadable):
             # the white it measures now and the first trigger, at the setpoint (a count reads only there),
             # predicted as bench scan predicts a plan's: refused before any motion when they would saturate
             setpoint = self._mover.geometry_of(self._mover.target)
-            check_exposure(replace(plan, points=(setpoint,)), self._bench.config)
+            try:  # a parked setpoint is never read at (a scan moves the arm first; a count is refused there)
+                self._bench.goniometer.check(setpoint)
+                first: tuple = (setpoint,)
+            except GeometryError:
+                first = ()
+            check_exposure(replace(plan, points=first), self._bench.config)
         except BenchError as exc:
             raise type(exc)(f"{self.name} (integration_s {plan.integration_s:g} s, averages {plan.averages}, "
                             f"dark_mode {plan.dark!r}, white_mode {plan.white!r}): {exc}") from None
