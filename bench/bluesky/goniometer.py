@@ -146,6 +146,10 @@ class Mover:
             changes, self._pending = self._pending, {}
         g = self.check(**changes)  # the combined target, before any byte; refused -> target kept
         self.target.update(changes)
+        return await self._move(g)
+
+    async def _move(self, g: Geometry) -> Geometry:
+        """Move to ``g`` on the worker and publish the read-back (after a fault: read it back)."""
         self.moves += 1
         try:
             reached = await self.worker.run(self.goniometer.move_to, g)
@@ -170,14 +174,7 @@ class Mover:
             self.goniometer.check(g)
         except GeometryError:
             return now
-        self.moves += 1
-        try:
-            reached = await self.worker.run(self.goniometer.move_to, g)
-        except BaseException:
-            await self.refresh()
-            raise
-        self._publish(reached)
-        return reached
+        return await self._move(g)
 
     def check_at_setpoint(self) -> Geometry:
         """The geometry a trigger reads at: the read-back, refused (no reading) when it is not the
