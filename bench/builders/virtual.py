@@ -5,6 +5,7 @@ cone, as the emulated spectrometer averages it), else the collector patch of the
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Mapping
 
 from bench.builders.detector import described_bands, detector_settings, virtual_gain
@@ -67,7 +68,10 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     spectrometer: Any = EffectsSpectrometer(seen, detector) if detector is not None else seen
 
     def measure_whites(integration_s: float, averages: int, repeats: int) -> list[Reading]:
-        standard.move_to(white.geometry)
+        # a new position each time the standard is mounted: its first reading is not a repeated
+        # trigger of the last white's (bench.builders.instrument.ApertureReading), so a white reads
+        # the same whichever whites came before it (a rerun of a failed step as if uninterrupted)
+        standard.move_to(dataclasses.replace(white.geometry))
         out = []
         for _ in range(repeats):  # each a lit reading: the lamp drifts between them as between points
             reading = white_seen.acquire(integration_s, averages)
