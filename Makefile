@@ -9,6 +9,9 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.goniobench-installed
+# The docs site's generator (the `docs` extra): installed by `make docs` and `make test-slow` (which
+# builds the site), not by `make test`, whose fresh-clone time it would lengthen.
+DOCS_STAMP := $(VENV)/.goniobench-docs-installed
 WORKERS ?= 2
 PYTEST := $(BIN)/python -m pytest -q -n $(WORKERS) --dist worksteal
 
@@ -33,7 +36,7 @@ $(BIN)/python:
 # compile every imported module from source in every process. (A file it cannot compile -- some
 # packages ship Python 2 fixtures -- is skipped as pip skips it.)
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet --no-compile -e ".[test,scale,parquet,mitsuba,bluesky,tiled,docs]"
+	$(BIN)/python -m pip install --quiet --no-compile -e ".[test,scale,parquet,mitsuba,bluesky,tiled]"
 	@$(BIN)/python -m compileall -q -j 0 "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" \
 	  >/dev/null 2>&1 || true
 	touch $(STAMP)
@@ -51,7 +54,11 @@ demo: install
 test: install llvm
 	$(PYTEST) -m "not slow"
 
-test-slow: install llvm
+$(DOCS_STAMP): pyproject.toml | $(STAMP)
+	$(BIN)/python -m pip install --quiet --no-compile -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+test-slow: install llvm $(DOCS_STAMP)
 	$(PYTEST) -m slow
 
 test-all: test test-slow
@@ -67,7 +74,7 @@ soak: install
 
 # The generated blocks of the README and docs/ (the specimen-family table) rewritten from the
 # declarations, then the docs site (mkdocs.yml) built into build/site with warnings as errors.
-docs: $(STAMP)
+docs: $(DOCS_STAMP)
 	$(BIN)/python -m bench.docs
 	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict --quiet
 
