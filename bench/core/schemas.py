@@ -9,6 +9,7 @@ the devices (reachability, specimen parameters); the shape of the file is checke
 
 from __future__ import annotations
 
+import datetime as _dt
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Mapping, TypeVar, Union, get_args
 
 from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, create_model,
@@ -227,8 +228,6 @@ class CheckTable(Table):
 
 
 def _iso_date(v: Any) -> Any:
-    import datetime as _dt
-
     if isinstance(v, _dt.date):
         return v.isoformat()
     if not isinstance(v, str):
