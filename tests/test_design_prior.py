@@ -59,10 +59,14 @@ def test_mean_criterion_averages_each_points_criterion():
     assert mean_criterion(singular, "D")[0] == -math.inf and math.isfinite(mean_criterion(singular, "D")[1])
 
 
-def test_the_cli_default_prior_range_is_the_designs():
+def test_the_cli_defaults_are_the_designs():
+    """The CLI states the design's defaults without importing the design code: the copies agree."""
+    from bench.cli.design import DEFAULT_INTEGRATIONS as CLI_INTEGRATIONS
     from bench.cli.design import PRIOR_SPREAD as CLI_SPREAD
+    from bench.identify.time_model import DEFAULT_INTEGRATIONS
 
     assert CLI_SPREAD == PRIOR_SPREAD
+    assert CLI_INTEGRATIONS == DEFAULT_INTEGRATIONS
 
 
 def _emulated(spec: str) -> dict:

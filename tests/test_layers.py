@@ -77,13 +77,37 @@ def test_every_module_sits_in_a_layer():
     assert uncovered(modules, _layer_modules(), roots) == []
 
 
+def _layer_index(module: str) -> int:
+    layers = _contracts()["layers"]["layers"]
+    return next(i for i, layer in enumerate(layers)
+                if module in [m.strip() for part in layer.split("|") for m in part.split(":")])
+
+
 def test_identification_is_an_application_package():
     """bench.identify (fit) builds on virtual and compare, so it sits in the application layer,
     above them: virtual, drivers, compare and bench.core cannot import it."""
     layers = _contracts()["layers"]["layers"]
-    app = next(i for i, layer in enumerate(layers) if "bench.cli" in layer)
-    assert "bench.identify" in [m.strip() for m in layers[app].split(":")]
+    app = _layer_index("bench.identify")
+    assert app == _layer_index("bench.plans")
     assert any("virtual" in layer for layer in layers[app + 1:])
+
+
+def test_the_cli_is_on_top_and_nothing_imports_it():
+    """The CLI sits in the entry-point layer, right under benchmarks and above the whole
+    application, independent of the other entry points; and a forbidden contract says that no
+    module of the project (the root ``bench`` package included) imports it."""
+    layers = _contracts()["layers"]["layers"]
+    cli = _layer_index("bench.cli")
+    assert layers[cli - 1] == "benchmarks" and cli == _layer_index("bench.identify") - 1
+    assert ":" not in layers[cli]  # the entry points are independent of each other
+    assert _layer_index("bench.pytest_plugin") == _layer_index("bench.docs") == cli
+    forbidden = _contracts()["nothing-imports-the-cli"]
+    assert forbidden["type"] == "forbidden" and forbidden["forbidden_modules"] == ["bench.cli", "bench.cli.**"]
+    roots = set(_config()["root_packages"]) - {"benchmarks"}
+    assert set(forbidden["source_modules"]) == roots | {r + ".**" for r in roots}
+    assert forbidden["as_packages"] is False  # else the root `bench` contains bench.cli and is skipped
+    # only the CLI's own imports of itself are ignored
+    assert all(rule.split("->")[0].strip() in ("bench.cli", "bench.cli.**") for rule in forbidden["ignore_imports"])
 
 
 @pytest.mark.parametrize("module", ["bench.new_command", "benchmarks_extra", "plants.leaf"])
@@ -109,19 +133,25 @@ def test_import_linter_contracts_hold():
     assert "0 broken" in proc.stdout
 
 
-def test_a_back_arrow_breaks_the_contract(tmp_path):
-    """Power: the same contracts, run on a copy of the tree where bench.core imports the
-    application, fail."""
+@pytest.mark.parametrize("module, arrow", [
+    ("bench/core/errors.py", "bench.store"),  # the contract imports the application
+    ("bench/plans.py", "bench.cli.common"),  # the application imports the CLI
+    ("bench/__init__.py", "bench.cli"),  # the root package imports the CLI
+])
+def test_a_back_arrow_breaks_the_contract(tmp_path, module, arrow):
+    """Power: the same contracts, run on a copy of the tree where a module imports a layer above
+    it, fail, naming the arrow."""
     import shutil
 
     for pkg in _config()["root_packages"]:
         shutil.copytree(ROOT / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
-    errors = tmp_path / "bench" / "core" / "errors.py"
-    errors.write_text(errors.read_text() + "\nimport bench.store  # a back-arrow\n")
+    path = tmp_path / module
+    path.write_text(path.read_text() + f"\nimport {arrow}  # a back-arrow\n")
     exe = Path(sys.executable).with_name("lint-imports")
     proc = subprocess.run([str(exe), str(tmp_path / "pyproject.toml")], cwd=tmp_path,
                           capture_output=True, text=True, timeout=300,
                           env={"PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"})
     assert proc.returncode != 0
-    assert "bench.core.errors -> bench.store" in proc.stdout  # broken for the back-arrow, not a setup error
+    importer = module.removesuffix(".py").removesuffix("/__init__").replace("/", ".")
+    assert f"{importer} -> {arrow}" in proc.stdout  # broken for the back-arrow, not a setup error

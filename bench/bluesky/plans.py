@@ -25,13 +25,12 @@ import bluesky.preprocessors as bpp
 
 from bench.bluesky.connect import METADATA_KEY, PLAN_KEY, Devices, jsonable
 from bench.bluesky.store_writer import StoreWriter
-from bench.cli.design import DEFAULT_INTEGRATIONS
 from bench.core.errors import InputError
 from bench.identify.design import CRITERIA
 from bench.identify.design_io import design_inputs
 from bench.identify.design_sequential import (AdaptiveSession, NextStep, parse_targets, session_candidates, session_key,
                                               stored_steps)
-from bench.identify.time_model import DEFAULT_STEP_DEG
+from bench.identify.time_model import DEFAULT_INTEGRATIONS, DEFAULT_STEP_DEG
 from bench.plans import Plan, load_plan, order_for_travel, plan_from_dict, validate
 from bench.store import RunStore
 

@@ -16,14 +16,13 @@ from bench.cli.common import add_force_option, check_output, emit_json, output_f
 from bench.core.errors import InputError
 
 #: the default prior range factor (bench.identify.design.PRIOR_SPREAD, not imported: the design code
-#: is imported only when a design is asked for); tests/test_design.py checks they agree
+#: is imported only when a design is asked for); tests/test_design_prior.py checks they agree
 PRIOR_SPREAD = 4.0
 
-__all__ = ["add_design_options", "add_adaptive_options", "refuse_unused", "cmd_plan_design", "cmd_scan_adaptive", "open_design",
-           "DEFAULT_INTEGRATIONS"]
+__all__ = ["add_design_options", "add_adaptive_options", "refuse_unused", "cmd_plan_design", "cmd_scan_adaptive", "open_design"]
 
-#: integration times a design chooses from by default (s): the shipped in-plane plan's 0.02 s and
-#: shorter and longer ones (shorter buys more points, longer less noise per point)
+#: the default integration times of a design (bench.identify.time_model.DEFAULT_INTEGRATIONS, not
+#: imported, as PRIOR_SPREAD); tests/test_design_prior.py checks they agree
 DEFAULT_INTEGRATIONS = "0.005,0.01,0.02,0.05"
 #: wall-clock limit of ``bench plan --design`` (s): the search then writes its best design so far
 DEFAULT_MAX_SECONDS = 120.0

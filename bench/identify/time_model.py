@@ -24,10 +24,14 @@ from bench.core.geometry import Geometry
 from bench.exposure import unsaturated
 from bench.plans import MotionProfile, Plan, default_joints, estimate, order_for_travel, plan_from_dict, refusals
 
-__all__ = ["ReadingSettings", "TimeModel", "candidate_grid", "reachable", "plan_of_points", "bench_time_model"]
+__all__ = ["ReadingSettings", "TimeModel", "candidate_grid", "reachable", "plan_of_points", "bench_time_model",
+           "DEFAULT_STEP_DEG", "DEFAULT_INTEGRATIONS"]
 
 #: the in-plane candidate grid's default step (deg): the shipped in-plane plan's theta_r step
 DEFAULT_STEP_DEG = 5.0
+#: integration times a design chooses from by default (s): the shipped in-plane plan's 0.02 s and
+#: shorter and longer ones (shorter buys more points, longer less noise per point)
+DEFAULT_INTEGRATIONS = "0.005,0.01,0.02,0.05"
 
 
 @dataclass(frozen=True)
