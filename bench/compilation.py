@@ -247,7 +247,8 @@ def _spectral_batches() -> None:
     from virtual.beam import Beam
     from virtual.collector import Collector
     from virtual.engine import gonio_counts_spectral, measurement_seed
-    from virtual.specimens import MODEL_GGX, MODEL_LAMBERT, parse_specimen
+    from virtual.model_ids import MODEL_GGX, MODEL_LAMBERT
+    from virtual.specimens import parse_specimen
 
     beam, col = Beam("conical"), Collector("equal-psa", 3, 6)
     lam, ggx = parse_specimen("lambert:albedo=0.5").params(550.0), parse_specimen("ggx:alpha=0.2").params(550.0)

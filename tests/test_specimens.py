@@ -22,9 +22,10 @@ from virtual.kernels.patch_lookup import patch_of
 from virtual.kernels import jit
 from virtual.quadrature import integrate_patches
 from virtual.rng import stream_states
+from virtual.kernels.scatter import scatter
+from virtual.model_ids import MODEL_LAMBERT
 from virtual.specimens import (
     GGX,
-    MODEL_LAMBERT,
     AnisoGGX,
     Lambertian,
     OrenNayar,
@@ -33,7 +34,6 @@ from virtual.specimens import (
     RoughPlastic,
     Spectral,
     parse_specimen,
-    scatter,
 )
 
 WL = 550.0

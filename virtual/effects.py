@@ -3,7 +3,7 @@
 A scene (:mod:`virtual.scene`) that declares no per-ray effect never comes here: it runs the
 bare kernels of :mod:`virtual.engine` at their full speed. A scene that declares some runs
 :func:`spectro_effect_counts` / :func:`gonio_effect_counts`, whose loop is the bare loop --
-:func:`~virtual.beam.emit`, :func:`~virtual.specimens.scatter`, :func:`~virtual.kernels.patch_lookup.patch_of`,
+:func:`~virtual.beam.emit`, :func:`~virtual.kernels.scatter.scatter`, :func:`~virtual.kernels.patch_lookup.patch_of`,
 reused, not copied -- plus one predictable branch per *declared* effect (an undeclared effect
 costs a bit test per ray and draws no random number). Effects handled per ray (bit flags; the
 parameter vector ``e`` is read through the named indices ``E_*`` of :mod:`virtual.kernels.ray_loop`):

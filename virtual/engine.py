@@ -15,7 +15,7 @@ Two kernel shapes:
 * block (``gonio_block_kernel``), the goniophotometer's fast path: rays go through in blocks of
   :data:`BLOCK_RAYS`. The block's uniforms are drawn first, 64 xoshiro lanes side by side
   (:func:`~virtual.kernels.xoshiro.fill_uniforms`); then one branch-free loop emits (polar disks), scatters
-  (:func:`~virtual.specimens.scatter_given`) and bins (:func:`~virtual.kernels.patch_lookup.guess_bin`)
+  (:func:`~virtual.kernels.scatter.scatter_given`) and bins (:func:`~virtual.kernels.patch_lookup.guess_bin`)
   every ray, which LLVM compiles to AVX-512/AVX2 code; then a short scalar loop adds the bins
   to the histogram, settling the rare uncertain bin with the exact
   :func:`~virtual.kernels.patch_lookup.patch_of`. Only the surviving rays are binned (compacted first).

@@ -22,15 +22,13 @@ ignored raises :class:`~bench.core.errors.SpecimenError` naming it.
 Adding a kernel model: declare its class (here or in your own module, with
 :func:`register_specimen`), give it an id in :mod:`virtual.model_ids` and write its branch in
 :mod:`virtual.kernels.scatter`. A lab's model
-without a kernel declares ``model = MODEL_PYTHON`` and a ``sample`` method.
+without a kernel declares ``model = MODEL_PYTHON`` (exported here) and a ``sample`` method. The
+native families' ids are in :mod:`virtual.model_ids`, the kernel face in :mod:`virtual.kernels`.
 """
 
 from __future__ import annotations
 
-from typing import Any
-
-from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_LEAF,
-                               MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON)
+from virtual.model_ids import MODEL_PYTHON
 from virtual.specimens.declare import (SPECIMENS, DeclaredSpecimen, Param, Specimen, Spectral, register_specimen,
                                        specimen_families, specimen_family, specimen_table_markdown)
 from virtual.specimens.diffuse import Lambertian, OrenNayar, Phong
@@ -42,22 +40,8 @@ from virtual.specimens.strings import known_specimen_names, parse_specimen
 __all__ = [
     "Spectral", "Param", "Specimen", "DeclaredSpecimen", "register_specimen", "specimen_family",
     "specimen_families", "specimen_table_markdown", "known_specimen_names", "parse_specimen", "SPECIMENS",
+    "MODEL_PYTHON",
     "Lambertian", "OrenNayar", "Phong", "GGX", "AnisoGGX", "RoughPlastic", "RoughDielectric", "Leaf",
     "MitsubaRoughPlastic",
     "ALPHA_MIN", "ALPHA_MAX",
-    # kernel face, re-exported for the callers of the old single module
-    "scatter", "scatter_given", "GIVEN_MODELS", "GIVEN_UNIFORMS", "MODEL_LAMBERT", "MODEL_OREN_NAYAR",
-    "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX", "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_PYTHON",
 ]
-
-#: the kernel face, loaded on first use: importing it loads numba (~0.5 s), which declaring,
-#: parsing and listing specimens do not need
-_KERNEL_FACE = ("scatter", "scatter_given", "GIVEN_MODELS", "GIVEN_UNIFORMS")
-
-
-def __getattr__(name: str) -> Any:
-    if name in _KERNEL_FACE:
-        from virtual.kernels import scatter as kernels
-
-        return getattr(kernels, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
