@@ -5,7 +5,7 @@ goes through the one CSV writer of :mod:`bench.io`, ``--plot`` through :mod:`com
 
 ``bench gonio --uncertainty V`` is a *relative* uncertainty of each patch's BSDF: a pilot run
 estimates the patch probabilities, and N is sized (:func:`virtual.bounds.relative_patch_rays`)
-so the least-populated patch of interest (pilot probability >= :data:`INTEREST_FRACTION` of the
+so the least-populated patch of interest (pilot probability >= :data:`bench.adaptive.INTEREST_FRACTION` of the
 brightest patch's) has an interval of relative half-width about V; patches that would need more
 than ``--max-seconds`` allows are named. ``--patch-probability-uncertainty V`` keeps eq. 3.12's
 meaning (V bounds each patch's *probability*, an absolute quantity: a dim patch's BSDF may be
@@ -30,13 +30,7 @@ from bench.core.errors import InputError
 # (eq. 3.5 in decimals) and the parsing of spectro's and gonio's arguments do not pay for them.
 
 __all__ = ["register", "cmd_rays", "cmd_spectro", "cmd_gonio", "gonio_json", "spectrum_colour", "n_label",
-           "reciprocity_note", "INTEREST_FRACTION", "PILOT_RAYS", "RAYS_PER_SECOND"]
-
-#: a patch is "of interest" to ``--uncertainty`` when its pilot probability is at least this
-#: fraction of the brightest patch's
-INTEREST_FRACTION = 0.01
-#: rays of the pilot run that estimates the patch probabilities
-PILOT_RAYS = 200_000
+           "reciprocity_note", "RAYS_PER_SECOND"]
 
 
 def cmd_rays(args: argparse.Namespace) -> int:
@@ -115,12 +109,12 @@ def cmd_spectro(args: argparse.Namespace) -> int:
         _refuse_long(sp, parse_wavelengths(args.wavelengths).size, args.max_seconds, "--rays" if args.rays is not None else "the ray budget")
     adaptive = None
     if args.rays is None and not args.no_adaptive:  # --uncertainty/--delta: the adaptive rule
-        from bench.adaptive import adaptive_measure
+        from bench.adaptive import measure_adaptively
 
-        adaptive = adaptive_measure(sp, args.uncertainty, args.delta, geometry=args.geometry,
-                                    wavelengths=args.wavelengths, max_seconds=args.max_seconds,
-                                    progress=stderr_is_terminal())
-        s = adaptive["result"]
+        adaptive = measure_adaptively(sp, args.uncertainty, args.delta, geometry=args.geometry,
+                                      wavelengths=args.wavelengths, max_seconds=args.max_seconds,
+                                      progress=stderr_is_terminal())
+        s = adaptive.result
     elif stderr_is_terminal():  # progress with an ETA, one step per wavelength
         from functools import partial
 
@@ -158,7 +152,9 @@ def cmd_spectro(args: argparse.Namespace) -> int:
     if note:
         print(note)
     if adaptive:
-        print(adaptive["message"])
+        from bench.adaptive import adaptive_message
+
+        print(adaptive_message(adaptive))
     q = "RF" if s.meta.get("quantity") == "reflectance factor" else "R"
     print(f"{'nm':>7} {q:>8} {'[lo, hi]':>20} {'T':>8} {'[lo, hi]':>20} {'N':>9}")
     for i, w in enumerate(s.wavelengths):
@@ -226,53 +222,8 @@ def gonio_json(record: Any) -> dict[str, Any]:
             "by_wavelength": m["totals"], "patches": patches}
 
 
-def _by_value(t: Any, brightest_first: bool = True) -> Any:
-    """Patches ordered by BSDF value, the same way on every CPU: values equal to 10 significant
-    digits are ties (a Lambertian's patches of equal counts, whose exact PSAs differ in the last
-    bits by CPU, as numpy's vectorized trigonometry does), in hemisphere, theta, phi order."""
-    return (t.assign(_key=[float(f"{v:.10g}") for v in t.value])
-            .sort_values(["_key", "hemisphere", "theta_r", "phi_r"], ascending=[not brightest_first, True, True, True],
-                         kind="stable"))
-
-
-def _relative_widths(record: Any) -> dict[str, Any]:
-    """Relative half-width ``(ci_hi - ci_lo) / (2 value)`` of the brightest patch and of the
-    dimmest patch of interest (value >= INTEREST_FRACTION x brightest), first wavelength."""
-    t = record.table
-    t = t[(t.wavelength_nm == t.wavelength_nm.iloc[0]) & (t.value > 0)]
-    top = float(t.value.max())
-    sel = t[t.value >= INTEREST_FRACTION * top]
-    rel = (sel.ci_hi - sel.ci_lo) / (2.0 * sel.value)
-    b, d = _by_value(sel).iloc[0], _by_value(sel, brightest_first=False).iloc[0]
-    return {"brightest": {"theta": float(b.theta_r), "phi": float(b.phi_r), "value": float(b.value),
-                          "relative_half_width": float(rel[b.name])},
-            "dimmest_of_interest": {"theta": float(d.theta_r), "phi": float(d.phi_r), "value": float(d.value),
-                                    "relative_half_width": float(rel[d.name])},
-            "patches_of_interest": int(len(sel)), "max_relative_half_width": float(rel.max())}
-
-
-def _relative_rays(args: argparse.Namespace, theta_i: float, phi_i: float, kw: dict[str, Any]) -> dict[str, Any]:
-    """The ray count for a relative BSDF uncertainty (see the module docstring)."""
-    import numpy as np
-
-    from virtual.bounds import relative_patch_rays
-    from virtual.goniophotometer import VirtualGoniophotometer
-
-    pilot_seed = None if args.seed is None else int(args.seed) + 1  # the pilot's rays are not reused
-    pilot = VirtualGoniophotometer(args.specimen, **{**kw, "rays": PILOT_RAYS, "seed": pilot_seed})
-    t = pilot.measure_bsdf(theta_i, phi_i).table
-    p = t["count"].to_numpy(float) / t["N"].to_numpy(float)
-    interest = p >= INTEREST_FRACTION * p.max()
-    cap = int(args.max_seconds * RAYS_PER_SECOND)
-    plan = relative_patch_rays(p[interest], args.uncertainty, args.delta, max_rays=cap)
-    idx = np.flatnonzero(interest)[plan["unreachable"]]
-    plan["unreachable_patches"] = [(float(t.theta_r.iloc[i]), float(t.phi_r.iloc[i])) for i in idx]
-    plan.update(patches_of_interest=int(interest.sum()), patches=int(len(p)), pilot_rays=PILOT_RAYS)
-    return plan
-
-
 def cmd_gonio(args: argparse.Namespace) -> int:
-    from virtual.goniophotometer import VirtualGoniophotometer
+    from bench.adaptive import choose_gonio_budget, measure_gonio
 
     theta_i, phi_i = args.incidence
     warn_if_radians("--incidence", [theta_i] + ([phi_i] if phi_i else []))
@@ -280,43 +231,16 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     kw: dict[str, Any] = {"collector": args.collector, "beam": args.beam, "seed": args.seed, "delta": args.delta,
                           "wavelengths": args.wavelengths, "method": args.method,
                           "common_random_numbers": args.common_random_numbers}
-    relative = None
-    if args.rays is not None:
-        kw["rays"] = args.rays
-    elif args.uncertainty is not None:
-        relative = _relative_rays(args, theta_i, phi_i, kw)
-        kw["rays"] = relative["N"]
-    elif args.patch_probability_uncertainty is not None:
-        kw["uncertainty"] = args.patch_probability_uncertainty
-    g = VirtualGoniophotometer(args.specimen, **kw)
-    adaptive_rule = args.patch_probability_uncertainty is not None and not args.no_adaptive
-    if relative is None and not adaptive_rule:  # the relative and adaptive budgets bound their own time
+    budget = choose_gonio_budget(args.specimen, theta_i, phi_i, kw, rays=args.rays,
+                                 relative_uncertainty=args.uncertainty,
+                                 patch_probability_uncertainty=args.patch_probability_uncertainty, delta=args.delta,
+                                 adaptive=not args.no_adaptive, max_seconds=args.max_seconds,
+                                 rays_per_second=RAYS_PER_SECOND)
+    g = budget.instrument(args.specimen)
+    if not budget.bounds_its_time:
         _refuse_long(g, len(g.wavelengths), args.max_seconds, "--rays" if args.rays is not None else "the ray budget")
-    adaptive = None
-    if adaptive_rule:
-        from bench.adaptive import adaptive_measure
-
-        adaptive = adaptive_measure(g, args.patch_probability_uncertainty, args.delta, theta_i=theta_i,
-                                    phi_i=phi_i, max_seconds=args.max_seconds, progress=stderr_is_terminal())
-        record = adaptive["result"]
-    else:
-        # progress with an ETA, one step per wavelength (a spectral batch is one step: no bar); the counts
-        # are cached per (incidence, wavelength), measure_bsdf reuses them
-        if stderr_is_terminal() and not g.uses_fast_path() and not g.batches_wavelengths:
-            from tqdm import tqdm
-
-            for w in tqdm(g.wavelengths, desc="gonio", unit="wl", leave=False, dynamic_ncols=True):
-                g.simulate(theta_i, phi_i, float(w))
-        record = g.measure_bsdf(theta_i, phi_i)
-    widths = _relative_widths(record)
-    if relative is not None:
-        mode = {"mode": "relative BSDF", "v": args.uncertainty, "delta": args.delta, **relative}
-    elif args.patch_probability_uncertainty is not None:
-        mode = {"mode": "patch probability (eq. 3.12)", "v": args.patch_probability_uncertainty, "delta": args.delta}
-    else:
-        mode = {"mode": "fixed rays", "N": int(record.meta["rays"])}
-    record.meta.update(body="virtual", bench_name="virtual-gonio", plan_name="gonio",
-                       incidence=[theta_i, phi_i])
+    res = measure_gonio(g, budget, theta_i, phi_i, max_seconds=args.max_seconds, progress=stderr_is_terminal())
+    record = res.record
     if args.csv:  # the one tidy CSV (metadata and units in FILE.json), as bench export writes it
         from bench.io import record_to_csv
 
@@ -328,45 +252,52 @@ def cmd_gonio(args: argparse.Namespace) -> int:
         plot_bsdf_polar(record, args.plot)
     if args.json:
         out = gonio_json(record)
-        if adaptive:
-            out["budget"] = _budget(adaptive)
-        out["uncertainty"] = mode
-        out["achieved"] = widths
+        if res.adaptive:
+            out["budget"] = _budget(res.adaptive)
+        out["uncertainty"] = res.uncertainty
+        out["achieved"] = res.achieved
         out["run_id"] = stored
         emit_json(out)
         return 0
-    m = record.meta
     if stored:
         print(f"run {stored} stored in {args.store} (bench runs / show / export / serve)")
+    _print_gonio(res, args.max_seconds)
+    return 0
+
+
+def _print_gonio(res: Any, max_seconds: float) -> None:
+    """The text report of ``bench gonio`` (a :class:`bench.adaptive.GonioMeasurement`)."""
+    from bench.adaptive import INTEREST_FRACTION, PILOT_RAYS, adaptive_message, by_value
+
+    g, m, budget, relative = res.instrument, res.record.meta, res.budget, res.budget.relative
+    theta_i, phi_i = res.incidence
     print(f"specimen {m['specimen']}  incidence ({theta_i:g}, {phi_i:g}) deg  collector {g.collector}  "
           f"beam {g.beam.kind}  N = {m['rays']:,}  method {m['method']} ({m.get('kernel')} kernel)  seed {g.seed}  "
           f"streams {'common to every specimen' if g.common_random_numbers else 'per specimen'}")
     if relative is not None:
-        print(f"uncertainty: relative BSDF half-width {args.uncertainty:g} per patch of interest (pilot probability "
+        print(f"uncertainty: relative BSDF half-width {budget.v:g} per patch of interest (pilot probability "
               f">= {INTEREST_FRACTION:g} x the brightest: {relative['patches_of_interest']} of {relative['patches']} "
-              f"patches), each patch's {1 - args.delta:g} interval; N from a {PILOT_RAYS:,}-ray pilot")
+              f"patches), each patch's {1 - budget.delta:g} interval; N from a {PILOT_RAYS:,}-ray pilot")
         if relative["capped"]:
             names = ", ".join(f"({t:.1f}, {p:.1f})" for t, p in relative["unreachable_patches"][:8])
             print(f"  cannot meet it for {len(relative['unreachable_patches'])} patches within --max-seconds "
-                  f"{args.max_seconds:g} ({relative['needed']:,} rays needed; capped at {relative['N']:,}): {names}")
-    elif args.patch_probability_uncertainty is not None:
-        print(f"uncertainty: patch probability (eq. 3.12) v = {args.patch_probability_uncertainty:g} -- an absolute "
+                  f"{max_seconds:g} ({relative['needed']:,} rays needed; capped at {relative['N']:,}): {names}")
+    elif budget.kind != "fixed rays":
+        print(f"uncertainty: patch probability (eq. 3.12) v = {budget.v:g} -- an absolute "
               f"bound on each patch's probability, not on its BSDF")
-    if adaptive:
-        print(adaptive["message"])
-    b, d = widths["brightest"], widths["dimmest_of_interest"]
+    if res.adaptive:
+        print(adaptive_message(res.adaptive))
+    b, d = res.achieved["brightest"], res.achieved["dimmest_of_interest"]
     print(f"  achieved relative half-width: brightest patch ({b['theta']:.1f}, {b['phi']:.1f}) "
           f"{b['relative_half_width']:.3g}; dimmest patch of interest ({d['theta']:.1f}, {d['phi']:.1f}) "
           f"{d['relative_half_width']:.3g}")
     for tot in m["totals"]:
         print(f"  {tot['wavelength_nm']:7.1f} nm  reflectance {tot['reflectance']:.5f}  "
               f"transmittance {tot['transmittance']:.5f}  absorbed {tot['absorbed']:,}  {_method_note(tot)}")
-    t = record.table
-    top = _by_value(t).head(5)
+    top = by_value(res.record.table).head(5)
     print("  brightest patches (hemisphere, theta, phi, BSDF [1/sr], interval):")
     for r in top.itertuples(index=False):
         print(f"    {r.hemisphere}  {r.theta_r:6.2f} {r.phi_r:7.2f}  {r.value:.5g}  [{r.ci_lo:.5g}, {r.ci_hi:.5g}]")
-    return 0
 
 
 def _store_spectrum(args: argparse.Namespace, s: Any) -> str:
@@ -412,8 +343,10 @@ def _method_note(tot: dict[str, Any]) -> str:
     return "[rays]"
 
 
-def _budget(adaptive: dict[str, Any]) -> dict[str, Any]:
-    return {k: adaptive[k] for k in ("N", "hoeffding_N", "saved_rays", "saved_fraction", "per_wavelength", "mode")}
+def _budget(adaptive: Any) -> dict[str, Any]:
+    """The ``budget`` object of ``--json`` (a :class:`bench.adaptive.AdaptiveOutcome`)."""
+    return {k: getattr(adaptive, k) for k in ("N", "hoeffding_N", "saved_rays", "saved_fraction", "per_wavelength",
+                                              "mode")}
 
 
 def _run_options(p: argparse.ArgumentParser) -> None:
