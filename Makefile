@@ -15,7 +15,7 @@ DOCS_STAMP := $(VENV)/.goniobench-docs-installed
 WORKERS ?= 2
 PYTEST := $(BIN)/python -m pytest -q -n $(WORKERS) --dist worksteal
 
-.PHONY: install demo test test-slow test-all bench-perf soak llvm docs clean
+.PHONY: install demo test test-slow test-all bench-perf soak llvm docs kernels clean
 
 # Mitsuba's LLVM variants (the benchmark's anchor, vectorized Mitsuba specimens) need a libLLVM:
 # Debian's libllvm19, installed here when missing and apt-get can (as root); never fatal --
@@ -47,6 +47,12 @@ $(STAMP): pyproject.toml | $(BIN)/python
 install: $(STAMP)
 	@$(BIN)/python -m compileall -q bench virtual drivers compare >/dev/null
 	$(BIN)/python -m bench.compilation
+
+# The kernel code written from the scattering laws (virtual/kernels/laws/*.py): their float32 twins,
+# every kernel path's dispatch and the numba-free law table. Run after adding or editing a law;
+# tests/test_kernels_generated.py fails while the checked-in files are stale.
+kernels: | $(STAMP)
+	$(BIN)/python -m virtual.kernels.generate
 
 demo: install
 	$(BIN)/bench demo --out demo-out

@@ -9,6 +9,7 @@ editing a value recompiles the kernels that use it). Specimen model ids are in
 
 from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_LEAF,
                                MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_ROUGHPLASTIC)
+from virtual.law_table import LAW_FLOAT32_MODELS, LAW_MODELS
 
 __all__ = ["BEAM_COLLIMATED", "BEAM_CONICAL", "DISK_POLAR", "DISK_REJECTION", "DISK_AUTO", "B_EMITTER_RADIUS",
            "B_SPECIMEN_RADIUS", "B_DISTANCE", "B_AXIS_X", "B_AXIS_Y", "B_AXIS_Z", "N_BEAM_ARGS",
@@ -87,11 +88,14 @@ COAT_MODELS = (MODEL_ROUGHPLASTIC, MODEL_LEAF)
 #: Models a block kernel runs (three uniforms each for the first, four for the second group; the
 #: plastic in :func:`~virtual.kernels.block64.gonio_block_chunk`, the COAT_MODELS in their own chunk).
 BLOCK_MODELS = GIVEN_MODELS + GIVEN4_MODELS + (MODEL_PLASTIC,) + COAT_MODELS
+#: ... and the laws of :mod:`virtual.kernels.laws` (every law has a block form)
+BLOCK_MODELS += tuple(m for m in LAW_MODELS if m not in BLOCK_MODELS)
 #: Parameters the block kernel passes to a model (as a tuple; shorter vectors are zero-padded).
 BLOCK_PARAMS = 6
 #: Models with a float32 form (the others run the float64 block or ray-by-ray kernel).
 BLOCK32_MODELS = (MODEL_LAMBERT, MODEL_GGX, MODEL_ANISO_GGX, MODEL_PHONG, MODEL_OREN_NAYAR, MODEL_DIELECTRIC,
                   MODEL_PLASTIC)
+BLOCK32_MODELS += tuple(m for m in LAW_FLOAT32_MODELS if m not in BLOCK32_MODELS)  # the laws with a float32 form
 #: Rays per block of the float32 kernel: up to 11 float32 uniforms and 6 float32 coordinates per ray stay in L1/L2.
 BLOCK32_RAYS = 1024
 

@@ -1,7 +1,8 @@
 """The specimen model ids: which branch of :func:`virtual.kernels.scatter.scatter` a specimen runs.
 
-Plain integers in a module that imports nothing, so that declaring, parsing and listing specimens
-(``bench specimens``) does not load numba; :mod:`virtual.kernels.scatter` re-exports them and
+Plain integers in a module that imports only the generated :mod:`virtual.law_table` (which imports
+nothing; the laws of :mod:`virtual.kernels.laws` declare their ids there), so that declaring,
+parsing and listing specimens (``bench specimens``) does not load numba; :mod:`virtual.kernels.scatter` re-exports them and
 dispatches on them. Keep them stable (records and caches name them). Every kernel that imports
 them (through :mod:`virtual.kernels.scatter`) has this file in its cache stamp
 (:func:`virtual.kernels.dependency_digest`): the kernels compile these values in as constants, so
@@ -12,7 +13,7 @@ __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MOD
            "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_ROUGHPLASTIC", "MODEL_PYTHON"]
 
 MODEL_LAMBERT = 0
-MODEL_OREN_NAYAR = 1
+from virtual.law_table import MODEL_OREN_NAYAR  # noqa: E402  (its law: virtual.kernels.laws.oren_nayar)
 MODEL_PHONG = 2
 MODEL_GGX = 3
 MODEL_ANISO_GGX = 4

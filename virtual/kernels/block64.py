@@ -22,11 +22,12 @@ from virtual.kernels.emit import BEAM_CONICAL, emit_given
 from virtual.kernels.patch_lookup import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
 from virtual.kernels.xoshiro import LANES, fill_uniforms
 from virtual.kernels.microfacet import fresnel_conductor_ratio
+from virtual.kernels.law_dispatch import law_block64, law_uniforms
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.branchfree import (GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, phong_given, phong_lobe_cos,
                                    plastic_diffuse_redo, plastic_given, scatter_given4)
-from virtual.kernels.scatter import (GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT,
-                                     MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, ggx_given_parts, scatter_given)
+from virtual.kernels.scatter import (GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG,
+                                     MODEL_PLASTIC, ggx_given_parts, scatter_given)
 
 __all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "gonio_block_chunk", "lambert_spectral_chunk",
            "ggx_spectral_chunk"]
@@ -113,8 +114,10 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
     """
     nb = BLOCK_RAYS
     n_beam = BEAM_UNIFORMS if beam_kind == BEAM_CONICAL else 0
-    n_scat = GIVEN4_UNIFORMS if (model == MODEL_PHONG or model == MODEL_OREN_NAYAR or model == MODEL_DIELECTRIC) \
-        else (PLASTIC_UNIFORMS if model == MODEL_PLASTIC else GIVEN_UNIFORMS)
+    n_scat = law_uniforms(model)  # 0 unless a law of virtual.kernels.laws
+    if n_scat == 0:
+        n_scat = GIVEN4_UNIFORMS if (model == MODEL_PHONG or model == MODEL_DIELECTRIC) \
+            else (PLASTIC_UNIFORMS if model == MODEL_PLASTIC else GIVEN_UNIFORMS)
     ublock = np.empty(((n_beam + n_scat) * nb // LANES, LANES))
     u = ublock.reshape(ublock.size)
     s0 = n_beam * nb  # the scatterer's uniforms follow the beam's
@@ -144,12 +147,8 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
                 vx[i], vy[i], vz[i], alive = phong_given(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
                                                          u[s0 + 2 * nb + i], u[s0 + 3 * nb + i], vx[i])
                 code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
-        elif model == MODEL_OREN_NAYAR:
-            for i in range(nb):
-                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive = scatter_given4(MODEL_OREN_NAYAR, p, wx, wy, wz, u[s0 + i],
-                                                            u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
-                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+        elif law_uniforms(model) > 0:  # a law of virtual.kernels.laws: its generated loop
+            law_block64(model, p, beam_kind, b, u, s0, nb, bo, vx, vy, vz, code, absorbed, missed)
         elif model == MODEL_PLASTIC:
             for i in range(nb):
                 wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])

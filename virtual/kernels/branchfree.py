@@ -1,8 +1,8 @@
 """Block-kernel ("given uniforms") forms of the specimens that need four or more uniforms per ray.
 
 Each function takes the uniforms a ray needs and returns ``(ox, oy, oz, alive)`` without
-branching on data, so the block kernel's loops vectorize: Oren-Nayar, Phong and the rough
-dielectric in four uniforms (:func:`scatter_given4`), the rough plastic in seven
+branching on data, so the block kernel's loops vectorize: Phong and the rough dielectric in
+four uniforms (:func:`scatter_given4`; Oren-Nayar is a law of :mod:`virtual.kernels.laws`), the rough plastic in seven
 (:func:`plastic_given`) with the rare rejected diffuse rays finished by
 :func:`plastic_diffuse_redo` on a per-chunk scalar stream. Each is the ray-by-ray branch of
 :mod:`virtual.kernels.scatter` with its random draws made explicit (tested against it by
@@ -18,7 +18,7 @@ from virtual.kernels.microfacet import (fresnel_dielectric, g2_over_g1_masked_ra
                                         ggx_vndf_given, unit_disk)
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
-from virtual.kernels.scatter import MODEL_OREN_NAYAR, MODEL_PHONG, frame
+from virtual.kernels.scatter import MODEL_PHONG, frame
 
 __all__ = ["GIVEN4_MODELS", "GIVEN4_UNIFORMS", "scatter_given4", "PLASTIC_UNIFORMS", "plastic_given",
            "plastic_diffuse_redo", "phong_given", "phong_lobe_cos"]
@@ -62,37 +62,6 @@ def phong_given(p, wx, wy, wz, u0, u1, u2, u3, ca):
 
 
 @jit(inline="llvm")
-def _oren_nayar_given(p, wx, wy, wz, u0, u1, u2, u3):
-    """:func:`_oren_nayar` given its uniforms: the cosine lobe (Malley from (u1, u2)) when
-    u0 < albedo A, else "uniform in cos(theta_o) (1 - u1), azimuth density cos(dphi)/2
-    (sin dphi = 2 u2 - 1)" when u0 < albedo A + 2 albedo B / pi, surviving by u3."""
-    flip = wz < 0.0
-    wz = abs(wz)
-    si2 = wx * wx + wy * wy
-    has = si2 > 0.0
-    inv = 1.0 / math.sqrt(si2 if has else 1.0)
-    cp = wx * inv if has else 1.0
-    sp = wy * inv if has else 0.0
-    c1, s1 = sincos_2pi(u1)
-    rho = math.sqrt(u2)
-    first = u0 < p[3]
-    bz = 1.0 - u1
-    so = math.sqrt((1.0 - bz) * (1.0 + bz))
-    sd = 2.0 * u2 - 1.0
-    cd = math.sqrt(max(1.0 - sd * sd, 0.0))
-    ox = rho * c1 if first else so * (cd * cp - sd * sp)
-    oy = rho * s1 if first else so * (sd * cp + cd * sp)
-    oz = math.sqrt(1.0 - u2) if first else bz
-    so2 = ox * ox + oy * oy
-    d_ref = max(ox * cp + oy * sp, 0.0)
-    c_term = d_ref / math.sqrt(so2 if so2 > 0.0 else 1.0) if so2 > 0.0 else 0.0
-    den = p[1] * oz + p[2] * c_term
-    num = p[1] * oz + p[2] * max(ox * wx + oy * wy, 0.0) * oz / max(oz, wz)
-    alive = (wz > 0.0) & (u0 < p[3] + p[4]) & (u3 * den < num)
-    return ox, oy, (-oz if flip else oz), alive
-
-
-@jit(inline="llvm")
 def _dielectric_given(p, wx, wy, wz, u0, u1, u2, u3):
     """:func:`_dielectric` given its uniforms: the visible normal from (u1, u2), reflection when
     u0 < F (else refraction), surviving with probability G2/G1 by u3."""
@@ -123,8 +92,6 @@ def scatter_given4(model, p, wx, wy, wz, u0, u1, u2, u3):
     distribution of ``(ox, oy, oz, alive)``, no branch (callers pass a constant ``model``)."""
     if model == MODEL_PHONG:
         return phong_given(p, wx, wy, wz, u0, u1, u2, u3, phong_lobe_cos(p, u2))
-    if model == MODEL_OREN_NAYAR:
-        return _oren_nayar_given(p, wx, wy, wz, u0, u1, u2, u3)
     return _dielectric_given(p, wx, wy, wz, u0, u1, u2, u3)
 
 

@@ -20,8 +20,7 @@ from virtual.kernels import jit
 from virtual.kernels.f32 import (DOUBT, F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32, frame32, g2_over_g1_masked_ratio32,
                                  ggx_n32, ggx_vndf_given32, in_doubt32, sincos_2pi32, warp_cosine_hemisphere32)
 
-__all__ = ["lambert_given32", "ggx_normal32", "ggx_reflect32", "ggx_finish32", "phong_lobe_omc32", "phong_given32",
-           "oren_nayar_given32"]
+__all__ = ["lambert_given32", "ggx_normal32", "ggx_reflect32", "ggx_finish32", "phong_lobe_omc32", "phong_given32"]
 
 _LN2 = F(math.log(2.0))
 _LOG2E = F(1.0 / math.log(2.0))
@@ -151,38 +150,4 @@ def phong_given32(p, wx, wy, wz, u0, u1, u2, u3, omc):
     oz = dz if diffuse else lz
     alive = (wz > ZERO) & (diffuse | lobe_ok)
     doubt = in_doubt32(u0, p[0], ONE) | in_doubt32(u0, lobe, ONE) | in_doubt32(u3, lz, ONE)
-    return ox, oy, (-oz if flip else oz), alive, doubt
-
-
-@jit(inline="llvm")
-def oren_nayar_given32(p, wx, wy, wz, u0, u1, u2, u3):
-    """:func:`~virtual.kernels.branchfree._oren_nayar_given` in float32: the cosine lobe (Malley from
-    (u1, u2)) when u0 < albedo A, else uniform in cos(theta_o) (1 - u1) with azimuth density
-    cos(dphi)/2 (sin dphi = 2 u2 - 1) when u0 < albedo (A + 2 B / pi), surviving by u3."""
-    flip = wz < ZERO
-    wz = abs(wz)
-    si2 = wx * wx + wy * wy
-    has = si2 > ZERO
-    inv = ONE / math.sqrt(si2 if has else ONE)
-    cp = wx * inv if has else ONE
-    sp = wy * inv if has else ZERO
-    c1, s1 = sincos_2pi32(u1)
-    rho = math.sqrt(u2)
-    first = u0 < p[3]
-    bz = ONE - u1
-    so = math.sqrt((ONE - bz) * (ONE + bz))
-    sd = TWO * u2 - ONE
-    cd = math.sqrt(max(ONE - sd * sd, ZERO))
-    ox = rho * c1 if first else so * (cd * cp - sd * sp)
-    oy = rho * s1 if first else so * (sd * cp + cd * sp)
-    oz = math.sqrt(ONE - u2) if first else bz
-    so2 = ox * ox + oy * oy
-    pos = so2 > ZERO
-    d_ref = max(ox * cp + oy * sp, ZERO)
-    c_term = d_ref / math.sqrt(so2 if pos else ONE) if pos else ZERO
-    den = p[1] * oz + p[2] * c_term
-    num = p[1] * oz + p[2] * max(ox * wx + oy * wy, ZERO) * oz / max(oz, wz)
-    total = p[3] + p[4]
-    alive = (wz > ZERO) & (u0 < total) & (u3 * den < num)
-    doubt = in_doubt32(u0, p[3], ONE) | in_doubt32(u0, total, ONE) | in_doubt32(u3, num, den)
     return ox, oy, (-oz if flip else oz), alive, doubt

@@ -11,9 +11,10 @@ counting rays estimates the BSDF without weights. Every branch samples exactly: 
 density dominates ``f_s |cos theta_o|`` with total mass <= 1, then survival with the ratio.
 Opaque models are two-sided (mirrored when the source is below).
 
-A new kernel model is its declaration (a :class:`virtual.specimens.Specimen` subclass naming
-its ``model`` id) plus its id in :mod:`virtual.model_ids` and, here, its branch function and
-one line in :func:`_scatter_general`. The physics of each model is documented on its class.
+A new kernel model is a law module of :mod:`virtual.kernels.laws` (its id, its sampling, written
+once for float64 and float32) and its declaration (a :class:`virtual.specimens.Specimen` subclass
+naming its ``model`` id); ``make kernels`` writes its branches (:mod:`virtual.kernels.law_dispatch`,
+reached from :func:`_scatter_general`). The physics of each model is documented on its class.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from virtual.kernels.microfacet import (disk_direction, fresnel_conductor_ratio,
                                         unit_disk)
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.coat import roughplastic
+from virtual.kernels.law_dispatch import law_scatter
 from virtual.kernels.warps import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
 # Model ids: one branch each in `scatter`; they live in a numba-free module (specimens declare them).
 from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_LEAF,
@@ -38,47 +40,6 @@ __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MOD
 from virtual.kernel_codes import GIVEN_MODELS, GIVEN_UNIFORMS
 
 _DEAD = (0.0, 0.0, 0.0, False)
-
-
-@jit(inline="llvm")
-def _oren_nayar(p, wx, wy, wz, s):
-    flip = wz < 0.0
-    if flip:
-        wz = -wz
-    if not (wz > 0.0):
-        return _DEAD
-    u = next_double(s)
-    si2 = wx * wx + wy * wy
-    if si2 > 0.0:
-        inv = 1.0 / math.sqrt(si2)
-        cp = wx * inv
-        sp = wy * inv
-    else:
-        cp = 1.0
-        sp = 0.0
-    if u < p[3]:
-        a, b, r2 = unit_disk(s)
-        ox = a
-        oy = b
-        oz = math.sqrt(1.0 - r2)
-    elif u < p[3] + p[4]:
-        oz = 1.0 - next_double(s)  # (0, 1]
-        so = math.sqrt((1.0 - oz) * (1.0 + oz))
-        sd = 2.0 * next_double(s) - 1.0  # sin(dphi): dphi has density cos(dphi)/2 on (-pi/2, pi/2)
-        cd = math.sqrt(max(1.0 - sd * sd, 0.0))
-        ox = so * (cd * cp - sd * sp)
-        oy = so * (sd * cp + cd * sp)
-    else:
-        return _DEAD
-    so2 = ox * ox + oy * oy
-    d_ref = max(ox * cp + oy * sp, 0.0)
-    c_term = d_ref / math.sqrt(so2) if so2 > 0.0 else 0.0
-    den = p[1] * oz + p[2] * c_term
-    num = p[1] * oz + p[2] * max(ox * wx + oy * wy, 0.0) * oz / max(oz, wz)
-    if not (next_double(s) * den < num):
-        return _DEAD
-    return ox, oy, (-oz if flip else oz), True
-
 
 
 @jit(inline="llvm")
@@ -298,14 +259,12 @@ def _leaf(p, wx, wy, wz, s):
 
 @jit
 def _scatter_general(model, p, wx, wy, wz, s):
-    """Every model but the Lambertian (called, not inlined: inlining them all into each kernel
-    quadruples the compile time)."""
+    """Every model (called, not inlined: inlining them all into each kernel quadruples the
+    compile time)."""
     if model == MODEL_LAMBERT:
         return _lambert(p, wz, s)
     if model == MODEL_GGX or model == MODEL_ANISO_GGX:
         return _ggx(p, wx, wy, wz, s)
-    if model == MODEL_OREN_NAYAR:
-        return _oren_nayar(p, wx, wy, wz, s)
     if model == MODEL_PHONG:
         return _phong(p, wx, wy, wz, s)
     if model == MODEL_PLASTIC:
@@ -316,7 +275,7 @@ def _scatter_general(model, p, wx, wy, wz, s):
         return _leaf(p, wx, wy, wz, s)
     if model == MODEL_ROUGHPLASTIC:
         return roughplastic(p, wx, wy, wz, s)
-    return 0.0, 0.0, 0.0, False
+    return law_scatter(model, p, wx, wy, wz, s)  # the laws of virtual.kernels.laws (0, 0, 0, False for none)
 
 
 

@@ -1,0 +1,15 @@
+"""The names a scattering law (:mod:`virtual.kernels.laws`) computes with, in float32: the
+same names as :mod:`virtual.kernels.precision64`, bound to the float32 helpers of
+:mod:`virtual.kernels.f32` (the twins in :mod:`virtual.kernels.laws32` import them).
+"""
+
+from __future__ import annotations
+
+from virtual.kernels.f32 import HALF, ONE, TWO, ZERO, frame32, in_doubt32, sincos_2pi32, warp_cosine_hemisphere32
+
+__all__ = ["ZERO", "ONE", "TWO", "HALF", "sincos_2pi", "warp_cosine_hemisphere", "frame", "in_doubt"]
+
+sincos_2pi = sincos_2pi32
+warp_cosine_hemisphere = warp_cosine_hemisphere32
+frame = frame32
+in_doubt = in_doubt32

@@ -1,0 +1,32 @@
+"""The names a scattering law (:mod:`virtual.kernels.laws`) computes with, in float64.
+
+A law module imports its constants and helpers from here in one line; ``python -m
+virtual.kernels.generate`` writes its float32 twin by importing the same names from
+:mod:`virtual.kernels.precision32` instead. Both modules export the same names:
+
+``ZERO, ONE, TWO, HALF``  the constants (a float literal would turn a float32 loop into float64)
+``sincos_2pi``, ``warp_cosine_hemisphere``, ``frame``  the warps and the orthonormal frame
+``in_doubt(u, num, den)``  whether the decision ``u den < num`` lies within the float32 grid's
+                          reach of its threshold (:func:`~virtual.kernels.f32.in_doubt32`);
+                          float64 uniforms have no such grid: always False here, so the
+                          float64 kernels' code for it folds away.
+"""
+
+from __future__ import annotations
+
+from virtual.kernels import jit
+from virtual.kernels.microfacet import frame
+from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
+
+__all__ = ["ZERO", "ONE", "TWO", "HALF", "sincos_2pi", "warp_cosine_hemisphere", "frame", "in_doubt"]
+
+ZERO = 0.0
+ONE = 1.0
+TWO = 2.0
+HALF = 0.5
+
+
+@jit(inline="llvm")
+def in_doubt(u, num, den):
+    """False: a float64 decision needs no second look (see the module docstring)."""
+    return False
