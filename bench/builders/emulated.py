@@ -45,7 +45,7 @@ from bench.bands import SpectralBands
 from bench.config import Bench
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import ConfigError
-from bench.core.geometry import cone_cos_weights
+from bench.core.geometry import Geometry, cone_cos_weights
 from bench.core.parsing import parse_wavelengths
 from bench.core.schemas import EmulatedTable
 from bench.core.roles import Reading
@@ -131,8 +131,18 @@ def emulated_response(geometry: Any, wavelengths_nm: np.ndarray, specimen: str, 
                       mount_file: str, aperture_deg: float) -> np.ndarray:
     """Reflected fraction the emulated detector sees: ``GAIN * mean_aperture(f cos(theta_r))``
     for the mounted specimen (the virtual specimen, or a Lambertian white standard of the
-    certificate's reflectance factor, ``white_rf``: a number or ``[[nm...], [factor...]]``)."""
+    certificate's reflectance factor, ``white_rf``: a number or ``[[nm...], [factor...]]``).
+
+    Asked without a geometry (the emulator does so once before it announces its port:
+    :meth:`virtual.wire.ocean_model.SpectrometerModel.prepare`) it sees no light, but first makes
+    the specimen ready: parsed and evaluated once, which builds the tables a spectral specimen
+    computes on first use (a leaf's PROSPECT-D body and cuticle albedo: seconds on a loaded core).
+    Built lazily inside the first acquisition instead, that time overran the driver's deadline
+    for command 'S' on every retry, and the late frames then answered the next commands."""
     if geometry is None:
+        if "specimen" not in _PROCESS_CACHE:
+            _specimen_fraction(_mounted_specimen(specimen), _PREPARE_AT, np.asarray(wavelengths_nm, dtype=float),
+                               aperture_deg)
         return np.zeros(np.shape(wavelengths_nm))
     try:
         mounted = json.loads(Path(mount_file).read_text()).get("mounted", "specimen")
@@ -143,9 +153,28 @@ def emulated_response(geometry: Any, wavelengths_nm: np.ndarray, specimen: str, 
     dirs, w_cos = cone_cos_weights(g.view, aperture_deg)  # the detector's cone, as the virtual body's
     if mounted == "white":
         return RESPONSE_GAIN * _white_fraction(white_rf, wl) * float(w_cos.sum())
+    return _specimen_fraction(_mounted_specimen(specimen), g, wl, aperture_deg)
+
+
+#: how long the spectrometer emulator may take to announce its port (s): it prepares the specimen
+#: first (:func:`emulated_response`), a leaf's tables taking ~10 s on a loaded core; a hang guard only
+#: (an emulator that dies is seen at once)
+SPECTROMETER_START_S = 120.0
+#: where a prepared specimen is evaluated once (any lit geometry builds its tables)
+_PREPARE_AT = Geometry(8.0, 0.0, 30.0, 180.0)
+
+
+def _mounted_specimen(specimen: str) -> Any:
+    """The specimen, parsed once per emulator process."""
     spec = _PROCESS_CACHE.get("specimen")
     if spec is None:
         spec = _PROCESS_CACHE["specimen"] = parse_specimen(specimen)
+    return spec
+
+
+def _specimen_fraction(spec: Any, g: Any, wl: np.ndarray, aperture_deg: float) -> np.ndarray:
+    """``GAIN * mean_aperture(f cos(theta_r))`` of the specimen ``spec`` at geometry ``g``."""
+    dirs, w_cos = cone_cos_weights(g.view, aperture_deg)
     wi = g.incident
     rng = spec.wavelength_range()
     if rng is None:  # not spectral: one evaluation serves every pixel
@@ -243,7 +272,8 @@ class Emulators:
                 response=functools.partial(emulated_response, specimen=spec,
                                            white_rf=actual_white(self.white.as_dict()["reflectance_factor"], d),
                                            mount_file=str(self.mount), aperture_deg=declared_aperture(d)),
-                seed=emu_seed, time_scale=max(1.0, self.time_scale), **self.detector)
+                seed=emu_seed, time_scale=max(1.0, self.time_scale), start_timeout=SPECTROMETER_START_S,
+                **self.detector)
             self._closers.append(self.spectrometer.stop)
         except BaseException:
             self.close()

@@ -162,6 +162,12 @@ class SpectrometerModel:
             sane = bool(np.all(np.isfinite(f)) and f.min() > 0.5 and f.max() < 2.0)
         self._nl = k if sane else None
 
+    def prepare(self) -> None:
+        """Ask the response once without a geometry, before the first acquisition: a response that
+        builds tables on first use (a specimen's) builds them now, not within a command's deadline."""
+        if self.response is not None:
+            self.response(None, self.wavelengths)
+
     def reset(self) -> None:
         mode = self.settings.mode
         self.settings = Settings(mode=mode)

@@ -63,6 +63,7 @@ def _child_main(cfg: dict[str, Any], geometry_source: Any, response: Any, conn: 
     try:
         scfg = SpectrometerConfig(**cfg)
         model = SpectrometerModel(scfg, geometry_source, response)
+        model.prepare()  # before the port is announced: no command waits for the response's tables
         master, slave, path = open_raw_pty()
     except Exception as exc:
         conn.send({"error": f"{type(exc).__name__}: {exc}"})
@@ -163,7 +164,8 @@ class SpectrometerEmulator(PipeEmulator):
 
         ``geometry_source`` (``() -> geometry | None``) and ``response``
         (``(geometry, wavelengths_nm) -> np.ndarray``) are picklable callables or
-        ``"module:attr"`` strings.
+        ``"module:attr"`` strings. The response is asked once without a geometry before the port
+        is announced (:meth:`SpectrometerModel.prepare`), within ``start_timeout``.
         """
         SpectrometerConfig(**config)
         return cls(*cls._spawn(_child_main, (config, geometry_source, response), (log_level,),
