@@ -1,11 +1,13 @@
 """Alignment of virtual and actual records, discrepancy statistics, physical checks, reports.
 
-Entry points (imported lazily, so ``import compare`` stays cheap for the CLI):
+The public names, exported here (``from compare import compare_records``) and imported on first
+use (:mod:`bench.core.exports`), so ``import compare`` stays cheap for the CLI:
 
 * :func:`compare.report.compare_records` -- actual vs named candidates -> HTML/Markdown/JSON report
   and a summary dict with stable keys (what ``bench compare`` calls);
 * :func:`compare.stats.compare` -- one candidate -> :class:`compare.stats.Comparison`;
-* :func:`compare.align.align` -- point-by-point matching -> :class:`compare.align.Aligned`;
+* :func:`compare.align.align` -- point-by-point matching -> :class:`compare.align.Aligned` (not
+  exported: a name of the package would be shadowed by its submodule ``compare.align``);
 * :func:`compare.checks.run_checks` -- reciprocity, energy conservation, isotropy of a BSDF record;
 * :class:`compare.verdict.Criterion` -- the acceptance criterion; :mod:`compare.verdict` gives a
   verdict per model and per incidence/wavelength (or spectrum) group;
@@ -19,21 +21,16 @@ Entry points (imported lazily, so ``import compare`` stays cheap for the CLI):
 file (the application's :mod:`bench.io` does) and imports nothing but ``bench.core``.
 """
 
-from __future__ import annotations
+from bench.core.exports import lazy_exports
 
-from importlib import import_module
-from typing import Any
+#: each public name and the module that defines it
+_WHERE = {
+    "compare_records": "compare.report",
+    **dict.fromkeys(["compare", "rank", "Comparison"], "compare.stats"),
+    **dict.fromkeys(["run_checks", "reciprocity", "energy_conservation", "isotropy"], "compare.checks"),
+    "Criterion": "compare.verdict",
+}
 
-__all__ = ["compare_records", "compare", "rank", "align", "run_checks",
-           "reciprocity", "energy_conservation", "isotropy", "Criterion"]
+__all__ = list(_WHERE)
 
-_WHERE = {"compare_records": "compare.report",
-          "compare": "compare.stats", "rank": "compare.stats", "align": "compare.align",
-          "run_checks": "compare.checks", "reciprocity": "compare.checks",
-          "energy_conservation": "compare.checks", "isotropy": "compare.checks", "Criterion": "compare.verdict"}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _WHERE:
-        return getattr(import_module(_WHERE[name]), name)
-    raise AttributeError(f"module 'compare' has no attribute {name!r}")
+__getattr__, __dir__ = lazy_exports(__name__, _WHERE)

@@ -44,12 +44,15 @@ def _modules(package: str) -> list[str]:
 
 def uncovered(modules: list[str], layers: list[str], roots: list[str], tree: Path = ROOT) -> list[str]:
     """The modules in no layer. A root package's own ``__init__`` (the container of its layers)
-    counts as covered only when it imports nothing of the project."""
+    counts as covered only when it imports nothing of the project but ``bench.core`` (the bottom
+    layer, which imports nothing else: a root's public names load through
+    :func:`bench.core.exports.lazy_exports`, whose targets tests/test_public_surface.py checks)."""
     out = []
     for mod in modules:
         if any(mod == m or mod.startswith(m + ".") for m in layers):
             continue
-        if mod in roots and not _imports_of_project(tree / mod / "__init__.py", roots):
+        imported = _imports_of_project(tree / mod / "__init__.py", roots) if mod in roots else ["?"]
+        if not [n for n in imported if not n.startswith("bench.core.")]:
             continue
         out.append(mod)
     return out
@@ -119,7 +122,7 @@ def test_a_module_outside_the_layers_is_found(module):
 
 def test_a_package_root_that_imports_the_project_is_not_covered(tmp_path):
     layers = _layer_modules()
-    assert uncovered(["bench"], layers, ["bench"]) == []  # today's bench/__init__ imports nothing
+    assert uncovered(["bench"], layers, ["bench"]) == []  # today's bench/__init__ imports bench.core alone
     (tmp_path / "bench").mkdir()
     (tmp_path / "bench" / "__init__.py").write_text("from bench.store import RunStore\n")
     assert uncovered(["bench"], layers, ["bench"], tree=tmp_path) == ["bench"]

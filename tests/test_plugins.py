@@ -135,7 +135,7 @@ def test_a_plugin_may_not_take_a_builtin_name(tmp_path, monkeypatch):
     _declare(tmp_path / "site", "[goniobench.specimens]\nlambert = labvelvet:Velvet\n")
     (tmp_path / "pkg" / "labvelvet").mkdir(parents=True)
     (tmp_path / "pkg" / "labvelvet" / "__init__.py").write_text(
-        "from virtual.specimens import MODEL_PYTHON, DeclaredSpecimen\n"
+        "from virtual import MODEL_PYTHON, DeclaredSpecimen\n"
         "class Velvet(DeclaredSpecimen):\n    name = 'lambert'\n    model = MODEL_PYTHON\n")
     monkeypatch.syspath_prepend(str(tmp_path / "pkg"))
     monkeypatch.syspath_prepend(str(tmp_path / "site"))
