@@ -95,6 +95,22 @@ def test_cuticle_quadrature_is_converged_at_8_deg_and_near_grazing():
     assert fb - es > 0.05
 
 
+def test_the_cuticle_sums_of_every_azimuth_node_at_once_equal_those_of_each_node_alone():
+    """The quadrature evaluates every azimuth node's r2 segments in one array; each node's sum must
+    be the one a node-by-node evaluation gives, bit for bit (the leaf's tables, and so the kernel's
+    pinned digests, rest on them), including nodes whose segments are all unlit."""
+    from virtual.leaf_optics import _GRADED, _gl, _segment_sums
+
+    xv, wv = _gl(8)
+    u = np.array([0.02, 0.2, 0.45, 0.5])
+    cuts = [_GRADED, np.unique(np.concatenate([_GRADED, [0.35, 0.77]])), np.array([0.0, 0.3, 0.3, 1.0]), _GRADED]
+    for theta, a, eta, lit in ((0.3, 0.2, 1.45, True), (1.5, 0.9, 1.9, True), (1.2, 0.05, 1.3, False)):
+        together = _segment_sums(theta, a, eta, u, cuts, xv, wv, lit)
+        alone = [_segment_sums(theta, a, eta, u[k:k + 1], [cuts[k]], xv, wv, lit)[0] for k in range(len(u))]
+        assert together == alone and all(isinstance(v, float) for v in together)
+        assert len(set(together)) > 1  # the nodes differ: a mix-up of nodes would show
+
+
 # --- application (a): PROSPECT-D at 8/d ----------------------------------------------------------
 
 
