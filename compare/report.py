@@ -1,9 +1,10 @@
 """Comparison reports: one self-contained HTML page, a Markdown summary and a JSON summary.
 
-:func:`compare_records` is the one entry point (the ``bench compare`` command calls it): it
-aligns every candidate with the actual record, computes the statistics of
-:mod:`compare.stats`, ranks the candidates, runs the physical checks of :mod:`compare.checks`
-on BSDF records and writes
+:func:`compare_records` is the one entry point (the ``bench compare`` command calls it), in two
+halves: :func:`compare_candidates` aligns every candidate with the actual record, computes the
+statistics of :mod:`compare.stats`, ranks the candidates, judges them by the acceptance criterion
+and runs the physical checks of :mod:`compare.checks` on BSDF records, writing nothing (a
+:class:`RecordComparison`); :func:`write_report` draws the figures and writes
 
 * ``report.html`` -- figures embedded as base64 PNG (no external resource of any kind), each
   ``<img>`` with a stable ``id`` and ``alt`` (see :func:`figure_ids`);
@@ -25,6 +26,7 @@ import html
 import json
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -47,7 +49,7 @@ from compare.report_tables import (budget_note, budget_rows, check_rows, criteri
                                    fit_rows, fmt, frame_rows, group_rows, html_table, md_table, metric_rows,
                                    ranking_rows, verdict_rows)
 
-__all__ = ["compare_records"]
+__all__ = ["compare_records", "compare_candidates", "write_report", "RecordComparison"]
 
 
 def _json_safe(o: Any) -> Any:
@@ -64,6 +66,63 @@ def _json_safe(o: Any) -> Any:
     return _json_safe(json_default(o))
 
 
+@dataclass(frozen=True)
+class RecordComparison:
+    """Every candidate against the actual record, computed (no file written, no figure drawn):
+    what :func:`compare_candidates` returns and :func:`write_report` renders.
+
+    ``comparisons`` (name -> :class:`compare.stats.Comparison`) and ``records`` (name -> the
+    record) hold the candidates that could be compared, ``errors`` (name -> message) those left
+    out under ``on_error="skip"``; ``ranking`` is best first by ``primary_metric``; ``checks``
+    (record name -> check name -> result dict) the physical checks of BSDF records; ``verdicts``
+    (name -> verdict dict with its ``groups``) and ``group_tables`` (name -> the groups as a
+    DataFrame) the acceptance criterion's; ``warnings`` the candidates' warnings, rejected
+    candidates first; ``uncertainty_budget`` the actual record's budget summary (or ``None``)."""
+
+    actual: Any
+    kind: str
+    primary_metric: str
+    criterion: Criterion
+    comparisons: dict[str, Comparison]
+    records: dict[str, Any]
+    errors: dict[str, str]
+    ranking: list[dict[str, Any]]
+    checks: dict[str, Any]
+    verdicts: dict[str, Any]
+    group_tables: dict[str, pd.DataFrame]
+    warnings: list[str]
+    uncertainty_budget: Any
+
+    @property
+    def k(self) -> float:
+        return self.criterion.k
+
+    def summary(self, figures: Sequence[Mapping[str, Any]] = (), fits: Mapping[str, Mapping[str, Any]] | None = None,
+                fit_figures: Sequence[Mapping[str, Any]] = ()) -> dict[str, Any]:
+        """The report's summary (``summary.json`` before the report paths), given the figures drawn
+        and the fits reported (see :func:`compare_records`)."""
+        comps, kind = self.comparisons, self.kind
+        return {
+            "kind": kind, "quantity": record_quantity(self.actual), "actual": _describe(self.actual),
+            "primary_metric": self.primary_metric, "k": self.k, "nominal_fraction": nominal_fraction(self.k),
+            "candidates": {n: c.summary for n, c in comps.items()}, "ranking": self.ranking,
+            "criterion": {**self.criterion.as_dict(), "statement": self.criterion.describe(kind)},
+            "verdicts": self.verdicts, "checks": self.checks,
+            "unmatched": {n: int((c.aligned.unmatched.side == "actual").sum()) for n, c in comps.items()},
+            "errors": self.errors, "warnings": self.warnings, "figures": [f["id"] for f in figures],
+            "uncertainty_budget": self.uncertainty_budget,
+            "fits": {m: {"fit": f["fit"], "confidence": float(f["confidence"]),
+                         "figure": next((g["id"] for g in fit_figures if g["model"] == m), None)}
+                     for m, f in (fits or {}).items()},
+            "breakdown": {n: {"by_wavelength": c.by_wavelength.to_dict(orient="records"),
+                              "by_incidence": c.by_incidence.to_dict(orient="records")} for n, c in comps.items()},
+            "alignment": {n: {key: c.aligned.meta.get(key) for key in ("angle_tol_deg", "wavelength_tol_nm",
+                                                                       "match_method", "wavelength_interpolation",
+                                                                       "channels")}
+                          for n, c in comps.items()},
+        }
+
+
 def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str | Path, *,
                     primary_metric: str = "chi2_per_dof", title: str | None = None, k: float = 2.0,
                     instrument_uncertainty: float | None = None, instrument_uncertainty_kind: str | None = None,
@@ -73,7 +132,8 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
                     criterion: Criterion | None = None, check_records: Mapping[str, Any] | None = None,
                     fits: Mapping[str, Mapping[str, Any]] | None = None,
                     extra_figures: Sequence[Mapping[str, Any]] = (), **align_kwargs: Any) -> dict[str, Any]:
-    """Compare candidates (models, virtual records) with one actual record and write the report.
+    """Compare candidates (models, virtual records) with one actual record and write the report:
+    :func:`compare_candidates`, then :func:`write_report`.
 
     Parameters
     ----------
@@ -122,6 +182,25 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     ------
     InputError (and subclasses from :mod:`compare.align`, :mod:`compare.stats`)
     """
+    result = compare_candidates(actual, candidates, primary_metric=primary_metric, k=k,
+                                instrument_uncertainty=instrument_uncertainty,
+                                instrument_uncertainty_kind=instrument_uncertainty_kind,
+                                allow_missing_uncertainty=allow_missing_uncertainty, illuminant=illuminant,
+                                observer=observer, checks=checks, on_error=on_error, criterion=criterion,
+                                check_records=check_records, **align_kwargs)
+    return write_report(result, report_dir, title=title, draw_figures=draw_figures,
+                        map_wavelength_nm=map_wavelength_nm, map_incidence=map_incidence, fits=fits,
+                        extra_figures=extra_figures)
+
+
+def compare_candidates(actual: Any, candidates: Mapping[str, Any], *, primary_metric: str = "chi2_per_dof",
+                       k: float = 2.0, instrument_uncertainty: float | None = None,
+                       instrument_uncertainty_kind: str | None = None, allow_missing_uncertainty: bool = False,
+                       illuminant: str = DEFAULT_ILLUMINANT, observer: str = DEFAULT_OBSERVER, checks: bool = True,
+                       on_error: str = "raise", criterion: Criterion | None = None,
+                       check_records: Mapping[str, Any] | None = None, **align_kwargs: Any) -> RecordComparison:
+    """Align and compare every candidate with the actual record, rank them, judge them by the
+    criterion and run the physical checks; nothing is written (parameters as :func:`compare_records`)."""
     if on_error not in ("raise", "skip"):
         raise InputError(f"on_error must be 'raise' or 'skip', got {on_error!r}")
     if not candidates:
@@ -130,9 +209,6 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     if criterion is None:
         criterion = Criterion(k=k, instrument_uncertainty=instrument_uncertainty,
                               instrument_uncertainty_kind=instrument_uncertainty_kind)
-    k = criterion.k
-    instrument_uncertainty = criterion.instrument_uncertainty
-    instrument_uncertainty_kind = criterion.instrument_uncertainty_kind
     slugs = [slug(n) for n in candidates]
     if len(set(slugs)) != len(slugs):
         raise InputError(f"candidate names must stay distinct as ids: {list(candidates)} -> {slugs}")
@@ -142,8 +218,9 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     for name, cand in candidates.items():
         try:
             rec = as_record(cand)
-            comps[name] = compare(act, rec, name=name, k=k, instrument_uncertainty=instrument_uncertainty,
-                                  instrument_uncertainty_kind=instrument_uncertainty_kind,
+            comps[name] = compare(act, rec, name=name, k=criterion.k,
+                                  instrument_uncertainty=criterion.instrument_uncertainty,
+                                  instrument_uncertainty_kind=criterion.instrument_uncertainty_kind,
                                   allow_missing_uncertainty=allow_missing_uncertainty, illuminant=illuminant,
                                   observer=observer, **align_kwargs)
             recs[name] = rec
@@ -154,8 +231,7 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
     if not comps:
         raise AlignmentError("no candidate could be compared: " + "; ".join(f"{n}: {e}" for n, e in errors.items()))
     kind = record_kind(act)
-    summaries = {n: c.summary for n, c in comps.items()}
-    ranking = rank(summaries, primary_metric)
+    ranking = rank({n: c.summary for n, c in comps.items()}, primary_metric)
     check_results: dict[str, Any] = {}
     if checks and kind == "bsdf":
         for n, rec in {"actual": act, **recs, **dict(check_records or {})}.items():
@@ -163,9 +239,6 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
             meta = getattr(rec, "meta", {}) or {}
             check_results[n] = {c: {**r.as_dict(), "expected": expected_failure(c, meta)}
                                 for c, r in run_checks(rec).items()}
-    out = Path(report_dir)
-    figdir = out / "figures"
-    figdir.mkdir(parents=True, exist_ok=True)
     verdicts: dict[str, Any] = {}
     group_tables: dict[str, pd.DataFrame] = {}
     for n, c in comps.items():
@@ -175,36 +248,35 @@ def compare_records(actual: Any, candidates: Mapping[str, Any], report_dir: str 
         verdicts[n] = {**model_verdict(g, c.summary, criterion), "groups": g.to_dict(orient="records")}
     table = getattr(act, "table", None)
     budget = None if table is None or "uncertainty_budget" not in table else budget_summary(list(table.uncertainty_budget))
-    figures = (report_figures(act, comps, recs, figdir, k, map_wavelength_nm, map_incidence, group_tables)
-               if draw_figures else [])
-    fit_figures = _fit_figures(fits or {}, figdir)
-    figures += fit_figures + [dict(f) for f in extra_figures]
     warnings = sorted({w for c in comps.values() for w in c.summary["warnings"]})
     for r in ranking:
         v = verdicts.get(r["name"])
         if v and v["verdict"] == "reject":
             warnings.insert(0, f"{r['name']} (rank {r['rank']}) is rejected: {v['reason']}")
-    summary: dict[str, Any] = {
-        "kind": kind, "quantity": record_quantity(act), "actual": _describe(act), "primary_metric": primary_metric,
-        "k": k, "nominal_fraction": nominal_fraction(k), "candidates": summaries, "ranking": ranking,
-        "criterion": {**criterion.as_dict(), "statement": criterion.describe(kind)}, "verdicts": verdicts,
-        "checks": check_results, "unmatched": {n: int((c.aligned.unmatched.side == "actual").sum())
-                                               for n, c in comps.items()},
-        "errors": errors, "warnings": warnings, "figures": [f["id"] for f in figures], "uncertainty_budget": budget,
-        "fits": {m: {"fit": f["fit"], "confidence": float(f["confidence"]),
-                     "figure": next((g["id"] for g in fit_figures if g["model"] == m), None)}
-                 for m, f in (fits or {}).items()},
-        "breakdown": {n: {"by_wavelength": c.by_wavelength.to_dict(orient="records"),
-                          "by_incidence": c.by_incidence.to_dict(orient="records")} for n, c in comps.items()},
-        "alignment": {n: {key: c.aligned.meta.get(key) for key in ("angle_tol_deg", "wavelength_tol_nm", "match_method",
-                                                                   "wavelength_interpolation", "channels")}
-                      for n, c in comps.items()},
-    }
-    title = title or f"Virtual vs actual: {summary['actual'].get('specimen') or kind}"
+    return RecordComparison(act, kind, primary_metric, criterion, comps, recs, errors, ranking, check_results,
+                            verdicts, group_tables, warnings, budget)
+
+
+def write_report(result: RecordComparison, report_dir: str | Path, *, title: str | None = None,
+                 draw_figures: bool = True, map_wavelength_nm: float | None = None,
+                 map_incidence: tuple[float, float] | None = None, fits: Mapping[str, Mapping[str, Any]] | None = None,
+                 extra_figures: Sequence[Mapping[str, Any]] = ()) -> dict[str, Any]:
+    """Draw the figures of a comparison and write ``report.html``, ``report.md`` and
+    ``summary.json`` into ``report_dir``; return the summary (parameters as :func:`compare_records`)."""
+    out = Path(report_dir)
+    figdir = out / "figures"
+    figdir.mkdir(parents=True, exist_ok=True)
+    comps = result.comparisons
+    figures = (report_figures(result.actual, comps, result.records, figdir, result.k, map_wavelength_nm,
+                              map_incidence, result.group_tables) if draw_figures else [])
+    fit_figures = _fit_figures(fits or {}, figdir)
+    figures += fit_figures + [dict(f) for f in extra_figures]
+    summary = result.summary(figures, fits, fit_figures)
+    title = title or f"Virtual vs actual: {summary['actual'].get('specimen') or result.kind}"
     html_path, md_path, json_path = out / "report.html", out / "report.md", out / "summary.json"
     summary.update({"report_html": str(html_path), "report_md": str(md_path), "summary_json": str(json_path)})
-    write_text(html_path, _html(title, summary, comps, figures, check_results))
-    write_text(md_path, _markdown(title, summary, comps, figures, check_results))
+    write_text(html_path, _html(title, summary, comps, figures, result.checks))
+    write_text(md_path, _markdown(title, summary, comps, figures, result.checks))
     safe = _json_safe(summary)
     write_text(json_path, json.dumps(safe, indent=1))
     return safe
