@@ -4,8 +4,6 @@ read back with pandas' defaults (``pd.read_csv``, ``pd.read_parquet``)."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import math
 import re
@@ -20,7 +18,7 @@ from bench.cli import main
 from bench.docs import documents
 from bench.io import read_parquet, read_record
 from helpers.cli import run_main
-from helpers.export_records import SAMPLE_NAME, stored_runs
+from helpers.export_records import SAMPLE_NAME, stored_runs_quietly
 
 #: the README or the docs page that describes the formats
 README = next(t for t in (p.read_text(encoding="utf-8") for p in documents(Path(__file__).resolve().parents[1]))
@@ -45,10 +43,7 @@ MEASURED = _readme_list("one row per reading with")
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("export-identity")
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        ids = stored_runs(tmp, main)
-    return tmp / "runs.sqlite", ids
+    return stored_runs_quietly(tmp_path_factory, "export-identity", main)
 
 
 def _export(capsys, runs, kind, out, *extra):

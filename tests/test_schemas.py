@@ -13,19 +13,26 @@ from hypothesis import strategies as st
 
 from bench.core.errors import ConfigError
 from bench.core.parsing import read_toml
-from bench.core.schemas import BenchFile, PlanFile, validate_document
+from bench.core.schemas import BenchFile, PlanFile, SceneFile, SweepFile, validate_document
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
+#: fixtures/<folder> -> the schema of its documents
+SCHEMAS = {"plans": PlanFile, "benches": BenchFile, "sweeps": SweepFile, "scenes": SceneFile}
 
 
-@pytest.mark.parametrize("path", sorted((FIXTURES / "plans").glob("*.toml")), ids=lambda p: p.name)
-def test_every_fixture_plan_is_valid(path):
-    validate_document(PlanFile, read_toml(path), str(path))
+@pytest.mark.parametrize("path", [p for d in SCHEMAS for p in sorted((FIXTURES / d).glob("*.toml"))],
+                         ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_every_fixture_document_is_valid(path):
+    validate_document(SCHEMAS[path.parent.name], read_toml(path), str(path))
 
 
-@pytest.mark.parametrize("path", sorted((FIXTURES / "benches").glob("*.toml")), ids=lambda p: p.name)
-def test_every_fixture_bench_is_valid(path):
-    validate_document(BenchFile, read_toml(path), str(path))
+def _refusal(schema, doc, filename: str) -> str:
+    """The message ``schema`` refuses ``doc`` with, checked to be one line naming ``filename``."""
+    with pytest.raises(ConfigError) as info:
+        validate_document(schema, doc, filename)
+    msg = str(info.value)
+    assert msg.startswith(f"{filename}: ") and "\n" not in msg, msg
+    return msg
 
 
 BAD_PLANS = {
@@ -50,11 +57,7 @@ BAD_PLANS = {
 @pytest.mark.parametrize("name", sorted(BAD_PLANS))
 def test_bad_plans_are_refused_naming_key_and_value(name):
     doc, expected = BAD_PLANS[name]
-    with pytest.raises(ConfigError) as info:
-        validate_document(PlanFile, doc, "my-plan.toml")
-    msg = str(info.value)
-    assert msg.startswith("my-plan.toml: ") and "\n" not in msg
-    assert expected in msg
+    assert expected in _refusal(PlanFile, doc, "my-plan.toml")
 
 
 BAD_BENCHES = {
@@ -72,9 +75,7 @@ BAD_BENCHES = {
 @pytest.mark.parametrize("name", sorted(BAD_BENCHES))
 def test_bad_benches_are_refused_naming_key_and_value(name):
     doc, expected = BAD_BENCHES[name]
-    with pytest.raises(ConfigError) as info:
-        validate_document(BenchFile, doc, "lab.toml")
-    assert expected in str(info.value) and str(info.value).startswith("lab.toml: ")
+    assert expected in _refusal(BenchFile, doc, "lab.toml")
 
 
 _values = st.one_of(st.none(), st.booleans(), st.integers(-10**20, 10**20), st.floats(allow_nan=True),
@@ -97,19 +98,6 @@ def test_fuzzed_plan_documents_give_config_errors_only(doc):
 
 # --- sweeps and scenes -------------------------------------------------------------------------------
 
-from bench.core.schemas import SceneFile, SweepFile  # noqa: E402
-
-
-@pytest.mark.parametrize("path", sorted((FIXTURES / "sweeps").glob("*.toml")), ids=lambda p: p.name)
-def test_every_fixture_sweep_is_valid(path):
-    validate_document(SweepFile, read_toml(path), str(path))
-
-
-@pytest.mark.parametrize("path", sorted((FIXTURES / "scenes").glob("*.toml")), ids=lambda p: p.name)
-def test_every_fixture_scene_is_valid(path):
-    validate_document(SceneFile, read_toml(path), str(path))
-
-
 BAD_SWEEPS = {
     "typo": ({"sweep": {"raays": 3}}, "unknown key 'sweep.raays'; did you mean 'rays'?"),
     "delta text": ({"sweep": {"delta": "abc"}}, "key sweep.delta"),
@@ -125,9 +113,7 @@ BAD_SWEEPS = {
 @pytest.mark.parametrize("name", sorted(BAD_SWEEPS))
 def test_bad_sweeps_are_refused_naming_key_and_value(name):
     doc, expected = BAD_SWEEPS[name]
-    with pytest.raises(ConfigError) as info:
-        validate_document(SweepFile, doc, "s.toml")
-    assert expected in str(info.value) and str(info.value).startswith("s.toml: ")
+    assert expected in _refusal(SweepFile, doc, "s.toml")
 
 
 BAD_SCENES = {
@@ -144,9 +130,7 @@ BAD_SCENES = {
 @pytest.mark.parametrize("name", sorted(BAD_SCENES))
 def test_bad_scenes_are_refused_naming_key_and_value(name):
     doc, expected = BAD_SCENES[name]
-    with pytest.raises(ConfigError) as info:
-        validate_document(SceneFile, doc, "scene.toml")
-    assert expected in str(info.value), str(info.value)
+    assert expected in _refusal(SceneFile, doc, "scene.toml")
 
 
 def test_the_sweep_loader_refuses_through_the_schema(tmp_path):

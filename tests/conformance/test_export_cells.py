@@ -10,8 +10,6 @@ grid would be invented otherwise).
 
 from __future__ import annotations
 
-import contextlib
-import io
 
 import numpy as np
 import pandas as pd
@@ -20,7 +18,7 @@ import pytest
 from bench.cli import main
 from bench.io import read_record
 from helpers.cli import run_main
-from helpers.export_records import LAMBERT_BRDF, stored_runs
+from helpers.export_records import LAMBERT_BRDF, stored_runs_quietly
 
 KINDS = ("gonio", "in-plane", "spectro", "spectro-sweep")
 FORMATS = {"csv": "r.csv", "parquet": "r.parquet", "astm": "r.astm.csv", "zemax": "r.bsdf"}
@@ -33,10 +31,7 @@ REFUSED = {("in-plane", "zemax"): "in-plane scan", ("spectro", "astm"): "reflect
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("export-cells")
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        ids = stored_runs(tmp, main)
-    return tmp / "runs.sqlite", ids
+    return stored_runs_quietly(tmp_path_factory, "export-cells", main)
 
 
 def _stored_rows(store, run_id) -> pd.DataFrame:

@@ -10,7 +10,6 @@ checked on every path: a non-JSON ``extra``, a text in a value, an angle out of 
 from __future__ import annotations
 
 import contextlib
-import io
 import shutil
 import sqlite3
 
@@ -18,7 +17,7 @@ import pytest
 
 from bench.cli import main
 from helpers.cli import run_main
-from helpers.export_records import stored_runs
+from helpers.export_records import stored_runs_quietly
 
 KINDS = ("gonio", "in-plane", "spectro", "spectro-sweep")
 DAMAGES = {
@@ -34,10 +33,7 @@ DAMAGES = {
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("stored-record-cells")
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        ids = stored_runs(tmp, main)
-    return tmp / "runs.sqlite", ids
+    return stored_runs_quietly(tmp_path_factory, "stored-record-cells", main)
 
 
 @pytest.mark.parametrize("damage", list(DAMAGES))

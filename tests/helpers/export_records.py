@@ -10,6 +10,8 @@ spectrophotometer and its sweep): for the export tests and the export conformanc
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 from pathlib import Path
 
@@ -98,3 +100,12 @@ def stored_runs(tmp: Path, main) -> dict[str, str]:
     runs["spectro"] = next(r for r in rest if kinds[r] == "virtual")
     runs["spectro-sweep"] = next(r for r in rest if kinds[r] == "sweep")
     return runs
+
+
+def stored_runs_quietly(tmp_path_factory, name: str, main) -> tuple[Path, dict[str, str]]:
+    """:func:`stored_runs` in a fresh folder ``name`` of the session, the CLI's output swallowed:
+    ``(store, kind -> run id)``, what a module-scoped ``runs`` fixture returns."""
+    tmp = tmp_path_factory.mktemp(name)
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        ids = stored_runs(tmp, main)
+    return tmp / "runs.sqlite", ids
