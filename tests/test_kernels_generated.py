@@ -43,7 +43,7 @@ def test_the_law_table_states_every_law() -> None:
 ])
 def test_a_law_breaking_the_contract_is_refused_naming_its_file(change: dict, words: str) -> None:
     law = types.ModuleType("bad")
-    for attr in ("MODEL", "TITLE", "UNIFORMS", "FLOAT32_LIMITS", "given"):
+    for attr in ("MODEL", "TITLE", "SPECIMEN", "UNIFORMS", "FLOAT32_LIMITS", "given"):
         setattr(law, attr, getattr(oren_nayar, attr))
     law.MODEL = 99
     for k, v in change.items():

@@ -58,7 +58,7 @@ def _twin32(name: str) -> str:
 
 def _check_law(name: str, law: ModuleType, seen: dict[int, str]) -> None:
     where = f"virtual/kernels/laws/{name}.py"
-    for attr in ("MODEL", "TITLE", "UNIFORMS", "FLOAT32_LIMITS", "given"):
+    for attr in ("MODEL", "TITLE", "SPECIMEN", "UNIFORMS", "FLOAT32_LIMITS", "given"):
         if not hasattr(law, attr):
             raise SystemExit(f"{where}: missing {attr} (see virtual/kernels/laws/__init__.py)")
     if not isinstance(law.MODEL, int) or law.MODEL < 0:
@@ -166,9 +166,10 @@ def _table(laws: list[tuple[str, ModuleType]]) -> str:
     out = [_HEADER.format(src="virtual/kernels/laws/"),
            '"""The laws of :mod:`virtual.kernels.laws` as numbers, in a module that imports nothing (declaring,\n'
            'parsing and routing specimens does not load numba): their model ids, the routing table\'s\n'
-           'names, their uniforms per ray and their float32 limits ((index, name, lo, hi), inclusive)."""\n\n',
+           'names, their uniforms per ray, their float32 limits ((index, name, lo, hi), inclusive) and\n'
+           'the modules declaring their specimen families."""\n\n',
            "__all__ = " + json.dumps([*ids, "LAW_MODELS", "LAW_FLOAT32_MODELS", "LAW_TITLES", "LAW_UNIFORMS",
-                                      "LAW_FLOAT32_LIMITS"]) + "\n\n"]
+                                      "LAW_FLOAT32_LIMITS", "LAW_SPECIMENS"]) + "\n\n"]
     for (_, law), ident in zip(laws, ids):
         out.append(f"{ident} = {law.MODEL}\n")
     out.append(f"\nLAW_MODELS = ({''.join(f'{i}, ' for i in ids).rstrip(' ')})\n")
@@ -182,6 +183,9 @@ def _table(laws: list[tuple[str, ModuleType]]) -> str:
             rows = "".join(f"({int(j)}, {json.dumps(n)}, {float(lo)!r}, {float(hi)!r}), " for j, n, lo, hi in law.FLOAT32_LIMITS)
             lim.append(f"{i}: ({rows.rstrip(' ')})")
     out.append("LAW_FLOAT32_LIMITS = {" + ", ".join(lim) + "}\n")
+    modules = list(dict.fromkeys(law.SPECIMEN for _, law in laws))
+    out.append("#: the modules declaring the laws' specimen families (virtual.specimens imports them)\n"
+               f"LAW_SPECIMENS = ({''.join(json.dumps(m) + ', ' for m in modules).rstrip(' ')})\n")
     return "".join(out)
 
 

@@ -19,15 +19,18 @@ formula, its sampling argument and its parameter vector; :func:`specimen_table_m
 renders every family's parameters (range, unit, default); a parameter out of range, unknown or
 ignored raises :class:`~bench.core.errors.SpecimenError` naming it.
 
-Adding a kernel model: declare its class (here or in your own module, with
-:func:`register_specimen`), give it an id in :mod:`virtual.model_ids` and write its branch in
-:mod:`virtual.kernels.scatter`. A lab's model
+Adding a kernel model: write its law (:mod:`virtual.kernels.laws`: its id, its sampling, once for
+every kernel path; ``make kernels`` generates the rest) and declare its class in the module the
+law names as its ``SPECIMEN`` (imported here from :data:`virtual.law_table.LAW_SPECIMENS`). A lab's model
 without a kernel declares ``model = MODEL_PYTHON`` (exported here) and a ``sample`` method. The
 native families' ids are in :mod:`virtual.model_ids`, the kernel face in :mod:`virtual.kernels`.
 """
 
 from __future__ import annotations
 
+import importlib
+
+from virtual.law_table import LAW_SPECIMENS
 from virtual.model_ids import MODEL_PYTHON
 from virtual.specimens.declare import (SPECIMENS, DeclaredSpecimen, Param, Specimen, Spectral, register_specimen,
                                        specimen_families, specimen_family, specimen_table_markdown)
@@ -45,3 +48,6 @@ __all__ = [
     "MitsubaRoughPlastic",
     "ALPHA_MIN", "ALPHA_MAX",
 ]
+
+for _module in LAW_SPECIMENS:  # the families of the laws of virtual.kernels.laws: importing registers them
+    importlib.import_module(_module)

@@ -5,6 +5,8 @@ A law module states, as module constants and functions:
 ``MODEL``           its specimen model id (an int, stable: records and caches name it; the
                     generated :mod:`virtual.law_table` names it ``MODEL_<NAME>``)
 ``TITLE``           the routing table's name of the model ("Oren-Nayar")
+``SPECIMEN``        the module declaring its specimen family (:mod:`virtual.specimens` imports it,
+                    which registers the family)
 ``UNIFORMS``        how many uniforms ``given`` takes per ray (u0, u1, ...)
 ``FLOAT32_LIMITS``  the parameter ranges its float32 form takes, ``((index, name, lo, hi), ...)``
                     inclusive (every other parameter within +-``MAX_FLOAT32_PARAM``), or None

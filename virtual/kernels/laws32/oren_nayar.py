@@ -16,6 +16,7 @@ from virtual.kernels.precision32 import ONE, TWO, ZERO, in_doubt, sincos_2pi  # 
 
 MODEL = 1
 TITLE = "Oren-Nayar"
+SPECIMEN = "virtual.specimens.diffuse"
 UNIFORMS = 4
 FLOAT32_LIMITS = ()
 
