@@ -185,12 +185,16 @@ def _random_dirs(rng, n, upper=True):
     return v
 
 
+def _specimen_and_dirs(key, seed, n_in, n_out):
+    """The specimen ``SPECS[key]``, a generator seeded ``seed`` and ``n_in`` then ``n_out`` random
+    upper-hemisphere directions drawn from it."""
+    rng = np.random.default_rng(seed)
+    return parse_specimen(SPECS[key]), rng, _random_dirs(rng, n_in), _random_dirs(rng, n_out)
+
+
 @pytest.mark.parametrize("key", list(SPECS))
 def test_reciprocity(key):
-    s = parse_specimen(SPECS[key])
-    rng = np.random.default_rng(5)
-    wi = _random_dirs(rng, 40)
-    wo = _random_dirs(rng, 40)
+    s, rng, wi, wo = _specimen_and_dirs(key, 5, 40, 40)
     fwd = np.array([s.bsdf(a, b[None, :], WL)[0] for a, b in zip(wi, wo)])
     back = np.array([s.bsdf(b, a[None, :], WL)[0] for a, b in zip(wi, wo)])
     assert np.all(fwd > 0)
@@ -219,10 +223,7 @@ def _rotz(v, a):
 
 @pytest.mark.parametrize("key", list(SPECS))
 def test_isotropy_flag(key):
-    s = parse_specimen(SPECS[key])
-    rng = np.random.default_rng(6)
-    wi = _random_dirs(rng, 1)
-    wo = _random_dirs(rng, 50)
+    s, _, wi, wo = _specimen_and_dirs(key, 6, 1, 50)
     f = s.bsdf(wi[0], wo, WL)
     fr = s.bsdf(_rotz(wi, 0.7)[0], _rotz(wo, 0.7), WL)
     assert np.allclose(f, fr, rtol=1e-10) == s.isotropic

@@ -71,6 +71,18 @@ def _scan(d: Path, env: dict, store: Path) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env)
 
 
+def _owner(d: Path, env: dict, store: Path) -> tuple[subprocess.Popen, str]:
+    """A first scan into ``store`` once it owns the devices and has started its run: (the
+    process, its run id); the process is killed when it never gets there."""
+    first = _scan(d, env, store)
+    try:
+        return first, _owner_run(d, first)
+    except BaseException:
+        first.kill()
+        first.wait()
+        raise
+
+
 def _owner_run(d: Path, proc: subprocess.Popen) -> str:
     """Wait until ``proc`` owns the devices and has started its run; return the run id."""
     end = time.monotonic() + GIVE_UP_S
@@ -120,9 +132,8 @@ def _refused(proc: subprocess.CompletedProcess, owner_pid: int, run_id: str) -> 
 def test_a_second_owner_is_refused_and_the_first_run_loses_nothing(shared_bench, tmp_path):
     d, env = shared_bench
     store = tmp_path / "runs.db"
-    first = _scan(d, env, store)
+    first, run_id = _owner(d, env, store)
     try:
-        run_id = _owner_run(d, first)
         # all at once, while the first scan runs: a second scan, a homing, and read-only commands
         # (which never open or lock hardware, so they work beside the owner)
         second, home, show, runs, plan = _together(
@@ -154,12 +165,9 @@ def test_a_second_owner_is_refused_and_the_first_run_loses_nothing(shared_bench,
 def test_a_killed_owner_is_taken_over_and_its_run_resumed_whole(shared_bench, tmp_path):
     d, env = shared_bench
     store = tmp_path / "runs.db"
-    first = _scan(d, env, store)
-    try:
-        run_id = _owner_run(d, first)
-    finally:
-        first.send_signal(signal.SIGKILL)
-        first.wait()
+    first, run_id = _owner(d, env, store)
+    first.send_signal(signal.SIGKILL)
+    first.wait()
     home = run_bench("home", "--bench", d / "bench.toml", env=env)
     assert home.returncode == 0, home.stderr
     assert "taking over the lock" in home.stderr and f"pid {first.pid}" in home.stderr and "no longer runs" in home.stderr
