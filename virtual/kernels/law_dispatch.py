@@ -9,8 +9,11 @@ from __future__ import annotations
 
 from virtual.kernels import jit
 from virtual.kernels.emit import emit_given
+from virtual.kernels.xoshiro import next_double
 from virtual.kernels.laws import oren_nayar as oren_nayar64
+from virtual.kernels.laws import ward as ward64
 from virtual.kernels.laws32 import oren_nayar as oren_nayar32
+from virtual.kernels.laws32 import ward as ward32
 
 __all__ = ["law_uniforms", "law32", "law_scatter", "law_block64", "law_block32", "law_given64"]
 
@@ -20,13 +23,15 @@ def law_uniforms(model):
     """The uniforms per ray of law ``model``'s given form; 0 for a model that is not a law."""
     if model == 1:  # oren_nayar
         return 4
+    if model == 9:  # ward
+        return 4
     return 0
 
 
 @jit(inline="llvm")
 def law32(model):
     """Whether ``model`` is a law with a float32 form."""
-    return model == 1
+    return model == 1 or model == 9
 
 
 @jit(inline="llvm")
@@ -35,6 +40,9 @@ def law_scatter(model, p, wx, wy, wz, s):
     ``given`` on fresh draws)."""
     if model == 1:
         return oren_nayar64.ray(p, wx, wy, wz, s)
+    if model == 9:
+        ox, oy, oz, alive, _ = ward64.given(p, wx, wy, wz, next_double(s), next_double(s), next_double(s), next_double(s))
+        return (ox, oy, oz, True) if alive else (0.0, 0.0, 0.0, False)
     return 0.0, 0.0, 0.0, False
 
 
@@ -47,6 +55,11 @@ def law_block64(model, p, beam_kind, b, u, s0, nb, bo, vx, vy, vz, code, absorbe
         for i in range(nb):
             wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
             vx[i], vy[i], vz[i], alive, _ = oren_nayar64.given(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+            code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+    elif model == 9:
+        for i in range(nb):
+            wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+            vx[i], vy[i], vz[i], alive, _ = ward64.given(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
             code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
 
 
@@ -61,6 +74,11 @@ def law_block32(model, p, u, s0, nb, vx, vy, vz, code):
             hit = code[i] == 1
             vx[i], vy[i], vz[i], alive, doubt = oren_nayar32.given(p, vx[i], vy[i], vz[i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
             code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
+    elif model == 9:
+        for i in range(nb):
+            hit = code[i] == 1
+            vx[i], vy[i], vz[i], alive, doubt = ward32.given(p, vx[i], vy[i], vz[i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+            code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
 
 
 @jit(inline="llvm")
@@ -70,5 +88,8 @@ def law_given64(model, p, wx, wy, wz, v):
     ``(ox, oy, oz, alive)``."""
     if model == 1:
         ox, oy, oz, alive, _ = oren_nayar64.given(p, wx, wy, wz, v[0], v[1], v[2], v[3])
+        return ox, oy, oz, alive
+    if model == 9:
+        ox, oy, oz, alive, _ = ward64.given(p, wx, wy, wz, v[0], v[1], v[2], v[3])
         return ox, oy, oz, alive
     return 0.0, 0.0, 0.0, False
