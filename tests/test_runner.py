@@ -3,10 +3,8 @@
 import math
 import os
 import random
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +15,7 @@ from bench.core.errors import DeviceTimeoutError, PlanError, RunInterrupted
 from bench.plans import load_plan, plan_from_dict
 from bench.runner import resume_scan, run_scan
 from bench.store import RunStore
-from store_probe import committed_points
+from store_probe import kill_once_committed
 
 ROOT = Path(__file__).parent.parent
 BENCH = ROOT / "fixtures" / "benches" / "virtual.toml"
@@ -122,10 +120,7 @@ def test_sigkill_mid_scan_then_resume_gives_exactly_the_uninterrupted_record(tmp
         proc = subprocess.Popen(bench_exe + ["scan", str(plan_path), "--bench", str(BENCH), "--store", str(db),
                                              "--seed", "5", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 env=env)
-        deadline = time.monotonic() + 60
-        while committed_points(db) < target and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.002)
-        os.kill(proc.pid, signal.SIGKILL)
+        kill_once_committed(proc, db, target, poll_s=0.002)
         proc.wait(10)
         with RunStore(db) as store:
             rid = store.runs()[0]["run_id"]

@@ -5,7 +5,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +14,7 @@ import pytest
 from bench.cli import main
 from bench.core.errors import ConfigError, RunInterrupted, StoreError
 from bench.store import RunStore
-from store_probe import committed_points
+from store_probe import kill_once_committed
 from bench.sweep import (TASK_COLUMNS, TaskResult, _Sink, load_sweep, resume_sweep, run_sweep, run_task, series_seed,
                          sweep_from_dict, sweep_readings, task_key)
 
@@ -182,10 +181,7 @@ def test_a_sigkilled_sweep_process_resumes_to_the_uninterrupted_results(tmp_path
     db = tmp_path / "crash.sqlite"
     proc = subprocess.Popen([sys.executable, "-m", "bench.cli", "sweep", str(toml), "--store", str(db), "-q"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 60
-    while committed_points(db) < 2 and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.005)
-    os.kill(proc.pid, signal.SIGKILL)
+    kill_once_committed(proc, db, 2)
     proc.wait(10)
     with RunStore(db) as store:
         rid = store.runs()[0]["run_id"]
