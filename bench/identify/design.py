@@ -33,12 +33,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from bench.config import Bench
 from bench.core.errors import ConfigError, SpecimenError
 from bench.core.geometry import Geometry
 from bench.exposure import unsaturated
 from bench.identify.design_noise import ReadingModel
 from bench.identify.prediction import predicted_brdf
 from bench.identify.time_model import ReadingSettings, TimeModel
+from virtual.specimens import DeclaredSpecimen
 
 __all__ = ["ModelPoint", "Information", "PriorInformation", "prior_information", "information", "prior_sensitivities",
            "mean_criterion", "PRIOR_SPREAD", "PRIOR_DRAWS", "Sensitivities", "sensitivities", "criterion", "Design", "design_plan", "CRITERIA",
@@ -59,13 +61,13 @@ PRIOR_DRAWS = 8
 class ModelPoint:
     """A specimen family at one point of its parameter space, with the parameters to identify."""
 
-    family: type
+    family: type[DeclaredSpecimen]
     values: Mapping[str, float]
     free: tuple[str, ...]
     #: prior range factor: the design averages over guess / spread .. guess x spread (1: at the guess only)
     spread: float = 1.0
 
-    def specimen(self, values: Mapping[str, float] | None = None) -> Any:
+    def specimen(self, values: Mapping[str, float] | None = None) -> DeclaredSpecimen:
         return self.family.from_keywords(dict(values if values is not None else self.values))
 
     def spec(self) -> str:
@@ -122,18 +124,18 @@ class Information:
 
     def total(self, idx: Sequence[int] | np.ndarray) -> np.ndarray:
         """Fisher information of the points ``idx`` (each measured once)."""
-        idx = np.asarray(idx, dtype=int)
-        a = self.own[idx].sum(axis=0)
-        b = self.cross[idx].sum(axis=0)
-        c = float(self.self_[idx].sum())
+        at = np.asarray(idx, dtype=int)
+        a = self.own[at].sum(axis=0)
+        b = self.cross[at].sum(axis=0)
+        c = float(self.self_[at].sum())
         return a - self.rho2 * np.outer(b, b) / (1.0 + self.rho2 * c)
 
     def with_each(self, idx: Sequence[int], cand: np.ndarray) -> np.ndarray:
         """Fisher information of ``idx`` plus each one of ``cand``: ``(len(cand), p, p)``."""
-        idx = np.asarray(idx, dtype=int)
-        a = self.own[idx].sum(axis=0)[None] + self.own[cand]
-        b = self.cross[idx].sum(axis=0)[None] + self.cross[cand]
-        c = float(self.self_[idx].sum()) + self.self_[cand]
+        at = np.asarray(idx, dtype=int)
+        a = self.own[at].sum(axis=0)[None] + self.own[cand]
+        b = self.cross[at].sum(axis=0)[None] + self.cross[cand]
+        c = float(self.self_[at].sum()) + self.self_[cand]
         return a - (self.rho2 / (1.0 + self.rho2 * c))[:, None, None] * np.einsum("ni,nj->nij", b, b)
 
     def scaled(self, s: float) -> "Information":
@@ -372,7 +374,7 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
         least = time.seconds([pool[i] for i in chosen[:1]] or [candidates[0]])["seconds"] if n_cand else math.nan
         raise ConfigError(f"a budget of {seconds:g} s buys no design that identifies {', '.join(model.free)} of "
                           f"{model.family.name} on this bench (one point alone takes {least:.3g} s; at least {p} "
-                          f"informative points are needed): give more --seconds")
+                          f"informative points are needed): give more --budget-seconds")
     points = [pool[i] for i in chosen]
     est = time.seconds(points)
     return Design(points, float(est["seconds"]), est, criterion_name, value,
@@ -396,7 +398,7 @@ def _exchange(info: PriorInformation, pool: Sequence[Geometry], chosen: list[int
             free = np.array([k for k in range(n_cand) if k not in chosen], dtype=int)
             if free.size == 0:
                 return chosen, None
-            now = mean_criterion(info.total(fixed + chosen) + ridge, name)
+            now = float(mean_criterion(info.total(fixed + chosen) + ridge, name))
             vals = mean_criterion(info.with_each(fixed + rest, free) + ridge[None], name)
             for k in np.argsort(-vals)[:5]:  # the best few swaps, checked against the budget
                 if not vals[k] > now + 1e-12 * max(1.0, abs(now)):
@@ -411,7 +413,7 @@ def _exchange(info: PriorInformation, pool: Sequence[Geometry], chosen: list[int
     return chosen, None
 
 
-def design_for_bench(model: ModelPoint, bench: Any, candidates: Sequence[Geometry], seconds: float,
+def design_for_bench(model: ModelPoint, bench: Bench, candidates: Sequence[Geometry], seconds: float,
                      settings: Sequence[ReadingSettings], criterion_name: str = "D",
                      seed_points: Sequence[Geometry] = (), shared_scale: bool = True,
                      max_seconds: float | None = None) -> Design:

@@ -18,7 +18,7 @@ import tomli_w
 from bench.core.errors import InputError, SpecimenError
 from bench.core.outputs import atomic_write
 from bench.identify.design import PRIOR_SPREAD, Design, ModelPoint, integration_choices
-from bench.identify.model_spec import parse_model_spec
+from bench.identify.model_spec import ModelSpec, parse_model_spec
 from bench.identify.time_model import ReadingSettings
 from bench.plans import load_plan
 
@@ -50,7 +50,7 @@ def parse_prior(text: str | None) -> dict[str, float]:
     return parse_values(text, "--prior")
 
 
-def model_point(spec: Any, prior: Mapping[str, float] | None = None, spread: float = PRIOR_SPREAD) -> ModelPoint:
+def model_point(spec: ModelSpec, prior: Mapping[str, float] | None = None, spread: float = PRIOR_SPREAD) -> ModelPoint:
     """The model of a parsed model string (:class:`bench.identify.model_spec.ModelSpec`) at its
     prior guess: fixed values, declared defaults, and ``prior`` for the free parameters; a design
     averages over guess / ``spread`` .. guess x ``spread`` (:meth:`ModelPoint.prior_points`; 1: at
@@ -61,7 +61,8 @@ def model_point(spec: Any, prior: Mapping[str, float] | None = None, spread: flo
     free = {p.name: p for p in spec.free}
     values.update({p.name: float(p.start()) for p in spec.free})
     for k, v in (prior or {}).items():
-        k = spec.canonical(k) if spec.canonical(k) in free else k  # an alias (albedo) names its parameter
+        declared = spec.canonical(k)
+        k = declared if declared is not None and declared in free else k  # an alias (albedo) names its parameter
         if k not in free:
             raise InputError(f"--prior {k}={v:g}: {k} is not a free parameter of {spec.text!r} "
                              f"(free: {', '.join(free)})")
@@ -79,7 +80,7 @@ def model_point(spec: Any, prior: Mapping[str, float] | None = None, spread: flo
 
 def design_inputs(model: str, prior: str | Mapping[str, float] | None = None, like: str | Path | None = None,
                   integration_s: str | Sequence[float] = "0.02",
-                  spread: float | None = None) -> tuple[Any, ModelPoint, list[ReadingSettings]]:
+                  spread: float | None = None) -> tuple[ModelSpec, ModelPoint, list[ReadingSettings]]:
     """The parsed model, the model at its prior and the reading settings a design chooses from,
     from ``--prior``, ``--prior-spread``, ``--like`` and ``--integration-s`` as ``bench plan --design`` /
     ``bench scan --adaptive`` take them (``prior`` may also be a mapping, ``integration_s`` a sequence)."""
@@ -137,7 +138,7 @@ def write_design(path: str | Path, design: Design, model_text: str, bench_name: 
     table = design_table(design, p.stem, model_text)
     est = design.estimate
     header = [
-        f"# Designed by `bench plan --design \"{model_text}\" --seconds {seconds:g} --criterion {design.criterion}`",
+        f"# Designed by `bench plan --design \"{model_text}\" --budget-seconds {seconds:g} --criterion {design.criterion}`",
         f"# on bench {bench_name!r} ({body} body): {len(design.points)} of {candidates} reachable candidate points,",
         f"# prior {', '.join(f'{k}={v:g}' for k, v in design.model.values.items())}.",
         f"# Estimated bench time {est['seconds']:.4g} s (motion {est['motion_s']:.3g} s, acquisition "

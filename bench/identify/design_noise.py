@@ -25,10 +25,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, Protocol, Sequence, cast
 
 import numpy as np
 
+from bench.config import Bench
 from bench.core.calibration import Calibration, WhiteStandard
 from bench.core.geometry import Geometry
 from bench.core.parsing import parse_wavelengths
@@ -143,10 +144,25 @@ def _emulated_model(d: Mapping[str, Any], settings: ReadingSettings, standard: W
                         saturation=full, peak_ratio=np.array(peak))
 
 
-def _virtual_model(bench: Any, settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
+class _Patches(Protocol):
+    psa: np.ndarray
+
+
+class _MonteCarloDetector(Protocol):
+    """What the reading model needs of a virtual bench's spectrometer: the virtual goniophotometer
+    (:class:`virtual.goniophotometer.VirtualGoniophotometer`), seen through any declared effects'
+    wrappers, which forward these attributes."""
+
+    wavelengths: np.ndarray
+    collector: _Patches
+    gain: float
+    rays: int
+
+
+def _virtual_model(bench: Bench, settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
     from bench.builders.instrument import declared_aperture, instrument_effects
 
-    gonio = bench.spectrometer  # the virtual goniophotometer (through any declared effects)
+    gonio = cast(_MonteCarloDetector, bench.spectrometer)  # the virtual goniophotometer (through any declared effects)
     wl = np.asarray(gonio.wavelengths, dtype=float)
     aperture = declared_aperture(bench.config)
     # binomial counting in a patch, or in the aperture's cone of solid angle 2 pi (1 - cos a):
@@ -165,7 +181,7 @@ def _virtual_model(bench: Any, settings: ReadingSettings, standard: WhiteStandar
     return ReadingModel("virtual", wl, settings, standard, aperture, np.full(wl.size, scale), per_count, floor, dark)
 
 
-def _real_model(bench: Any, settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
+def _real_model(bench: Bench, settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
     from bench.builders.instrument import declared_aperture
     from bench.identify.time_model import plan_of_points
     from bench.plans import MotionProfile, estimate
@@ -178,7 +194,7 @@ def _real_model(bench: Any, settings: ReadingSettings, standard: WhiteStandard) 
                         relative_floor=rel)
 
 
-def bench_reading_model(bench: Any, settings: ReadingSettings) -> ReadingModel:
+def bench_reading_model(bench: Bench, settings: ReadingSettings) -> ReadingModel:
     """The reading model of an open bench, by the body that executes its description."""
     if bench.kind == "emulated":
         return _emulated_model(bench.config, settings, bench.white)

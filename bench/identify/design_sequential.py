@@ -1,6 +1,6 @@
 """Sequential design: measure a small designed plan, fit, re-design from the estimate, repeat.
 
-``bench scan --adaptive MODEL --seconds S`` runs :func:`adaptive_scan`: the first step spends a
+``bench scan --adaptive MODEL --budget-seconds S`` runs :func:`adaptive_scan`: the first step spends a
 share of the budget on a design at the prior guess; every later step fits all the readings so
 far (:func:`fit_readings`: ``bench fit``'s likelihood, the readings' full covariance), designs
 the next plan at that estimate with the points already measured counted in the information, and
@@ -29,9 +29,14 @@ import pandas as pd
 
 from bench.core.errors import InputError
 from bench.core.geometry import Geometry
+from bench.config import Bench
 from bench.core.records import BSDFRecord
 from bench.identify.design import ModelPoint, design_for_bench
 from bench.identify.design_io import parse_values
+from bench.identify.fit import FitResult, fit_record
+from bench.identify.model_spec import ModelSpec
+from bench.plans import Plan
+from bench.store import RunStore
 from bench.identify.time_model import ReadingSettings, candidate_grid, plan_of_points, reachable
 
 __all__ = ["AdaptiveStep", "AdaptiveResult", "AdaptiveSession", "NextStep", "adaptive_scan", "parse_targets",
@@ -113,17 +118,15 @@ def combined_record(records: Sequence[BSDFRecord]) -> BSDFRecord:
     return BSDFRecord(pd.concat(tables, ignore_index=True), dict(records[0].meta))
 
 
-def fit_readings(spec: Any, records: Sequence[BSDFRecord]) -> Any:
+def fit_readings(spec: str | ModelSpec, records: Sequence[BSDFRecord]) -> FitResult:
     """Fit ``spec`` to the readings of ``records`` as ``bench fit`` does (Hessian intervals): with
     the readings' full covariance from their budgets, the white standard's certificate one error
     common to every reading of every step (as the design's information counts it)."""
-    from bench.identify.fit import fit_record
-
     record = combined_record(records)
     return fit_record(record, spec, interval="hessian")
 
 
-def session_candidates(bench: Any, step_deg: float, settings: Sequence[ReadingSettings]) -> list[Geometry]:
+def session_candidates(bench: Bench, step_deg: float, settings: Sequence[ReadingSettings]) -> list[Geometry]:
     """The in-plane candidate grid (``--step``) minus every point ``bench`` refuses."""
     candidates = reachable(candidate_grid(step_deg), bench.goniometer.check, settings[0], bench.config,
                            max(s.integration_s for s in settings))  # nor one the detector would saturate at
@@ -132,7 +135,7 @@ def session_candidates(bench: Any, step_deg: float, settings: Sequence[ReadingSe
     return candidates
 
 
-def stored_steps(store: Any, prefix: str) -> dict[int, dict[str, Any]]:
+def stored_steps(store: RunStore, prefix: str) -> dict[int, dict[str, Any]]:
     """The runs of a session already in ``store`` (plan named ``PREFIX + step``), by step; of
     several runs of one step (a step measured again after an interrupted run), the completed one,
     else the latest."""
@@ -160,7 +163,7 @@ class NextStep:
     designed_at: dict[str, float]
     points: list[Geometry]
     settings: ReadingSettings
-    plan: Any
+    plan: Plan
     stored: dict[str, Any] | None = None
 
 
@@ -173,7 +176,7 @@ class AdaptiveSession:
     its record to :meth:`add`, which fits every reading so far and decides on the targets.
     """
 
-    def __init__(self, bench: Any, spec: Any, prior: ModelPoint, seconds: float, settings: Sequence[ReadingSettings],
+    def __init__(self, bench: Bench, spec: ModelSpec, prior: ModelPoint, seconds: float, settings: Sequence[ReadingSettings],
                  candidates: Sequence[Geometry], criterion: str = "D", targets: Mapping[str, float] | None = None,
                  key: str = "") -> None:
         self.bench, self.spec, self.prior, self.seconds = bench, spec, prior, float(seconds)
@@ -183,7 +186,7 @@ class AdaptiveSession:
         self.settings = list(settings)
         self.spent = 0.0
         self.stopped = "budget"
-        self.fit: Any = None
+        self.fit: FitResult | None = None
         self.records: list[BSDFRecord] = []
         self.measured: list[Geometry] = []
         self.steps: list[AdaptiveStep] = []
@@ -251,7 +254,7 @@ class AdaptiveSession:
                               {n: e.ci[1] - e.ci[0] for n, e in fit.parameters.items()}, list(self.steps))
 
 
-def adaptive_scan(bench: Any, store: Any, spec: Any, prior: ModelPoint, seconds: float,
+def adaptive_scan(bench: Bench, store: RunStore, spec: ModelSpec, prior: ModelPoint, seconds: float,
                   settings: Sequence[ReadingSettings], candidates: Sequence[Geometry], criterion: str = "D",
                   targets: Mapping[str, float] | None = None, seed: int | None = None, key: str = "",
                   progress: bool = False) -> AdaptiveResult:
@@ -271,7 +274,7 @@ def adaptive_scan(bench: Any, store: Any, spec: Any, prior: ModelPoint, seconds:
     return session.result()
 
 
-def _inside(values: Mapping[str, float], spec: Any) -> dict[str, float]:
+def _inside(values: Mapping[str, float], spec: ModelSpec) -> dict[str, float]:
     """Estimates kept strictly inside the model's bounds (a design needs derivatives both ways)."""
     out = {}
     for p in spec.free:
@@ -280,7 +283,7 @@ def _inside(values: Mapping[str, float], spec: Any) -> dict[str, float]:
     return out
 
 
-def _time_of(bench: Any, settings: ReadingSettings, points: Sequence[Geometry]) -> float:
+def _time_of(bench: Bench, settings: ReadingSettings, points: Sequence[Geometry]) -> float:
     from bench.identify.time_model import bench_time_model
 
     return bench_time_model(bench, settings).seconds(points)["seconds"]

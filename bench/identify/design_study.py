@@ -26,10 +26,14 @@ import logging
 import statistics
 import tempfile
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 from bench.core.errors import InputError
+from bench.core.records import BSDFRecord
 from bench.core.outputs import save_figure
+
+if TYPE_CHECKING:  # for the annotations only: the study imports its machinery when it runs, as measure() does
+    from bench.identify.model_spec import ModelSpec
 
 __all__ = ["METHODS", "SEEDS", "UNIFORM", "measure", "summary", "rows", "header", "plot_study", "truth_of",
            "parse_methods"]
@@ -63,7 +67,7 @@ def parse_methods(text: str | None) -> tuple[str, ...]:
     return tuple(k for k in METHODS if k in keys)
 
 
-def truth_of(spec: Any, specimen: str) -> dict[str, float] | None:
+def truth_of(spec: ModelSpec, specimen: str) -> dict[str, float] | None:
     """The free parameters' true values when the bench's specimen is of the model's family (and
     they are constants, not spectral tables), else None."""
     from virtual.specimens import parse_specimen
@@ -98,7 +102,7 @@ def _seeded(description: Mapping[str, Any], seed: int) -> dict[str, Any]:
     return d
 
 
-def _fit(model: str, records: list[Any]) -> dict[str, tuple[float, float, float]]:
+def _fit(model: str, records: list[BSDFRecord]) -> dict[str, tuple[float, float, float]]:
     from bench.identify.design_sequential import fit_readings
 
     fit = fit_readings(model, records)
@@ -177,7 +181,7 @@ def measure(model: str, description: Mapping[str, Any], *, seeds: Sequence[int] 
                     say(f"seed {seed}: sequential")
                     seq = adaptive_scan(bench, store, spec, point, budget, settings, candidates, key=f"bench-{seed}",
                                         seed=seed)
-                    est = {n: (seq.estimates[n], *seq.intervals[n]) for n in seq.estimates}
+                    est = {n: (seq.estimates[n], seq.intervals[n][0], seq.intervals[n][1]) for n in seq.estimates}
                     results.setdefault("sequential", []).append({"seed": seed, "seconds": seq.seconds, "fit": est,
                                                                  "steps": len(seq.runs)})
     return {"cpu": cpu_info(), "truth": truth, "model": spec.text, "specimen": specimen, "parameters": list(spec.names),
@@ -258,7 +262,8 @@ def plot_study(m: Mapping[str, Any], path: str | Path) -> Any:
     table = rows(m)
     fig, axes = plt.subplots(1, len(params), figsize=(4.8 * len(params), 4.4), squeeze=False, layout="constrained")
     markers = "osD^v<>ph*"
-    colours = plt.get_cmap("tab10").colors
+    tab10 = plt.get_cmap("tab10")
+    colours = [tab10(k) for k in range(tab10.N)]
     for ax, p, unit in zip(axes.flat, params, units):
         for k, r in enumerate(table):
             x, w = r["seconds"] / 60.0, r["widths"][p]
