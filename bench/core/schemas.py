@@ -10,7 +10,7 @@ the devices (reachability, specimen parameters); the shape of the file is checke
 from __future__ import annotations
 
 import datetime as _dt
-from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Mapping, TypeVar, Union, get_args
+from typing import TYPE_CHECKING, Annotated, Any, Callable, ClassVar, Literal, Mapping, TypeVar, Union, get_args
 
 from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, create_model,
                       field_validator, model_validator)
@@ -51,24 +51,26 @@ def _range(v: Any) -> Any:
 Range = Annotated[Any, BeforeValidator(_range)]
 
 
-def _collector(v: Any) -> Any:
-    if not isinstance(v, str):
-        raise ValueError(f"expected a collector such as 'equal-psa:9x36', got {v!r}")
+def _checked_by(check: Callable[[Any], Any], v: Any) -> Any:
+    """``v`` when the project's own parser ``check`` takes it; its InputError as the ValueError a
+    validator raises (so the message is the parser's, with the key prefixed)."""
     try:
-        check_collector_spec(v)
+        check(v)
     except InputError as exc:
         raise ValueError(str(exc)) from None
     return v
+
+
+def _collector(v: Any) -> Any:
+    if not isinstance(v, str):
+        raise ValueError(f"expected a collector such as 'equal-psa:9x36', got {v!r}")
+    return _checked_by(check_collector_spec, v)
 
 
 def _wavelengths(v: Any) -> Any:
     if isinstance(v, bool) or not isinstance(v, (str, int, float, list)):
         raise ValueError(f"expected START:STOP:STEP, a list or a number (nm), got {v!r}")
-    try:
-        parse_wavelengths(v)
-    except InputError as exc:
-        raise ValueError(str(exc)) from None
-    return v
+    return _checked_by(parse_wavelengths, v)
 
 
 #: ``SCHEME:RINGSxSECTORS`` with a bounded number of patches
