@@ -51,3 +51,11 @@ def test_a_law_breaking_the_contract_is_refused_naming_its_file(change: dict, wo
     with pytest.raises(SystemExit, match=words) as e:
         generate._check_law("bad", law, {3: "ggx"})
     assert "virtual/kernels/laws/bad.py" in str(e.value)
+
+
+def test_the_kernels_package_lists_every_module() -> None:
+    """virtual/kernels/__init__.py's docstring names each of its modules and packages."""
+    doc = (generate.KERNELS / "__init__.py").read_text().split('"""')[1]
+    names = {p.stem for p in generate.KERNELS.glob("*.py") if p.stem != "__init__"}
+    names |= {p.name for p in generate.KERNELS.iterdir() if (p / "__init__.py").is_file()}
+    assert sorted(n for n in names if f"``{n}``" not in doc) == []

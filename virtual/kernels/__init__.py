@@ -8,13 +8,27 @@ Modules (each owns one kind of kernel; none holds Python-side objects):
 ``emit``        emitting one incident ray (collimated or conical beam); the beam vector's indices
 ``patch_lookup`` the exact and the vectorizable patch lookup of the collector sphere
 ``microfacet``  Fresnel factors, GGX visible normals, masking ratios, frames
-``scatter``     the specimen model ids and the ``scatter`` dispatch, one branch per model
-``branchfree``  branch-free float64 forms of the specimens that need four or more uniforms per ray
+``laws``        the scattering laws written once (a package: one module per law, its float64 source;
+                its contract in ``laws/__init__.py``); ``make kernels`` writes the rest from them:
+``laws32``      (generated) each law's float32 twin: its source on ``precision32``
+``law_dispatch`` (generated) each law's branch of every kernel path: ray by ray, float64 block,
+                float32 block, the float32 kernel's float64 second look
+``generate``    the generator of ``laws32``, ``law_dispatch`` and :mod:`virtual.law_table`
+                (``python -m virtual.kernels.generate``, ``make kernels``; ``--check``)
+``precision64``, ``precision32`` the constants and helpers a law computes with, per precision
+``scatter``     the ``scatter`` dispatch, one branch per model (the laws' through ``law_dispatch``),
+                and the hand-written float64 forms of the models that are not laws yet
+``coat``        Mitsuba's roughplastic: its tables and its ray-by-ray branch
+``branchfree``  branch-free float64 forms of the hand-written specimens that need four or more
+                uniforms per ray
 ``block64``     the vectorized float64 block kernel and the spectral batches
+``block_coat``  the float64 block kernel of the coated families (roughplastic, leaf)
 ``f32``         float32 twins of the scalar helpers (warps, beam, bin guess, microfacet terms)
-``branchfree32`` float32 forms of the specimens (Lambertian, GGX, Phong, Oren-Nayar)
+``branchfree32`` float32 forms of the hand-written specimens (Lambertian, GGX, Phong)
 ``branchfree32_rough`` float32 forms of the rough dielectric and the rough plastic
 ``block32``     the float32 block kernel (as many lanes as the machine's vectors hold), the default fast path
+``block32_coat`` the float32 block kernel of the coated families
+``refine``      the float32 kernels' rays in doubt, decided again in float64 with 53-bit uniforms
 ``spectral32``  the float32 spectral batches
 ``vector_width`` the vector width each block kernel family is compiled for (a declared table,
                 not the CPU's tuning)
