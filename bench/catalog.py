@@ -36,6 +36,7 @@ import tempfile
 import threading
 import time
 import uuid
+import warnings
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -143,22 +144,25 @@ _SPECTRUM_KEYS = ("idx", "theta_i", "phi_i", "theta_r", "phi_r", "theta_min", "t
                   "bench", "body", "plan", "task")
 
 
-def _spectra(table: Any) -> tuple[list[str], list[str], Any, list[Any]] | None:
-    """``(key columns, array columns, wavelength grid, groups)``: the rows of each measured point
-    (its geometry, side, quantity, specimen) as one spectrum over the run's wavelength grid, in
-    the rows' order; None when a point holds one wavelength twice (then one event per row)."""
+def _spectra(table: Any) -> tuple[list[str], list[str], Any, Any, Any] | None:
+    """``(key columns, array columns, wavelength grid, spectrum of each row, grid index of each
+    row)``: the rows of each measured point (its geometry, side, quantity, specimen) as one
+    spectrum over the run's wavelength grid, spectra numbered in the order of their first row;
+    None when a point holds one wavelength twice (then one event per row)."""
     import numpy as np
 
     if "wavelength_nm" not in table.columns:
         return None
     keys = [str(c) for c in table.columns if c in _SPECTRUM_KEYS]
     arrays = [str(c) for c in table.columns if c not in keys and c != "wavelength_nm"]
-    grid = np.unique(table["wavelength_nm"].to_numpy(float))
-    groups = list(table.groupby(keys, sort=False, dropna=False).groups.values()) if keys else [table.index]
-    for rows in groups:
-        if table.loc[rows, "wavelength_nm"].duplicated().any():
-            return None
-    return keys, arrays, grid, groups
+    wavelengths = table["wavelength_nm"].to_numpy(float)
+    grid = np.unique(wavelengths)
+    spectrum = (table.groupby(keys, sort=False, dropna=False).ngroup().to_numpy() if keys
+                else np.zeros(len(table), dtype=np.int64))
+    at = np.searchsorted(grid, wavelengths)
+    if np.unique(spectrum * grid.size + at).size < len(table):
+        return None
+    return keys, arrays, grid, spectrum, at
 
 
 def _array_key(column: Any, unit: str | None, n: int, source: str = STORE_SOURCE) -> dict[str, Any]:
@@ -166,28 +170,28 @@ def _array_key(column: Any, unit: str | None, n: int, source: str = STORE_SOURCE
     key: dict[str, Any] = {"dtype": "array", "shape": [n], "dims": ["wavelength_nm"], "source": source}
     if kind in "biuf":
         key["dtype_numpy"] = "|b1" if kind == "b" else "<f8"
+    else:  # text (a mask reason, a budget): fixed-width unicode, as TiledWriter stores it
+        key["dtype_numpy"] = f"<U{max([1, *(len(v) for v in _column_values(column))])}"
     if unit:
         key["units"] = unit
     return key
 
 
-def _spectrum_values(table: Any, rows: Any, column: str, grid: Any) -> list[Any]:
-    """A column's values of ``rows`` over ``grid`` (NaN, or False for flags, where not measured)."""
+def _spectrum_arrays(column: Any, spectrum: Any, at: Any, shape: tuple[int, int]) -> list[Any]:
+    """A column spread over ``shape`` = (spectra, wavelengths): row r at ``(spectrum[r], at[r])``;
+    NaN, False or "" where a spectrum has no reading."""
     import numpy as np
 
-    col = table.loc[rows, column]
-    where = np.searchsorted(grid, table.loc[rows, "wavelength_nm"].to_numpy(float))
-    if col.dtype.kind == "b":
-        out = np.zeros(grid.size, dtype=bool)
-        out[where] = col.to_numpy(bool)
-    elif col.dtype.kind not in "iuf":  # text (a mask reason, a budget): "" where not measured
-        text = [""] * grid.size
-        for i, v in zip(where, _column_values(col)):
-            text[int(i)] = v
-        return text
+    kind = column.dtype.kind
+    if kind == "b":
+        out = np.zeros(shape, dtype=bool)
+        out[spectrum, at] = column.to_numpy(bool)
+    elif kind not in "iuf":
+        out = np.full(shape, "", dtype=object)
+        out[spectrum, at] = _column_values(column)
     else:
-        out = np.full(grid.size, np.nan)
-        out[where] = col.to_numpy(float)
+        out = np.full(shape, np.nan)
+        out[spectrum, at] = column.to_numpy(float)
     return out.tolist()
 
 
@@ -196,22 +200,29 @@ def _point_events(table: Any, units: dict[str, str], times: dict[int, float], t_
     """``(data_keys, [(data, time), ...])``: one event per measured point, its spectra as arrays
     over ``wavelength_nm`` stamped with the point's end time (``times`` by point index; the run's
     end without one); None when the rows are not spectra (see :func:`_spectra`)."""
+    import numpy as np
+
     found = _spectra(table)
     if found is None:
         return None
-    keys, arrays, grid, groups = found
+    keys, arrays, grid, spectrum, at = found
     data_keys = {c: _data_key(table[c], units.get(c), source(c)) for c in keys}
     data_keys.update({c: _array_key(table[c], units.get(c), grid.size, source(c)) for c in arrays})
     data_keys["wavelength_nm"] = _array_key(table["wavelength_nm"], units.get("wavelength_nm"), grid.size,
                                             source("wavelength_nm"))
+    first = np.unique(spectrum, return_index=True)[1]  # each spectrum's first row, in spectrum order
+    shape = (first.size, grid.size)
+    scalars = {c: _column_values(table[c].iloc[first]) for c in keys}
+    spread = {c: _spectrum_arrays(table[c], spectrum, at, shape) for c in arrays}
+    wavelengths = grid.tolist()
+    idx = table["idx"].iloc[first].tolist() if "idx" in table.columns else [None] * first.size
     events = []
-    for rows in groups:
-        first = table.loc[rows[0]]
-        data = {c: _column_values(table.loc[rows[:1], c])[0] for c in keys}
-        data.update({c: _spectrum_values(table, rows, c, grid) for c in arrays})
-        data["wavelength_nm"] = grid.tolist()
-        idx = first.get("idx") if "idx" in table.columns else None
-        t = times.get(int(idx), t_end) if idx is not None and idx == idx else t_end
+    for k in range(first.size):
+        data = {c: v[k] for c, v in scalars.items()}
+        data.update({c: v[k] for c, v in spread.items()})
+        data["wavelength_nm"] = wavelengths
+        i = idx[k]
+        t = times.get(int(i), t_end) if i is not None and i == i else t_end
         events.append((data, float(t)))
     return data_keys, events
 
@@ -349,11 +360,15 @@ class CatalogServer:
         from tiled.server.app import build_app
 
         self.api_key = api_key or secrets.token_hex(16)
+        # a budget's or mask reason's text spectrum is stored as fixed-width unicode, which zarr
+        # stores and reads back but warns has no Zarr V3 specification yet: once per array
+        warnings.filterwarnings("ignore", message=".*does not have a Zarr V3 specification")
         self._served: set[str] | None = None  # start uids in the catalog (add_runs), listed on first use
         self._handled: set[str] = set()  # run ids add_runs has served or passed over
         self.unserved: list[str] = []  # run ids without readings (not served)
         self.damaged: dict[str, str] = {}  # run ids not served: why (damaged in the store)
         self.replaced: list[str] = []  # run ids written again whole (their copy stale or cut short)
+        self.served: set[str] = set()  # run ids of the store in the catalog, written now or before
         self._states: dict[str, Any] = {}  # run id -> its served_state when last handled
         self.port = int(port) or free_port()
         try:
@@ -422,6 +437,7 @@ class CatalogServer:
                 self.damaged[rid] = f"start uid {uid[:60]!r} is not a UUID"
                 continue
             if self._in_step(client, rid, uid, states.get(rid)):  # already there as the store has it
+                self.served.add(rid)
                 continue
             docs = list(run_documents(store, rid, ranks.get(rid)))
             if not any(name in ("event", "event_page") for name, _ in docs):
@@ -433,6 +449,7 @@ class CatalogServer:
             self._served.add(uid)
             self._record(uid, states.get(rid))  # after the stop document: a kill before it is redone
             written.append(rid)
+            self.served.add(rid)
         return written
 
     # -- keeping a kept catalog in step with the store -------------------------------------------
@@ -485,6 +502,23 @@ class CatalogServer:
             log.warning("catalog: ignoring %s (%s)", self.directory / LEDGER, exc)
             return {}
         return ledger if isinstance(ledger, dict) else {}
+
+    def keep_only(self, store: Any) -> list[str]:
+        """Delete every run of the catalog that is not a run of ``store`` (a copy of a catalog
+        served before, holding runs since deleted from the store or written live then by a
+        RunEngine alone); returns their start uids."""
+        client = self.client(write=True)
+        wanted = {run_uid(store.run(row["run_id"])) for row in store.runs()}
+        gone = [uid for uid in client if uid not in wanted]
+        for uid in gone:
+            client.delete_contents(uid, recursive=True, external_only=False)
+            self._ledger.pop(uid, None)
+        return gone
+
+    @property
+    def running(self) -> bool:
+        """Whether the server's thread still runs (after :meth:`close`: it did not stop in time)."""
+        return self._thread.is_alive()
 
     def close(self) -> None:
         """Stop the server and remove a temporary catalog. Idempotent."""

@@ -5,6 +5,8 @@
 - ``RE``: a Bluesky RunEngine for the module; ``RE(plan)`` returns the run uids.
 - ``RE_with_result``: the same whose ``RE(plan).plan_result`` is the plan's return value.
 - ``virtual``: the virtual bench's Bluesky devices (seed 3) on the module's ``RE``.
+- (autouse) ``GONIOBENCH_CACHE_DIR`` points at a folder of the session, so what the commands
+  keep between starts (``bench serve``'s catalogs) never goes to the user's cache.
 
 A fixture that means something else in one file keeps a name of its own there (``run_store``, an
 open :class:`bench.store.RunStore`; ``known_store``, a store of known values; ...).
@@ -12,6 +14,7 @@ open :class:`bench.store.RunStore`; ``known_store``, a store of known values; ..
 
 from __future__ import annotations
 
+import os
 import sqlite3
 from pathlib import Path
 
@@ -24,6 +27,12 @@ FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 #: within 5 sd of full scale, refused)
 SMALL_PLAN = ('name = "small"\nkind = "in-plane"\nintegration_s = 0.05\n[in_plane]\ntheta_i = [30]\n'
               'theta_r = [-20, 0, 40]\n')
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _session_cache(tmp_path_factory: pytest.TempPathFactory):
+    os.environ["GONIOBENCH_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache"))
+    yield
 
 
 @pytest.fixture(scope="module")

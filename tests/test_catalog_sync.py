@@ -87,3 +87,51 @@ def test_a_kept_catalog_follows_the_store_and_redoes_a_cut_write(tmp_path):
         assert _served(server, third) == (2, "success")  # the cut copy written again whole
         assert server.add_runs(s) == []  # in step: the poll writes nothing
         assert len(list(server.client().values())) == 2  # one copy of each run, no duplicate
+
+
+def _completed_run(path, n_points: int = 2) -> str:
+    with RunStore(path) as s:
+        rid = s.create_run("scan", n_planned=n_points, meta={"specimen": "lambert:albedo=0.3"})
+        for i in range(n_points):
+            _point(s, rid, i)
+        s.set_status(rid, "completed")
+    return rid
+
+
+@pytest.mark.slow  # four Tiled servers (~15 CPU-s)
+def test_bench_serve_starts_from_the_catalog_it_kept_for_the_store_and_writes_only_new_runs(tmp_path, capsys):
+    import json
+
+    from bluesky_tiled_plugins import TiledWriter
+
+    from bench.catalog import CatalogServer, run_documents
+    from bench.cli.serve import catalog_cache
+
+    path = tmp_path / "s.sqlite"
+    first = [_completed_run(path), _completed_run(path)]
+    serve = ["serve", "--store", path, "--port", "0", "--json", "--max-seconds", "0"]
+    code, out, _ = run_main(capsys, *serve)
+    assert code == 0 and sorted(json.loads(out)["runs"]) == sorted(first)
+    later = _completed_run(path)
+    code, out, _ = run_main(capsys, *serve)
+    info = json.loads(out)
+    assert code == 0 and info["runs"] == [later], "the kept runs were written again"
+    assert info["served"] == sorted([*first, later])
+    code, out, _ = run_main(capsys, *serve, "--no-cache")  # power: without the kept catalog every run is written
+    assert code == 0 and sorted(json.loads(out)["runs"]) == sorted([*first, later])
+
+    # the kept catalog reads back whole, and a run the store does not hold (a RunEngine wrote it
+    # alone into the served catalog) is deleted at the next start
+    with RunStore(path, create=False, readonly=True) as s, CatalogServer(0, catalog_cache(path)) as server:
+        assert all(_served(server, rid) == (4, "success") for rid in [*first, later])
+        writer = TiledWriter(server.client(write=True))
+        alone = "0b6c5a36-4c5d-4a57-9a3f-3f0e8c1d2e7f"
+        for name, doc in run_documents(s, later):
+            if name == "start":
+                doc = {**doc, "uid": alone, "run_id": "re-only"}
+            elif "run_start" in doc:
+                doc = {**doc, "run_start": alone}
+            writer(name, doc)
+        assert len(list(server.client())) == 4
+        assert server.keep_only(s) == [alone]
+        assert len(list(server.client())) == 3
