@@ -14,7 +14,7 @@ use (:mod:`bench.core.exports`), so ``import compare`` stays cheap for the CLI:
 * :mod:`compare.covariance` -- the full covariance of the differences when the actual record
   carries GUM budgets (the shared white standard counted once), and chi-square with it;
 * :mod:`compare.records` -- what a record is (BSDF table, spectrum, set of spectra) and its keys;
-* :mod:`compare.figures`, :mod:`compare.grid` -- every figure (spectra, polar maps, in-plane
+* :mod:`compare.figures` (and its helper :mod:`compare._grid`) -- every figure (spectra, polar maps, in-plane
   curves, report figures, small multiples of every incidence).
 
 ``compare`` takes records only (:mod:`bench.core.records`, :mod:`bench.core.roles`): it reads no

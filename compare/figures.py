@@ -18,7 +18,7 @@ from bench.core.outputs import save_figure
 from bench.core.records import BSDFRecord
 from bench.core.roles import Spectrum
 from compare.align import record_kind, record_quantity
-from compare.grid import bland_altman_grid, incidence_order, sigma_grid, spectra_grid, unit_of, value_grid
+from compare._grid import bland_altman_grid, incidence_order, sigma_grid, spectra_grid, unit_of, value_grid
 from compare.stats import Comparison, nominal_fraction
 
 __all__ = ["plot_spectrum", "plot_bsdf_polar", "plot_in_plane", "pyplot", "slug", "figure_ids", "report_figures"]

@@ -192,7 +192,7 @@ def test_recovered_faults_are_recorded_per_point_and_summarised_by_show(tmp_path
     from bench.plans import plan_from_dict
     from bench.runner import run_scan
     from bench.store import RunStore
-    from drivers.faultlog import FaultLog
+    from drivers._faultlog import FaultLog
     from tests.helpers.cli import run_main
 
     bench_file = Path(__file__).resolve().parents[1] / "fixtures" / "benches" / "virtual.toml"

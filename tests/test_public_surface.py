@@ -210,3 +210,64 @@ def test_a_missing_directive_is_found():
     """Power: without the store's and the Dynamixel arm's directives, those names are reported."""
     directives = [d for d in _directives() if d not in ("bench.store.runstore.RunStore", "drivers.dynamixel.arm.DynamixelArm")]
     assert undocumented(directives) == ["bench.RunStore", "drivers.DynamixelArm"]
+
+
+# --- private modules stay inside their package ---------------------------------------------------
+
+def _private_prefix(module: str) -> str | None:
+    """The package that owns a private module (``drivers._faultlog`` -> ``drivers``), or None."""
+    parts = module.split(".")
+    for k, part in enumerate(parts):
+        if part.startswith("_") and not part.startswith("__"):
+            return ".".join(parts[:k])
+    return None
+
+
+def _is_module(dotted: str) -> bool:
+    path = ROOT.joinpath(*dotted.split("."))
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
+def private_imports_from_outside(files: dict[str, str]) -> list[str]:
+    """``importer -> module`` for each import of a private module (a leading underscore) from
+    outside the package that holds it. ``files`` maps module names to sources."""
+    out = []
+    for importer, source in files.items():
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                # `from compare import _grid` imports a module; `from m import _name` a module's
+                # private name, which its siblings may share (not checked here)
+                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names
+                                         if _is_module(f"{node.module}.{a.name}")]
+            else:
+                names = []
+            for name in names:
+                owner = _private_prefix(name)
+                if owner is not None and not (importer == owner or importer.startswith(owner + ".")):
+                    out.append(f"{importer} -> {name}")
+    return out
+
+
+def _project_sources() -> dict[str, str]:
+    out = {}
+    for package in (*PROJECT, "benchmarks"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path.read_text(encoding="utf-8")
+    return out
+
+
+def test_private_modules_are_imported_only_inside_their_package():
+    """A module named with a leading underscore (``drivers._faultlog``, ``compare._grid``) is a
+    helper of its package: the rest of the project does not import it (the tests may)."""
+    sources = _project_sources()
+    assert any(_private_prefix(m) for m in sources)  # the convention is in use
+    assert private_imports_from_outside(sources) == []
+
+
+def test_a_private_import_from_outside_is_found():
+    files = {"drivers.ocean.link": "from drivers._faultlog import FaultLog\n",
+             "bench.runner": "import drivers._faultlog\nfrom compare import _grid\nfrom bench.core import errors\n"}
+    assert private_imports_from_outside(files) == ["bench.runner -> drivers._faultlog", "bench.runner -> compare._grid"]

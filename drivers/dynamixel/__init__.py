@@ -47,7 +47,7 @@ Behaviour
   torque is enabled.
 - A well-framed status answering another request is discarded while the awaited one is listened
   for, and bytes waiting before a transaction are dropped; failed attempts, recoveries and
-  discards are counted in ``DynamixelArm.faults`` (a :class:`drivers.faultlog.FaultLog`).
+  discards are counted in ``DynamixelArm.faults`` (a :class:`drivers._faultlog.FaultLog`).
 
 Config dict (TOML-friendly)
 ---------------------------

@@ -19,7 +19,7 @@ from drivers import kinematics as kin
 from drivers.dynamixel.config import (_BLOCK_ADDR, _BLOCK_LEN, _OFF_GOAL, _OFF_MOVING, _OFF_PRESENT, ADDR,
                                       DRIVE_MODE_CLEAR, ERRBIT_ALERT, RETURN_DELAY_UNIT_S, STATUS_ERRORS,
                                       STATUS_RETURN_ALL, TICKS_PER_REV, ArmConfig, _le, _s32, decode_hardware_error)
-from drivers.faultlog import FaultLog
+from drivers._faultlog import FaultLog
 from drivers.dynamixel.link import DxlLink
 from drivers.kinematics import Joints
 from drivers.transport import SerialTransport, Transport, TransportPortHandler
@@ -356,7 +356,7 @@ class DynamixelArm(InstrumentBase):
     # -- Goniometer role --------------------------------------------------------------------
     @property
     def faults(self) -> FaultLog:
-        """The bus's transaction faults and recoveries (:class:`drivers.faultlog.FaultLog`)."""
+        """The bus's transaction faults and recoveries (:class:`drivers._faultlog.FaultLog`)."""
         return self._link.faults
 
     def describe(self) -> InstrumentInfo:

@@ -38,7 +38,7 @@ from bench.core.errors import (
     DeviceTimeoutError,
     ProtocolError,
 )
-from drivers.faultlog import FaultLog
+from drivers._faultlog import FaultLog
 from drivers.transport import TransportPortHandler
 
 __all__ = ["Request", "check_status", "decode_status", "DxlLink", "STATUS_INSTRUCTION",

@@ -18,8 +18,8 @@ from pymodbus.framer import FramerType
 from bench.core.errors import (ChecksumError, ConfigError, DeviceError, DeviceTimeoutError, FaultLatchedError,
                                GeometryError, HardwareError, InputError, PortGoneError, ProtocolError)
 from bench.core.roles import InstrumentBase, InstrumentInfo
-from drivers.faultlog import FaultLog
-from drivers.settings import port_and_name, settings_with_overrides
+from drivers._faultlog import FaultLog
+from drivers._settings import port_and_name, settings_with_overrides
 from drivers.registers import RegisterMap, load_register_map
 from drivers.modbus.client import (
     TransportModbusClient, check_reply, port_open_hint, probe_serial_open,

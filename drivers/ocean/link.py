@@ -28,7 +28,7 @@ from bench.core.errors import (
     PortGoneError,
     ProtocolError,
 )
-from drivers.faultlog import FaultLog
+from drivers._faultlog import FaultLog
 from drivers.ocean.codec import ACK, CR, LF, NAK
 
 __all__ = ["OceanLink", "Nak", "Retry"]

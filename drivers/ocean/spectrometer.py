@@ -20,14 +20,14 @@ from bench.core.errors import (
     ProtocolError,
 )
 from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
-from drivers.settings import port_and_name, settings_with_overrides
+from drivers._settings import port_and_name, settings_with_overrides
 from drivers.ocean.calibration import nonlinearity_factor, validate_nonlinearity, wavelength_polynomial
 from drivers.ocean.codec import (
     ETX, FULL_SCALE, NAK, STX, Frame, FrameLayoutError, NeedMore, decode_version, encode_ascii,
     encode_binary, parse_ascii_frame, parse_binary_frame,
 )
 from drivers.ocean.config import OceanConfig
-from drivers.faultlog import FaultLog
+from drivers._faultlog import FaultLog
 from drivers.ocean.link import Nak, OceanLink, Retry
 from drivers.transport import SerialTransport
 
@@ -423,7 +423,7 @@ class OceanSpectrometer(InstrumentBase):
     # --- Instrument ---------------------------------------------------------------------------
     @property
     def faults(self) -> FaultLog:
-        """The line's transaction faults and recoveries (:class:`drivers.faultlog.FaultLog`)."""
+        """The line's transaction faults and recoveries (:class:`drivers._faultlog.FaultLog`)."""
         return self.link.faults
 
     def describe(self) -> InstrumentInfo:

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 from drivers.transport.base import _GONE, Pair, Transport, hexbytes  # noqa: F401
 from drivers.transport.replay import RecordingTransport, ScriptedTransport, load_fixture, save_fixture
-from drivers.transport.sdk_port import TransportPortHandler
+from drivers.transport._sdk_port import TransportPortHandler
 from drivers.transport.serial_port import SerialTransport
 
 
