@@ -16,7 +16,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from virtual.wire.dxl_codec import BROADCAST_ID, ERR, INST, Packet, PacketParser, encode_status
 from virtual.wire.dxl_servo import TICKS_PER_REV, Servo
-from virtual.wire.pty import open_pty, write_all
+from virtual.wire.pty import close_quietly, open_pty, write_all
 
 
 
@@ -361,11 +361,7 @@ class PtyBusThread:
         """Close the pty (both sides held here): the client's port vanishes."""
         self._stop.set()
         self._thread.join(timeout=2)
-        for fd in (self._master, self._slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        close_quietly((self._master, self._slave))
 
     close = kill
 

@@ -54,7 +54,7 @@ from bench.core.errors import ConfigError
 from virtual.wire.modbus_stage_model import (  # noqa: F401
     AZ_LAYOUT, StageConfig, StageModel, _Layout, read_feedback_steps,
 )
-from virtual.wire.pty import PipeEmulator, open_raw_pty
+from virtual.wire.pty import PipeEmulator, answer_control, close_quietly, open_raw_pty
 
 log = logging.getLogger(__name__)
 
@@ -225,57 +225,45 @@ async def _serve(cfg: dict[str, Any], transport: str, conn: Any) -> None:
     loop = asyncio.get_running_loop()
     done = asyncio.Event()
 
+    def handle(cmd: Any, msg: dict[str, Any], reply: dict[str, Any]) -> dict[str, Any]:
+        unit = msg.get("unit", scfg.device_id)
+        if unit not in models:
+            return {"ok": False, "error": f"no unit {msg.get('unit')} (have {ids})"}
+        if cmd == "alarm":
+            models[unit].raise_alarm(int(msg["code"]))
+        elif cmd == "state":
+            reply["state"] = models[unit].snapshot()
+        else:
+            with faults.lock:
+                if cmd == "drop":
+                    faults.drop += int(msg.get("n", 1))
+                elif cmd == "corrupt":
+                    faults.corrupt += int(msg.get("n", 1))
+                elif cmd == "silence":
+                    faults.drop_all = bool(msg.get("on", True))
+                elif cmd == "clear":
+                    faults.drop = faults.corrupt = 0
+                    faults.drop_all = False
+                    faults.rate = 0.0
+                elif cmd == "rates":
+                    faults.rate = float(msg.get("rate", 0.0))
+                    faults.rng.seed(int(msg.get("seed", 0)))
+                elif cmd == "injected":
+                    reply["injected"] = dict(faults.injected)
+                else:
+                    return {"ok": False, "error": f"unknown command {cmd!r}"}
+        return reply
+
     def control() -> None:
         conn.send(address)
-        while True:
-            try:
-                msg = conn.recv()
-            except (EOFError, OSError):
-                break
-            cmd = msg.get("cmd")
-            reply: dict[str, Any] = {"ok": True}
-            with lock:
-                if cmd == "die":
-                    os._exit(1)
-                elif msg.get("unit", scfg.device_id) not in models:
-                    reply = {"ok": False, "error": f"no unit {msg.get('unit')} (have {ids})"}
-                elif cmd == "alarm":
-                    models[msg.get("unit", scfg.device_id)].raise_alarm(int(msg["code"]))
-                elif cmd == "state":
-                    reply["state"] = models[msg.get("unit", scfg.device_id)].snapshot()
-                elif cmd == "stop":
-                    conn.send(reply)
-                    break
-                else:
-                    with faults.lock:
-                        if cmd == "drop":
-                            faults.drop += int(msg.get("n", 1))
-                        elif cmd == "corrupt":
-                            faults.corrupt += int(msg.get("n", 1))
-                        elif cmd == "silence":
-                            faults.drop_all = bool(msg.get("on", True))
-                        elif cmd == "clear":
-                            faults.drop = faults.corrupt = 0
-                            faults.drop_all = False
-                            faults.rate = 0.0
-                        elif cmd == "rates":
-                            faults.rate = float(msg.get("rate", 0.0))
-                            faults.rng.seed(int(msg.get("seed", 0)))
-                        elif cmd == "injected":
-                            reply["injected"] = dict(faults.injected)
-                        else:
-                            reply = {"ok": False, "error": f"unknown command {cmd!r}"}
-            conn.send(reply)
+        while answer_control(conn, lock, handle):
+            pass
         loop.call_soon_threadsafe(done.set)
 
     threading.Thread(target=control, daemon=True, name="stage-control").start()
     await done.wait()
     await server.shutdown()
-    for fd in keep:
-        try:
-            os.close(fd)
-        except OSError:
-            pass
+    close_quietly(keep)
 
 
 def _child_main(cfg: dict[str, Any], transport: str, conn: Any, log_level: int) -> None:

@@ -47,7 +47,7 @@ from virtual.wire.ocean_device import _Device, _Faults
 from virtual.wire.ocean_model import (
     SpectrometerConfig, SpectrometerModel,
 )
-from virtual.wire.pty import PipeEmulator, open_raw_pty, write_all
+from virtual.wire.pty import PipeEmulator, answer_control, close_quietly, open_raw_pty, write_all
 
 
 log = logging.getLogger(__name__)
@@ -79,6 +79,35 @@ def _child_main(cfg: dict[str, Any], geometry_source: Any, response: Any, conn: 
     dev = _Device(model, write)
     conn.send({"port": path, "pid": os.getpid(), "pixels": scfg.pixels, "model": scfg.model})
     lock = threading.Lock()
+
+    def handle(cmd: Any, msg: dict[str, Any], reply: dict[str, Any]) -> dict[str, Any]:
+        f = dev.faults
+        if cmd == "nak":
+            letter = msg.get("command")
+            f.nak += [None if letter is None else ord(letter)] * int(msg.get("n", 1))
+        elif cmd == "drop":
+            f.drop += int(msg.get("n", 1))
+        elif cmd == "corrupt":
+            f.corrupt += int(msg.get("n", 1))
+        elif cmd == "no_memory":
+            f.no_memory += int(msg.get("n", 1))
+        elif cmd == "clear":
+            dev.faults = _Faults()
+        elif cmd == "rates":
+            dev.faults.rate = float(msg.get("rate", 0.0))
+            dev.faults.rng.seed(int(msg.get("seed", 0)))
+        elif cmd == "injected":
+            reply["injected"] = dict(dev.faults.injected)
+        elif cmd == "trigger":
+            dev.external_trigger()
+        elif cmd == "state":
+            s = model.settings
+            reply["state"] = {**s.__dict__, "commands": dev.commands, "acquisitions": dev.acquisitions,
+                              "last_geometry": repr(model.last_geometry)}
+        else:
+            return {"ok": False, "error": f"unknown command {cmd!r}"}
+        return reply
+
     while True:
         wait = dev.tick()
         r, _, _ = select.select([master, conn], [], [], 0.5 if wait is None else min(wait, 0.5))
@@ -91,51 +120,9 @@ def _child_main(cfg: dict[str, Any], geometry_source: Any, response: Any, conn: 
                 data = b""
             if data:
                 dev.feed(data)
-        if conn in r:
-            try:
-                msg = conn.recv()
-            except (EOFError, OSError):
-                break
-            cmd = msg.get("cmd")
-            reply: dict[str, Any] = {"ok": True}
-            with lock:
-                f = dev.faults
-                if cmd == "die":
-                    os._exit(1)
-                elif cmd == "stop":
-                    conn.send(reply)
-                    break
-                elif cmd == "nak":
-                    letter = msg.get("command")
-                    f.nak += [None if letter is None else ord(letter)] * int(msg.get("n", 1))
-                elif cmd == "drop":
-                    f.drop += int(msg.get("n", 1))
-                elif cmd == "corrupt":
-                    f.corrupt += int(msg.get("n", 1))
-                elif cmd == "no_memory":
-                    f.no_memory += int(msg.get("n", 1))
-                elif cmd == "clear":
-                    dev.faults = _Faults()
-                elif cmd == "rates":
-                    dev.faults.rate = float(msg.get("rate", 0.0))
-                    dev.faults.rng.seed(int(msg.get("seed", 0)))
-                elif cmd == "injected":
-                    reply["injected"] = dict(dev.faults.injected)
-                elif cmd == "trigger":
-                    dev.external_trigger()
-                elif cmd == "state":
-                    s = model.settings
-                    reply["state"] = {**s.__dict__, "commands": dev.commands,
-                                      "acquisitions": dev.acquisitions,
-                                      "last_geometry": repr(model.last_geometry)}
-                else:
-                    reply = {"ok": False, "error": f"unknown command {cmd!r}"}
-            conn.send(reply)
-    for fd in (master, slave):
-        try:
-            os.close(fd)
-        except OSError:
-            pass
+        if conn in r and not answer_control(conn, lock, handle):
+            break
+    close_quietly((master, slave))
 
 
 class SpectrometerEmulator(PipeEmulator):

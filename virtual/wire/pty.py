@@ -21,7 +21,7 @@ import tempfile
 import time
 import tty
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from bench.core.errors import DeviceError, PortGoneError
 
@@ -90,6 +90,39 @@ def write_all(fd: int, data: bytes) -> None:
             view = view[n:]
         except BlockingIOError:
             select.select([], [fd], [], 0.1)
+
+
+def answer_control(conn: Any, lock: Any, handle: Callable[[Any, dict[str, Any], dict[str, Any]], dict[str, Any]]
+                   ) -> bool:
+    """Answer one message of an emulator's control pipe (the parent's hooks): ``{"cmd": ...}`` is
+    answered ``{"ok": True, ...}``. ``die`` ends the process at once (a crash: nothing closed,
+    nothing answered); ``stop`` is acknowledged; any other command is ``handle(cmd, msg, reply)``'s,
+    called under ``lock``, which returns the reply (``{"ok": False, "error": ...}`` for a command
+    it does not know). False when the emulator is to stop: ``stop``, or the pipe closed."""
+    try:
+        msg = conn.recv()
+    except (EOFError, OSError):
+        return False
+    cmd = msg.get("cmd")
+    reply: dict[str, Any] = {"ok": True}
+    with lock:
+        if cmd == "die":
+            os._exit(1)
+        if cmd == "stop":
+            conn.send(reply)
+            return False
+        reply = handle(cmd, msg, reply)
+    conn.send(reply)
+    return True
+
+
+def close_quietly(fds: Sequence[int]) -> None:
+    """Close file descriptors an emulator held, whichever are still open."""
+    for fd in fds:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
 
 
 def open_raw_pty() -> tuple[int, int, str]:
