@@ -36,7 +36,7 @@ __all__ = ["adaptive_measure", "measure_adaptively", "adaptive_message", "Adapti
 
 #: an adaptive measurement whose eq. 3.5 cap would take longer than this is refused with its budget
 DEFAULT_MAX_SECONDS = 3600.0
-#: a patch is "of interest" to ``bench gonio --uncertainty`` when its pilot probability is at
+#: a patch is "of interest" to ``bench gonio --relative-uncertainty`` when its pilot probability is at
 #: least this fraction of the brightest patch's
 INTEREST_FRACTION = 0.01
 #: rays of the pilot run that estimates the patch probabilities

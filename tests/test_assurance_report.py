@@ -26,7 +26,7 @@ def test_the_compare_report_charts_the_checks_the_actual_run_relied_on(capsys, t
     code, out, err = _scan(capsys, bench, store, 4, tmp_path)
     other = out.strip().splitlines()[-1]
     report = tmp_path / "rep"
-    code, out, err = run_main(capsys, "compare", relied, other, "--store", store, "--report", report, "--json")
+    code, out, err = run_main(capsys, "compare", relied, other, "--store", store, "--out", report, "--json")
     assert code == 0, err
     summary = json.loads(out)
     assert "fig-assurance" in summary["figures"]

@@ -164,7 +164,7 @@ def _list_scan_equals(RE, virtual, plan, db, scan_id, tmp_path, capsys):
     for c in key + ["signal", "dark", "white", "value", "std", "ci_lo", "ci_hi", "saturated"]:
         assert np.array_equal(a[c].to_numpy(), b[c].to_numpy(), equal_nan=True), c
     assert a["extra"].tolist() == b["extra"].tolist()  # reflectance factor, mask, integration, averages
-    code = bench_cli(["compare", scan_id, bs_id, "--store", str(db), "--report", str(tmp_path / "rep"), "--json",
+    code = bench_cli(["compare", scan_id, bs_id, "--store", str(db), "--out", str(tmp_path / "rep"), "--json",
                       "--no-figures"])
     summary = json.loads(capsys.readouterr().out)
     assert code == 0

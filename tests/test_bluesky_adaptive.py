@@ -228,7 +228,7 @@ def test_a_seeded_adaptive_session_is_the_same_in_every_process(tmp_path):
 
     def cli(tag: str, hash_seed: str) -> dict:
         r = subprocess.run([sys.executable, "-m", "bench.cli", "scan", "--adaptive", "lambert:reflectance=?",
-                            "--bench", str(BENCHES / "virtual.toml"), "--seconds", "3", "--seed", "1", "--json",
+                            "--bench", str(BENCHES / "virtual.toml"), "--budget-seconds", "3", "--seed", "1", "--json",
                             "--quiet", "--store", str(tmp_path / f"{tag}.sqlite")], capture_output=True, text=True,
                            timeout=900, cwd=tmp_path,
                            env={**os.environ, "PYTHONPATH": str(ROOT), "PYTHONHASHSEED": hash_seed})

@@ -130,7 +130,7 @@ def test_check_runs_are_served_by_bench_serve_and_read_with_tiled_clients_defaul
     runs = {json.loads(out)["checks"][0]["run"]: "2026-12-01", bs["run"]: "2026-12-02"}
     env = {"PYTHONPATH": str(ROOT), **{k: v for k, v in os.environ.items() if k != "PYTHONPATH"}}
     server = subprocess.Popen([sys.executable, "-m", "bench.cli", "serve", "--store", str(store), "--port", "0",
-                               "--json", "--seconds", "300"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               "--json", "--max-seconds", "300"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True, env=env)
     try:
         line = server.stdout.readline()

@@ -172,11 +172,11 @@ def test_bench_emulate_prints_a_toml_bench_file(capsys):
     from bench.core.schemas import BenchFile, validate_document
 
     emulated = str(ROOT / "fixtures" / "benches" / "emulated.toml")
-    assert main(["emulate", emulated, "--seconds", "0"]) == 0
+    assert main(["emulate", emulated, "--max-seconds", "0"]) == 0
     config = tomllib.loads(capsys.readouterr().out)
     validate_document(BenchFile, config, "bench emulate output")
     assert config["kind"] == "real" and config["light"]["kind"] == "spectrometer-lamp"
     assert config["specimen"]["spec"] == "lambert:albedo=0.8"
-    assert main(["emulate", emulated, "--seconds", "0", "--json"]) == 0
+    assert main(["emulate", emulated, "--max-seconds", "0", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["real_bench"]["light"] == config["light"] and set(out["ports"]) >= {"dynamixel_bus", "spectrometer"}

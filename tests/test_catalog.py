@@ -129,7 +129,7 @@ def test_bench_serve_serves_runs_tiled_reads_back_the_export_and_a_run_engine_wr
     assert main(["export", rid, "--store", str(path), "--out", str(tmp_path / "r.csv")]) == 0
     exported = pd.read_csv(tmp_path / "r.csv")
     server = subprocess.Popen([sys.executable, "-m", "bench.cli", "serve", "--store", str(path), "--port", "0",
-                               "--json", "--seconds", "300"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               "--json", "--max-seconds", "300"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True, env={"PYTHONPATH": str(ROOT), **{k: v for k, v in __import__("os").environ.items()
                                                                         if k != "PYTHONPATH"}})
     try:

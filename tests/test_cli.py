@@ -122,7 +122,7 @@ def test_bench_compare_reads_every_export_format_of_a_run(tmp_path, capsys, smal
         path = out.strip()
         other = f"same={path}" if fmt == "zemax" else f"run={run_id}"
         code, out, err = run_main(capsys, "compare", f"file={path}", other, "--store", str(store), "--json",
-                             "--report", str(tmp_path / f"report-{fmt}"), "--no-figures")
+                             "--out", str(tmp_path / f"report-{fmt}"), "--no-figures")
         assert code == 0, (fmt, err)
         s = json.loads(out)["candidates"]["same" if fmt == "zemax" else "run"]
         assert s["n_points"] > 0, fmt
@@ -135,7 +135,7 @@ def test_bench_compare_reads_a_spectro_csv(tmp_path, capsys):
     code, _, err = run_main(capsys, "spectro", "--specimen", "lambert:reflectance=0.5", "--wavelengths", "400:700:50",
                        "--rays", "20000", "--seed", "2", "--csv", str(csv))
     assert code == 0, err
-    code, out, err = run_main(capsys, "compare", str(csv), f"again={csv}", "--json", "--report", str(tmp_path / "rep"))
+    code, out, err = run_main(capsys, "compare", str(csv), f"again={csv}", "--json", "--out", str(tmp_path / "rep"))
     assert code == 0, err
     d = json.loads(out)
     assert d["kind"] == "spectrum" and d["candidates"]["again"]["n_points"] == 7

@@ -137,14 +137,14 @@ def test_cli_compares_spectrum_csvs_and_spectro_sweeps(sweeps, tmp_path, capsys)
                                 tmp_path / f"s{seed}.csv")
         assert code == 0, err
     s1, s2 = tmp_path / "s1.csv", tmp_path / "s2.csv"
-    code, out, err = run_main(capsys, "compare", s1, s1, "--report", tmp_path / "self", "--json")
+    code, out, err = run_main(capsys, "compare", s1, s1, "--out", tmp_path / "self", "--json")
     assert code == 0, err
     js = json.loads(out)
     assert js["verdicts"]["s1"]["verdict"] == "accept" and js["candidates"]["s1"]["delta_e2000_mean"] == 0
-    code, out, err = run_main(capsys, "compare", s1, s2, "--report", tmp_path / "re", "--no-figures")
+    code, out, err = run_main(capsys, "compare", s1, s2, "--out", tmp_path / "re", "--no-figures")
     assert code == 0, err
     assert re.search(r"#1 s2: ACCEPT", out) and "delta_e2000_mean" in out
-    code, out, err = run_main(capsys, "compare", ids["s"], ids["t"], "--store", d / "runs.sqlite", "--report",
+    code, out, err = run_main(capsys, "compare", ids["s"], ids["t"], "--store", d / "runs.sqlite", "--out",
                               tmp_path / "sw", "--json", "--no-figures")
     assert code == 0, err
     js = json.loads(out)
@@ -289,7 +289,7 @@ def test_criterion_from_a_config_file_and_flags(tmp_path, virtual_pair):
     export_record(b, tmp_path / "b.csv")
     cfg = tmp_path / "compare.toml"
     cfg.write_text("[criterion]\nalpha = 0.05\ntolerance = 0.03\n[compare]\nmetric = \"rmse\"\n")
-    r = run_bench("compare", "a.csv", "b.csv", "--config", str(cfg), "--k", "3", "--json", "--report", "r",
+    r = run_bench("compare", "a.csv", "b.csv", "--config", str(cfg), "--k", "3", "--json", "--out", "r",
                   "--no-figures", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     js = json.loads(r.stdout)

@@ -91,7 +91,7 @@ def test_design_leaves_out_what_the_bench_refuses(designed):
 def test_written_plan_passes_bench_plan_within_budget(designed, tmp_path, capsys):
     out = tmp_path / "designed.toml"
     code, text, err = run_main(capsys, "plan", "--design", MODEL, "--prior", "alpha=0.15,kd=0.5", "--bench",
-                               designed["path"], "--body", "virtual", "--seconds", "3", "--out", out, "--step", "10",
+                               designed["path"], "--body", "virtual", "--budget-seconds", "3", "--out", out, "--step", "10",
                                "--integration-s", "0.01,0.02", "--json")
     assert code == 0, err
     made = json.loads(text)
@@ -110,12 +110,12 @@ def test_written_plan_passes_bench_plan_within_budget(designed, tmp_path, capsys
 
 
 @pytest.mark.parametrize("argv, words", [
-    (["--design", "plastic:alpha=0.2,kd=0.4", "--seconds", "3"], "no free parameter"),
-    (["--design", MODEL, "--seconds", "3", "--prior", "eta=1.4"], "not a free parameter"),
-    (["--design", MODEL, "--seconds", "3", "--prior", "alpha=7"], "outside the model's bounds"),
-    (["--design", MODEL], "--design needs --seconds"),
-    (["--design", MODEL, "--seconds", "0.01"], "buys no design"),
-    ([str(UNIFORM), "--design", MODEL, "--seconds", "3"], "not both"),
+    (["--design", "plastic:alpha=0.2,kd=0.4", "--budget-seconds", "3"], "no free parameter"),
+    (["--design", MODEL, "--budget-seconds", "3", "--prior", "eta=1.4"], "not a free parameter"),
+    (["--design", MODEL, "--budget-seconds", "3", "--prior", "alpha=7"], "outside the model's bounds"),
+    (["--design", MODEL], "--design needs --budget-seconds"),
+    (["--design", MODEL, "--budget-seconds", "0.01"], "buys no design"),
+    ([str(UNIFORM), "--design", MODEL, "--budget-seconds", "3"], "not both"),
 ])
 def test_design_errors_are_one_line_exit_2(argv, words, tmp_path, capsys):
     bench = _bench_file(tmp_path)
@@ -127,8 +127,8 @@ def test_design_errors_are_one_line_exit_2(argv, words, tmp_path, capsys):
 
 def test_design_options_without_design_are_refused(tmp_path, capsys):
     bench = _bench_file(tmp_path)
-    code, _, err = run_main(capsys, "plan", UNIFORM, "--bench", bench, "--seconds", "3")
-    assert code == 2 and "--seconds applies to --design MODEL only" in err
+    code, _, err = run_main(capsys, "plan", UNIFORM, "--bench", bench, "--budget-seconds", "3")
+    assert code == 2 and "--budget-seconds applies to --design MODEL only" in err
     code, _, err = run_main(capsys, "plan", UNIFORM, "--bench", bench, "--prior-spread", "2")
     assert code == 2 and "--prior-spread applies to --design MODEL only" in err
     code, _, err = run_main(capsys, "scan", UNIFORM, "--bench", bench, "--target", "kd=0.01")
@@ -137,7 +137,7 @@ def test_design_options_without_design_are_refused(tmp_path, capsys):
 
 def test_adaptive_errors_are_one_line_exit_2(tmp_path, capsys):
     bench = _bench_file(tmp_path)
-    code, _, err = run_main(capsys, "scan", "--adaptive", MODEL, "--seconds", "3", "--target", "kd=0",
+    code, _, err = run_main(capsys, "scan", "--adaptive", MODEL, "--budget-seconds", "3", "--target", "kd=0",
                             "--bench", bench, "--store", tmp_path / "s.sqlite")
     assert code == 2 and "--target" in err and len(err.strip().splitlines()) == 1, err
     code, _, err = run_main(capsys, "scan", "--bench", bench, "--store", tmp_path / "s.sqlite")
@@ -150,7 +150,7 @@ def test_sequential_design_on_the_emulated_body_stores_each_step_and_resumes(tmp
     the session reuses its stored steps (same runs, same estimates) instead of measuring again."""
     bench = _bench_file(tmp_path)
     store = tmp_path / "s.sqlite"
-    argv = ["scan", "--adaptive", MODEL, "--seconds", "2", "--bench", bench, "--store", store, "--step", "10",
+    argv = ["scan", "--adaptive", MODEL, "--budget-seconds", "2", "--bench", bench, "--store", store, "--step", "10",
             "--integration-s", "0.01", "--json"]
     code, text, err = run_main(capsys, *argv)
     assert code == 0, err

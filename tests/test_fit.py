@@ -329,7 +329,7 @@ def test_compare_reports_the_fit_asked_for_the_same_as_bench_fit(capsys, tmp_pat
     alone = json.loads(out)
     report = tmp_path / "report"
     code, out, err = run_main(capsys, "compare", rec, f"model={cand}", "--fit", "lambert:reflectance=?",
-                              "--report", report, "--json")
+                              "--out", report, "--json")
     assert code == 0, err
     summary = json.loads(out)
     fit = summary["fits"]["lambert:reflectance=?"]
@@ -341,5 +341,5 @@ def test_compare_reports_the_fit_asked_for_the_same_as_bench_fit(capsys, tmp_pat
     html = (report / "report.html").read_text()
     assert 'id="fits"' in html and 'class="fit fit-' in html
     code, out, err = run_main(capsys, "compare", tmp_path / "missing.json", f"model={cand}", "--fit",
-                              "lambert:nonsense=?", "--report", report)
+                              "lambert:nonsense=?", "--out", report)
     assert code == 2 and "nonsense" in err and err.count("\n") == 1 and "missing.json" not in err

@@ -60,7 +60,7 @@ def test_the_cli_names_what_is_not_identified_and_the_outlier(capsys, tmp_path):
 
 def test_design_with_a_parameter_no_time_can_identify_exits_2_naming_why(capsys, tmp_path):
     code, out, err = run_main(capsys, "plan", "--design", "lambert:albedo=?,transmittance=?", "--bench",
-                              ROOT / "fixtures" / "benches" / "emulated.toml", "--seconds", "4",
+                              ROOT / "fixtures" / "benches" / "emulated.toml", "--budget-seconds", "4",
                               "--out", tmp_path / "d.toml")
     assert code == 2 and "transmittance: no point of the candidate grid sees transmission" in err, err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "d.toml").exists()

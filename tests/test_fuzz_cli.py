@@ -110,7 +110,7 @@ GONIO = ["gonio", "--specimen", "lambert:albedo=0.5"]
 SPECTRO = ["spectro", "--specimen", "lambert:reflectance=0.5"]
 CASES = [
     (GONIO, "--rays", RAYS_BAD), (GONIO, "--seed", SEED_BAD), (GONIO, "--incidence", INCIDENCE_BAD),
-    (GONIO, "--max-seconds", POSITIVE_BAD), (GONIO, "--delta", FRACTION_BAD), (GONIO, "--uncertainty", FRACTION_BAD),
+    (GONIO, "--max-seconds", POSITIVE_BAD), (GONIO, "--delta", FRACTION_BAD), (GONIO, "--relative-uncertainty", FRACTION_BAD),
     (GONIO, "--wavelengths", WAVELENGTHS_BAD), (GONIO, "--collector", COLLECTOR_BAD),
     (SPECTRO, "--rays", RAYS_BAD), (SPECTRO, "--seed", SEED_BAD), (SPECTRO, "--wavelengths", WAVELENGTHS_BAD),
     (SPECTRO, "--max-seconds", POSITIVE_BAD), (SPECTRO, "--delta", FRACTION_BAD),
@@ -120,7 +120,7 @@ CASES = [
     (["tradeoff", str(FIX / "scenes" / "lambert-bare.toml")], "--seed", SEED_BAD),
     (["tradeoff", str(FIX / "scenes" / "lambert-bare.toml")], "--rays", st.one_of(NON_FINITE, GARBAGE.filter(
         lambda s: s.strip(", ") != "" and s != "1,"), st.sampled_from(["0", "1,-2", "1e13", "5,nan"]))),
-    (["emulate", str(FIX / "benches" / "emulated.toml")], "--seconds",
+    (["emulate", str(FIX / "benches" / "emulated.toml")], "--max-seconds",
      st.one_of(NON_FINITE, GARBAGE, st.floats(max_value=-1e-9, allow_infinity=False).map(repr))),
     (["emulate", str(FIX / "benches" / "emulated.toml")], "--seed", SEED_BAD),
     (["sweep", str(FIX / "sweeps" / "gonio-tasks.toml")], "--scheduler",

@@ -302,7 +302,7 @@ def test_compare_of_two_leaves_reports_ciede2000_and_rejects_equality(tmp_path, 
         paths.append(str(p))
     text = capsys.readouterr().out
     assert "colour (D65, 2 deg): R XYZ" in text
-    assert main(["compare", *paths, "--report", str(tmp_path / "report"), "--json"]) == 0
+    assert main(["compare", *paths, "--out", str(tmp_path / "report"), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     s = summary["candidates"]["cab60"]
     assert s["delta_e2000_mean"] > 3.0  # a visible difference of colour

@@ -1,6 +1,6 @@
-"""What ``bench gonio --uncertainty`` means, and the tradeoff picture.
+"""What ``bench gonio --relative-uncertainty`` means, and the tradeoff picture.
 
-* ``--uncertainty V`` is a relative uncertainty of each patch's BSDF: the achieved relative
+* ``--relative-uncertainty V`` is a relative uncertainty of each patch's BSDF: the achieved relative
   half-width of the brightest and the dimmest patch of interest is about V (below 1.2 V), and a
   budget the time limit cannot pay names the patches it cannot serve;
 * ``--patch-probability-uncertainty V`` keeps eq. 3.12 (the old trap: a tiny N, dim patches off
@@ -28,14 +28,14 @@ def _bench(*args):
 
 
 def test_gonio_uncertainty_is_a_relative_bsdf_uncertainty():
-    out = json.loads(_bench("gonio", "--specimen", "lambert:albedo=0.8", "--uncertainty", "0.05", "--seed", "1",
+    out = json.loads(_bench("gonio", "--specimen", "lambert:albedo=0.8", "--relative-uncertainty", "0.05", "--seed", "1",
                             "--json"))
     assert out["uncertainty"]["mode"] == "relative BSDF" and out["uncertainty"]["v"] == 0.05
     a = out["achieved"]
     for which in ("brightest", "dimmest_of_interest"):
         assert 0.03 < a[which]["relative_half_width"] < 0.06, a
     assert a["max_relative_half_width"] < 0.06
-    text = _bench("gonio", "--specimen", "lambert:albedo=0.8", "--uncertainty", "0.05", "--seed", "1")
+    text = _bench("gonio", "--specimen", "lambert:albedo=0.8", "--relative-uncertainty", "0.05", "--seed", "1")
     assert "uncertainty: relative BSDF half-width 0.05" in text and "achieved relative half-width: brightest" in text
 
 
@@ -50,7 +50,7 @@ def test_patch_probability_uncertainty_keeps_eq_3_12_and_says_so():
 
 
 def test_relative_uncertainty_names_the_patches_it_cannot_serve():
-    text = _bench("gonio", "--specimen", "plastic:alpha=0.1,eta=1.5,kd=0.5", "--uncertainty", "0.01", "--seed", "1",
+    text = _bench("gonio", "--specimen", "plastic:alpha=0.1,eta=1.5,kd=0.5", "--relative-uncertainty", "0.01", "--seed", "1",
                   "--max-seconds", "0.05", "--method", "fast")
     assert "cannot meet it for" in text and "within --max-seconds 0.05" in text
 

@@ -91,7 +91,7 @@ def bench_file(tmp_path):
 
 def _design(capsys, bench_file: Path, out: Path, *extra: str) -> tuple[int, dict, str]:
     code, text, err = run_main(capsys, "plan", "--design", MODEL, "--prior", "alpha=0.15,kd=0.5", "--bench",
-                               bench_file, "--body", "virtual", "--seconds", "3", "--out", out, "--step", "10",
+                               bench_file, "--body", "virtual", "--budget-seconds", "3", "--out", out, "--step", "10",
                                "--integration-s", "0.01,0.02", "--json", *extra)
     return code, (json.loads(text) if text.strip() else {}), err
 

@@ -15,7 +15,7 @@ import sys
 from typing import Callable, Iterable, Iterator, NoReturn
 from urllib.parse import urlsplit
 
-__all__ = ["BenchArgumentParser", "one_line", "MAX_ERROR_CHARS", "RegistryChoices", "count", "real", "seed", "rays", "incidence", "wavelengths", "collector",
+__all__ = ["BenchArgumentParser", "one_line", "renamed", "MAX_ERROR_CHARS", "RegistryChoices", "count", "real", "seed", "rays", "incidence", "wavelengths", "collector",
            "int_list", "scheduler_address", "run_id", "listen_address", "MAX_RAYS", "MAX_PATCHES", "MAX_SEED", "RAYS_PER_SECOND"]
 
 #: the most rays per wavelength a command accepts at all (the time bound, --max-seconds, comes first)
@@ -56,6 +56,27 @@ class BenchArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
+
+
+class _Renamed(argparse.Action):
+    """An option's old spelling: refused, whatever follows it, with one line naming the new one."""
+
+    def __init__(self, option_strings: list[str], dest: str, *, reason: str, **kwargs: object) -> None:
+        super().__init__(option_strings, argparse.SUPPRESS, nargs="*", default=argparse.SUPPRESS,
+                         help=argparse.SUPPRESS)
+        self.reason = reason
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
+                 option_string: str | None = None) -> None:
+        raise argparse.ArgumentError(None, f"{self.option_strings[0]} {self.reason}")
+
+
+def renamed(parser: argparse.ArgumentParser | argparse._ArgumentGroup, old: str, new: str, why: str) -> None:
+    """Refuse ``old``, an option's former spelling, in ``parser``: ``bench CMD: error: OLD WHY; did
+    you mean NEW?`` (one line, exit 2 -- as every usage error of :class:`BenchArgumentParser`).
+    The old spelling is hidden from ``--help``; as an exact option it also keeps argparse from
+    reading it as an abbreviation of another option."""
+    parser.add_argument(old, action=_Renamed, reason=f"{why}; did you mean {new}?")
 
 
 class RegistryChoices:

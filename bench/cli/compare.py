@@ -22,7 +22,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from bench.cli.argtypes import real, stderr_is_terminal
+from bench.cli.argtypes import real, renamed, stderr_is_terminal
 from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, output_dir
 from bench.core.errors import InputError
@@ -151,7 +151,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             name, record = _load(c, args.store)
             candidates[name] = record
             bar.update()
-        out = Path(args.report or "compare-report")
+        out = Path(args.out or "compare-report")
         fits = _fits(actual, models, out, draw_figures=not args.no_figures)
         align_kw = {k: float(opts[k]) for k in ("angle_tol_deg", "wavelength_tol_nm") if k in opts}
         summary = compare_records(actual, candidates, out, primary_metric=opts.get("metric", "chi2_per_dof"),
@@ -194,7 +194,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("candidates", metavar="CANDIDATE", nargs="+", help="[NAME=]RUN or FILE")
     p.add_argument("--store", default=DEFAULT_STORE, metavar="FILE.sqlite",
                    help="the run store holding RUN ids, opened read-only (default %(default)s)")
-    p.add_argument("--report", type=output_dir, metavar="DIR", help="report folder (default ./compare-report)")
+    p.add_argument("--out", type=output_dir, metavar="DIR", help="output folder of the report (default ./compare-report)")
+    renamed(p, "--report", "--out", "was the report folder; --out names every command's output, a file or a folder "
+            "(bench demo --out DIR)")
     p.add_argument("--config", metavar="FILE.toml",
                    help="compare config: [criterion] and [compare] tables (default: none, the flags below)")
     p.add_argument("--alpha", type=real(0, 1, lo_open=True, hi_open=True),

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from bench.cli.argtypes import real
+from bench.cli.argtypes import real, renamed
 from bench.cli.common import add_force_option, check_output, emit_json, output_file
 from bench.core.errors import InputError
 
@@ -39,8 +39,10 @@ def _times(text: str) -> str:
 
 
 def _add_common(g: argparse._ArgumentGroup, what: str) -> None:
-    g.add_argument("--seconds", type=real(0.0, 1e7, lo_open=True), metavar="S",
+    g.add_argument("--budget-seconds", type=real(0.0, 1e7, lo_open=True), metavar="S",
                    help=f"{what}: the bench-time budget, s (as `bench plan` estimates it; no default: required)")
+    renamed(g, "--seconds", "--budget-seconds", "was the bench-time budget; --budget-seconds names it (a time "
+            "limit is --max-seconds in every command)")
     g.add_argument("--criterion", choices=("D", "A", "E"), default="D",
                    help=f"{what}: D (log det of the Fisher information, default), A (mean variance), E (worst "
                    "direction)")
@@ -66,7 +68,7 @@ def add_design_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--out", type=output_file((".toml",)), metavar="PLAN.toml", help="--design: the plan file to write (no default: required with --design)")
     g.add_argument("--compare", metavar="PLAN.toml", help="--design: also predict the interval widths of this plan (default: none)")
     g.add_argument("--max-seconds", type=real(0.0, 1e6, lo_open=True), metavar="S",
-                   help="--design: wall-clock limit of the search, s: past it the best design so far is written and "
+                   help="--design: time limit of the search (wall clock), s: past it the best design so far is written and "
                         f"the exit status is 1 (default {DEFAULT_MAX_SECONDS:g})")
     add_force_option(parser, "out")
     _add_common(g, "--design")
@@ -84,7 +86,7 @@ def add_adaptive_options(parser: argparse.ArgumentParser) -> None:
 
 def refuse_unused(args: argparse.Namespace, flag: str) -> None:
     """A design option given without ``flag`` (``--design`` / ``--adaptive``) would be ignored: refuse it."""
-    given = [name for name in ("seconds", "out", "compare", "prior", "prior_spread", "like", "target",
+    given = [name for name in ("budget_seconds", "out", "compare", "prior", "prior_spread", "like", "target",
                                "max_seconds")
              if getattr(args, name, None) is not None]
     if given:
@@ -109,17 +111,17 @@ def cmd_scan_adaptive(args: argparse.Namespace) -> int:
 
     if args.plan is not None:
         raise InputError(f"give a plan file or --adaptive, not both (got {args.plan} and --adaptive)")
-    if args.seconds is None:
-        raise InputError("--adaptive needs --seconds S (the bench-time budget)")
+    if args.budget_seconds is None:
+        raise InputError("--adaptive needs --budget-seconds S (the bench-time budget)")
     spec, point, settings = _model(args, args.adaptive)
     targets = parse_targets(args.target, spec.names)
-    key = session_key(spec.text, args.bench, args.body, args.seconds, args.criterion, args.prior, args.integration_s,
+    key = session_key(spec.text, args.bench, args.body, args.budget_seconds, args.criterion, args.prior, args.integration_s,
                       args.like, args.step, args.target, args.seed,
                       *([] if args.prior_spread is None else [args.prior_spread]))  # earlier sessions' keys stand
     bench = load_bench(args.bench, seed=args.seed, body=args.body)
     with bench, open_store(args.store) as store:
         candidates = session_candidates(bench, args.step, settings)
-        result = adaptive_scan(bench, store, spec, point, args.seconds, settings, candidates, args.criterion,
+        result = adaptive_scan(bench, store, spec, point, args.budget_seconds, settings, candidates, args.criterion,
                                targets, seed=getattr(bench.goniometer, "seed", args.seed), key=key,
                                progress=not args.quiet and sys.stderr.isatty())
     if args.json:
@@ -161,8 +163,8 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
 
     if args.plan is not None:
         raise InputError(f"give a plan file or --design, not both (got {args.plan} and --design)")
-    if args.seconds is None or args.out is None:
-        raise InputError("--design needs --seconds S (the bench-time budget) and --out PLAN.toml")
+    if args.budget_seconds is None or args.out is None:
+        raise InputError("--design needs --budget-seconds S (the bench-time budget) and --out PLAN.toml")
     out = check_output(args.out)
     compare = load_plan(args.compare) if args.compare else None
     spec, point, settings, bench = open_design(args)
@@ -175,9 +177,9 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
             raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
         everything = information(point, candidates, bench_reading_model(bench, settings[0])).total(range(len(candidates)))
         refuse_unidentifiable(everything, spec.names, spec.upper - spec.lower, bench.name)
-        design = design_for_bench(point, bench, candidates, args.seconds, settings, args.criterion,
+        design = design_for_bench(point, bench, candidates, args.budget_seconds, settings, args.criterion,
                                   max_seconds=args.max_seconds or DEFAULT_MAX_SECONDS)
-        write_design(out, design, spec.text, bench.name, bench.kind, len(candidates), args.seconds)
+        write_design(out, design, spec.text, bench.name, bench.kind, len(candidates), args.budget_seconds)
         written = load_plan(out)
         refused = refusals(written, check)
         if refused:  # the design chose only reachable points: this would be a bug, said as the validator says it
@@ -192,7 +194,7 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
                      "seconds": bench_time_model(bench, like).seconds(pts)["seconds"],
                      "widths": interval_widths(fisher, point.free)}
     result = {"plan": str(out), "model": spec.text, "prior": dict(point.values), "criterion": design.criterion,
-              "budget_s": args.seconds, "seconds": design.seconds, "motion_s": design.estimate["motion_s"],
+              "budget_s": args.budget_seconds, "seconds": design.seconds, "motion_s": design.estimate["motion_s"],
               "points": len(design.points), "candidates": len(candidates), "integration_s": design.settings.integration_s,
               "averages": design.settings.averages, "widths": design.widths, "compare": other,
               "prior_spread": point.spread, "prior_points": design.prior_points,
@@ -207,7 +209,7 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
         return 1 if design.stopped else 0
     print(f"wrote {out}: {len(design.points)} points ({design.criterion}-optimal for {spec.text}) of "
           f"{len(candidates)} reachable on bench {bench.name}, {design.settings.integration_s:g} s x "
-          f"{design.settings.averages} per point, estimated {design.seconds:.4g} s of {args.seconds:g} s")
+          f"{design.settings.averages} per point, estimated {design.seconds:.4g} s of {args.budget_seconds:g} s")
     for line in prior_lines(design, "  "):
         print(line)
     if other is not None:

@@ -9,7 +9,7 @@ import json
 
 import tomli_w
 
-from bench.cli.argtypes import real, seed
+from bench.cli.argtypes import real, renamed, seed
 from bench.cli.commands import command_help
 from bench.cli.common import wait_until_stopped
 
@@ -33,7 +33,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                 print(f"#   {name:18s} {port}")
             print("# a bench config for the real drivers on these ports: save it as a .toml file")
             print(tomli_w.dumps(emu.real_bench_config()), flush=True)
-        wait_until_stopped(args.seconds)
+        wait_until_stopped(args.max_seconds)
     except KeyboardInterrupt:  # Ctrl-C while starting
         pass
     finally:
@@ -45,6 +45,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("emulate", help=command_help("emulate"))
     p.add_argument("bench", metavar="BENCH.toml", help="an emulated bench config (see fixtures/benches/)")
     p.add_argument("--seed", type=seed, help="emulator seed, integer 0..2^63-1 (default: the config's, else 7)")
-    p.add_argument("--seconds", type=real(0.0, 1e7), help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--max-seconds", type=real(0.0, 1e7), metavar="S",
+                   help="time limit, s: stop after this many seconds (default: until Ctrl-C)")
+    renamed(p, "--seconds", "--max-seconds", "was the time limit; it is --max-seconds, as in every command "
+            "(--budget-seconds is a design's bench-time budget)")
     p.add_argument("--json", action="store_true", help="ports and the real-bench config as one JSON object (default: TOML)")
     p.set_defaults(func=cmd_emulate)

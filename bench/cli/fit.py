@@ -189,7 +189,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--figure", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
                    help="also draw the residuals per incidence/wavelength (default: none)")
     p.add_argument("--max-seconds", type=real(0.0, 1e6, lo_open=True), default=DEFAULT_MAX_SECONDS, metavar="S",
-                   help="wall-clock limit of the fit, s: past it the best point so far is shown, without intervals, "
+                   help="time limit of the fit (wall clock), s: past it the best point so far is shown, without intervals, "
                         "and the exit status is 1 (default %(default)g)")
     p.add_argument("--partial", action="store_true",
                    help="fit a stored run that did not complete (interrupted, failed, running) on the points it has "

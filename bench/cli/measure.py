@@ -3,14 +3,15 @@
 ``--uncertainty/--delta`` measurements use the adaptive rule of :mod:`bench.adaptive`; ``--csv``
 goes through the one CSV writer of :mod:`bench.io`, ``--plot`` through :mod:`compare.figures`.
 
-``bench gonio --uncertainty V`` is a *relative* uncertainty of each patch's BSDF: a pilot run
+``bench gonio --relative-uncertainty V`` is a *relative* uncertainty of each patch's BSDF: a pilot run
 estimates the patch probabilities, and N is sized (:func:`virtual.bounds.relative_patch_rays`)
 so the least-populated patch of interest (pilot probability >= :data:`bench.adaptive.INTEREST_FRACTION` of the
 brightest patch's) has an interval of relative half-width about V; patches that would need more
 than ``--max-seconds`` allows are named. ``--patch-probability-uncertainty V`` keeps eq. 3.12's
 meaning (V bounds each patch's *probability*, an absolute quantity: a dim patch's BSDF may be
 far off). The output says which was used and prints the achieved relative half-width of the
-brightest and the dimmest patch of interest.
+brightest and the dimmest patch of interest. ``--uncertainty`` is absolute wherever it is taken
+(``rays``, ``spectro``): gonio refuses it, naming ``--relative-uncertainty``.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import argparse
 import sys
 from typing import Any
 
-from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds,
+from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds, renamed,
                                 incidence, rays, real, seed, stderr_is_terminal, wavelengths)
 from bench.cli.commands import command_help
 from bench.cli.common import (PLOT_SUFFIXES, add_force_option, announce_compilation, emit_json, output_file,
@@ -232,7 +233,7 @@ def cmd_gonio(args: argparse.Namespace) -> int:
                           "wavelengths": args.wavelengths, "method": args.method,
                           "common_random_numbers": args.common_random_numbers}
     budget = choose_gonio_budget(args.specimen, theta_i, phi_i, kw, rays=args.rays,
-                                 relative_uncertainty=args.uncertainty,
+                                 relative_uncertainty=args.relative_uncertainty,
                                  patch_probability_uncertainty=args.patch_probability_uncertainty, delta=args.delta,
                                  adaptive=not args.no_adaptive, max_seconds=args.max_seconds,
                                  rays_per_second=RAYS_PER_SECOND)
@@ -352,7 +353,7 @@ def _budget(adaptive: Any) -> dict[str, Any]:
 def _run_options(p: argparse.ArgumentParser) -> None:
     """The options spectro and gonio share: the time limit, the seed, the streams, JSON output."""
     p.add_argument("--max-seconds", type=real(0.0, 1e9, lo_open=True), default=3600.0,
-                   help=f"refuse work estimated to take longer, seconds, for every method (rays counted at "
+                   help=f"time limit, s: refuse work estimated to take longer, for every method (rays counted at "
                         f"{RAYS_PER_SECOND:.0e} rays/s; default %(default)g)")
     p.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: a fresh one, printed)")
     p.add_argument("--common-random-numbers", action="store_true",
@@ -365,7 +366,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add ``rays``, ``spectro`` and ``gonio`` to the ``bench`` subcommands."""
     r = sub.add_parser("rays", help=command_help("rays"))
     r.add_argument("--uncertainty", "-u", type=real(0.0, 1.0, lo_open=True, hi_open=True), required=True,
-                   help="uncertainty v of the real instrument (a fraction in (0, 1); required)")
+                   help="absolute uncertainty v of the real instrument (a fraction in (0, 1); required)")
     r.add_argument("--delta", "-d", type=real(0.0, 1.0, lo_open=True, hi_open=True), required=True,
                    help="confidence delta, in (0, 1) (required)")
     r.add_argument("--patches", type=count(1, MAX_PATCHES), default=1,
@@ -384,7 +385,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g = s.add_mutually_exclusive_group()
     g.add_argument("--rays", type=rays, help=f"rays per wavelength (count, 1 to {MAX_RAYS:.0e}; default: from --uncertainty)")
     g.add_argument("--uncertainty", type=real(0.0, 1.0, lo_open=True, hi_open=True), default=0.005,
-                   help="v for eq. 3.5, a fraction in (0, 1) (default %(default)s)")
+                   help="absolute uncertainty v of R and T for eq. 3.5, a fraction in (0, 1) (default %(default)s)")
     s.add_argument("--delta", type=real(0.0, 1.0, lo_open=True, hi_open=True), default=0.01,
                    help="confidence delta in (0, 1) (default %(default)s)")
     s.add_argument("--beam", choices=("collimated", "conical"), default="collimated", help="beam (default %(default)s)")
@@ -408,12 +409,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"SCHEME:RINGSxSECTORS, at most {MAX_PATCHES:,} patches (default %(default)s)")
     gb = g.add_mutually_exclusive_group()
     gb.add_argument("--rays", type=rays, help="rays per wavelength (count; default 1e7)")
-    gb.add_argument("--uncertainty", type=real(0.0, 1.0, lo_open=True, hi_open=True),
+    gb.add_argument("--relative-uncertainty", type=real(0.0, 1.0, lo_open=True, hi_open=True), metavar="V",
                     help="relative uncertainty of each patch's BSDF (interval half-width / value), a fraction in "
                          "(0, 1), for every patch of interest; N from a pilot run (default: --rays)")
     gb.add_argument("--patch-probability-uncertainty", type=real(0.0, 1.0, lo_open=True, hi_open=True), metavar="V",
                     help="v of eq. 3.12: an absolute bound on each patch's probability, in (0, 1) (the seed's "
                          "meaning; default: none)")
+    renamed(g, "--uncertainty", "--relative-uncertainty", "is an absolute uncertainty in every command (bench rays, "
+            "bench spectro); gonio's relative uncertainty of each patch's BSDF is spelled out")
     g.add_argument("--delta", type=real(0.0, 1.0, lo_open=True, hi_open=True), default=0.01,
                    help="confidence delta in (0, 1) (default %(default)s)")
     g.add_argument("--wavelengths", type=wavelengths, default="550", help="START:STOP:STEP or a,b,c in nm (default %(default)s)")

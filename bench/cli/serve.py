@@ -13,7 +13,7 @@ import importlib.util
 import json
 import sys
 
-from bench.cli.argtypes import count, real
+from bench.cli.argtypes import count, real, renamed
 from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, open_store, wait_until_stopped
 
@@ -50,7 +50,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
                 print(f"  write: TiledWriter(from_uri({server.uri!r}, api_key={server.api_key!r}))")
                 print("  (runs that end later are added as they end; Ctrl-C stops it)", flush=True)
             # runs that end while the server runs are added as they end (every 2 s)
-            wait_until_stopped(args.seconds, tick=lambda: server.add_runs(store))
+            wait_until_stopped(args.max_seconds, tick=lambda: server.add_runs(store))
     return 0
 
 
@@ -87,6 +87,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="keep the Tiled catalog (and runs written into it) in DIR (default: a temporary folder)")
     p.add_argument("--api-key", type=api_key, default=None, metavar="KEY",
                    help="the API key writers pass, 1 to 256 ASCII letters and digits (default: a random one, printed)")
-    p.add_argument("--seconds", type=real(0.0, 1e7), help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--max-seconds", type=real(0.0, 1e7), metavar="S",
+                   help="time limit, s: stop after this many seconds (default: until Ctrl-C)")
+    renamed(p, "--seconds", "--max-seconds", "was the time limit; it is --max-seconds, as in every command "
+            "(--budget-seconds is a design's bench-time budget)")
     p.add_argument("--json", action="store_true", help="uri, api_key and the runs served as one JSON object")
     p.set_defaults(func=cmd_serve)

@@ -42,7 +42,7 @@ def register(subparsers: Any) -> None:
     t.add_argument("--rays", type=int_list(1, 10**12, most=50),
                    help="comma-separated ray counts, each 1..1e12 (default: the scene's [tradeoff].rays)")
     t.add_argument("--repeats", type=count(3, 1000),
-                   help="seeded sweeps per configuration, 3..1000 (default 3: timings are their median, the plot "
+                   help="times each configuration is measured (seeded sweeps), 3..1000 (default 3: timings are their median, the plot "
                         "shows their spread)")
     t.add_argument("--seed", type=seed, help="root seed, integer 0..2^63-1 (default: the scene's)")
     t.add_argument("--no-costs", action="store_true", help="skip measuring each declared effect's cost")

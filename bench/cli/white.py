@@ -111,7 +111,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="take a dark with the light off (once), or none (the file records it; runs whose plan "
                         "takes darks then refuse it) (default %(default)s)")
     w.add_argument("--repeats", type=count(1, MAX_WHITE_REPEATS), default=1, metavar="N",
-                   help="white readings taken in sequence with the standard mounted once: 1, or N >= 3 to estimate "
+                   help="times the white standard is read, in sequence with it mounted once: 1, or N >= 3 to estimate "
                         "the lamp's drift (runs whose plan has white = \"repeated\", white_repeats = N) "
                         "(default %(default)s)")
     w.add_argument("--yes", action="store_true",

@@ -219,7 +219,7 @@ def _run_scan(cell: Cell, bench_toml: Path, workdir: Path, outcome: Outcome) -> 
     plan = write_toml(workdir / "plan.toml", plan_dict(cell))
     if cell.interface == "adaptive":  # designed steps read every point as the cell's plan does
         argv = ["scan", "--adaptive", SPECIMENS[cell.specimen]["model"], "--bench", bench_toml, *_body_args(cell),
-                "--seconds", ADAPTIVE_SECONDS, "--integration-s", plan_settings(cell)[0], "--like", plan,
+                "--budget-seconds", ADAPTIVE_SECONDS, "--integration-s", plan_settings(cell)[0], "--like", plan,
                 "--store", outcome.store, "--seed", cell.seed, "--json", "-q"]
     else:
         argv = ["scan", plan, "--bench", bench_toml, *_body_args(cell), "--store", outcome.store,

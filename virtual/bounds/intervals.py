@@ -84,7 +84,7 @@ def binomial_ci(k, n, delta: float, method: str = "clopper-pearson") -> tuple[np
 
 def relative_patch_rays(p: np.ndarray, uncertainty: float, delta: float, max_rays: int | None = None
                         ) -> dict[str, object]:
-    """Rays for a *relative* uncertainty of every patch's BSDF (``bench gonio --uncertainty``).
+    """Rays for a *relative* uncertainty of every patch's BSDF (``bench gonio --relative-uncertainty``).
 
     A patch's BSDF is ``k / (N psa)`` with ``k ~ Binomial(N, p)``, so its relative standard error
     is ``sqrt((1 - p) / (N p))``: the least-populated patch decides. With ``p`` the estimated
