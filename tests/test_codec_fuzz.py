@@ -19,8 +19,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bench.core.errors import BenchError
-from drivers.dynamixel.link import Request, decode_status
-from drivers.modbus.client import decode_rtu_reply
+from drivers.dynamixel._link import Request, decode_status
+from drivers.modbus._client import decode_rtu_reply
 from drivers.ocean.codec import NeedMore, decode_version, parse_ascii_frame, parse_binary_frame
 from virtual.wire.dxl_codec import decode_packet, encode_status
 from virtual.wire.ocean_codec import compress

@@ -26,7 +26,7 @@ from bench.core.errors import (
 from bench.core.geometry import Geometry
 from bench.core.conformance import angular_distance_deg
 from drivers.dynamixel import DynamixelArm
-from drivers.dynamixel.link import DxlLink, Request, check_status, decode_status
+from drivers.dynamixel._link import DxlLink, Request, check_status, decode_status
 from drivers.transport import ScriptedTransport, TransportPortHandler
 from tests.helpers.clock import FakeClock
 from virtual.wire.dxl_codec import INST, encode_instruction, encode_status

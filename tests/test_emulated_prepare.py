@@ -97,7 +97,7 @@ def test_a_leaf_on_the_emulated_bench_is_read_without_a_retry(tmp_path, caplog):
     d["specimen"]["spec"] = "leaf:healthy,roughness=0.2,eta=1.45"
     plan = plan_from_dict({"name": "leaf", "kind": "in-plane", "integration_s": 0.02, "averages": 1, "dark": "once",
                            "white": "once", "in_plane": {"theta_i": [30], "theta_r": [-10, 10, 40, 60]}})
-    caplog.set_level(logging.WARNING, logger="drivers.ocean.link")
+    caplog.set_level(logging.WARNING, logger="drivers.ocean._link")
     with load_bench(d) as bench, RunStore(tmp_path / "s.sqlite") as store:
         run = run_scan(bench, plan, store)
         readings = store.readings(run.run_id)

@@ -1,6 +1,6 @@
 """No emulator outlives its owner: a process that started an emulated bench is SIGKILLed at
 random moments (fixed seed), during start-up and after, and afterwards none of its emulator
-processes remains (each exits once its starting process is gone, virtual.wire.pty.exit_with_parent).
+processes remains (each exits once its starting process is gone, virtual.wire._pty.exit_with_parent).
 
 The emulators are found by a marker in their environment (inherited from the owner), so one
 killed before it could say their pids is searched as well.
@@ -36,7 +36,7 @@ time.sleep(600)
 #: waits in accept() for a parent that will never come, unless it notices the parent is gone
 OWNER_BEFORE_CONNECT = """
 import os, pickle, time
-from virtual.wire.pty import EmulatorProcess
+from virtual.wire._pty import EmulatorProcess
 p = EmulatorProcess("virtual.wire.spawned", stdin_data=pickle.dumps((b"k" * 32, os.getcwd(), print, (), ())))
 print("ready", flush=True)
 time.sleep(600)

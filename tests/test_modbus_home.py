@@ -22,7 +22,7 @@ from bench.core.errors import (
     ProtocolError,
 )
 from drivers.modbus import ModbusStageAxis
-from drivers.modbus.client import decode_rtu_reply, port_open_hint
+from drivers.modbus._client import decode_rtu_reply, port_open_hint
 from drivers.transport import ScriptedTransport
 from virtual.wire.modbus_stage import StageEmulator
 

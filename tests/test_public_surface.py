@@ -268,6 +268,6 @@ def test_private_modules_are_imported_only_inside_their_package():
 
 
 def test_a_private_import_from_outside_is_found():
-    files = {"drivers.ocean.link": "from drivers._faultlog import FaultLog\n",
+    files = {"drivers.ocean._link": "from drivers._faultlog import FaultLog\n",
              "bench.runner": "import drivers._faultlog\nfrom compare import _grid\nfrom bench.core import errors\n"}
     assert private_imports_from_outside(files) == ["bench.runner -> drivers._faultlog", "bench.runner -> compare._grid"]

@@ -3,7 +3,7 @@
 :class:`DynamixelArm` fills the ``Goniometer`` role. Packets are built, stuffed, checksummed and
 framed by dynamixel-sdk's ``PacketHandler(2.0)`` (SYNC_WRITE of Goal Position of all axes in one
 packet, SYNC_READ of Goal .. Present Position of all axes in one transaction) on a
-:class:`~drivers.transport.TransportPortHandler`; :mod:`drivers.dynamixel.link` matches replies
+:class:`~drivers.transport.TransportPortHandler`; :mod:`drivers.dynamixel._link` matches replies
 to requests. So the same driver runs on a real port, on an
 emulator's pty, or against a :class:`~drivers.transport.ScriptedTransport` fixture.
 
@@ -19,7 +19,7 @@ Behaviour
   :class:`DeviceTimeoutError` at once; otherwise the poll ends when every axis has Moving = 0
   and Present Position within ``tolerance_deg`` of its goal, or ``settle_timeout_s`` passes
   (:class:`DeviceTimeoutError`). It returns the geometry computed from the Present Positions.
-- Request/reply discipline (:mod:`drivers.dynamixel.link`): every status is checked against its
+- Request/reply discipline (:mod:`drivers.dynamixel._link`): every status is checked against its
   request (id, instruction 0x55, parameter length, each id of a sync read once and in order);
   a mismatch is never data. After a timeout, a corrupt reply or a mismatch the driver waits
   until the bus is quiet (``return_delay_s`` + the outstanding statuses' transmit time at the

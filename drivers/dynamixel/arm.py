@@ -1,7 +1,7 @@
 """The Dynamixel arm driver: :class:`DynamixelArm`, the ``Goniometer`` role on four servos
 (connect/reset, move_to with verified motion, position, stop, hardware-fault latching).
 The module docstring of :mod:`drivers.dynamixel` describes the behaviour; the request/reply
-discipline is :mod:`drivers.dynamixel.link`.
+discipline is :mod:`drivers.dynamixel._link`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from drivers.dynamixel.config import (_BLOCK_ADDR, _BLOCK_LEN, _OFF_GOAL, _OFF_M
                                       DRIVE_MODE_CLEAR, ERRBIT_ALERT, RETURN_DELAY_UNIT_S, STATUS_ERRORS,
                                       STATUS_RETURN_ALL, TICKS_PER_REV, ArmConfig, _le, _s32, decode_hardware_error)
 from drivers._faultlog import FaultLog
-from drivers.dynamixel.link import DxlLink
+from drivers.dynamixel._link import DxlLink
 from drivers.kinematics import Joints
 from drivers.transport import SerialTransport, Transport, TransportPortHandler
 

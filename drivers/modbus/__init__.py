@@ -31,7 +31,7 @@ Faults
   (or :class:`ChecksumError` when bytes came back but never a valid frame). A valid reply that
   does not answer this request (another device, function code, register count or echoed
   address: pymodbus itself checks only the device id) is dropped with the input buffer and
-  the request retried; it is never used as data (:func:`drivers.modbus.client.check_reply`).
+  the request retried; it is never used as data (:func:`drivers.modbus._client.check_reply`).
 * A serial port that will not open: the message names the cause (a pseudo-terminal refusing
   even parity with EINVAL, or the adapter refusing the settings, or a port held elsewhere).
 * The connection cannot be made or is lost -> retried, then :class:`PortGoneError`.
@@ -49,7 +49,7 @@ Example
 """
 from __future__ import annotations
 
-from drivers.modbus.client import TransportModbusClient
+from drivers.modbus._client import TransportModbusClient
 from drivers.modbus.config import MODBUS_EXCEPTIONS, AxisConfig, StageAxis
 from drivers.modbus.stage import ModbusStageAxis
 

@@ -21,7 +21,7 @@ from bench.core.roles import InstrumentBase, InstrumentInfo
 from drivers._faultlog import FaultLog
 from drivers._settings import port_and_name, settings_with_overrides
 from drivers.registers import RegisterMap, load_register_map
-from drivers.modbus.client import (
+from drivers.modbus._client import (
     TransportModbusClient, check_reply, port_open_hint, probe_serial_open,
 )
 from drivers.modbus.homing import HomingMixin

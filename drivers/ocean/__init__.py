@@ -56,7 +56,7 @@ Every read has a deadline; timeouts and corrupt frames are retried a bounded num
 """
 
 from __future__ import annotations
-from drivers.ocean.calibration import (
+from drivers.ocean._calibration import (
     nonlinearity_factor, validate_nonlinearity, wavelength_polynomial,
 )
 from drivers.ocean.codec import decode_compressed, decode_version, dword_checksums

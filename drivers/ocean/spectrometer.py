@@ -1,6 +1,6 @@
 """The Ocean spectrometer driver: :class:`OceanSpectrometer`, the ``Spectrometer`` role over a
 byte transport (open, settings, calibration, acquisition, describe). Byte-level I/O is
-:mod:`drivers.ocean.link`, frame decoding :mod:`drivers.ocean.codec`; the protocol as
+:mod:`drivers.ocean._link`, frame decoding :mod:`drivers.ocean.codec`; the protocol as
 implemented is described in :mod:`drivers.ocean`.
 """
 
@@ -21,14 +21,14 @@ from bench.core.errors import (
 )
 from bench.core.roles import InstrumentBase, InstrumentInfo, Reading
 from drivers._settings import port_and_name, settings_with_overrides
-from drivers.ocean.calibration import nonlinearity_factor, validate_nonlinearity, wavelength_polynomial
+from drivers.ocean._calibration import nonlinearity_factor, validate_nonlinearity, wavelength_polynomial
 from drivers.ocean.codec import (
     ETX, FULL_SCALE, NAK, STX, Frame, FrameLayoutError, NeedMore, decode_version, encode_ascii,
     encode_binary, parse_ascii_frame, parse_binary_frame,
 )
 from drivers.ocean.config import OceanConfig
 from drivers._faultlog import FaultLog
-from drivers.ocean.link import Nak, OceanLink, Retry
+from drivers.ocean._link import Nak, OceanLink, Retry
 from drivers.transport import SerialTransport
 
 log = logging.getLogger(__name__)

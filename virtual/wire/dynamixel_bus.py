@@ -7,7 +7,7 @@ Three layers, usable separately:
    reflection), :func:`stuff`/:func:`unstuff` (``FF FF FD`` -> ``FF FF FD FD``),
    :func:`encode_instruction`, :func:`encode_status`, :func:`decode_packet` and the streaming
    :class:`PacketParser`.
-2. **Model** (:mod:`virtual.wire.dxl_servo`, :mod:`virtual.wire.dxl_bus`): :class:`Servo` (control table, finite-speed motion, EEPROM lock, hardware errors)
+2. **Model** (:mod:`virtual.wire._dxl_servo`, :mod:`virtual.wire.dxl_bus`): :class:`Servo` (control table, finite-speed motion, EEPROM lock, hardware errors)
    and :class:`DynamixelBus` (routes instructions: ping, read, write, reboot, sync read, sync
    write, bulk read, bulk write; fault injection). In process, :class:`BusTransport` wraps a bus
    as a byte transport (``write``/``read``/``reset_input``/``close``) for fast tests, and
@@ -15,7 +15,7 @@ Three layers, usable separately:
 3. **Process**: ``python -m virtual.wire.dynamixel_bus --ids 1,2,3,4`` owns a pseudo-terminal,
    prints one JSON line ``{"port": "/dev/pts/N", "control": "127.0.0.1:PORT", "pid": ...}`` and
    serves until killed. :func:`start_bus` does that from Python and returns an
-   :class:`~virtual.wire.pty.EmulatorProcess`; :class:`BusControl` talks to its control channel.
+   :class:`~virtual.wire._pty.EmulatorProcess`; :class:`BusControl` talks to its control channel.
 
 Control channel (joint state for other emulators, fault injection)
 ------------------------------------------------------------------
@@ -67,7 +67,7 @@ from typing import Any, Mapping, Sequence
 from bench.core.errors import DeviceError
 
 from virtual.wire.dxl_bus import DynamixelBus
-from virtual.wire.pty import EmulatorProcess, open_pty, starting_parent, write_all
+from virtual.wire._pty import EmulatorProcess, open_pty, starting_parent, write_all
 
 
 __all__ = ["BusControl", "start_bus", "serve", "main"]

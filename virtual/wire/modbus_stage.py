@@ -51,10 +51,10 @@ from typing import Any
 
 from bench.core.errors import ConfigError
 
-from virtual.wire.modbus_stage_model import (  # noqa: F401
+from virtual.wire._modbus_stage_model import (  # noqa: F401
     AZ_LAYOUT, StageConfig, StageModel, _Layout, read_feedback_steps,
 )
-from virtual.wire.pty import PipeEmulator, answer_control, close_quietly, open_raw_pty
+from virtual.wire._pty import PipeEmulator, answer_control, close_quietly, open_raw_pty
 
 log = logging.getLogger(__name__)
 

@@ -47,7 +47,7 @@ from virtual.wire.ocean_device import _Device, _Faults
 from virtual.wire.ocean_model import (
     SpectrometerConfig, SpectrometerModel,
 )
-from virtual.wire.pty import PipeEmulator, answer_control, close_quietly, open_raw_pty, write_all
+from virtual.wire._pty import PipeEmulator, answer_control, close_quietly, open_raw_pty, write_all
 
 
 log = logging.getLogger(__name__)

@@ -1,6 +1,6 @@
 """``python -m virtual.wire.spawned``: run one emulator function in a fresh interpreter.
 
-:class:`~virtual.wire.pty.PipeEmulator` starts its emulators with this module instead of
+:class:`~virtual.wire._pty.PipeEmulator` starts its emulators with this module instead of
 ``multiprocessing``'s *spawn*, which re-imports the parent's ``__main__``: that fails for a script
 read from stdin (``python -``: EOFError), re-runs a script without an ``if __name__ ==
 "__main__"`` guard, and breaks under IPython/Jupyter. Here the parent writes one pickle to our
@@ -9,7 +9,7 @@ reference -- and we open a ``multiprocessing.connection.Listener`` on 127.0.0.1,
 address as one JSON line on stdout, accept the parent's one connection, move to the parent's
 working directory (relative paths mean what they meant there) and call
 ``target(*head, conn, *tail)``. Nothing of the parent's script is ever imported. We exit when
-the parent is gone, however it ended (:func:`~virtual.wire.pty.exit_with_parent`).
+the parent is gone, however it ended (:func:`~virtual.wire._pty.exit_with_parent`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import pickle
 import sys
 from multiprocessing.connection import Listener
 
-from virtual.wire.pty import exit_with_parent
+from virtual.wire._pty import exit_with_parent
 
 __all__ = ["main"]
 
