@@ -65,6 +65,7 @@ from functools import lru_cache
 import numpy as np
 
 from bench.core.errors import SpecimenError
+from virtual.fresnel import np_fresnel_dielectric
 
 __all__ = ["prospect_d", "LeafTables", "leaf_tables", "CuticleAlbedo", "cuticle_albedo", "cuticle_integrals",
            "INCIDENCE_CALIBRATION_DEG", "PROSPECT_RANGE_NM"]
@@ -103,15 +104,6 @@ def prospect_d(n: float, cab: float, car: float, anth: float, cbrown: float, cw:
 
 
 # --- the cuticle's integrals over visible normals --------------------------------------------
-
-
-def _fresnel(c: np.ndarray, eta: float) -> np.ndarray:
-    c = np.clip(c, 0.0, 1.0)
-    st2 = (1.0 - c * c) / (eta * eta)
-    ct = np.sqrt(np.maximum(1.0 - st2, 0.0))
-    rs = (c - eta * ct) / np.maximum(c + eta * ct, 1e-300)
-    rp = (eta * c - ct) / np.maximum(eta * c + ct, 1e-300)
-    return np.where(st2 >= 1.0, 1.0, 0.5 * (rs * rs + rp * rp))
 
 
 def _cap_normals(theta: float, alpha: float, u: np.ndarray, v: np.ndarray):
@@ -165,7 +157,7 @@ def _segment_sums(theta: float, alpha: float, eta: float, u: np.ndarray, cuts: l
         a, b, owner = a[lit], b[lit], owner[lit]
     vv = a[:, None] + (b - a)[:, None] * xv[None, :]
     cc, _, g = _cap_normals(theta, alpha, np.repeat(u[owner][:, None], len(xv), axis=1), vv)
-    f = _fresnel(cc, eta) * (g if lit_only else 1.0)
+    f = np_fresnel_dielectric(cc, eta) * (g if lit_only else 1.0)
     terms = (b - a)[:, None] * wv[None, :] * f
     stops = np.cumsum(np.bincount(owner, minlength=len(cuts)))
     return [float(np.sum(terms[lo:hi])) if hi > lo else 0.0 for lo, hi in zip(np.concatenate([[0], stops[:-1]]), stops)]
