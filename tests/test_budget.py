@@ -198,7 +198,7 @@ def test_the_fit_of_a_calibrated_scan_uses_the_budgets_full_covariance_and_skips
     saturated) is left out rather than refusing the record."""
     import pandas as pd
 
-    from bench.identify.likelihood import readings_and_covariance as fit_covariance
+    from bench.identify.likelihood import record_covariance as fit_covariance
 
     r = reading([1500.0, 1600.0, 1700.0], [10.0, 11.0, 12.0])
     b = calibration_budgets(calibration, r, GEOMETRY, None, {}, lit_index=1)

@@ -22,7 +22,7 @@ from scipy.optimize import minimize
 
 from bench.core.records import BSDFRecord
 from bench.identify import fit_record
-from bench.identify.likelihood import GaussianReadings, readings_and_covariance
+from bench.identify.likelihood import GaussianReadings, record_covariance
 from bench.identify.scales import SharedScales
 
 EMULATED = Path(__file__).resolve().parents[1] / "fixtures" / "benches" / "emulated.toml"
@@ -94,7 +94,7 @@ def _emulated_record(seed: int) -> BSDFRecord:
 def _smeared(record: BSDFRecord) -> GaussianReadings:
     """The perturbed method: the shared scales back in the covariance, built from the measured values."""
     lik = GaussianReadings(record)
-    values, cov = readings_and_covariance(record)
+    values, cov = record_covariance(record)
     lik.chol = cholesky(cov, lower=True)
     lik.scales = SharedScales((), np.zeros((len(values), 0)))
     return lik

@@ -230,7 +230,7 @@ def information(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
 
     ``shared_scale`` (default True): count the white standard's relative uncertainty as one error
     common to the whole record (rank-one covariance), as the fit's likelihood does
-    (:func:`bench.identify.likelihood.readings_and_covariance`: the budgets' full covariance);
+    (:func:`bench.identify.likelihood.record_covariance`: the budgets' full covariance);
     False counts it in each reading's own variance (a diagonal covariance), which designs for an
     error that averages away and, against the fit, chose 2.6x wider plans (README, "Accuracy per
     bench-minute").

@@ -34,7 +34,7 @@ from bench.core.errors import InputError, SpecimenError
 from bench.core.records import BSDFRecord
 from bench.identify.gof import DRAWS, calibrated_p_value
 from bench.identify.identifiability import Identifiability, flat_profiles, identifiability
-from bench.identify.likelihood import GaussianReadings, Group, Likelihood, likelihood_for
+from bench.identify.likelihood import FitInput, GaussianReadings, Group, Likelihood, likelihood_for
 from bench.identify.model_spec import ModelSpec, parse_model_spec
 
 __all__ = ["ParameterEstimate", "FitResult", "fit_record", "INTERVALS"]
@@ -253,7 +253,7 @@ def _profile_limit(obj: _Objective, xhat: np.ndarray, dev_min: float, cov: np.nd
     return float(bound)  # pragma: no cover - the doubling reaches the bound first
 
 
-def fit_record(record: Any, spec: str | ModelSpec, *, confidence: float = 0.95, interval: str = "profile",
+def fit_record(record: FitInput, spec: str | ModelSpec, *, confidence: float = 0.95, interval: str = "profile",
                starts: int | None = None, seed: int = 0, likelihood: Likelihood | None = None,
                max_seconds: float | None = None) -> FitResult:
     """Fit the free parameters of ``spec`` to ``record`` by maximum likelihood.
@@ -315,7 +315,7 @@ def fit_record(record: Any, spec: str | ModelSpec, *, confidence: float = 0.95, 
     return _identified(record, _calibrated(result, spec, lik), spec, lik)
 
 
-def _identified(record: Any, result: FitResult, spec: ModelSpec, lik: Likelihood) -> FitResult:
+def _identified(record: FitInput, result: FitResult, spec: ModelSpec, lik: Likelihood) -> FitResult:
     """``result`` with what its Fisher information and intervals say it does not identify."""
     ranges = spec.upper - spec.lower
     ident = identifiability(result.fisher, spec.names, ranges)
@@ -342,7 +342,7 @@ def _zscores(spec: ModelSpec, lik: Any, x: np.ndarray, scales_from: Any = None) 
     return (lik.values - fitted) / np.sqrt(np.einsum("ij,ij->i", lik.chol, lik.chol))
 
 
-def _outliers(record: Any, result: FitResult, spec: ModelSpec, lik: Likelihood) -> tuple[dict[str, Any], ...]:
+def _outliers(record: FitInput, result: FitResult, spec: ModelSpec, lik: Likelihood) -> tuple[dict[str, Any], ...]:
     """Calibrated readings more than :data:`OUTLIER_Z` of their own standard uncertainties from
     every model tried: the optimum and, when some are, the refit without them (a gross reading
     drags the optimum -- and a wavelength's shared scale -- so that its neighbours look far too):

@@ -22,7 +22,7 @@ maximum-likelihood estimate and differences of ``sum(r**2)`` are likelihood-rati
   parameters;
 * **calibrated readings** (:class:`GaussianReadings`): a scan's BSDF values or spectra with
   their uncertainties, ``r = L^-1 (y - model)`` with ``L L^T`` the readings' covariance from
-  :func:`readings_and_covariance` (the one place the covariance comes from) less the shared
+  :func:`record_covariance` (the one place the covariance comes from) less the shared
   scales, which are fitted as nuisance parameters (:mod:`bench.identify.scales`), and ``model`` what
   the body read (:mod:`bench.identify.prediction`, the design's prediction too): the cone of the
   detector aperture the record's metadata gives, calibrated against the white read through the
@@ -36,10 +36,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, Sequence, TypeAlias
 
 import numpy as np
 
+from bench.core.budget import readings_and_covariance
 from bench.core.errors import InputError
 from bench.core.geometry import Geometry, cie_geometry
 from bench.core.records import BSDFRecord
@@ -53,7 +54,10 @@ from virtual.collector import SCHEMES, Collector
 from virtual.specimens import Specimen
 
 __all__ = ["Likelihood", "GonioCounts", "SpectroCounts", "GaussianReadings", "likelihood_for",
-           "readings_and_covariance", "multinomial_residuals", "CRN_SEED", "RAY_FACTOR"]
+           "record_covariance", "FitInput", "multinomial_residuals", "CRN_SEED", "RAY_FACTOR"]
+
+#: what a fit takes: a BSDF record, or one or several spectra
+FitInput: TypeAlias = "BSDFRecord | Spectrum | Sequence[Spectrum]"
 
 #: the one seed of the rays counted where the fast path cannot certify (common random numbers)
 CRN_SEED = 20261202
@@ -249,7 +253,7 @@ class GonioCounts(Likelihood):
 # --- virtual counts: spectrophotometer ----------------------------------------------------
 
 
-def _spectra(record: Any) -> tuple[Spectrum, ...]:
+def _spectra(record: Spectrum | Sequence[Spectrum]) -> tuple[Spectrum, ...]:
     return (record,) if isinstance(record, Spectrum) else tuple(record)
 
 
@@ -325,8 +329,8 @@ def _z(delta: float) -> float:
     return float(norm.ppf(1.0 - delta / 2.0))
 
 
-def reading_rows(record: Any) -> list[dict[str, Any]]:
-    """The readings of a calibrated record, in the order of :func:`readings_and_covariance`:
+def reading_rows(record: FitInput) -> list[dict[str, Any]]:
+    """The readings of a calibrated record, in the order of :func:`record_covariance`:
     one dict per reading with its quantity (``bsdf``, ``R``, ``T``, ``RF``), geometry,
     wavelength, value and standard uncertainty ``u``."""
     rows: list[dict[str, Any]] = []
@@ -373,7 +377,7 @@ def _measured(record: BSDFRecord) -> Any:
     return t[np.isfinite(t["value"].to_numpy(float))]
 
 
-def readings_and_covariance(record: Any) -> tuple[np.ndarray, np.ndarray]:
+def record_covariance(record: FitInput) -> tuple[np.ndarray, np.ndarray]:
     """The readings of a calibrated record and their covariance matrix, in the order of
     :func:`reading_rows`.
 
@@ -391,9 +395,7 @@ def readings_and_covariance(record: Any) -> tuple[np.ndarray, np.ndarray]:
     if not rows:
         raise InputError("record has no readings to fit")
     if isinstance(record, BSDFRecord) and "uncertainty_budget" in record.table.columns:
-        from bench.core.budget import readings_and_covariance as budget_covariance
-
-        values, cov = budget_covariance(_measured(record))
+        values, cov = readings_and_covariance(_measured(record))
         u2 = np.diag(cov)
     else:
         values = np.array([r["value"] for r in rows], dtype=float)
@@ -411,7 +413,7 @@ class GaussianReadings(Likelihood):
 
     kind = "gaussian"
 
-    def __init__(self, record: Any) -> None:
+    def __init__(self, record: FitInput) -> None:
         from scipy.linalg import cholesky
 
         self.rows = reading_rows(record)
@@ -420,7 +422,7 @@ class GaussianReadings(Likelihood):
         self.aperture_deg = record_aperture(meta)
         self.white = white_geometry(meta)
         self._nodes: list[Any] | None = None
-        self.values, cov = readings_and_covariance(record)
+        self.values, cov = record_covariance(record)
         #: shared scales (white certificate, white reading, lamp drift) fitted, not in the covariance
         self.scales = SharedScales((), np.zeros((len(self.values), 0)))
         #: the covariance's parts and Type A dof, for the p-value (:mod:`bench.identify.gof`)
@@ -485,7 +487,7 @@ class GaussianReadings(Likelihood):
         return len(self.values)
 
 
-def _has_counts(record: Any) -> bool:
+def _has_counts(record: FitInput) -> bool:
     if isinstance(record, BSDFRecord):
         t = record.table
         if not {"count", "N"} <= set(t.columns) or len(t) == 0:
@@ -498,7 +500,7 @@ def _has_counts(record: Any) -> bool:
                                  for s in spectra)
 
 
-def likelihood_for(record: Any) -> Likelihood:
+def likelihood_for(record: FitInput) -> Likelihood:
     """The likelihood of ``record``: virtual counts (multinomial) when it holds counts with ray
     totals, else its calibrated readings (Gaussian)."""
     if not isinstance(record, (BSDFRecord, Spectrum, tuple, list)):
