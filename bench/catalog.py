@@ -27,11 +27,14 @@ anonymous read access and one API key for writers, so a RunEngine can subscribe
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
 import logging
 import math
 import secrets
 import socket
+import sqlite3
 import tempfile
 import threading
 import time
@@ -408,14 +411,28 @@ class CatalogServer:
 
         return from_uri(self.uri, api_key=self.api_key) if write else from_uri(self.uri)
 
+    @functools.cached_property
+    def _writer_client(self) -> Any:
+        """The writing client, made on first use: a start that writes nothing makes none."""
+        return self.client(write=True)
+
+    def _top_keys(self) -> set[str]:
+        """The start uids at the catalog's top level, read from its SQLite file (a request-free
+        read); through a client where the file's tables are not the ones this reads."""
+        try:
+            with contextlib.closing(sqlite3.connect(f"file:{self.directory / 'catalog.db'}?mode=ro", uri=True)) as db:
+                return {str(k) for (k,) in db.execute(
+                    "SELECT key FROM nodes WHERE parent = (SELECT id FROM nodes WHERE parent IS NULL)")}
+        except sqlite3.Error as exc:
+            log.info("catalog: listing its runs through the server (%s)", exc)
+            return set(self._writer_client)
+
     def add_runs(self, store: Any, run_ids: list[str] | None = None) -> list[str]:
         """Write stored runs (default: every run not still ``running``: a run is served once it
         has ended, complete) through ``TiledWriter``; runs already in the catalog under their
         start uid (a kept ``--catalog``, served earlier, or written live by a RunEngine's
         ``TiledWriter``) are left as they are, and runs without readings are not served (listed
         in :attr:`unserved`). Returns the run ids written."""
-        from bluesky_tiled_plugins import TiledWriter
-
         rows = {r["run_id"]: r for r in store.runs()}
         ids = run_ids if run_ids is not None else [rid for rid, r in rows.items() if r["status"] != "running"]
         ids = [rid for rid in ids if not self._damaged(rid, rows.get(rid))]  # never a URL from a damaged run
@@ -424,9 +441,8 @@ class CatalogServer:
         new = [rid for rid in ids if rid not in self._handled or self._states.get(rid) != states.get(rid)]
         if not new:
             return []  # the 2-s poll of `bench serve`: nothing new, no request to the server
-        client = self.client(write=True)
         if self._served is None:  # what a kept --catalog already holds, listed once
-            self._served = set(client)
+            self._served = self._top_keys()
         ranks = scan_ids(store)
         written = []
         for rid in new:
@@ -436,14 +452,16 @@ class CatalogServer:
             if not _catalog_key(uid):
                 self.damaged[rid] = f"start uid {uid[:60]!r} is not a UUID"
                 continue
-            if self._in_step(client, rid, uid, states.get(rid)):  # already there as the store has it
+            if self._in_step(rid, uid, states.get(rid)):  # already there as the store has it
                 self.served.add(rid)
                 continue
             docs = list(run_documents(store, rid, ranks.get(rid)))
             if not any(name in ("event", "event_page") for name, _ in docs):
                 self.unserved.append(rid)  # nothing measured: no event stream to read
                 continue
-            writer = TiledWriter(client, max_array_size=0)  # spectra as arrays (zarr), not text in the table
+            from bluesky_tiled_plugins import TiledWriter  # seconds to import: only when a run is written
+
+            writer = TiledWriter(self._writer_client, max_array_size=0)  # spectra as arrays (zarr), not text in the table
             for name, doc in docs:
                 writer(name, doc)
             self._served.add(uid)
@@ -463,13 +481,14 @@ class CatalogServer:
             self.damaged[str(run_id)] = str(why)
         return bool(why)
 
-    def _in_step(self, client: Any, run_id: str, uid: str, state: list[Any] | None) -> bool:
+    def _in_step(self, run_id: str, uid: str, state: list[Any] | None) -> bool:
         """Whether the catalog holds run ``uid`` whole and as the store has it now. A copy written
         from another state of the run (served, then resumed and completed) or cut short (no stop
         document: the writer was killed) is deleted, to be written again whole."""
         if self._ledger.get(uid) == state and uid in self._served:
             return True  # written whole from this very state (recorded after its stop document)
-        if uid not in self._served and uid not in client:
+        client = self._writer_client
+        if uid not in self._served and uid not in client:  # not even written live by a RunEngine since
             return False
         stop = client[uid].metadata.get("stop")
         recorded = self._ledger.get(uid)
@@ -507,11 +526,10 @@ class CatalogServer:
         """Delete every run of the catalog that is not a run of ``store`` (a copy of a catalog
         served before, holding runs since deleted from the store or written live then by a
         RunEngine alone); returns their start uids."""
-        client = self.client(write=True)
         wanted = {run_uid(store.run(row["run_id"])) for row in store.runs()}
-        gone = [uid for uid in client if uid not in wanted]
+        gone = sorted(uid for uid in self._top_keys() if uid not in wanted)
         for uid in gone:
-            client.delete_contents(uid, recursive=True, external_only=False)
+            self._writer_client.delete_contents(uid, recursive=True, external_only=False)
             self._ledger.pop(uid, None)
         return gone
 

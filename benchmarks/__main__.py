@@ -18,7 +18,7 @@ import importlib
 import json
 import sys
 
-STUDIES = ["spectro", "gonio", "store", "scan", "effects", "adaptive", "tradeoff", "sweep", "cli", "design"]
+STUDIES = ["spectro", "gonio", "store", "scan", "effects", "adaptive", "tradeoff", "sweep", "cli", "design", "serve"]
 FLAGS = ("--json", "--check", "--accept")
 
 
