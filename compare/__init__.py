@@ -11,7 +11,7 @@ use (:mod:`bench.core.exports`), so ``import compare`` stays cheap for the CLI:
 * :func:`compare.checks.run_checks` -- reciprocity, energy conservation, isotropy of a BSDF record;
 * :class:`compare.verdict.Criterion` -- the acceptance criterion; :mod:`compare.verdict` gives a
   verdict per model and per incidence/wavelength (or spectrum) group;
-* :mod:`compare.covariance` -- the full covariance of the differences when the actual record
+* :mod:`compare._covariance` -- the full covariance of the differences when the actual record
   carries GUM budgets (the shared white standard counted once), and chi-square with it;
 * :mod:`compare.records` -- what a record is (BSDF table, spectrum, set of spectra) and its keys;
 * :mod:`compare.figures` (and its helper :mod:`compare._grid`) -- every figure (spectra, polar maps, in-plane

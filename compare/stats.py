@@ -51,7 +51,7 @@ import pandas as pd
 from bench.core.errors import InputError
 
 from compare.align import Aligned, align
-from compare.covariance import (BUDGET_SOURCE, UncertaintyError, actual_budgets, chi_square, pair_covariance,
+from compare._covariance import (BUDGET_SOURCE, UncertaintyError, actual_budgets, chi_square, pair_covariance,
                                 sub_covariance)
 
 __all__ = [

@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from bench.core.errors import InputError
-from compare.covariance import chi_square, sub_covariance
+from compare._covariance import chi_square, sub_covariance
 
 __all__ = ["Criterion", "group_verdicts", "model_verdict", "VERDICTS"]
 

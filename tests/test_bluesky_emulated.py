@@ -203,7 +203,7 @@ def test_a_count_at_a_parked_arm_is_refused_in_one_line_naming_the_setpoint(RE):
 
 
 @pytest.mark.slow  # ~6 CPU-s (a fresh interpreter, bluesky, three emulators); every emulated test above starts
-# its emulators through the same python -m virtual.wire.spawned path
+# its emulators through the same python -m virtual.wire._spawned path
 def test_an_emulated_bench_connects_and_scans_from_a_script_piped_into_python(tmp_path):
     """``python -`` (no ``__main__`` module file, no guard): the emulators start as ``python -m``
     subprocesses, where multiprocessing's spawn died with EOFError re-importing ``<stdin>``."""

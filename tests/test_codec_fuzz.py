@@ -22,8 +22,8 @@ from bench.core.errors import BenchError
 from drivers.dynamixel._link import Request, decode_status
 from drivers.modbus._client import decode_rtu_reply
 from drivers.ocean.codec import NeedMore, decode_version, parse_ascii_frame, parse_binary_frame
-from virtual.wire.dxl_codec import decode_packet, encode_status
-from virtual.wire.ocean_codec import compress
+from virtual.wire._dxl_codec import decode_packet, encode_status
+from virtual.wire._ocean_codec import compress
 
 FUZZ = settings(max_examples=300, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

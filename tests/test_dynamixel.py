@@ -32,7 +32,7 @@ from drivers.transport import (
 from tests.helpers.clock import FakeClock, WaitingTransport
 from virtual.wire.dynamixel_bus import BusControl, start_bus
 from virtual.wire.dxl_bus import BusTransport, DynamixelBus
-from virtual.wire.dxl_codec import (PacketError, PacketParser, crc16, decode_packet, encode_instruction,
+from virtual.wire._dxl_codec import (PacketError, PacketParser, crc16, decode_packet, encode_instruction,
                                     encode_status, stuff, unstuff)
 
 ROOT = Path(__file__).resolve().parents[1]

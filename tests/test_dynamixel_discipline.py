@@ -29,7 +29,7 @@ from drivers.dynamixel import DynamixelArm
 from drivers.dynamixel._link import DxlLink, Request, check_status, decode_status
 from drivers.transport import ScriptedTransport, TransportPortHandler
 from tests.helpers.clock import FakeClock
-from virtual.wire.dxl_codec import INST, encode_instruction, encode_status
+from virtual.wire._dxl_codec import INST, encode_instruction, encode_status
 from virtual.wire.dxl_bus import BusTransport, DynamixelBus
 
 AXES = {"turntable": {"id": 1, "limits": [-170, 170]}, "source": {"id": 2, "limits": [0, 85]},

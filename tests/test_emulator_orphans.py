@@ -37,7 +37,7 @@ time.sleep(600)
 OWNER_BEFORE_CONNECT = """
 import os, pickle, time
 from virtual.wire._pty import EmulatorProcess
-p = EmulatorProcess("virtual.wire.spawned", stdin_data=pickle.dumps((b"k" * 32, os.getcwd(), print, (), ())))
+p = EmulatorProcess("virtual.wire._spawned", stdin_data=pickle.dumps((b"k" * 32, os.getcwd(), print, (), ())))
 print("ready", flush=True)
 time.sleep(600)
 """

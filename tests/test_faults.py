@@ -15,7 +15,7 @@ from drivers.modbus import ModbusStageAxis
 from drivers.ocean import OceanSpectrometer
 from virtual.wire.dxl_bus import BusTransport, DynamixelBus
 from virtual.wire.modbus_stage import StageEmulator
-from virtual.wire.ocean_device import DeviceTransport
+from virtual.wire._ocean_device import DeviceTransport
 from virtual.wire.ocean_model import SpectrometerConfig, SpectrometerModel
 
 AXES = {"turntable": {"id": 1, "limits": [-170, 170]}, "source": {"id": 2, "limits": [0, 85]},

@@ -39,7 +39,7 @@ from drivers.transport import (  # noqa: E402
     load_fixture,
 )
 from tests.helpers.clock import FakeClock, WaitingTransport  # noqa: E402
-from virtual.wire.ocean_codec import compress  # noqa: E402
+from virtual.wire._ocean_codec import compress  # noqa: E402
 from virtual.wire.ocean_model import cosine_response, file_geometry_source  # noqa: E402
 from virtual.wire.ocean_spectrometer import SpectrometerEmulator  # noqa: E402
 

@@ -15,7 +15,7 @@ import pytest
 from bench.core.errors import ChecksumError
 from drivers.ocean import OceanSpectrometer, decode_version, dword_checksums
 from drivers.transport import ScriptedTransport
-from virtual.wire.ocean_device import DeviceTransport
+from virtual.wire._ocean_device import DeviceTransport
 from virtual.wire.ocean_model import SpectrometerConfig, SpectrometerModel
 
 ACK, NAK, STX = b"\x06", b"\x15", b"\x02"

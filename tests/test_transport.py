@@ -22,7 +22,7 @@ from drivers.transport import (
     save_fixture,
 )
 from tests.helpers.clock import FakeClock
-from virtual.wire.dxl_codec import encode_status
+from virtual.wire._dxl_codec import encode_status
 from virtual.wire._pty import open_pty
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "dynamixel"

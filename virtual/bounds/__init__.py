@@ -26,7 +26,7 @@ count ``N`` where the rule stops::
 See :func:`adaptive_plan` for how each of the two modes proves it.
 
 Modules: :mod:`~virtual.bounds.hoeffding` (eq. 3.5/3.12, time), :mod:`~virtual.bounds.intervals`
-(:func:`binomial_ci`), :mod:`~virtual.bounds.adaptive` (the rule), :mod:`~virtual.bounds.checks`.
+(:func:`binomial_ci`), :mod:`~virtual.bounds.adaptive` (the rule), :mod:`~virtual.bounds._checks`.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ from typing import Callable
 import numpy as np
 
 from bench.core.errors import BudgetError
-from virtual.bounds.checks import check_delta, check_patches, check_uncertainty
+from virtual.bounds._checks import check_delta, check_patches, check_uncertainty
 from virtual.bounds.hoeffding import hoeffding_per_patch
 from virtual.bounds.intervals import binomial_ci
 

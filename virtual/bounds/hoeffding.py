@@ -7,7 +7,7 @@ import math
 from decimal import ROUND_CEILING, Decimal, localcontext
 
 from bench.core.errors import BudgetError
-from virtual.bounds.checks import check_delta, check_patches, check_uncertainty, real, whole
+from virtual.bounds._checks import check_delta, check_patches, check_uncertainty, real, whole
 
 __all__ = ["hoeffding_rays", "hoeffding_per_patch", "estimate_time", "budget_report"]
 

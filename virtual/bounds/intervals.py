@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.core.errors import BudgetError
-from virtual.bounds.checks import check_delta, check_uncertainty
+from virtual.bounds._checks import check_delta, check_uncertainty
 
 __all__ = ["binomial_ci", "CI_METHODS", "relative_patch_rays"]
 

@@ -48,12 +48,12 @@ TOML (``fixtures/scenes/*.toml``)::
 
 Modules: :mod:`~virtual.scene.declared` (the effects' tables), :mod:`~virtual.scene.simulate`
 (:class:`Scene`, :class:`SceneResult`), :mod:`~virtual.scene.loading` (TOML),
-:mod:`~virtual.scene.costs` (:func:`effect_costs`).
+:mod:`~virtual.scene._costs` (:func:`effect_costs`).
 """
 
 from __future__ import annotations
 
-from virtual.scene.costs import effect_costs
+from virtual.scene._costs import effect_costs
 from virtual.scene.declared import (EFFECT_NAMES, Aperture, Bandpass, Effects, GlossTrap, Noise, ReadingEffect,
                                     SpecimenPattern, Sphere, StrayLight)
 from virtual.scene.loading import load_scene, scene_from_dict

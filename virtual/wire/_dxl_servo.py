@@ -11,7 +11,7 @@ import math
 import time
 from typing import Callable
 
-from virtual.wire.dxl_codec import ERR, ERRBIT_ALERT
+from virtual.wire._dxl_codec import ERR, ERRBIT_ALERT
 
 
 # The ONE control table of the emulated servo (XM430-W350, from the e-manual):

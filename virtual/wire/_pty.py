@@ -157,7 +157,7 @@ class PipeEmulator:
                start_timeout: float) -> tuple[Any, Any, dict[str, Any]]:
         """Start ``target(*head, conn, *tail)`` in a new interpreter; wait for its announcement.
 
-        The child is ``python -m virtual.wire.spawned`` (see there): unlike ``multiprocessing``
+        The child is ``python -m virtual.wire._spawned`` (see there): unlike ``multiprocessing``
         spawn it never re-imports the caller's ``__main__``, so emulators start from a script
         without a ``__main__`` guard, from ``python -`` and from notebooks. ``name`` labels errors.
         """
@@ -165,7 +165,7 @@ class PipeEmulator:
         from multiprocessing.connection import Client
 
         authkey = secrets.token_bytes(32)
-        proc = EmulatorProcess("virtual.wire.spawned", start_timeout=start_timeout,
+        proc = EmulatorProcess("virtual.wire._spawned", start_timeout=start_timeout,
                                stdin_data=pickle.dumps((authkey, os.getcwd(), target, head, tail)))
         try:
             parent = Client(proc.control, authkey=authkey)

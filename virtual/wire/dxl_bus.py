@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Mapping
 
-from virtual.wire.dxl_codec import BROADCAST_ID, ERR, INST, Packet, PacketParser, encode_status
+from virtual.wire._dxl_codec import BROADCAST_ID, ERR, INST, Packet, PacketParser, encode_status
 from virtual.wire._dxl_servo import TICKS_PER_REV, Servo
 from virtual.wire._pty import close_quietly, open_pty, write_all
 

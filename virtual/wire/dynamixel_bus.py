@@ -2,7 +2,7 @@
 
 Three layers, usable separately:
 
-1. **Codec** (:mod:`virtual.wire.dxl_codec`; the one packet codec of the project, shared by this emulator and the tests; the
+1. **Codec** (:mod:`virtual.wire._dxl_codec`; the one packet codec of the project, shared by this emulator and the tests; the
    driver itself uses dynamixel-sdk's own packets): :func:`crc16` (poly 0x8005, init 0, no
    reflection), :func:`stuff`/:func:`unstuff` (``FF FF FD`` -> ``FF FF FD FD``),
    :func:`encode_instruction`, :func:`encode_status`, :func:`decode_packet` and the streaming

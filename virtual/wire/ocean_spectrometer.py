@@ -43,7 +43,7 @@ import sys
 import threading
 from typing import Any
 
-from virtual.wire.ocean_device import _Device, _Faults
+from virtual.wire._ocean_device import _Device, _Faults
 from virtual.wire.ocean_model import (
     SpectrometerConfig, SpectrometerModel,
 )

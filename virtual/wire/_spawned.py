@@ -1,4 +1,4 @@
-"""``python -m virtual.wire.spawned``: run one emulator function in a fresh interpreter.
+"""``python -m virtual.wire._spawned``: run one emulator function in a fresh interpreter.
 
 :class:`~virtual.wire._pty.PipeEmulator` starts its emulators with this module instead of
 ``multiprocessing``'s *spawn*, which re-imports the parent's ``__main__``: that fails for a script

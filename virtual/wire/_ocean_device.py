@@ -12,7 +12,7 @@ import time
 from typing import Callable
 
 
-from virtual.wire.ocean_codec import ACK, CR, ETX, LF, NAK, STX, encode_frame, encode_frame_ascii
+from virtual.wire._ocean_codec import ACK, CR, ETX, LF, NAK, STX, encode_frame, encode_frame_ascii
 from virtual.wire.ocean_model import Settings, SpectrometerModel
 
 log = logging.getLogger(__name__)
