@@ -223,41 +223,36 @@ def test_a_running_run_of_a_live_process_is_not_gone(tmp_path):
 
 # --- policy: internal errors, Ctrl-C, broken pipes, help -----------------------------------------------------
 
-def test_an_internal_error_is_one_line_naming_a_saved_traceback(capsys, monkeypatch):
+def _rays_raising(capsys, monkeypatch, exc: BaseException) -> tuple[int, str]:
+    """``bench rays`` with its command raising ``exc``: (exit status, stderr), stderr one line."""
     import bench.cli.measure as measure
 
-    def boom(args):
-        raise ZeroDivisionError("a bug")
+    def raising(args):
+        raise exc
 
-    monkeypatch.setattr(measure, "cmd_rays", boom)
+    monkeypatch.setattr(measure, "cmd_rays", raising)
     code, _, err = run_main(capsys, "rays", "-u", "0.1", "-d", "0.1")
-    assert code == 70 and one_line(err) and "ZeroDivisionError" in err
+    assert one_line(err), err
+    return code, err
+
+
+def test_an_internal_error_is_one_line_naming_a_saved_traceback(capsys, monkeypatch):
+    code, err = _rays_raising(capsys, monkeypatch, ZeroDivisionError("a bug"))
+    assert code == 70 and "ZeroDivisionError" in err
     path = err.split("traceback saved to ")[1].split(";")[0]
     assert "ZeroDivisionError: a bug" in Path(path).read_text()
     Path(path).unlink()
 
 
 def test_ctrl_c_exits_130(capsys, monkeypatch):
-    import bench.cli.measure as measure
-
-    def interrupted(args):
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(measure, "cmd_rays", interrupted)
-    code, _, err = run_main(capsys, "rays", "-u", "0.1", "-d", "0.1")
-    assert code == 130 and one_line(err)
+    assert _rays_raising(capsys, monkeypatch, KeyboardInterrupt())[0] == 130
 
 
 def test_a_device_fault_exits_1(capsys, monkeypatch):
-    import bench.cli.measure as measure
     from bench.core.errors import HardwareError
 
-    def fault(args):
-        raise HardwareError("overload on axis 2")
-
-    monkeypatch.setattr(measure, "cmd_rays", fault)
-    code, _, err = run_main(capsys, "rays", "-u", "0.1", "-d", "0.1")
-    assert code == 1 and one_line(err) and "overload" in err
+    code, err = _rays_raising(capsys, monkeypatch, HardwareError("overload on axis 2"))
+    assert code == 1 and "overload" in err
 
 
 def test_a_broken_pipe_exits_quietly():
