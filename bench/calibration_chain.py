@@ -63,15 +63,14 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from bench.builders.detector import RESPONSE_GAIN, DetectorTable, detector_settings
-from bench.builders.instrument import instrument_effects
+from bench.builders.detector import RESPONSE_GAIN
 from bench.config import Bench
 from bench.core.calibration import Calibration
 from bench.core.errors import BenchError, CalibrationRefused
 from bench.core.roles import Reading
 from bench.io.white import WhiteReference, read_white_reference
 from bench.plans import Plan
-from bench.preflight import (calibration_record, check_calibration_steps, check_origin, detector_identity,
+from bench.preflight import (calibration_record, dark_level, check_calibration_steps, check_origin, detector_identity,
                               no_light, white_origin)
 
 log = logging.getLogger(__name__)
@@ -241,20 +240,6 @@ def acquire_dark(bench: Bench, plan: Plan) -> Reading:
         return bench.spectrometer.acquire(plan.integration_s, plan.averages)
     finally:
         bench.light.on()
-
-
-def dark_level(bench: Bench) -> float:
-    """The dark level (counts per scan) of ``bench``'s detector: a declared ``[detector]``'s (every
-    body); else the virtual body's ``[instrument] dark_counts`` (0 undeclared: the bare twin), the
-    emulated and real bodies' the emulated unit's (its data sheet's, :class:`DetectorTable`)."""
-    d = bench.config
-    det = detector_settings(d)
-    if det is not None:
-        return float(det.dark_counts)
-    if bench.kind == "virtual":
-        effects = instrument_effects(d.get("instrument"))
-        return 0.0 if effects is None else float(effects.dark_counts)
-    return float(DetectorTable().dark_counts)
 
 
 def check_dark_level(bench: Bench, plan: Plan) -> None:

@@ -21,6 +21,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from bench.builders.instrument import instrument_effects
 from bench.builders.detector import (RESPONSE_GAIN, DetectorTable, check_integration, described_bands,
                                      detector_settings)
 from bench.config import Bench
@@ -45,11 +46,33 @@ def dark_step(dark: str) -> str:
 
 
 def no_light(bench: Bench, plan: Plan) -> CalibrationRefused:
-    """The refusal of a plan's darks on a bench that cannot switch its light off."""
-    return CalibrationRefused(
-        f"plan {plan.name!r} asks for {dark_step(plan.dark)}; bench {bench.name!r} declares no switchable "
-        f"light or shutter: add [light] kind = \"spectrometer-lamp\" to the bench file, or set dark = \"none\" "
-        f"in the plan")
+    """The refusal of a plan's darks on a bench that cannot switch its light off; it suggests a
+    plan without darks only where one would be taken (an uncalibrated plan, or a detector
+    without a dark level)."""
+    fix = "add [light] kind = \"spectrometer-lamp\" to the bench file"
+    level = dark_level(bench)
+    if plan.white == "none" or level == 0:
+        fix += ", or set dark = \"none\" in the plan"
+    else:
+        fix += f" (a calibrated plan without darks is refused: the detector's dark level, {level:g} counts, does not cancel)"
+    return CalibrationRefused(f"plan {plan.name!r} asks for {dark_step(plan.dark)}; bench {bench.name!r} declares no "
+                              f"switchable light or shutter: {fix}")
+
+
+def dark_level(bench: Bench) -> float:
+    """The dark level (counts per scan) of ``bench``'s detector: a declared ``[detector]``'s (every
+    body); else the virtual body's ``[instrument] dark_counts`` (0 undeclared: the bare twin), the
+    emulated and real bodies' the emulated unit's (its data sheet's, :class:`DetectorTable`)."""
+    d = bench.config
+    det = detector_settings(d)
+    if det is not None:
+        return float(det.dark_counts)
+    if bench.kind == "virtual":
+        effects = instrument_effects(d.get("instrument"))
+        return 0.0 if effects is None else float(effects.dark_counts)
+    return float(DetectorTable().dark_counts)
+
+
 
 
 def detector_identity(bench: Bench) -> dict[str, Any]:
