@@ -302,3 +302,22 @@ def test_hil_run_on_a_real_bench_with_no_terminal(tmp_path):
         assert "1 passed" in proc.stdout
     finally:
         emu.close()
+
+
+def test_bench_white_by_default_integrates_as_the_benchs_detector_starts(emulated, tmp_path, capsys):
+    """Without --integration-s, `bench white` integrates as the Bluesky detector starts: 0.1 s, or the
+    longest below it keeping the white below full scale (the emulated bench's white saturates at 0.1 s,
+    which used to be this command's default and was refused)."""
+    from bench.config import load_description
+    from bench.exposure import starting_integration
+
+    out = tmp_path / "white.csv"
+    start = starting_integration(load_description(BENCHES / "emulated.toml")[0])
+    assert 0 < start < 0.1  # power: the old default would saturate here
+    assert main(["white", "--bench", str(BENCHES / "emulated.toml"), "--out", str(out), "--averages", "2"]) == 0, \
+        capsys.readouterr().err
+    assert read_white_reference(out).white.integration_s == start
+    assert main(["white", "--bench", str(BENCHES / "emulated.toml"), "--out", str(tmp_path / "w1.csv"),
+                 "--integration-s", "0.1", "--averages", "2"]) == 2  # what the old default gave
+    err = capsys.readouterr().err
+    assert "saturat" in err and len(err.strip().splitlines()) == 1, err

@@ -37,17 +37,20 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
 
     from bench.calibration_chain import check_white_level, check_white_unsaturated, previous_white
     from bench.config import load_bench
-    from bench.exposure import check_exposure
+    from bench.exposure import check_exposure, starting_integration
     from bench.plans import Plan
     from bench.runner import measure_calibration
 
-    if not args.integration_s > 0:
+    if args.integration_s is not None and not args.integration_s > 0:
         raise InputError(f"--integration-s must be > 0 s, got {args.integration_s:g}")
     if args.repeats == 2:
         raise InputError("--repeats must be 1 (one white) or >= 3 (a lamp drift estimate needs 3), got 2")
-    plan = Plan(name="white", kind="list", points=(), integration_s=args.integration_s, averages=args.averages,
-                dark=args.dark, white="repeated" if args.repeats > 1 else "once", white_repeats=max(args.repeats, 3))
     with load_bench(args.bench, body=args.body) as bench:
+        # the default: the detector device's own starting time, below the white's saturation
+        integration_s = args.integration_s if args.integration_s is not None else starting_integration(bench.config)
+        plan = Plan(name="white", kind="list", points=(), integration_s=integration_s, averages=args.averages,
+                    dark=args.dark, white="repeated" if args.repeats > 1 else "once",
+                    white_repeats=max(args.repeats, 3))
         bench.operator_confirmed = args.yes
         check_exposure(plan, bench.config, white=True)  # as bench scan predicts a plan's white: before motion
         cal = measure_calibration(bench, plan, use_reference_file=False)  # checked against the declared level
@@ -104,8 +107,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     w.add_argument("--out", required=True, type=output_file(), metavar="FILE.csv",
                    help="the white reference file to write (required)")
     w.add_argument("--note", default="", help="the operator's note (standard, cleaning, lamp warm-up...; default: none)")
-    w.add_argument("--integration-s", type=real(0.0, 3600.0, lo_open=True), default=0.1, metavar="S",
-                   help="integration time, seconds (default %(default)s)")
+    w.add_argument("--integration-s", type=real(0.0, 3600.0, lo_open=True), default=None, metavar="S",
+                   help="integration time, seconds (default: 0.1, or the longest below it at which the bench's "
+                        "white stays below full scale, as its Bluesky detector starts)")
     w.add_argument("--averages", type=count(1, 100_000), default=1, help="scans averaged, 1..100000 (default %(default)s)")
     w.add_argument("--dark", choices=("once", "none"), default="once",
                    help="take a dark with the light off (once), or none (the file records it; runs whose plan "
