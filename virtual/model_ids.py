@@ -12,8 +12,7 @@ editing one recompiles them.
 __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX",
            "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_ROUGHPLASTIC", "MODEL_PYTHON"]
 
-MODEL_LAMBERT = 0
-from virtual.law_table import MODEL_OREN_NAYAR  # noqa: E402  (its law: virtual.kernels.laws.oren_nayar)
+from virtual.law_table import MODEL_LAMBERT, MODEL_OREN_NAYAR  # declared by their laws (virtual.kernels.laws)
 MODEL_PHONG = 2
 MODEL_GGX = 3
 MODEL_ANISO_GGX = 4

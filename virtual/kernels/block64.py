@@ -26,7 +26,7 @@ from virtual.kernels.law_dispatch import law_block64, law_uniforms
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.branchfree import (GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, phong_given, phong_lobe_cos,
                                    plastic_diffuse_redo, plastic_given, scatter_given4)
-from virtual.kernels.scatter import (GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_PHONG,
+from virtual.kernels.scatter import (GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_PHONG,
                                      MODEL_PLASTIC, ggx_given_parts, scatter_given)
 
 __all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "gonio_block_chunk", "lambert_spectral_chunk",
@@ -132,13 +132,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
         fill_uniforms(lane, ublock)
         # Each loop below is branch-free, so LLVM vectorizes it: a loop-invariant choice (the
         # model, the scheme) picks one copy of a loop, never a branch inside one.
-        if model == MODEL_LAMBERT:
-            for i in range(nb):
-                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive = scatter_given(MODEL_LAMBERT, p, wx, wy, wz, u[s0 + i],
-                                                           u[s0 + nb + i], u[s0 + 2 * nb + i])
-                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
-        elif model == MODEL_PHONG:
+        if model == MODEL_PHONG:
             for i in range(nb):  # pow does not vectorize: alone in its loop, and only for lobe rays
                 uc = u[s0 + i]
                 vx[i] = phong_lobe_cos(p, u[s0 + 2 * nb + i]) if (uc >= p[0]) & (uc < p[0] + p[3]) else 1.0

@@ -18,9 +18,9 @@ from numba import int32
 
 from virtual.kernels import jit
 from virtual.kernels.f32 import (DOUBT, F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32, frame32, g2_over_g1_masked_ratio32,
-                                 ggx_n32, ggx_vndf_given32, in_doubt32, sincos_2pi32, warp_cosine_hemisphere32)
+                                 ggx_n32, ggx_vndf_given32, in_doubt32, sincos_2pi32)
 
-__all__ = ["lambert_given32", "ggx_normal32", "ggx_reflect32", "ggx_finish32", "phong_lobe_omc32", "phong_given32"]
+__all__ = ["ggx_normal32", "ggx_reflect32", "ggx_finish32", "phong_lobe_omc32", "phong_given32"]
 
 _LN2 = F(math.log(2.0))
 _LOG2E = F(1.0 / math.log(2.0))
@@ -30,16 +30,6 @@ _E5, _E6, _E7 = F(1.0 / 120.0), F(1.0 / 720.0), F(1.0 / 5040.0)
 _MANT, _SQRT2_MANT = np.int32(0x7FFFFF), np.int32(0x3504F3)  # float32 mantissa bits; those of sqrt(2)
 _HALF_BITS, _ONE_BITS = np.int32(0x3F000000), np.int32(0x3F800000)  # exponent bits of 0.5 and 1
 _BIAS, _MIN_EXP, _SHIFT = np.int32(127), np.int32(-126), np.int32(23)
-
-
-@jit(inline="llvm")
-def lambert_given32(p, wz, u0, u1, u2):
-    """Lambertian: alive when u0 < R + T, reflected (source side) when u0 < R, the direction
-    Malley's from (u1, u2)."""
-    x, y, z = warp_cosine_hemisphere32(u2, u1)
-    up = (wz >= ZERO) != (u0 >= p[0])
-    rt = p[0] + p[1]
-    return x, y, (z if up else -z), u0 < rt, in_doubt32(u0, p[0], ONE) | in_doubt32(u0, rt, ONE)
 
 
 @jit(inline="llvm")

@@ -63,7 +63,8 @@ def _check_law(name: str, law: ModuleType, seen: dict[int, str]) -> None:
             raise SystemExit(f"{where}: missing {attr} (see virtual/kernels/laws/__init__.py)")
     if not isinstance(law.MODEL, int) or law.MODEL < 0:
         raise SystemExit(f"{where}: MODEL must be an int >= 0, got {law.MODEL!r}")
-    if law.MODEL in seen:
+    own = f"virtual/model_ids.py MODEL_{name.upper()}"  # a hand-written model becoming this law keeps its id
+    if law.MODEL in seen and seen[law.MODEL] != own:
         raise SystemExit(f"{where}: MODEL {law.MODEL} is taken by {seen[law.MODEL]}")
     if not isinstance(law.UNIFORMS, int) or not 1 <= law.UNIFORMS <= 8:
         raise SystemExit(f"{where}: UNIFORMS must be an int in 1..8, got {law.UNIFORMS!r}")
@@ -86,6 +87,11 @@ def _dispatch(laws: list[tuple[str, ModuleType]]) -> str:
            "from __future__ import annotations\n\n",
            "from virtual.kernels import jit\n",
            "from virtual.kernels.emit import emit_given\n"]
+    f32 = [law for _, law in laws if law.FLOAT32_LIMITS is not None]
+    if f32:
+        side = any(getattr(law, "SIDE_ONLY", False) for law in f32)
+        out.append("from virtual.kernels.f32 import " + ("ZERO as ZERO32, " if side else "") + "emit_block32"
+                   + (", emit_side32" if side else "") + "\n")
     if any(not hasattr(law, "ray") for _, law in laws):
         out.append("from virtual.kernels.xoshiro import next_double\n")
     for name, _ in laws:
@@ -129,21 +135,28 @@ def _dispatch(laws: list[tuple[str, ModuleType]]) -> str:
                    f"            vx[i], vy[i], vz[i], alive, _ = {name}64.given(p, wx, wy, wz, {_uniforms(law.UNIFORMS)})\n"
                    "            code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))\n")
 
-    out.append('\n\n@jit(inline="always")\ndef law_block32(model, p, u, s0, nb, vx, vy, vz, code):\n'
-               '    """The float32 block kernel\'s loop for law ``model``, after the beam\'s\n'
-               '    (:func:`~virtual.kernels.f32.emit_block32`: directions in ``vx, vy, vz``, hits in ``code``):\n'
-               '    code 1 survivor, 0 absorbed, 2 missed, 4 in doubt\n'
-               '    (:func:`~virtual.kernels.block32.gonio_block32_chunk`)."""\n')
+    out.append('\n\n@jit(inline="always")\ndef law_block32(model, p, conical, b, u, bo, s0, nb, vx, vy, vz, code):\n'
+               '    """The float32 block kernel\'s loops for law ``model``: the beam\'s\n'
+               '    (:func:`~virtual.kernels.f32.emit_block32`, or only its side for a ``SIDE_ONLY`` law,\n'
+               '    :func:`~virtual.kernels.f32.emit_side32`, in the same loop), then the law\'s: code 1\n'
+               '    survivor, 0 absorbed, 2 missed, 4 in doubt (:func:`~virtual.kernels.block32.gonio_block32_chunk`)."""\n')
     k = 0
     for name, law in laws:
         if law.FLOAT32_LIMITS is None:
             continue
-        out.append(f"    {'if' if k == 0 else 'elif'} model == {law.MODEL}:\n"
-                   "        for i in range(nb):\n"
-                   "            hit = code[i] == 1\n"
-                   f"            vx[i], vy[i], vz[i], alive, doubt = {name}32.given(p, vx[i], vy[i], vz[i], "
-                   f"{_uniforms(law.UNIFORMS)})\n"
-                   "            code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))\n")
+        out.append(f"    {'if' if k == 0 else 'elif'} model == {law.MODEL}:\n")
+        if getattr(law, "SIDE_ONLY", False):
+            out.append("        for i in range(nb):\n"
+                       "            wz, hit = emit_side32(conical, b, u[i], u[bo + i])\n"
+                       f"            vx[i], vy[i], vz[i], alive, doubt = {name}32.given(p, ZERO32, ZERO32, wz, "
+                       f"{_uniforms(law.UNIFORMS)})\n")
+        else:
+            out.append("        emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)\n"
+                       "        for i in range(nb):\n"
+                       "            hit = code[i] == 1\n"
+                       f"            vx[i], vy[i], vz[i], alive, doubt = {name}32.given(p, vx[i], vy[i], vz[i], "
+                       f"{_uniforms(law.UNIFORMS)})\n")
+        out.append("            code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))\n")
         k += 1
     if k == 0:
         out.append("    pass\n")

@@ -9,9 +9,12 @@ from __future__ import annotations
 
 from virtual.kernels import jit
 from virtual.kernels.emit import emit_given
+from virtual.kernels.f32 import ZERO as ZERO32, emit_block32, emit_side32
 from virtual.kernels.xoshiro import next_double
+from virtual.kernels.laws import lambert as lambert64
 from virtual.kernels.laws import oren_nayar as oren_nayar64
 from virtual.kernels.laws import ward as ward64
+from virtual.kernels.laws32 import lambert as lambert32
 from virtual.kernels.laws32 import oren_nayar as oren_nayar32
 from virtual.kernels.laws32 import ward as ward32
 
@@ -21,6 +24,8 @@ __all__ = ["law_uniforms", "law32", "law_scatter", "law_block64", "law_block32",
 @jit(inline="llvm")
 def law_uniforms(model):
     """The uniforms per ray of law ``model``'s given form; 0 for a model that is not a law."""
+    if model == 0:  # lambert
+        return 3
     if model == 1:  # oren_nayar
         return 4
     if model == 9:  # ward
@@ -31,13 +36,15 @@ def law_uniforms(model):
 @jit(inline="llvm")
 def law32(model):
     """Whether ``model`` is a law with a float32 form."""
-    return model == 1 or model == 9
+    return model == 0 or model == 1 or model == 9
 
 
 @jit(inline="llvm")
 def law_scatter(model, p, wx, wy, wz, s):
     """Ray by ray: ``(ox, oy, oz, alive)`` from the stream ``s`` (the law's ``ray``, else its
     ``given`` on fresh draws)."""
+    if model == 0:
+        return lambert64.ray(p, wx, wy, wz, s)
     if model == 1:
         return oren_nayar64.ray(p, wx, wy, wz, s)
     if model == 9:
@@ -51,7 +58,12 @@ def law_block64(model, p, beam_kind, b, u, s0, nb, bo, vx, vy, vz, code, absorbe
     """The float64 block kernel's loop for law ``model``: every ray of the block emitted
     (:func:`~virtual.kernels.emit.emit_given`) and scattered, its code -2 (survivor) or its
     absorbed/missed bin (:func:`~virtual.kernels.block64.gonio_block_chunk`)."""
-    if model == 1:
+    if model == 0:
+        for i in range(nb):
+            wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+            vx[i], vy[i], vz[i], alive, _ = lambert64.given(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i])
+            code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+    elif model == 1:
         for i in range(nb):
             wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
             vx[i], vy[i], vz[i], alive, _ = oren_nayar64.given(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
@@ -64,17 +76,24 @@ def law_block64(model, p, beam_kind, b, u, s0, nb, bo, vx, vy, vz, code, absorbe
 
 
 @jit(inline="always")
-def law_block32(model, p, u, s0, nb, vx, vy, vz, code):
-    """The float32 block kernel's loop for law ``model``, after the beam's
-    (:func:`~virtual.kernels.f32.emit_block32`: directions in ``vx, vy, vz``, hits in ``code``):
-    code 1 survivor, 0 absorbed, 2 missed, 4 in doubt
-    (:func:`~virtual.kernels.block32.gonio_block32_chunk`)."""
-    if model == 1:
+def law_block32(model, p, conical, b, u, bo, s0, nb, vx, vy, vz, code):
+    """The float32 block kernel's loops for law ``model``: the beam's
+    (:func:`~virtual.kernels.f32.emit_block32`, or only its side for a ``SIDE_ONLY`` law,
+    :func:`~virtual.kernels.f32.emit_side32`, in the same loop), then the law's: code 1
+    survivor, 0 absorbed, 2 missed, 4 in doubt (:func:`~virtual.kernels.block32.gonio_block32_chunk`)."""
+    if model == 0:
+        for i in range(nb):
+            wz, hit = emit_side32(conical, b, u[i], u[bo + i])
+            vx[i], vy[i], vz[i], alive, doubt = lambert32.given(p, ZERO32, ZERO32, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i])
+            code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
+    elif model == 1:
+        emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)
         for i in range(nb):
             hit = code[i] == 1
             vx[i], vy[i], vz[i], alive, doubt = oren_nayar32.given(p, vx[i], vy[i], vz[i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
             code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
     elif model == 9:
+        emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)
         for i in range(nb):
             hit = code[i] == 1
             vx[i], vy[i], vz[i], alive, doubt = ward32.given(p, vx[i], vy[i], vz[i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
@@ -86,6 +105,9 @@ def law_given64(model, p, wx, wy, wz, v):
     """Law ``model``'s float64 given form on the uniforms ``v`` (the float32 kernel's ray in
     doubt, its uniforms refined: :func:`~virtual.kernels.refine.redo_ray64`):
     ``(ox, oy, oz, alive)``."""
+    if model == 0:
+        ox, oy, oz, alive, _ = lambert64.given(p, wx, wy, wz, v[0], v[1], v[2])
+        return ox, oy, oz, alive
     if model == 1:
         ox, oy, oz, alive, _ = oren_nayar64.given(p, wx, wy, wz, v[0], v[1], v[2], v[3])
         return ox, oy, oz, alive

@@ -28,7 +28,8 @@ from virtual.kernels.microfacet import (disk_direction, fresnel_conductor_ratio,
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.coat import roughplastic
 from virtual.kernels.law_dispatch import law_scatter
-from virtual.kernels.warps import sample_cosine_hemisphere, sincos_2pi, warp_cosine_hemisphere
+from virtual.kernels.laws import lambert
+from virtual.kernels.warps import sincos_2pi
 # Model ids: one branch each in `scatter`; they live in a numba-free module (specimens declare them).
 from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LAMBERT, MODEL_LEAF,
                                MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON, MODEL_ROUGHPLASTIC)
@@ -180,25 +181,6 @@ def _dielectric(p, wx, wy, wz, s):
 
 
 @jit(inline="llvm")
-def _lambert_given(p, wz, u, x, y, z):
-    """Lambertian: alive when u < R + T; reflected rays (u < R) leave on the side of the source,
-    transmitted ones on the other side, along the cosine-distributed (x, y, z), z >= 0."""
-    up = (wz >= 0.0) != (u >= p[0])
-    return x, y, (z if up else -z), u < p[0] + p[1]
-
-
-
-@jit(inline="llvm")
-def _lambert(p, wz, s):
-    u = next_double(s)
-    if u >= p[0] + p[1]:  # absorbed: no direction drawn
-        return 0.0, 0.0, 0.0, False
-    x, y, z = sample_cosine_hemisphere(s)
-    return _lambert_given(p, wz, u, x, y, z)
-
-
-
-@jit(inline="llvm")
 def _leaf_specular(wx, wy, wz, a, eta, ks, s):
     """The leaf cuticle's specular event for light from w (wz > 0): ``(ox, oy, oz, kept)``, kept
     with probability ks E_s(w) (a visible normal, Fresnel reflection, above the horizon, ks G2/G1)."""
@@ -261,8 +243,6 @@ def _leaf(p, wx, wy, wz, s):
 def _scatter_general(model, p, wx, wy, wz, s):
     """Every model (called, not inlined: inlining them all into each kernel quadruples the
     compile time)."""
-    if model == MODEL_LAMBERT:
-        return _lambert(p, wz, s)
     if model == MODEL_GGX or model == MODEL_ANISO_GGX:
         return _ggx(p, wx, wy, wz, s)
     if model == MODEL_PHONG:
@@ -283,11 +263,12 @@ def _scatter_general(model, p, wx, wy, wz, s):
 def scatter(model, p, wx, wy, wz, s):
     """Scatter one ray (see the module docstring for the contract).
 
-    Inlined into the kernels with the Lambertian branch, the commonest and cheapest specimen
-    (1.2-1.8x the kernel's rays/s on this machine); every other model is one call away.
+    Inlined into the kernels with the Lambertian's ray (:mod:`virtual.kernels.laws.lambert`), the
+    commonest and cheapest specimen (1.2-1.8x the kernel's rays/s); every other model is one call
+    away.
     """
     if model == MODEL_LAMBERT:
-        return _lambert(p, wz, s)
+        return lambert.ray(p, wx, wy, wz, s)
     return _scatter_general(model, p, wx, wy, wz, s)
 
 
@@ -302,8 +283,8 @@ def scatter_given(model, p, wx, wy, wz, u0, u1, u2):
     (Malley), GGX's visible-normal cap point. Callers only read the direction when ``alive``.
     """
     if model == MODEL_LAMBERT:
-        x, y, z = warp_cosine_hemisphere(u2, u1)
-        return _lambert_given(p, wz, u0, x, y, z)
+        ox, oy, oz, alive, _ = lambert.given(p, wx, wy, wz, u0, u1, u2)
+        return ox, oy, oz, alive
     ca, sa = sincos_2pi(u2)
     return _ggx_given(p, wx, wy, wz, ca, sa, u1, u0)
 

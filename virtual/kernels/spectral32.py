@@ -106,7 +106,7 @@ def lambert_spectral32_chunk(thr, floors, conical, b, cargs, ring_margin, sector
         fill_uniforms32(lane, ublock)
         for i in range(nb):
             _, hit = emit_side32(conical, b, u[i], u[bo + i])
-            x, y, z = warp_cosine_hemisphere32(u[s0 + 2 * nb + i], u[s0 + nb + i])  # lambert_given32's draw
+            x, y, z = warp_cosine_hemisphere32(u[s0 + 2 * nb + i], u[s0 + nb + i])  # the Lambertian law's draw (virtual.kernels.laws.lambert)
             vx[i] = x
             vy[i] = y
             vz[i] = z
