@@ -19,7 +19,7 @@ from virtual.specimens.physics import (fresnel_hemispherical_average, fresnel_vn
                                        np_ggx_n, np_ggx_reflection, vndf_expectation, vndf_normals,
                                        MASKINGS, g2_over_4)
 
-__all__ = ["GGX", "AnisoGGX", "RoughPlastic", "RoughDielectric", "ALPHA_MIN", "ALPHA_MAX"]
+__all__ = ["GGX", "AnisoGGX", "RoughPlastic", "RoughDielectric", "ALPHA_MIN", "ALPHA_MAX", "mirror_lobe"]
 
 ALPHA_MIN = 1e-4
 ALPHA_MAX = 1.0
@@ -53,6 +53,14 @@ _MASKING = Param("masking", 0.0, 0.0, 1.0, doc="Smith masking-shadowing: height-
                  "G1(wi) G1(wo) as Mitsuba 3", choices=MASKINGS)
 
 
+
+def mirror_lobe(wi: np.ndarray, ax: float, ay: float) -> tuple[np.ndarray, float]:
+    """The mirror lobe of a GGX surface lit from ``wi``: its direction and its width, measured
+    from the sampler's own visible normals (a specimen's ``lobes``)."""
+    w = _lit(wi)
+    m, _ = vndf_normals(w, ax, ay, _LU, _LT)
+    return mirror(wi), lobe_width(mirror(w), _reflected(w, m)[1])
+
 class _GGXFace(DeclaredSpecimen):
     """Density and lobes shared by the GGX reflectors (params ``[alpha_x, alpha_y, eta, k]``)."""
 
@@ -76,9 +84,7 @@ class _GGXFace(DeclaredSpecimen):
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
         """The mirror lobe, its width measured from the sampler's own visible normals."""
         ax, ay = self.params(wavelength_nm)[:2]
-        w = _lit(wi)
-        m, _ = vndf_normals(w, ax, ay, _LU, _LT)
-        return [(mirror(wi), lobe_width(mirror(w), _reflected(w, m)[1]))]
+        return [mirror_lobe(wi, ax, ay)]
 
     def albedo_reference(self, wi: np.ndarray, wavelength_nm: float) -> tuple[float, float]:
         """Directional albedo ``E[F(wi.m) G2/G1]`` over the visible normals (the sampler's
@@ -192,9 +198,7 @@ class RoughPlastic(DeclaredSpecimen):
 
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
         a = float(self.params(wavelength_nm)[0])
-        w = _lit(wi)
-        m, _ = vndf_normals(w, a, a, _LU, _LT)
-        return [(mirror(wi), lobe_width(mirror(w), _reflected(w, m)[1]))]
+        return [mirror_lobe(wi, a, a)]
 
     def albedo_reference(self, wi: np.ndarray, wavelength_nm: float) -> tuple[float, float]:
         """``E[F G2/G1] + kd (1 - Fbar)`` over the visible normals (what the sampler does: a

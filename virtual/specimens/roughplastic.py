@@ -58,9 +58,9 @@ from virtual.kernel_codes import (B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS, B_SPEC
 from virtual.model_ids import MODEL_ROUGHPLASTIC
 from virtual.specimens.coat_quadrature import mitsuba_rough_reflectance, mitsuba_rough_transmittance
 from virtual.specimens.declare import DeclaredSpecimen, Param, register_specimen
-from virtual.specimens.microfacet import _LT, _LU, ALPHA_MAX, ALPHA_MIN, _lit, _reflected
-from virtual.specimens.physics import (lobe_width, local, mirror, np_fresnel_dielectric, np_g2_over_g1,
-                                       np_ggx_reflection, vndf_expectation, vndf_normals)
+from virtual.specimens.microfacet import ALPHA_MAX, ALPHA_MIN, mirror_lobe
+from virtual.specimens.physics import (local, np_fresnel_dielectric, np_g2_over_g1, np_ggx_reflection,
+                                       vndf_expectation, vndf_normals)
 
 __all__ = ["MitsubaRoughPlastic", "TABLE_RES", "coat_tables", "E_TABLE_TOL", "beam_cosines", "albedo_table",
            "incidence_params"]
@@ -156,9 +156,7 @@ class MitsubaRoughPlastic(DeclaredSpecimen):
 
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
         a = float(self.params(wavelength_nm)[0])
-        w = _lit(wi)
-        m, _ = vndf_normals(w, a, a, _LU, _LT)
-        return [(mirror(wi), lobe_width(mirror(w), _reflected(w, m)[1]))]
+        return [mirror_lobe(wi, a, a)]
 
     def albedo_reference(self, wi: np.ndarray, wavelength_nm: float) -> tuple[float, float]:
         """The specular albedo over the visible normals plus the diffuse albedo in closed form
