@@ -15,7 +15,8 @@ import time
 from pathlib import Path
 
 from benchmarks.common import best_of, table
-from bench.store import RunStore, _INSERT_READING, _reading_tuples
+from bench.store import RunStore
+from bench.store.rows import _INSERT_READING, _reading_tuples
 
 TARGET = 2000.0
 N_WL = 31

@@ -271,3 +271,21 @@ def test_a_private_import_from_outside_is_found():
     files = {"drivers.ocean._link": "from drivers._faultlog import FaultLog\n",
              "bench.runner": "import drivers._faultlog\nfrom compare import _grid\nfrom bench.core import errors\n"}
     assert private_imports_from_outside(files) == ["bench.runner -> drivers._faultlog", "bench.runner -> compare._grid"]
+
+
+def private_names_in_all(files: dict[str, str]) -> list[str]:
+    """``module.name`` for each private name a module's literal ``__all__`` lists (a leading
+    underscore says the name is not for import from outside; ``__all__`` says it is)."""
+    out = []
+    for module, source in files.items():
+        for node in ast.parse(source).body:
+            if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets) \
+                    and isinstance(node.value, (ast.List, ast.Tuple)):
+                out += [f"{module}.{e.value}" for e in node.value.elts if isinstance(e, ast.Constant)
+                        and isinstance(e.value, str) and e.value.startswith("_") and not e.value.startswith("__")]
+    return out
+
+
+def test_no_all_lists_a_private_name():
+    assert private_names_in_all(_project_sources()) == []
+    assert private_names_in_all({"m": "__all__ = ['run', '_Sink', '__version__']\n"}) == ["m._Sink"]  # power

@@ -19,7 +19,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import bench.store as store_mod
 import bench.store.runstore as runstore_mod
 from bench.core.errors import InputError, StoreError
 from bench.core.geometry import Geometry
@@ -140,7 +139,7 @@ def test_one_transaction_per_point(run_store):
 def test_a_failure_inside_the_transaction_leaves_no_trace(run_store, monkeypatch):
     rid = run_store.create_run("scan")
     run_store.add_point(rid, 0, GEO, _rows(0))
-    good = store_mod._reading_tuples
+    good = runstore_mod._reading_tuples
 
     def broken(run_id, idx, rows):  # the last tuple has a wrong arity: executemany fails mid-way
         t = good(run_id, idx, rows)

@@ -15,8 +15,9 @@ from bench.cli import main
 from bench.core.errors import ConfigError, RunInterrupted, StoreError
 from bench.store import RunStore
 from store_probe import kill_once_committed
-from bench.sweep import (TASK_COLUMNS, TaskResult, _Sink, load_sweep, resume_sweep, run_sweep, run_task, series_seed,
+from bench.sweep import (TASK_COLUMNS, TaskResult, load_sweep, resume_sweep, run_sweep, run_task, series_seed,
                          sweep_from_dict, sweep_readings, task_key)
+from bench.sweep.executor import _Sink
 
 ROOT = Path(__file__).parent.parent
 SWEEPS = ROOT / "fixtures" / "sweeps"

@@ -47,10 +47,9 @@ Note: SQLite stores a float NaN as NULL; NaN values come back as NaN in :meth:`R
 
 from __future__ import annotations
 
-from bench.store.rows import _INSERT_READING, _reading_tuples
 from bench.store.runstore import RunStore
 from bench.store.schema import (READING_COLUMNS, RUN_KINDS, RUN_STATUSES, SCHEMA_VERSION, new_run_id,
                                 package_versions)
 
 __all__ = ["RunStore", "SCHEMA_VERSION", "RUN_KINDS", "RUN_STATUSES", "READING_COLUMNS",
-           "package_versions", "new_run_id", "_INSERT_READING", "_reading_tuples"]
+           "package_versions", "new_run_id"]

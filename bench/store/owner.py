@@ -14,7 +14,7 @@ import socket
 import sqlite3
 from typing import Literal
 
-__all__ = ["claim_run", "owner_state", "process_identity", "process_state", "_OWNERS_TABLE"]
+__all__ = ["claim_run", "owner_state", "process_identity", "process_state"]
 
 _OWNERS_TABLE = ("CREATE TABLE IF NOT EXISTS run_owners (run_id TEXT PRIMARY KEY, host TEXT NOT NULL, "
                  "pid INTEGER NOT NULL, started REAL)")

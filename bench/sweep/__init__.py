@@ -58,7 +58,7 @@ Two series with equal parameters would draw the same rays, so a sweep refuses du
 
 from __future__ import annotations
 
-from bench.sweep.executor import SweepResult, _Sink, dask_client, resume_sweep, run_sweep, sweep_readings
+from bench.sweep.executor import SweepResult, dask_client, resume_sweep, run_sweep, sweep_readings
 from bench.sweep.records import sweep_record
 from bench.sweep.spec import (INSTRUMENTS, RUN_COLUMNS, TASK_COLUMNS, SweepSpec, SweepTask, load_sweep, series_seed,
                               sweep_from_dict, task_key, task_table)
@@ -67,5 +67,5 @@ from bench.sweep.task import TaskResult, run_task, warm_up
 __all__ = [
     "SweepSpec", "SweepTask", "TaskResult", "SweepResult", "load_sweep", "sweep_from_dict", "task_key", "series_seed",
     "run_task", "run_sweep", "resume_sweep", "sweep_readings", "task_table", "dask_client", "warm_up", "INSTRUMENTS",
-    "TASK_COLUMNS", "RUN_COLUMNS", "_Sink", "sweep_record",
+    "TASK_COLUMNS", "RUN_COLUMNS", "sweep_record",
 ]
