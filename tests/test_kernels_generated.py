@@ -59,3 +59,16 @@ def test_the_kernels_package_lists_every_module() -> None:
     names = {p.stem for p in generate.KERNELS.glob("*.py") if p.stem != "__init__"}
     names |= {p.name for p in generate.KERNELS.iterdir() if (p / "__init__.py").is_file()}
     assert sorted(n for n in names if f"``{n}``" not in doc) == []
+
+
+def test_a_stale_or_orphaned_generated_file_is_named(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Power of the first test: an edited law (its twin's text differs from the file) and a twin
+    whose law is gone are both reported."""
+    files = generate.generated_files()
+    twin = generate.KERNELS / "laws32" / "oren_nayar.py"
+    edited = dict(files)
+    edited[twin] = files[twin].replace("u3 * den < num", "u3 * den <= num")
+    monkeypatch.setattr(generate, "generated_files", lambda: edited)
+    assert generate.stale() == [twin]
+    del edited[twin]
+    assert generate.stale() == [twin]  # on disk, but no law writes it any more
