@@ -21,15 +21,19 @@ use (:mod:`bench.core.exports`), so ``import compare`` stays cheap for the CLI:
 file (the application's :mod:`bench.io` does) and imports nothing but ``bench.core``.
 """
 
-from bench.core.exports import lazy_exports
+from typing import TYPE_CHECKING
 
-#: each public name and the module that defines it
-_WHERE = {
-    "compare_records": "compare.report",
-    **dict.fromkeys(["compare", "rank", "Comparison"], "compare.stats"),
-    **dict.fromkeys(["run_checks", "reciprocity", "energy_conservation", "isotropy"], "compare.checks"),
-    "Criterion": "compare.verdict",
-}
+from bench.core.exports import lazy_exports, type_checking_imports
+
+if TYPE_CHECKING:  # the public names; at run time each loads on first use (lazy_exports)
+    from compare.report import compare_records as compare_records
+    from compare.stats import (compare as compare, rank as rank, Comparison as Comparison)
+    from compare.checks import (run_checks as run_checks, reciprocity as reciprocity,
+                                energy_conservation as energy_conservation, isotropy as isotropy)
+    from compare.verdict import Criterion as Criterion
+
+#: each public name and the module that defines it: the imports above, read from this file
+_WHERE = type_checking_imports(__file__)
 
 __all__ = list(_WHERE)
 

@@ -6,21 +6,23 @@ ScriptedTransport``), each loaded on first use (:mod:`bench.core.exports`): no v
 loads before a driver is asked for. Any module not exported here is an implementation detail.
 """
 
-from bench.core.exports import lazy_exports
+from typing import TYPE_CHECKING
 
-#: each public name and the module that defines it
-_WHERE = {
-    # transports: serial ports, recorded sessions replayed byte for byte, the recorder
-    **dict.fromkeys(["Transport", "SerialTransport", "ScriptedTransport", "RecordingTransport", "load_fixture",
-                     "save_fixture"], "drivers.transport"),
-    # the devices
-    **dict.fromkeys(["DynamixelArm", "ArmConfig"], "drivers.dynamixel"),
-    **dict.fromkeys(["ModbusStageAxis", "StageAxis"], "drivers.modbus"),
-    **dict.fromkeys(["OceanSpectrometer", "OceanConfig"], "drivers.ocean"),
-    # kinematics and safety: geometry <-> joints, what a goniometer refuses before motion
-    **dict.fromkeys(["KinematicsConfig", "Joints", "geometry_to_joints", "joints_to_geometry", "violations"],
-                    "drivers.kinematics"),
-}
+from bench.core.exports import lazy_exports, type_checking_imports
+
+if TYPE_CHECKING:  # the public names; at run time each loads on first use (lazy_exports)
+    from drivers.transport import (Transport as Transport, SerialTransport as SerialTransport,
+                                   ScriptedTransport as ScriptedTransport, RecordingTransport as RecordingTransport,
+                                   load_fixture as load_fixture, save_fixture as save_fixture)
+    from drivers.dynamixel import (DynamixelArm as DynamixelArm, ArmConfig as ArmConfig)
+    from drivers.modbus import (ModbusStageAxis as ModbusStageAxis, StageAxis as StageAxis)
+    from drivers.ocean import (OceanSpectrometer as OceanSpectrometer, OceanConfig as OceanConfig)
+    from drivers.kinematics import (KinematicsConfig as KinematicsConfig, Joints as Joints,
+                                    geometry_to_joints as geometry_to_joints,
+                                    joints_to_geometry as joints_to_geometry, violations as violations)
+
+#: each public name and the module that defines it: the imports above, read from this file
+_WHERE = type_checking_imports(__file__)
 
 __all__ = list(_WHERE)
 

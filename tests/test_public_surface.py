@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from bench.core.exports import lazy_exports
+from bench.core.exports import lazy_exports, type_checking_imports
 from tests.test_readme import DOCUMENTS, python_blocks
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,6 +107,19 @@ def test_lazy_exports_load_on_first_use_and_keep_the_name():
             module.loads  # noqa: B018
     finally:
         del sys.modules["lab_package"]
+
+
+def test_the_surface_is_read_from_the_type_checking_imports(tmp_path):
+    """One list per package: the names imported under ``if TYPE_CHECKING:`` (what type checkers and
+    import-linter read) are the lazy table and the ``__all__``."""
+    for package in ("bench", "virtual", "drivers", "compare"):
+        module = importlib.import_module(package)
+        assert module._WHERE == type_checking_imports(module.__file__)
+        assert [n for n in module.__all__ if not n.startswith("__")] == list(module._WHERE)
+    init = tmp_path / "lab.py"
+    init.write_text("import os\nfrom typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                    "    from json import dumps as dumps, loads\n    import sys\nfrom csv import reader\n")
+    assert type_checking_imports(init) == {"dumps": "json", "loads": "json"}
 
 
 def test_import_bench_loads_no_application_module():

@@ -34,11 +34,12 @@ from bench.config import Bench, load_bench, load_description
 from bench.core.calibration import WhiteStandard
 from bench.core.errors import BenchError, ConfigError
 from bench.core.geometry import Geometry
+from bench.core.parsing import parse_wavelengths
 from bench.core.roles import InstrumentInfo, Reading
 from drivers.dynamixel import ArmConfig
 from drivers.kinematics import KinematicsConfig, check, geometry_to_joints
 
-__all__ = ["described_bench", "planning_bench", "check_ports", "DescribedGoniometer"]
+__all__ = ["described_bench", "design_bench", "planning_bench", "check_ports", "DescribedGoniometer"]
 
 #: driver tables whose ``port`` a real body opens
 _PORT_TABLES = ("arm", "turntable", "spectrometer")
@@ -88,6 +89,17 @@ class DescribedGoniometer(_Described):
 class _DescribedSpectrometer(_Described):
     what = "spectrometer"
 
+    def __init__(self, bench_name: str, wavelengths: Any = None) -> None:
+        super().__init__(bench_name)
+        self._wavelengths = wavelengths
+
+    @property
+    def wavelengths(self) -> Any:
+        """The band centres the description declares (``[bands]``); refused where the body reports its own."""
+        if self._wavelengths is None:
+            raise self._refuse("report its wavelengths (declare [bands] to plan without opening it)")
+        return self._wavelengths
+
     def acquire(self, integration_s: float, averages: int = 1) -> Reading:
         raise self._refuse("acquire")
 
@@ -121,14 +133,24 @@ def described_bench(d: Mapping[str, Any], body: str) -> Bench:
         has_light = declares_light(d)
     else:
         raise ConfigError(f"a described bench is the real or the emulated body, got {body!r}")
-    described_bands(d)  # bands on the declared [detector]
+    bands = described_bands(d)  # bands on the declared [detector]
     kin = ArmConfig.from_dict(arm).kinematics
     return Bench(name=name, kind=body, goniometer=DescribedGoniometer(name, kin),
-                 spectrometer=_DescribedSpectrometer(name), white=WhiteStandard.from_dict(d.get("white", {})),
+                 spectrometer=_DescribedSpectrometer(name, None if bands is None else parse_wavelengths(bands[0])), white=WhiteStandard.from_dict(d.get("white", {})),
                  measure_white=lambda t, n: _DescribedSpectrometer(name).acquire(t, n),
                  light=_DescribedLight(name) if has_light else None, motion=motion,
                  joints=lambda g: geometry_to_joints(g, kin).as_dict(), config=dict(d),
                  white_needs_operator=body == "real")
+
+
+def design_bench(config: Any, body: str | None = None) -> Bench:
+    """The bench a plan is designed on: the description alone where it says all a design reads
+    (the emulated body; a real one that declares its bands), else the bench opened (the virtual
+    body; a real one whose spectrometer reports its own wavelengths)."""
+    d, kind = load_description(config, body)
+    if kind == "emulated" or (kind == "real" and described_bands(d) is not None):
+        return described_bench(d, kind)
+    return load_bench(d, body=kind)
 
 
 def planning_bench(config: Any, seed: int | None = None, body: str | None = None) -> Bench:

@@ -139,10 +139,10 @@ def cmd_scan_adaptive(args: argparse.Namespace) -> int:
 def open_design(args: argparse.Namespace) -> tuple[Any, Any, Any, Any]:
     """The parsed model, the model at its prior, the reading settings to choose from and the bench
     of a design command."""
-    from bench.config import load_bench
+    from bench.builders.described import design_bench
 
     spec, point, settings = _model(args, args.design)
-    return spec, point, settings, load_bench(args.bench, body=args.body)
+    return spec, point, settings, design_bench(args.bench, body=args.body)
 
 
 def cmd_plan_design(args: argparse.Namespace) -> int:

@@ -1,0 +1,51 @@
+"""A plan is designed from the bench's description, with nothing opened, wherever the description
+says all a design reads: the emulated body (no emulator started) and a real body that declares its
+bands (no port opened); the virtual body, and a real one whose spectrometer reports its own
+wavelengths, are opened as before."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.builders.described import DescribedGoniometer, design_bench
+from bench.config import load_description
+from bench.identify.design_noise import bench_reading_model
+from bench.identify.time_model import ReadingSettings
+
+BENCHES = Path(__file__).resolve().parents[1] / "fixtures" / "benches"
+
+
+def test_the_real_template_is_designed_on_without_opening_a_port():
+    d, _ = load_description(BENCHES / "real-template.toml")
+    assert d.get("bands"), "the template declares its bands"
+    bench = design_bench(BENCHES / "real-template.toml")  # /dev/ttyUSB0..2 do not exist here: opening would fail
+    assert isinstance(bench.goniometer, DescribedGoniometer) and bench.kind == "real"
+    model = bench_reading_model(bench, ReadingSettings())
+    assert model.body == "real" and model.wavelengths.size == len(bench.spectrometer.wavelengths) > 0
+
+
+def test_a_real_description_without_bands_is_opened_for_its_wavelengths():
+    d, _ = load_description(BENCHES / "real-template.toml")
+    d = {k: v for k, v in d.items() if k != "bands"}
+    from bench.core.errors import BenchError, DeviceError
+
+    with pytest.raises((BenchError, DeviceError, OSError)):  # power: it does try the (absent) ports
+        design_bench(d, body="real")
+
+
+# starts the emulators once to compare (about 3 s)
+def test_the_emulated_description_gives_the_reading_model_of_the_started_emulators():
+    from bench.config import load_bench
+
+    settings = ReadingSettings()
+    described = design_bench(BENCHES / "emulated.toml")
+    assert isinstance(described.goniometer, DescribedGoniometer)
+    with load_bench(BENCHES / "emulated.toml") as opened:
+        want = bench_reading_model(opened, settings)
+    got = bench_reading_model(described, settings)
+    for field in ("wavelengths", "counts_per_brdf", "variance_per_count", "variance_floor", "dark_level"):
+        assert np.array_equal(getattr(got, field), getattr(want, field)), field
+    assert got.aperture_deg == want.aperture_deg and got.standard == want.standard
