@@ -1,8 +1,8 @@
-"""``bench.bluesky.plans.adaptive_fit``: the sequential design (``bench scan --adaptive``) as a
+"""``bench.bluesky.plans.sequential_fit``: the sequential design (``bench scan --sequential``) as a
 Bluesky plan, on the virtual body of the emulated bench description with a plastic specimen.
 
 The bench file is seeded at its top level (``seed = 5``), so the virtual body draws the same
-readings on every path: the plan and :func:`adaptive_scan` (the CLI's loop) must then make the
+readings on every path: the plan and :func:`sequential_scan` (the CLI's loop) must then make the
 same designs and find the same estimates. Everything here is deterministic (fixed seed): no
 statistical false alarm. Cost of the fast tests: one shared 1-s session of the plan (~5 CPU-s),
 its rerun (~2 CPU-s: the fits again) and a 1-step session for the target (~1 CPU-s).
@@ -17,7 +17,7 @@ import pytest
 from bluesky import RunEngine
 
 from bench.bluesky import connect
-from bench.bluesky.plans import ADAPTIVE_KEY, FIT_STREAM, adaptive_fit
+from bench.bluesky.plans import SEQUENTIAL_KEY, FIT_STREAM, sequential_fit
 from bench.core.errors import InputError
 from bench.store import RunStore
 from bluesky_support import BENCHES, Docs
@@ -46,7 +46,7 @@ def _run(RE_with_result: RunEngine, plan) -> tuple[Docs, object]:
 
 @pytest.fixture(scope="module")
 def devs(RE_with_result, tmp_path_factory):
-    folder = tmp_path_factory.mktemp("adaptive")
+    folder = tmp_path_factory.mktemp("sequential")
     d = connect(_bench_file(folder), run_engine=RE_with_result, body="virtual")
     d.folder = folder  # type: ignore[attr-defined]
     yield d
@@ -57,7 +57,7 @@ def devs(RE_with_result, tmp_path_factory):
 def session(RE_with_result, devs):
     """One whole session of the plan into a fresh store: (documents, result, store)."""
     store = devs.folder / "bluesky.sqlite"
-    docs, result = _run(RE_with_result, adaptive_fit(MODEL, devs, store=store, **OPTIONS))
+    docs, result = _run(RE_with_result, sequential_fit(MODEL, devs, store=store, **OPTIONS))
     return docs, result, store
 
 
@@ -74,7 +74,7 @@ def test_one_run_per_step_with_its_design_and_fit_stopping_at_the_budget(session
     assert result.stopped == "budget" and result.seconds <= OPTIONS["seconds"]
     prior = {"alpha": 0.1, "kd": 0.5}  # the family's declared defaults
     for k, (start, fit, step) in enumerate(zip(starts, fits, result.steps)):
-        md = start[ADAPTIVE_KEY]
+        md = start[SEQUENTIAL_KEY]
         assert md["step"] == k and md["model"] == MODEL and md["criterion"] == "D"
         # designed at the prior, then at the previous step's estimate (kept inside the bounds)
         expected = prior if k == 0 else {n: fits[k - 1][f"fit-{n}"] for n in prior}
@@ -91,23 +91,23 @@ def test_one_run_per_step_with_its_design_and_fit_stopping_at_the_budget(session
     with RunStore(store) as st:
         runs = [st.run(r["run_id"]) for r in st.runs()]
     assert [r["run_id"] for r in runs] == result.runs and all(r["status"] == "completed" for r in runs)
-    assert [r["plan"]["name"] for r in runs] == [f"adaptive-{starts[0][ADAPTIVE_KEY]['session']}-{k}"
+    assert [r["plan"]["name"] for r in runs] == [f"sequential-{starts[0][SEQUENTIAL_KEY]['session']}-{k}"
                                                  for k in range(len(runs))]
 
 
 @pytest.mark.slow  # ~5-10 CPU-s: a whole CLI session (3 designs, 3 fits) besides the plan's
-def test_the_plan_finds_what_bench_scan_adaptive_finds(session, devs, tmp_path):
+def test_the_plan_finds_what_bench_scan_sequential_finds(session, devs, tmp_path):
     """Same bench file (seeded), model, budget and options: the CLI's loop makes the same designs
     on the same readings, so the estimates agree to the optimizer's last digits."""
     from bench.config import load_bench
     from bench.identify.design_io import design_inputs
-    from bench.identify.design_sequential import adaptive_scan, session_candidates
+    from bench.identify.design_sequential import sequential_scan, session_candidates
 
     _, result, _ = session
     spec, point, settings = design_inputs(MODEL, None, None, OPTIONS["integration_s"])
     with load_bench(devs.folder / "plastic.toml", body="virtual") as bench, RunStore(tmp_path / "cli.sqlite") as st:
         assert bench.goniometer.seed == devs.seed == 5
-        cli = adaptive_scan(bench, st, spec, point, OPTIONS["seconds"], settings,
+        cli = sequential_scan(bench, st, spec, point, OPTIONS["seconds"], settings,
                             session_candidates(bench, OPTIONS["step"], settings), seed=bench.goniometer.seed)
     assert [s.points for s in cli.steps] == [s.points for s in result.steps]
     assert cli.seconds == pytest.approx(result.seconds, rel=1e-12)
@@ -124,7 +124,7 @@ def test_a_target_width_stops_early(session, RE_with_result, devs, tmp_path):
     # a fresh bench of the same file: repeated triggers at one geometry draw counts of their own,
     # so the module's bench (which measured the session's points already) would read other counts
     with connect(_bench_file(tmp_path), run_engine=RE_with_result, body="virtual") as fresh:
-        docs, result = _run(RE_with_result, adaptive_fit(MODEL, fresh, store=tmp_path / "t.sqlite", target={"alpha": 0.01},
+        docs, result = _run(RE_with_result, sequential_fit(MODEL, fresh, store=tmp_path / "t.sqlite", target={"alpha": 0.01},
                                              **OPTIONS))
     assert result.stopped == "target" and len(result.steps) == 1 and len(docs.of("start")) == 1
     assert result.estimates == pytest.approx(full.steps[0].estimates, rel=1e-8)  # the same first step
@@ -133,7 +133,7 @@ def test_a_target_width_stops_early(session, RE_with_result, devs, tmp_path):
 
 def test_a_rerun_reuses_the_stored_steps_without_measuring(session, RE_with_result, devs):
     docs, result, store = session
-    again_docs, again = _run(RE_with_result, adaptive_fit(MODEL, devs, store=store, **OPTIONS))
+    again_docs, again = _run(RE_with_result, sequential_fit(MODEL, devs, store=store, **OPTIONS))
     assert again_docs.of("start") == [] and again.runs == result.runs
     assert again.estimates == pytest.approx(result.estimates, rel=1e-8)
 
@@ -151,7 +151,7 @@ def test_a_session_failed_in_a_step_is_finished_by_a_rerun_as_if_uninterrupted(s
     state = {"armed": False, "moves": 0}
 
     def arm(name, doc):
-        if name == "start" and doc[ADAPTIVE_KEY]["step"] == 1:
+        if name == "start" and doc[SEQUENTIAL_KEY]["step"] == 1:
             state["armed"] = True
 
     def faulty(g):
@@ -165,16 +165,16 @@ def test_a_session_failed_in_a_step_is_finished_by_a_rerun_as_if_uninterrupted(s
     token = RE_with_result.subscribe(arm)
     try:
         with pytest.raises(FailedStatus):
-            RE_with_result(adaptive_fit(MODEL, devs, store=store, **OPTIONS))
+            RE_with_result(sequential_fit(MODEL, devs, store=store, **OPTIONS))
     finally:
         RE_with_result.unsubscribe(token)
         del gonio.move_to
     with RunStore(store) as st:
         assert [r["status"] for r in st.runs()] == ["completed", "failed"]
-    docs, result = _run(RE_with_result, adaptive_fit(MODEL, devs, store=store, **OPTIONS))
+    docs, result = _run(RE_with_result, sequential_fit(MODEL, devs, store=store, **OPTIONS))
     starts = docs.of("start")  # step 0 reused; step 1 measured again from its stored plan; step 2 designed
-    assert [s[ADAPTIVE_KEY]["step"] for s in starts] == list(range(1, len(full.steps)))
-    assert [s[ADAPTIVE_KEY]["replanned"] for s in starts] == [True] + [False] * (len(starts) - 1)
+    assert [s[SEQUENTIAL_KEY]["step"] for s in starts] == list(range(1, len(full.steps)))
+    assert [s[SEQUENTIAL_KEY]["replanned"] for s in starts] == [True] + [False] * (len(starts) - 1)
     assert [s.points for s in result.steps] == [s.points for s in full.steps]
     assert result.estimates == pytest.approx(full.estimates, rel=1e-8)
     with RunStore(store) as st:
@@ -192,25 +192,25 @@ def test_a_session_failed_in_a_step_is_finished_by_a_rerun_as_if_uninterrupted(s
 ])
 def test_bad_arguments_are_refused_before_the_run_engine_sees_anything(devs, tmp_path, kwargs, words):
     with pytest.raises(InputError, match=words):
-        adaptive_fit(MODEL, devs, store=tmp_path / "x.sqlite", step=15.0, integration_s="0.01", **kwargs)
+        sequential_fit(MODEL, devs, store=tmp_path / "x.sqlite", step=15.0, integration_s="0.01", **kwargs)
 
 
 _SESSION = """
 import json, sys
 from bluesky import RunEngine
 from bench.bluesky import connect
-from bench.bluesky.plans import adaptive_fit
+from bench.bluesky.plans import sequential_fit
 RE = RunEngine(call_returns_result=True)
 with connect({bench!r}, run_engine=RE, seed=1) as devs:
-    r = RE(adaptive_fit("lambert:reflectance=?", devs, seconds=3, store={store!r},
+    r = RE(sequential_fit("lambert:reflectance=?", devs, seconds=3, store={store!r},
                         target={{"reflectance": 0.003}})).plan_result
 print(json.dumps([r.stopped, r.estimates, r.widths, [[s.points, s.estimates] for s in r.steps]]))
 """
 
 
 @pytest.mark.slow  # four fresh interpreters, each a 3-step session (~10 CPU-s each)
-def test_a_seeded_adaptive_session_is_the_same_in_every_process(tmp_path):
-    """The adaptive_fit session of docs/bluesky.md (seed 1) and `bench scan --adaptive --seed 1` give the
+def test_a_seeded_sequential_session_is_the_same_in_every_process(tmp_path):
+    """The sequential_fit session of docs/bluesky.md (seed 1) and `bench scan --sequential --seed 1` give the
     same designs and the very same estimates in processes with different hash seeds (set and
     dict orders of strings differ between them); each was reported to vary between runs."""
     import os
@@ -227,7 +227,7 @@ def test_a_seeded_adaptive_session_is_the_same_in_every_process(tmp_path):
         return r.stdout.splitlines()[-1]
 
     def cli(tag: str, hash_seed: str) -> dict:
-        r = subprocess.run([sys.executable, "-m", "bench.cli", "scan", "--adaptive", "lambert:reflectance=?",
+        r = subprocess.run([sys.executable, "-m", "bench.cli", "scan", "--sequential", "lambert:reflectance=?",
                             "--bench", str(BENCHES / "virtual.toml"), "--budget-seconds", "3", "--seed", "1", "--json",
                             "--quiet", "--store", str(tmp_path / f"{tag}.sqlite")], capture_output=True, text=True,
                            timeout=900, cwd=tmp_path,

@@ -1,4 +1,4 @@
-"""Designed plans (``bench plan --design``) and the sequential design (``bench scan --adaptive``).
+"""Designed plans (``bench plan --design``) and the sequential design (``bench scan --sequential``).
 
 Cheap checks run on the virtual body of the emulated bench description (same refusals and time
 model as the emulated body, no emulator processes) on the default 5-deg candidate grid (on a
@@ -132,16 +132,16 @@ def test_design_options_without_design_are_refused(tmp_path, capsys):
     code, _, err = run_main(capsys, "plan", UNIFORM, "--bench", bench, "--prior-spread", "2")
     assert code == 2 and "--prior-spread applies to --design MODEL only" in err
     code, _, err = run_main(capsys, "scan", UNIFORM, "--bench", bench, "--target", "kd=0.01")
-    assert code == 2 and "--target applies to --adaptive MODEL only" in err
+    assert code == 2 and "--target applies to --sequential MODEL only" in err
 
 
-def test_adaptive_errors_are_one_line_exit_2(tmp_path, capsys):
+def test_sequential_errors_are_one_line_exit_2(tmp_path, capsys):
     bench = _bench_file(tmp_path)
-    code, _, err = run_main(capsys, "scan", "--adaptive", MODEL, "--budget-seconds", "3", "--target", "kd=0",
+    code, _, err = run_main(capsys, "scan", "--sequential", MODEL, "--budget-seconds", "3", "--target", "kd=0",
                             "--bench", bench, "--store", tmp_path / "s.sqlite")
     assert code == 2 and "--target" in err and len(err.strip().splitlines()) == 1, err
     code, _, err = run_main(capsys, "scan", "--bench", bench, "--store", tmp_path / "s.sqlite")
-    assert code == 2 and "--adaptive" in err
+    assert code == 2 and "--sequential" in err
 
 
 @pytest.mark.slow
@@ -150,7 +150,7 @@ def test_sequential_design_on_the_emulated_body_stores_each_step_and_resumes(tmp
     the session reuses its stored steps (same runs, same estimates) instead of measuring again."""
     bench = _bench_file(tmp_path)
     store = tmp_path / "s.sqlite"
-    argv = ["scan", "--adaptive", MODEL, "--budget-seconds", "2", "--bench", bench, "--store", store, "--step", "10",
+    argv = ["scan", "--sequential", MODEL, "--budget-seconds", "2", "--bench", bench, "--store", store, "--step", "10",
             "--integration-s", "0.01", "--json"]
     code, text, err = run_main(capsys, *argv)
     assert code == 0, err

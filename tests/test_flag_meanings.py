@@ -56,14 +56,15 @@ MEANINGS: dict[str, str] = {
 RENAMED = [
     ("gonio", "--uncertainty", "--relative-uncertainty", ["--specimen", "lambert"]),
     ("plan", "--seconds", "--budget-seconds", ["--design", "lambert:albedo=?", "--bench", "b.toml"]),
-    ("scan", "--seconds", "--budget-seconds", ["--adaptive", "lambert:albedo=?", "--bench", "b.toml"]),
+    ("scan", "--seconds", "--budget-seconds", ["--sequential", "lambert:albedo=?", "--bench", "b.toml"]),
+    ("scan", "--adaptive", "--sequential", ["--bench", "b.toml"]),
     ("serve", "--seconds", "--max-seconds", []),
     ("emulate", "--seconds", "--max-seconds", ["b.toml"]),
     ("compare", "--report", "--out", ["a.csv", "b.csv"]),
 ]
 
 #: flags that no command takes any more (each refused where it was taken, as RENAMED says)
-RETIRED = {"--seconds", "--report"}
+RETIRED = {"--seconds", "--report", "--adaptive"}
 
 
 def _subparsers() -> dict[str, argparse.ArgumentParser]:

@@ -212,9 +212,9 @@ def printed_lines(source: str) -> list[str]:
 PYTHON_BLOCKS = [(_page(path), n, src) for path in DOCUMENTS for n, src in python_blocks(path)]
 
 
-def test_the_adaptive_fit_block_says_what_it_prints():
-    blocks = [src for _, _, src in PYTHON_BLOCKS if "adaptive_fit(" in src]
-    assert blocks and printed_lines(blocks[0]), "the docs' adaptive_fit block names no printed line"
+def test_the_sequential_fit_block_says_what_it_prints():
+    blocks = [src for _, _, src in PYTHON_BLOCKS if "sequential_fit(" in src]
+    assert blocks and printed_lines(blocks[0]), "the docs' sequential_fit block names no printed line"
 
 
 @pytest.mark.slow  # ~7-12 CPU-s a block (bluesky, matplotlib, a scan); fast twin: test_bluesky.py live views

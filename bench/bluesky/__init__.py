@@ -10,7 +10,7 @@
 Modules: :mod:`~bench.bluesky.worker` (the bench's one worker thread),
 :mod:`~bench.bluesky.goniometer` (axes and the mover), :mod:`~bench.bluesky.detectors`
 (spectrometer, reflectance, light), :mod:`~bench.bluesky.connect`,
-:mod:`~bench.bluesky.plans` (``plan_from_toml``, the sequential design ``adaptive_fit``),
+:mod:`~bench.bluesky.plans` (``plan_from_toml``, the sequential design ``sequential_fit``),
 :mod:`~bench.bluesky.assurance` (``check_standards``: ``bench check``) and :mod:`~bench.bluesky.store_writer`.
 Our own runner stays for what the RunEngine lacks (whole-plan validation before the run is
 created, resume after SIGKILL).
@@ -18,7 +18,7 @@ created, resume after SIGKILL).
 
 from bench.bluesky.assurance import check_standards
 from bench.bluesky.connect import METADATA_KEY, Devices, connect
-from bench.bluesky.plans import adaptive_fit, plan_from_toml
+from bench.bluesky.plans import sequential_fit, plan_from_toml
 from bench.bluesky.store_writer import StoreWriter
 
-__all__ = ["connect", "Devices", "plan_from_toml", "adaptive_fit", "check_standards", "StoreWriter", "METADATA_KEY"]
+__all__ = ["connect", "Devices", "plan_from_toml", "sequential_fit", "check_standards", "StoreWriter", "METADATA_KEY"]

@@ -1,5 +1,5 @@
 """Our plans as Bluesky plans: ``plan_from_toml(PLAN_TOML, devices)`` and the sequential design
-``adaptive_fit(MODEL, devices, seconds=S, store=STORE)``.
+``sequential_fit(MODEL, devices, seconds=S, store=STORE)``.
 
 :func:`plan_from_toml`: the plan is read and validated whole against the bench's safety rules
 *before* the generator is returned (the same :class:`~bench.core.errors.PlanError` as ``bench
@@ -9,8 +9,8 @@ reflectance detector's reading settings from the plan, stage (white and dark ref
 ``bench scan`` measures them), open the run, then per point a checkpoint, one coalesced move of
 the whole geometry and ONE event with the goniometer read-back and the detectors.
 
-:func:`adaptive_fit`: ``bench scan --adaptive`` on a RunEngine, one run per step, through the same
-step function (:class:`bench.identify.design_sequential.AdaptiveSession`).
+:func:`sequential_fit`: ``bench scan --sequential`` on a RunEngine, one run per step, through the same
+step function (:class:`bench.identify.design_sequential.SequentialSession`).
 """
 
 from __future__ import annotations
@@ -28,17 +28,17 @@ from bench.bluesky.store_writer import StoreWriter
 from bench.core.errors import InputError
 from bench.identify.design import CRITERIA
 from bench.identify.design_io import design_inputs
-from bench.identify.design_sequential import (AdaptiveSession, NextStep, parse_targets, session_candidates, session_key,
+from bench.identify.design_sequential import (SequentialSession, NextStep, parse_targets, session_candidates, session_key,
                                               stored_steps)
 from bench.identify.time_model import DEFAULT_INTEGRATIONS, DEFAULT_STEP_DEG
 from bench.plans import Plan, load_plan, order_for_travel, plan_from_dict, validate
 from bench.store import RunStore
 
-__all__ = ["plan_from_toml", "adaptive_fit", "PLAN_KEY", "ADAPTIVE_KEY", "FIT_STREAM"]
+__all__ = ["plan_from_toml", "sequential_fit", "PLAN_KEY", "SEQUENTIAL_KEY", "FIT_STREAM"]
 
-#: the start-document key of an :func:`adaptive_fit` step (session, step, model, criterion, ...)
-ADAPTIVE_KEY = "goniobench_adaptive"
-#: the stream of each :func:`adaptive_fit` run's last event: the fit of every reading so far
+#: the start-document key of a :func:`sequential_fit` step (session, step, model, criterion, ...)
+SEQUENTIAL_KEY = "goniobench_sequential"
+#: the stream of each :func:`sequential_fit` run's last event: the fit of every reading so far
 FIT_STREAM = "fit"
 
 
@@ -126,14 +126,14 @@ class _Readout:
         return "string" if isinstance(v, str) else "number"
 
     def describe(self) -> dict[str, dict[str, Any]]:
-        return {f"{self.name}-{k}": {"source": "goniobench:adaptive_fit", "dtype": self._dtype(v), "shape": []}
+        return {f"{self.name}-{k}": {"source": "goniobench:sequential_fit", "dtype": self._dtype(v), "shape": []}
                 for k, v in self._values.items()}
 
     def read(self) -> dict[str, dict[str, Any]]:
         return {f"{self.name}-{k}": {"value": v, "timestamp": self._t} for k, v in self._values.items()}
 
 
-def _fit_values(session: AdaptiveSession, stopped: str) -> dict[str, Any]:
+def _fit_values(session: SequentialSession, stopped: str) -> dict[str, Any]:
     """The event of stream ``fit``: bench fit's document of every reading so far, flat."""
     fit = session.fit
     out: dict[str, Any] = {"model": fit.model, "step": session.number - 1, "seconds": session.spent,
@@ -152,31 +152,31 @@ def _text(values: str | Mapping[str, float] | None) -> str | None:
     return ",".join(f"{k}={float(v)!r}" for k, v in values.items())
 
 
-def adaptive_fit(model: str, devices: Devices, *, seconds: float, store: str | Path,
+def sequential_fit(model: str, devices: Devices, *, seconds: float, store: str | Path,
                  target: str | Mapping[str, float] | None = None, prior: str | Mapping[str, float] | None = None,
                  criterion: str = "D", integration_s: str | Sequence[float] = DEFAULT_INTEGRATIONS,
                  like: str | Path | None = None, step: float = DEFAULT_STEP_DEG,
                  md: Mapping[str, Any] | None = None) -> Any:
-    """``bench scan --adaptive`` as a Bluesky plan: measure a design, fit, re-design, repeat.
+    """``bench scan --sequential`` as a Bluesky plan: measure a design, fit, re-design, repeat.
 
-    The same session as the CLI's (:class:`~bench.identify.design_sequential.AdaptiveSession`, one
+    The same session as the CLI's (:class:`~bench.identify.design_sequential.SequentialSession`, one
     step function): a first design at the prior spends 40 % of ``seconds`` (bench seconds as ``bench
     plan`` estimates them), each later step fits every reading so far and designs at the estimate,
     until the budget is spent or every ``target`` width is reached. Each step is ONE run of
     :func:`plan_from_toml`'s plan for its points (calibration at stage, one event per point),
     written into ``store`` by a :class:`~bench.bluesky.StoreWriter` the plan subscribes itself (do
     not subscribe another one to the same store). Its start document says under
-    :data:`ADAPTIVE_KEY` the ``session``, ``step``, ``model``, ``criterion``, ``designed_at`` (the
+    :data:`SEQUENTIAL_KEY` the ``session``, ``step``, ``model``, ``criterion``, ``designed_at`` (the
     prior or estimate it was designed at), ``budget_s`` and ``spent_s``; after its last point the
     run fits all readings so far and emits one event of stream ``fit``: ``fit-model``, ``fit-P``,
     ``fit-P_lo``, ``fit-P_hi``, ``fit-P_width`` per free parameter P (95 % Hessian intervals),
     ``fit-chi2``, ``fit-dof``, ``fit-p_value``, ``fit-json`` (``bench fit --json``'s document),
     ``fit-seconds`` spent and ``fit-stopped`` (``""`` while another step follows, else
     ``"budget"`` or ``"target"``). The plan returns the
-    :class:`~bench.identify.design_sequential.AdaptiveResult` (``RE(..)`` with
+    :class:`~bench.identify.design_sequential.SequentialResult` (``RE(..)`` with
     ``call_returns_result=True`` gives it as ``plan_result``).
 
-    Resume: the runs are named ``adaptive-KEY-STEP`` as the CLI's (``KEY`` digests the bench
+    Resume: the runs are named ``sequential-KEY-STEP`` as the CLI's (``KEY`` digests the bench
     config, body, seed, model and every option here). Run again with the same arguments on the
     same store after a kill or an abort, the plan reuses every completed step from the store
     without measuring it, and measures an interrupted step again as a new run from its stored
@@ -190,15 +190,15 @@ def adaptive_fit(model: str, devices: Devices, *, seconds: float, store: str | P
         budget, a bench refusing every candidate, or a budget that buys no first design.
     """
     if not seconds > 0:
-        raise InputError(f"adaptive_fit: seconds must be > 0, got {seconds!r}")
+        raise InputError(f"sequential_fit: seconds must be > 0, got {seconds!r}")
     if criterion not in CRITERIA:
-        raise InputError(f"adaptive_fit: criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+        raise InputError(f"sequential_fit: criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
     spec, point, settings = design_inputs(model, prior, like, integration_s)
     targets = parse_targets(_text(target), spec.names)
     bench = devices.bench
     key = session_key("bluesky", spec.text, bench.config, bench.kind, devices.seed, seconds, criterion, _text(prior),
                       integration_s, like, step, _text(target))
-    session = AdaptiveSession(bench, spec, point, seconds, settings, session_candidates(bench, step, settings),
+    session = SequentialSession(bench, spec, point, seconds, settings, session_candidates(bench, step, settings),
                               criterion, targets, key)
     with RunStore(store) as st:
         done = stored_steps(st, session.prefix)
@@ -221,8 +221,8 @@ def adaptive_fit(model: str, devices: Devices, *, seconds: float, store: str | P
             yield from bps.read(readout)
             yield from bps.save()
 
-        meta = {"plan_name": "adaptive_fit", "plan_args": args, METADATA_KEY: devices.metadata,
-                ADAPTIVE_KEY: {"session": key, "step": s.number, "model": spec.text, "criterion": criterion,
+        meta = {"plan_name": "sequential_fit", "plan_args": args, METADATA_KEY: devices.metadata,
+                SEQUENTIAL_KEY: {"session": key, "step": s.number, "model": spec.text, "criterion": criterion,
                                "designed_at": s.designed_at, "budget_s": s.budget_s, "seconds": seconds,
                                "spent_s": session.spent, "targets": targets,
                                "replanned": s.stored is not None},

@@ -1,9 +1,9 @@
-"""``bench plan --design`` and ``bench scan --adaptive``: plans designed to identify a model
+"""``bench plan --design`` and ``bench scan --sequential``: plans designed to identify a model
 within a bench-time budget, one-shot or sequential.
 
 Not a command module of its own: :mod:`bench.cli.scans` declares these options on ``bench plan``
-and ``bench scan`` and calls :func:`cmd_plan_design` / :func:`cmd_scan_adaptive` when
-``--design`` / ``--adaptive`` is given; the design code is imported only then.
+and ``bench scan`` and calls :func:`cmd_plan_design` / :func:`cmd_scan_sequential` when
+``--design`` / ``--sequential`` is given; the design code is imported only then.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from bench.core.errors import InputError
 #: is imported only when a design is asked for); tests/test_design_prior.py checks they agree
 PRIOR_SPREAD = 4.0
 
-__all__ = ["add_design_options", "add_adaptive_options", "refuse_unused", "cmd_plan_design", "cmd_scan_adaptive", "open_design"]
+__all__ = ["add_design_options", "add_sequential_options", "refuse_unused", "cmd_plan_design", "cmd_scan_sequential", "open_design"]
 
 #: the default integration times of a design (bench.identify.time_model.DEFAULT_INTEGRATIONS, not
 #: imported, as PRIOR_SPREAD); tests/test_design_prior.py checks they agree
@@ -74,18 +74,20 @@ def add_design_options(parser: argparse.ArgumentParser) -> None:
     _add_common(g, "--design")
 
 
-def add_adaptive_options(parser: argparse.ArgumentParser) -> None:
-    """The ``bench scan --adaptive`` options."""
-    g = parser.add_argument_group("sequential design (--adaptive)")
-    g.add_argument("--adaptive", metavar="MODEL", help="measure, fit and re-design until the budget or the "
+def add_sequential_options(parser: argparse.ArgumentParser) -> None:
+    """The ``bench scan --sequential`` options."""
+    g = parser.add_argument_group("sequential design (--sequential)")
+    g.add_argument("--sequential", metavar="MODEL", help="measure, fit and re-design until the budget or the "
                    "target widths, for MODEL, e.g. \"plastic:alpha=?,kd=?\" (instead of PLAN.toml; default: none)")
-    g.add_argument("--target", metavar="p=WIDTH,...", help="--adaptive: stop when each named parameter's 95%% "
+    renamed(g, "--adaptive", "--sequential", "was the sequential design (measure, fit, re-design); 'adaptive' is "
+            "the ray-budget rule of spectro and gonio (--no-adaptive)")
+    g.add_argument("--target", metavar="p=WIDTH,...", help="--sequential: stop when each named parameter's 95%% "
                    "interval is at most this wide (default: none, the time budget alone)")
-    _add_common(g, "--adaptive")
+    _add_common(g, "--sequential")
 
 
 def refuse_unused(args: argparse.Namespace, flag: str) -> None:
-    """A design option given without ``flag`` (``--design`` / ``--adaptive``) would be ignored: refuse it."""
+    """A design option given without ``flag`` (``--design`` / ``--sequential``) would be ignored: refuse it."""
     given = [name for name in ("budget_seconds", "out", "compare", "prior", "prior_spread", "like", "target",
                                "max_seconds")
              if getattr(args, name, None) is not None]
@@ -99,7 +101,7 @@ def _model(args: argparse.Namespace, text: str) -> tuple[Any, Any, list[Any]]:
     return design_inputs(text, args.prior, args.like, args.integration_s, args.prior_spread)
 
 
-def cmd_scan_adaptive(args: argparse.Namespace) -> int:
+def cmd_scan_sequential(args: argparse.Namespace) -> int:
     """Sequential design into the store. JSON keys: ``runs`` (one per step), ``seconds`` (bench
     seconds spent, as estimated), ``budget_s``, ``stopped`` (``budget`` or ``target``),
     ``estimates``, ``intervals``, ``widths``, ``steps``."""
@@ -107,13 +109,13 @@ def cmd_scan_adaptive(args: argparse.Namespace) -> int:
 
     from bench.cli.common import open_store
     from bench.config import load_bench
-    from bench.identify.design_sequential import adaptive_scan, parse_targets, session_candidates, session_key
+    from bench.identify.design_sequential import sequential_scan, parse_targets, session_candidates, session_key
 
     if args.plan is not None:
-        raise InputError(f"give a plan file or --adaptive, not both (got {args.plan} and --adaptive)")
+        raise InputError(f"give a plan file or --sequential, not both (got {args.plan} and --sequential)")
     if args.budget_seconds is None:
-        raise InputError("--adaptive needs --budget-seconds S (the bench-time budget)")
-    spec, point, settings = _model(args, args.adaptive)
+        raise InputError("--sequential needs --budget-seconds S (the bench-time budget)")
+    spec, point, settings = _model(args, args.sequential)
     targets = parse_targets(args.target, spec.names)
     key = session_key(spec.text, args.bench, args.body, args.budget_seconds, args.criterion, args.prior, args.integration_s,
                       args.like, args.step, args.target, args.seed,
@@ -121,7 +123,7 @@ def cmd_scan_adaptive(args: argparse.Namespace) -> int:
     bench = load_bench(args.bench, seed=args.seed, body=args.body)
     with bench, open_store(args.store) as store:
         candidates = session_candidates(bench, args.step, settings)
-        result = adaptive_scan(bench, store, spec, point, args.budget_seconds, settings, candidates, args.criterion,
+        result = sequential_scan(bench, store, spec, point, args.budget_seconds, settings, candidates, args.criterion,
                                targets, seed=getattr(bench.goniometer, "seed", args.seed), key=key,
                                progress=not args.quiet and sys.stderr.isatty())
     if args.json:

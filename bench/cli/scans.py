@@ -13,7 +13,7 @@ from typing import Any
 
 from bench.cli.argtypes import RegistryChoices, iso_date, real, run_id, seed
 from bench.cli.commands import command_help
-from bench.cli.design import add_adaptive_options, add_design_options, refuse_unused
+from bench.cli.design import add_sequential_options, add_design_options, refuse_unused
 from bench.cli.common import (DEFAULT_STORE, add_bench_options, add_force_option, announce_compilation, check_output,
                                emit_json, hms, open_store, report_run, warn_if_radians)
 from bench.core.errors import InputError
@@ -113,13 +113,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_scan(args: argparse.Namespace) -> int:
-    if args.adaptive is not None:
-        from bench.cli.design import cmd_scan_adaptive
+    if args.sequential is not None:
+        from bench.cli.design import cmd_scan_sequential
 
-        return cmd_scan_adaptive(args)
+        return cmd_scan_sequential(args)
     if args.plan is None:
-        raise InputError("give a plan file to scan, or --adaptive MODEL")
-    refuse_unused(args, "--adaptive")
+        raise InputError("give a plan file to scan, or --sequential MODEL")
+    refuse_unused(args, "--sequential")
     from bench.runner import run_scan
 
     from bench.cli.assurance import scan_gate
@@ -470,7 +470,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sc.add_argument("--uncertainty-method", choices=("linear", "mc"),
                     help="each reading's GUM budget: law of propagation (linear) or Supplement 1 Monte Carlo "
                          "(mc); default: the bench's [uncertainty] method, else linear")
-    add_adaptive_options(sc)
+    add_sequential_options(sc)
     sc.set_defaults(func=cmd_scan)
 
     rs = sub.add_parser("resume", help=command_help("resume"))

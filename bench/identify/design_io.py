@@ -83,7 +83,7 @@ def design_inputs(model: str, prior: str | Mapping[str, float] | None = None, li
                   spread: float | None = None) -> tuple[ModelSpec, ModelPoint, list[ReadingSettings]]:
     """The parsed model, the model at its prior and the reading settings a design chooses from,
     from ``--prior``, ``--prior-spread``, ``--like`` and ``--integration-s`` as ``bench plan --design`` /
-    ``bench scan --adaptive`` take them (``prior`` may also be a mapping, ``integration_s`` a sequence)."""
+    ``bench scan --sequential`` take them (``prior`` may also be a mapping, ``integration_s`` a sequence)."""
     spec = parse_model_spec(model)
     point = model_point(spec, parse_prior(prior) if prior is None or isinstance(prior, str) else dict(prior),
                         PRIOR_SPREAD if spread is None else spread)

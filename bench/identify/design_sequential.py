@@ -1,6 +1,6 @@
 """Sequential design: measure a small designed plan, fit, re-design from the estimate, repeat.
 
-``bench scan --adaptive MODEL --budget-seconds S`` runs :func:`adaptive_scan`: the first step spends a
+``bench scan --sequential MODEL --budget-seconds S`` runs :func:`sequential_scan`: the first step spends a
 share of the budget on a design at the prior guess; every later step fits all the readings so
 far (:func:`fit_readings`: ``bench fit``'s likelihood, the readings' full covariance), designs
 the next plan at that estimate with the points already measured counted in the information, and
@@ -8,14 +8,14 @@ scans it. It stops when the
 budget (bench seconds as ``bench plan`` estimates them) is spent or every targeted parameter's
 interval is narrower than its target.
 
-Every step is an ordinary scan run in the store, named ``adaptive-KEY-STEP`` (``KEY`` digests
+Every step is an ordinary scan run in the store, named ``sequential-KEY-STEP`` (``KEY`` digests
 the model, bench, budget and options). Run again with the same arguments after a kill, it reuses
 the completed steps, finishes an interrupted one as ``bench resume`` would, and carries on: the
 next designs depend only on the stored readings, so the continuation is the same.
 
-The loop is :class:`AdaptiveSession`'s step function (``next_step``: the next plan or ``None`` to
+The loop is :class:`SequentialSession`'s step function (``next_step``: the next plan or ``None`` to
 stop; ``add``: a measured step's record, fitted with all before it), which the Bluesky plan
-``bench.bluesky.plans.adaptive_fit`` drives on a RunEngine the same way.
+``bench.bluesky.plans.sequential_fit`` drives on a RunEngine the same way.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from bench.plans import Plan
 from bench.store import RunStore
 from bench.identify.time_model import ReadingSettings, candidate_grid, plan_of_points, reachable
 
-__all__ = ["AdaptiveStep", "AdaptiveResult", "AdaptiveSession", "NextStep", "adaptive_scan", "parse_targets",
+__all__ = ["SequentialStep", "SequentialResult", "SequentialSession", "NextStep", "sequential_scan", "parse_targets",
            "session_key", "session_candidates", "stored_steps", "combined_record", "fit_readings"]
 
 #: share of the budget the first (prior-guess) design spends; the rest is split over later steps
@@ -49,7 +49,7 @@ LATER_STEPS = 2
 
 
 @dataclass
-class AdaptiveStep:
+class SequentialStep:
     """One step: its run, the bench seconds its plan was estimated at, and the fit after it."""
 
     run_id: str
@@ -60,8 +60,8 @@ class AdaptiveStep:
 
 
 @dataclass
-class AdaptiveResult:
-    """What ``bench scan --adaptive`` reports (``--json``: these keys)."""
+class SequentialResult:
+    """What ``bench scan --sequential`` reports (``--json``: these keys)."""
 
     runs: list[str]
     seconds: float
@@ -70,7 +70,7 @@ class AdaptiveResult:
     estimates: dict[str, float]
     intervals: dict[str, list[float]]
     widths: dict[str, float]
-    steps: list[AdaptiveStep] = field(default_factory=list)
+    steps: list[SequentialStep] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return {"runs": self.runs, "seconds": self.seconds, "budget_s": self.budget_s, "stopped": self.stopped,
@@ -88,7 +88,7 @@ def parse_targets(text: str | None, free: Sequence[str]) -> dict[str, float]:
 
 
 def session_key(*parts: Any) -> str:
-    """A short digest naming an adaptive session's runs."""
+    """A short digest naming a sequential session's runs."""
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:10]
 
 
@@ -153,8 +153,8 @@ def stored_steps(store: RunStore, prefix: str) -> dict[int, dict[str, Any]]:
 
 @dataclass
 class NextStep:
-    """What :meth:`AdaptiveSession.next_step` asks to measure: step ``number``'s ``points`` read
-    with ``settings`` (as the ``plan`` named ``adaptive-KEY-NUMBER``), designed at ``designed_at``
+    """What :meth:`SequentialSession.next_step` asks to measure: step ``number``'s ``points`` read
+    with ``settings`` (as the ``plan`` named ``sequential-KEY-NUMBER``), designed at ``designed_at``
     for ``budget_s`` bench seconds; ``stored`` is the session's stored run of this step, if any
     (its plan is reused, not designed again)."""
 
@@ -167,9 +167,9 @@ class NextStep:
     stored: dict[str, Any] | None = None
 
 
-class AdaptiveSession:
+class SequentialSession:
     """The sequential design's state and its one step function, shared by ``bench scan
-    --adaptive`` (:func:`adaptive_scan`) and the Bluesky plan ``bench.bluesky.plans.adaptive_fit``.
+    --sequential`` (:func:`sequential_scan`) and the Bluesky plan ``bench.bluesky.plans.sequential_fit``.
 
     Loop: ``step = session.next_step(...)``; ``None`` means stop (budget spent, targets reached,
     or what is left of the budget buys no informative point); else measure ``step.plan`` and hand
@@ -181,7 +181,7 @@ class AdaptiveSession:
                  key: str = "") -> None:
         self.bench, self.spec, self.prior, self.seconds = bench, spec, prior, float(seconds)
         self.candidates, self.criterion, self.targets = list(candidates), criterion, dict(targets or {})
-        self.prefix = f"adaptive-{key}-"
+        self.prefix = f"sequential-{key}-"
         self.point = prior
         self.settings = list(settings)
         self.spent = 0.0
@@ -189,7 +189,7 @@ class AdaptiveSession:
         self.fit: FitResult | None = None
         self.records: list[BSDFRecord] = []
         self.measured: list[Geometry] = []
-        self.steps: list[AdaptiveStep] = []
+        self.steps: list[SequentialStep] = []
 
     @property
     def number(self) -> int:
@@ -220,11 +220,11 @@ class AdaptiveSession:
                 return None  # what is left buys no informative point
             points, settings = list(design.points), design.settings
         plan = plan_of_points(points, settings, name=f"{self.prefix}{k}",
-                              description=f"adaptive step {k} for {self.spec.text}: designed at "
+                              description=f"sequential step {k} for {self.spec.text}: designed at "
                               + ",".join(f"{n}={v:g}" for n, v in self.point.values.items()))
         return NextStep(k, budget, designed_at, points, settings, plan, None if stored is None else dict(stored))
 
-    def add(self, step: NextStep, run_id: str, record: BSDFRecord) -> AdaptiveStep:
+    def add(self, step: NextStep, run_id: str, record: BSDFRecord) -> SequentialStep:
         """Step ``step`` measured as run ``run_id`` (its readings ``record``): fit every reading so
         far, and stop at the targets or re-centre the next design on the estimate."""
         self.settings = [step.settings]  # later steps read as the first design chose
@@ -235,7 +235,7 @@ class AdaptiveSession:
         self.fit = fit = fit_readings(self.spec, self.records)
         estimates = {n: e.value for n, e in fit.parameters.items()}
         widths = {n: e.ci[1] - e.ci[0] for n, e in fit.parameters.items()}
-        done = AdaptiveStep(run_id, step_seconds, len(step.points), estimates, widths)
+        done = SequentialStep(run_id, step_seconds, len(step.points), estimates, widths)
         self.steps.append(done)
         if self.targets and all(widths[n] <= w for n, w in self.targets.items()):
             self.stopped = "target"
@@ -244,24 +244,24 @@ class AdaptiveSession:
                                     self.prior.free)
         return done
 
-    def result(self) -> AdaptiveResult:
+    def result(self) -> SequentialResult:
         """What the session found so far (after at least one step)."""
         fit = self.fit
         assert fit is not None
-        return AdaptiveResult([s.run_id for s in self.steps], self.spent, self.seconds, self.stopped,
+        return SequentialResult([s.run_id for s in self.steps], self.spent, self.seconds, self.stopped,
                               {n: e.value for n, e in fit.parameters.items()},
                               {n: [e.ci[0], e.ci[1]] for n, e in fit.parameters.items()},
                               {n: e.ci[1] - e.ci[0] for n, e in fit.parameters.items()}, list(self.steps))
 
 
-def adaptive_scan(bench: Bench, store: RunStore, spec: ModelSpec, prior: ModelPoint, seconds: float,
+def sequential_scan(bench: Bench, store: RunStore, spec: ModelSpec, prior: ModelPoint, seconds: float,
                   settings: Sequence[ReadingSettings], candidates: Sequence[Geometry], criterion: str = "D",
                   targets: Mapping[str, float] | None = None, seed: int | None = None, key: str = "",
-                  progress: bool = False) -> AdaptiveResult:
+                  progress: bool = False) -> SequentialResult:
     """Run the sequential design (see the module docstring) on an open ``bench`` into ``store``."""
     from bench.runner import resume_scan, run_scan
 
-    session = AdaptiveSession(bench, spec, prior, seconds, settings, candidates, criterion, targets, key)
+    session = SequentialSession(bench, spec, prior, seconds, settings, candidates, criterion, targets, key)
     done = stored_steps(store, session.prefix)
     while (step := session.next_step(done.get(session.number))) is not None:
         if step.stored is not None:  # a step of this session already in the store: finish it if interrupted

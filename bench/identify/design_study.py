@@ -8,7 +8,7 @@ and ``python -m benchmarks design`` (:mod:`benchmarks.bench_design`, a thin wrap
 likelihood (:func:`bench.identify.design_sequential.fit_readings`: the readings' full covariance).
 The methods (:data:`METHODS`): the uniform in-plane plan (``fixtures/plans/in-plane.toml``), the
 same at half the theta_r density, a D-optimal design within the uniform plan's bench time, one in
-half that time, an A-optimal one, and the sequential design (:func:`adaptive_scan`) with the
+half that time, an A-optimal one, and the sequential design (:func:`sequential_scan`) with the
 uniform plan's time as its budget. The designs start from the prior (default: the family's
 declared defaults) -- a guess, not the truth -- and are made once, on the first seed's bench
 (they do not depend on the seed). Bench time is ``bench plan``'s estimate.
@@ -123,7 +123,7 @@ def measure(model: str, description: Mapping[str, Any], *, seeds: Sequence[int] 
     from bench.config import load_bench
     from bench.identify.design import design_for_bench, integration_choices
     from bench.identify.design_io import model_point
-    from bench.identify.design_sequential import adaptive_scan
+    from bench.identify.design_sequential import sequential_scan
     from bench.identify.model_spec import parse_model_spec
     from bench.identify.time_model import ReadingSettings, bench_time_model, candidate_grid, plan_of_points, reachable
     from bench.machine import cpu_info
@@ -179,7 +179,7 @@ def measure(model: str, description: Mapping[str, Any], *, seeds: Sequence[int] 
                     results.setdefault(name, []).append({"seed": seed, "seconds": seconds, "fit": est})
                 if "sequential" in methods:
                     say(f"seed {seed}: sequential")
-                    seq = adaptive_scan(bench, store, spec, point, budget, settings, candidates, key=f"bench-{seed}",
+                    seq = sequential_scan(bench, store, spec, point, budget, settings, candidates, key=f"bench-{seed}",
                                         seed=seed)
                     est = {n: (seq.estimates[n], seq.intervals[n][0], seq.intervals[n][1]) for n in seq.estimates}
                     results.setdefault("sequential", []).append({"seed": seed, "seconds": seq.seconds, "fit": est,

@@ -211,14 +211,14 @@ def _cli_outcome(outcome: Outcome, code: int, out: str, err: str) -> None:
         outcome.refusal = lines[0] if lines else ""
 
 
-#: the bench-time budget of an adaptive session (docs/design.md's example spends 4.33 s)
+#: the bench-time budget of a sequential session, interface "adaptive" (docs/design.md's example spends 4.33 s)
 ADAPTIVE_SECONDS = 4.5
 
 
 def _run_scan(cell: Cell, bench_toml: Path, workdir: Path, outcome: Outcome) -> None:
     plan = write_toml(workdir / "plan.toml", plan_dict(cell))
     if cell.interface == "adaptive":  # designed steps read every point as the cell's plan does
-        argv = ["scan", "--adaptive", SPECIMENS[cell.specimen]["model"], "--bench", bench_toml, *_body_args(cell),
+        argv = ["scan", "--sequential", SPECIMENS[cell.specimen]["model"], "--bench", bench_toml, *_body_args(cell),
                 "--budget-seconds", ADAPTIVE_SECONDS, "--integration-s", plan_settings(cell)[0], "--like", plan,
                 "--store", outcome.store, "--seed", cell.seed, "--json", "-q"]
     else:
@@ -370,7 +370,7 @@ FIT_CONFIDENCE = 1.0 - ALPHA_CELL / 4
 def check_fit(outcome: Outcome, workdir: Path) -> list[str]:
     """``bench fit`` of the cell's last run with the specimen's model (free parameters of
     :data:`truth.TRUE_PARAMETERS`) holds each true value in its interval at ``FIT_CONFIDENCE``
-    (Hessian intervals; for an adaptive session, its last step's run)."""
+    (Hessian intervals; for a sequential session, its last step's run)."""
     if outcome.refused or not outcome.run_ids:
         return []
     truth = TRUE_PARAMETERS[outcome.cell.specimen]
