@@ -101,8 +101,8 @@ def record_to_astm(record: BSDFRecord, path: str | Path, *, sample_name: str | N
         scatter_type = "BTDF" if len(table) and bool((table.theta_r > 90.0).all()) else "BRDF"
     lines = ["SOURCE goniobench", f"SAMPLE_NAME {_quote(name)}", f"MEAS_DATE {meas_date}",
              f"SCATTER_TYPE {scatter_type}", "ANGLE_UNITS radians", "VALUE_UNITS 1/sr",
-             *(f"{key.upper()} {_quote(ident[key])}" for key in ("specimen", "run_id", "bench", "body", "plan")
-               if ident.get(key)),
+             *(f"{key.upper()} {_quote(value)}" for key in ("specimen", "run_id", "bench", "body", "plan")
+               if (value := ident.get(key))),
              f"GONIOBENCH_META {meta_json(meta)}", f"NUM_POINTS {len(wide)}",
              "VARS theta_i,phi_i,theta_s,phi_s," + ",".join(_channel(w) for w in wls)]
     ang = np.radians(np.asarray(wide.index.to_list(), dtype=float).reshape(-1, 4))
@@ -202,8 +202,8 @@ def read_astm(path: str | Path) -> BSDFRecord:
         if sd.shape != (n_rows, len(channels)):
             raise bad(p, None, f"GONIOBENCH_META value_std has shape {sd.shape}, the table {(n_rows, len(channels))}")
         df["std"] = sd.ravel()  # geometry-major, channel-minor like the rows above
-    for k, v in keywords.items():
-        meta[f"astm_{k.lower()}"] = v.strip('"')
+    for key, value in keywords.items():
+        meta[f"astm_{key.lower()}"] = value.strip('"')
     meta["format"] = "astm"
     meta["source_file"] = str(p)
     return BSDFRecord(complete(df), meta)

@@ -180,7 +180,8 @@ def read_record(path: str | Path, fmt: str | None = None, **options: Any) -> BSD
     record comes back with its identity key columns (:func:`bench.core.records.with_keys`)."""
     p = Path(path)
     f = _lookup(infer_format(p, reading=True) if fmt is None else fmt, reading=True)
-    rec = f.reader(p, **options)  # type: ignore[misc]
+    assert f.reader is not None  # _lookup(reading=True) finds only formats that read
+    rec = f.reader(p, **options)
     return with_keys(rec) if isinstance(rec, BSDFRecord) else rec
 
 
@@ -189,4 +190,5 @@ def export_record(record: BSDFRecord, path: str | Path, fmt: str | None = None, 
     file name) with the format's ``options``; return the path."""
     p = Path(path)
     f = _lookup(infer_format(p) if fmt is None else fmt, reading=False)
-    return f.writer(record, p, **options)  # type: ignore[misc]
+    assert f.writer is not None  # _lookup(reading=False) finds only formats that write
+    return f.writer(record, p, **options)

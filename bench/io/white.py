@@ -124,7 +124,7 @@ def write_white_reference(path: str | Path, ref: WhiteReference) -> Path:
     for j, r in enumerate(ref.repeats, start=1):
         table[f"signal_{j}"] = np.asarray(r.signal, float)
         table[f"std_{j}"] = nan if r.std is None else np.asarray(r.std, float)
-    meta = {"date": ref.date, "operator_note": ref.operator_note, "bench": ref.bench,
+    meta: dict[str, Any] = {"date": ref.date, "operator_note": ref.operator_note, "bench": ref.bench,
             "standard": dict(ref.standard), "white": _reading_meta(w), "dark": _reading_meta(d)}
     if ref.repeats:
         meta["repeats"] = [_reading_meta(r) for r in ref.repeats]
@@ -213,10 +213,11 @@ def read_white_reference(path: str | Path) -> WhiteReference:
     date = meta.get("date")
     if not isinstance(date, str) or not date:
         raise bad(p, meta_line + 1, "meta: date is required (when the standard was read)")
-    standard = meta.get("standard") if isinstance(meta.get("standard"), dict) else {}
+    given = meta.get("standard")
+    standard: dict[str, Any] = given if isinstance(given, dict) else {}
     repeats = []
     for j in range(n_rep):
-        rm = meta.get("repeats")[j]
+        rm = meta["repeats"][j]  # a list of n_rep entries: _repeat_count checked it
         s_j, u_j = a[:, 6 + 2 * j], a[:, 7 + 2 * j]
         if not (isinstance(rm, dict) and np.all(np.isfinite(s_j)) and np.all(s_j >= 0)):
             raise bad(p, None, f"signal_{j + 1} must be finite counts >= 0 on every row (with meta repeats[{j}])")
