@@ -192,7 +192,7 @@ def test_json_keys_store_and_figure(capsys, tmp_path):
     rec.write_text(out)
     store, fig = tmp_path / "runs.sqlite", tmp_path / "residuals.png"
     code, out, err = run_main(capsys, "fit", rec, "--model", "lambert:reflectance=?", "--json", "--store", store,
-                              "--figure", fig)
+                              "--plot", fig)
     assert code == 0, err
     doc = json.loads(out)
     assert list(doc) == ["model", "parameters", "correlation", "chi2", "dof", "p_value", "p_value_method", "converged",

@@ -52,19 +52,20 @@ MEANINGS: dict[str, str] = {
     "--wavelengths": r"\bnm\b",
 }
 
-#: (command, old spelling, new spelling, the arguments around it): the retired spellings
+#: (command, old spelling, new spelling, the arguments around it, a value): the retired spellings
 RENAMED = [
-    ("gonio", "--uncertainty", "--relative-uncertainty", ["--specimen", "lambert"]),
-    ("plan", "--seconds", "--budget-seconds", ["--design", "lambert:albedo=?", "--bench", "b.toml"]),
-    ("scan", "--seconds", "--budget-seconds", ["--sequential", "lambert:albedo=?", "--bench", "b.toml"]),
-    ("scan", "--adaptive", "--sequential", ["--bench", "b.toml"]),
-    ("serve", "--seconds", "--max-seconds", []),
-    ("emulate", "--seconds", "--max-seconds", ["b.toml"]),
-    ("compare", "--report", "--out", ["a.csv", "b.csv"]),
+    ("gonio", "--uncertainty", "--relative-uncertainty", ["--specimen", "lambert"], "0.5"),
+    ("plan", "--seconds", "--budget-seconds", ["--design", "lambert:albedo=?", "--bench", "b.toml"], "0.5"),
+    ("scan", "--seconds", "--budget-seconds", ["--sequential", "lambert:albedo=?", "--bench", "b.toml"], "0.5"),
+    ("scan", "--adaptive", "--sequential", ["--bench", "b.toml"], "lambert:albedo=?"),
+    ("serve", "--seconds", "--max-seconds", [], "0.5"),
+    ("emulate", "--seconds", "--max-seconds", ["b.toml"], "0.5"),
+    ("compare", "--report", "--out", ["a.csv", "b.csv"], "report"),
+    ("fit", "--figure", "--plot", ["r.csv", "--model", "lambert:albedo=?"], "residuals.png"),
 ]
 
 #: flags that no command takes any more (each refused where it was taken, as RENAMED says)
-RETIRED = {"--seconds", "--report", "--adaptive"}
+RETIRED = {"--seconds", "--report", "--adaptive", "--figure"}
 
 
 def _subparsers() -> dict[str, argparse.ArgumentParser]:
@@ -115,19 +116,19 @@ def test_retired_spellings_are_nowhere_a_live_option():
     assert {c for c, _ in live["--uncertainty"]} == {"rays", "spectro"}
 
 
-@pytest.mark.parametrize("command,old,new,around", RENAMED, ids=[f"{c} {o}" for c, o, _, _ in RENAMED])
-def test_an_old_spelling_is_refused_in_one_line_naming_the_new_one(capsys, command, old, new, around):
-    for argv in ([command, *around, old, "3"], [command, *around, f"{old}=3"]):
+@pytest.mark.parametrize("command,old,new,around,value", RENAMED, ids=[f"{c} {o}" for c, o, *_ in RENAMED])
+def test_an_old_spelling_is_refused_in_one_line_naming_the_new_one(capsys, command, old, new, around, value):
+    for argv in ([command, *around, old, value], [command, *around, f"{old}={value}"]):
         code, out, err = run_main(capsys, *argv)
         assert code == 2 and out == ""
         assert err.count("\n") == 1, err
         assert err.startswith(f"bench {command}: error: {old} ") and f"did you mean {new}?" in err, err
 
 
-@pytest.mark.parametrize("command,old,new,around", RENAMED, ids=[f"{c} {n}" for c, _, n, _ in RENAMED])
-def test_the_new_spelling_is_taken(command, old, new, around):
-    args = build_parser(load=[command]).parse_args([command, *around, new, "0.5"])
-    assert float(getattr(args, new.lstrip("-").replace("-", "_"))) == 0.5
+@pytest.mark.parametrize("command,old,new,around,value", RENAMED, ids=[f"{c} {n}" for c, _, n, *_ in RENAMED])
+def test_the_new_spelling_is_taken(command, old, new, around, value):
+    parsed = getattr(build_parser(load=[command]).parse_args([command, *around, new, value]), new[2:].replace("-", "_"))
+    assert parsed == type(parsed)(value)
 
 
 def test_an_abbreviation_of_an_old_spelling_is_refused_too(capsys):

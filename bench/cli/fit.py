@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from bench.cli.argtypes import count, real, seed
+from bench.cli.argtypes import count, real, renamed, seed
 from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, PLOT_SUFFIXES, add_force_option, emit_json, open_store, output_file
 from bench.core.errors import InputError
@@ -152,10 +152,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if result.dof <= 0:
         raise InputError(f"{args.record}: {result.dof} degrees of freedom for {n_free} free parameter(s): the record "
                          f"cannot judge the fit (dof <= 0); measure more, or fix parameters")
-    if args.figure:
+    if args.plot:
         from bench.identify.figure import plot_residuals
 
-        plot_residuals(result, args.figure)
+        plot_residuals(result, args.plot)
     if args.store:
         rid = _store_fit(args.store, result, args.record, run_id, args, dropped)
         print(f"bench fit: stored as run {rid} in {args.store}", file=sys.stderr)
@@ -186,8 +186,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--starts", type=count(0, 4096), default=None, metavar="N",
                    help="Sobol points of the global step (default 4 per free parameter; 0: defaults only)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the Sobol points (default %(default)s)")
-    p.add_argument("--figure", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
-                   help="also draw the residuals per incidence/wavelength (default: none)")
+    p.add_argument("--plot", type=output_file(PLOT_SUFFIXES), metavar="FILE.png",
+                   help="also draw the residuals per incidence/wavelength to this image (png, pdf, svg, ...; "
+                        "default: none)")
+    renamed(p, "--figure", "--plot", "was fit's residual figure; every command draws its figure with --plot FILE")
     p.add_argument("--max-seconds", type=real(0.0, 1e6, lo_open=True), default=DEFAULT_MAX_SECONDS, metavar="S",
                    help="time limit of the fit (wall clock), s: past it the best point so far is shown, without intervals, "
                         "and the exit status is 1 (default %(default)g)")
@@ -195,5 +197,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="fit a stored run that did not complete (interrupted, failed, running) on the points it has "
                         "(default: refused)")
     p.add_argument("--json", action="store_true", help="one JSON object with stable keys")
-    add_force_option(p, "figure")
+    add_force_option(p, "plot")
     p.set_defaults(func=cmd_fit)
