@@ -39,7 +39,7 @@ from bench.core.calibration import WhiteStandard
 from bench.core.errors import BenchError, ConfigError
 from bench.core.parsing import read_toml
 from bench.core.schemas import BENCH_KINDS, BenchFile, validate_document
-from bench.core.roles import Goniometer, LightSource, Reading, Spectrometer
+from bench.core.roles import Closing, Goniometer, LightSource, Reading, Spectrometer
 from bench.plans import MotionProfile
 
 __all__ = ["Bench", "load_bench", "load_description", "BUILDERS"]
@@ -50,7 +50,7 @@ BUILDERS: dict[str, str] = {kind: f"bench.builders.{kind}:build_{kind}_bench" fo
 
 
 @dataclass
-class Bench:
+class Bench(Closing):
     """A named set of roles. Scan scripts only ever see this.
 
     ``measure_white(integration_s, averages)`` returns a reading of the white standard at its
@@ -116,12 +116,6 @@ class Bench:
         self.closers.clear()
         if errors:
             raise errors[0]
-
-    def __enter__(self) -> "Bench":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def load_description(config: str | Path | Mapping[str, Any], body: str | None = None) -> tuple[dict[str, Any], str]:

@@ -42,6 +42,7 @@ from bench.bluesky.worker import BenchWorker
 from bench.config import Bench, load_bench
 from bench.core.errors import BenchError, DeviceError
 from bench.core.records import json_default
+from bench.core.roles import Closing
 
 __all__ = ["connect", "Devices", "METADATA_KEY", "PLAN_KEY", "jsonable"]
 
@@ -53,7 +54,7 @@ PLAN_KEY = "goniobench_plan"
 
 
 @dataclass
-class Devices:
+class Devices(Closing):
     """The connected devices of one bench (``light`` is ``None`` when it has no light)."""
 
     bench: Bench
@@ -91,12 +92,6 @@ class Devices:
                 self.worker.close()
         finally:
             self.bench.close()
-
-    def __enter__(self) -> "Devices":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def jsonable(obj: Any) -> Any:

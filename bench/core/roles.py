@@ -17,7 +17,7 @@ Spectrophotometer ``measure(geometry, wavelengths) -> Spectrum``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Protocol, runtime_checkable
+from typing import Any, Mapping, Protocol, Self, runtime_checkable
 
 import numpy as np
 
@@ -104,14 +104,19 @@ class Spectrophotometer(Instrument, Protocol):
     def measure(self, geometry: str | CIEGeometry, wavelengths: Any) -> Spectrum: ...
 
 
-class InstrumentBase:
-    """Context-manager plumbing shared by concrete devices (composition is still preferred)."""
+class Closing:
+    """``with x:`` closes ``x`` on leaving: ``__enter__`` returns it, ``__exit__`` calls its
+    ``close()``. The one context-manager plumbing of devices, stores, servers and emulator handles."""
 
     def close(self) -> None:  # pragma: no cover - trivial default
         pass
 
-    def __enter__(self):
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class InstrumentBase(Closing):
+    """Context-manager plumbing shared by concrete devices (composition is still preferred)."""

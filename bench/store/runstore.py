@@ -19,6 +19,7 @@ import numpy as np
 
 from bench.core.errors import BenchError, InputError, StoreError
 from bench.core.records import BSDFRecord
+from bench.core.roles import Closing
 from bench.store.check import valid_run_id
 from bench.store.reading import RunReader
 from bench.store.rows import _INSERT_READING, _reading_tuples
@@ -57,7 +58,7 @@ def _typed_errors(cls: type) -> type:
 
 
 @_typed_errors
-class RunStore(RunReader):
+class RunStore(RunReader, Closing):
     """A goniobench run store (one SQLite file in WAL mode).
 
     Parameters
@@ -175,12 +176,6 @@ class RunStore(RunReader):
     def close(self) -> None:
         """Close the connection (committed data is already safe)."""
         self._db.close()
-
-    def __enter__(self) -> "RunStore":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"RunStore({str(self.path)!r})"

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from bench.core.errors import DeviceError, PortGoneError
+from bench.core.roles import Closing
 
 __all__ = ["open_pty", "open_raw_pty", "write_all", "EmulatorProcess", "EmulatorStartError", "PipeEmulator",
            "PARENT_ENV", "starting_parent", "exit_with_parent"]
@@ -247,7 +248,7 @@ class PipeEmulator:
         self.stop()
 
 
-class EmulatorProcess:
+class EmulatorProcess(Closing):
     """``python -m module *args`` in its own process, announced by one JSON line on stdout.
 
     Parameters
@@ -358,12 +359,6 @@ class EmulatorProcess:
                     f.close()
                 except OSError:
                     pass
-
-    def __enter__(self) -> "EmulatorProcess":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __del__(self) -> None:  # last resort: never leave an emulator behind
         try:

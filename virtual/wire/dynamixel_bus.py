@@ -65,6 +65,7 @@ import time
 from typing import Any, Mapping, Sequence
 
 from bench.core.errors import DeviceError
+from bench.core.roles import Closing
 
 from virtual.wire.dxl_bus import DynamixelBus
 from virtual.wire._pty import EmulatorProcess, open_pty, starting_parent, write_all
@@ -160,8 +161,7 @@ def serve(bus: DynamixelBus, master_fd: int, server: socket.socket,
                     s.sendall(json.dumps(resp).encode() + b"\n")
 
 
-
-class BusControl:
+class BusControl(Closing):
     """Client of an emulator's control channel (``host, port`` from the announcement)."""
 
     def __init__(self, address: tuple[str, int] | str, timeout: float = 3.0) -> None:
@@ -210,12 +210,6 @@ class BusControl:
 
     def close(self) -> None:
         self.sock.close()
-
-    def __enter__(self) -> "BusControl":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def start_bus(ids: Sequence[int] = (1, 2, 3, 4), *, positions: Mapping[int, int] | None = None,
