@@ -147,21 +147,31 @@ class _Device:
                 return 0
             self._command(c, [mode] + [word(3 + 2 * i) for i in range(need)])
             return 3 + 2 * need
-        if c in (ord("a"), ord("b")):
-            return self._mode_switch(c, b)
-        if c == ord("?"):
-            if len(b) < 2:
+        shared = self._mode_or_plain_query(c, b)
+        if shared is not None:
+            return shared
+        if c == ord("?"):  # ?x: one data word
+            if len(b) < 4:
                 return 0
-            q = b[1]
-            if q == ord("x"):
-                if len(b) < 4:
-                    return 0
-                self._query(q, word(2))
-                return 4
-            self._query(q, None)
-            return 2
+            self._query(b[1], word(2))
+            return 4
         self._reply_nak(c)
         return 1
+
+    def _mode_or_plain_query(self, c: int, b: bytearray) -> int | None:
+        """What both framings read alike: ``aA``/``bB`` (switch the framing) and ``?`` with a
+        letter that takes no data (every query but ``?x``). Bytes used (0: wait for more), or None
+        when the caller reads ``c`` itself."""
+        if c in (ord("a"), ord("b")):
+            return self._mode_switch(c, b)
+        if c != ord("?"):
+            return None
+        if len(b) < 2:
+            return 0
+        if b[1] == ord("x"):
+            return None
+        self._query(b[1], None)
+        return 2
 
     # -- ascii (per the manual: letter; each data value in decimal ending CR; aA/bB bare) --------
     def _ascii_values(self, start: int, count: int) -> tuple[list[int], int] | None | str:
@@ -189,15 +199,10 @@ class _Device:
         if c in _NO_DATA:
             self._command(c, [])
             return 1
-        if c in (ord("a"), ord("b")):
-            return self._mode_switch(c, b)
-        if c == ord("?"):
-            if len(b) < 2:
-                return 0
-            q = b[1]
-            if q != ord("x"):
-                self._query(q, None)
-                return 2
+        shared = self._mode_or_plain_query(c, b)
+        if shared is not None:
+            return shared
+        if c == ord("?"):  # ?x: one value
             got = self._ascii_values(2, 1)
             if got is None:
                 return 0
@@ -205,7 +210,7 @@ class _Device:
                 self._reply_nak(c)
                 return len(b)
             vals, used = got
-            self._query(q, vals[0])
+            self._query(b[1], vals[0])
             return used
         if c in _ONE_WORD or c == ord("W"):
             got = self._ascii_values(1, 2 if c == ord("W") else 1)
