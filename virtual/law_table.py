@@ -4,16 +4,17 @@ parsing and routing specimens does not load numba): their model ids, the routing
 names, their uniforms per ray, their float32 limits ((index, name, lo, hi), inclusive) and
 the modules declaring their specimen families."""
 
-__all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_WARD", "LAW_MODELS", "LAW_FLOAT32_MODELS", "LAW_TITLES", "LAW_UNIFORMS", "LAW_FLOAT32_LIMITS", "LAW_SPECIMENS"]
+__all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_WARD", "LAW_MODELS", "LAW_FLOAT32_MODELS", "LAW_TITLES", "LAW_UNIFORMS", "LAW_FLOAT32_LIMITS", "LAW_SPECIMENS"]
 
 MODEL_LAMBERT = 0
 MODEL_OREN_NAYAR = 1
+MODEL_PHONG = 2
 MODEL_WARD = 9
 
-LAW_MODELS = (MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_WARD,)
-LAW_FLOAT32_MODELS = (MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_WARD,)
-LAW_TITLES = {MODEL_LAMBERT: "Lambertian", MODEL_OREN_NAYAR: "Oren-Nayar", MODEL_WARD: "Ward"}
-LAW_UNIFORMS = {MODEL_LAMBERT: 3, MODEL_OREN_NAYAR: 4, MODEL_WARD: 4}
-LAW_FLOAT32_LIMITS = {MODEL_LAMBERT: (), MODEL_OREN_NAYAR: (), MODEL_WARD: ((2, "alpha", 0.01, 100.0),)}
+LAW_MODELS = (MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_WARD,)
+LAW_FLOAT32_MODELS = (MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG, MODEL_WARD,)
+LAW_TITLES = {MODEL_LAMBERT: "Lambertian", MODEL_OREN_NAYAR: "Oren-Nayar", MODEL_PHONG: "Phong", MODEL_WARD: "Ward"}
+LAW_UNIFORMS = {MODEL_LAMBERT: 3, MODEL_OREN_NAYAR: 4, MODEL_PHONG: 4, MODEL_WARD: 4}
+LAW_FLOAT32_LIMITS = {MODEL_LAMBERT: (), MODEL_OREN_NAYAR: (), MODEL_PHONG: ((2, "exponent", 0.0, 20000.0),), MODEL_WARD: ((2, "alpha", 0.01, 100.0),)}
 #: the modules declaring the laws' specimen families (virtual.specimens imports them)
 LAW_SPECIMENS = ("virtual.specimens.diffuse", "virtual.specimens.ward",)

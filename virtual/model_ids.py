@@ -12,8 +12,7 @@ editing one recompiles them.
 __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MODEL_ANISO_GGX",
            "MODEL_PLASTIC", "MODEL_DIELECTRIC", "MODEL_LEAF", "MODEL_ROUGHPLASTIC", "MODEL_PYTHON"]
 
-from virtual.law_table import MODEL_LAMBERT, MODEL_OREN_NAYAR  # declared by their laws (virtual.kernels.laws)
-MODEL_PHONG = 2
+from virtual.law_table import MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG  # declared by their laws (virtual.kernels.laws)
 MODEL_GGX = 3
 MODEL_ANISO_GGX = 4
 MODEL_PLASTIC = 5

@@ -13,10 +13,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from virtual.kernel_codes import (BLOCK32_MODELS, BLOCK_MODELS, COAT_MODELS, MAX_ETA, MAX_PHONG_EXPONENT, MIN_ALPHA,
+from virtual.kernel_codes import (BLOCK32_MODELS, BLOCK_MODELS, COAT_MODELS, MAX_ETA, MIN_ALPHA,
                                    RP_TABLE, RP_TABLE_RES)
 from virtual.law_table import LAW_FLOAT32_LIMITS, LAW_TITLES
-from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LEAF, MODEL_PHONG, MODEL_PLASTIC, MODEL_PYTHON, MODEL_ROUGHPLASTIC)
+from virtual.model_ids import (MODEL_ANISO_GGX, MODEL_DIELECTRIC, MODEL_GGX, MODEL_LEAF, MODEL_PLASTIC, MODEL_PYTHON, MODEL_ROUGHPLASTIC)
 
 __all__ = ["FLOAT32_MODELS", "MAX_FLOAT32_PARAM", "FLOAT32_LIMITS", "within_float32_limits", "routing_table", "ROUTING_MARK"]
 
@@ -34,7 +34,6 @@ _ETA = (1.0 / MAX_ETA, MAX_ETA)
 #: Per model with a float32 form: (parameter index, its name, lowest, highest), inclusive. Every
 #: other parameter must lie within +-MAX_FLOAT32_PARAM; all must be finite.
 FLOAT32_LIMITS: dict[int, tuple[tuple[int, str, float, float], ...]] = {
-    MODEL_PHONG: ((2, "exponent", 0.0, MAX_PHONG_EXPONENT),),
     MODEL_GGX: ((0, "alpha_x", *_ALPHA), (1, "alpha_y", *_ALPHA)),
     MODEL_ANISO_GGX: ((0, "alpha_x", *_ALPHA), (1, "alpha_y", *_ALPHA)),
     MODEL_DIELECTRIC: ((0, "alpha", *_ALPHA), (1, "eta", 1.0 / MAX_ETA, MAX_ETA)),
@@ -54,8 +53,7 @@ def _table_ok(model: int, p: np.ndarray) -> bool:
         return t.size == RP_TABLE_RES and bool(((t >= 0.0) & (t <= 1.0)).all())
     return True
 
-_MODEL_NAMES = {MODEL_PHONG: "Phong",
-                MODEL_GGX: "GGX", MODEL_ANISO_GGX: "anisotropic GGX", MODEL_DIELECTRIC: "rough dielectric",
+_MODEL_NAMES = {MODEL_GGX: "GGX", MODEL_ANISO_GGX: "anisotropic GGX", MODEL_DIELECTRIC: "rough dielectric",
                 MODEL_PLASTIC: "rough plastic", MODEL_LEAF: "leaf", MODEL_ROUGHPLASTIC: "Mitsuba roughplastic",
                 MODEL_PYTHON: "Python sampler", **LAW_TITLES}
 

@@ -24,7 +24,7 @@ Modules (each owns one kind of kernel; none holds Python-side objects):
 ``block64``     the vectorized float64 block kernel and the spectral batches
 ``block_coat``  the float64 block kernel of the coated families (roughplastic, leaf)
 ``f32``         float32 twins of the scalar helpers (warps, beam, bin guess, microfacet terms)
-``branchfree32`` float32 forms of the hand-written specimens (GGX, Phong)
+``branchfree32`` float32 forms of the hand-written specimens (GGX), Phong's float32 lobe cosine
 ``branchfree32_rough`` float32 forms of the rough dielectric and the rough plastic
 ``block32``     the float32 block kernel (as many lanes as the machine's vectors hold), the default fast path
 ``block32_coat`` the float32 block kernel of the coated families

@@ -23,14 +23,14 @@ from virtual.kernels import jit
 from virtual.kernels.emit import BEAM_COLLIMATED, BEAM_CONICAL
 from virtual.kernels.patch_lookup import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
 from virtual.kernels.f32 import ZERO, emit_block32, guess_bin32, sincos_2pi32
-from virtual.kernels.branchfree import GIVEN4_UNIFORMS, plastic_diffuse_redo
+from virtual.kernels.branchfree import plastic_diffuse_redo
 from virtual.kernels.refine import redo_ray64
-from virtual.kernels.branchfree32 import ggx_finish32, ggx_normal32, phong_given32, phong_lobe_omc32
+from virtual.kernels.branchfree32 import ggx_finish32, ggx_normal32
 from virtual.kernels.law_dispatch import law32, law_block32, law_uniforms
 from virtual.kernels.branchfree32_rough import (DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_about32, plastic_about32,
                                                 plastic_diffuse32)
 from virtual.kernels.xoshiro import LANES, fill_uniforms32
-from virtual.kernels.scatter import MODEL_DIELECTRIC, MODEL_PHONG, MODEL_PLASTIC
+from virtual.kernels.scatter import MODEL_DIELECTRIC, MODEL_PLASTIC
 
 __all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "guess_bins32", "normals_block32", "ggx_block32", "bin_block32", "gonio_block32_chunk"]
 
@@ -148,8 +148,6 @@ def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sect
     n_scat = 3
     if law32(model):  # a law of virtual.kernels.laws
         n_scat = law_uniforms(model)
-    elif model == MODEL_PHONG:
-        n_scat = GIVEN4_UNIFORMS
     elif model == MODEL_DIELECTRIC:
         n_scat = DIELECTRIC32_UNIFORMS
     elif model == MODEL_PLASTIC:
@@ -175,18 +173,10 @@ def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sect
         fill_uniforms32(lane, ublock)
         # code: 1 survivor, 0 absorbed, 2 missed, 4 in doubt (3: the plastic's rejected diffuse attempt)
         if law32(model):  # a law of virtual.kernels.laws: its generated loops, the beam's included
-            law_block32(model, p, conical, b, u, bo, s0, nb, vx, vy, vz, code)
+            law_block32(model, p, conical, b, u, bo, s0, nb, vx, vy, vz, code, cx, cy)
         else:  # the beam first, in a loop of its own (emit_block32); code holds the hits until marked
             emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)
-            if model == MODEL_PHONG:
-                phong_lobe_omc32(p, u[s0 + 2 * nb:s0 + 3 * nb], cy.view(np.int32), cx)  # cy: int32 scratch
-                for i in range(nb):
-                    hit = code[i] == 1
-                    vx[i], vy[i], vz[i], alive, doubt = phong_given32(p, vx[i], vy[i], vz[i], u[s0 + i],
-                                                                      u[s0 + nb + i], u[s0 + 2 * nb + i],
-                                                                      u[s0 + 3 * nb + i], cx[i])
-                    code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
-            elif model == MODEL_DIELECTRIC:
+            if model == MODEL_DIELECTRIC:
                 normals_block32(p[0], p[0], u[s0 + nb:s0 + 2 * nb], u[s0 + 2 * nb:s0 + 3 * nb], nb, vx, vy, vz, cx, cy,
                                 cz, cw, False)
                 for i in range(nb):

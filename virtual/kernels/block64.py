@@ -24,10 +24,10 @@ from virtual.kernels.xoshiro import LANES, fill_uniforms
 from virtual.kernels.microfacet import fresnel_conductor_ratio
 from virtual.kernels.law_dispatch import law_block64, law_uniforms
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
-from virtual.kernels.branchfree import (GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, phong_given, phong_lobe_cos,
-                                   plastic_diffuse_redo, plastic_given, scatter_given4)
-from virtual.kernels.scatter import (GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_PHONG,
-                                     MODEL_PLASTIC, ggx_given_parts, scatter_given)
+from virtual.kernels.branchfree import (GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, plastic_diffuse_redo, plastic_given,
+                                        scatter_given4)
+from virtual.kernels.scatter import (GIVEN_UNIFORMS, MODEL_DIELECTRIC, MODEL_GGX, MODEL_PLASTIC, ggx_given_parts,
+                                     scatter_given)
 
 __all__ = ["BLOCK_RAYS", "BEAM_UNIFORMS", "BLOCK_MODELS", "BLOCK_PARAMS", "gonio_block_chunk", "lambert_spectral_chunk",
            "ggx_spectral_chunk"]
@@ -116,7 +116,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
     n_beam = BEAM_UNIFORMS if beam_kind == BEAM_CONICAL else 0
     n_scat = law_uniforms(model)  # 0 unless a law of virtual.kernels.laws
     if n_scat == 0:
-        n_scat = GIVEN4_UNIFORMS if (model == MODEL_PHONG or model == MODEL_DIELECTRIC) \
+        n_scat = GIVEN4_UNIFORMS if model == MODEL_DIELECTRIC \
             else (PLASTIC_UNIFORMS if model == MODEL_PLASTIC else GIVEN_UNIFORMS)
     ublock = np.empty(((n_beam + n_scat) * nb // LANES, LANES))
     u = ublock.reshape(ublock.size)
@@ -132,16 +132,7 @@ def gonio_block_chunk(model, p, beam_kind, b, cargs, ring_margin, sector_margin,
         fill_uniforms(lane, ublock)
         # Each loop below is branch-free, so LLVM vectorizes it: a loop-invariant choice (the
         # model, the scheme) picks one copy of a loop, never a branch inside one.
-        if model == MODEL_PHONG:
-            for i in range(nb):  # pow does not vectorize: alone in its loop, and only for lobe rays
-                uc = u[s0 + i]
-                vx[i] = phong_lobe_cos(p, u[s0 + 2 * nb + i]) if (uc >= p[0]) & (uc < p[0] + p[3]) else 1.0
-            for i in range(nb):
-                wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
-                vx[i], vy[i], vz[i], alive = phong_given(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i],
-                                                         u[s0 + 2 * nb + i], u[s0 + 3 * nb + i], vx[i])
-                code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
-        elif law_uniforms(model) > 0:  # a law of virtual.kernels.laws: its generated loop
+        if law_uniforms(model) > 0:  # a law of virtual.kernels.laws: its generated loops
             law_block64(model, p, beam_kind, b, u, s0, nb, bo, vx, vy, vz, code, absorbed, missed)
         elif model == MODEL_PLASTIC:
             for i in range(nb):

@@ -1,9 +1,9 @@
 """Block-kernel ("given uniforms") forms of the specimens that need four or more uniforms per ray.
 
 Each function takes the uniforms a ray needs and returns ``(ox, oy, oz, alive)`` without
-branching on data, so the block kernel's loops vectorize: Phong and the rough dielectric in
-four uniforms (:func:`scatter_given4`; Oren-Nayar is a law of :mod:`virtual.kernels.laws`), the rough plastic in seven
-(:func:`plastic_given`) with the rare rejected diffuse rays finished by
+branching on data, so the block kernel's loops vectorize: the rough dielectric in four uniforms
+(:func:`scatter_given4`; Phong and Oren-Nayar are laws of :mod:`virtual.kernels.laws`), the rough
+plastic in seven (:func:`plastic_given`) with the rare rejected diffuse rays finished by
 :func:`plastic_diffuse_redo` on a per-chunk scalar stream. Each is the ray-by-ray branch of
 :mod:`virtual.kernels.scatter` with its random draws made explicit (tested against it by
 two-sample chi-square, tests/test_block_families.py).
@@ -18,47 +18,12 @@ from virtual.kernels.microfacet import (fresnel_dielectric, g2_over_g1_masked_ra
                                         ggx_vndf_given, unit_disk)
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
-from virtual.kernels.scatter import MODEL_PHONG, frame
 
 __all__ = ["GIVEN4_MODELS", "GIVEN4_UNIFORMS", "scatter_given4", "PLASTIC_UNIFORMS", "plastic_given",
-           "plastic_diffuse_redo", "phong_given", "phong_lobe_cos"]
+           "plastic_diffuse_redo"]
 
 
 from virtual.kernel_codes import GIVEN4_MODELS, GIVEN4_UNIFORMS
-
-
-@jit(inline="llvm")
-def phong_lobe_cos(p, u2):
-    """cos(alpha) of Phong's cos^n lobe from its uniform: u2^(1/(n+1)). A call of ``pow``,
-    which LLVM does not vectorize: the block kernel computes it in a loop of its own."""
-    return u2 ** (1.0 / (p[2] + 1.0))
-
-
-@jit(inline="llvm")
-def phong_given(p, wx, wy, wz, u0, u1, u2, u3, ca):
-    """:func:`_phong` given its uniforms: diffuse when u0 < kd-share (Malley from (u1, u2)),
-    the cos^n lobe when u0 < kd + lobe share (cos(alpha) = ``ca`` =
-    :func:`phong_lobe_cos` (u2), azimuth 2 pi u1, surviving with probability cos(theta_o) by
-    u3), else absorbed."""
-    flip = wz < 0.0
-    wz = abs(wz)
-    c1, s1 = sincos_2pi(u1)
-    rho = math.sqrt(u2)
-    dz = math.sqrt(1.0 - u2)
-    sa = math.sqrt(max((1.0 - ca) * (1.0 + ca), 0.0))
-    t1x, t1y, t1z, t2x, t2y, t2z = frame(-wx, -wy, wz)
-    ta = c1 * sa
-    tb = s1 * sa
-    lx = ta * t1x + tb * t2x - ca * wx
-    ly = ta * t1y + tb * t2y - ca * wy
-    lz = ta * t1z + tb * t2z + ca * wz
-    diffuse = u0 < p[0]
-    lobe_ok = (u0 < p[0] + p[3]) & (lz > 0.0) & (u3 < lz)
-    ox = rho * c1 if diffuse else lx
-    oy = rho * s1 if diffuse else ly
-    oz = dz if diffuse else lz
-    alive = (wz > 0.0) & (diffuse | lobe_ok)
-    return ox, oy, (-oz if flip else oz), alive
 
 
 @jit(inline="llvm")
@@ -90,8 +55,6 @@ def _dielectric_given(p, wx, wy, wz, u0, u1, u2, u3):
 def scatter_given4(model, p, wx, wy, wz, u0, u1, u2, u3):
     """:func:`scatter` for the :data:`GIVEN4_MODELS`, with four uniforms given: the same
     distribution of ``(ox, oy, oz, alive)``, no branch (callers pass a constant ``model``)."""
-    if model == MODEL_PHONG:
-        return phong_given(p, wx, wy, wz, u0, u1, u2, u3, phong_lobe_cos(p, u2))
     return _dielectric_given(p, wx, wy, wz, u0, u1, u2, u3)
 
 

@@ -1,4 +1,6 @@
-"""Float32 forms of the specimens for the 16-lane block kernel (:mod:`virtual.kernels.block32`).
+"""Float32 forms of the hand-written specimens (GGX) for the 16-lane block kernel
+(:mod:`virtual.kernels.block32`), and Phong's lobe cosine (the float32 prepass of its law,
+:mod:`virtual.kernels.laws.phong`).
 
 Each is the float64 given form (:func:`~virtual.kernels.scatter.scatter_given`,
 :mod:`virtual.kernels.branchfree`) with the same uniforms in the same roles, written with the
@@ -17,10 +19,10 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
-from virtual.kernels.f32 import (DOUBT, F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32, frame32, g2_over_g1_masked_ratio32,
-                                 ggx_n32, ggx_vndf_given32, in_doubt32, sincos_2pi32)
+from virtual.kernels.f32 import (DOUBT, F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32, g2_over_g1_masked_ratio32,
+                                 ggx_n32, ggx_vndf_given32)
 
-__all__ = ["ggx_normal32", "ggx_reflect32", "ggx_finish32", "phong_lobe_omc32", "phong_given32"]
+__all__ = ["ggx_normal32", "ggx_reflect32", "ggx_finish32", "phong_lobe_omc32"]
 
 _LN2 = F(math.log(2.0))
 _LOG2E = F(1.0 / math.log(2.0))
@@ -112,32 +114,3 @@ def phong_lobe_omc32(p, u, ibuf, out):
         two_j = fbuf[i]
         omc = -q if two_j == ONE else ONE - two_j * (ONE + q)
         out[i] = ONE if u[i] == ZERO else omc
-
-
-@jit(inline="llvm")
-def phong_given32(p, wx, wy, wz, u0, u1, u2, u3, omc):
-    """:func:`~virtual.kernels.branchfree.phong_given` in float32: diffuse when u0 < kd (Malley from
-    (u1, u2)), the cos^n lobe when u0 < kd + lobe share (1 - cos(alpha) = ``omc`` from
-    :func:`phong_lobe_omc32` (u2), azimuth 2 pi u1, surviving with probability cos(theta_o) by u3)."""
-    flip = wz < ZERO
-    wz = abs(wz)
-    c1, s1 = sincos_2pi32(u1)
-    rho = math.sqrt(u2)
-    dz = math.sqrt(ONE - u2)
-    ca = ONE - omc
-    sa = math.sqrt(omc * (TWO - omc))  # not (1 - ca)(1 + ca): ca rounds to 1 in a narrow lobe
-    t1x, t1y, t1z, t2x, t2y, t2z = frame32(-wx, -wy, wz)
-    ta = c1 * sa
-    tb = s1 * sa
-    lx = ta * t1x + tb * t2x - ca * wx
-    ly = ta * t1y + tb * t2y - ca * wy
-    lz = ta * t1z + tb * t2z + ca * wz
-    diffuse = u0 < p[0]
-    lobe = p[0] + p[3]
-    lobe_ok = (u0 < lobe) & (lz > ZERO) & (u3 < lz)
-    ox = rho * c1 if diffuse else lx
-    oy = rho * s1 if diffuse else ly
-    oz = dz if diffuse else lz
-    alive = (wz > ZERO) & (diffuse | lobe_ok)
-    doubt = in_doubt32(u0, p[0], ONE) | in_doubt32(u0, lobe, ONE) | in_doubt32(u3, lz, ONE)
-    return ox, oy, (-oz if flip else oz), alive, doubt

@@ -20,13 +20,12 @@ tests/test_kernels_generated.py fails likewise.
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
 import json
 import sys
 from pathlib import Path
 from types import ModuleType
-
-from virtual import law_table, model_ids
 
 __all__ = ["PRECISION_LINE", "law_names", "generated_files", "main"]
 
@@ -68,6 +67,12 @@ def _check_law(name: str, law: ModuleType, seen: dict[int, str]) -> None:
         raise SystemExit(f"{where}: MODEL {law.MODEL} is taken by {seen[law.MODEL]}")
     if not isinstance(law.UNIFORMS, int) or not 1 <= law.UNIFORMS <= 8:
         raise SystemExit(f"{where}: UNIFORMS must be an int in 1..8, got {law.UNIFORMS!r}")
+    if hasattr(law, "LOBE_ROW"):
+        if not (isinstance(law.LOBE_ROW, int) and 0 <= law.LOBE_ROW < law.UNIFORMS):
+            raise SystemExit(f"{where}: LOBE_ROW must be an int in 0..UNIFORMS-1, got {law.LOBE_ROW!r}")
+        for attr in ("lobe64",) + (("lobe32",) if law.FLOAT32_LIMITS is not None else ()):
+            if not hasattr(law, attr):
+                raise SystemExit(f"{where}: a law with LOBE_ROW needs {attr}")
     seen[law.MODEL] = name
 
 
@@ -78,6 +83,7 @@ def _uniforms(k: int, row: str = "u", at: str = "s0", i: str = "i") -> str:
 
 
 def _dispatch(laws: list[tuple[str, ModuleType]]) -> str:
+    lobes = any(hasattr(law, "LOBE_ROW") and law.FLOAT32_LIMITS is not None for _, law in laws)
     out = [_HEADER.format(src="virtual/kernels/laws/"),
            '"""Every kernel path\'s branch for each law of :mod:`virtual.kernels.laws` (written by\n'
            ':mod:`virtual.kernels.generate`): the ray-by-ray kernel calls :func:`law_scatter`, the float64\n'
@@ -85,6 +91,7 @@ def _dispatch(laws: list[tuple[str, ModuleType]]) -> str:
            'in doubt, :func:`law_given64`. Each branch is the loop or call the kernel had for a hand-written\n'
            'model: the same operations in the same order."""\n\n',
            "from __future__ import annotations\n\n",
+           *(["import numpy as np\n\n"] if lobes else []),
            "from virtual.kernels import jit\n",
            "from virtual.kernels.emit import emit_given\n"]
     f32 = [law for _, law in laws if law.FLOAT32_LIMITS is not None]
@@ -119,7 +126,11 @@ def _dispatch(laws: list[tuple[str, ModuleType]]) -> str:
         if hasattr(law, "ray"):
             out.append(f"        return {name}64.ray(p, wx, wy, wz, s)\n")
         else:
-            draws = ", ".join(["next_double(s)"] * law.UNIFORMS)
+            if hasattr(law, "LOBE_ROW"):
+                out.append("".join(f"        d{j} = next_double(s)\n" for j in range(law.UNIFORMS)))
+                draws = ", ".join(f"d{j}" for j in range(law.UNIFORMS)) + f", {name}64.lobe64(p, d0, d{law.LOBE_ROW})"
+            else:
+                draws = ", ".join(["next_double(s)"] * law.UNIFORMS)
             out.append(f"        ox, oy, oz, alive, _ = {name}64.given(p, wx, wy, wz, {draws})\n"
                        f"        return (ox, oy, oz, True) if alive else (0.0, 0.0, 0.0, False)\n")
     out.append("    return 0.0, 0.0, 0.0, False\n")
@@ -129,17 +140,23 @@ def _dispatch(laws: list[tuple[str, ModuleType]]) -> str:
                '    (:func:`~virtual.kernels.emit.emit_given`) and scattered, its code -2 (survivor) or its\n'
                '    absorbed/missed bin (:func:`~virtual.kernels.block64.gonio_block_chunk`)."""\n')
     for k, (name, law) in enumerate(laws):
-        out.append(f"    {'if' if k == 0 else 'elif'} model == {law.MODEL}:\n"
-                   "        for i in range(nb):\n"
+        out.append(f"    {'if' if k == 0 else 'elif'} model == {law.MODEL}:\n")
+        extra = ""
+        if hasattr(law, "LOBE_ROW"):  # the lobe's prepass, in a loop of its own (into vx)
+            out.append("        for i in range(nb):\n"
+                       f"            vx[i] = {name}64.lobe64(p, u[s0 + i], {_uniforms(law.LOBE_ROW + 1).split(', ')[-1]})\n")
+            extra = ", vx[i]"
+        out.append("        for i in range(nb):\n"
                    "            wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])\n"
-                   f"            vx[i], vy[i], vz[i], alive, _ = {name}64.given(p, wx, wy, wz, {_uniforms(law.UNIFORMS)})\n"
+                   f"            vx[i], vy[i], vz[i], alive, _ = {name}64.given(p, wx, wy, wz, {_uniforms(law.UNIFORMS)}{extra})\n"
                    "            code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))\n")
 
-    out.append('\n\n@jit(inline="always")\ndef law_block32(model, p, conical, b, u, bo, s0, nb, vx, vy, vz, code):\n'
+    out.append('\n\n@jit(inline="always")\ndef law_block32(model, p, conical, b, u, bo, s0, nb, vx, vy, vz, code, cx, cy):\n'
                '    """The float32 block kernel\'s loops for law ``model``: the beam\'s\n'
                '    (:func:`~virtual.kernels.f32.emit_block32`, or only its side for a ``SIDE_ONLY`` law,\n'
                '    :func:`~virtual.kernels.f32.emit_side32`, in the same loop), then the law\'s: code 1\n'
-               '    survivor, 0 absorbed, 2 missed, 4 in doubt (:func:`~virtual.kernels.block32.gonio_block32_chunk`)."""\n')
+               '    survivor, 0 absorbed, 2 missed, 4 in doubt (:func:`~virtual.kernels.block32.gonio_block32_chunk`).\n'
+               '    A law with a lobe prepass (``LOBE_ROW``) writes it into ``cx`` (``cy``: int32 scratch)."""\n')
     k = 0
     for name, law in laws:
         if law.FLOAT32_LIMITS is None:
@@ -151,11 +168,18 @@ def _dispatch(laws: list[tuple[str, ModuleType]]) -> str:
                        f"            vx[i], vy[i], vz[i], alive, doubt = {name}32.given(p, ZERO32, ZERO32, wz, "
                        f"{_uniforms(law.UNIFORMS)})\n")
         else:
-            out.append("        emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)\n"
-                       "        for i in range(nb):\n"
+            out.append("        emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)\n")
+            extra = ""
+            if hasattr(law, "LOBE_ROW"):
+                r = law.LOBE_ROW
+                row = f"u[s0 + {r} * nb:s0 + {r + 1} * nb]" if r > 1 else (
+                    "u[s0:s0 + nb]" if r == 0 else "u[s0 + nb:s0 + 2 * nb]")
+                out.append(f"        {name}32.lobe32(p, {row}, cy.view(np.int32), cx)\n")
+                extra = ", cx[i]"
+            out.append("        for i in range(nb):\n"
                        "            hit = code[i] == 1\n"
                        f"            vx[i], vy[i], vz[i], alive, doubt = {name}32.given(p, vx[i], vy[i], vz[i], "
-                       f"{_uniforms(law.UNIFORMS)})\n")
+                       f"{_uniforms(law.UNIFORMS)}{extra})\n")
         out.append("            code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))\n")
         k += 1
     if k == 0:
@@ -167,6 +191,8 @@ def _dispatch(laws: list[tuple[str, ModuleType]]) -> str:
                '    ``(ox, oy, oz, alive)``."""\n')
     for name, law in laws:
         vs = ", ".join(f"v[{j}]" for j in range(law.UNIFORMS))
+        if hasattr(law, "LOBE_ROW"):
+            vs += f", {name}64.lobe64(p, v[0], v[{law.LOBE_ROW}])"
         out.append(f"    if model == {law.MODEL}:\n"
                    f"        ox, oy, oz, alive, _ = {name}64.given(p, wx, wy, wz, {vs})\n"
                    "        return ox, oy, oz, alive\n")
@@ -203,9 +229,13 @@ def _table(laws: list[tuple[str, ModuleType]]) -> str:
 
 
 def _hand_written_ids() -> dict[int, str]:
-    """The model ids :mod:`virtual.model_ids` declares itself (not through the law table)."""
-    return {v: f"virtual/model_ids.py {k}" for k, v in vars(model_ids).items()
-            if k.startswith("MODEL_") and k not in law_table.__all__ and isinstance(v, int)}
+    """The model ids :mod:`virtual.model_ids` assigns itself (``MODEL_X = n``; read from its
+    source, not imported: it imports the law table this module writes)."""
+    tree = ast.parse((VIRTUAL / "model_ids.py").read_text())
+    return {node.value.value: f"virtual/model_ids.py {node.targets[0].id}" for node in tree.body
+            if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name)
+            and node.targets[0].id.startswith("MODEL_") and isinstance(node.value, ast.Constant)
+            and isinstance(node.value.value, int)}
 
 
 def generated_files() -> dict[Path, str]:

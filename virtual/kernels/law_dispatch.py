@@ -7,15 +7,19 @@ model: the same operations in the same order."""
 
 from __future__ import annotations
 
+import numpy as np
+
 from virtual.kernels import jit
 from virtual.kernels.emit import emit_given
 from virtual.kernels.f32 import ZERO as ZERO32, emit_block32, emit_side32
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.laws import lambert as lambert64
 from virtual.kernels.laws import oren_nayar as oren_nayar64
+from virtual.kernels.laws import phong as phong64
 from virtual.kernels.laws import ward as ward64
 from virtual.kernels.laws32 import lambert as lambert32
 from virtual.kernels.laws32 import oren_nayar as oren_nayar32
+from virtual.kernels.laws32 import phong as phong32
 from virtual.kernels.laws32 import ward as ward32
 
 __all__ = ["law_uniforms", "law32", "law_scatter", "law_block64", "law_block32", "law_given64"]
@@ -28,6 +32,8 @@ def law_uniforms(model):
         return 3
     if model == 1:  # oren_nayar
         return 4
+    if model == 2:  # phong
+        return 4
     if model == 9:  # ward
         return 4
     return 0
@@ -36,7 +42,7 @@ def law_uniforms(model):
 @jit(inline="llvm")
 def law32(model):
     """Whether ``model`` is a law with a float32 form."""
-    return model == 0 or model == 1 or model == 9
+    return model == 0 or model == 1 or model == 2 or model == 9
 
 
 @jit(inline="llvm")
@@ -47,6 +53,8 @@ def law_scatter(model, p, wx, wy, wz, s):
         return lambert64.ray(p, wx, wy, wz, s)
     if model == 1:
         return oren_nayar64.ray(p, wx, wy, wz, s)
+    if model == 2:
+        return phong64.ray(p, wx, wy, wz, s)
     if model == 9:
         ox, oy, oz, alive, _ = ward64.given(p, wx, wy, wz, next_double(s), next_double(s), next_double(s), next_double(s))
         return (ox, oy, oz, True) if alive else (0.0, 0.0, 0.0, False)
@@ -68,6 +76,13 @@ def law_block64(model, p, beam_kind, b, u, s0, nb, bo, vx, vy, vz, code, absorbe
             wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
             vx[i], vy[i], vz[i], alive, _ = oren_nayar64.given(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
             code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
+    elif model == 2:
+        for i in range(nb):
+            vx[i] = phong64.lobe64(p, u[s0 + i], u[s0 + 2 * nb + i])
+        for i in range(nb):
+            wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
+            vx[i], vy[i], vz[i], alive, _ = phong64.given(p, wx, wy, wz, u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i], vx[i])
+            code[i] = -2 if (alive & hit) else ((absorbed if hit else missed) + (i & 7))
     elif model == 9:
         for i in range(nb):
             wx, wy, wz, hit = emit_given(beam_kind, b, u[i], u[bo + i], u[2 * bo + i], u[3 * bo + i])
@@ -76,11 +91,12 @@ def law_block64(model, p, beam_kind, b, u, s0, nb, bo, vx, vy, vz, code, absorbe
 
 
 @jit(inline="always")
-def law_block32(model, p, conical, b, u, bo, s0, nb, vx, vy, vz, code):
+def law_block32(model, p, conical, b, u, bo, s0, nb, vx, vy, vz, code, cx, cy):
     """The float32 block kernel's loops for law ``model``: the beam's
     (:func:`~virtual.kernels.f32.emit_block32`, or only its side for a ``SIDE_ONLY`` law,
     :func:`~virtual.kernels.f32.emit_side32`, in the same loop), then the law's: code 1
-    survivor, 0 absorbed, 2 missed, 4 in doubt (:func:`~virtual.kernels.block32.gonio_block32_chunk`)."""
+    survivor, 0 absorbed, 2 missed, 4 in doubt (:func:`~virtual.kernels.block32.gonio_block32_chunk`).
+    A law with a lobe prepass (``LOBE_ROW``) writes it into ``cx`` (``cy``: int32 scratch)."""
     if model == 0:
         for i in range(nb):
             wz, hit = emit_side32(conical, b, u[i], u[bo + i])
@@ -91,6 +107,13 @@ def law_block32(model, p, conical, b, u, bo, s0, nb, vx, vy, vz, code):
         for i in range(nb):
             hit = code[i] == 1
             vx[i], vy[i], vz[i], alive, doubt = oren_nayar32.given(p, vx[i], vy[i], vz[i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i])
+            code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
+    elif model == 2:
+        emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)
+        phong32.lobe32(p, u[s0 + 2 * nb:s0 + 3 * nb], cy.view(np.int32), cx)
+        for i in range(nb):
+            hit = code[i] == 1
+            vx[i], vy[i], vz[i], alive, doubt = phong32.given(p, vx[i], vy[i], vz[i], u[s0 + i], u[s0 + nb + i], u[s0 + 2 * nb + i], u[s0 + 3 * nb + i], cx[i])
             code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
     elif model == 9:
         emit_block32(conical, b, u, bo, nb, vx, vy, vz, code)
@@ -110,6 +133,9 @@ def law_given64(model, p, wx, wy, wz, v):
         return ox, oy, oz, alive
     if model == 1:
         ox, oy, oz, alive, _ = oren_nayar64.given(p, wx, wy, wz, v[0], v[1], v[2], v[3])
+        return ox, oy, oz, alive
+    if model == 2:
+        ox, oy, oz, alive, _ = phong64.given(p, wx, wy, wz, v[0], v[1], v[2], v[3], phong64.lobe64(p, v[0], v[2]))
         return ox, oy, oz, alive
     if model == 9:
         ox, oy, oz, alive, _ = ward64.given(p, wx, wy, wz, v[0], v[1], v[2], v[3])

@@ -6,6 +6,9 @@ virtual.kernels.generate`` writes its float32 twin by importing the same names f
 
 ``ZERO, ONE, TWO, HALF``  the constants (a float literal would turn a float32 loop into float64)
 ``sincos_2pi``, ``warp_cosine_hemisphere``, ``frame``  the warps and the orthonormal frame
+``lobe_cos_sin(x)``  the cosine and sine of a lobe's angle from a prepass's value ``x`` of its
+                    cosine: the cosine itself here, 1 - cos in float32 (where a narrow lobe's
+                    cosine rounds to 1)
 ``in_doubt(u, num, den)``  whether the decision ``u den < num`` lies within the float32 grid's
                           reach of its threshold (:func:`~virtual.kernels.f32.in_doubt32`);
                           float64 uniforms have no such grid: always False here, so the
@@ -14,11 +17,13 @@ virtual.kernels.generate`` writes its float32 twin by importing the same names f
 
 from __future__ import annotations
 
+import math
+
 from virtual.kernels import jit
 from virtual.kernels.microfacet import frame
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 
-__all__ = ["ZERO", "ONE", "TWO", "HALF", "sincos_2pi", "warp_cosine_hemisphere", "frame", "in_doubt"]
+__all__ = ["ZERO", "ONE", "TWO", "HALF", "sincos_2pi", "warp_cosine_hemisphere", "frame", "in_doubt", "lobe_cos_sin"]
 
 ZERO = 0.0
 ONE = 1.0
@@ -30,3 +35,9 @@ HALF = 0.5
 def in_doubt(u, num, den):
     """False: a float64 decision needs no second look (see the module docstring)."""
     return False
+
+
+@jit(inline="llvm")
+def lobe_cos_sin(x):
+    """``(cos, sin)`` of an angle from its cosine ``x``."""
+    return x, math.sqrt(max((1.0 - x) * (1.0 + x), 0.0))

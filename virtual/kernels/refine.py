@@ -21,9 +21,9 @@ from numba import uint64
 
 from virtual.kernels import jit
 from virtual.kernels.emit import emit_given
-from virtual.kernels.branchfree import phong_given, phong_lobe_cos, plastic_diffuse_redo, plastic_given, scatter_given4
+from virtual.kernels.branchfree import plastic_diffuse_redo, plastic_given, scatter_given4
 from virtual.kernels.xoshiro import next_uint64
-from virtual.kernels.scatter import MODEL_DIELECTRIC, MODEL_PHONG, MODEL_PLASTIC, scatter_given
+from virtual.kernels.scatter import MODEL_DIELECTRIC, MODEL_PLASTIC, scatter_given
 from virtual.kernels.law_dispatch import law_given64, law_uniforms
 
 __all__ = ["refined_by", "refined", "ray_bits", "redo_ray64"]
@@ -80,12 +80,9 @@ def redo_ray64(model, p, kind, b, u, i, nb, bo, s0, s):
             v[j] = refined(u[s0 + j * nb + i], s)
         ox, oy, oz, alive = law_given64(model, p, wx, wy, wz, v)
         return ox, oy, oz, alive, hit
-    if model == MODEL_PHONG or model == MODEL_DIELECTRIC:
+    if model == MODEL_DIELECTRIC:
         v3 = refined(u[s0 + 3 * nb + i], s)
-        if model == MODEL_PHONG:
-            ox, oy, oz, alive = phong_given(p, wx, wy, wz, v0, v1, v2, v3, phong_lobe_cos(p, v2))
-        else:
-            ox, oy, oz, alive = scatter_given4(model, p, wx, wy, wz, v0, v1, v2, v3)
+        ox, oy, oz, alive = scatter_given4(model, p, wx, wy, wz, v0, v1, v2, v3)
         return ox, oy, oz, alive, hit
     if model == MODEL_PLASTIC:
         ox, oy, oz, alive, redo = plastic_given(p, wx, wy, wz, v0, v1, v2, refined(u[s0 + 3 * nb + i], s),

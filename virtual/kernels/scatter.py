@@ -22,8 +22,8 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.microfacet import (disk_direction, fresnel_conductor_ratio, fresnel_dielectric, frame,
-                                        g2_over_g1, g2_over_g1_masked, g2_over_g1_masked_ratio, ggx_n, ggx_vndf, ggx_vndf_given,
+from virtual.kernels.microfacet import (disk_direction, fresnel_conductor_ratio, fresnel_dielectric, g2_over_g1,
+                                        g2_over_g1_masked, g2_over_g1_masked_ratio, ggx_n, ggx_vndf, ggx_vndf_given,
                                         unit_disk)
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.coat import roughplastic
@@ -41,36 +41,6 @@ __all__ = ["MODEL_LAMBERT", "MODEL_OREN_NAYAR", "MODEL_PHONG", "MODEL_GGX", "MOD
 from virtual.kernel_codes import GIVEN_MODELS, GIVEN_UNIFORMS
 
 _DEAD = (0.0, 0.0, 0.0, False)
-
-
-@jit(inline="llvm")
-def _phong(p, wx, wy, wz, s):
-    flip = wz < 0.0
-    if flip:
-        wz = -wz
-    if not (wz > 0.0):
-        return _DEAD
-    u = next_double(s)
-    if u < p[0]:
-        a, b, r2 = unit_disk(s)
-        oz = math.sqrt(1.0 - r2)
-        return a, b, (-oz if flip else oz), True
-    if not (u < p[0] + p[3]):
-        return _DEAD
-    # lobe (n+1)/(2 pi) cos^n around r = (-wx, -wy, wz): cos(alpha) = xi^(1/(n+1)), xi = r2
-    a, b, r2 = unit_disk(s)
-    ca = r2 ** (1.0 / (p[2] + 1.0))
-    sa_over_r = math.sqrt(max((1.0 - ca) * (1.0 + ca), 0.0) / r2)
-    t1x, t1y, t1z, t2x, t2y, t2z = frame(-wx, -wy, wz)
-    ta = a * sa_over_r
-    tb = b * sa_over_r
-    ox = ta * t1x + tb * t2x - ca * wx
-    oy = ta * t1y + tb * t2y - ca * wy
-    oz = ta * t1z + tb * t2z + ca * wz
-    if not (oz > 0.0 and next_double(s) < oz):
-        return _DEAD
-    return ox, oy, (-oz if flip else oz), True
-
 
 
 @jit(inline="llvm")
@@ -245,8 +215,6 @@ def _scatter_general(model, p, wx, wy, wz, s):
     compile time)."""
     if model == MODEL_GGX or model == MODEL_ANISO_GGX:
         return _ggx(p, wx, wy, wz, s)
-    if model == MODEL_PHONG:
-        return _phong(p, wx, wy, wz, s)
     if model == MODEL_PLASTIC:
         return _plastic(p, wx, wy, wz, s)
     if model == MODEL_DIELECTRIC:
@@ -289,7 +257,7 @@ def scatter_given(model, p, wx, wy, wz, u0, u1, u2):
     return _ggx_given(p, wx, wy, wz, ca, sa, u1, u0)
 
 
-# --- four-uniform given forms, for the block kernel: its Phong, Oren-Nayar, rough dielectric -----
+# --- four-uniform given forms, for the block kernel: the rough dielectric (virtual.kernels.branchfree) --
 # Same contract as `scatter_given`, with four uniforms: u0 picks the lobe (or absorption), (u1, u2)
 # is a polar disk point standing for the ray-by-ray branch's rejection-sampled `unit_disk`
 # (the same uniform distribution: direction sincos_2pi(u1), squared radius u2), u3 is the

@@ -16,6 +16,13 @@ A law module states, as module constants and functions:
                     (either side) and the law's uniforms; ``doubt`` is whether a decision lies
                     within the float32 grid's reach of its threshold (``in_doubt``; always
                     False in float64)
+``SIDE_ONLY``       optional, True: ``given`` reads only the sign of wz (the float32 block
+                    kernel then emits only the beam's side, in the law's loop)
+``LOBE_ROW``, ``lobe64``, ``lobe32``  optional: a value computed from the uniform row ``LOBE_ROW``
+                    in a loop of its own before the block's main loop (a ``pow`` does not
+                    vectorize), passed to ``given`` as its last argument: ``lobe64(p, u0, u)`` per
+                    ray in float64, ``lobe32(p, row, int32 scratch, out)`` over the block's row in
+                    float32 (Phong's lobe angle)
 ``ray(p, wx, wy, wz, s)``  optional: the ray-by-ray sampler drawing from the xoshiro stream
                     ``s``, ``(ox, oy, oz, alive)``; without it the ray-by-ray kernel calls
                     ``given`` with ``UNIFORMS`` draws of ``s``
