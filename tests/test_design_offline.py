@@ -49,3 +49,32 @@ def test_the_emulated_description_gives_the_reading_model_of_the_started_emulato
     for field in ("wavelengths", "counts_per_brdf", "variance_per_count", "variance_floor", "dark_level"):
         assert np.array_equal(getattr(got, field), getattr(want, field)), field
     assert got.aperture_deg == want.aperture_deg and got.standard == want.standard
+
+
+@pytest.mark.parametrize("written", ["albedo", "reflectance"])
+def test_a_design_names_each_parameter_as_the_model_string_wrote_it(written, tmp_path, capsys):
+    import json
+
+    from tests.helpers.cli import run_main
+
+    out = tmp_path / "d.toml"
+    code, text, err = run_main(capsys, "plan", "--design", f"lambert:{written}=?", "--prior", f"{written}=0.4",
+                               "--bench", BENCHES / "real-template.toml", "--budget-seconds", 20, "--step", 20, "--out", out, "--json")
+    assert code == 0, err
+    got = json.loads(text)
+    assert list(got["widths"]) == [written] and list(got["width_range"]) == [written]
+    assert got["prior"][written] == 0.4
+    header = "\n".join(line for line in out.read_text().splitlines() if line.startswith("#"))
+    other = "reflectance" if written == "albedo" else "albedo"
+    assert f"{written}=0.4" in header and f"{written} " in header and other not in header
+
+
+def test_a_sequential_target_may_name_a_parameter_by_its_alias():
+    from bench.core.errors import InputError
+    from bench.identify.design_sequential import parse_targets
+    from bench.identify.model_spec import parse_model_spec
+
+    spec = parse_model_spec("lambert:albedo=?")
+    assert parse_targets("albedo=0.01", spec.names, spec.canonical) == {"reflectance": 0.01}
+    with pytest.raises(InputError, match="kd is not a free parameter"):
+        parse_targets("kd=0.01", spec.names, spec.canonical)

@@ -116,7 +116,7 @@ def cmd_scan_sequential(args: argparse.Namespace) -> int:
     if args.budget_seconds is None:
         raise InputError("--sequential needs --budget-seconds S (the bench-time budget)")
     spec, point, settings = _model(args, args.sequential)
-    targets = parse_targets(args.target, spec.names)
+    targets = parse_targets(args.target, spec.names, spec.canonical)
     key = session_key(spec.text, args.bench, args.body, args.budget_seconds, args.criterion, args.prior, args.integration_s,
                       args.like, args.step, args.target, args.seed,
                       *([] if args.prior_spread is None else [args.prior_spread]))  # earlier sessions' keys stand
@@ -126,14 +126,21 @@ def cmd_scan_sequential(args: argparse.Namespace) -> int:
         result = sequential_scan(bench, store, spec, point, args.budget_seconds, settings, candidates, args.criterion,
                                targets, seed=getattr(bench.goniometer, "seed", args.seed), key=key,
                                progress=not args.quiet and sys.stderr.isatty())
+    label = spec.labels  # every parameter named as the model string wrote it
     if args.json:
-        emit_json(result.as_dict())
+        out = result.as_dict()
+        out["steps"] = [dict(step) for step in out["steps"]]
+        for table in (out, *out["steps"]):
+            for key in ("estimates", "intervals", "widths"):
+                if isinstance(table.get(key), dict):
+                    table[key] = {label.get(n, n): v for n, v in table[key].items()}
+        emit_json(out)
         return 0
     for k, s in enumerate(result.steps):
         print(f"step {k}: run {s.run_id}, {s.points} points, {s.seconds:.4g} s; "
-              + ", ".join(f"{n} = {v:.5g} (width {s.widths[n]:.3g})" for n, v in s.estimates.items()))
+              + ", ".join(f"{label.get(n, n)} = {v:.5g} (width {s.widths[n]:.3g})" for n, v in s.estimates.items()))
     print(f"stopped at the {result.stopped} after {result.seconds:.4g} s of {result.budget_s:g} s: "
-          + ", ".join(f"{n} = {v:.5g} [{result.intervals[n][0]:.5g}, {result.intervals[n][1]:.5g}]"
+          + ", ".join(f"{label.get(n, n)} = {v:.5g} [{result.intervals[n][0]:.5g}, {result.intervals[n][1]:.5g}]"
                       for n, v in result.estimates.items()))
     return 0
 
@@ -157,7 +164,7 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     short: the best design so far is written and the exit status is 1)."""
     from bench.core.errors import PlanError
     from bench.identify.design import design_for_bench, information, interval_widths
-    from bench.identify.design_io import prior_lines, widths_text, write_design
+    from bench.identify.design_io import as_written, prior_lines, widths_text, write_design
     from bench.identify.design_noise import bench_reading_model
     from bench.identify.identifiability import refuse_unidentifiable
     from bench.identify.time_model import ReadingSettings, bench_time_model, candidate_grid, reachable
@@ -178,10 +185,10 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
         if not candidates:
             raise InputError(f"bench {bench.name!r} refuses every point of the in-plane candidate grid")
         everything = information(point, candidates, bench_reading_model(bench, settings[0])).total(range(len(candidates)))
-        refuse_unidentifiable(everything, spec.names, spec.upper - spec.lower, bench.name)
+        refuse_unidentifiable(everything, [spec.labels[n] for n in spec.names], spec.upper - spec.lower, bench.name)
         design = design_for_bench(point, bench, candidates, args.budget_seconds, settings, args.criterion,
                                   max_seconds=args.max_seconds or DEFAULT_MAX_SECONDS)
-        write_design(out, design, spec.text, bench.name, bench.kind, len(candidates), args.budget_seconds)
+        write_design(out, design, spec.text, bench.name, bench.kind, len(candidates), args.budget_seconds, spec.labels)
         written = load_plan(out)
         refused = refusals(written, check)
         if refused:  # the design chose only reachable points: this would be a bug, said as the validator says it
@@ -194,13 +201,15 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
             fisher = information(point, pts, bench_reading_model(bench, like)).total(range(len(pts)))
             other = {"plan": compare.name, "points": len(pts),
                      "seconds": bench_time_model(bench, like).seconds(pts)["seconds"],
-                     "widths": interval_widths(fisher, point.free)}
-    result = {"plan": str(out), "model": spec.text, "prior": dict(point.values), "criterion": design.criterion,
+                     "widths": as_written(interval_widths(fisher, point.free), spec.labels)}
+    # every parameter named as the model string wrote it (an alias such as albedo, not reflectance)
+    result = {"plan": str(out), "model": spec.text, "prior": as_written(point.values, spec.labels),
+              "criterion": design.criterion,
               "budget_s": args.budget_seconds, "seconds": design.seconds, "motion_s": design.estimate["motion_s"],
               "points": len(design.points), "candidates": len(candidates), "integration_s": design.settings.integration_s,
-              "averages": design.settings.averages, "widths": design.widths, "compare": other,
+              "averages": design.settings.averages, "widths": as_written(design.widths, spec.labels), "compare": other,
               "prior_spread": point.spread, "prior_points": design.prior_points,
-              "width_range": {k: list(v) for k, v in (design.width_range or {}).items()},
+              "width_range": {k: list(v) for k, v in as_written(design.width_range or {}, spec.labels).items()},
               "stopped": design.stopped}
     if design.stopped:  # the best design so far is written: say why it may not be the best there is
         import sys
@@ -212,7 +221,7 @@ def cmd_plan_design(args: argparse.Namespace) -> int:
     print(f"wrote {out}: {len(design.points)} points ({design.criterion}-optimal for {spec.text}) of "
           f"{len(candidates)} reachable on bench {bench.name}, {design.settings.integration_s:g} s x "
           f"{design.settings.averages} per point, estimated {design.seconds:.4g} s of {args.budget_seconds:g} s")
-    for line in prior_lines(design, "  "):
+    for line in prior_lines(design, "  ", spec.labels):
         print(line)
     if other is not None:
         print(f"  plan {other['plan']}: {other['points']} points, {other['seconds']:.4g} s, widths "

@@ -95,15 +95,22 @@ def design_inputs(model: str, prior: str | Mapping[str, float] | None = None, li
     return spec, point, integration_choices(base, times)
 
 
-def widths_text(widths: Mapping[str, float]) -> str:
-    return ", ".join(f"{k} {v:.3g}" for k, v in widths.items())
+def as_written(values: Mapping[str, Any], labels: Mapping[str, str] | None) -> dict[str, Any]:
+    """``values`` keyed by each parameter's name as the model string wrote it (``albedo`` for a
+    Lambertian's ``reflectance``): a design reports the names its user gave."""
+    return {(labels or {}).get(k, k): v for k, v in values.items()}
 
 
-def prior_lines(design: Design, prefix: str = "") -> list[str]:
+def widths_text(widths: Mapping[str, float], labels: Mapping[str, str] | None = None) -> str:
+    return ", ".join(f"{k} {v:.3g}" for k, v in as_written(widths, labels).items())
+
+
+def prior_lines(design: Design, prefix: str = "", labels: Mapping[str, str] | None = None) -> list[str]:
     """What the design assumed of the parameters and the widths it predicts, said plainly: the
     Cramer-Rao widths hold at the guess; the fits' widths are those at the specimen's true
-    parameters, which may differ severalfold."""
-    guess = ", ".join(f"{k}={design.model.values[k]:g}" for k in design.model.free)
+    parameters, which may differ severalfold. Parameters named as written (``labels``)."""
+    name = lambda k: (labels or {}).get(k, k)  # noqa: E731
+    guess = ", ".join(f"{name(k)}={design.model.values[k]:g}" for k in design.model.free)
     if design.prior_points > 1:
         lines = [f"Criterion {design.criterion} averaged over {design.prior_points} parameter points of the prior "
                  f"range (pseudo-Bayesian): each free parameter from its guess / {design.model.spread:g} to its guess "
@@ -111,39 +118,41 @@ def prior_lines(design: Design, prefix: str = "") -> list[str]:
     else:
         lines = [f"Designed at the prior guess {guess} alone."]
     lines.append(f"Predicted 95% interval widths (Cramer-Rao at the guess, 2 x 1.96 x se): "
-                 f"{widths_text(design.widths)}; conditional on the prior: the fits' widths may differ severalfold "
+                 f"{widths_text(design.widths, labels)}; conditional on the prior: the fits' widths may differ severalfold "
                  "when the specimen is far from it.")
     if design.prior_points > 1 and design.width_range:
         lines.append("Over the prior range's points the predicted widths span "
-                     + ", ".join(f"{k} {lo:.3g}..{hi:.3g}" for k, (lo, hi) in design.width_range.items()) + ".")
+                     + ", ".join(f"{k} {lo:.3g}..{hi:.3g}" for k, (lo, hi) in as_written(design.width_range, labels).items())
+                     + ".")
     return [prefix + line for line in lines]
 
 
-def design_table(design: Design, name: str, model_text: str) -> dict[str, Any]:
+def design_table(design: Design, name: str, model_text: str, labels: Mapping[str, str] | None = None) -> dict[str, Any]:
     """The plan table of a design (``kind = "list"``, points in travel order by ``bench scan``)."""
-    prior = ",".join(f"{k}={v:g}" for k, v in design.model.values.items())
+    prior = ",".join(f"{k}={v:g}" for k, v in as_written(design.model.values, labels).items())
     how = (f"averaged over the prior range (guess / {design.model.spread:g} .. x {design.model.spread:g}) "
            f"around {prior}" if design.prior_points > 1 else f"at {prior}")
     description = (f"{design.criterion}-optimal design for {model_text} {how}; "
-                   f"predicted 95% interval widths (Cramer-Rao at the guess): {widths_text(design.widths)}")
+                   f"predicted 95% interval widths (Cramer-Rao at the guess): {widths_text(design.widths, labels)}")
     return {"name": name, "kind": "list", "description": description, **design.settings.plan_table(), "order": "travel",
             "points": [[round(g.theta_i, 9), round(g.phi_i, 9), round(g.theta_r, 9), round(g.phi_r, 9)]
                        for g in design.points]}
 
 
 def write_design(path: str | Path, design: Design, model_text: str, bench_name: str, body: str, candidates: int,
-                 seconds: float) -> Path:
-    """Write the design as a plan file with a header saying how it was designed."""
+                 seconds: float, labels: Mapping[str, str] | None = None) -> Path:
+    """Write the design as a plan file with a header saying how it was designed (parameters
+    named as ``labels`` says the model string wrote them)."""
     p = Path(path)
-    table = design_table(design, p.stem, model_text)
+    table = design_table(design, p.stem, model_text, labels)
     est = design.estimate
     header = [
         f"# Designed by `bench plan --design \"{model_text}\" --budget-seconds {seconds:g} --criterion {design.criterion}`",
         f"# on bench {bench_name!r} ({body} body): {len(design.points)} of {candidates} reachable candidate points,",
-        f"# prior {', '.join(f'{k}={v:g}' for k, v in design.model.values.items())}.",
+        f"# prior {', '.join(f'{k}={v:g}' for k, v in as_written(design.model.values, labels).items())}.",
         f"# Estimated bench time {est['seconds']:.4g} s (motion {est['motion_s']:.3g} s, acquisition "
         f"{est['acquisition_s']:.3g} s, references {est['references_s']:.3g} s) of a {seconds:g} s budget.",
-        *prior_lines(design, "# "),
+        *prior_lines(design, "# ", labels),
     ]
     text = "\n".join(header) + "\n" + tomli_w.dumps(table)
     atomic_write(p, lambda tmp: tmp.write_text(text, encoding="utf-8"))

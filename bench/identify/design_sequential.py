@@ -23,7 +23,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Callable, Any, Mapping, Sequence
 
 import pandas as pd
 
@@ -78,12 +78,16 @@ class SequentialResult:
                 "steps": [s.__dict__ for s in self.steps]}
 
 
-def parse_targets(text: str | None, free: Sequence[str]) -> dict[str, float]:
-    """``--target p=width,...`` -> {p: width}: each a free parameter with a width > 0."""
-    out = parse_values(text, "--target", "WIDTH", positive=True)
-    for key in out:
-        if key not in free:
-            raise InputError(f"--target {key}={out[key]:g}: {key} is not a free parameter (free: {', '.join(free)})")
+def parse_targets(text: str | None, free: Sequence[str],
+                  canonical: Callable[[str], str | None] | None = None) -> dict[str, float]:
+    """``--target p=width,...`` -> {p: width}: each a free parameter (by its declared name or, with
+    ``canonical``, an alias of it, keyed by the declared name) with a width > 0."""
+    out = {}
+    for key, width in parse_values(text, "--target", "WIDTH", positive=True).items():
+        name = (canonical(key) if canonical is not None else None) or key
+        if name not in free:
+            raise InputError(f"--target {key}={width:g}: {key} is not a free parameter (free: {', '.join(free)})")
+        out[name] = width
     return out
 
 
