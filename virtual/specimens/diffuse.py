@@ -1,7 +1,7 @@
 """The diffuse and glossy families: Lambertian, Oren-Nayar, normalized Phong.
 
-Each is a declaration (:mod:`virtual.specimens.declare`): its parameters, the vector its kernel
-branch in :mod:`virtual.kernels.scatter` reads, and its density.
+Each is a declaration (:mod:`virtual.specimens.declare`): its parameters, the vector its law reads
+(:mod:`virtual.kernels.laws`: ``lambert``, ``oren_nayar``, ``phong``), and its density.
 """
 
 from __future__ import annotations
