@@ -34,6 +34,7 @@ from bench.core.outputs import save_figure
 
 if TYPE_CHECKING:  # for the annotations only: the study imports its machinery when it runs, as measure() does
     from bench.identify.model_spec import ModelSpec
+    from bench.plans import Plan
 
 __all__ = ["METHODS", "SEEDS", "UNIFORM", "measure", "summary", "rows", "header", "plot_study", "truth_of",
            "parse_methods"]
@@ -84,7 +85,7 @@ def truth_of(spec: ModelSpec, specimen: str) -> dict[str, float] | None:
     return out
 
 
-def _uniform_half(uniform: Any) -> Any:
+def _uniform_half() -> Plan:
     """The uniform in-plane plan at half the theta_r density (10 deg steps): about half its time."""
     from bench.core.parsing import read_toml
     from bench.plans import plan_from_dict
@@ -141,7 +142,7 @@ def measure(model: str, description: Mapping[str, Any], *, seeds: Sequence[int] 
     specimen = str(description.get("specimen", {}).get("spec", ""))
     truth = truth_of(spec, specimen) if specimen else None
     uniform = load_plan(UNIFORM)
-    half = _uniform_half(uniform)
+    half = _uniform_half()
     like = ReadingSettings.like(uniform)
     settings = integration_choices(like, INTEGRATIONS)
     results: dict[str, list[dict[str, Any]]] = {}

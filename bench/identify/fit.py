@@ -328,7 +328,8 @@ def _identified(record: FitInput, result: FitResult, spec: ModelSpec, lik: Likel
     return replace(result, identifiability=ident, labels=spec.labels, outliers=_outliers(record, result, spec, lik))
 
 
-def _zscores(spec: ModelSpec, lik: Any, x: np.ndarray, scales_from: Any = None) -> np.ndarray:
+def _zscores(spec: ModelSpec, lik: GaussianReadings, x: np.ndarray,
+             scales_from: GaussianReadings | None = None) -> np.ndarray:
     """Each calibrated reading's residual from the model at ``x`` (its shared scales profiled on
     the readings of ``scales_from``, default ``lik``, and applied) over its own standard
     uncertainty (the covariance's diagonal less the shared scales)."""
@@ -347,9 +348,9 @@ def _outliers(record: FitInput, result: FitResult, spec: ModelSpec, lik: Likelih
     every model tried: the optimum and, when some are, the refit without them (a gross reading
     drags the optimum -- and a wavelength's shared scale -- so that its neighbours look far too):
     each with its index, geometry, wavelength, value and z (at the refit), largest |z| first."""
-    rows = getattr(lik, "rows", None)
-    if rows is None or not hasattr(lik, "predictions"):
+    if not isinstance(lik, GaussianReadings):  # only calibrated readings have a residual per reading
         return ()
+    rows = lik.rows
     zs = _zscores(spec, lik, result.values)
     far = np.abs(zs) > OUTLIER_Z
     if far.any() and isinstance(record, BSDFRecord) and np.count_nonzero(~far) > len(spec.free):
@@ -357,7 +358,7 @@ def _outliers(record: FitInput, result: FitResult, spec: ModelSpec, lik: Likelih
         measured = np.flatnonzero(np.isfinite(t["value"].to_numpy(float)))
         t.loc[t.index[measured[far]], "value"] = np.nan
         try:
-            kept = likelihood_for(BSDFRecord(t, dict(record.meta)))
+            kept = GaussianReadings(BSDFRecord(t, dict(record.meta)))  # the same readings, the far ones out
             refit = _fit(spec, kept, result.confidence, "hessian", 0, 0)
             zs = _zscores(spec, lik, refit.values, scales_from=kept)
             far &= np.abs(zs) > OUTLIER_Z
@@ -369,7 +370,7 @@ def _outliers(record: FitInput, result: FitResult, spec: ModelSpec, lik: Likelih
     return tuple(sorted(out, key=lambda o: -abs(o["z"])))
 
 
-def _model_jacobian(spec: ModelSpec, lik: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _model_jacobian(spec: ModelSpec, lik: GaussianReadings, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(predictions, their central-difference derivative) at ``x`` of a Gaussian likelihood."""
     mu = lik.predictions(spec.specimen(x))
     jac = np.empty((len(mu), len(x)))

@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from bench.core.errors import InputError, SpecimenError
-from virtual.specimens import DeclaredSpecimen, Specimen, parse_specimen, specimen_family
+from virtual.specimens import DeclaredSpecimen, Param, Specimen, parse_specimen, specimen_family
 from virtual.specimens.strings import known_specimen_names
 
 __all__ = ["FreeParameter", "ModelSpec", "parse_model_spec"]
@@ -115,7 +115,7 @@ def _number(token: str, text: str, where: str) -> float:
     return v
 
 
-def _free(token: str, value: str, p: Any) -> FreeParameter:
+def _free(token: str, value: str, p: Param) -> FreeParameter:
     """``?`` or ``?lo:hi`` for declared parameter ``p``."""
     if p.choices:
         raise InputError(f"model token {token!r}: {p.name} is a choice ({', '.join(p.choices)}), it cannot be fitted")

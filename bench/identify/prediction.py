@@ -56,7 +56,7 @@ def cone_nodes(geometry: Geometry, aperture_deg: float, white: Geometry | None =
     return dirs, w_cos / cos_axis * white_factor(white, aperture_deg)
 
 
-def predicted_brdf(specimen: Any, geometries: Sequence[Geometry], wavelengths: np.ndarray,
+def predicted_brdf(specimen: Specimen, geometries: Sequence[Geometry], wavelengths: np.ndarray,
                    aperture_deg: float = 0.0, white: Geometry | None = None) -> np.ndarray:
     """The calibrated BRDF (1/sr) a bench reads at each geometry and wavelength,
     ``(points, wavelengths)``: :func:`cone_nodes` applied to the specimen's density."""
