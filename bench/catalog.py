@@ -86,10 +86,18 @@ def scan_ids(store: Any) -> dict[str, int]:
 LEDGER = "goniobench-served.json"
 
 
+#: the layout of the documents :func:`run_documents` writes; a kept copy written in another
+#: layout (by an older goniobench: events in plan-index order, ``num_points`` counting rows) is
+#: written again, as a copy of an older state of the run is
+DOCUMENTS_LAYOUT = 2
+
+
 def served_state(row: dict[str, Any]) -> list[Any]:
     """What a served copy of a run must match (a row of ``RunStore.runs()``): status, reason,
-    points done and finish time -- a resumed run that ended again differs."""
-    return [row.get("status"), row.get("reason"), row.get("points_done"), row.get("finished_utc")]
+    points done and finish time -- a resumed run that ended again differs -- and the layout of
+    its documents (:data:`DOCUMENTS_LAYOUT`)."""
+    return [row.get("status"), row.get("reason"), row.get("points_done"), row.get("finished_utc"),
+            DOCUMENTS_LAYOUT]
 
 
 def _catalog_key(uid: Any) -> bool:
@@ -227,6 +235,9 @@ def _point_events(table: Any, units: dict[str, str], times: dict[int, float], t_
         i = idx[k]
         t = times.get(int(i), t_end) if i is not None and i == i else t_end
         events.append((data, float(t)))
+    # in the order measured, as a RunEngine emits them (seq_num and time rise together): a runner
+    # may measure the plan's points in another order than their index (stable for equal times)
+    events.sort(key=lambda e: e[1])
     return data_keys, events
 
 
@@ -266,11 +277,15 @@ def run_documents(store: Any, run_id: str, scan_id: int | None = None) -> Iterat
     ident = record_provenance(meta)
     specimens = [s for s in dict.fromkeys(table.get("specimen", [])) if s is not None and s == s]
     t0 = float(info.get("created_epoch") or time.time())
+    n = len(table)
+    t_end = float(info.get("finished_epoch") or t0)
+    source = column_sources(meta)
+    points = _point_events(table, units, _point_times(store, run_id), t_end, source) if n else None
     start_md = {"goniobench": json.loads(json.dumps({**meta, "column_units": units}, default=json_default)),
                 "specimen": record_identity(meta)["specimen"] or "; ".join(map(str, specimens)) or None,
                 "column_units": units, "kind": info["kind"], "status": info["status"],
                 "bench": ident.get("bench"), "body": ident.get("body"), "plan_name": ident.get("plan"),
-                "num_points": int(len(table)), "run_id": run_id}
+                "num_points": len(points[1]) if points is not None else n, "run_id": run_id}  # events, as Bluesky counts
     bluesky_start = meta.get("bluesky_start") if isinstance(meta.get("bluesky_start"), dict) else {}
     if isinstance(bluesky_start.get("scan_id"), int):
         start_md["scan_id"] = bluesky_start["scan_id"]
@@ -280,10 +295,6 @@ def run_documents(store: Any, run_id: str, scan_id: int | None = None) -> Iterat
         start_md["scan_id"] = scan_ids(store).get(run_id)
     run = compose_run(uid=run_uid(info), time=t0, metadata={k: v for k, v in start_md.items() if v is not None})
     yield "start", run.start_doc
-    n = len(table)
-    t_end = float(info.get("finished_epoch") or t0)
-    source = column_sources(meta)
-    points = _point_events(table, units, _point_times(store, run_id), t_end, source) if n else None
     if points is not None:  # one event per point, stamped when it was measured
         data_keys, events = points
         desc = run.compose_descriptor(name="primary", data_keys=data_keys)
