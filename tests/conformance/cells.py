@@ -33,7 +33,7 @@ BENCHES = ROOT / "fixtures" / "benches"
 BODIES = ("virtual", "emulated", "real")
 CALIBRATIONS = ("once", "file", "repeated", "run", "foreign-file")
 DARKS = ("none", "once", "per-incidence")
-INTERFACES = ("scan", "resume", "count", "list_scan", "grid_scan", "adaptive", "sweep")
+INTERFACES = ("scan", "resume", "count", "list_scan", "grid_scan", "sequential", "sweep")
 EXPOSURES = ("nominal", "near", "over")
 #: the in-plane plan every scan-like cell measures (10 points, 3 bands)
 PLAN_GRID = {"theta_i": [30, 50], "theta_r": {"start": -10, "stop": 70, "step": 20}}

@@ -182,7 +182,7 @@ def run_cell(cell: Cell, workdir: Path) -> Outcome:
         if cell.interface in ("count", "list_scan", "grid_scan"):
             import bench.bluesky.connect  # noqa: F401 -- imported before the spy wraps its load_bench
         with MotionSpy() as spy:
-            if cell.interface in ("scan", "adaptive"):
+            if cell.interface in ("scan", "sequential"):
                 _run_scan(cell, bench_toml, workdir, outcome)
             elif cell.interface == "resume":
                 _run_resume(cell, bench_toml, workdir, outcome)
@@ -211,15 +211,15 @@ def _cli_outcome(outcome: Outcome, code: int, out: str, err: str) -> None:
         outcome.refusal = lines[0] if lines else ""
 
 
-#: the bench-time budget of a sequential session, interface "adaptive" (docs/design.md's example spends 4.33 s)
-ADAPTIVE_SECONDS = 4.5
+#: the bench-time budget of a sequential session (docs/design.md's example spends 4.33 s)
+SEQUENTIAL_SECONDS = 4.5
 
 
 def _run_scan(cell: Cell, bench_toml: Path, workdir: Path, outcome: Outcome) -> None:
     plan = write_toml(workdir / "plan.toml", plan_dict(cell))
-    if cell.interface == "adaptive":  # designed steps read every point as the cell's plan does
+    if cell.interface == "sequential":  # designed steps read every point as the cell's plan does
         argv = ["scan", "--sequential", SPECIMENS[cell.specimen]["model"], "--bench", bench_toml, *_body_args(cell),
-                "--budget-seconds", ADAPTIVE_SECONDS, "--integration-s", plan_settings(cell)[0], "--like", plan,
+                "--budget-seconds", SEQUENTIAL_SECONDS, "--integration-s", plan_settings(cell)[0], "--like", plan,
                 "--store", outcome.store, "--seed", cell.seed, "--json", "-q"]
     else:
         argv = ["scan", plan, "--bench", bench_toml, *_body_args(cell), "--store", outcome.store,

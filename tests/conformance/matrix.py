@@ -23,7 +23,7 @@ from harness import BODIES, CALIBRATIONS, DARKS, EXPOSURES, Cell
 from truth import SPECIMENS
 
 SPECIMEN_NAMES = tuple(SPECIMENS)
-BENCH_INTERFACES = ("scan", "resume", "count", "list_scan", "grid_scan", "adaptive")
+BENCH_INTERFACES = ("scan", "resume", "count", "list_scan", "grid_scan", "sequential")
 SEEDS = (11, 12, 13)
 EXPOSURE_CYCLE = ("nominal", "near", "over", "nominal", "near")
 
@@ -49,7 +49,7 @@ def _visible(cell: Cell) -> Cell:
 def _interface_cells() -> list[Cell]:
     """Every interface x body x specimen; calibration (period 4; 2 on the real body, which the
     calibration block refuses a white measured during the run), darks (period 3 of k // 4) and
-    exposure (period 5, over full scale once in it; adaptive sessions nominal) rotate so their pairs
+    exposure (period 5, over full scale once in it; sequential sessions nominal) rotate so their pairs
     are not aliased."""
     cells, k = [], 0
     for interface in BENCH_INTERFACES:
@@ -57,7 +57,7 @@ def _interface_cells() -> list[Cell]:
             for specimen in SPECIMEN_NAMES:
                 # the real body has no operator at a terminal: mostly calibrated from a file or a run
                 cal = _pick(("file", "run") if body == "real" else ("once", "file", "repeated", "run"), k)
-                exposure = "nominal" if interface == "adaptive" else _pick(EXPOSURE_CYCLE, k)
+                exposure = "nominal" if interface == "sequential" else _pick(EXPOSURE_CYCLE, k)
                 cells.append(_visible(Cell(specimen, body, cal, _pick(DARKS, k // 4), interface, exposure, seed=k + 1)))
                 k += 1
     cells += [Cell(s, "virtual", "once", "once", "sweep", "nominal", seed=21) for s in SPECIMEN_NAMES]
@@ -80,7 +80,7 @@ def _exposure_cells() -> list[Cell]:
 
 
 #: a sequential design at the edge of full scale (a designed step must not saturate)
-ADAPTIVE_CELLS = [Cell("plastic", "emulated", "file", "per-incidence", "adaptive", "near", seed=50)]
+SEQUENTIAL_CELLS = [Cell("plastic", "emulated", "file", "per-incidence", "sequential", "near", seed=50)]
 INTERFACES = _interface_cells()
 CALIBRATION = _calibration_cells()
 EXPOSURE = _exposure_cells()
@@ -89,7 +89,7 @@ SEED_GROUPS = {(b, s): [Cell(s, b, "file" if b == "real" else "once", "once", "s
                         for x in SEEDS] for b in BODIES for s in SPECIMEN_NAMES}
 FITS = [Cell(s, b, "file" if b == "real" else "once", "once", "scan", "nominal", seed=300 + k, fit=True)
         for k, (b, s) in enumerate((b, s) for b in BODIES for s in SPECIMEN_NAMES)]
-CELLS = INTERFACES + CALIBRATION + EXPOSURE + FITS + ADAPTIVE_CELLS
+CELLS = INTERFACES + CALIBRATION + EXPOSURE + FITS + SEQUENTIAL_CELLS
 N_RUNS = len(CELLS) + sum(len(g) for g in SEED_GROUPS.values())
 
 

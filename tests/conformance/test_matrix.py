@@ -5,7 +5,7 @@ The fast slice (``FAST``, in ``make test``) runs five representative cells and t
 checks: about 27 s of test time on 2 loaded cores. The whole matrix (``@pytest.mark.slow``:
 ``make test-slow`` / ``make test-all``) holds 139 cells (57 interface x body x specimen, 3
 sweeps among them; 45 calibration x darks x body; 27 exposure x body x specimen; 9 fits; 1
-adaptive session at the edge of full scale) and 9 seed groups of 3 scans: 166 runs, about 17 min
+sequential session at the edge of full scale) and 9 seed groups of 3 scans: 166 runs, about 17 min
 (1020 s for this file, 2 loaded cores). A cell a broken seam still fails is a strict xfail naming
 the seam (:func:`matrix.seam`): none today; the mark goes when the seam is fixed.
 """
