@@ -34,6 +34,8 @@ from bench.core.outputs import save_figure
 
 if TYPE_CHECKING:  # for the annotations only: the study imports its machinery when it runs, as measure() does
     from bench.identify.model_spec import ModelSpec
+    from matplotlib.figure import Figure
+
     from bench.plans import Plan
 
 __all__ = ["METHODS", "SEEDS", "UNIFORM", "measure", "summary", "rows", "header", "plot_study", "truth_of",
@@ -250,7 +252,7 @@ def describe(m: Mapping[str, Any]) -> str:
             f"{','.join(map(str, m['seeds']))}, CPU {m['cpu'].get('model', '?')}")
 
 
-def plot_study(m: Mapping[str, Any], path: str | Path) -> Any:
+def plot_study(m: Mapping[str, Any], path: str | Path) -> Figure:
     """One panel per free parameter: 95 % interval width (log when they span a factor > 3) against bench minutes, one marker per
     method at the median over seeds, bars the seeds' range on both axes, legend below. Returns the
     saved figure (closed)."""

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence, TypeAlias
+from typing import TYPE_CHECKING, Any, Mapping, Sequence, TypeAlias
 
 import numpy as np
 
@@ -52,6 +52,11 @@ from bench.identify.scales import SharedScales, split_scales
 from virtual.beam import Beam
 from virtual.collector import SCHEMES, Collector
 from virtual.specimens import Specimen
+
+if TYPE_CHECKING:  # annotations only: the goniophotometer (its kernels) is imported where a fit counts rays
+    import pandas as pd
+
+    from virtual.goniophotometer import VirtualGoniophotometer
 
 __all__ = ["Likelihood", "GonioCounts", "SpectroCounts", "GaussianReadings", "likelihood_for",
            "record_covariance", "FitInput", "multinomial_residuals", "CRN_SEED", "RAY_FACTOR"]
@@ -187,7 +192,7 @@ class GonioCounts(Likelihood):
             start += nb + 1
         self.groups = tuple(groups)
 
-    def _instrument(self, specimen: Specimen, wl: float, n: int) -> Any:
+    def _instrument(self, specimen: Specimen, wl: float, n: int) -> VirtualGoniophotometer:
         from virtual.goniophotometer import VirtualGoniophotometer
 
         return VirtualGoniophotometer(specimen, collector=self.collector, beam=self.beam, wavelengths=(wl,),
@@ -370,7 +375,7 @@ def reading_rows(record: FitInput) -> list[dict[str, Any]]:
     return rows
 
 
-def _measured(record: BSDFRecord) -> Any:
+def _measured(record: BSDFRecord) -> pd.DataFrame:
     """The rows of a BSDF record that hold a reading: a masked reading (saturated, or refused by
     the calibration: its value NaN) carries no information and is left out, in table order."""
     t = record.table
