@@ -26,7 +26,7 @@ import pytest
 
 mi = pytest.importorskip("mitsuba")
 
-from virtual.cubature import adaptive_rectangle  # noqa: E402
+from virtual.cubature import integrate_rectangle  # noqa: E402
 from virtual.specimens import parse_specimen  # noqa: E402
 from virtual.specimens.microfacet import _refracted  # noqa: E402
 from virtual.specimens.physics import np_g2_over_g1, vndf_expectation  # noqa: E402
@@ -79,7 +79,7 @@ def _mitsuba_albedo(theta_deg: float) -> float:
         ev = _eval(spec_bsdf, wi, d).reshape(np.shape(xs))
         return math.pi * np.where(ct > 0, ev / np.maximum(ct, 1e-300), 0.0)
 
-    spec, _, _ = adaptive_rectangle(integrand, start=(8, 16), order=6, rtol=1e-7, atol=1e-8)
+    spec, _, _ = integrate_rectangle(integrand, start=(8, 16), order=6, rtol=1e-7, atol=1e-8)
     return diffuse + float(spec)
 
 

@@ -27,7 +27,7 @@ from scipy import stats
 
 from virtual.beam import Beam
 from virtual.collector import Collector
-from virtual.cubature import adaptive_rectangle
+from virtual.cubature import integrate_rectangle
 from virtual.engine import gonio_counts, gonio_counts_spectral, measurement_seed
 from virtual.kernels import jit
 from virtual.kernels.f32 import DOUBT, GRID, in_doubt32
@@ -200,7 +200,7 @@ def _reflectance_by_quadrature(spec: str, theta_deg: float) -> float:
         d = np.stack([st * np.cos(ph), st * np.sin(ph), ct], axis=-1)
         return math.pi * np.asarray(sp.bsdf(wi, d, 550.0), dtype=float)
 
-    value, _, _ = adaptive_rectangle(integrand, start=(8, 16), order=6, rtol=1e-8, atol=1e-20)
+    value, _, _ = integrate_rectangle(integrand, start=(8, 16), order=6, rtol=1e-8, atol=1e-20)
     return float(value)
 
 

@@ -1,4 +1,5 @@
-"""Adaptive tensor Gauss-Legendre cubature on rectangles, with an error estimate that is checked.
+"""Tensor Gauss-Legendre cubature on rectangles, cells refined until an error estimate that is
+checked passes (what numerical texts call adaptive cubature).
 
 One primitive, used for every integral over a parameter square that the virtual instruments
 certify (the visible-normal expectations of :mod:`virtual.specimens.physics`, the independent
@@ -20,7 +21,7 @@ import numpy as np
 
 from bench.core.errors import SimulationError
 
-__all__ = ["gauss_rule", "adaptive_rectangle"]
+__all__ = ["gauss_rule", "integrate_rectangle"]
 
 
 @lru_cache(maxsize=16)
@@ -51,12 +52,12 @@ def _split(cells: np.ndarray) -> np.ndarray:
     return kids.reshape(-1, 4)
 
 
-def adaptive_rectangle(func: Callable[[np.ndarray, np.ndarray], np.ndarray],
+def integrate_rectangle(func: Callable[[np.ndarray, np.ndarray], np.ndarray],
                        bounds: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0),
                        start: tuple[int, int] = (4, 4), order: int = 6, rtol: float = 1e-10,
                        atol: float = 1e-12, max_level: int = 30,
                        max_cells: int = 400_000) -> tuple[float, float, int]:
-    """``int int func(u, v) du dv`` over ``bounds = (u0, u1, v0, v1)``, adaptively.
+    """``int int func(u, v) du dv`` over ``bounds = (u0, u1, v0, v1)``, refining cells until they converge.
 
     Parameters
     ----------

@@ -39,7 +39,7 @@ import numpy as np
 
 from bench.core.errors import InputError, SimulationError
 from virtual.collector import Collector
-from virtual.cubature import adaptive_rectangle, gauss_rule
+from virtual.cubature import integrate_rectangle, gauss_rule
 from virtual.specimens import Specimen
 
 __all__ = ["PatchIntegrals", "integrate_patches",
@@ -304,7 +304,7 @@ def _hemisphere_albedo(specimen: Specimen, wi: np.ndarray, wl: float) -> tuple[f
             ph = 2.0 * math.pi * v
             d = np.stack([st * np.cos(ph), st * np.sin(ph), side * ct], axis=-1)
             return math.pi * np.asarray(specimen.bsdf(wi, d, wl), dtype=float)  # cos dw = pi dx dv
-        v, e, _ = adaptive_rectangle(integrand, start=(8, 16), order=6, rtol=1e-10, atol=1e-12)
+        v, e, _ = integrate_rectangle(integrand, start=(8, 16), order=6, rtol=1e-10, atol=1e-12)
         total, err = total + v, err + e
     return total, err
 

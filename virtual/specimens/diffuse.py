@@ -14,7 +14,7 @@ import numpy as np
 from bench.core.errors import SpecimenError
 from virtual.model_ids import MODEL_LAMBERT, MODEL_OREN_NAYAR, MODEL_PHONG
 from virtual.specimens.declare import DeclaredSpecimen, Param, register_specimen
-from virtual.cubature import adaptive_rectangle
+from virtual.cubature import integrate_rectangle
 from virtual.specimens.physics import local, mirror
 
 __all__ = ["Lambertian", "OrenNayar", "Phong"]
@@ -177,7 +177,7 @@ class Phong(DeclaredSpecimen):
             z = ca * r[2] + sa * (np.cos(ph) * t1[2] + np.sin(ph) * t2[2])
             return np.maximum(z, 0.0)
 
-        value, err, _ = adaptive_rectangle(integrand, start=(4, 8), order=6, rtol=1e-10, atol=1e-12)
+        value, err, _ = integrate_rectangle(integrand, start=(4, 8), order=6, rtol=1e-10, atol=1e-12)
         return float(kd + ws * value), float(ws * err)
 
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:

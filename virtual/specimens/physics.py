@@ -21,7 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from virtual.cubature import adaptive_rectangle
+from virtual.cubature import integrate_rectangle
 from virtual.fresnel import np_fresnel_conductor, np_fresnel_dielectric
 
 __all__ = ["np_fresnel_conductor", "np_fresnel_dielectric", "np_ggx_d", "np_ggx_n", "np_ggx_reflection",
@@ -169,7 +169,7 @@ def vndf_expectation(wi: np.ndarray, ax: float, ay: float, g, rtol: float = 1e-9
         m, jac = vndf_normals(w, ax, ay, u, t)
         return np.asarray(g(m), dtype=float) * jac
 
-    value, err, _ = adaptive_rectangle(integrand, start=(8, 4), order=6, rtol=rtol, atol=atol)
+    value, err, _ = integrate_rectangle(integrand, start=(8, 4), order=6, rtol=rtol, atol=atol)
     return value, err
 
 
