@@ -32,7 +32,7 @@ import numpy as np
 
 from bench.core.errors import InputError, SpecimenError
 from bench.core.records import BSDFRecord
-from bench.identify.gof import DRAWS, calibrated_p_value
+from bench.identify.gof import DRAWS, calibrated_p_value, interval_inflation
 from bench.identify.identifiability import Identifiability, flat_profiles, identifiability
 from bench.identify.likelihood import FitInput, GaussianReadings, Group, Likelihood, likelihood_for
 from bench.identify.model_spec import ModelSpec, parse_model_spec
@@ -390,11 +390,27 @@ def _calibrated(result: FitResult, spec: ModelSpec, lik: Likelihood) -> FitResul
         return result
     noise = lik.noise
     mu, jac = _model_jacobian(spec, lik, result.values)
-    p = calibrated_p_value(result.chi2, jac, mu[:, None] * lik.scales.loadings, noise)
+    scales = mu[:, None] * lik.scales.loadings
+    p = calibrated_p_value(result.chi2, jac, scales, noise)
     if p is None:
         return result
-    return replace(result, p_value=p, p_value_method=f"parametric bootstrap of estimated Type A variances "
-                                                      f"({DRAWS} draws, fixed seed)")
+    return replace(_widened(result, spec, interval_inflation(jac, scales, noise)), p_value=p,
+                   p_value_method=f"parametric bootstrap of estimated Type A variances ({DRAWS} draws, fixed seed)")
+
+
+def _widened(result: FitResult, spec: ModelSpec, factor: np.ndarray | None) -> FitResult:
+    """``result`` with each interval (inside the bounds), standard error and the covariance stretched
+    about the estimate by ``factor``: the spread of an estimate weighted by estimated Type A
+    variances over the error those weights report (:func:`bench.identify.gof.interval_inflation`)."""
+    if factor is None:
+        return result
+    params = {}
+    for i, (name, p) in enumerate(result.parameters.items()):
+        f, (lo, hi) = float(factor[i]), p.ci
+        ci = (max(float(spec.lower[i]), p.value - f * (p.value - lo)),
+              min(float(spec.upper[i]), p.value + f * (hi - p.value)))
+        params[name] = replace(p, ci=ci, stderr=p.stderr * f)
+    return replace(result, parameters=params, covariance=result.covariance * np.outer(factor, factor))
 
 
 def _fit(spec: ModelSpec, lik: Likelihood, confidence: float, interval: str, starts: int, seed: int,
