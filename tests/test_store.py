@@ -404,3 +404,24 @@ def test_sigkill_mid_scan_leaves_a_complete_prefix_and_the_run_resumes(tmp_path)
         with pytest.raises(StoreError, match="already has point"):
             s.add_point(rid, k - 1, GEO, _rows(0))
         s.set_status(rid, "interrupted", "killed")
+
+
+def test_leaving_a_with_block_closes_the_store_and_checkpoints_its_file(tmp_path):
+    """``with RunStore(...)`` closes the connection on leaving (the class's own ``close``, not a
+    base's no-op under the same name), so the file alone -- copied, without its WAL -- holds the
+    runs (a leaked connection kept them in the WAL: a copy was "an empty file")."""
+    import shutil
+    import sqlite3
+
+    path = tmp_path / "s.sqlite"
+    with RunStore(path) as s:
+        rid = s.create_run("scan", n_planned=1)
+        s.set_status(rid, "completed")
+    with pytest.raises(sqlite3.ProgrammingError):
+        s._db.execute("SELECT 1")  # closed
+    copy = tmp_path / "copy.sqlite"
+    shutil.copy(path, copy)  # the file alone
+    with RunStore(copy, create=False, readonly=True) as c:
+        assert [r["run_id"] for r in c.runs()] == [rid]
+    for name in ("close", "runs", "create_run"):  # every public method wrapped around its own definition
+        assert getattr(RunStore, name).__wrapped__.__qualname__.split(".")[0] in ("RunStore", "RunReader"), name

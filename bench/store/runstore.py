@@ -50,10 +50,15 @@ def _typed_errors(cls: type) -> type:
 
         return method
 
+    # each public name's definition as the class resolves it (its own over its bases'), collected
+    # before any is replaced: wrapping a base's method first would hide the class's own
+    methods = {}
     for klass in reversed(cls.__mro__[:-1]):
-        for name, fn in list(vars(klass).items()):
+        for name, fn in vars(klass).items():
             if not name.startswith("_") and callable(fn) and not isinstance(fn, (staticmethod, classmethod, type)):
-                setattr(cls, name, wrap(fn))
+                methods[name] = fn
+    for name, fn in methods.items():
+        setattr(cls, name, wrap(fn))
     return cls
 
 
