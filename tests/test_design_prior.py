@@ -111,3 +111,35 @@ def test_power_the_design_at_the_guess_alone_loses_the_gain_far_from_it():
                              spread=1.0)
     assert m["designs"]["designed"]["prior_points"] == 1
     assert max(_ratios(m)[7].values()) > 0.7, _ratios(m)
+
+
+LEAF = "leaf:roughness=?,eta=?"
+
+
+# ~8 min on 2 cores (more when loaded): the leaf's cuticle albedo is rebuilt for every roughness and index a
+# design or a fit tries (a design over 9 prior points, 2 emulated scans and fits)
+@pytest.mark.slow
+def test_a_leafs_cuticle_at_the_default_prior_the_design_narrows_both_but_the_index_only_to_about_0_7x():
+    """A healthy leaf's angular parameters (cuticle roughness 0.2, wax index 1.45; the PROSPECT-D
+    body fixed) at the default prior (0.3, 1.5), seed 7. Measured (AMD EPYC, 2 loaded cores),
+    designed / uniform fitted widths per seed 7, 8, 9: roughness 0.46, 0.45, 0.45; index 0.72,
+    0.71, 0.70 -- the 0.7x the plastic cases reach is NOT reached on the index. The averaged D
+    design is D-efficient (Cramer-Rao at the truth: 0.44 x 0.72, the D design at the truth itself
+    0.51 x 0.59) but trades the index for the roughness; at the guess alone, a prior range x2,
+    16 prior points or the guess weighted 0.3-0.5 gave the index 0.66-0.73x (Cramer-Rao at the
+    truth), and the A-optimal design averaged over the prior 0.71-0.74x fitted. This pins what
+    the design does buy: both narrower, the roughness by more than 0.7x, and the plan header's
+    Cramer-Rao widths at the guess within 2x of the fitted ones (measured 1.9x and 1.6x,
+    pessimistic: the guess is rougher than the leaf)."""
+    m = design_study.measure(LEAF, _emulated("leaf:healthy,roughness=0.2,eta=1.45"), seeds=[7],
+                             methods=("uniform", "designed"))
+    d = _ratios(m)[7]
+    assert d["roughness"] <= 0.7 and d["eta"] < 0.8, d
+    fitted = {p: m["results"]["designed"][0]["fit"][p][2] - m["results"]["designed"][0]["fit"][p][1] for p in m["parameters"]}
+    predicted = m["designs"]["designed"]["predicted_widths"]
+    assert all(0.5 <= predicted[p] / fitted[p] <= 2.0 for p in m["parameters"]), (predicted, fitted)
+    # the estimates within 0.5 % of the truth; the intervals need not hold it: on this spectral
+    # specimen the fits are off by up to 3e-4 in roughness, 3-12 of their standard errors (not
+    # resolved; likely the fit's prediction at the band centre against the emulator's band average)
+    for runs in m["results"].values():
+        assert all(abs(runs[0]["fit"][p][0] - t) < 5e-3 * t for p, t in m["truth"].items()), runs[0]["fit"]
