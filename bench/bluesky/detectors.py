@@ -168,7 +168,7 @@ class SpectrometerDevice(_SpectralReadable):
             self.spectrum_std, self._set_std = _array(self._hw, self._n, "counts")
             self.saturated, self._set_saturated = _array(self._hw, self._n, None, np.bool_)
             self.dark, self._set_dark = hw_signal_r(bool, False, self._hw)
-            self.n_saturated, self._set_n_saturated = hw_signal_r(int, 0, self._hw)
+            self.n_saturated, self._set_n_saturated = hw_signal_r(int, 0, self._hw, units="pixels")
             if mover is not None:  # where it read: a record needs the geometry of every reading
                 _geometry_signals(self, self._geometry_setters)
         with self.add_children_as_readables(Format.HINTED_UNCACHED_SIGNAL):
@@ -227,8 +227,8 @@ class ReflectanceDevice(_SpectralReadable):
         with self.add_children_as_readables(Format.UNCACHED_SIGNAL):
             self.brdf, self._set_brdf = _array(self._hw, self._n, "1/sr")
             self.brdf_std, self._set_brdf_std = _array(self._hw, self._n, "1/sr")
-            self.reflectance_factor, self._set_rf = _array(self._hw, self._n, None)
-            self.reflectance_factor_std, self._set_rf_std = _array(self._hw, self._n, None)
+            self.reflectance_factor, self._set_rf = _array(self._hw, self._n, "1")
+            self.reflectance_factor_std, self._set_rf_std = _array(self._hw, self._n, "1")
             self.masked, self._set_masked = _array(self._hw, self._n, None, np.bool_)
             self.signal, self._set_signal = _array(self._hw, self._n, "counts")
             self.signal_std, self._set_signal_std = _array(self._hw, self._n, "counts")
@@ -239,8 +239,9 @@ class ReflectanceDevice(_SpectralReadable):
             self._geometry_setters: dict[str, Any] = {}
             _geometry_signals(self, self._geometry_setters)
         with self.add_children_as_readables(Format.HINTED_UNCACHED_SIGNAL):
-            self.rf_mean, self._set_rf_mean = hw_signal_r(float, math.nan, self._hw, precision=4)
-            self.rf_mean_std, self._set_rf_mean_std = hw_signal_r(float, math.nan, self._hw, precision=4)
+            self.rf_mean, self._set_rf_mean = hw_signal_r(float, math.nan, self._hw, units="1", precision=4)
+            self.rf_mean_std, self._set_rf_mean_std = hw_signal_r(float, math.nan, self._hw, units="1",
+                                                                   precision=4)
         with self.add_children_as_readables(Format.CONFIG_SIGNAL):
             self.integration_s, self.averages = self.settings.signals(self._hw)
             self.dark_mode = hw_signal_rw(str, self.settings.dark, self._hw, getter=lambda: self.settings.dark,
