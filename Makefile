@@ -41,16 +41,20 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	  >/dev/null 2>&1 || true
 	touch $(STAMP)
 
-# The project with every extra its tests use, its bytecode (written even where
-# PYTHONDONTWRITEBYTECODE is set, so commands do not recompile our sources each run) and every
-# numba kernel compiled into the on-disk cache, two processes at a time (seconds when current).
+# The project with every extra its tests use, the kernel code generated from the laws (make
+# kernels), its bytecode (written even where PYTHONDONTWRITEBYTECODE is set, so commands do not
+# recompile our sources each run) and every numba kernel compiled into the on-disk cache, two
+# processes at a time (seconds when current).
 install: $(STAMP)
+	@$(BIN)/python -m virtual.kernels.generate >/dev/null
 	@$(BIN)/python -m compileall -q bench virtual drivers compare >/dev/null
 	$(BIN)/python -m bench.compilation
 
-# The kernel code written from the scattering laws (virtual/kernels/laws/*.py): their float32 twins,
-# every kernel path's dispatch and the numba-free law table. Run after adding or editing a law;
-# tests/test_kernels_generated.py fails while the checked-in files are stale.
+# The kernel code written from the scattering laws (virtual/kernels/laws/*.py): their float32 twins
+# and every kernel path's dispatch -- build products, not checked in (git ignores them: a copy per
+# precision is not a second source; importing virtual.kernels also writes them when missing or
+# stale) -- and the checked-in numba-free law table. Writes only the files whose text differs. Run
+# after adding or editing a law; tests/test_kernels_generated.py fails while the table is stale.
 kernels: | $(STAMP)
 	$(BIN)/python -m virtual.kernels.generate
 

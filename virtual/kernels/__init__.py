@@ -9,12 +9,14 @@ Modules (each owns one kind of kernel; none holds Python-side objects):
 ``patch_lookup`` the exact and the vectorizable patch lookup of the collector sphere
 ``microfacet``  Fresnel factors, GGX visible normals, masking ratios, frames
 ``laws``        the scattering laws written once (a package: one module per law, its float64 source;
-                its contract in ``laws/__init__.py``); ``make kernels`` writes the rest from them:
-``laws32``      (generated) each law's float32 twin: its source on ``precision32``
-``law_dispatch`` (generated) each law's branch of every kernel path: ray by ray, float64 block,
-                float32 block, the float32 kernel's float64 second look
-``generate``    the generator of ``laws32``, ``law_dispatch`` and :mod:`virtual.law_table`
-                (``python -m virtual.kernels.generate``, ``make kernels``; ``--check``)
+                its contract in ``laws/__init__.py``); ``lawcode`` writes the rest from them:
+``laws32``      (generated, not checked in) each law's float32 twin: its source on ``precision32``
+``law_dispatch`` (generated, not checked in) each law's branch of every kernel path: ray by ray,
+                float64 block, float32 block, the float32 kernel's float64 second look
+``lawcode``     the writer of ``laws32``, ``law_dispatch`` and :mod:`virtual.law_table`: the first
+                two when missing or stale as this package is imported (build products, like a
+                compiled file), all three by ``make install`` and ``make kernels``
+``generate``    its command (``python -m virtual.kernels.generate``, ``make kernels``; ``--check``)
 ``precision64``, ``precision32`` the constants and helpers a law computes with, per precision
 ``scatter``     the ``scatter`` dispatch, one branch per model (the laws' through ``law_dispatch``),
                 and the hand-written float64 forms of the models that are not laws yet
@@ -53,8 +55,9 @@ among numba's cache locators -- gives every marked function a source stamp that 
 its own file and of every project module that file imports, directly or through others (the
 kernels of ``tests/`` and ``benchmarks/`` included): a kernel can call only what its module
 imports, so an edit of a file it cannot reach leaves its cache valid, and an edit of one it can
-makes the cached index stale -- numba then recompiles and overwrites it: no file is ever deleted,
-nothing happens at import time beyond registering the locator. Where the cache lives is numba's
+makes the cached index stale -- numba then recompiles and overwrites it: no file is ever deleted.
+Importing the package registers the locator and writes the generated law code that is missing
+or stale (:func:`virtual.kernels.lawcode.ensure_built`: nothing when current); nothing else. Where the cache lives is numba's
 usual choice (``NUMBA_CACHE_DIR`` if set, else ``__pycache__`` beside the source, else the
 user-wide cache directory).
 
@@ -80,7 +83,7 @@ from typing import Any, Callable
 import numba
 from numba.core import caching
 
-from virtual.kernels import vector_width
+from virtual.kernels import lawcode, vector_width
 
 __all__ = ["jit", "FASTMATH", "KernelSourceLocator", "kernel_dependencies", "dependency_digest"]
 
@@ -301,3 +304,8 @@ def jit(fn: Callable | None = None, /, **options: Any) -> Any:
         return numba.njit(cache=True, fastmath=set(FASTMATH), **options)(f)
 
     return compile_ if fn is None else compile_(fn)
+
+
+# The laws' float32 twins and dispatch are build products (not checked in): written here, after
+# jit exists (the laws import it), when a fresh checkout lacks them or a law changed since.
+lawcode.ensure_built()

@@ -28,10 +28,13 @@ A law module states, as module constants and functions:
                     ``given`` with ``UNIFORMS`` draws of ``s``
 
 and computes only with the names of its ``precision64`` import line (constants, warps,
-``in_doubt``) besides ``math``. ``python -m virtual.kernels.generate`` (``make kernels``) writes
-from these modules the float32 twins (:mod:`virtual.kernels.laws32`: the same source importing
+``in_doubt``) besides ``math``. :mod:`virtual.kernels.lawcode` writes from these modules (on
+import of :mod:`virtual.kernels` when missing or stale, and by ``make install`` / ``make kernels``)
+the float32 twins (:mod:`virtual.kernels.laws32`: the same source importing
 :mod:`virtual.kernels.precision32`), the dispatch every kernel path calls
 (:mod:`virtual.kernels.law_dispatch`: ray by ray, float64 block, float32 block, the float32
 kernel's float64 second look) and the numba-free table of ids, names, uniforms and float32
-limits (:mod:`virtual.law_table`) that routing and the specimens read.
+limits (:mod:`virtual.law_table`) that routing and the specimens read. The twins and the
+dispatch are build products, not checked in (a copy per precision is not a second source); the
+table is checked in.
 """
