@@ -13,12 +13,13 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from bench.cli.argtypes import real, renamed
 from bench.core.errors import InputError
 from bench.core.outputs import check_target
 
 __all__ = ["DEFAULT_STORE", "emit_json", "number", "hms", "open_store", "report_run",
            "output_file", "output_dir", "check_output", "add_force_option", "check_outputs", "PLOT_SUFFIXES",
-           "announce_compilation", "stop_announcing"]
+           "announce_compilation", "stop_announcing", "add_service_time_limit"]
 
 #: image formats matplotlib writes (checked before any work, so a typo does not cost the run)
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".eps", ".ps", ".tif", ".tiff", ".webp",
@@ -200,6 +201,16 @@ def warn_if_radians(what: str, angles: Sequence[float]) -> None:
         shown = ", ".join(f"{a:g}" for a in list(angles)[:4])
         print(f"warning: {what} {shown} taken as degrees; in radians that would be "
               f"{', '.join(f'{math.degrees(a):.4g}' for a in list(angles)[:4])} deg", file=sys.stderr)
+
+
+def add_service_time_limit(parser: argparse.ArgumentParser) -> None:
+    """``--max-seconds S`` of a command that keeps a service running until Ctrl-C (``bench emulate``,
+    ``bench serve``: :func:`wait_until_stopped` reads it), and its retired spelling ``--seconds``
+    refused with the one line naming it: the flag means one thing in both."""
+    parser.add_argument("--max-seconds", type=real(0.0, 1e7), metavar="S",
+                        help="time limit, s: stop after this many seconds (default: until Ctrl-C)")
+    renamed(parser, "--seconds", "--max-seconds", "was the time limit; it is --max-seconds, as in every command "
+            "(--budget-seconds is a design's bench-time budget)")
 
 
 def wait_until_stopped(seconds: float | None, tick: Any = None, period_s: float = 2.0) -> None:

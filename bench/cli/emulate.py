@@ -9,9 +9,9 @@ import json
 
 import tomli_w
 
-from bench.cli.argtypes import real, renamed, seed
+from bench.cli.argtypes import seed
 from bench.cli.commands import command_help
-from bench.cli.common import wait_until_stopped
+from bench.cli.common import add_service_time_limit, wait_until_stopped
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
@@ -45,9 +45,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("emulate", help=command_help("emulate"))
     p.add_argument("bench", metavar="BENCH.toml", help="an emulated bench config (see fixtures/benches/)")
     p.add_argument("--seed", type=seed, help="emulator seed, integer 0..2^63-1 (default: the config's, else 7)")
-    p.add_argument("--max-seconds", type=real(0.0, 1e7), metavar="S",
-                   help="time limit, s: stop after this many seconds (default: until Ctrl-C)")
-    renamed(p, "--seconds", "--max-seconds", "was the time limit; it is --max-seconds, as in every command "
-            "(--budget-seconds is a design's bench-time budget)")
+    add_service_time_limit(p)
     p.add_argument("--json", action="store_true", help="ports and the real-bench config as one JSON object (default: TOML)")
     p.set_defaults(func=cmd_emulate)

@@ -27,9 +27,9 @@ import sys
 from pathlib import Path
 from typing import Any, Iterator
 
-from bench.cli.argtypes import count, real, renamed
+from bench.cli.argtypes import count
 from bench.cli.commands import command_help
-from bench.cli.common import DEFAULT_STORE, open_store, wait_until_stopped
+from bench.cli.common import DEFAULT_STORE, add_service_time_limit, open_store, wait_until_stopped
 
 __all__ = ["register", "cmd_serve", "catalog_cache"]
 
@@ -156,9 +156,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="write every run anew into a temporary catalog, neither using nor keeping the kept one")
     p.add_argument("--api-key", type=api_key, default=None, metavar="KEY",
                    help="the API key writers pass, 1 to 256 ASCII letters and digits (default: a random one, printed)")
-    p.add_argument("--max-seconds", type=real(0.0, 1e7), metavar="S",
-                   help="time limit, s: stop after this many seconds (default: until Ctrl-C)")
-    renamed(p, "--seconds", "--max-seconds", "was the time limit; it is --max-seconds, as in every command "
-            "(--budget-seconds is a design's bench-time budget)")
+    add_service_time_limit(p)
     p.add_argument("--json", action="store_true", help="uri, api_key and the runs served as one JSON object")
     p.set_defaults(func=cmd_serve)
