@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import pytest
 from dynamixel_sdk import COMM_SUCCESS, GroupBulkRead, GroupSyncRead, PacketHandler
@@ -515,16 +515,6 @@ def test_e2e_dropped_and_corrupt_replies(emulator: Any) -> None:
     arm.close()
 
 
-@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
-def test_e2e_silent_bus_times_out_quickly(emulator: Any) -> None:
-    arm = DynamixelArm(arm_config(emulator.port))
-    with BusControl(emulator.control) as ctl:
-        ctl.faults(hang=True)
-    with pytest.raises(DeviceTimeoutError):
-        arm.move_to(REACHABLE[0])
-    arm.close()
-
-
 def test_e2e_overload(emulator: Any) -> None:
     spy = Spy(SerialTransport(emulator.port))
     arm = DynamixelArm(arm_config(emulator.port), transport=spy)
@@ -558,14 +548,31 @@ def test_e2e_killed_emulator(emulator: Any) -> None:
     arm.close()
 
 
-@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
-def test_e2e_emulator_death_by_control(emulator: Any) -> None:
-    arm = DynamixelArm(arm_config(emulator.port))
+def _silent_bus(emulator: Any) -> None:
+    with BusControl(emulator.control) as ctl:
+        ctl.faults(hang=True)
+
+
+def _death_by_control(emulator: Any) -> None:
     with BusControl(emulator.control) as ctl:
         ctl.die()
     emulator.proc.wait(timeout=3)
-    with pytest.raises((PortGoneError, DeviceTimeoutError)):
-        arm.position()
+
+
+@pytest.mark.timeout(60, func_only=True)  # a hang guard (pytest-timeout), not a speed assertion
+@pytest.mark.parametrize("silence, call, raised", [
+    # the bus stops answering: the driver's read times out, it does not wait forever
+    (_silent_bus, lambda arm: arm.move_to(REACHABLE[0]), DeviceTimeoutError),
+    # the emulator exits when told to: the port is gone (or, first, silent)
+    (_death_by_control, lambda arm: arm.position(), (PortGoneError, DeviceTimeoutError)),
+], ids=["silent-bus", "death-by-control"])
+def test_e2e_a_line_that_stops_answering_raises_a_typed_error(emulator: Any, silence: Callable[[Any], None],
+                                                              call: Callable[[DynamixelArm], object],
+                                                              raised: Any) -> None:
+    arm = DynamixelArm(arm_config(emulator.port))
+    silence(emulator)
+    with pytest.raises(raised):
+        call(arm)
     arm.close()
 
 
