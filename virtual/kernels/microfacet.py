@@ -14,8 +14,21 @@ import math
 from virtual.kernels import jit
 from virtual.kernels.xoshiro import next_double
 
-__all__ = ["unit_disk", "disk_direction", "fresnel_conductor_ratio", "fresnel_dielectric", "ggx_n",
-           "ggx_vndf_given", "ggx_vndf", "g2_over_g1_ratio", "g2_over_g1", "frame"]
+__all__ = ["two_sided_draw", "unit_disk", "disk_direction", "fresnel_conductor_ratio", "fresnel_dielectric", "ggx_n",
+           "ggx_vndf_given", "ggx_vndf", "g2_over_g1_ratio", "g2_over_g1", "frame",
+           "about_mirror"]
+
+
+@jit(inline="llvm")
+def two_sided_draw(wz, s):
+    """The start of a two-sided law's ray-by-ray sampler: ``(flip, |wz|, alive, u)``, whether w
+    comes from below, its cosine on the upper side, whether the ray lives (|wz| > 0: a grazing or
+    NaN ray is dead) and, for a live ray only, the first draw of ``s`` (a dead one draws nothing)."""
+    flip = wz < 0.0
+    wz = abs(wz)
+    if not (wz > 0.0):
+        return flip, wz, False, 0.0
+    return flip, wz, True, next_double(s)
 
 
 @jit(inline="llvm")
@@ -162,3 +175,13 @@ def frame(nx, ny, nz):
     b = nx * ny * a
     return (1.0 + sign * nx * nx * a, sign * b, -sign * nx,
             b, sign + ny * ny * a, -ny)
+
+
+@jit(inline="llvm")
+def about_mirror(t, ta, tb, ca, wx, wy, wz):
+    """The direction ``ta t1 + tb t2 + ca r`` about r = (-wx, -wy, wz), the mirror direction of w,
+    ``t`` = (t1, t2) the frame of r (:func:`frame`, or its float32 twin): a lobe's direction from
+    its cosine ``ca`` and its components ``ta``, ``tb`` across. No constant: it computes in its
+    arguments' precision (the float64 and float32 laws call it alike)."""
+    t1x, t1y, t1z, t2x, t2y, t2z = t
+    return ta * t1x + tb * t2x - ca * wx, ta * t1y + tb * t2y - ca * wy, ta * t1z + tb * t2z + ca * wz

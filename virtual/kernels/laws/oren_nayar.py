@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.microfacet import unit_disk
+from virtual.kernels.microfacet import two_sided_draw, unit_disk
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.precision64 import ONE, TWO, ZERO, in_doubt, sincos_2pi  # precision
 
@@ -58,12 +58,9 @@ def given(p, wx, wy, wz, u0, u1, u2, u3):
 def ray(p, wx, wy, wz, s):
     """The ray-by-ray sampler: the same proposal and survival, the cosine lobe's disk point by
     rejection from ``s`` (float64 only)."""
-    flip = wz < 0.0
-    if flip:
-        wz = -wz
-    if not (wz > 0.0):
+    flip, wz, alive, u = two_sided_draw(wz, s)
+    if not alive:
         return 0.0, 0.0, 0.0, False
-    u = next_double(s)
     si2 = wx * wx + wy * wy
     if si2 > 0.0:
         inv = 1.0 / math.sqrt(si2)

@@ -18,7 +18,7 @@ import math
 from virtual.kernels import jit
 from virtual.kernels.branchfree32 import phong_lobe_omc32
 from virtual.kernel_codes import MAX_PHONG_EXPONENT
-from virtual.kernels.microfacet import frame as frame64, unit_disk
+from virtual.kernels.microfacet import about_mirror, frame as frame64, two_sided_draw, unit_disk
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.precision64 import ONE, ZERO, frame, in_doubt, lobe_cos_sin, sincos_2pi  # precision
 
@@ -51,12 +51,7 @@ def given(p, wx, wy, wz, u0, u1, u2, u3, lobe):
     rho = math.sqrt(u2)
     dz = math.sqrt(ONE - u2)
     ca, sa = lobe_cos_sin(lobe)
-    t1x, t1y, t1z, t2x, t2y, t2z = frame(-wx, -wy, wz)
-    ta = c1 * sa
-    tb = s1 * sa
-    lx = ta * t1x + tb * t2x - ca * wx
-    ly = ta * t1y + tb * t2y - ca * wy
-    lz = ta * t1z + tb * t2z + ca * wz
+    lx, ly, lz = about_mirror(frame(-wx, -wy, wz), c1 * sa, s1 * sa, ca, wx, wy, wz)
     diffuse = u0 < p[0]
     share = p[0] + p[3]
     lobe_ok = (u0 < share) & (lz > ZERO) & (u3 < lz)
@@ -72,12 +67,9 @@ def given(p, wx, wy, wz, u0, u1, u2, u3, lobe):
 def ray(p, wx, wy, wz, s):
     """The ray-by-ray sampler: the same proposal, the disk points by rejection from ``s``
     (float64 only)."""
-    flip = wz < 0.0
-    if flip:
-        wz = -wz
-    if not (wz > 0.0):
+    flip, wz, alive, u = two_sided_draw(wz, s)
+    if not alive:
         return 0.0, 0.0, 0.0, False
-    u = next_double(s)
     if u < p[0]:
         a, b, r2 = unit_disk(s)
         oz = math.sqrt(1.0 - r2)
@@ -88,12 +80,7 @@ def ray(p, wx, wy, wz, s):
     a, b, r2 = unit_disk(s)
     ca = r2 ** (1.0 / (p[2] + 1.0))
     sa_over_r = math.sqrt(max((1.0 - ca) * (1.0 + ca), 0.0) / r2)
-    t1x, t1y, t1z, t2x, t2y, t2z = frame64(-wx, -wy, wz)
-    ta = a * sa_over_r
-    tb = b * sa_over_r
-    ox = ta * t1x + tb * t2x - ca * wx
-    oy = ta * t1y + tb * t2y - ca * wy
-    oz = ta * t1z + tb * t2z + ca * wz
+    ox, oy, oz = about_mirror(frame64(-wx, -wy, wz), a * sa_over_r, b * sa_over_r, ca, wx, wy, wz)
     if not (oz > 0.0 and next_double(s) < oz):
         return 0.0, 0.0, 0.0, False
     return ox, oy, (-oz if flip else oz), True
