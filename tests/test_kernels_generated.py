@@ -99,13 +99,17 @@ def test_a_fresh_checkout_imports_the_kernels(tmp_path: Path) -> None:
         assert (kernels / p.relative_to(lawcode.KERNELS)).read_text() == text
 
 
-def test_each_float32_twin_is_its_law_with_the_other_precision() -> None:
+def test_each_float32_twin_is_its_source_with_the_other_precision() -> None:
+    """The laws' twins and the shared helpers' (ggx -> ggx32)."""
     files = lawcode.generated_files()
-    for name in lawcode.law_names():
-        twin = lawcode.KERNELS / "laws32" / f"{name}.py"
+    pairs = [(lawcode.KERNELS / "laws" / f"{n}.py", lawcode.KERNELS / "laws32" / f"{n}.py") for n in lawcode.law_names()]
+    pairs += [(lawcode.KERNELS / f"{m}.py", lawcode.KERNELS / f"{m}32.py") for m in lawcode.SHARED]
+    assert lawcode.KERNELS / "ggx32.py" in files
+    for src, twin in pairs:
         if twin not in files:
             continue
-        law = (lawcode.KERNELS / "laws" / f"{name}.py").read_text().splitlines()
+        name = src.stem
+        law = src.read_text().splitlines()
         body = files[twin].splitlines()[1:]  # after the "generated" header
         diff = [(a, b) for a, b in zip(law, body) if a != b]
         assert len(body) == len(law) and len(diff) == 1, name

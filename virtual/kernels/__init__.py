@@ -7,15 +7,17 @@ Modules (each owns one kind of kernel; none holds Python-side objects):
 ``warps``       scalar warps of uniforms into points of disks, triangles, the hemisphere
 ``emit``        emitting one incident ray (collimated or conical beam); the beam vector's indices
 ``patch_lookup`` the exact and the vectorizable patch lookup of the collector sphere
-``microfacet``  Fresnel factors, GGX visible normals, masking ratios, frames
+``microfacet``  Fresnel factors, frames, unit-disk points, the laws' shared sampler steps (float64)
+``ggx``         GGX's visible normals and masking ratios, written once: the float64 source of
+``ggx32``       (generated, not checked in) its float32 twin, the same text on ``precision32``
 ``laws``        the scattering laws written once (a package: one module per law, its float64 source;
                 its contract in ``laws/__init__.py``); ``lawcode`` writes the rest from them:
 ``laws32``      (generated, not checked in) each law's float32 twin: its source on ``precision32``
 ``law_dispatch`` (generated, not checked in) each law's branch of every kernel path: ray by ray,
                 float64 block, float32 block, the float32 kernel's float64 second look
-``lawcode``     the writer of ``laws32``, ``law_dispatch`` and :mod:`virtual.law_table`: the first
-                two when missing or stale as this package is imported (build products, like a
-                compiled file), all three by ``make install`` and ``make kernels``
+``lawcode``     the writer of ``laws32``, ``law_dispatch``, ``ggx32`` and :mod:`virtual.law_table`:
+                all but the table when missing or stale as this package is imported (build
+                products, like a compiled file), all by ``make install`` and ``make kernels``
 ``generate``    its command (``python -m virtual.kernels.generate``, ``make kernels``; ``--check``)
 ``precision64``, ``precision32`` the constants and helpers a law computes with, per precision
 ``scatter``     the ``scatter`` dispatch, one branch per model (the laws' through ``law_dispatch``),
@@ -306,6 +308,6 @@ def jit(fn: Callable | None = None, /, **options: Any) -> Any:
     return compile_ if fn is None else compile_(fn)
 
 
-# The laws' float32 twins and dispatch are build products (not checked in): written here, after
-# jit exists (the laws import it), when a fresh checkout lacks them or a law changed since.
+# The float32 twins (laws, ggx) and the dispatch are build products (not checked in): written here,
+# after jit exists (the laws import it), when a fresh checkout lacks them or a source changed since.
 lawcode.ensure_built()

@@ -14,8 +14,8 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.microfacet import (fresnel_dielectric, g2_over_g1_masked_ratio, g2_over_g1_ratio, ggx_n,
-                                        ggx_vndf_given, unit_disk)
+from virtual.kernels.ggx import g2_over_g1_masked_ratio, g2_over_g1_ratio, ggx_n, ggx_vndf_given
+from virtual.kernels.microfacet import fresnel_dielectric, unit_disk
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 

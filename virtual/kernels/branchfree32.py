@@ -19,8 +19,9 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
-from virtual.kernels.f32 import (DOUBT, F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32, g2_over_g1_masked_ratio32,
-                                 ggx_n32, ggx_vndf_given32)
+from virtual.kernels.f32 import DOUBT, F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32
+from virtual.kernels.ggx32 import (g2_over_g1_masked_ratio as g2_over_g1_masked_ratio32, ggx_n as ggx_n32,
+                                   ggx_vndf_given as ggx_vndf_given32)
 
 __all__ = ["ggx_normal32", "ggx_reflect32", "ggx_finish32", "phong_lobe_omc32"]
 

@@ -15,8 +15,8 @@ rare rejected diffuse rays are finished in float64 by
 from __future__ import annotations
 
 from virtual.kernels import jit
-from virtual.kernels.f32 import (ONE, TWO, ZERO, fresnel_dielectric32, g2_over_g1_masked_ratio32, ggx_n32,
-                                 in_doubt32, warp_cosine_hemisphere32)
+from virtual.kernels.f32 import ONE, TWO, ZERO, fresnel_dielectric32, in_doubt32, warp_cosine_hemisphere32
+from virtual.kernels.ggx32 import g2_over_g1_masked_ratio as g2_over_g1_masked_ratio32, ggx_n as ggx_n32
 
 __all__ = ["DIELECTRIC32_UNIFORMS", "PLASTIC32_UNIFORMS", "dielectric_about32", "plastic_diffuse32", "plastic_about32"]
 

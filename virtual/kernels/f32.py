@@ -31,7 +31,7 @@ from virtual.kernels.patch_lookup import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_AN
 
 __all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
            "GRID", "DOUBT", "in_doubt32", "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "emit_block32", "emit_side32", "guess_bin32",
-           "ggx_n32", "ggx_vndf_given32", "g2_over_g1_masked_ratio32", "fresnel_conductor_ratio32", "fresnel_dielectric32", "frame32"]
+           "fresnel_conductor_ratio32", "fresnel_dielectric32", "frame32"]
 
 F = np.float32
 ZERO = F(0.0)
@@ -194,40 +194,6 @@ def guess_bin32(x, y, z, scheme_code, n_theta, n_phi, ring_margin, sector_margin
             & (rho2 > _TINY2) & (r2 < _HUGE2))
     b = k * n_phi + j + (n_theta * n_phi) * (z < ZERO)
     return b if sure else -1
-
-
-@jit(inline="llvm")
-def ggx_n32(wx, wy, wz, ax, ay):
-    """|(ax wx, ay wy, wz)| (:func:`~virtual.kernels.microfacet.ggx_n`)."""
-    return math.sqrt(ax * ax * wx * wx + ay * ay * wy * wy + wz * wz)
-
-
-@jit(inline="llvm")
-def ggx_vndf_given32(wx, wy, wz, ax, ay, inv_ni, ca, sa, r2):
-    """:func:`~virtual.kernels.microfacet.ggx_vndf_given` in float32."""
-    vx = ax * wx * inv_ni
-    vy = ay * wy * inv_ni
-    vz = wz * inv_ni
-    q = ONE + vz
-    z = ONE - q * r2
-    sc = math.sqrt(max(r2 * q * (TWO - q * r2), ZERO))
-    hx = ca * sc + vx
-    hy = sa * sc + vy
-    hz = max(z + vz, ZERO)
-    mx = ax * hx
-    my = ay * hy
-    n2 = mx * mx + my * my + hz * hz
-    good = n2 > ZERO
-    inv = ONE / math.sqrt(n2 if good else ONE)
-    return (mx * inv if good else ZERO), (my * inv if good else ZERO), (hz * inv if good else ONE)
-
-
-@jit(inline="llvm")
-def g2_over_g1_masked_ratio32(wz, ni, oz, no, separable):
-    """:func:`~virtual.kernels.microfacet.g2_over_g1_masked_ratio` in float32: ``(num, den)``
-    (``separable`` 0 height-correlated, 1 separable Smith)."""
-    one_minus = ONE - separable
-    return one_minus * (wz + ni) * oz + separable * TWO * oz, one_minus * (ni * oz + no * wz) + separable * (oz + no)
 
 
 @jit(inline="llvm")

@@ -1,10 +1,6 @@
-"""Microfacet building blocks of the specimen kernels: unit-disk points, Fresnel factors, GGX
-visible normals, the Smith masking ratio G2/G1 and orthonormal frames.
-
-Conventions (shared with the numpy densities of :mod:`virtual.specimens.physics`): GGX uses
-Smith's height-correlated masking-shadowing G2 = 1 / (1 + L(wi) + L(wo)), G1(w) = 1 / (1 + L(w)),
-L(w) = (sqrt(1 + (ax^2 wx^2 + ay^2 wy^2) / wz^2) - 1) / 2; with n(w) = sqrt(ax^2 wx^2 + ay^2 wy^2 +
-wz^2), G2 / G1(wi) = (zi + n_i) zo / (n_i zo + n_o zi): no division by a grazing cosine anywhere.
+"""Microfacet building blocks of the specimen kernels (float64): unit-disk points, Fresnel
+factors, orthonormal frames, and the start and the lobe direction of the laws' samplers. GGX's
+visible normals and masking ratios, written once for both precisions, are :mod:`virtual.kernels.ggx`.
 """
 
 from __future__ import annotations
@@ -14,8 +10,7 @@ import math
 from virtual.kernels import jit
 from virtual.kernels.xoshiro import next_double
 
-__all__ = ["two_sided_draw", "unit_disk", "disk_direction", "fresnel_conductor_ratio", "fresnel_dielectric", "ggx_n",
-           "ggx_vndf_given", "ggx_vndf", "g2_over_g1_ratio", "g2_over_g1", "frame",
+__all__ = ["two_sided_draw", "unit_disk", "disk_direction", "fresnel_conductor_ratio", "fresnel_dielectric", "frame",
            "about_mirror"]
 
 
@@ -81,89 +76,12 @@ def fresnel_dielectric(c, eta):
 
 
 @jit(inline="llvm")
-def ggx_vndf_given(wx, wy, wz, ax, ay, inv_ni, ca, sa, r2):
-    """A microfacet normal from GGX's distribution of visible normals for w (wz > 0), given
-    ``inv_ni`` = 1 / |(ax wx, ay wy, wz)| (:func:`ggx_n`, which G1 needs too) and a uniform
-    point of the unit disk as its direction (ca, sa) (unit) and squared radius r2. Branch-free.
-
-    Dupuy & Benyoub (2023) "spherical caps" form of Heitz (2018): in the stretched frame the
-    visible normal is h = c + v with c uniform on the cap z > -v_z of the unit sphere. The cap
-    point from the disk point: z = 1 - q r2 with q = 1 + v_z and sin(theta) (cos, sin)(phi) =
-    (ca, sa) sqrt(r2 q (2 - q r2)) -- no trigonometric call.
-    """
-    vx = ax * wx * inv_ni
-    vy = ay * wy * inv_ni
-    vz = wz * inv_ni
-    q = 1.0 + vz
-    z = 1.0 - q * r2
-    sc = math.sqrt(max(r2 * q * (2.0 - q * r2), 0.0))
-    hx = ca * sc + vx
-    hy = sa * sc + vy
-    hz = max(z + vz, 0.0)
-    mx = ax * hx
-    my = ay * hy
-    n2 = mx * mx + my * my + hz * hz
-    good = n2 > 0.0
-    inv = 1.0 / math.sqrt(n2 if good else 1.0)
-    return (mx * inv if good else 0.0), (my * inv if good else 0.0), (hz * inv if good else 1.0)
-
-
-
-@jit(inline="llvm")
 def disk_direction(s):
     """A uniform point of the unit disk drawn by rejection from ``s``: its direction (unit) and
     its squared radius, uniform in (0, 1)."""
     a, b, r2 = unit_disk(s)
     inv = 1.0 / math.sqrt(r2)
     return a * inv, b * inv, r2
-
-
-
-@jit(inline="llvm")
-def ggx_vndf(wx, wy, wz, ax, ay, s):
-    """:func:`ggx_vndf_given` with the disk point drawn by rejection from the stream ``s``."""
-    ca, sa, r2 = disk_direction(s)
-    return ggx_vndf_given(wx, wy, wz, ax, ay, 1.0 / ggx_n(wx, wy, wz, ax, ay), ca, sa, r2)
-
-
-
-@jit(inline="llvm")
-def ggx_n(wx, wy, wz, ax, ay):
-    return math.sqrt(ax * ax * wx * wx + ay * ay * wy * wy + wz * wz)
-
-
-
-@jit(inline="llvm")
-def g2_over_g1_ratio(wz, ni, oz, no):
-    """G2(wi, wo) / G1(wi) as ``(num, den)`` from the cosines and :func:`ggx_n` of both
-    directions; den > 0 for wz, oz > 0."""
-    return (wz + ni) * oz, ni * oz + no * wz
-
-
-
-@jit(inline="llvm")
-def g2_over_g1_masked_ratio(wz, ni, oz, no, separable):
-    """G2(wi, wo) / G1(wi) as ``(num, den)`` under either masking convention, branch-free:
-    ``separable`` = 0.0 (height-correlated, :func:`g2_over_g1_ratio`) or 1.0 (separable Smith,
-    G2 = G1(wi) G1(wo), so the ratio is G1(wo) = 2 oz / (oz + n_o))."""
-    c = 1.0 - separable
-    return c * (wz + ni) * oz + separable * 2.0 * oz, c * (ni * oz + no * wz) + separable * (oz + no)
-
-
-
-@jit(inline="llvm")
-def g2_over_g1_masked(wx, wy, wz, ox, oy, oz, ax, ay, separable):
-    """:func:`g2_over_g1` under the masking convention ``separable`` (0.0 or 1.0)."""
-    num, den = g2_over_g1_masked_ratio(wz, ggx_n(wx, wy, wz, ax, ay), oz, ggx_n(ox, oy, oz, ax, ay), separable)
-    return num / den
-
-
-
-@jit(inline="llvm")
-def g2_over_g1(wx, wy, wz, ox, oy, oz, ax, ay):
-    """G2(wi, wo) / G1(wi) for wz, oz > 0 (<= 1)."""
-    num, den = g2_over_g1_ratio(wz, ggx_n(wx, wy, wz, ax, ay), oz, ggx_n(ox, oy, oz, ax, ay))
-    return num / den
 
 
 

@@ -22,9 +22,8 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.microfacet import (disk_direction, fresnel_conductor_ratio, fresnel_dielectric, g2_over_g1,
-                                        g2_over_g1_masked, g2_over_g1_masked_ratio, ggx_n, ggx_vndf, ggx_vndf_given,
-                                        unit_disk)
+from virtual.kernels.ggx import g2_over_g1, g2_over_g1_masked, g2_over_g1_masked_ratio, ggx_n, ggx_vndf, ggx_vndf_given
+from virtual.kernels.microfacet import disk_direction, fresnel_conductor_ratio, fresnel_dielectric, unit_disk
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.coat import roughplastic
 from virtual.kernels.law_dispatch import law_scatter

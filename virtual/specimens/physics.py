@@ -1,7 +1,7 @@
 """Numpy face of the specimen physics: Fresnel factors, GGX densities and visible-normal means.
 
 The densities (:meth:`virtual.specimens.Specimen.bsdf`) of the analytic models are built from
-these; their kernel twins are :mod:`virtual.kernels.microfacet`.
+these; their kernel twins are :mod:`virtual.kernels.microfacet` and :mod:`virtual.kernels.ggx`.
 
 Conventions. Every analytic model is written in the *local frame of the lit side*: when the
 source is below the specimen (w_z < 0) an opaque model is mirrored in the specimen plane
@@ -132,7 +132,7 @@ def vndf_normals(wi: np.ndarray, ax: float, ay: float, u: np.ndarray,
     """Visible normals m (n, 3) of wi (wi_z > 0) at points (u, t) of the unit square, and the
     density of the map (so that ``E[g(m)] = int int g(m(u, t)) jac du dt``).
 
-    The sampler's own construction (spherical caps, :func:`virtual.kernels.microfacet.ggx_vndf_given`:
+    The sampler's own construction (spherical caps, :func:`virtual.kernels.ggx.ggx_vndf_given`:
     disk azimuth phi = 2 pi u and squared radius r2), with r2 = sin^2(pi t / 2) so that the
     square roots sqrt(r2) and, at normal incidence, sqrt(2 - q r2) become smooth in t (a plain
     r2 = t leaves a sqrt singularity that Gauss-Legendre converges to only algebraically).
