@@ -63,8 +63,8 @@ class _VersionAction(argparse._VersionAction):
     """``--version``, looking the installed version up only when asked (argparse's own action
     needs the string when the parser is built, i.e. on every command)."""
 
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
-                 option_string: str | None = None) -> None:
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: str | Sequence[object] | None, option_string: str | None = None) -> None:
         self.version = f"bench (goniobench) {_version()}"
         super().__call__(parser, namespace, values, option_string)
 

@@ -27,7 +27,6 @@ MAX_SEED = 2**63 - 1
 #: the stated ray rate of the counting kernels, used to turn a ray count into an estimated time
 RAYS_PER_SECOND = 2e7
 
-_Type = Callable[[str], object]
 
 #: the longest error line the CLI prints (a 60,000-character value must not make a 120 KB line)
 MAX_ERROR_CHARS = 600
@@ -122,7 +121,7 @@ def _bounds(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) ->
 
 
 def real(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
-         hi_open: bool = False) -> _Type:
+         hi_open: bool = False) -> Callable[[str], float]:
     """A finite float within ``[lo, hi]`` (open ends with ``lo_open``/``hi_open``)."""
 
     def parse(text: str) -> float:
@@ -136,7 +135,7 @@ def real(lo: float | None = None, hi: float | None = None, *, lo_open: bool = Fa
     return parse
 
 
-def count(lo: int = 1, hi: int = 10**9) -> _Type:
+def count(lo: int = 1, hi: int = 10**9) -> Callable[[str], int]:
     """An integer within ``[lo, hi]`` (``1e7`` accepted when whole)."""
 
     def parse(text: str) -> int:
@@ -193,7 +192,7 @@ def collector(text: str) -> str:
     return text
 
 
-def int_list(lo: int, hi: int, most: int = 100) -> _Type:
+def int_list(lo: int, hi: int, most: int = 100) -> Callable[[str], list[int]]:
     """Comma-separated integers within ``[lo, hi]``, at most ``most`` of them."""
     one = count(lo, hi)
 
@@ -201,7 +200,7 @@ def int_list(lo: int, hi: int, most: int = 100) -> _Type:
         items = [p for p in str(text).split(",") if p.strip()]
         if not items or len(items) > most:
             raise argparse.ArgumentTypeError(f"expected 1 to {most} comma-separated integers, got {text!r}")
-        return [int(one(p)) for p in items]  # type: ignore[arg-type]
+        return [one(p) for p in items]
 
     parse.__name__ = "integer list"
     return parse

@@ -11,11 +11,15 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from bench.cli.argtypes import real, renamed
 from bench.core.errors import InputError
 from bench.core.outputs import check_target
+
+if TYPE_CHECKING:  # for the annotations only: the CLI starts without loading the store or the runner
+    from bench.runner import ScanResult
+    from bench.store import RunStore
 
 __all__ = ["DEFAULT_STORE", "emit_json", "number", "hms", "open_store", "report_run",
            "output_file", "output_dir", "check_output", "add_force_option", "check_outputs", "PLOT_SUFFIXES",
@@ -50,7 +54,7 @@ def hms(seconds: float) -> str:
     return f"{s // 3600:d}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
-def open_store(path: str, create: bool = True, readonly: bool = False) -> Any:
+def open_store(path: str, create: bool = True, readonly: bool = False) -> RunStore:
     """The :class:`bench.store.RunStore` at ``path`` (``readonly``: a reader that never changes the file)."""
     from bench.store import RunStore
 
@@ -167,7 +171,7 @@ def stop_announcing() -> None:
         _ANNOUNCED.pop().__exit__(None, None, None)
 
 
-def report_run(result: Any, as_json: bool) -> int:
+def report_run(result: ScanResult, as_json: bool) -> int:
     """What scan and resume print: the run id (or the result as JSON); a run that completed with
     masked readings says so on stderr (its JSON has ``masked``, ``saturated`` and ``reason``)."""
     if as_json:
@@ -213,7 +217,7 @@ def add_service_time_limit(parser: argparse.ArgumentParser) -> None:
             "(--budget-seconds is a design's bench-time budget)")
 
 
-def wait_until_stopped(seconds: float | None, tick: Any = None, period_s: float = 2.0) -> None:
+def wait_until_stopped(seconds: float | None, tick: Callable[[], object] | None = None, period_s: float = 2.0) -> None:
     """Block for ``seconds`` (None: until Ctrl-C or SIGTERM), for commands that keep a service
     running (``bench emulate``, ``bench serve``), calling ``tick()`` every ``period_s`` when given
     (``bench serve`` adds the runs stored meanwhile); Ctrl-C returns normally."""

@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from bench.cli.argtypes import real, renamed, stderr_is_terminal
 from bench.cli.commands import command_help
@@ -32,6 +32,13 @@ FIT_CONFIDENCE = 0.95
 
 HEADLINE = ("n_points", "mean_abs_discrepancy_pct", "rmse", "bias", "max_abs", "chi2", "p_value",
             "fraction_within_uncertainty", "delta_e2000_mean")
+
+
+class _Tolerances(TypedDict, total=False):
+    """The alignment tolerances a settings file gives (:func:`compare.align.align`'s keywords)."""
+
+    angle_tol_deg: float
+    wavelength_tol_nm: float
 
 
 def _load(ref: str, store_path: str) -> tuple[str, Any]:
@@ -153,7 +160,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
             bar.update()
         out = Path(args.out or "compare-report")
         fits = _fits(actual, models, out, draw_figures=not args.no_figures)
-        align_kw = {k: float(opts[k]) for k in ("angle_tol_deg", "wavelength_tol_nm") if k in opts}
+        align_kw = _Tolerances()
+        if "angle_tol_deg" in opts:
+            align_kw["angle_tol_deg"] = float(opts["angle_tol_deg"])
+        if "wavelength_tol_nm" in opts:
+            align_kw["wavelength_tol_nm"] = float(opts["wavelength_tol_nm"])
         summary = compare_records(actual, candidates, out, primary_metric=opts.get("metric", "chi2_per_dof"),
                                   title=opts.get("title") or f"{', '.join(candidates)} against {actual_name}",
                                   on_error="skip" if args.skip_bad else "raise", criterion=criterion,

@@ -13,18 +13,24 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bench.cli.argtypes import count, real, renamed, seed
 from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, PLOT_SUFFIXES, add_force_option, emit_json, open_store, output_file
 from bench.core.errors import InputError
 
+if TYPE_CHECKING:  # for the annotations only: the CLI starts without loading numpy or the fit
+    import numpy as np
+
+    from bench.identify import FitResult
+    from bench.identify.likelihood import FitInput, Likelihood
+
 #: wall-clock limit of ``bench fit`` (s): a fit that has not finished by then shows its best point
 DEFAULT_MAX_SECONDS = 60.0
 
 
-def _record(ref: str, store_path: str, partial: bool = False) -> tuple[Any, str | None, dict[str, int]]:
+def _record(ref: str, store_path: str, partial: bool = False) -> tuple[FitInput, str | None, dict[str, int]]:
     """(record, run id or None, why readings without a value have none) for a file path or a
     stored run id; a run that did not complete is refused unless ``partial``."""
     path = Path(ref)
@@ -47,7 +53,7 @@ def _record(ref: str, store_path: str, partial: bool = False) -> tuple[Any, str 
         return load_run(store, ref), ref, store.masked_readings(ref)
 
 
-def _values(record: Any) -> Any:
+def _values(record: FitInput) -> np.ndarray:
     """Every reading value of a record (BSDF table or spectra), as floats."""
     import numpy as np
 
@@ -59,7 +65,7 @@ def _values(record: Any) -> Any:
     return np.concatenate([np.asarray(getattr(sp, "reflectance", ()), float) for sp in spectra] or [np.zeros(0)])
 
 
-def dropped_readings(record: Any, lik: Any, masked: dict[str, int]) -> dict[str, Any] | None:
+def dropped_readings(record: FitInput, lik: Likelihood, masked: dict[str, int]) -> dict[str, Any] | None:
     """What a fit of calibrated readings leaves out: ``{"dropped", "of", "reasons"}`` (the mask
     reasons the store recorded; "no value" for the rest), or None for counts or nothing dropped."""
     import numpy as np
@@ -77,7 +83,7 @@ def dropped_readings(record: Any, lik: Any, masked: dict[str, int]) -> dict[str,
     return {"dropped": n, "of": int(values.size), "reasons": reasons}
 
 
-def _fit_json(result: Any) -> dict[str, Any]:
+def _fit_json(result: FitResult) -> dict[str, Any]:
     """``result.to_json()`` with the intervals a fit stopped by its time limit lacks as null."""
     import math
 
@@ -87,7 +93,7 @@ def _fit_json(result: Any) -> dict[str, Any]:
     return doc
 
 
-def _store_fit(store_path: str, result: Any, ref: str, run_id: str | None, args: argparse.Namespace,
+def _store_fit(store_path: str, result: FitResult, ref: str, run_id: str | None, args: argparse.Namespace,
                dropped: dict[str, Any] | None = None) -> str:
     """Keep the fit as a run of kind ``fit`` linked to its record (with the readings it left out
     and whether it fitted part of a run); return its id."""
@@ -101,7 +107,7 @@ def _store_fit(store_path: str, result: Any, ref: str, run_id: str | None, args:
     return rid
 
 
-def _print(result: Any) -> None:
+def _print(result: FitResult) -> None:
     from bench.identify.fit import OUTLIER_Z
 
     print(f"model {result.model}  ({result.method}, {result.confidence:g} confidence)")
@@ -113,10 +119,10 @@ def _print(result: Any) -> None:
         pairs = [f"{a}/{b} {result.correlation[i, j]:+.3f}" for i, a in enumerate(names)
                  for j, b in enumerate(names) if j > i]
         print("  correlation: " + ", ".join(pairs))
-    p = f"{result.p_value:.3g}" if result.p_value == result.p_value else "n/a"
+    p_text = f"{result.p_value:.3g}" if result.p_value == result.p_value else "n/a"
     ident = result.identifiability
     unidentified = f", but NOT identified: {ident.text()}" if ident is not None and ident.unidentified else ""
-    print(f"  chi2 {result.chi2:.4g}, dof {result.dof}, p {p}; "
+    print(f"  chi2 {result.chi2:.4g}, dof {result.dof}, p {p_text}; "
           + (f"converged{unidentified}" if result.converged else f"NOT converged ({result.message})"))
     if result.outliers:
         print(f"  {len(result.outliers)} reading(s) more than {OUTLIER_Z:g} standard uncertainties from the fitted model"
@@ -131,7 +137,7 @@ def _print(result: Any) -> None:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     from bench.identify import fit_record, parse_model_spec
-    from bench.identify.likelihood import likelihood_for
+    from bench.identify.likelihood import GaussianReadings, likelihood_for
 
     spec = parse_model_spec(args.model)  # a bad model string costs no record reading
     record, run_id, masked = _record(args.record, args.store or DEFAULT_STORE, args.partial)
@@ -144,8 +150,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(f"bench fit: left out {dropped['dropped']} of {dropped['of']} readings that have no value ({why})",
               file=sys.stderr)
     n_free = len(spec.free)
-    if lik.kind == "gaussian" and lik.n_data(None) <= n_free:
-        raise InputError(f"{args.record}: {lik.n_data(None)} readings for {n_free} free parameter(s): no degrees of "
+    if isinstance(lik, GaussianReadings) and len(lik.values) <= n_free:  # its n_data: one per reading
+        raise InputError(f"{args.record}: {len(lik.values)} readings for {n_free} free parameter(s): no degrees of "
                          f"freedom left to judge the fit (dof <= 0); measure more, or fix parameters")
     result = fit_record(record, spec, confidence=args.confidence, interval=args.interval, starts=args.starts,
                         seed=args.seed, likelihood=lik, max_seconds=args.max_seconds)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bench.cli.argtypes import (MAX_PATCHES, MAX_RAYS, RAYS_PER_SECOND, collector, count, estimated_seconds, renamed,
                                 incidence, rays, real, seed, stderr_is_terminal, wavelengths)
@@ -26,6 +26,10 @@ from bench.cli.commands import command_help
 from bench.cli.common import (PLOT_SUFFIXES, add_force_option, announce_compilation, emit_json, output_file,
                               warn_if_radians)
 from bench.core.errors import InputError
+
+if TYPE_CHECKING:  # for the annotations only: the CLI starts without loading the instruments
+    from bench.adaptive import GonioMeasurement
+    from bench.core.records import BSDFRecord, Spectrum
 
 # numpy and everything heavier are imported inside the functions that use them: `bench rays`
 # (eq. 3.5 in decimals) and the parsing of spectro's and gonio's arguments do not pay for them.
@@ -47,7 +51,7 @@ def cmd_rays(args: argparse.Namespace) -> int:
     return 0
 
 
-def _spectrum_json(s: Any) -> dict[str, Any]:
+def _spectrum_json(s: Spectrum) -> dict[str, Any]:
     import numpy as np
 
     return {
@@ -61,7 +65,7 @@ def _spectrum_json(s: Any) -> dict[str, Any]:
     }
 
 
-def spectrum_colour(s: Any) -> dict[str, Any] | None:
+def spectrum_colour(s: Spectrum) -> dict[str, Any] | None:
     """CIE colour (D65, CIE 1931 2 deg) of the reflectance and transmittance when the wavelengths
     cover 400-700 nm: CIELAB as :func:`compare.stats.spectrum_lab` computes it (colour-science),
     and the XYZ and sRGB of that Lab under the D65 white (Y of the perfect diffuser = 1)."""
@@ -179,7 +183,7 @@ def n_label(n: Any) -> str:
     return f"{lo:,}" if lo == hi else f"{lo:,}-{hi:,}"
 
 
-def reciprocity_note(s: Any) -> str:
+def reciprocity_note(s: Spectrum) -> str:
     """One line when the geometry was measured as its reciprocal (d/0 as 0/d, d/8 as 8/d)."""
     measured = s.meta.get("measured_as")
     if not measured or str(measured) == str(s.geometry):
@@ -204,7 +208,7 @@ def _refuse_long(instrument: Any, n_wl: int, max_seconds: float, option: str) ->
                          f"{RAYS_PER_SECOND:.0e} rays/s, more than --max-seconds {max_seconds:g}")
 
 
-def gonio_json(record: Any) -> dict[str, Any]:
+def gonio_json(record: BSDFRecord) -> dict[str, Any]:
     """The stable JSON of a goniophotometric record (scalars for the first wavelength)."""
     t, m = record.table, record.meta
     first = float(t.wavelength_nm.iloc[0])
@@ -266,7 +270,7 @@ def cmd_gonio(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_gonio(res: Any, max_seconds: float) -> None:
+def _print_gonio(res: GonioMeasurement, max_seconds: float) -> None:
     """The text report of ``bench gonio`` (a :class:`bench.adaptive.GonioMeasurement`)."""
     from bench.adaptive import INTEREST_FRACTION, PILOT_RAYS, adaptive_message, by_value
 
@@ -301,7 +305,7 @@ def _print_gonio(res: Any, max_seconds: float) -> None:
         print(f"    {r.hemisphere}  {r.theta_r:6.2f} {r.phi_r:7.2f}  {r.value:.5g}  [{r.ci_lo:.5g}, {r.ci_hi:.5g}]")
 
 
-def _store_spectrum(args: argparse.Namespace, s: Any) -> str:
+def _store_spectrum(args: argparse.Namespace, s: Spectrum) -> str:
     """Store a spectrum as a run: per wavelength a reflectance (R) and a transmittance (T) row,
     as a spectrophotometric sweep stores them (:func:`bench.sweep.task.spectrum_rows`)."""
     import numpy as np
@@ -320,7 +324,7 @@ def _store_spectrum(args: argparse.Namespace, s: Any) -> str:
     return _store_record(args.store, BSDFRecord(rows, meta), s.seed, vars(args), "spectro")
 
 
-def _store_record(path: str, record: Any, seed: int | None, options: dict[str, Any], command: str = "gonio") -> str:
+def _store_record(path: str, record: BSDFRecord, seed: int | None, options: dict[str, Any], command: str = "gonio") -> str:
     """Store a virtual measurement as a completed run of kind ``virtual``; return its id."""
     from bench.cli.common import open_store
 

@@ -59,7 +59,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         raise InputError("give a plan file to check, or --design MODEL to write one")
     refuse_unused(args, "--design")
     from bench.core.errors import CalibrationRefused, PlanError
-    from bench.plans import MotionProfile, estimate, order_for_travel, refusal_message, refusals
+    from bench.plans import MotionProfile, default_joints, estimate, order_for_travel, refusal_message, refusals
     from bench.calibration_chain import decide_calibration
     from bench.exposure import predict_exposure
 
@@ -75,11 +75,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
             calibration = str(exc)
         skipped = {r.index for r in refused}
         profile = bench.motion or MotionProfile.instantaneous()
-        kw = {"joints": bench.joints} if bench.joints is not None else {}
+        joints = bench.joints if bench.joints is not None else default_joints
         given_order = [i for i in range(len(plan.points)) if i not in skipped]
         order = [i for i in order_for_travel(plan.points) if i not in skipped] if plan.order == "travel" else given_order
-        est = estimate(plan, profile, order, **kw, **noise)
-        given = estimate(plan, profile, given_order, **kw, **noise)
+        est = estimate(plan, profile, order, joints, **noise)
+        given = estimate(plan, profile, given_order, joints, **noise)
     out = {"plan": plan.name, "kind": plan.kind, "bench": bench.name, "bench_kind": bench.kind, **est,
            "points": len(plan.points), "reachable": len(order), "unreachable": plan.unreachable,
            "refused": [r.as_dict() for r in refused], "calibration_refused": calibration,
@@ -94,7 +94,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         raise PlanError(refusal_message(plan, refused))
     if calibration:
         raise CalibrationRefused(calibration)
-    if saturates:
+    if exposure is not None and exposure.saturates:  # `saturates`, spelled so the checker sees exposure is set
         raise PlanError(exposure.refusal(plan.name, bench.name))
     head = (f"all {est['points']} points reachable" if not refused else
             f"{len(order)} of {len(plan.points)} points reachable, {len(refused)} skipped "

@@ -20,11 +20,15 @@ else the bench's ``[white] reference_file``): its level and spectral shape.
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from bench.cli.argtypes import count, real, run_id
 from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, add_bench_options, add_force_option, emit_json, open_store, output_file
 from bench.core.errors import InputError
+
+if TYPE_CHECKING:
+    from bench.core.calibration import Calibration
 
 #: bench.core.schemas.MAX_WHITE_REPEATS (not imported: the CLI starts without pydantic)
 MAX_WHITE_REPEATS = 1000
@@ -32,7 +36,7 @@ MAX_WHITE_REPEATS = 1000
 __all__ = ["register", "cmd_white"]
 
 
-def _measure(args: argparse.Namespace) -> tuple[object, str]:
+def _measure(args: argparse.Namespace) -> tuple[Calibration, str]:
     from pathlib import Path
 
     from bench.calibration_chain import check_white_level, check_white_unsaturated, previous_white
@@ -54,6 +58,7 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
         bench.operator_confirmed = args.yes
         check_exposure(plan, bench.config, white=True)  # as bench scan predicts a plan's white: before motion
         cal = measure_calibration(bench, plan, use_reference_file=False)  # checked against the declared level
+        assert cal is not None, "a plan with white 'once' or 'repeated' always measures one"
         check_white_unsaturated(f"the white measured on bench {bench.name!r}", cal)
         previous = previous_white(bench, args.out if Path(args.out).is_file() else None)
         if previous is not None:  # and against the last accepted white of this body and detector
@@ -61,7 +66,7 @@ def _measure(args: argparse.Namespace) -> tuple[object, str]:
         return cal, bench.name
 
 
-def _from_run(args: argparse.Namespace) -> tuple[object, str]:
+def _from_run(args: argparse.Namespace) -> tuple[Calibration, str]:
     from bench.calibration_chain import check_white_unsaturated
     from bench.core.calibration import Calibration
 
