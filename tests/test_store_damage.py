@@ -78,6 +78,11 @@ CORPUS = {
     "extra not JSON": (f"UPDATE readings SET extra = 'garbage' WHERE run_id = :r {ONE}", READS,
                        ["point 1", "550 nm", "readings.extra"]),
     "extra a list": (f"UPDATE readings SET extra = '[]' WHERE run_id = :r {ONE}", READS, ["point 1", "readings.extra"]),
+    # JSON that json.loads refuses with a plain ValueError, not a JSONDecodeError: an integer longer than int() takes
+    "meta a 5000-digit integer": ("UPDATE runs SET meta = '{\"x\": ' || printf('%.5000c', '7') || '}' WHERE run_id = :r",
+                                READS, ["runs.meta", "not JSON", "digits"]),
+    "extra a 5000-digit integer": (f"UPDATE readings SET extra = printf('%.5000c', '7') WHERE run_id = :r {ONE}", READS,
+                                 ["point 1", "readings.extra", "digits"]),
     "budget a string": (f"UPDATE readings SET extra = json_set(extra, '$.uncertainty_budget', 'xx') WHERE run_id = :r "
                         f"{ONE}", READS, ["point 1", "uncertainty_budget", "'xx'"]),
     "budget combined text": (f"UPDATE readings SET extra = json_set(extra, '$.uncertainty_budget.combined', 'abc') "
