@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import json
 import sqlite3
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
+from bench.core.errors import StoreError
 from bench.core.records import BSDF_COLUMNS, BSDFRecord
 from bench.store.owner import owner_state
 from bench.store.check import (RUN_JSON_FIELDS, DamagedRun, check_frame, check_run_row, damaged, reading_extra, run_field,
@@ -25,7 +26,11 @@ __all__ = ["RunReader"]
 class RunReader:
     """Read-only queries of a run store; mixed into :class:`bench.store.RunStore`."""
 
+    # what the store this is mixed into provides (declared for the type checker; no code here)
     _db: sqlite3.Connection
+    _unknown: Callable[[str], StoreError]
+    _status: Callable[[str], str]
+    done_indices: Callable[[str], set[int]]
 
     def _run_row(self, run_id: str) -> dict[str, Any]:
         cur = self._db.execute("SELECT * FROM runs WHERE run_id=?", (run_id,))

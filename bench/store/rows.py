@@ -69,7 +69,7 @@ def _frame_tuples(run_id: str, idx: int, rows: Any) -> list[tuple]:
     if "wavelength_nm" not in names:
         raise InputError(f"run {run_id!r} point {idx}: readings have no wavelength_nm column")
     n = len(rows)
-    columns = []
+    columns: list[list[float | int | str | None]] = []  # one list per reading column
     for c in READING_COLUMNS:
         if c not in rows.columns:
             columns.append([None] * n)

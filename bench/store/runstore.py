@@ -45,7 +45,7 @@ def _typed_errors(cls: type) -> type:
                 raise  # a bug in the caller or in goniobench, not a problem of the file
             except sqlite3.Error as e:
                 raise StoreError(f"run store {self.path}: {e}") from e
-            except UnicodeError as e:  # a run id that is not text (a non-UTF-8 argument)
+            except (UnicodeEncodeError, UnicodeDecodeError) as e:  # a run id that is not text (a non-UTF-8 argument)
                 raise InputError(f"run store {self.path}: not valid text: {e.reason}") from None
 
         return method
