@@ -35,7 +35,7 @@ from bench.core.calibration import WhiteStandard
 from bench.core.errors import BenchError, ConfigError
 from bench.core.geometry import Geometry
 from bench.core.parsing import parse_wavelengths
-from bench.core.roles import InstrumentInfo, Reading
+from bench.core.roles import Closing, InstrumentInfo, Reading
 from drivers.dynamixel import ArmConfig
 from drivers.kinematics import KinematicsConfig, check, geometry_to_joints
 
@@ -45,8 +45,9 @@ __all__ = ["described_bench", "design_bench", "planning_bench", "check_ports", "
 _PORT_TABLES = ("arm", "turntable", "spectrometer")
 
 
-class _Described:
-    """A role of a bench that exists only as its description: it can describe, not act."""
+class _Described(Closing):
+    """A role of a bench that exists only as its description: it can describe, not act (``with``
+    and ``close()`` do nothing)."""
 
     what = "device"
 
@@ -59,9 +60,6 @@ class _Described:
 
     def describe(self) -> InstrumentInfo:
         return InstrumentInfo(kind=self.what, model="described (not opened)")
-
-    def close(self) -> None:
-        pass
 
 
 class DescribedGoniometer(_Described):

@@ -66,7 +66,7 @@ class DetectorTable(BaseModel):
     def wavelengths(self) -> np.ndarray:
         """The pixels' wavelengths (nm) from the polynomial."""
         p = np.arange(self.pixels, dtype=float)
-        return sum(c * p**k for k, c in enumerate(self.wavelength_coeffs))
+        return sum((c * p**k for k, c in enumerate(self.wavelength_coeffs)), np.zeros_like(p))
 
 
 def detector_settings(d: Mapping[str, Any], source: str = "bench config") -> DetectorTable | None:

@@ -15,7 +15,7 @@ bench has it when its file says so.
 from __future__ import annotations
 
 import time
-from typing import Any, Literal, Mapping
+from typing import Any, Final, Literal, Mapping
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -25,7 +25,7 @@ from bench.core.schemas import Finite, validate_document
 __all__ = ["LampLine", "LightTable", "light_settings", "build_light", "declares_light", "LAMP_LINE"]
 
 #: the ``[light] kind`` of a lamp switched by the spectrometer's lamp-enable line
-LAMP_LINE = "spectrometer-lamp"
+LAMP_LINE: Final = "spectrometer-lamp"
 
 
 class LightTable(BaseModel):

@@ -50,7 +50,7 @@ def build_virtual_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench:
     white = WhiteStandard.from_dict(d.get("white", {}))
     v["seed"] = gonio.seed + 1  # the standard's rays are independent of the specimen's
     rf = actual_white(white.reflectance_factor, d)  # the certificate's, unless a declared [drift] soils it
-    standard = VirtualGoniophotometer(Lambertian(reflectance=rf if isinstance(rf, (int, float)) else rf),
+    standard = VirtualGoniophotometer(Lambertian.from_keywords({"reflectance": rf}),  # a number or a spectrum
                                       **{**v, "method": v.get("method", "auto")})
     # A lab measures its standard with care: the reference is one reading every point divides
     # by, so its noise would be common to the whole record. With the exact fast path a
