@@ -7,13 +7,19 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bench.cli.argtypes import iso_date, seed
 from bench.cli.commands import command_help
 from bench.cli.common import (DEFAULT_STORE, add_bench_options, add_force_option, announce_compilation, emit_json,
                               open_store, output_file)
 from bench.core.errors import InputError
+
+if TYPE_CHECKING:  # for the annotations only: the CLI starts without loading the schemas or the charts
+    from pathlib import Path
+
+    from bench.core.schemas import CheckTable
+    from compare.control import Chart
 
 __all__ = ["register", "cmd_check", "cmd_chart", "scan_gate", "add_date_option", "plot_charts"]
 
@@ -138,7 +144,7 @@ def cmd_chart(args: argparse.Namespace) -> int:
     return 0
 
 
-def plot_charts(charts: list[tuple[Any, list, Any]], path: str | Any, bench_name: str) -> None:
+def plot_charts(charts: list[tuple[CheckTable, list[dict[str, Any]], Chart]], path: str | Path, bench_name: str) -> None:
     """Draw ``(check, history, chart)`` triples into one PNG, a Shewhart chart per check (``bench
     chart --plot``, and the HTML report of ``bench compare`` for the checks a run relied on)."""
     import matplotlib

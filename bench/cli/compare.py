@@ -20,12 +20,16 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import TYPE_CHECKING, Any, TypedDict
 
 from bench.cli.argtypes import real, renamed, stderr_is_terminal
 from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, output_dir
 from bench.core.errors import InputError
+
+if TYPE_CHECKING:  # for the annotations only: the CLI starts without loading the records or the fit
+    from bench.identify.likelihood import FitInput
+    from bench.identify.model_spec import ModelSpec
 
 #: the confidence of the intervals of `bench compare --fit` (that of `bench fit`'s default)
 FIT_CONFIDENCE = 0.95
@@ -41,7 +45,7 @@ class _Tolerances(TypedDict, total=False):
     wavelength_tol_nm: float
 
 
-def _load(ref: str, store_path: str) -> tuple[str, Any]:
+def _load(ref: str, store_path: str) -> tuple[str, FitInput]:
     """(label, record) for ``[NAME=]RUN_OR_FILE``."""
     name, _, what = ref.rpartition("=") if "=" in ref and not Path(ref).exists() else ("", "", ref)
     path = Path(what)
@@ -91,13 +95,13 @@ def _settings(args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
     return Criterion.from_mapping(crit), opts
 
 
-def _fit_models(strings: list[str]) -> dict[str, Any]:
+def _fit_models(strings: list[str]) -> dict[str, ModelSpec]:
     from bench.identify import parse_model_spec
 
     return {m: parse_model_spec(m) for m in dict.fromkeys(strings)}
 
 
-def _fits(actual: Any, models: dict[str, Any], out: Path, draw_figures: bool) -> dict[str, dict[str, Any]]:
+def _fits(actual: FitInput, models: dict[str, ModelSpec], out: Path, draw_figures: bool) -> dict[str, dict[str, Any]]:
     """``bench fit`` of each ``--fit`` model to the actual record, for the report's fit section."""
     if not models:
         return {}
@@ -116,7 +120,7 @@ def _fits(actual: Any, models: dict[str, Any], out: Path, draw_figures: bool) ->
     return fits
 
 
-def _assurance_figures(actual: Any, store_path: str, out: Path, draw_figures: bool) -> list[dict[str, Any]]:
+def _assurance_figures(actual: FitInput, store_path: str, out: Path, draw_figures: bool) -> list[dict[str, Any]]:
     """The control charts of the check standards the actual run relied on (a ``bench scan`` on a
     bench declaring ``assurance``), each up to the check the scan relied on, drawn for the report."""
     meta = (actual[0].meta if isinstance(actual, tuple) else getattr(actual, "meta", None)) or {}

@@ -9,11 +9,17 @@ and ``bench scan`` and calls :func:`cmd_plan_design` / :func:`cmd_scan_sequentia
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING
 
 from bench.cli.argtypes import real, renamed
 from bench.cli.common import add_force_option, check_output, emit_json, output_file
 from bench.core.errors import InputError
+
+if TYPE_CHECKING:  # for the annotations only: the CLI starts without loading the design modules
+    from bench.config import Bench
+    from bench.identify.design import ModelPoint
+    from bench.identify.model_spec import ModelSpec
+    from bench.identify.time_model import ReadingSettings
 
 #: the default prior range factor (bench.identify.design.PRIOR_SPREAD, not imported: the design code
 #: is imported only when a design is asked for); tests/test_design_prior.py checks they agree
@@ -95,7 +101,7 @@ def refuse_unused(args: argparse.Namespace, flag: str) -> None:
         raise InputError(f"--{given[0].replace('_', '-')} applies to {flag} MODEL only")
 
 
-def _model(args: argparse.Namespace, text: str) -> tuple[Any, Any, list[Any]]:
+def _model(args: argparse.Namespace, text: str) -> tuple[ModelSpec, ModelPoint, list[ReadingSettings]]:
     from bench.identify.design_io import design_inputs
 
     return design_inputs(text, args.prior, args.like, args.integration_s, args.prior_spread)
@@ -145,7 +151,7 @@ def cmd_scan_sequential(args: argparse.Namespace) -> int:
     return 0
 
 
-def open_design(args: argparse.Namespace) -> tuple[Any, Any, Any, Any]:
+def open_design(args: argparse.Namespace) -> tuple[ModelSpec, ModelPoint, list[ReadingSettings], Bench]:
     """The parsed model, the model at its prior, the reading settings to choose from and the bench
     of a design command."""
     from bench.builders.described import design_bench
