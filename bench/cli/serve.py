@@ -25,11 +25,15 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Iterator
 
 from bench.cli.argtypes import count
 from bench.cli.commands import command_help
 from bench.cli.common import DEFAULT_STORE, add_service_time_limit, open_store, wait_until_stopped
+
+if TYPE_CHECKING:  # for the annotations only: the CLI starts without loading Tiled or the store
+    from bench.catalog import CatalogServer
+    from bench.store import RunStore
 
 __all__ = ["register", "cmd_serve", "catalog_cache"]
 
@@ -54,12 +58,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-def _serve(args: argparse.Namespace, store: Any, server: Any) -> None:
+def _serve(args: argparse.Namespace, store: RunStore, server: CatalogServer) -> None:
     """Write the stored runs, print where they are served, and serve until stopped."""
     written = server.add_runs(store)
-    info = {"uri": server.uri, "api_key": server.api_key, "runs": written, "served": sorted(server.served),
-            "unserved": server.unserved,
-            "catalog": str(server.directory) if args.catalog else None}
+    info: dict[str, object] = {"uri": server.uri, "api_key": server.api_key, "runs": written,
+                               "served": sorted(server.served), "unserved": server.unserved,
+                               "catalog": str(server.directory) if args.catalog else None}
     info.update(damaged=server.damaged, replaced=server.replaced)  # damaged runs: never requested
     for rid, why in server.damaged.items():
         print(f"bench serve: warning: run {rid} not served: damaged in the store ({why})", file=sys.stderr)

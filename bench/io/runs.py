@@ -16,7 +16,7 @@ the run store.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,6 +25,9 @@ from bench.core.geometry import cie_geometry
 from bench.core.records import BSDFRecord, with_keys
 from bench.core.roles import Spectrum
 from bench.sweep.records import sweep_record
+
+if TYPE_CHECKING:
+    from bench.store import RunStore
 
 __all__ = ["load_run", "sweep_record", "spectral_scan_spectra"]
 
@@ -78,7 +81,7 @@ def _geometry_name(ti: float, tr: float, known: dict[str, Any]) -> str:
     return f"{ti:g}/{tr:g}"
 
 
-def load_run(store: Any, run_id: str) -> BSDFRecord | tuple[Spectrum, ...]:
+def load_run(store: RunStore, run_id: str) -> BSDFRecord | tuple[Spectrum, ...]:
     """The record of a stored run, keyed (see the module docstring)."""
     info = store.run(run_id)
     if info["kind"] == "sweep":
