@@ -373,6 +373,22 @@ def test_malformed_tidy_csv_and_parquet(tmp_path):
         read_astm(tmp_path / "missing.astm")
 
 
+LONG_INT = "7" * 5000  # past int()'s digit limit: json.loads raises a plain ValueError, not a JSONDecodeError
+
+
+@pytest.mark.parametrize("name, text, where", [
+    ("meta.csv", f"# goniobench-record 1\n# meta: {{\"x\": {LONG_INT}}}\nwavelength_nm,value\n550,0.1\n",
+     r"meta\.csv:2: expected JSON after '# meta:'"),
+    ("gonio.json", f'{{"N": {LONG_INT}}}\n', r"gonio\.json: not JSON"),
+])
+def test_a_json_number_longer_than_int_takes_is_refused_in_one_line(tmp_path, name, text, where):
+    p = tmp_path / name
+    p.write_text(text)
+    with pytest.raises(InputError, match=where + r".*digits") as e:
+        read_record(p)
+    assert "\n" not in str(e.value)
+
+
 def test_atomic_write_leaves_the_old_file_on_failure(tmp_path, lambert, monkeypatch):
     target = tmp_path / "r.csv"
     target.write_text("old\n")

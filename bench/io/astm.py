@@ -194,7 +194,7 @@ def read_astm(path: str | Path) -> BSDFRecord:
     if extra:
         try:
             meta.update(json.loads(extra))
-        except json.JSONDecodeError as e:
+        except ValueError as e:  # JSONDecodeError, or a number longer than int() takes (a plain ValueError)
             raise bad(p, None, f"GONIOBENCH_META is not valid JSON ({e})") from None
     std = meta.pop("value_std", None)
     if std is not None:

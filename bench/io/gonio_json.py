@@ -33,6 +33,8 @@ def read_gonio_json(path: str | Path) -> BSDFRecord:
         doc: Any = json.loads("\n".join(lines))
     except json.JSONDecodeError as e:
         raise bad(p, e.lineno, f"not JSON ({e.msg})") from None
+    except ValueError as e:  # a number longer than int() takes: a plain ValueError, no line
+        raise bad(p, None, f"not JSON ({e})") from None
     missing = [k for k in _NEEDED if not isinstance(doc, dict) or k not in doc]
     if missing:
         raise bad(p, None, f"not the JSON of bench gonio: no key(s) {', '.join(missing)}")

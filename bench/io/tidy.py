@@ -198,12 +198,12 @@ def read_tidy_csv(path: str | Path) -> BSDFRecord:
         if line.startswith("# meta:"):
             try:
                 meta = json.loads(line[len("# meta:"):])
-            except json.JSONDecodeError as e:
+            except ValueError as e:  # JSONDecodeError, or a number longer than int() takes
                 raise bad(p, skip + 1, f"expected JSON after '# meta:' ({e})") from None
         elif line.startswith("# units:"):
             try:
                 units = json.loads(line[len("# units:"):])
-            except json.JSONDecodeError as e:
+            except ValueError as e:  # JSONDecodeError, or a number longer than int() takes
                 raise bad(p, skip + 1, f"expected JSON after '# units:' ({e})") from None
         skip += 1
     if skip == 0 or not lines or not lines[0].startswith(CSV_MAGIC):
@@ -211,7 +211,7 @@ def read_tidy_csv(path: str | Path) -> BSDFRecord:
         if side.exists():
             try:
                 meta = json.loads(side.read_text(encoding="utf-8"))
-            except json.JSONDecodeError as e:
+            except ValueError as e:  # JSONDecodeError, or a number longer than int() takes
                 raise InputError(f"{side}: not valid JSON ({e})") from None
     if skip >= len(lines):
         raise bad(p, skip + 1, "expected a header line of column names, found the end of the file")
@@ -251,7 +251,7 @@ def read_parquet(path: str | Path) -> BSDFRecord:
     rec = with_keys(BSDFRecord(t.to_pandas(), meta))
     try:
         rec.table.attrs = json.loads(attrs.decode()) if attrs else {"column_units": meta.get("column_units", {})}
-    except json.JSONDecodeError as e:
+    except ValueError as e:  # JSONDecodeError, or a number longer than int() takes
         raise InputError(f"{p}: PANDAS_ATTRS is not valid JSON ({e})") from None
     return rec
 
