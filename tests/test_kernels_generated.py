@@ -140,6 +140,19 @@ def test_a_law_breaking_the_contract_is_refused_naming_its_file(change: dict, wo
     assert "virtual/kernels/laws/bad.py" in str(e.value)
 
 
+def test_the_command_refuses_a_broken_law_in_one_line_with_exit_2(monkeypatch: pytest.MonkeyPatch,
+                                                                  capsys: pytest.CaptureFixture) -> None:
+    """A law taking another's model id: `make kernels` says so in one line and exits 2 (bad input),
+    not 1 (which --check means: stale files)."""
+    def taken(*_a: object, **_k: object) -> dict:
+        raise SystemExit("virtual/kernels/laws/blinn.py: MODEL 3 is taken by ggx")
+
+    monkeypatch.setattr(generate, "generated_files", taken)
+    assert generate.main([]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "laws/blinn.py: MODEL 3 is taken by ggx" in err
+
+
 def test_the_kernels_package_lists_every_module() -> None:
     """virtual/kernels/__init__.py's docstring names each of its modules and packages."""
     doc = (lawcode.KERNELS / "__init__.py").read_text().split('"""')[1]

@@ -18,6 +18,18 @@ __all__ = ["main"]
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Exit 0 when written, 1 when ``--check`` finds stale files, 2 (one line) for a law that breaks
+    its contract (:mod:`virtual.kernels.laws`: a taken model id, a missing constant, ...)."""
+    try:
+        return _main(argv)
+    except SystemExit as e:
+        if isinstance(e.code, str):  # the generator's refusals are one line naming the file
+            print(f"python -m virtual.kernels.generate: error: {e.code}", file=sys.stderr)
+            return 2
+        raise
+
+
+def _main(argv: list[str] | None) -> int:
     ap = argparse.ArgumentParser(prog="python -m virtual.kernels.generate", description="Write the kernel code generated from the scattering laws.")
     ap.add_argument("--check", action="store_true", help="write nothing; exit 1 naming the stale files")
     args = ap.parse_args(argv)
