@@ -201,17 +201,20 @@ class Sensitivities:
 
 
 def sensitivities(model: ModelPoint, candidates: Sequence[Geometry], wavelengths: np.ndarray,
-                  aperture_deg: float = 0.0, white: Geometry | None = None) -> Sensitivities:
+                  aperture_deg: float = 0.0, white: Geometry | None = None,
+                  bands: Sequence[np.ndarray] | None = None) -> Sensitivities:
     """Predicted readings (:func:`bench.identify.prediction.predicted_brdf`, the fit's prediction:
-    a detector of half-angle ``aperture_deg`` calibrated against a white read at ``white``) and
-    their central-difference derivatives at the prior."""
-    f0 = predicted_brdf(model.specimen(), candidates, wavelengths, aperture_deg, white)
+    a detector of half-angle ``aperture_deg`` calibrated against a white read at ``white``, a
+    spectral specimen's band the mean over its ``bands`` wavelengths) and their central-difference
+    derivatives at the prior."""
+    f0 = predicted_brdf(model.specimen(), candidates, wavelengths, aperture_deg, white, bands)
     jac = []
     for k, h in model.steps().items():
         up = dict(model.values, **{k: model.values[k] + h})
         dn = dict(model.values, **{k: model.values[k] - h})
-        jac.append((predicted_brdf(model.specimen(up), candidates, wavelengths, aperture_deg, white)
-                    - predicted_brdf(model.specimen(dn), candidates, wavelengths, aperture_deg, white)) / (2 * h))
+        jac.append((predicted_brdf(model.specimen(up), candidates, wavelengths, aperture_deg, white, bands)
+                    - predicted_brdf(model.specimen(dn), candidates, wavelengths, aperture_deg, white, bands))
+                   / (2 * h))
     return Sensitivities(f0, np.stack(jac, axis=-1))
 
 
@@ -221,7 +224,8 @@ def prior_sensitivities(models: Sequence[ModelPoint], pool: Sequence[Geometry], 
     already computed (of the first points, or a single one: the guess's)."""
     have = [] if given is None else [given] if isinstance(given, Sensitivities) else list(given)
     return have[:len(models)] + [sensitivities(m, pool, readings.wavelengths, readings.aperture_deg,
-                                               readings.standard.geometry) for m in models[len(have):]]
+                                               readings.standard.geometry, readings.bands)
+                                 for m in models[len(have):]]
 
 
 def information(model: ModelPoint, candidates: Sequence[Geometry], readings: ReadingModel,
@@ -236,7 +240,7 @@ def information(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
     bench-minute").
     """
     sens = sens or sensitivities(model, candidates, readings.wavelengths, readings.aperture_deg,
-                                 readings.standard.geometry)
+                                 readings.standard.geometry, readings.bands)
     f0 = sens.brdf
     sigma, rho = readings.noise(f0, candidates)
     if not shared_scale:

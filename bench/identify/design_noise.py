@@ -34,7 +34,7 @@ from bench.core.calibration import Calibration, WhiteStandard
 from bench.core.geometry import Geometry
 from bench.core.parsing import parse_wavelengths
 from bench.core.roles import Reading
-from bench.identify.prediction import predicted_brdf
+from bench.identify.prediction import band_pixels, predicted_brdf
 from bench.identify.time_model import ReadingSettings
 
 __all__ = ["ReadingModel", "bench_reading_model", "predicted_brdf", "SATURATION_MARGIN"]
@@ -69,6 +69,9 @@ class ReadingModel:
     #: a band saturates when its brightest pixel, dark included, would pass this many counts
     saturation: np.ndarray | None = None
     peak_ratio: np.ndarray | None = None  # brightest pixel / band mean, per band
+    #: each band's averaged wavelengths (:func:`bench.identify.prediction.band_pixels`; None: a
+    #: reading at the wavelength itself)
+    bands: tuple[np.ndarray, ...] | None = None
 
     def counts(self, brdf: np.ndarray, cos_r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Expected signal, its standard deviation and whether it saturates, per wavelength."""
@@ -141,7 +144,8 @@ def _emulated_model(d: Mapping[str, Any], settings: ReadingSettings, standard: W
     full = np.full(centres.size, SATURATION_MARGIN * FULL_SCALE)
     return ReadingModel("emulated", centres, settings, standard, declared_aperture(d),
                         np.array(per_count), np.array(per_var), np.array(floor), np.full(centres.size, dark),
-                        saturation=full, peak_ratio=np.array(peak))
+                        saturation=full, peak_ratio=np.array(peak),
+                        bands=band_pixels(centres, 2.0 * half, detector.wavelengths))
 
 
 class _Patches(Protocol):

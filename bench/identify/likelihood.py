@@ -46,8 +46,9 @@ from bench.core.geometry import Geometry, cie_geometry
 from bench.core.records import BSDFRecord
 from bench.core.roles import Spectrum
 from bench.identify.gof import ReadingNoise, reading_noise, type_a_dof
-from bench.identify.prediction import (PATCH_BOUNDS, cone_nodes, directional_rt, ideal_rf, patch_nodes,
-                                       record_aperture, virtual_body_patches, white_geometry)
+from bench.identify.prediction import (PATCH_BOUNDS, band_mean, cone_nodes, directional_rt, ideal_rf,
+                                       patch_nodes, record_aperture, record_bands, virtual_body_patches,
+                                       white_geometry)
 from bench.identify.scales import SharedScales, split_scales
 from virtual.beam import Beam
 from virtual.collector import SCHEMES, Collector
@@ -426,6 +427,8 @@ class GaussianReadings(Likelihood):
         #: the detector's half-angle (deg) and where its white was read (the record's metadata)
         self.aperture_deg = record_aperture(meta)
         self.white = white_geometry(meta)
+        #: each band's averaged wavelengths: a spectral specimen's band is their mean
+        self.bands = record_bands(meta) or {}
         self._nodes: list[Any] | None = None
         self.values, cov = record_covariance(record)
         #: shared scales (white certificate, white reading, lamp drift) fitted, not in the covariance
@@ -469,11 +472,14 @@ class GaussianReadings(Likelihood):
         if self._nodes is None:
             self._nodes = [self.bsdf_nodes(r) if r["quantity"] == "bsdf" else None for r in self.rows]
         out = np.empty(len(self.rows))
+        bands = self.bands if specimen.wavelength_range() is not None else {}
         for i, (r, nodes) in enumerate(zip(self.rows, self._nodes)):
             q = r["quantity"]
             if nodes is not None:
                 wi, dirs, weights = nodes
-                out[i] = float(weights @ np.asarray(specimen.bsdf(wi, dirs, r["wavelength_nm"]), dtype=float))
+                band = bands.get(float(r["wavelength_nm"]))
+                out[i] = (band_mean(specimen, wi, dirs, weights, band) if band is not None else
+                          float(weights @ np.asarray(specimen.bsdf(wi, dirs, r["wavelength_nm"]), dtype=float)))
             elif q == "RF":
                 out[i] = ideal_rf(specimen, r["geometry"], r["wavelength_nm"])
             else:

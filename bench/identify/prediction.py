@@ -13,6 +13,13 @@ emulated spectrometer and the virtual body alike -- and the white standard (Lamb
 (:func:`cone_nodes`; ``a = 0``: the BSDF at the viewing direction). A virtual body without an
 aperture reads the collector patch of the viewing direction: its reading estimates the patch's
 projected-solid-angle average (:func:`patch_nodes`).
+
+A band reading is the mean of the detector's pixels within ``centre +- bandwidth/2``
+(:class:`bench.bands.SpectralBands`), so a spectral specimen's band is predicted as the mean of
+the prediction over those pixels' wavelengths (:func:`band_mean`), not at the centre: on a curved
+spectrum (a leaf's red edge) the centre value is off by up to ~1.4 % at diffuse geometries, a
+geometry-dependent bias no per-band scale absorbs. Without the pixels, a Gauss-Legendre rule of
+:data:`BAND_ORDER` nodes over the band. A non-spectral specimen: one evaluation serves all.
 """
 
 from __future__ import annotations
@@ -27,13 +34,76 @@ from bench.core.geometry import Geometry, cie_geometry, cone_cos_weights, direct
 from virtual.collector import Collector
 from virtual.specimens import Specimen
 
-__all__ = ["predicted_brdf", "cone_nodes", "patch_nodes", "record_aperture", "white_geometry",
+__all__ = ["predicted_brdf", "band_mean", "band_pixels", "record_bands", "cone_nodes", "patch_nodes", "record_aperture", "white_geometry",
            "virtual_body_patches", "directional_rt", "ideal_rf", "PATCH_BOUNDS", "PATCH_ORDER"]
 
 #: a record's patch columns: a reading with them is the BSDF averaged over that patch
 PATCH_BOUNDS = ("theta_min", "theta_max", "phi_min", "phi_max")
 #: Gauss-Legendre order per axis of a patch average
 PATCH_ORDER = 8
+#: Gauss-Legendre nodes of a band's mean when its pixels' wavelengths are unknown
+BAND_ORDER = 8
+
+
+def band_pixels(centres: Sequence[float], bandwidth_nm: float, pixel_nm: np.ndarray | None = None
+                ) -> tuple[np.ndarray, ...]:
+    """The wavelengths (nm) whose plain mean is each band's reading: the detector's pixels within
+    ``centre +- bandwidth/2`` (as :class:`bench.bands.SpectralBands` selects them), or without
+    them :data:`BAND_ORDER` Gauss-Legendre nodes over the band (:func:`band_mean` weights them)."""
+    half = float(bandwidth_nm) / 2.0
+    if pixel_nm is not None:
+        wl = np.asarray(pixel_nm, dtype=float)
+        out = tuple(wl[np.abs(wl - c) <= half] for c in centres)
+        if all(p.size for p in out):
+            return out
+    x, _ = np.polynomial.legendre.leggauss(BAND_ORDER)
+    return tuple(float(c) + half * x for c in centres)
+
+
+def _band_weights(nodes: np.ndarray) -> np.ndarray:
+    """Weights (summing to 1) of a band's nodes: equal for pixels, Gauss-Legendre for its rule."""
+    x, w = np.polynomial.legendre.leggauss(BAND_ORDER)
+    if nodes.size == BAND_ORDER:
+        span = (nodes[-1] - nodes[0]) / (x[-1] - x[0])
+        if span > 0 and np.allclose(nodes, nodes.mean() + span * x, rtol=0, atol=1e-9):
+            return w / 2.0
+    return np.full(nodes.size, 1.0 / nodes.size)
+
+
+def band_mean(specimen: Specimen, wi: np.ndarray, dirs: np.ndarray, weights: np.ndarray,
+              nodes: np.ndarray) -> float:
+    """``mean over the band's wavelengths of weights @ f(dirs)``: what a band of a spectral
+    specimen reads (held at the specimen's range ends beyond it, as the emulated detector is)."""
+    rng = specimen.wavelength_range()
+    at = np.clip(np.asarray(nodes, dtype=float), rng[0], rng[1]) if rng is not None else np.asarray(nodes, float)
+    wb = _band_weights(np.asarray(nodes, dtype=float))
+    many = getattr(specimen, "bsdf_spectrum", None)
+    if many is not None:
+        return float(wb @ (np.asarray(many(wi, dirs, at), dtype=float) @ weights))
+    return float(sum(b * float(weights @ np.asarray(specimen.bsdf(wi, dirs, float(w)), dtype=float))
+                     for b, w in zip(wb, at)))
+
+
+def record_bands(meta: Mapping[str, Any]) -> dict[float, np.ndarray] | None:
+    """Each band centre's averaged wavelengths (:func:`band_pixels`) from a record's bench
+    description (``spectrometer.extra``: ``bands_nm``, ``bandwidth_nm`` and the detector's
+    ``wavelength_coeffs`` / ``pixels``); None when the record read no bands."""
+    from drivers.ocean._calibration import wavelength_polynomial
+
+    extra = _mapping(_mapping(_mapping(meta.get("bench_description")).get("spectrometer")).get("extra"))
+    try:
+        centres = [float(c) for c in extra["bands_nm"]]
+        bw = float(extra["bandwidth_nm"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    pixel_nm = None
+    try:
+        pixel_nm = wavelength_polynomial([float(c) for c in extra["wavelength_coeffs"]], int(extra["pixels"]))
+    except (KeyError, TypeError, ValueError):
+        pass
+    if not (math.isfinite(bw) and bw > 0):
+        return None
+    return dict(zip(centres, band_pixels(centres, bw, pixel_nm)))
 
 
 def white_factor(white: Geometry | None, aperture_deg: float) -> float:
@@ -57,17 +127,23 @@ def cone_nodes(geometry: Geometry, aperture_deg: float, white: Geometry | None =
 
 
 def predicted_brdf(specimen: Specimen, geometries: Sequence[Geometry], wavelengths: np.ndarray,
-                   aperture_deg: float = 0.0, white: Geometry | None = None) -> np.ndarray:
+                   aperture_deg: float = 0.0, white: Geometry | None = None,
+                   bands: Sequence[np.ndarray] | None = None) -> np.ndarray:
     """The calibrated BRDF (1/sr) a bench reads at each geometry and wavelength,
-    ``(points, wavelengths)``: :func:`cone_nodes` applied to the specimen's density."""
+    ``(points, wavelengths)``: :func:`cone_nodes` applied to the specimen's density; with
+    ``bands`` (each wavelength's averaged wavelengths, :func:`band_pixels`) a spectral specimen's
+    band is their mean (:func:`band_mean`)."""
     wavelengths = np.asarray(wavelengths, dtype=float)
     spectral = specimen.wavelength_range() is not None
-    bands = wavelengths if spectral else wavelengths[:1]  # a non-spectral density: one evaluation
-    out = np.empty((len(geometries), len(bands)))
+    todo = wavelengths if spectral else wavelengths[:1]  # a non-spectral density: one evaluation
+    out = np.empty((len(geometries), len(todo)))
     for k, g in enumerate(geometries):
         dirs, w = cone_nodes(g, aperture_deg, white)
-        for b, wl in enumerate(bands):
-            out[k, b] = float(w @ np.asarray(specimen.bsdf(g.incident, dirs, float(wl)), dtype=float))
+        for b, wl in enumerate(todo):
+            if spectral and bands is not None:
+                out[k, b] = band_mean(specimen, g.incident, dirs, w, bands[b])
+            else:
+                out[k, b] = float(w @ np.asarray(specimen.bsdf(g.incident, dirs, float(wl)), dtype=float))
     return out if spectral else np.repeat(out, len(wavelengths), axis=1)
 
 

@@ -140,6 +140,30 @@ class Leaf(DeclaredSpecimen):
         spec = ks * np_ggx_reflection(wi, wo, a, a, lambda c: np_fresnel_dielectric(c, eta))
         return np.where(zo > 0.0, spec + rb * diff, np.where(zo < 0.0, tb * diff, 0.0))
 
+    def bsdf_spectrum(self, wi: np.ndarray, wo: np.ndarray, wavelengths_nm: np.ndarray) -> np.ndarray:
+        """:meth:`bsdf` at many wavelengths at once, ``(wavelengths, directions)``: the cuticle's
+        roughness and index do not depend on the wavelength, so its lobe and albedo are computed
+        once and only the body's tables (r_b, t_b, ks; linear between their 1 nm samples, as
+        :meth:`LeafTables.at`) vary. Equal to :meth:`bsdf` per wavelength to rounding."""
+        wl = np.asarray(wavelengths_nm, dtype=float)
+        lo, hi = PROSPECT_RANGE_NM
+        if wl.size and not (lo <= float(wl.min()) and float(wl.max()) <= hi):
+            raise SpecimenError(f"leaf: wavelengths {wl.min():g}-{wl.max():g} nm leave PROSPECT-D's {lo:g}-{hi:g} nm")
+        v = self._scalars()
+        a, eta = float(v["roughness"]), float(v["eta"])
+        t = self.tables()
+        ks, rb, tb = (np.interp(wl, t.wavelengths, x)[:, None] for x in (t.specular_scale, t.body_r, t.body_t))
+        wi, wo, _ = local(wi, wo)
+        if not wi[2] > 0.0:
+            return np.zeros((wl.size, len(wo)))
+        albedo = cuticle_albedo(a, eta)
+        ei = ks * float(albedo(np.array([wi[2]]))[0])
+        eo = ks * albedo(wo[:, 2])[None, :]
+        diff = (1.0 - ei) * (1.0 - eo) / (math.pi * (1.0 - ks * albedo.average))
+        zo = wo[:, 2][None, :]
+        spec = ks * np_ggx_reflection(wi, wo, a, a, lambda c: np_fresnel_dielectric(c, eta))[None, :]
+        return np.where(zo > 0.0, spec + rb * diff, np.where(zo < 0.0, tb * diff, 0.0))
+
     def lobes(self, wi: np.ndarray, wavelength_nm: float) -> list[tuple[np.ndarray, float]]:
         return [(mirror(wi), 2.0 * float(self.params(wavelength_nm)[0]))]
 
