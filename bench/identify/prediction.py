@@ -45,7 +45,7 @@ PATCH_ORDER = 8
 BAND_ORDER = 8
 
 
-def band_pixels(centres: Sequence[float], bandwidth_nm: float, pixel_nm: np.ndarray | None = None
+def band_pixels(centres: Sequence[float] | np.ndarray, bandwidth_nm: float, pixel_nm: np.ndarray | None = None
                 ) -> tuple[np.ndarray, ...]:
     """The wavelengths (nm) whose plain mean is each band's reading: the detector's pixels within
     ``centre +- bandwidth/2`` (as :class:`bench.bands.SpectralBands` selects them), or without
