@@ -31,6 +31,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError, InputError
 from bench.core.geometry import Geometry, cie_geometry, cone_cos_weights, direction
+from drivers.ocean import wavelength_polynomial
 from virtual.collector import Collector
 from virtual.specimens import Specimen
 
@@ -88,8 +89,6 @@ def record_bands(meta: Mapping[str, Any]) -> dict[float, np.ndarray] | None:
     """Each band centre's averaged wavelengths (:func:`band_pixels`) from a record's bench
     description (``spectrometer.extra``: ``bands_nm``, ``bandwidth_nm`` and the detector's
     ``wavelength_coeffs`` / ``pixels``); None when the record read no bands."""
-    from drivers.ocean._calibration import wavelength_polynomial
-
     extra = _mapping(_mapping(_mapping(meta.get("bench_description")).get("spectrometer")).get("extra"))
     try:
         centres = [float(c) for c in extra["bands_nm"]]
