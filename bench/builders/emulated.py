@@ -254,7 +254,8 @@ class Emulators:
         e = dict(d.get("emulated", {}))
         self.time_scale = float(e.get("time_scale", 20.0))
         # the run's seed (``--seed``) governs the emulators' noise; else the description's, else 7
-        emu_seed = int(seed) if seed is not None else int(e.get("seed") if e.get("seed") is not None else 7)
+        described_seed = e.get("seed")
+        emu_seed = int(seed) if seed is not None else (int(described_seed) if described_seed is not None else 7)
         self.seed = emu_seed
         self.white = WhiteStandard.from_dict(d.get("white", {}))
         bands = described_bands(d)  # [bands] or [emulated] bands, checked against a declared [detector]
@@ -348,7 +349,7 @@ def build_emulated_bench(d: Mapping[str, Any], seed: int | None = None) -> Bench
         ocean = OceanSpectrometer(emu.spectrometer.port, name="spectrometer",
                                   config={**_without_ports(d.get("spectrometer")), **emu.spectrometer_settings()})
         closers.append(ocean.close)
-        lamp = build_light(light_settings(d.get("light")) or LightTable(), ocean)  # the emulator's lamp line, lit
+        lamp = build_light(light_settings(d.get("light")) or LightTable(settle_s=0.0), ocean)  # the emulator's lamp line, lit
         bands = SpectralBands(ocean, parse_wavelengths(emu.bands[0]), float(emu.bands[1]))
     except BaseException:
         for c in reversed(closers):
