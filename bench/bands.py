@@ -16,7 +16,13 @@ import numpy as np
 from bench.core.errors import ConfigError
 from bench.core.roles import InstrumentBase, InstrumentInfo, Reading, Spectrometer
 
-__all__ = ["SpectralBands"]
+__all__ = ["SpectralBands", "band_pixel_indices"]
+
+
+def band_pixel_indices(pixel_nm: np.ndarray, centre_nm: float, bandwidth_nm: float) -> np.ndarray:
+    """The indices of the pixels a band averages: those within ``centre +- bandwidth/2`` (nm).
+    The one rule for reading a band and for predicting it (:mod:`bench.identify.prediction`)."""
+    return np.flatnonzero(np.abs(np.asarray(pixel_nm, dtype=float) - centre_nm) <= bandwidth_nm / 2)
 
 
 class SpectralBands(InstrumentBase):
@@ -31,7 +37,7 @@ class SpectralBands(InstrumentBase):
         wl = np.asarray(spectrometer.wavelengths, dtype=float)
         self._pixels = []
         for c in self.centres:
-            idx = np.flatnonzero(np.abs(wl - c) <= self.bandwidth / 2)
+            idx = band_pixel_indices(wl, float(c), self.bandwidth)
             if idx.size == 0:
                 raise ConfigError(f"band {c:g} +- {self.bandwidth / 2:g} nm holds no pixel of the "
                                   f"spectrometer ({wl[0]:.1f}..{wl[-1]:.1f} nm)")

@@ -29,6 +29,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from bench.bands import band_pixel_indices
 from bench.core.errors import ConfigError, InputError
 from bench.core.geometry import Geometry, cie_geometry, cone_cos_weights, direction
 from drivers.ocean import wavelength_polynomial
@@ -54,7 +55,7 @@ def band_pixels(centres: Sequence[float] | np.ndarray, bandwidth_nm: float, pixe
     half = float(bandwidth_nm) / 2.0
     if pixel_nm is not None:
         wl = np.asarray(pixel_nm, dtype=float)
-        out = tuple(wl[np.abs(wl - c) <= half] for c in centres)
+        out = tuple(wl[band_pixel_indices(wl, float(c), float(bandwidth_nm))] for c in centres)
         if all(p.size for p in out):
             return out
     x, _ = np.polynomial.legendre.leggauss(BAND_ORDER)
