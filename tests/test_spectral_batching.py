@@ -182,8 +182,8 @@ def test_fresnel_bounds_bracket_the_fresnel_factor():
     from numba import int32
 
     from virtual.kernels import jit
-    from virtual.kernels.f32 import fresnel_conductor_ratio32
-    from virtual.kernels.microfacet import fresnel_conductor_ratio
+    from virtual.kernels.ggx import fresnel_conductor_ratio
+    from virtual.kernels.ggx32 import fresnel_conductor_ratio as fresnel_conductor_ratio32
     from virtual.kernel_codes import FRESNEL_CELLS, FRESNEL_SAMPLES
     from virtual.kernels.spectral32 import fresnel_bounds
 
@@ -194,7 +194,7 @@ def test_fresnel_bounds_bracket_the_fresnel_factor():
         for i in range(c32.shape[0]):
             j = min(int32(c32[i] * n), int32(lo.shape[0] - 1))
             for w in range(etas.shape[0]):
-                a, b = fresnel_conductor_ratio(np.float64(c32[i]), etas[w], ks[w])
+                a, b = fresnel_conductor_ratio(np.float64(c32[i]), etas[w], ks[w], False)
                 a32, b32 = fresnel_conductor_ratio32(c32[i], np.float32(etas[w]), np.float32(ks[w]), False)
                 if b > 0.0 and b32 > 0.0:  # 0/0 only at c = 0 with eta = 1, k = 0 (no interface, no ray)
                     for f in (a / b, np.float64(a32 / b32)):

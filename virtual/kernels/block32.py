@@ -25,7 +25,8 @@ from virtual.kernels.patch_lookup import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, S
 from virtual.kernels.f32 import ZERO, emit_block32, guess_bin32, sincos_2pi32
 from virtual.kernels.branchfree import plastic_diffuse_redo
 from virtual.kernels.refine import redo_ray64
-from virtual.kernels.branchfree32 import ggx_finish32, ggx_normal32
+from virtual.kernels.branchfree32 import ggx_finish32
+from virtual.kernels.ggx32 import ggx_normal as ggx_normal32
 from virtual.kernels.law_dispatch import law32, law_block32, law_uniforms
 from virtual.kernels.branchfree32_rough import (DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_about32, plastic_about32,
                                                 plastic_diffuse32)
@@ -57,7 +58,7 @@ def guess_bins32(code, x, y, z, n, scheme, n_theta, n_phi, ring_margin, sector_m
 
 @jit(inline="always")
 def normals_block32(ax, ay, angle, radius, n, vx, vy, vz, mx, my, mz, ni, plain):
-    """The GGX visible normals (:func:`~virtual.kernels.branchfree32.ggx_normal32`) of the block's
+    """The GGX visible normals (:func:`~virtual.kernels.ggx.ggx_normal` in float32) of the block's
     first ``n`` incident directions ``vx, vy, vz`` (:func:`~virtual.kernels.f32.emit_block32`),
     from the rows of uniforms ``angle`` and ``radius``, into ``mx, my, mz, ni``: a loop of its own,
     so that each loop's chain is short enough for the core to overlap its iterations

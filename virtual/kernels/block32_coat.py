@@ -45,8 +45,8 @@ from virtual.kernels.block32 import bin_block32, normals_block32
 from virtual.kernels.block_coat import leaf_given, roughplastic_given
 from virtual.kernels.coat import roughplastic_base_redo, rp_e, rp_t
 from virtual.kernels.emit import BEAM_COLLIMATED, BEAM_CONICAL, emit_given
-from virtual.kernels.branchfree32 import ggx_normal32
-from virtual.kernels.f32 import (ONE, TWO, ZERO, emit_block32, fresnel_conductor_ratio32, fresnel_dielectric32, in_doubt32,
+from virtual.kernels.ggx32 import fresnel_conductor_ratio as fresnel_conductor_ratio32, ggx_normal as ggx_normal32
+from virtual.kernels.f32 import (ONE, TWO, ZERO, emit_block32, fresnel_dielectric32, in_doubt32,
                                  sincos_2pi32, warp_cosine_hemisphere32)
 from virtual.kernels.refine import refined
 from virtual.kernels.scatter import leaf_body_redo
@@ -67,7 +67,7 @@ _BEAM_UNIFORMS = 4
 @jit(inline="llvm")
 def _mirror_about32(a, wx, wy, wz, mx, my, mz, ni):
     """The mirror direction of w (wz > 0) about its isotropic GGX visible normal m
-    (:func:`~virtual.kernels.branchfree32.ggx_normal32`): ``(sx, sy, sz, c, ni, no)``, c = w.m, ni
+    (:func:`~virtual.kernels.ggx.ggx_normal`'s float32 twin): ``(sx, sy, sz, c, ni, no)``, c = w.m, ni
     and no the |(a x, a y, z)| of w and of the mirror direction (the masking terms)."""
     c = max(wx * mx + wy * my + wz * mz, ZERO)
     sx = TWO * c * mx - wx
@@ -79,7 +79,7 @@ def _mirror_about32(a, wx, wy, wz, mx, my, mz, ni):
 @jit(inline="llvm")
 def roughplastic_about32(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num, base_den, t_o):
     """:func:`~virtual.kernels.block_coat.roughplastic_given` in float32, from the visible normal m
-    of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1, u2)) on: ``(ox, oy, oz,
+    of |w| (:func:`~virtual.kernels.ggx.ggx_normal`'s float32 twin from (u1, u2)) on: ``(ox, oy, oz,
     alive, redo, doubt)``. The specular test is Mitsuba's separable masking, G2/G1 = G1(wo) =
     2 oz / (oz + no); the table values come from the float32 table reads (module docstring)."""
     flip = wz < ZERO
@@ -103,10 +103,10 @@ def roughplastic_about32(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num
 @jit(inline="llvm")
 def leaf_cuticle_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
     """The cuticle's part of :func:`~virtual.kernels.block_coat.leaf_given` in float32
-    from the visible normal m of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1,
+    from the visible normal m of |w| (:func:`~virtual.kernels.ggx.ggx_normal`'s float32 twin from (u1,
     u2)) on (height-correlated masking, isotropic: G2/G1 = (wz + ni) oz / (ni oz + no wz)): ``(ox, oy,
     oz, kept, body, doubt)``, the mirror direction when kept, else (0, 0, +-1) with the sign of
-    the body's side. F is :func:`~virtual.kernels.f32.fresnel_conductor_ratio32` at k = 0 -- the
+    the body's side. F is :func:`~virtual.kernels.ggx.fresnel_conductor_ratio` (float32) at k = 0 -- the
     dielectric's F as a ratio (no division; 3 % faster than ``fresnel_dielectric32`` here),
     tested against it by the law (tests/test_block32_coat.py). A body ray's attempt is
     :func:`leaf_body_normal32` and :func:`leaf_body_about32`, run only for the body rays (about a

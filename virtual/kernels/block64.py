@@ -21,7 +21,7 @@ from virtual.kernels import jit
 from virtual.kernels.emit import BEAM_CONICAL, emit_given
 from virtual.kernels.patch_lookup import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, guess_bin, patch_of
 from virtual.kernels.xoshiro import LANES, fill_uniforms
-from virtual.kernels.microfacet import fresnel_conductor_ratio
+from virtual.kernels.ggx import fresnel_conductor_ratio
 from virtual.kernels.law_dispatch import law_block64, law_uniforms
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.branchfree import (GIVEN4_UNIFORMS, PLASTIC_UNIFORMS, plastic_diffuse_redo, plastic_given,
@@ -254,7 +254,7 @@ def ggx_spectral_chunk(ax, ay, separable, etas, ks, beam_kind, b, cargs, ring_ma
             eta = etas[w]
             k = ks[w]
             for i in range(nb):
-                f_num, f_den = fresnel_conductor_ratio(cc[i], eta, k)
+                f_num, f_den = fresnel_conductor_ratio(cc[i], eta, k, False)
                 alive[w, i] = lhs[i] * f_den < f_num * rhs[i]
         for i in range(m):
             hits += code[i]

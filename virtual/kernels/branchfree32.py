@@ -1,6 +1,7 @@
-"""Float32 forms of the hand-written specimens (GGX) for the 16-lane block kernel
-(:mod:`virtual.kernels.block32`), and Phong's lobe cosine (the float32 prepass of its law,
-:mod:`virtual.kernels.laws.phong`).
+"""The float32 GGX survival step for the 16-lane block kernel (:mod:`virtual.kernels.block32`;
+GGX's visible normal, reflection and Fresnel factor are the float32 twin of
+:mod:`virtual.kernels.ggx`, written once for both precisions), and Phong's lobe cosine (the
+float32 prepass of its law, :mod:`virtual.kernels.laws.phong`).
 
 Each is the float64 given form (:func:`~virtual.kernels.scatter.scatter_given`,
 :mod:`virtual.kernels.branchfree`) with the same uniforms in the same roles, written with the
@@ -19,11 +20,10 @@ import numpy as np
 from numba import int32
 
 from virtual.kernels import jit
-from virtual.kernels.f32 import DOUBT, F, HALF, ONE, TWO, ZERO, fresnel_conductor_ratio32
-from virtual.kernels.ggx32 import (g2_over_g1_masked_ratio as g2_over_g1_masked_ratio32, ggx_n as ggx_n32,
-                                   ggx_vndf_given as ggx_vndf_given32)
+from virtual.kernels.f32 import DOUBT, F, HALF, ONE, ZERO
+from virtual.kernels.ggx32 import fresnel_conductor_ratio as fresnel_conductor_ratio32, ggx_reflect as ggx_reflect32
 
-__all__ = ["ggx_normal32", "ggx_reflect32", "ggx_finish32", "phong_lobe_omc32"]
+__all__ = ["ggx_finish32", "phong_lobe_omc32"]
 
 _LN2 = F(math.log(2.0))
 _LOG2E = F(1.0 / math.log(2.0))
@@ -36,46 +36,16 @@ _BIAS, _MIN_EXP, _SHIFT = np.int32(127), np.int32(-126), np.int32(23)
 
 
 @jit(inline="llvm")
-def ggx_normal32(ax, ay, wx, wy, wz, ca, sa, r2, plain):
-    """GGX (isotropic or anisotropic), two-sided, first half (:func:`~virtual.kernels.scatter.ggx_given_parts`
-    in float32): the visible normal ``(mx, my, mz)`` of |w| for the disk point (direction ``ca, sa``
-    = 2 pi u2, squared radius ``r2`` = u1) and ni = |(ax wx, ay wy, |wz|)|. ``plain`` (a literal:
-    the branches fold away) says ax == ay and height-correlated masking, which saves the
-    anisotropic and separable terms."""
-    wz = abs(wz)
-    if plain:
-        ni = math.sqrt(ax * ax * (wx * wx + wy * wy) + wz * wz)
-    else:
-        ni = ggx_n32(wx, wy, wz, ax, ay)
-    mx, my, mz = ggx_vndf_given32(wx, wy, wz, ax, ay, ONE / ni, ca, sa, r2)
-    return mx, my, mz, ni
-
-
-@jit(inline="llvm")
-def ggx_reflect32(ax, ay, separable, wx, wy, wz, mx, my, mz, ni, plain):
-    """The second half of :func:`~virtual.kernels.scatter.ggx_given_parts` in float32: the
-    reflection of w about the normal of :func:`ggx_normal32` and its terms, ``(ox, oy, oz, c,
-    g_num, g_den, valid)``."""
-    flip = wz < ZERO
-    wz = abs(wz)
-    c = max(wx * mx + wy * my + wz * mz, ZERO)
-    ox = TWO * c * mx - wx
-    oy = TWO * c * my - wy
-    oz = TWO * c * mz - wz
-    if plain:
-        no = math.sqrt(ax * ax * (ox * ox + oy * oy) + oz * oz)
-        g_num, g_den = (wz + ni) * oz, ni * oz + no * wz
-    else:
-        g_num, g_den = g2_over_g1_masked_ratio32(wz, ni, oz, ggx_n32(ox, oy, oz, ax, ay), separable)
-    return ox, oy, (-oz if flip else oz), c, g_num, g_den, (wz > ZERO) & (oz > ZERO)
-
-
-@jit(inline="llvm")
 def ggx_finish32(p, wx, wy, wz, mx, my, mz, ni, u0, plain):
-    """GGX reflection from its visible normal (:func:`ggx_normal32`) on, surviving with
-    probability F G2/G1 by u0 (``p`` = alpha_x, alpha_y, eta, k, separable): ``(ox, oy, oz, alive,
-    doubt)``. ``plain`` (a literal) says isotropic, height-correlated and k = 0 (a dielectric's
-    Fresnel factor: one square root fewer)."""
+    """GGX reflection from its visible normal (:func:`~virtual.kernels.ggx.ggx_normal`'s float32
+    twin) on, surviving with probability F G2/G1 by u0 (``p`` = alpha_x, alpha_y, eta, k,
+    separable): ``(ox, oy, oz, alive, doubt)``. ``plain`` (a literal) says isotropic,
+    height-correlated and k = 0 (a dielectric's Fresnel factor: one square root fewer).
+
+    The float64 survival test (:func:`~virtual.kernels.scatter._ggx_given`) is the same
+    decision in another association: ``(u f_den) g_den`` there, ``u (f_den g_den)`` here, the
+    product the doubt test reuses. One text for both would move one path's pinned counts, so
+    this step stays per precision."""
     ox, oy, oz, c, g_num, g_den, valid = ggx_reflect32(p[0], p[1], p[4], wx, wy, wz, mx, my, mz, ni, plain)
     f_num, f_den = fresnel_conductor_ratio32(c, p[2], p[3], plain)
     den = f_den * g_den

@@ -29,7 +29,7 @@ PLASTIC32_UNIFORMS = 7
 @jit(inline="llvm")
 def dielectric_about32(p, wx, wy, wz, mx, my, mz, ni, u0, u3):
     """Rough dielectric (``p`` = alpha, eta, separable) from the visible normal of |w|
-    (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1, u2)) on: reflection when u0 < F
+    (:func:`~virtual.kernels.ggx.ggx_normal`'s float32 twin from (u1, u2)) on: reflection when u0 < F
     (else refraction; F = 1 on total internal reflection), surviving with probability G2/G1 by u3.
     From below the relative index is 1/eta."""
     a = p[0]
@@ -68,7 +68,7 @@ def plastic_about32(p, wx, wy, wz, mx, my, mz, ni, dx, dy, dz, fo, u0, u3, u6):
     u0 < F: specular (visible normal from (u1, u2), G2/G1 by u3); else u0 - F < kd (1 - F) is
     the diffuse survival; the attempt is Malley's direction from (u4, u5), kept when
     u6 >= F(cos theta_o).
-    From the visible normal of |w| (:func:`~virtual.kernels.branchfree32.ggx_normal32` from (u1,
+    From the visible normal of |w| (:func:`~virtual.kernels.ggx.ggx_normal`'s float32 twin from (u1,
     u2)) and the diffuse attempt (:func:`plastic_diffuse32` from (u4, u5)) on."""
     flip = wz < ZERO
     wz = abs(wz)

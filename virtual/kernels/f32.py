@@ -29,9 +29,9 @@ from virtual.kernels import jit
 from virtual.kernels.emit import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS, B_SPECIMEN_RADIUS
 from virtual.kernels.patch_lookup import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
 
-__all__ = ["F", "ZERO", "ONE", "TWO", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
+__all__ = ["F", "ZERO", "ONE", "TWO", "FOUR", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
            "GRID", "DOUBT", "in_doubt32", "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "emit_block32", "emit_side32", "guess_bin32",
-           "fresnel_conductor_ratio32", "fresnel_dielectric32", "frame32"]
+           "fresnel_dielectric32", "frame32"]
 
 F = np.float32
 ZERO = F(0.0)
@@ -194,29 +194,6 @@ def guess_bin32(x, y, z, scheme_code, n_theta, n_phi, ring_margin, sector_margin
             & (rho2 > _TINY2) & (r2 < _HUGE2))
     b = k * n_phi + j + (n_theta * n_phi) * (z < ZERO)
     return b if sure else -1
-
-
-@jit(inline="llvm")
-def fresnel_conductor_ratio32(c, eta, k, k_zero):
-    """:func:`~virtual.kernels.microfacet.fresnel_conductor_ratio` in float32: ``(num, den)``.
-    ``k_zero`` (a literal: the branch folds away) says k = 0, where a^2 + b^2 = |t0| and
-    a = sqrt(max(t0, 0)): one square root fewer."""
-    c2 = c * c
-    s2 = ONE - c2
-    e2 = eta * eta
-    k2 = k * k
-    t0 = (eta - ONE) * (eta + ONE) - k2 + c2  # = e2 - k2 - s2, without rounding c2 away near eta = 1
-    if k_zero:
-        a2b2 = abs(t0)
-        a = math.sqrt(max(t0, ZERO))
-    else:
-        a2b2 = math.sqrt(t0 * t0 + FOUR * e2 * k2)
-        a = math.sqrt(max(HALF * (a2b2 + t0), ZERO))
-    t1 = a2b2 + c2
-    t2 = TWO * c * a
-    t3 = c2 * a2b2 + s2 * s2
-    t4 = t2 * s2
-    return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)
 
 
 @jit(inline="llvm")

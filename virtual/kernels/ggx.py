@@ -1,12 +1,18 @@
-"""GGX's visible normals and Smith masking ratios, written once for float64 and float32.
+"""GGX's visible normals, Smith masking ratios, its reflection and the conductor's Fresnel factor,
+written once for float64 and float32.
 
 This module is the float64 source: it computes with the constants of its ``precision64`` import
 line, never a float literal, and :mod:`virtual.kernels.lawcode` writes its float32 twin
 ``virtual/kernels/ggx32.py`` (the same text importing ``precision32``: a build product, not
 checked in) the way it writes the laws' (:mod:`virtual.kernels.laws`). The float32 block kernels
-import the twin's functions (:mod:`virtual.kernels.branchfree32`,
-:mod:`virtual.kernels.branchfree32_rough`), the float64 kernels these. :func:`ggx_vndf` draws from
-a stream: float64 only (its twin is never compiled).
+import the twin's functions (:mod:`virtual.kernels.block32`, :mod:`virtual.kernels.branchfree32`,
+:mod:`virtual.kernels.branchfree32_rough`, ...), the float64 kernels these
+(:func:`~virtual.kernels.scatter.ggx_given_parts` is :func:`ggx_normal` then :func:`ggx_reflect`).
+:func:`ggx_vndf` draws from a stream: float64 only (its twin is never compiled).
+
+``plain`` and ``k_zero`` (a literal at each call: the branches fold away) pick a shorter form
+for the float32 block kernel's commonest case (isotropic, height-correlated, k = 0); it rounds
+differently, so the float64 kernels, whose counts are pinned with the general form, pass False.
 
 Conventions (shared with the numpy densities of :mod:`virtual.specimens.physics`): GGX uses
 Smith's height-correlated masking-shadowing G2 = 1 / (1 + L(wi) + L(wo)), G1(w) = 1 / (1 + L(w)),
@@ -20,10 +26,10 @@ import math
 
 from virtual.kernels import jit
 from virtual.kernels.microfacet import disk_direction
-from virtual.kernels.precision64 import ONE, TWO, ZERO  # precision
+from virtual.kernels.precision64 import FOUR, HALF, ONE, TWO, ZERO  # precision
 
 __all__ = ["ggx_n", "ggx_vndf_given", "ggx_vndf", "g2_over_g1_ratio", "g2_over_g1_masked_ratio", "g2_over_g1",
-           "g2_over_g1_masked"]
+           "g2_over_g1_masked", "ggx_normal", "ggx_reflect", "fresnel_conductor_ratio"]
 
 
 @jit(inline="llvm")
@@ -96,3 +102,65 @@ def g2_over_g1_masked(wx, wy, wz, ox, oy, oz, ax, ay, separable):
     """:func:`g2_over_g1` under the masking convention ``separable`` (0.0 or 1.0)."""
     num, den = g2_over_g1_masked_ratio(wz, ggx_n(wx, wy, wz, ax, ay), oz, ggx_n(ox, oy, oz, ax, ay), separable)
     return num / den
+
+
+@jit(inline="llvm")
+def ggx_normal(ax, ay, wx, wy, wz, ca, sa, r2, plain):
+    """GGX (isotropic or anisotropic), two-sided, first half: the visible normal ``(mx, my, mz)``
+    of |w| for the disk point (direction ``ca, sa``, squared radius ``r2``) and ni = |(ax wx,
+    ay wy, |wz|)| (:func:`ggx_n`). ``plain`` says ax == ay: ni without the anisotropic term's
+    product (the module docstring)."""
+    wz = abs(wz)
+    if plain:
+        ni = math.sqrt(ax * ax * (wx * wx + wy * wy) + wz * wz)
+    else:
+        ni = ggx_n(wx, wy, wz, ax, ay)
+    mx, my, mz = ggx_vndf_given(wx, wy, wz, ax, ay, ONE / ni, ca, sa, r2)
+    return mx, my, mz, ni
+
+
+@jit(inline="llvm")
+def ggx_reflect(ax, ay, separable, wx, wy, wz, mx, my, mz, ni, plain):
+    """The second half: the reflection of w about the normal of :func:`ggx_normal` (side
+    restored) and its terms, ``(ox, oy, oz, c, g_num, g_den, valid)`` -- the cosine w.m the Fresnel
+    factor takes, G2/G1 as a ratio under the masking convention ``separable`` (0.0
+    height-correlated, 1.0 separable) and whether both cosines are > 0. ``plain`` says ax == ay
+    and height-correlated masking."""
+    flip = wz < ZERO
+    wz = abs(wz)
+    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    ox = TWO * c * mx - wx
+    oy = TWO * c * my - wy
+    oz = TWO * c * mz - wz
+    if plain:
+        no = math.sqrt(ax * ax * (ox * ox + oy * oy) + oz * oz)
+        g_num, g_den = (wz + ni) * oz, ni * oz + no * wz
+    else:
+        g_num, g_den = g2_over_g1_masked_ratio(wz, ni, oz, ggx_n(ox, oy, oz, ax, ay), separable)
+    return ox, oy, (-oz if flip else oz), c, g_num, g_den, (wz > ZERO) & (oz > ZERO)
+
+
+@jit(inline="llvm")
+def fresnel_conductor_ratio(c, eta, k, k_zero):
+    """The conductor's Fresnel factor at the cosine c in [0, 1] as ``(num, den)``, F = num / den,
+    den >= 0 (scalar twin of :func:`virtual.fresnel.np_fresnel_conductor`): F = (Rs + Rp)
+    / 2 with Rp = Rs (t3 - t4) / (t3 + t4) is Rs t3 / (t3 + t4), and Rs = (t1 - t2) / (t1 + t2);
+    callers compare against F without dividing. With k = 0 it is the dielectric's F, total
+    internal reflection (eta < 1) included. ``k_zero`` says k = 0, where a^2 + b^2 = |t0| and
+    a = sqrt(max(t0, 0)): one square root fewer."""
+    c2 = c * c
+    s2 = ONE - c2
+    e2 = eta * eta
+    k2 = k * k
+    t0 = (eta - ONE) * (eta + ONE) - k2 + c2  # = e2 - k2 - s2, without rounding c2 away near eta = 1
+    if k_zero:
+        a2b2 = abs(t0)
+        a = math.sqrt(max(t0, ZERO))
+    else:
+        a2b2 = math.sqrt(t0 * t0 + FOUR * e2 * k2)
+        a = math.sqrt(max(HALF * (a2b2 + t0), ZERO))
+    t1 = a2b2 + c2
+    t2 = TWO * c * a
+    t3 = c2 * a2b2 + s2 * s2
+    t4 = t2 * s2
+    return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)

@@ -1,6 +1,7 @@
-"""Microfacet building blocks of the specimen kernels (float64): unit-disk points, Fresnel
-factors, orthonormal frames, and the start and the lobe direction of the laws' samplers. GGX's
-visible normals and masking ratios, written once for both precisions, are :mod:`virtual.kernels.ggx`.
+"""Microfacet building blocks of the specimen kernels (float64): unit-disk points, the
+dielectric's Fresnel factor, orthonormal frames, and the start and the lobe direction of the laws' samplers. GGX's
+visible normals, masking ratios and reflection and the conductor's Fresnel factor, written once for
+both precisions, are :mod:`virtual.kernels.ggx`.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ import math
 from virtual.kernels import jit
 from virtual.kernels.xoshiro import next_double
 
-__all__ = ["two_sided_draw", "unit_disk", "disk_direction", "fresnel_conductor_ratio", "fresnel_dielectric", "frame",
+__all__ = ["two_sided_draw", "unit_disk", "disk_direction", "fresnel_dielectric", "frame",
            "about_mirror"]
 
 
@@ -37,27 +38,6 @@ def unit_disk(s):
         r2 = a * a + b * b
         if r2 < 1.0 and r2 > 0.0:
             return a, b, r2
-
-
-
-@jit(inline="llvm")
-def fresnel_conductor_ratio(c, eta, k):
-    """Scalar twin of :func:`_np_fresnel_conductor` (c in [0, 1]) as ``(num, den)``, F = num / den,
-    den >= 0: F = (Rs + Rp) / 2 with Rp = Rs (t3 - t4) / (t3 + t4) is Rs t3 / (t3 + t4), and Rs
-    = (t1 - t2) / (t1 + t2); callers compare against F without dividing. With k = 0 it is the
-    dielectric's F, total internal reflection (eta < 1) included."""
-    c2 = c * c
-    s2 = 1.0 - c2
-    e2 = eta * eta
-    k2 = k * k
-    t0 = (eta - 1.0) * (eta + 1.0) - k2 + c2  # = e2 - k2 - s2, without rounding c2 away near eta = 1
-    a2b2 = math.sqrt(t0 * t0 + 4.0 * e2 * k2)
-    t1 = a2b2 + c2
-    a = math.sqrt(max(0.5 * (a2b2 + t0), 0.0))
-    t2 = 2.0 * c * a
-    t3 = c2 * a2b2 + s2 * s2
-    t4 = t2 * s2
-    return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)
 
 
 

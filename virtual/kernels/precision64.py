@@ -4,7 +4,7 @@ A law module imports its constants and helpers from here in one line; ``python -
 virtual.kernels.generate`` writes its float32 twin by importing the same names from
 :mod:`virtual.kernels.precision32` instead. Both modules export the same names:
 
-``ZERO, ONE, TWO, HALF``  the constants (a float literal would turn a float32 loop into float64)
+``ZERO, ONE, TWO, FOUR, HALF``  the constants (a float literal would turn a float32 loop into float64)
 ``sincos_2pi``, ``warp_cosine_hemisphere``, ``frame``  the warps and the orthonormal frame
 ``lobe_cos_sin(x)``  the cosine and sine of a lobe's angle from a prepass's value ``x`` of its
                     cosine: the cosine itself here, 1 - cos in float32 (where a narrow lobe's
@@ -23,11 +23,12 @@ from virtual.kernels import jit
 from virtual.kernels.microfacet import frame
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 
-__all__ = ["ZERO", "ONE", "TWO", "HALF", "sincos_2pi", "warp_cosine_hemisphere", "frame", "in_doubt", "lobe_cos_sin"]
+__all__ = ["ZERO", "ONE", "TWO", "FOUR", "HALF", "sincos_2pi", "warp_cosine_hemisphere", "frame", "in_doubt", "lobe_cos_sin"]
 
 ZERO = 0.0
 ONE = 1.0
 TWO = 2.0
+FOUR = 4.0
 HALF = 0.5
 
 

@@ -22,8 +22,8 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.ggx import g2_over_g1, g2_over_g1_masked, g2_over_g1_masked_ratio, ggx_n, ggx_vndf, ggx_vndf_given
-from virtual.kernels.microfacet import disk_direction, fresnel_conductor_ratio, fresnel_dielectric, unit_disk
+from virtual.kernels.ggx import fresnel_conductor_ratio, g2_over_g1, g2_over_g1_masked, ggx_normal, ggx_reflect, ggx_vndf
+from virtual.kernels.microfacet import disk_direction, fresnel_dielectric, unit_disk
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.coat import roughplastic
 from virtual.kernels.law_dispatch import law_scatter
@@ -49,17 +49,10 @@ def ggx_given_parts(ax, ay, separable, wx, wy, wz, ca, sa, r2):
     restored), the cosine w.m the Fresnel factor takes, G2/G1 as a ratio under the masking
     convention ``separable`` (0.0 height-correlated, 1.0 separable), and whether both cosines
     are > 0. A wavelength's ray survives when ``valid`` and u f_den g_den < f_num g_num with
-    ``fresnel_conductor_ratio(c, eta, k)``."""
-    flip = wz < 0.0
-    wz = abs(wz)
-    ni = ggx_n(wx, wy, wz, ax, ay)
-    mx, my, mz = ggx_vndf_given(wx, wy, wz, ax, ay, 1.0 / ni, ca, sa, r2)
-    c = max(wx * mx + wy * my + wz * mz, 0.0)
-    ox = 2.0 * c * mx - wx
-    oy = 2.0 * c * my - wy
-    oz = 2.0 * c * mz - wz
-    g_num, g_den = g2_over_g1_masked_ratio(wz, ni, oz, ggx_n(ox, oy, oz, ax, ay), separable)
-    return ox, oy, (-oz if flip else oz), c, g_num, g_den, (wz > 0.0) & (oz > 0.0)
+    ``fresnel_conductor_ratio(c, eta, k, False)``. :mod:`virtual.kernels.ggx`'s two halves, which
+    the float32 block kernel runs in loops of their own."""
+    mx, my, mz, ni = ggx_normal(ax, ay, wx, wy, wz, ca, sa, r2, False)
+    return ggx_reflect(ax, ay, separable, wx, wy, wz, mx, my, mz, ni, False)
 
 
 @jit(inline="llvm")
@@ -74,7 +67,7 @@ def _ggx_given(p, wx, wy, wz, ca, sa, r2, u):
     one (total internal reflection included), so one formula serves both.
     """
     ox, oy, oz, c, g_num, g_den, valid = ggx_given_parts(p[0], p[1], p[4], wx, wy, wz, ca, sa, r2)
-    f_num, f_den = fresnel_conductor_ratio(c, p[2], p[3])
+    f_num, f_den = fresnel_conductor_ratio(c, p[2], p[3], False)
     alive = valid & (u * f_den * g_den < f_num * g_num)
     return ox, oy, oz, alive
 

@@ -12,7 +12,7 @@ at once on float32 vectors (as many lanes as the machine's hold), like :mod:`vir
   ratio g_num / g_den are drawn once; wavelength w survives when u g_den < F_w(c) g_num. F_w is
   bracketed by a table of rigorous bounds over cells of c (:func:`fresnel_bounds`), laid out
   [cell, wavelength]: survive below the lower bound, die above the upper one, and only in
-  between (a few % of the rays) compute F exactly (:func:`~virtual.kernels.f32.fresnel_conductor_ratio32`),
+  between (a few % of the rays) compute F exactly (:func:`~virtual.kernels.ggx.fresnel_conductor_ratio` in float32),
   the bounds tested with u moved by :data:`~virtual.kernels.f32.DOUBT` either way; where the
   decision is in doubt for the grid uniform u (:func:`~virtual.kernels.f32.in_doubt32`), u is
   refined to 53 bits and F computed in float64.
@@ -28,9 +28,9 @@ from numba import int32
 from virtual.kernels import jit
 from virtual.kernels.block32 import BLOCK32_RAYS, guess_bins32, normals_block32
 from virtual.kernels.patch_lookup import patch_of
-from virtual.kernels.f32 import (DOUBT, ONE, emit_block32, in_doubt32, emit_side32, fresnel_conductor_ratio32, warp_cosine_hemisphere32)
-from virtual.kernels.branchfree32 import ggx_reflect32
-from virtual.kernels.microfacet import fresnel_conductor_ratio
+from virtual.kernels.f32 import DOUBT, ONE, emit_block32, in_doubt32, emit_side32, warp_cosine_hemisphere32
+from virtual.kernels.ggx import fresnel_conductor_ratio
+from virtual.kernels.ggx32 import fresnel_conductor_ratio as fresnel_conductor_ratio32, ggx_reflect as ggx_reflect32
 from virtual.kernels.refine import ray_bits, refined_by
 from virtual.kernels.xoshiro import LANES, fill_uniforms32
 
@@ -63,7 +63,7 @@ def fresnel_bounds(etas, ks, n_cells, n_samples, wp):
             a = max((j - 0.01) / n_cells, 0.0)
             b = (j + 1.01) / n_cells if j < n_cells - 1 else 1.001
             for s in range(n_samples + 1):
-                num, den = fresnel_conductor_ratio(a + (b - a) * s / n_samples, etas[w], ks[w])
+                num, den = fresnel_conductor_ratio(a + (b - a) * s / n_samples, etas[w], ks[w], False)
                 f[s] = num / den if den > 0.0 else 1.0
             d1 = 0.0
             d2 = 0.0
@@ -247,7 +247,7 @@ def ggx_spectral32_chunk(p, etas, ks, lo, hi, conical, b, cargs, ring_margin, se
                 if (t >= lrow[w]) & (t_lo < hrow[w]):
                     f_num, f_den = fresnel_conductor_ratio32(c, etas[w], ks[w], False)
                     if in_doubt32(uu, f_num * y, f_den * g_den):  # u refined, F in float64
-                        fn, fd = fresnel_conductor_ratio(np.float64(c), np.float64(etas[w]), np.float64(ks[w]))
+                        fn, fd = fresnel_conductor_ratio(np.float64(c), np.float64(etas[w]), np.float64(ks[w]), False)
                         uf = refined_by(uu, ray_bits(key, done + r))
                         row[w] += _YES if uf * fd * np.float64(g_den) < fn * np.float64(y) else _NO
                     else:
