@@ -372,6 +372,7 @@ NUMERIC_FIELDS = {("points", c) for c in ("theta_i", "phi_i", "theta_r", "phi_r"
 DAMAGEABLE = sorted(JSON_FIELDS | NUMERIC_FIELDS | {("runs", c) for c in ("created_epoch", "finished_epoch", "n_planned",
                                                                           "seed", "kind", "reason")})
 DAMAGE = st.one_of(st.sampled_from([None, "", "{", "[]", "null", "abc", '{"uncertainty_budget": "x"}', "1e999",
+                                    '{"x": ' + "7" * 5000 + "}",  # past int()'s 4300 digits: a plain ValueError
                                     '{"uncertainty_budget": {"components": [], "combined": -1, "expanded": 0, "k": 2}}']),
                    st.floats(), st.integers(min_value=-10**18, max_value=10**18), st.text(max_size=12))
 

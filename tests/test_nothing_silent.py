@@ -127,3 +127,63 @@ def test_error_lines_are_capped(capsys):
     code, _, err = run_main(capsys, "gonio", "--specimen", "q" * 60_000)
     assert code == 2 and err.count("\n") == 1
     assert len(err) < MAX_ERROR_CHARS + 40 and "characters left out" in err
+
+
+LONG_INT = "7" * 5000  # past int()'s 4300-digit limit: json.loads raises a plain ValueError, not a JSONDecodeError
+
+
+def _parquet_with(tmp_path: Path, key: bytes, value: str) -> Path:
+    import pyarrow.parquet as pq
+
+    from bench.io import record_to_parquet
+
+    rows = [{"wavelength_nm": 550.0, "theta_i": 30.0, "phi_i": 0.0, "theta_r": tr, "phi_r": 180.0, "hemisphere": "R",
+             "value": 0.2, "std": 0.01, "ci_lo": 0.19, "ci_hi": 0.21, "theta_min": np.nan, "theta_max": np.nan,
+             "phi_min": np.nan, "phi_max": np.nan, "psa": np.nan, "count": 0, "N": 0} for tr in (10.0, 40.0)]
+    path = record_to_parquet(BSDFRecord(pd.DataFrame(rows)[BSDF_COLUMNS], {"specimen": "s"}), tmp_path / "p.parquet")
+    table = pq.read_table(path)
+    pq.write_table(table.replace_schema_metadata({**table.schema.metadata, key: value.encode()}), path)
+    return path
+
+
+@pytest.mark.parametrize("key, value, says", [
+    (b"goniobench.meta", f'{{"x": {LONG_INT}}}', "metadata goniobench.meta is not valid JSON (an integer of 5000 digits"),
+    (b"goniobench.units", f'{{"x": {LONG_INT}}}', "metadata goniobench.units is not valid JSON (an integer of 5000"),
+    (b"PANDAS_ATTRS", f'{{"x": {LONG_INT}}}', "metadata PANDAS_ATTRS is not valid JSON (an integer of 5000 digits"),
+    (b"goniobench.meta", '{"x": ', "metadata goniobench.meta is not valid JSON (Expecting value at character 6)"),
+    (b"goniobench.meta", "[1]", "metadata goniobench.meta holds a JSON list, not an object"),
+    (b"pandas", f'{{"x": {LONG_INT}}}', "not a readable Parquet file"),
+])
+def test_a_parquet_file_with_bad_json_metadata_exits_2_naming_the_key(tmp_path, capsys, key, value, says):
+    path = _parquet_with(tmp_path, key, value)
+    code, out, err = run_main(capsys, "export", path, "--format", "csv", "--out", tmp_path / "o.csv")
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert f"{path}: " in err and says in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.parquet"]  # nothing written
+
+
+def test_a_mitsuba_specimen_holding_a_long_integer_exits_2(capsys):
+    code, out, err = run_main(capsys, "gonio", "--specimen", f'mitsuba:{{"type": {LONG_INT}}}')
+    assert code == 2 and out == "" and err.count("\n") == 1, err
+    assert "invalid JSON (an integer of 5000 digits" in err
+
+
+def test_a_replay_fixture_or_geometry_file_holding_a_long_integer_is_one_config_error(tmp_path):
+    """Library readers no command reaches (a test's transcript, an emulator's geometry file)."""
+    from bench.core.errors import ConfigError
+    from drivers.transport import load_fixture
+    from virtual.wire.ocean_model import file_geometry_source
+
+    fixture = tmp_path / "f.jsonl"
+    fixture.write_text('{"sent": "00", "reply": "00"}\n{"sent": "00", "reply": ' + LONG_INT + "}\n")
+    with pytest.raises(ConfigError, match=r"f\.jsonl:2: not JSON \(an integer of 5000 digits") as e:
+        load_fixture(fixture)
+    assert "\n" not in str(e.value)
+    with pytest.raises(ConfigError, match=r"fixture .*missing\.jsonl does not exist"):
+        load_fixture(tmp_path / "missing.jsonl")
+    geometry = tmp_path / "g.json"
+    geometry.write_text('{"theta_i": ' + LONG_INT + "}")
+    with pytest.raises(ConfigError, match=r"g\.json: not JSON \(an integer of 5000 digits"):
+        file_geometry_source(str(geometry))
+    geometry.write_text('{"theta_i": 3')  # caught half-written: no geometry yet
+    assert file_geometry_source(str(geometry)) is None

@@ -2,6 +2,7 @@
 
 One place for each: :func:`read_toml` (every file the user gives goes through it, so an
 unreadable, non-UTF-8 or malformed file is one :class:`ConfigError` naming it),
+:func:`json_problem` (what ``json.loads`` refused, for the one line naming the file or field),
 :func:`parse_range` (a number, a list or a ``{start, stop, step}`` table) and
 :func:`parse_wavelengths` (``START:STOP:STEP``, ``a,b,c`` or one number, in nm). Sizes are
 bounded (:data:`MAX_RANGE_POINTS`) so a typo cannot ask for an unbounded amount of work.
@@ -9,8 +10,10 @@ bounded (:data:`MAX_RANGE_POINTS`) so a typo cannot ask for an unbounded amount 
 
 from __future__ import annotations
 
+import json
 import math
 import re
+import sys
 import tomllib
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -19,7 +22,7 @@ import numpy as np
 
 from bench.core.errors import ConfigError, InputError
 
-__all__ = ["read_toml", "read_text", "parse_range", "parse_wavelengths", "check_collector_spec",
+__all__ = ["read_toml", "read_text", "json_problem", "parse_range", "parse_wavelengths", "check_collector_spec",
            "MAX_RANGE_POINTS", "MAX_WAVELENGTHS", "MAX_COLLECTOR_PATCHES", "WAVELENGTH_RANGE_NM",
            "check_wavelength_units", "looks_like_radians"]
 
@@ -30,6 +33,7 @@ MAX_WAVELENGTHS = 10_000
 #: the most patches one collector may have (rings x sectors per hemisphere)
 MAX_COLLECTOR_PATCHES = 1_000_000
 
+_LONG_INT = re.compile(r"value has (\d+) digits")
 _COLLECTOR_SPEC = re.compile(r"^\s*([A-Za-z][A-Za-z-]*)\s*:\s*(\d{1,9})\s*[xX*]\s*(\d{1,9})\s*$")
 
 
@@ -49,6 +53,20 @@ def read_text(path: str | Path, what: str = "file") -> str:
         raise InputError(f"{what} {p} is not UTF-8 text (byte {exc.start}: {exc.object[exc.start]:#04x})") from None
     except OSError as exc:
         raise InputError(f"{what} {p}: {exc.strerror or exc}") from None
+
+
+def json_problem(exc: ValueError, at: bool = False) -> str:
+    """What ``json.loads`` refused: its message (and position, ``at``). A number longer than
+    ``int()`` takes (Python's 4300-digit limit) is a plain ValueError without either, and bytes
+    that are not UTF-8 a UnicodeDecodeError: so every reader of JSON catches ValueError, not only
+    JSONDecodeError, and words it with this."""
+    if isinstance(exc, UnicodeDecodeError):
+        return f"not UTF-8 (byte {exc.start}: {exc.object[exc.start]:#04x})"
+    if not isinstance(exc, json.JSONDecodeError):
+        long = _LONG_INT.search(str(exc))
+        return (f"an integer of {long.group(1)} digits, more than the {sys.get_int_max_str_digits()} "
+                f"Python reads" if long else str(exc))
+    return f"{exc.msg} at character {exc.pos}" if at else exc.msg
 
 
 def read_toml(path: str | Path, what: str = "config file") -> dict[str, Any]:

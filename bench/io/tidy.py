@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.core.errors import InputError
+from bench.core.parsing import json_problem
 from bench.core.records import (BSDF_COLUMNS, COLUMN_UNITS, IDENTITY_KEYS, BSDFRecord, json_default, record_provenance,
                                  value_unit, with_keys)
 from bench.core.roles import Spectrum
@@ -242,18 +243,36 @@ def read_parquet(path: str | Path) -> BSDFRecord:
         t = pq.read_table(p)
     except Exception as e:  # pyarrow raises several types for a bad file
         raise InputError(f"{p}: not a readable Parquet file ({e})") from None
-    raw = (t.schema.metadata or {}).get(PARQUET_META_KEY)
-    meta = json.loads(raw.decode()) if raw else {}
-    units = (t.schema.metadata or {}).get(PARQUET_UNITS_KEY)
+    md = t.schema.metadata or {}
+    meta = _parquet_json(p, md, PARQUET_META_KEY) or {}
+    units = _parquet_json(p, md, PARQUET_UNITS_KEY)
     if units:
-        meta["column_units"] = json.loads(units.decode())
-    attrs = (t.schema.metadata or {}).get(b"PANDAS_ATTRS")
-    rec = with_keys(BSDFRecord(t.to_pandas(), meta))
+        meta["column_units"] = units
+    attrs = _parquet_json(p, md, b"PANDAS_ATTRS")
     try:
-        rec.table.attrs = json.loads(attrs.decode()) if attrs else {"column_units": meta.get("column_units", {})}
-    except ValueError as e:  # JSONDecodeError, or a number longer than int() takes
-        raise InputError(f"{p}: PANDAS_ATTRS is not valid JSON ({e})") from None
+        table = t.to_pandas()
+    except Exception as e:  # pyarrow's own metadata (b"pandas") read back: several types for a bad one
+        raise InputError(f"{p}: not a readable Parquet file ({type(e).__name__}: {e})") from None
+    rec = with_keys(BSDFRecord(table, meta))
+    rec.table.attrs = attrs if attrs else {"column_units": meta.get("column_units", {})}
     return rec
+
+
+def _parquet_json(p: Path, md: dict[bytes, bytes], key: bytes) -> dict[str, Any] | None:
+    """The JSON object the Parquet file ``p`` holds under the schema metadata ``key`` (None when
+    absent); anything else there is one line naming the file and the key."""
+    raw = md.get(key)
+    if not raw:
+        return None
+    try:
+        value = json.loads(raw.decode("utf-8"))
+    except ValueError as e:  # JSONDecodeError, an integer longer than int() takes, or not UTF-8
+        raise InputError(f"{p}: metadata {key.decode(errors='replace')} is not valid JSON "
+                         f"({json_problem(e, at=True)})") from None
+    if not isinstance(value, dict):
+        raise InputError(f"{p}: metadata {key.decode(errors='replace')} holds a JSON {type(value).__name__}, "
+                         f"not an object")
+    return value
 
 
 

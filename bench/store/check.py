@@ -27,6 +27,7 @@ from typing import Any, TypeGuard
 import numpy as np
 
 from bench.core.errors import StoreError
+from bench.core.parsing import json_problem
 from bench.store.schema import RUN_KINDS, RUN_STATUSES
 
 __all__ = ["DamagedRun", "RUN_ID_PATTERN", "valid_run_id", "run_field", "check_run_row", "check_frame",
@@ -85,14 +86,6 @@ def damaged(run_id: str, what: str, idx: Any = None, wl: Any = None) -> DamagedR
                       f"the runs that are not)")
 
 
-def _json_problem(exc: ValueError, at: bool = False) -> str:
-    """What ``json.loads`` refused: its message (and position, ``at``); a number longer than
-    ``int()`` takes is a plain ValueError, without either, so its own text."""
-    if not isinstance(exc, json.JSONDecodeError):
-        return str(exc)
-    return f"{exc.msg} at character {exc.pos}" if at else exc.msg
-
-
 def run_field(run_id: str, field: str, text: Any) -> Any:
     """The JSON column ``field`` of run ``run_id`` decoded (None when NULL); refused when it is not
     JSON or not of the type the store writes there."""
@@ -103,7 +96,7 @@ def run_field(run_id: str, field: str, text: Any) -> Any:
     try:
         value = json.loads(text)
     except ValueError as exc:
-        raise damaged(run_id, f"runs.{field} is not JSON ({_json_problem(exc, at=True)}: {_shown(text)})") from None
+        raise damaged(run_id, f"runs.{field} is not JSON ({json_problem(exc, at=True)}: {_shown(text)})") from None
     want = RUN_JSON_FIELDS.get(field)
     if value is not None and want is not None and not isinstance(value, want):
         raise damaged(run_id, f"runs.{field} holds a JSON {type(value).__name__}, not an object")
@@ -194,7 +187,7 @@ def reading_extra(run_id: str, idx: Any, wl: Any, text: Any, std: Any = None) ->
     try:
         extra = json.loads(text)
     except ValueError as exc:
-        raise damaged(run_id, f"readings.extra is not JSON ({_json_problem(exc)}: {_shown(text)})", idx, wl) from None
+        raise damaged(run_id, f"readings.extra is not JSON ({json_problem(exc)}: {_shown(text)})", idx, wl) from None
     if not isinstance(extra, dict):
         raise damaged(run_id, f"readings.extra holds a JSON {type(extra).__name__}, not an object", idx, wl)
     if "uncertainty_budget" in extra:

@@ -10,7 +10,8 @@ import os
 from pathlib import Path
 from typing import Iterable, Sequence
 
-from bench.core.errors import ConfigError, PortGoneError, TransportMismatchError
+from bench.core.errors import ConfigError, InputError, PortGoneError, TransportMismatchError
+from bench.core.parsing import json_problem, read_text
 from drivers.transport.base import Pair, Transport, hexbytes
 
 class ScriptedTransport:
@@ -240,18 +241,22 @@ def load_fixture(path: str | os.PathLike[str]) -> list[Pair]:
     Raises
     ------
     ConfigError
-        If a line is not JSON, lacks ``sent``/``reply`` or holds bad hex (naming the line).
+        If the file cannot be read, or a line is not JSON, lacks ``sent``/``reply`` or holds bad hex (naming the line).
     """
+    try:
+        text = read_text(Path(path), "fixture")
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None
     pairs: list[Pair] = []
-    for lineno, line in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), 1):
+    for lineno, line in enumerate(text.splitlines(), 1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
         where = f"{path}:{lineno}"
         try:
             obj = json.loads(s)
-        except json.JSONDecodeError as exc:
-            raise ConfigError(f"{where}: not JSON: {exc}") from exc
+        except ValueError as exc:  # JSONDecodeError, or an integer longer than int() takes
+            raise ConfigError(f"{where}: not JSON ({json_problem(exc, at=True)})") from None
         if not isinstance(obj, dict):
             raise ConfigError(f"{where}: expected an object")
         if "format" in obj:

@@ -45,6 +45,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bench.core.errors import SpecimenError
+from bench.core.parsing import json_problem
 from virtual.model_ids import MODEL_PYTHON
 from virtual.mitsuba_llvm import WavefrontSampler, llvm_status, llvm_variant
 from virtual.specimens.declare import Specimen
@@ -288,9 +289,8 @@ def parse_mitsuba(text: str, spec: str | None = None, variant: str = "scalar_rgb
                             'mitsuba:{"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}')
     try:
         definition = json.loads(body)
-    except json.JSONDecodeError as exc:
-        raise SpecimenError(f"specimen {spec!r}: invalid JSON ({exc.msg} at line {exc.lineno} "
-                            f"column {exc.colno})") from None
+    except ValueError as exc:  # JSONDecodeError, or an integer longer than int() takes
+        raise SpecimenError(f"specimen {spec!r}: invalid JSON ({json_problem(exc, at=True)})") from None
     if not isinstance(definition, dict):
         raise SpecimenError(f"specimen {spec!r}: the JSON must be an object (a Mitsuba BSDF dict), "
                             f"got {type(definition).__name__}")

@@ -14,6 +14,7 @@ import json
 from dataclasses import dataclass, field
 
 from bench.core.errors import ConfigError
+from bench.core.parsing import json_problem
 from typing import Any, Callable
 
 import numpy as np
@@ -41,13 +42,17 @@ def file_geometry_source(path: str) -> Any:
     """Read the current geometry from a JSON file (``None`` when it does not exist yet).
 
     A stand-in for a goniometer emulator publishing its joint angles: bind the path with
-    ``functools.partial(file_geometry_source, path)``.
+    ``functools.partial(file_geometry_source, path)``. A file caught half-written (not JSON yet)
+    reads as ``None`` too; JSON no writer can mean (an integer longer than ``int()`` takes) is a
+    :class:`ConfigError` naming the file.
     """
     try:
         with open(path, encoding="utf-8") as fh:
             return json.load(fh)
     except (FileNotFoundError, json.JSONDecodeError):
         return None
+    except ValueError as exc:
+        raise ConfigError(f"geometry file {path}: not JSON ({json_problem(exc)})") from None
 
 
 def _resolve(spec: Any) -> Any:
