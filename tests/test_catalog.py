@@ -1,4 +1,4 @@
-"""Stored runs as Bluesky runs in a Tiled catalog (bench/catalog.py, `bench serve`).
+"""Stored runs as Bluesky runs in a Tiled catalog (bench/catalog/, `bench serve`).
 
 Fast: the documents of a stored run are valid event-model documents keyed by the run id, and
 their event rows are the rows `bench export` writes (values, identity, units). Slow (a real Tiled
