@@ -20,6 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from bench.store import RunStore
 from bench.core.errors import InputError
 from bench.core.geometry import Geometry
 from bench.core.schemas import BenchFile, CheckTable
@@ -105,7 +106,7 @@ def score(check: CheckTable, readings: Any, aperture_deg: float = 0.0) -> dict[s
         "agree": bool((np.abs(en) <= 1).all()), "masked": int((~ok).sum())}
 
 
-def check_history(store: Any, bench_name: str, check_name: str) -> list[dict[str, Any]]:
+def check_history(store: RunStore, bench_name: str, check_name: str) -> list[dict[str, Any]]:
     """Completed check runs of ``check_name`` on bench ``bench_name``, by date then creation:
     each ``{run, date, value, max_abs_E_n}``."""
     out = []
@@ -137,7 +138,7 @@ def check_chart(check: CheckTable, history: Sequence[Mapping[str, Any]]) -> Char
     return chart(values, baseline=check.baseline, centre=check.centre, sigma=check.sigma)
 
 
-def relied_charts(store: Any, meta: Mapping[str, Any]) -> list[tuple[CheckTable, list[dict[str, Any]], Chart]]:
+def relied_charts(store: RunStore, meta: Mapping[str, Any]) -> list[tuple[CheckTable, list[dict[str, Any]], Chart]]:
     """The control charts of the check standards a run relied on (its meta's ``assurance``, as
     ``bench scan`` records it; its bench config in ``meta["bench"]``): each check's history up to
     the check run the scan relied on, as the scan saw it. Checks without a run or a chart yet
@@ -178,7 +179,7 @@ class Gate:
         return f"bench {bench_name} is not vouched for by its checks: " + "; ".join(self.problems)
 
 
-def _scans_since(store: Any, bench_name: str, created: str) -> int:
+def _scans_since(store: RunStore, bench_name: str, created: str) -> int:
     n = 0
     for r in store.runs():
         if r.get("kind") == "scan" and (r.get("created") or "") > created:
@@ -186,7 +187,7 @@ def _scans_since(store: Any, bench_name: str, created: str) -> int:
     return n
 
 
-def gate(description: Mapping[str, Any], store: Any | None, on: str | None = None) -> Gate | None:
+def gate(description: Mapping[str, Any], store: RunStore | None, on: str | None = None) -> Gate | None:
     """The assurance state of a bench before a scan on date ``on`` (default today): None when it
     declares ``assurance = "off"`` or no check; else each check's latest run, whether it is
     overdue (``every``) and whether its chart's latest point broke a rule."""
@@ -206,7 +207,7 @@ def gate(description: Mapping[str, Any], store: Any | None, on: str | None = Non
         if check.every == "day" and (last["date"] or "") < on:
             state["state"] = "overdue"
             problems.append(f"check {check.name!r} is due daily and was last measured on {last['date']} (run {last['run']})")
-        elif check.every != "day":
+        elif check.every != "day" and store is not None:  # always, with a history (read from it)
             limit = 0 if check.every == "run" else int(check.every)
             since = _scans_since(store, bench.name, last["created"] or "")
             if since >= max(limit, 1):

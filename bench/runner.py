@@ -30,6 +30,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from bench.store import RunStore
 from bench.core.budget import Budget, calibration_budgets, declared
 from bench.core.calibration import Calibration
 from bench.config import Bench
@@ -133,7 +134,7 @@ def _progress(total: int, initial: int, enabled: bool, desc: str):
                 leave=True)
 
 
-def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, progress: bool = False,
+def run_scan(bench: Bench, plan: Plan, store: RunStore, seed: int | None = None, progress: bool = False,
              on_point: Callable[[int, int], None] | None = None, kind: str = "scan",
              extra_meta: dict[str, Any] | None = None) -> ScanResult:
     """Validate, then measure every point of ``plan`` on ``bench`` into ``store`` as a run of
@@ -165,7 +166,7 @@ def run_scan(bench: Bench, plan: Plan, store: Any, seed: int | None = None, prog
     return _execute(bench, plan, store, run_id, order, cal, set(), progress, on_point)
 
 
-def resume_scan(bench: Bench, store: Any, run_id: str, progress: bool = False,
+def resume_scan(bench: Bench, store: RunStore, run_id: str, progress: bool = False,
                 on_point: Callable[[int, int], None] | None = None) -> ScanResult:
     """Finish an interrupted run: measure exactly the points it lacks, with its calibration."""
     info = store.run(run_id)
@@ -193,7 +194,7 @@ def _home(bench: Bench, plan: Plan) -> dict[str, float] | None:
     return {HOME_AXIS: home_axis(bench, HOME_AXIS)}
 
 
-def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int], cal: Calibration | None,
+def _execute(bench: Bench, plan: Plan, store: RunStore, run_id: str, order: list[int], cal: Calibration | None,
              done: set[int], progress: bool, on_point: Callable[[int, int], None] | None) -> ScanResult:
     t_run = time.perf_counter()
     note_run(run_id)  # the devices' owner records name the run a second process would disturb
@@ -247,7 +248,7 @@ def _execute(bench: Bench, plan: Plan, store: Any, run_id: str, order: list[int]
     return ScanResult(run_id, "completed", k, len(order), time.perf_counter() - t_run, masked, saturated, reason)
 
 
-def masked_readings(store: Any, run_id: str, calibrated: bool) -> tuple[int, int, str | None]:
+def masked_readings(store: RunStore, run_id: str, calibrated: bool) -> tuple[int, int, str | None]:
     """How many readings of run ``run_id`` are masked (no value, in a calibrated run; a
     saturated one in any run) and saturated, and the reason a completed run then records
     (``N of M readings masked (S saturated)``; None when every reading holds a value)."""
@@ -264,7 +265,7 @@ class PointFaults:
     ``device_faults``: ``{"points": {IDX: {"arm.retries": 1, ...}}, "total": {...}}`` (only points
     that had any), written after the point's own commit; a resumed run adds to what it holds."""
 
-    def __init__(self, store: Any, run_id: str, bench: Bench) -> None:
+    def __init__(self, store: RunStore, run_id: str, bench: Bench) -> None:
         self.store, self.run_id, self.bench = store, run_id, bench
         held = (store.run(run_id).get("meta") or {}).get("device_faults") or {}
         self.points: dict[str, dict[str, int]] = dict(held.get("points") or {})

@@ -27,6 +27,7 @@ import time
 import uuid
 from typing import Any, Iterator
 
+from bench.store import RunStore
 from bench.core.records import GEOMETRY_COLUMNS, hardware_name, json_default, record_identity, record_provenance
 
 __all__ = ["run_documents", "run_uid", "scan_ids", "STATUS_EXIT", "RUN_UID_NAMESPACE",
@@ -51,7 +52,7 @@ def run_uid(info: Any) -> str:
     return str(uuid.uuid5(RUN_UID_NAMESPACE, str(info["run_id"])))
 
 
-def scan_ids(store: Any) -> dict[str, int]:
+def scan_ids(store: RunStore) -> dict[str, int]:
     """Each stored run's ``scan_id``: the RunEngine's for a Bluesky run, else its rank (1, 2, ...)
     in the store's creation order."""
     out = {}
@@ -208,7 +209,7 @@ def _column_values(column: Any) -> list[Any]:
     return ["" if v is None or (isinstance(v, float) and math.isnan(v)) else str(v) for v in column]
 
 
-def _point_times(store: Any, run_id: str) -> dict[int, float]:
+def _point_times(store: RunStore, run_id: str) -> dict[int, float]:
     """When each point of the run was measured (its ``t_end``), by point index."""
     try:
         pts = store.points(run_id)
@@ -217,7 +218,7 @@ def _point_times(store: Any, run_id: str) -> dict[int, float]:
     return {int(i): float(t) for i, t in zip(pts["idx"], pts["t_end"]) if t == t and t is not None}
 
 
-def run_documents(store: Any, run_id: str, scan_id: int | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
+def run_documents(store: RunStore, run_id: str, scan_id: int | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
     """The Bluesky documents of stored run ``run_id`` (see the module docstring); a run without
     readings gives a start and a stop document only (no empty ``primary`` stream)."""
     import pandas as pd

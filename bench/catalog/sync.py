@@ -28,6 +28,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from bench.store import RunStore
 from bench.core.errors import DeviceError, InputError
 from bench.core.outputs import atomic_write
 from bench.store.check import valid_run_id
@@ -183,7 +184,7 @@ class CatalogServer:
             log.info("catalog: listing its runs through the server (%s)", exc)
             return set(self._writer_client)
 
-    def add_runs(self, store: Any, run_ids: list[str] | None = None) -> list[str]:
+    def add_runs(self, store: RunStore, run_ids: list[str] | None = None) -> list[str]:
         """Write stored runs (default: every run not still ``running``: a run is served once it
         has ended, complete) through ``TiledWriter``; runs already in the catalog under their
         start uid (a kept ``--catalog``, served earlier, or written live by a RunEngine's
@@ -278,7 +279,7 @@ class CatalogServer:
             return {}
         return ledger if isinstance(ledger, dict) else {}
 
-    def keep_only(self, store: Any) -> list[str]:
+    def keep_only(self, store: RunStore) -> list[str]:
         """Delete every run of the catalog that is not a run of ``store`` (a copy of a catalog
         served before, holding runs since deleted from the store or written live then by a
         RunEngine alone); returns their start uids."""

@@ -16,6 +16,7 @@ from typing import Any, Callable, Iterator, Mapping
 import pandas as pd
 from tqdm import tqdm
 
+from bench.store import RunStore
 from bench.core.errors import BenchError, InputError, RunInterrupted, SimulationError, StoreError
 from bench.sweep.spec import SweepSpec, SweepTask, sweep_from_dict, task_table
 from bench.sweep.task import TaskResult, run_task, warm_up
@@ -81,7 +82,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, *,
         yield client
 
 
-def run_sweep(spec: SweepSpec, store: Any, *, client: Any = None, progress: bool = False,
+def run_sweep(spec: SweepSpec, store: RunStore, *, client: Any = None, progress: bool = False,
               numba_threads: int | None = None, window: int | None = None, retries: int = 1,
               on_task: Callable[[int, int], None] | None = None) -> SweepResult:
     """Create a ``sweep`` run in ``store`` and run every task of ``spec``.
@@ -127,7 +128,7 @@ def run_sweep(spec: SweepSpec, store: Any, *, client: Any = None, progress: bool
                     meta["task_runs"])
 
 
-def resume_sweep(store: Any, run_id: str, *, client: Any = None, progress: bool = False,
+def resume_sweep(store: RunStore, run_id: str, *, client: Any = None, progress: bool = False,
                  numba_threads: int | None = None, window: int | None = None, retries: int = 1,
                  on_task: Callable[[int, int], None] | None = None) -> SweepResult:
     """Finish an interrupted (or crashed) sweep run: run exactly the tasks it lacks, rebuilt
@@ -167,7 +168,7 @@ def _progress(total: int, initial: int, enabled: bool, desc: str) -> Any:
                 leave=True)
 
 
-def sweep_readings(store: Any, run_id: str) -> Any:
+def sweep_readings(store: RunStore, run_id: str) -> Any:
     """The tidy readings of a sweep run (:meth:`bench.store.RunStore.readings`) with the per-task
     metadata joined on ``idx``: :data:`TASK_COLUMNS` (``quantity`` of a spectro "T" row is
     ``transmittance``) and :data:`RUN_COLUMNS` (the worker that stored it and its compute
@@ -189,7 +190,7 @@ class _Sink:
     """The client side: stores each result once, counts, reports progress, and keeps who ran
     each task (flushed to the run's meta every ``flush_s`` seconds and at the end: diagnostic
     metadata, not results, so it does not cost a second transaction per task)."""
-    def __init__(self, store: Any, run_id: str, done: set[int], bar: Any,
+    def __init__(self, store: RunStore, run_id: str, done: set[int], bar: Any,
                  on_task: Callable[[int, int], None] | None, n_tasks: int | None = None,
                  task_runs: Mapping[str, list[Any]] | None = None, flush_s: float = 10.0) -> None:
         self.store, self.run_id, self.done, self.bar, self.on_task = store, run_id, done, bar, on_task
@@ -235,7 +236,7 @@ class _Sink:
             self.on_task(len(self.done), r.idx)
 
 
-def _execute(spec: SweepSpec, store: Any, run_id: str, done: set[int], client: Any, progress: bool,
+def _execute(spec: SweepSpec, store: RunStore, run_id: str, done: set[int], client: Any, progress: bool,
              numba_threads: int | None, window: int | None, retries: int,
              on_task: Callable[[int, int], None] | None, executor: dict[str, Any],
              task_runs: Mapping[str, list[Any]] | None) -> SweepResult:

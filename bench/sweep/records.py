@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from bench.store import RunStore
 from bench.core.errors import InputError
 from bench.core.records import BSDFRecord
 from bench.core.roles import Spectrum
@@ -32,7 +33,7 @@ def _base(info: dict[str, Any], run_id: str) -> dict[str, Any]:
             "body": "virtual"}
 
 
-def sweep_record(store: Any, run_id: str) -> BSDFRecord | tuple[Spectrum, ...]:
+def sweep_record(store: RunStore, run_id: str) -> BSDFRecord | tuple[Spectrum, ...]:
     """A sweep run as a keyed record (see the module docstring)."""
     info = store.run(run_id)
     if (info.get("meta") or {}).get("instrument") == "spectro":
@@ -41,7 +42,7 @@ def sweep_record(store: Any, run_id: str) -> BSDFRecord | tuple[Spectrum, ...]:
     return sweep_table(store, run_id)
 
 
-def sweep_table(store: Any, run_id: str) -> BSDFRecord:
+def sweep_table(store: RunStore, run_id: str) -> BSDFRecord:
     """A sweep run as one table whose rows carry their task's keys: a goniophotometric sweep's
     ``specimen`` and ``collector`` (``quantity`` BSDF), a spectrophotometric sweep's ``specimen``,
     CIE ``geometry`` and measured ``quantity`` (a reflectance: unitless, no viewing direction)."""
