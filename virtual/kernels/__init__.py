@@ -7,8 +7,9 @@ Modules (each owns one kind of kernel; none holds Python-side objects):
 ``warps``       scalar warps of uniforms into points of disks, triangles, the hemisphere
 ``emit``        emitting one incident ray (collimated or conical beam); the beam vector's indices
 ``patch_lookup`` the exact and the vectorizable patch lookup of the collector sphere
-``microfacet``  Fresnel factors, frames, unit-disk points, the laws' shared sampler steps (float64)
-``ggx``         GGX's visible normals and masking ratios, written once: the float64 source of
+``microfacet``  frames, unit-disk points, the laws' shared sampler steps (float64)
+``ggx``         GGX's visible normals, masking ratios and reflection, the Fresnel factors, the rough
+                dielectric's and plastic's steps from the normal on, written once: the float64 source of
 ``ggx32``       (generated, not checked in) its float32 twin, the same text on ``precision32``
 ``laws``        the scattering laws written once (a package: one module per law, its float64 source;
                 its contract in ``laws/__init__.py``); ``lawcode`` writes the rest from them:
@@ -27,9 +28,8 @@ Modules (each owns one kind of kernel; none holds Python-side objects):
                 uniforms per ray
 ``block64``     the vectorized float64 block kernel and the spectral batches
 ``block_coat``  the float64 block kernel of the coated families (roughplastic, leaf)
-``f32``         float32 twins of the scalar helpers (warps, beam, bin guess, microfacet terms)
-``branchfree32`` float32 forms of the hand-written specimens (GGX), Phong's float32 lobe cosine
-``branchfree32_rough`` float32 forms of the rough dielectric and the rough plastic
+``f32``         float32 twins of the scalar helpers (warps, beam, bin guess, frame)
+``branchfree32`` the float32 GGX survival step, Phong's float32 lobe cosine
 ``block32``     the float32 block kernel (as many lanes as the machine's vectors hold), the default fast path
 ``block32_coat`` the float32 block kernel of the coated families
 ``refine``      the float32 kernels' rays in doubt, decided again in float64 with 53-bit uniforms

@@ -22,20 +22,19 @@ from numba.cpython.unsafe.numbers import trailing_zeros
 from virtual.kernels import jit
 from virtual.kernels.emit import BEAM_COLLIMATED, BEAM_CONICAL
 from virtual.kernels.patch_lookup import SCHEME_EQUAL_ANGLE, SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE, patch_of
-from virtual.kernels.f32 import ZERO, emit_block32, guess_bin32, sincos_2pi32
-from virtual.kernels.branchfree import plastic_diffuse_redo
+from virtual.kernels.f32 import ONE, ZERO, emit_block32, guess_bin32, sincos_2pi32
+from virtual.kernels.branchfree import PLASTIC_UNIFORMS, plastic_diffuse_redo
 from virtual.kernels.refine import redo_ray64
 from virtual.kernels.branchfree32 import ggx_finish32
-from virtual.kernels.ggx32 import ggx_normal as ggx_normal32
+from virtual.kernels.ggx32 import (dielectric_about as dielectric_about32, ggx_normal as ggx_normal32,
+                                   plastic_about as plastic_about32, plastic_diffuse as plastic_diffuse32)
 from virtual.kernels.law_dispatch import law32, law_block32, law_uniforms
-from virtual.kernels.branchfree32_rough import (DIELECTRIC32_UNIFORMS, PLASTIC32_UNIFORMS, dielectric_about32, plastic_about32,
-                                                plastic_diffuse32)
 from virtual.kernels.xoshiro import LANES, fill_uniforms32
 from virtual.kernels.scatter import MODEL_DIELECTRIC, MODEL_PLASTIC
 
 __all__ = ["BLOCK32_MODELS", "BLOCK32_RAYS", "guess_bins32", "normals_block32", "ggx_block32", "bin_block32", "gonio_block32_chunk"]
 
-from virtual.kernel_codes import BLOCK32_MODELS, BLOCK32_RAYS
+from virtual.kernel_codes import BLOCK32_MODELS, BLOCK32_RAYS, GIVEN4_UNIFORMS
 _BEAM_UNIFORMS = 4
 
 
@@ -150,9 +149,9 @@ def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sect
     if law32(model):  # a law of virtual.kernels.laws
         n_scat = law_uniforms(model)
     elif model == MODEL_DIELECTRIC:
-        n_scat = DIELECTRIC32_UNIFORMS
+        n_scat = GIVEN4_UNIFORMS
     elif model == MODEL_PLASTIC:
-        n_scat = PLASTIC32_UNIFORMS
+        n_scat = PLASTIC_UNIFORMS
     ublock = np.empty(((n_beam + n_scat) * nb // LANES, LANES), dtype=np.float32)
     u = ublock.reshape(ublock.size)
     s0 = n_beam * nb
@@ -180,10 +179,13 @@ def gonio_block32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, sect
             if model == MODEL_DIELECTRIC:
                 normals_block32(p[0], p[0], u[s0 + nb:s0 + 2 * nb], u[s0 + 2 * nb:s0 + 3 * nb], nb, vx, vy, vz, cx, cy,
                                 cz, cw, False)
+                inv_eta = ONE / p[1]  # the relative index from below is 1/eta, its inverse eta itself
                 for i in range(nb):
                     hit = code[i] == 1
-                    vx[i], vy[i], vz[i], alive, doubt = dielectric_about32(p, vx[i], vy[i], vz[i], cx[i], cy[i], cz[i],
-                                                                           cw[i], u[s0 + i], u[s0 + 3 * nb + i])
+                    below = vz[i] < ZERO
+                    vx[i], vy[i], vz[i], alive, doubt = dielectric_about32(
+                        p, vx[i], vy[i], vz[i], cx[i], cy[i], cz[i], cw[i], inv_eta if below else p[1],
+                        p[1] if below else inv_eta, u[s0 + i], u[s0 + 3 * nb + i])
                     code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (0 if hit else 2))
             elif model == MODEL_PLASTIC:
                 normals_block32(p[0], p[0], u[s0 + nb:s0 + 2 * nb], u[s0 + 2 * nb:s0 + 3 * nb], nb, vx, vy, vz, cx, cy,

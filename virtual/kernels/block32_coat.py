@@ -45,8 +45,9 @@ from virtual.kernels.block32 import bin_block32, normals_block32
 from virtual.kernels.block_coat import leaf_given, roughplastic_given
 from virtual.kernels.coat import roughplastic_base_redo, rp_e, rp_t
 from virtual.kernels.emit import BEAM_COLLIMATED, BEAM_CONICAL, emit_given
-from virtual.kernels.ggx32 import fresnel_conductor_ratio as fresnel_conductor_ratio32, ggx_normal as ggx_normal32
-from virtual.kernels.f32 import (ONE, TWO, ZERO, emit_block32, fresnel_dielectric32, in_doubt32,
+from virtual.kernels.ggx32 import (fresnel_conductor_ratio as fresnel_conductor_ratio32, fresnel_dielectric as fresnel_dielectric32,
+                                   ggx_normal as ggx_normal32)
+from virtual.kernels.f32 import (ONE, TWO, ZERO, emit_block32, in_doubt32,
                                  sincos_2pi32, warp_cosine_hemisphere32)
 from virtual.kernels.refine import refined
 from virtual.kernels.scatter import leaf_body_redo

@@ -26,7 +26,7 @@ import numpy as np
 from virtual.kernels import jit
 from virtual.kernels.coat import roughplastic_base_redo, rp_e, rp_t
 from virtual.kernels.emit import BEAM_CONICAL, emit_given
-from virtual.kernels.microfacet import fresnel_dielectric
+from virtual.kernels.ggx import fresnel_dielectric
 from virtual.kernels.scatter import ggx_given_parts, leaf_body_redo
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.xoshiro import LANES, fill_uniforms

@@ -27,8 +27,8 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.ggx import g2_over_g1_masked, ggx_vndf
-from virtual.kernels.microfacet import fresnel_dielectric, unit_disk
+from virtual.kernels.ggx import fresnel_dielectric, g2_over_g1_masked, ggx_vndf
+from virtual.kernels.microfacet import unit_disk
 from virtual.kernels.xoshiro import next_double
 from virtual.kernel_codes import RP_E, RP_N_E, RP_S_HI, RP_S_LO, RP_TABLE, RP_TABLE_RES
 

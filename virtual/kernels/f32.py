@@ -29,9 +29,9 @@ from virtual.kernels import jit
 from virtual.kernels.emit import B_AXIS_X, B_AXIS_Y, B_AXIS_Z, B_DISTANCE, B_EMITTER_RADIUS, B_SPECIMEN_RADIUS
 from virtual.kernels.patch_lookup import SCHEME_EQUAL_PSA, SCHEME_EQUAL_SOLID_ANGLE
 
-__all__ = ["F", "ZERO", "ONE", "TWO", "FOUR", "HALF", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
+__all__ = ["F", "ZERO", "ONE", "TWO", "FOUR", "HALF", "TINY", "MIN_ALPHA", "MAX_PHONG_EXPONENT", "MAX_ETA", "ATAN32_MAX_ERROR",
            "GRID", "DOUBT", "in_doubt32", "sincos_2pi32", "warp_polar32", "warp_cosine_hemisphere32", "emit_given32", "emit_block32", "emit_side32", "guess_bin32",
-           "fresnel_dielectric32", "frame32"]
+           "frame32"]
 
 F = np.float32
 ZERO = F(0.0)
@@ -42,7 +42,7 @@ HALF = F(0.5)
 PI = F(math.pi)
 HALF_PI = F(0.5 * math.pi)
 TWO_PI = F(2.0 * math.pi)
-_TINY = F(1e-30)
+TINY = F(1e-30)
 _TINY2 = F(1e-30)   # |v|^2 below: the float32 squares may have lost their precision -> exact lookup
 _HUGE2 = F(1e30)    # |v|^2 above: may overflow -> exact lookup
 
@@ -157,7 +157,7 @@ def emit_side32(conical, b, u1, u2):
 @jit(inline="llvm")
 def _atan_first_quadrant32(ay, ax):
     swap = ay > ax
-    t = min(ax, ay) / max(max(ax, ay), _TINY)
+    t = min(ax, ay) / max(max(ax, ay), TINY)
     t2 = t * t
     a = t * (_A0 + t2 * (_A1 + t2 * (_A2 + t2 * (_A3 + t2 * (_A4 + t2 * (_A5 + t2 * (_A6 + t2 * _A7)))))))
     return HALF_PI - a if swap else a
@@ -194,21 +194,6 @@ def guess_bin32(x, y, z, scheme_code, n_theta, n_phi, ring_margin, sector_margin
             & (rho2 > _TINY2) & (r2 < _HUGE2))
     b = k * n_phi + j + (n_theta * n_phi) * (z < ZERO)
     return b if sure else -1
-
-
-@jit(inline="llvm")
-def fresnel_dielectric32(c, eta):
-    """:func:`~virtual.kernels.microfacet.fresnel_dielectric` in float32, branch-free:
-    ``(F, cos_t)``, F = 1 and cos_t = 0 on total internal reflection. cos_t^2 = ((eta - 1)(eta
-    + 1) + c^2) / eta^2, not 1 - (1 - c^2) / eta^2: at eta = 1 and grazing c the latter rounds
-    c^2 away (c < 2.4e-4 in float32) and reports total reflection where nothing reflects."""
-    ct2 = ((eta - ONE) * (eta + ONE) + c * c) / (eta * eta)
-    tir = ct2 <= ZERO
-    ct = math.sqrt(max(ct2, ZERO))
-    rs = (c - eta * ct) / max(c + eta * ct, _TINY)
-    rp = (eta * c - ct) / max(eta * c + ct, _TINY)
-    f = HALF * (rs * rs + rp * rp)
-    return (ONE if tir else f), (ZERO if tir else ct)
 
 
 @jit(inline="llvm")

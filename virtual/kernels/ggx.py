@@ -1,13 +1,18 @@
-"""GGX's visible normals, Smith masking ratios, its reflection and the conductor's Fresnel factor,
-written once for float64 and float32.
+"""GGX's visible normals, Smith masking ratios, its reflection, the Fresnel factors, and the rough
+dielectric's and rough plastic's steps from the visible normal on, written once for float64 and
+float32.
 
 This module is the float64 source: it computes with the constants of its ``precision64`` import
 line, never a float literal, and :mod:`virtual.kernels.lawcode` writes its float32 twin
 ``virtual/kernels/ggx32.py`` (the same text importing ``precision32``: a build product, not
 checked in) the way it writes the laws' (:mod:`virtual.kernels.laws`). The float32 block kernels
 import the twin's functions (:mod:`virtual.kernels.block32`, :mod:`virtual.kernels.branchfree32`,
-:mod:`virtual.kernels.branchfree32_rough`, ...), the float64 kernels these
-(:func:`~virtual.kernels.scatter.ggx_given_parts` is :func:`ggx_normal` then :func:`ggx_reflect`).
+:mod:`virtual.kernels.block32_coat`, ...), the float64 kernels these
+(:func:`~virtual.kernels.scatter.ggx_given_parts` is :func:`ggx_normal` then :func:`ggx_reflect`;
+the rough dielectric's and plastic's given forms in :mod:`virtual.kernels.branchfree` are
+:func:`ggx_normal` then :func:`dielectric_about`, :func:`plastic_about`). A step deciding with a
+uniform also returns ``doubt``, whether a decision lies within the float32 grid's reach of its
+threshold (``in_doubt``: always False in float64, where that code folds away).
 :func:`ggx_vndf` draws from a stream: float64 only (its twin is never compiled).
 
 ``plain`` and ``k_zero`` (a literal at each call: the branches fold away) pick a shorter form
@@ -26,10 +31,11 @@ import math
 
 from virtual.kernels import jit
 from virtual.kernels.microfacet import disk_direction
-from virtual.kernels.precision64 import FOUR, HALF, ONE, TWO, ZERO  # precision
+from virtual.kernels.precision64 import FOUR, HALF, ONE, TINY, TWO, ZERO, in_doubt, warp_cosine_hemisphere  # precision
 
 __all__ = ["ggx_n", "ggx_vndf_given", "ggx_vndf", "g2_over_g1_ratio", "g2_over_g1_masked_ratio", "g2_over_g1",
-           "g2_over_g1_masked", "ggx_normal", "ggx_reflect", "fresnel_conductor_ratio"]
+           "g2_over_g1_masked", "ggx_normal", "ggx_reflect", "fresnel_conductor_ratio", "fresnel_dielectric",
+           "dielectric_about", "plastic_diffuse", "plastic_about"]
 
 
 @jit(inline="llvm")
@@ -164,3 +170,85 @@ def fresnel_conductor_ratio(c, eta, k, k_zero):
     t3 = c2 * a2b2 + s2 * s2
     t4 = t2 * s2
     return (t1 - t2) * t3, (t1 + t2) * (t3 + t4)
+
+
+@jit(inline="llvm")
+def fresnel_dielectric(c, eta):
+    """``(F, cos_t)`` for the incident cosine c in [0, 1] and eta = n_t / n_i, branch-free; F = 1
+    and cos_t = 0 on total internal reflection. cos_t^2 = ((eta - 1)(eta + 1) + c^2) / eta^2, not
+    1 - (1 - c^2) / eta^2: at eta = 1 and grazing c the latter rounds c^2 away (c < 2.4e-4 in
+    float32) and reports total reflection where nothing reflects."""
+    ct2 = ((eta - ONE) * (eta + ONE) + c * c) / (eta * eta)
+    tir = ct2 <= ZERO
+    ct = math.sqrt(max(ct2, ZERO))
+    rs = (c - eta * ct) / max(c + eta * ct, TINY)
+    rp = (eta * c - ct) / max(eta * c + ct, TINY)
+    f = HALF * (rs * rs + rp * rp)
+    return (ONE if tir else f), (ZERO if tir else ct)
+
+
+@jit(inline="llvm")
+def dielectric_about(p, wx, wy, wz, mx, my, mz, ni, er, inv, u0, u3):
+    """The rough dielectric (``p`` = alpha, eta, separable) from the visible normal m of |w|
+    (:func:`ggx_normal`, ni its n(w)) on: reflection when u0 < F (else refraction; F = 1 on total
+    internal reflection), surviving with probability G2/G1 by u3: ``(ox, oy, oz, alive, doubt)``.
+    ``er`` is the relative index on w's side (eta from above, 1/eta from below) and ``inv`` its
+    inverse, which each precision's caller computes its own way (1/er in float64, eta or 1/eta
+    in float32: the two round differently, and each precision's counts are pinned)."""
+    a = p[0]
+    flip = wz < ZERO
+    wz = abs(wz)
+    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    f, ct = fresnel_dielectric(c, er)
+    refl = u0 < f
+    k = c * inv - ct
+    ox = TWO * c * mx - wx if refl else k * mx - wx * inv
+    oy = TWO * c * my - wy if refl else k * my - wy * inv
+    oz = TWO * c * mz - wz if refl else k * mz - wz * inv
+    az = oz if refl else -oz  # the cosine on the side the ray leaves to
+    g_num, g_den = g2_over_g1_masked_ratio(wz, ni, az, ggx_n(ox, oy, az, a, a), p[2])
+    alive = (wz > ZERO) & (az > ZERO) & (u3 * g_den < g_num)
+    doubt = in_doubt(u0, f, ONE) | in_doubt(u3, g_num, g_den)
+    return ox, oy, (-oz if flip else oz), alive, doubt
+
+
+@jit(inline="llvm")
+def plastic_diffuse(p, u4, u5):
+    """The rough plastic's diffuse attempt, which does not depend on w: Malley's direction from
+    (u4, u5) and F at its cosine, ``(dx, dy, dz, fo)``."""
+    dx, dy, dz = warp_cosine_hemisphere(u5, u4)
+    fo, _ = fresnel_dielectric(dz, p[1])
+    return dx, dy, dz, fo
+
+
+@jit(inline="llvm")
+def plastic_about(p, wx, wy, wz, mx, my, mz, ni, dx, dy, dz, fo, u0, u3, u6):
+    """The rough plastic (``p`` = alpha, eta, kd), two-sided, one attempt of the diffuse lobe's
+    rejection loop, from the visible normal of |w| (:func:`ggx_normal` from (u1, u2)) and the
+    diffuse attempt (:func:`plastic_diffuse` from (u4, u5)) on: ``(ox, oy, oz, alive, redo,
+    doubt)``, ``redo`` marking a rejected diffuse ray (``oz`` then only its side, +-1) whose
+    direction :func:`~virtual.kernels.branchfree.plastic_diffuse_redo` draws. u0 < F: specular
+    (G2/G1 by u3); else u0 is uniform on [F, 1), so u0 - F < kd (1 - F) is the diffuse survival
+    with probability kd, no new uniform; the attempt is kept when u6 >= F(cos theta_o)."""
+    flip = wz < ZERO
+    wz = abs(wz)
+    a = p[0]
+    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    f, _ = fresnel_dielectric(c, p[1])
+    spec = u0 < f
+    sx = TWO * c * mx - wx
+    sy = TWO * c * my - wy
+    sz = TWO * c * mz - wz
+    g_num, g_den = g2_over_g1_ratio(wz, ni, sz, ggx_n(sx, sy, sz, a, a))
+    spec_ok = (sz > ZERO) & (u3 * g_den < g_num)
+    diffuse = (u0 >= f) & ((u0 - f) < p[2] * (ONE - f))
+    accepted = u6 >= fo
+    ox = sx if spec else dx
+    oy = sy if spec else dy
+    oz = sz if spec else (dz if accepted else ONE)
+    ok = wz > ZERO
+    alive = ok & ((spec & spec_ok) | (diffuse & accepted))
+    redo = ok & diffuse & (u6 < fo)
+    doubt = (in_doubt(u0, f, ONE) | in_doubt(u0, f + p[2] * (ONE - f), ONE) | in_doubt(u3, g_num, g_den)
+             | in_doubt(u6, fo, ONE))
+    return ox, oy, (-oz if flip else oz), alive, redo, doubt

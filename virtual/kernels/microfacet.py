@@ -1,7 +1,7 @@
-"""Microfacet building blocks of the specimen kernels (float64): unit-disk points, the
-dielectric's Fresnel factor, orthonormal frames, and the start and the lobe direction of the laws' samplers. GGX's
-visible normals, masking ratios and reflection and the conductor's Fresnel factor, written once for
-both precisions, are :mod:`virtual.kernels.ggx`.
+"""Microfacet building blocks of the specimen kernels (float64): unit-disk points, orthonormal
+frames, and the start and the lobe direction of the laws' samplers. GGX's visible normals, masking
+ratios and reflection and the Fresnel factors, written once for both precisions, are
+:mod:`virtual.kernels.ggx`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import math
 from virtual.kernels import jit
 from virtual.kernels.xoshiro import next_double
 
-__all__ = ["two_sided_draw", "unit_disk", "disk_direction", "fresnel_dielectric", "frame",
+__all__ = ["two_sided_draw", "unit_disk", "disk_direction", "frame",
            "about_mirror"]
 
 
@@ -38,20 +38,6 @@ def unit_disk(s):
         r2 = a * a + b * b
         if r2 < 1.0 and r2 > 0.0:
             return a, b, r2
-
-
-
-@jit(inline="llvm")
-def fresnel_dielectric(c, eta):
-    """(F, cos_t) for incident cosine c in [0, 1] and eta = n_t / n_i; F = 1, cos_t = 0 on TIR.
-    cos_t^2 = ((eta - 1)(eta + 1) + c^2) / eta^2: exact at eta = 1 however grazing c is."""
-    ct2 = ((eta - 1.0) * (eta + 1.0) + c * c) / (eta * eta)
-    if ct2 <= 0.0:
-        return 1.0, 0.0
-    ct = math.sqrt(ct2)
-    rs = (c - eta * ct) / max(c + eta * ct, 1e-300)
-    rp = (eta * c - ct) / max(eta * c + ct, 1e-300)
-    return 0.5 * (rs * rs + rp * rp), ct
 
 
 

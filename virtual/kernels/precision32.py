@@ -8,9 +8,9 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.f32 import FOUR, HALF, ONE, TWO, ZERO, frame32, in_doubt32, sincos_2pi32, warp_cosine_hemisphere32
+from virtual.kernels.f32 import FOUR, HALF, ONE, TINY, TWO, ZERO, frame32, in_doubt32, sincos_2pi32, warp_cosine_hemisphere32
 
-__all__ = ["ZERO", "ONE", "TWO", "FOUR", "HALF", "sincos_2pi", "warp_cosine_hemisphere", "frame", "in_doubt", "lobe_cos_sin"]
+__all__ = ["ZERO", "ONE", "TWO", "FOUR", "HALF", "TINY", "sincos_2pi", "warp_cosine_hemisphere", "frame", "in_doubt", "lobe_cos_sin"]
 
 sincos_2pi = sincos_2pi32
 warp_cosine_hemisphere = warp_cosine_hemisphere32

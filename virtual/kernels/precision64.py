@@ -5,6 +5,7 @@ virtual.kernels.generate`` writes its float32 twin by importing the same names f
 :mod:`virtual.kernels.precision32` instead. Both modules export the same names:
 
 ``ZERO, ONE, TWO, FOUR, HALF``  the constants (a float literal would turn a float32 loop into float64)
+``TINY``  a positive floor for a denominator that may be 0 (1e-300 here, 1e-30 in float32)
 ``sincos_2pi``, ``warp_cosine_hemisphere``, ``frame``  the warps and the orthonormal frame
 ``lobe_cos_sin(x)``  the cosine and sine of a lobe's angle from a prepass's value ``x`` of its
                     cosine: the cosine itself here, 1 - cos in float32 (where a narrow lobe's
@@ -23,13 +24,14 @@ from virtual.kernels import jit
 from virtual.kernels.microfacet import frame
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 
-__all__ = ["ZERO", "ONE", "TWO", "FOUR", "HALF", "sincos_2pi", "warp_cosine_hemisphere", "frame", "in_doubt", "lobe_cos_sin"]
+__all__ = ["ZERO", "ONE", "TWO", "FOUR", "HALF", "TINY", "sincos_2pi", "warp_cosine_hemisphere", "frame", "in_doubt", "lobe_cos_sin"]
 
 ZERO = 0.0
 ONE = 1.0
 TWO = 2.0
 FOUR = 4.0
 HALF = 0.5
+TINY = 1e-300
 
 
 @jit(inline="llvm")

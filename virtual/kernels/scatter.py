@@ -22,8 +22,9 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.ggx import fresnel_conductor_ratio, g2_over_g1, g2_over_g1_masked, ggx_normal, ggx_reflect, ggx_vndf
-from virtual.kernels.microfacet import disk_direction, fresnel_dielectric, unit_disk
+from virtual.kernels.ggx import (fresnel_conductor_ratio, fresnel_dielectric, g2_over_g1, g2_over_g1_masked, ggx_normal,
+                                ggx_reflect, ggx_vndf)
+from virtual.kernels.microfacet import disk_direction, unit_disk
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.coat import roughplastic
 from virtual.kernels.law_dispatch import law_scatter

@@ -59,7 +59,6 @@ MODULE_FAMILY: dict[str, str] = {
     "virtual.kernels.f32": "block32",
     "virtual.kernels.branchfree32": "block32",
     "virtual.kernels.block32_coat": "coat32",
-    "virtual.kernels.branchfree32_rough": "coat32",
     "virtual.kernels.spectral32": "spectral32",
     "virtual.kernels.block64": "block64",
     "virtual.kernels.block_coat": "block64",
