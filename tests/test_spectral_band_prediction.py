@@ -68,9 +68,9 @@ def test_band_prediction_is_the_mean_over_the_bands_pixels(leaf, pixels):
     bands = band_pixels(centres, 10.0, pixels)
     f = predicted_brdf(leaf, [DIFFUSE], np.array(centres), 1.0, None, bands)[0]
     dirs, w = cone_nodes(DIFFUSE, 1.0)
-    for b, nodes in enumerate(bands):
-        assert nodes.size >= 27
-        per_pixel = [float(w @ leaf.bsdf(DIFFUSE.incident, dirs, float(x))) for x in nodes]
+    for b, band in enumerate(bands):
+        assert band.nodes.size >= 27 and np.all(band.weights == 1.0 / band.nodes.size)
+        per_pixel = [float(w @ leaf.bsdf(DIFFUSE.incident, dirs, float(x))) for x in band.nodes]
         assert f[b] == pytest.approx(np.mean(per_pixel), rel=1e-12)
     centre = predicted_brdf(leaf, [DIFFUSE], np.array(centres), 1.0)[0]
     assert np.max(np.abs(f / centre - 1.0)) > 1e-3  # the centre value is biased on this curved spectrum
@@ -82,6 +82,23 @@ def test_band_rule_without_pixels_matches_the_pixel_mean(leaf, pixels):
     gl = predicted_brdf(leaf, [DIFFUSE], np.array(centres), 1.0, None, band_pixels(centres, 10.0))[0]
     px = predicted_brdf(leaf, [DIFFUSE], np.array(centres), 1.0, None, band_pixels(centres, 10.0, pixels))[0]
     np.testing.assert_allclose(gl, px, rtol=2e-3)
+
+
+def test_pixels_where_a_gauss_legendre_rule_would_put_its_nodes_are_still_averaged_plainly(leaf):
+    """A band's weights come with its nodes, never guessed from where the nodes lie: a detector whose
+    8 pixels of a band sit at the Gauss-Legendre nodes of that band reads their plain mean (as
+    SpectralBands averages them), not the rule's weighted mean."""
+    x, _ = np.polynomial.legendre.leggauss(8)
+    pixels = np.sort(np.concatenate([650.0 + 5.0 * x, [600.0, 700.0]]))  # 8 in 650 +- 5 nm, 2 outside
+    (band,) = band_pixels([650.0], 10.0, pixels)
+    np.testing.assert_allclose(band.nodes, 650.0 + 5.0 * x, rtol=0, atol=1e-12)
+    assert np.all(band.weights == 1.0 / 8)
+    dirs, w = cone_nodes(DIFFUSE, 1.0)
+    per_pixel = [float(w @ leaf.bsdf(DIFFUSE.incident, dirs, float(p))) for p in band.nodes]
+    got = predicted_brdf(leaf, [DIFFUSE], np.array([650.0]), 1.0, None, (band,))[0, 0]
+    assert got == pytest.approx(np.mean(per_pixel), rel=1e-12)
+    rule = predicted_brdf(leaf, [DIFFUSE], np.array([650.0]), 1.0, None, band_pixels([650.0], 10.0))[0, 0]
+    assert abs(rule / got - 1.0) > 1e-5  # the rule's weighted mean differs: the test can tell them apart
 
 
 def test_non_spectral_prediction_bit_for_bit(pixels):
@@ -97,5 +114,5 @@ def test_record_bands_from_the_bench_description(pixels):
              "wavelength_coeffs": list(SpectrometerConfig().wavelength_coeffs)}
     bands = record_bands({"bench_description": {"spectrometer": {"extra": extra}}})
     assert set(bands) == {450.0, 650.0}
-    np.testing.assert_array_equal(bands[650.0], pixels[np.abs(pixels - 650.0) <= 5.0])
+    np.testing.assert_array_equal(bands[650.0].nodes, pixels[np.abs(pixels - 650.0) <= 5.0])
     assert record_bands({}) is None

@@ -38,7 +38,7 @@ from bench.core.errors import ConfigError, SpecimenError
 from bench.core.geometry import Geometry
 from bench.exposure import unsaturated
 from bench.identify.design_noise import ReadingModel
-from bench.identify.prediction import predicted_brdf
+from bench.identify.prediction import Band, predicted_brdf
 from bench.identify.time_model import ReadingSettings, TimeModel
 from virtual.specimens import DeclaredSpecimen
 
@@ -202,7 +202,7 @@ class Sensitivities:
 
 def sensitivities(model: ModelPoint, candidates: Sequence[Geometry], wavelengths: np.ndarray,
                   aperture_deg: float = 0.0, white: Geometry | None = None,
-                  bands: Sequence[np.ndarray] | None = None) -> Sensitivities:
+                  bands: Sequence[Band] | None = None) -> Sensitivities:
     """Predicted readings (:func:`bench.identify.prediction.predicted_brdf`, the fit's prediction:
     a detector of half-angle ``aperture_deg`` calibrated against a white read at ``white``, a
     spectral specimen's band the mean over its ``bands`` wavelengths) and their central-difference

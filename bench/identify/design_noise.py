@@ -34,7 +34,7 @@ from bench.core.calibration import Calibration, WhiteStandard
 from bench.core.geometry import Geometry
 from bench.core.parsing import parse_wavelengths
 from bench.core.roles import Reading
-from bench.identify.prediction import band_pixels, predicted_brdf
+from bench.identify.prediction import Band, band_pixels, predicted_brdf
 from bench.identify.time_model import ReadingSettings
 
 __all__ = ["ReadingModel", "bench_reading_model", "predicted_brdf", "SATURATION_MARGIN"]
@@ -69,9 +69,9 @@ class ReadingModel:
     #: a band saturates when its brightest pixel, dark included, would pass this many counts
     saturation: np.ndarray | None = None
     peak_ratio: np.ndarray | None = None  # brightest pixel / band mean, per band
-    #: each band's averaged wavelengths (:func:`bench.identify.prediction.band_pixels`; None: a
-    #: reading at the wavelength itself)
-    bands: tuple[np.ndarray, ...] | None = None
+    #: each band's averaged wavelengths and weights (:func:`bench.identify.prediction.band_pixels`;
+    #: None: a reading at the wavelength itself)
+    bands: tuple[Band, ...] | None = None
 
     def counts(self, brdf: np.ndarray, cos_r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Expected signal, its standard deviation and whether it saturates, per wavelength."""

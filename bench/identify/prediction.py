@@ -25,7 +25,7 @@ geometry-dependent bias no per-band scale absorbs. Without the pixels, a Gauss-L
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -36,7 +36,7 @@ from drivers.ocean import wavelength_polynomial
 from virtual.collector import Collector
 from virtual.specimens import Specimen
 
-__all__ = ["predicted_brdf", "band_mean", "band_pixels", "record_bands", "cone_nodes", "patch_nodes", "record_aperture", "white_geometry",
+__all__ = ["predicted_brdf", "Band", "band_mean", "band_pixels", "record_bands", "cone_nodes", "patch_nodes", "record_aperture", "white_geometry",
            "virtual_body_patches", "directional_rt", "ideal_rf", "PATCH_BOUNDS", "PATCH_ORDER"]
 
 #: a record's patch columns: a reading with them is the BSDF averaged over that patch
@@ -47,38 +47,35 @@ PATCH_ORDER = 8
 BAND_ORDER = 8
 
 
+class Band(NamedTuple):
+    """The wavelengths (nm) a band's reading averages and their weights (summing to 1)."""
+
+    nodes: np.ndarray
+    weights: np.ndarray
+
+
 def band_pixels(centres: Sequence[float] | np.ndarray, bandwidth_nm: float, pixel_nm: np.ndarray | None = None
-                ) -> tuple[np.ndarray, ...]:
-    """The wavelengths (nm) whose plain mean is each band's reading: the detector's pixels within
-    ``centre +- bandwidth/2`` (as :class:`bench.bands.SpectralBands` selects them), or without
-    them :data:`BAND_ORDER` Gauss-Legendre nodes over the band (:func:`band_mean` weights them)."""
+                ) -> tuple[Band, ...]:
+    """Each band's :class:`Band`: the detector's pixels within ``centre +- bandwidth/2`` (as
+    :class:`bench.bands.SpectralBands` selects them), equally weighted as it averages them, or
+    without them :data:`BAND_ORDER` Gauss-Legendre nodes over the band with the rule's weights."""
     half = float(bandwidth_nm) / 2.0
     if pixel_nm is not None:
         wl = np.asarray(pixel_nm, dtype=float)
-        out = tuple(wl[band_pixel_indices(wl, float(c), float(bandwidth_nm))] for c in centres)
-        if all(p.size for p in out):
-            return out
-    x, _ = np.polynomial.legendre.leggauss(BAND_ORDER)
-    return tuple(float(c) + half * x for c in centres)
-
-
-def _band_weights(nodes: np.ndarray) -> np.ndarray:
-    """Weights (summing to 1) of a band's nodes: equal for pixels, Gauss-Legendre for its rule."""
+        pixels = [wl[band_pixel_indices(wl, float(c), float(bandwidth_nm))] for c in centres]
+        if all(p.size for p in pixels):
+            return tuple(Band(p, np.full(p.size, 1.0 / p.size)) for p in pixels)
     x, w = np.polynomial.legendre.leggauss(BAND_ORDER)
-    if nodes.size == BAND_ORDER:
-        span = (nodes[-1] - nodes[0]) / (x[-1] - x[0])
-        if span > 0 and np.allclose(nodes, nodes.mean() + span * x, rtol=0, atol=1e-9):
-            return w / 2.0
-    return np.full(nodes.size, 1.0 / nodes.size)
+    return tuple(Band(float(c) + half * x, w / 2.0) for c in centres)
 
 
-def band_mean(specimen: Specimen, wi: np.ndarray, dirs: np.ndarray, weights: np.ndarray,
-              nodes: np.ndarray) -> float:
-    """``mean over the band's wavelengths of weights @ f(dirs)``: what a band of a spectral
-    specimen reads (held at the specimen's range ends beyond it, as the emulated detector is)."""
+def band_mean(specimen: Specimen, wi: np.ndarray, dirs: np.ndarray, weights: np.ndarray, band: Band) -> float:
+    """``band.weights @ (weights @ f(dirs))`` over the band's wavelengths: what a band of a
+    spectral specimen reads (held at the specimen's range ends beyond it, as the emulated detector is)."""
     rng = specimen.wavelength_range()
-    at = np.clip(np.asarray(nodes, dtype=float), rng[0], rng[1]) if rng is not None else np.asarray(nodes, float)
-    wb = _band_weights(np.asarray(nodes, dtype=float))
+    nodes = np.asarray(band.nodes, dtype=float)
+    at = np.clip(nodes, rng[0], rng[1]) if rng is not None else nodes
+    wb = np.asarray(band.weights, dtype=float)
     many = getattr(specimen, "bsdf_spectrum", None)
     if many is not None:
         return float(wb @ (np.asarray(many(wi, dirs, at), dtype=float) @ weights))
@@ -86,8 +83,8 @@ def band_mean(specimen: Specimen, wi: np.ndarray, dirs: np.ndarray, weights: np.
                      for b, w in zip(wb, at)))
 
 
-def record_bands(meta: Mapping[str, Any]) -> dict[float, np.ndarray] | None:
-    """Each band centre's averaged wavelengths (:func:`band_pixels`) from a record's bench
+def record_bands(meta: Mapping[str, Any]) -> dict[float, Band] | None:
+    """Each band centre's :class:`Band` (:func:`band_pixels`) from a record's bench
     description (``spectrometer.extra``: ``bands_nm``, ``bandwidth_nm`` and the detector's
     ``wavelength_coeffs`` / ``pixels``); None when the record read no bands."""
     extra = _mapping(_mapping(_mapping(meta.get("bench_description")).get("spectrometer")).get("extra"))
@@ -128,11 +125,11 @@ def cone_nodes(geometry: Geometry, aperture_deg: float, white: Geometry | None =
 
 def predicted_brdf(specimen: Specimen, geometries: Sequence[Geometry], wavelengths: np.ndarray,
                    aperture_deg: float = 0.0, white: Geometry | None = None,
-                   bands: Sequence[np.ndarray] | None = None) -> np.ndarray:
+                   bands: Sequence[Band] | None = None) -> np.ndarray:
     """The calibrated BRDF (1/sr) a bench reads at each geometry and wavelength,
     ``(points, wavelengths)``: :func:`cone_nodes` applied to the specimen's density; with
-    ``bands`` (each wavelength's averaged wavelengths, :func:`band_pixels`) a spectral specimen's
-    band is their mean (:func:`band_mean`)."""
+    ``bands`` (each wavelength's :class:`Band`, :func:`band_pixels`) a spectral specimen's
+    band is their weighted mean (:func:`band_mean`)."""
     wavelengths = np.asarray(wavelengths, dtype=float)
     spectral = specimen.wavelength_range() is not None
     todo = wavelengths if spectral else wavelengths[:1]  # a non-spectral density: one evaluation
