@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.ggx import fresnel_dielectric, g2_over_g1_masked, ggx_vndf
+from virtual.kernels.ggx import g2_over_g1_masked, ggx_fresnel_draw
 from virtual.kernels.microfacet import unit_disk
 from virtual.kernels.xoshiro import next_double
 from virtual.kernel_codes import RP_E, RP_N_E, RP_S_HI, RP_S_LO, RP_TABLE, RP_TABLE_RES
@@ -84,13 +84,8 @@ def roughplastic(p, wx, wy, wz, s):
     if not (wz > 0.0) or p.shape[0] < RP_E + 4:  # no albedo table: the engine did not append one
         return 0.0, 0.0, 0.0, False
     a = p[0]
-    mx, my, mz = ggx_vndf(wx, wy, wz, a, a, s)
-    c = max(wx * mx + wy * my + wz * mz, 0.0)
-    f, _ = fresnel_dielectric(c, p[1])
-    if next_double(s) < f:
-        ox = 2.0 * c * mx - wx
-        oy = 2.0 * c * my - wy
-        oz = 2.0 * c * mz - wz
+    refl, ox, oy, oz, _, _, _, _, _ = ggx_fresnel_draw(wx, wy, wz, a, p[1], s)
+    if refl:
         if oz > 0.0 and next_double(s) < g2_over_g1_masked(wx, wy, wz, ox, oy, oz, a, a, 1.0):
             return ox, oy, (-oz if flip else oz), True
     if not (next_double(s) * (1.0 - rp_e(p, wz)) < p[3] * rp_t(p, wz)):

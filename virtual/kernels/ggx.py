@@ -13,7 +13,8 @@ the rough dielectric's and plastic's given forms in :mod:`virtual.kernels.branch
 :func:`ggx_normal` then :func:`dielectric_about`, :func:`plastic_about`). A step deciding with a
 uniform also returns ``doubt``, whether a decision lies within the float32 grid's reach of its
 threshold (``in_doubt``: always False in float64, where that code folds away).
-:func:`ggx_vndf` draws from a stream: float64 only (its twin is never compiled).
+:func:`ggx_vndf` and :func:`ggx_fresnel_draw` draw from a stream: float64 only (their twins are
+never compiled).
 
 ``plain`` and ``k_zero`` (a literal at each call: the branches fold away) pick a shorter form
 for the float32 block kernel's commonest case (isotropic, height-correlated, k = 0); it rounds
@@ -31,11 +32,12 @@ import math
 
 from virtual.kernels import jit
 from virtual.kernels.microfacet import disk_direction
+from virtual.kernels.xoshiro import next_double
 from virtual.kernels.precision64 import FOUR, HALF, ONE, TINY, TWO, ZERO, in_doubt, warp_cosine_hemisphere  # precision
 
 __all__ = ["ggx_n", "ggx_vndf_given", "ggx_vndf", "g2_over_g1_ratio", "g2_over_g1_masked_ratio", "g2_over_g1",
            "g2_over_g1_masked", "ggx_normal", "ggx_reflect", "fresnel_conductor_ratio", "fresnel_dielectric",
-           "dielectric_about", "plastic_diffuse", "plastic_about"]
+           "dielectric_about", "plastic_diffuse", "plastic_about", "ggx_fresnel_draw"]
 
 
 @jit(inline="llvm")
@@ -252,3 +254,17 @@ def plastic_about(p, wx, wy, wz, mx, my, mz, ni, dx, dy, dz, fo, u0, u3, u6):
     doubt = (in_doubt(u0, f, ONE) | in_doubt(u0, f + p[2] * (ONE - f), ONE) | in_doubt(u3, g_num, g_den)
              | in_doubt(u6, fo, ONE))
     return ox, oy, (-oz if flip else oz), alive, redo, doubt
+
+
+@jit(inline="llvm")
+def ggx_fresnel_draw(wx, wy, wz, a, eta, s):
+    """The start of the ray-by-ray samplers of the GGX-coated models (float64 only): a visible
+    normal m of w (wz > 0, isotropic roughness ``a``) drawn from the stream ``s``, then the roll of
+    Fresnel reflection at the relative index ``eta``: ``(refl, ox, oy, oz, mx, my, mz, c, ct)`` --
+    whether the ray reflects, its mirror direction about m (read when it does), m, the cosine w.m
+    and the refracted cosine (:func:`fresnel_dielectric`)."""
+    mx, my, mz = ggx_vndf(wx, wy, wz, a, a, s)
+    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    f, ct = fresnel_dielectric(c, eta)
+    refl = next_double(s) < f
+    return refl, TWO * c * mx - wx, TWO * c * my - wy, TWO * c * mz - wz, mx, my, mz, c, ct

@@ -22,8 +22,9 @@ from __future__ import annotations
 import math
 
 from virtual.kernels import jit
-from virtual.kernels.ggx import (fresnel_conductor_ratio, fresnel_dielectric, g2_over_g1, g2_over_g1_masked, ggx_normal,
-                                ggx_reflect, ggx_vndf)
+from virtual.kernels.branchfree import plastic_diffuse_redo
+from virtual.kernels.ggx import (fresnel_conductor_ratio, g2_over_g1, g2_over_g1_masked, ggx_fresnel_draw, ggx_normal,
+                                ggx_reflect)
 from virtual.kernels.microfacet import disk_direction, unit_disk
 from virtual.kernels.xoshiro import next_double
 from virtual.kernels.coat import roughplastic
@@ -89,25 +90,15 @@ def _plastic(p, wx, wy, wz, s):
     if not (wz > 0.0):
         return _DEAD
     a = p[0]
-    eta = p[1]
-    mx, my, mz = ggx_vndf(wx, wy, wz, a, a, s)
-    c = max(wx * mx + wy * my + wz * mz, 0.0)
-    f, _ = fresnel_dielectric(c, eta)
-    if next_double(s) < f:
-        ox = 2.0 * c * mx - wx
-        oy = 2.0 * c * my - wy
-        oz = 2.0 * c * mz - wz
+    refl, ox, oy, oz, _, _, _, _, _ = ggx_fresnel_draw(wx, wy, wz, a, p[1], s)
+    if refl:
         if not (oz > 0.0 and next_double(s) < g2_over_g1(wx, wy, wz, ox, oy, oz, a, a)):
             return _DEAD
         return ox, oy, (-oz if flip else oz), True
     if not (next_double(s) < p[2]):
         return _DEAD
-    while True:  # cosine lobe thinned by the exit transmittance 1 - F(cos_o); ends w.p. 1
-        ox, oy, r2 = unit_disk(s)
-        oz = math.sqrt(1.0 - r2)
-        fo, _ = fresnel_dielectric(oz, eta)
-        if next_double(s) >= fo:
-            return ox, oy, (-oz if flip else oz), True
+    ox, oy, oz = plastic_diffuse_redo(p[1], s)  # the cosine lobe thinned by 1 - F(cos_o)
+    return ox, oy, (-oz if flip else oz), True
 
 
 
@@ -122,13 +113,8 @@ def _dielectric(p, wx, wy, wz, s):
         er = p[1]
     if not (wz > 0.0):
         return _DEAD
-    mx, my, mz = ggx_vndf(wx, wy, wz, a, a, s)
-    c = max(wx * mx + wy * my + wz * mz, 0.0)
-    f, ct = fresnel_dielectric(c, er)
-    if next_double(s) < f:
-        ox = 2.0 * c * mx - wx
-        oy = 2.0 * c * my - wy
-        oz = 2.0 * c * mz - wz
+    refl, ox, oy, oz, mx, my, mz, c, ct = ggx_fresnel_draw(wx, wy, wz, a, er, s)
+    if refl:
         if not (oz > 0.0 and next_double(s) < g2_over_g1_masked(wx, wy, wz, ox, oy, oz, a, a, p[2])):
             return _DEAD
         return ox, oy, (-oz if flip else oz), True
@@ -147,13 +133,8 @@ def _dielectric(p, wx, wy, wz, s):
 def _leaf_specular(wx, wy, wz, a, eta, ks, s):
     """The leaf cuticle's specular event for light from w (wz > 0): ``(ox, oy, oz, kept)``, kept
     with probability ks E_s(w) (a visible normal, Fresnel reflection, above the horizon, ks G2/G1)."""
-    mx, my, mz = ggx_vndf(wx, wy, wz, a, a, s)
-    c = max(wx * mx + wy * my + wz * mz, 0.0)
-    f, _ = fresnel_dielectric(c, eta)
-    if next_double(s) < f:
-        ox = 2.0 * c * mx - wx
-        oy = 2.0 * c * my - wy
-        oz = 2.0 * c * mz - wz
+    refl, ox, oy, oz, _, _, _, _, _ = ggx_fresnel_draw(wx, wy, wz, a, eta, s)
+    if refl:
         if oz > 0.0 and next_double(s) < ks * g2_over_g1(wx, wy, wz, ox, oy, oz, a, a):
             return ox, oy, oz, True
     return 0.0, 0.0, 0.0, False
