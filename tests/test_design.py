@@ -125,6 +125,19 @@ def test_design_errors_are_one_line_exit_2(argv, words, tmp_path, capsys):
     assert not (tmp_path / "x.toml").exists()
 
 
+def test_an_unaffordable_budget_is_refused_before_the_designs_information(tmp_path, capsys, monkeypatch):
+    import bench.identify.design as design
+
+    def costly(*args, **kwargs):  # pragma: no cover - the failure this test is for
+        raise AssertionError("the sensitivities were computed for a budget that buys no point")
+
+    monkeypatch.setattr(design, "prior_sensitivities", costly)
+    bench = _bench_file(tmp_path)
+    code, _, err = run_main(capsys, "plan", "--design", MODEL, "--budget-seconds", "0.01", "--bench", bench,
+                            "--body", "virtual", "--out", tmp_path / "x.toml", "--step", "10", "--integration-s", "0.02")
+    assert code == 2 and "buys no design" in err and "one point alone takes" in err, err
+
+
 def test_design_options_without_design_are_refused(tmp_path, capsys):
     bench = _bench_file(tmp_path)
     code, _, err = run_main(capsys, "plan", UNIFORM, "--bench", bench, "--budget-seconds", "3")

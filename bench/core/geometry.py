@@ -11,6 +11,7 @@ theta in [0, 90] is the upper (reflection) hemisphere, theta in (90, 180] the lo
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -52,6 +53,23 @@ def spherical(v: np.ndarray) -> tuple[float, float]:
     return theta, phi
 
 
+@functools.lru_cache(maxsize=None)
+def _gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """numpy's n-point Gauss-Legendre rule, computed once per order (a fit or a design asks for
+    the same rule at every point and parameter step: recomputing it was a quarter of their time).
+    Read-only, as it is shared."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    x.flags.writeable = False
+    w.flags.writeable = False
+    return x, w
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of two 3-vectors with its arithmetic (same bits), without its axis handling,
+    which dominates for one pair."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def cone_quadrature(axis: np.ndarray, half_angle_deg: float, rings: int = 4,
                     azimuths: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Directions and weights (summing to 1) that average a function over the cone of
@@ -62,10 +80,10 @@ def cone_quadrature(axis: np.ndarray, half_angle_deg: float, rings: int = 4,
     a = math.radians(half_angle_deg)
     if a == 0:
         return t[None, :], np.ones(1)
-    u = np.cross(t, [0.0, 0.0, 1.0] if abs(t[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u = _cross(t, np.array([0.0, 0.0, 1.0] if abs(t[2]) < 0.9 else [1.0, 0.0, 0.0]))
     u /= np.linalg.norm(u)
-    v = np.cross(t, u)
-    x, w = np.polynomial.legendre.leggauss(rings)
+    v = _cross(t, u)
+    x, w = _gauss_legendre(rings)
     cap = 1.0 - math.cos(a)
     cos_off = 1.0 - (x + 1.0) / 2.0 * cap  # nodes in 1 - cos over [0, cap]
     sin_off = np.sqrt(np.maximum(1.0 - cos_off**2, 0.0))

@@ -330,6 +330,7 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
                           f"with '?', e.g. {model.family.name}:{model.family.parameters[0].name}=?")
     if criterion_name not in CRITERIA:
         raise ConfigError(f"design criterion must be one of {', '.join(CRITERIA)}, got {criterion_name!r}")
+    _refuse_unaffordable(model, candidates, time, seconds)
     pool = list(candidates) + list(seed_points)
     info = prior_information(model, pool, readings, shared_scale, sens)
     exact = info.parts[0]  # at the guess: the predicted widths
@@ -376,14 +377,27 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
     spread = [interval_widths(i.total(fixed + chosen), model.free) for i in info.parts] if (fixed or chosen) else []
     if not chosen or not np.isfinite(value):
         least = time.seconds([pool[i] for i in chosen[:1]] or [candidates[0]])["seconds"] if n_cand else math.nan
-        raise ConfigError(f"a budget of {seconds:g} s buys no design that identifies {', '.join(model.free)} of "
-                          f"{model.family.name} on this bench (one point alone takes {least:.3g} s; at least {p} "
-                          f"informative points are needed): give more --budget-seconds")
+        raise _no_design(model, seconds, least)
     points = [pool[i] for i in chosen]
     est = time.seconds(points)
     return Design(points, float(est["seconds"]), est, criterion_name, value,
                   interval_widths(fisher, model.free), fisher, model, readings.settings, stopped,
                   {k: (min(w[k] for w in spread), max(w[k] for w in spread)) for k in model.free}, len(info.parts))
+
+
+def _refuse_unaffordable(model: ModelPoint, candidates: Sequence[Geometry], time: TimeModel, seconds: float) -> None:
+    """Refuse a budget in which no candidate alone fits, as the greedy search would after its
+    first step, but before the information, whose sensitivities over the prior range are the
+    design's whole cost."""
+    if candidates and not (time.marginal(list(candidates), []) <= seconds).any():
+        raise _no_design(model, seconds, time.seconds([candidates[0]])["seconds"])
+
+
+def _no_design(model: ModelPoint, seconds: float, least: float) -> ConfigError:
+    """The refusal of a budget that buys no design identifying every free parameter."""
+    return ConfigError(f"a budget of {seconds:g} s buys no design that identifies {', '.join(model.free)} of "
+                       f"{model.family.name} on this bench (one point alone takes {least:.3g} s; at least "
+                       f"{len(model.free)} informative points are needed): give more --budget-seconds")
 
 
 def _exchange(info: PriorInformation, pool: Sequence[Geometry], chosen: list[int], fixed: list[int], n_cand: int,
@@ -444,15 +458,17 @@ def design_for_bench(model: ModelPoint, bench: Bench, candidates: Sequence[Geome
             break
         tried += 1
         readings = bench_reading_model(bench, s)
-        sens = sens or prior_sensitivities(model.prior_points(), pool, readings)
+        time = bench_time_model(bench, s)
         config = getattr(bench, "config", None)
         ok = set(unsaturated(list(candidates), config, s.integration_s)) if config is not None else set(candidates)
         keep = [i for i, g in enumerate(candidates) if g in ok] + list(range(len(candidates), len(pool)))
         try:
             if not ok:
                 raise ConfigError(f"every candidate point saturates the detector at {s.integration_s:g} s")
+            _refuse_unaffordable(model, [pool[i] for i in keep if i < len(candidates)], time, seconds)
+            sens = sens or prior_sensitivities(model.prior_points(), pool, readings)
             d = design_plan(model, [pool[i] for i in keep if i < len(candidates)], readings,
-                            bench_time_model(bench, s), seconds, criterion_name, seed_points,
+                            time, seconds, criterion_name, seed_points,
                             [Sensitivities(x.brdf[keep], x.jacobian[keep]) for x in sens], shared_scale, deadline)
         except ConfigError as exc:
             error = error or exc

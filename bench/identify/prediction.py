@@ -24,6 +24,7 @@ geometry-dependent bias no per-band scale absorbs. Without the pixels, a Gauss-L
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Mapping, NamedTuple, Sequence
 
@@ -112,15 +113,21 @@ def white_factor(white: Geometry | None, aperture_deg: float) -> float:
     return abs(float(white.view[2])) / float(w_cos.sum())
 
 
+@functools.lru_cache(maxsize=4096)
 def cone_nodes(geometry: Geometry, aperture_deg: float, white: Geometry | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Directions and weights such that ``weights @ f(dirs)`` is the calibrated reading of a
     specimen of BSDF ``f`` at ``geometry`` through a detector of half-angle ``aperture_deg``,
-    calibrated against a white read at ``white`` (see the module docstring)."""
+    calibrated against a white read at ``white`` (see the module docstring). Remembered (read-only):
+    a fit or a design asks for the same points at every parameter step."""
     dirs, w_cos = cone_cos_weights(geometry.view, aperture_deg)
     cos_axis = abs(float(geometry.view[2]))
     if cos_axis < 1e-9:  # at the horizon: no calibrated BRDF; the plain cone mean
-        return dirs, w_cos / max(float(w_cos.sum()), 1e-300)
-    return dirs, w_cos / cos_axis * white_factor(white, aperture_deg)
+        weights = w_cos / max(float(w_cos.sum()), 1e-300)
+    else:
+        weights = w_cos / cos_axis * white_factor(white, aperture_deg)
+    dirs.flags.writeable = False
+    weights.flags.writeable = False
+    return dirs, weights
 
 
 def predicted_brdf(specimen: Specimen, geometries: Sequence[Geometry], wavelengths: np.ndarray,
