@@ -143,3 +143,26 @@ def test_a_leafs_cuticle_at_the_default_prior_the_design_narrows_both_but_the_in
     # pixel at its own wavelength: tests/conformance/test_spectral_bands.py asserts that)
     for runs in m["results"].values():
         assert all(abs(runs[0]["fit"][p][0] - t) < 5e-3 * t for p, t in m["truth"].items()), runs[0]["fit"]
+
+
+# ~25 min on 2 loaded cores: the uniform scan and fit, then three designed steps each scanned and
+# fitted with every reading so far (the first design over 9 prior points)
+@pytest.mark.slow
+def test_a_leafs_cuticle_the_sequential_design_clears_0_7x_on_both():
+    """The same leaf, seed 7, measured with the sequential design (``bench scan --sequential``: a
+    first design over the prior range spends 40 % of the uniform plan's bench time, each later
+    step is designed at the fit of every reading so far): where the one-shot design at the prior
+    leaves the index at 0.68-0.71x, the re-centred steps buy the specular points that fix it.
+    Measured (AMD EPYC, 2 loaded cores), sequential / uniform fitted widths, seed 7: roughness
+    0.385, index 0.581 (docs/design.md gives seeds 8 and 9); the bound 0.7 is the issue's target, the
+    truth must lie within 3 standard errors (a 0.3 % false alarm per parameter for honest errors)."""
+    m = design_study.measure(LEAF, _emulated("leaf:healthy,roughness=0.2,eta=1.45"), seeds=[7],
+                             methods=("uniform", "sequential"))
+    res = m["results"]
+    u, s = res["uniform in-plane"][0], res["sequential"][0]
+    ratios = {p: (s["fit"][p][2] - s["fit"][p][1]) / (u["fit"][p][2] - u["fit"][p][1]) for p in m["parameters"]}
+    assert all(r <= 0.7 for r in ratios.values()), ratios
+    assert s["seconds"] <= u["seconds"] * 1.001, (s["seconds"], u["seconds"])  # at equal bench time, not more
+    for p, t in m["truth"].items():
+        value, lo, hi = s["fit"][p]
+        assert abs(value - t) <= 3 * (hi - lo) / (2 * 1.959963984540054), (p, s["fit"][p], t)
