@@ -66,6 +66,7 @@ def _fit_events(docs: Docs) -> list[dict]:
     return [e["data"] for e in docs.of("event") if e["descriptor"] in fit_desc]
 
 
+@pytest.mark.slow  # the module's session: 3 designs, scans and fits (9-62 s under load)
 def test_one_run_per_step_with_its_design_and_fit_stopping_at_the_budget(session):
     docs, result, store = session
     starts, stops, fits = docs.of("start"), docs.of("stop"), _fit_events(docs)
@@ -116,6 +117,7 @@ def test_the_plan_finds_what_bench_scan_sequential_finds(session, devs, tmp_path
         assert result.widths[n] == pytest.approx(cli.widths[n], rel=1e-6)
 
 
+@pytest.mark.slow  # a sequential session to a target width (3-16 s under load)
 def test_a_target_width_stops_early(session, RE_with_result, devs, tmp_path):
     _, full, _ = session
     # the untargeted session's first fit is narrower than this: the target stops it after step 0
@@ -131,6 +133,7 @@ def test_a_target_width_stops_early(session, RE_with_result, devs, tmp_path):
     assert _fit_events(docs)[-1]["fit-stopped"] == "target"
 
 
+@pytest.mark.slow  # reads the module's session (made by the test above)
 def test_a_rerun_reuses_the_stored_steps_without_measuring(session, RE_with_result, devs):
     docs, result, store = session
     again_docs, again = _run(RE_with_result, sequential_fit(MODEL, devs, store=store, **OPTIONS))

@@ -82,6 +82,7 @@ def test_truth_is_the_specimen_of_the_model_family_else_none():
     assert design_study.truth_of(parse_model_spec("lambert:albedo=?"), "lambert:albedo=0.8") == {"reflectance": 0.8}
 
 
+@pytest.mark.slow  # every method's scans and fits for the figure (9 s under load)
 def test_plot_has_one_panel_per_parameter_with_every_method(tmp_path):
     png = tmp_path / "study.png"
     fig = design_study.plot_study(_study(FITS, {"alpha": 0.15, "kd": 0.5}), png)
@@ -108,6 +109,7 @@ def test_methods_parse_and_must_include_the_uniform_plan():
 
 
 # ~8 CPU-s: two scans and fits on the virtual body (exact fast path), one seed
+@pytest.mark.slow  # a study of two plans on one seed, scanned and fitted (24-39 s under load)
 def test_cli_json_and_plot_on_the_virtual_body(tmp_path, capsys):
     bench = _bench_file(tmp_path)
     png = tmp_path / "design.png"

@@ -47,6 +47,7 @@ def test_same_plan_same_schema_and_values_within_uncertainty(tmp_path):
     assert stats.chi2.sf(float(np.sum(z**2)), df=len(z)) > 1e-3
 
 
+@pytest.mark.slow  # an emulator killed mid-scan and the run resumed (9 s under load)
 def test_spectrometer_dies_mid_scan_then_resume_finishes(tmp_path):
     plan = plan_from_dict(SHORT)
     with RunStore(tmp_path / "s.sqlite") as store:

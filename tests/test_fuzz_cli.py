@@ -131,6 +131,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow  # 300 fuzzed command lines (12 s under load)
 @settings(FUZZ, max_examples=300)
 @given(case=st.sampled_from(range(len(CASES))), data=st.data())
 def test_a_bad_value_in_any_option_exits_2_naming_it(case, data):
@@ -195,6 +196,7 @@ def _toml(doc: dict) -> str:
         return "\n".join(f"{k} = {v!r}" for k, v in clean(doc).items())
 
 
+@pytest.mark.slow  # 150 fuzzed plans (14 s under load)
 @settings(FUZZ, max_examples=150)
 @given(doc=PLAN)
 def test_fuzzed_plans_are_accepted_or_refused_in_one_line(tmp_path, doc):

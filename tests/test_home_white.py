@@ -260,6 +260,7 @@ def test_bench_white_then_a_run_calibrated_from_the_file(emulated, tmp_path, cap
     assert main(["white", "--out", str(again)]) == 2  # neither --bench nor --from-run
 
 
+@pytest.mark.slow  # a whole HIL session on the emulated bench (21 s under load)
 def test_hil_run_on_a_real_bench_with_no_terminal(tmp_path):
     """A ``kind = "real"`` bench (the real builder, on the emulators' ports) whose [white] names a
     stored reading: the HIL scan test runs with stdin closed. Without the file the same run

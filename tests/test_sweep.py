@@ -175,6 +175,7 @@ def test_an_interrupted_sweep_resumes_to_the_results_of_an_uninterrupted_one(tmp
             resume_sweep(store, rid)
 
 
+@pytest.mark.slow  # a sweep killed and resumed in subprocesses (6-36 s under load)
 def test_a_sigkilled_sweep_process_resumes_to_the_uninterrupted_results(tmp_path, reference):
     toml = tmp_path / "small.toml"
     sw = SMALL["sweep"]
@@ -243,6 +244,7 @@ def test_in_process_and_a_two_process_local_cluster_store_identical_results(tmp_
         assert store.run(dist.run_id)["meta"]["executions"][0]["workers"] == 2
 
 
+@pytest.mark.slow  # a Dask scheduler started for one CLI run (12 s under load)
 def test_cli_points_a_sweep_at_an_existing_scheduler_and_prints_the_dashboard(tmp_path, capsys, cluster_client):
     address = cluster_client.scheduler_info()["address"]
     store = tmp_path / "s.sqlite"
