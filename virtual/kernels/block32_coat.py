@@ -8,7 +8,12 @@ float64 :mod:`~virtual.kernels.block_coat` forms, the same uniforms in the same 
 rejected attempt is finished in float64 on the chunk's stream ``s``
 (:func:`~virtual.kernels.coat.roughplastic_base_redo`, :func:`~virtual.kernels.scatter.leaf_body_redo`).
 Every decision carries a ``doubt`` flag (:func:`~virtual.kernels.f32.in_doubt32`); a doubted
-ray is decided again in float64 by :func:`redo_coat_ray64`.
+ray is decided again in float64 by :func:`redo_coat_ray64`. The roughplastic's attempt from its
+visible normal on is one text for both precisions (:func:`~virtual.kernels.ggx.roughplastic_about`,
+its generated float32 twin here with the isotropic short forms); the leaf's stays written here:
+its cuticle takes F as the conductor ratio at k = 0 (no division) and the isotropic masking
+terms, where the float64 leaf divides (``fresnel_dielectric``) and takes the general terms -- the
+same law, rounded differently, and each precision's counts are pinned.
 
 The roughplastic's table reads. Its decisions ``u3 (1 - E(mu)) < c t(mu)`` and ``u6 < t(mo)``
 read the coat transmittance t and the specular albedo E at the incidence's cosine mu and the
@@ -45,8 +50,8 @@ from virtual.kernels.block32 import bin_block32, normals_block32
 from virtual.kernels.block_coat import leaf_given, roughplastic_given
 from virtual.kernels.coat import roughplastic_base_redo, rp_e, rp_t
 from virtual.kernels.emit import BEAM_COLLIMATED, BEAM_CONICAL, emit_given
-from virtual.kernels.ggx32 import (fresnel_conductor_ratio as fresnel_conductor_ratio32, fresnel_dielectric as fresnel_dielectric32,
-                                   ggx_normal as ggx_normal32)
+from virtual.kernels.ggx32 import (fresnel_conductor_ratio as fresnel_conductor_ratio32, ggx_mirror as ggx_mirror32,
+                                   ggx_normal as ggx_normal32, roughplastic_about as roughplastic_about32)
 from virtual.kernels.f32 import (ONE, TWO, ZERO, emit_block32, in_doubt32,
                                  sincos_2pi32, warp_cosine_hemisphere32)
 from virtual.kernels.refine import refined
@@ -55,10 +60,11 @@ from virtual.kernels.xoshiro import LANES, fill_uniforms32
 from virtual.kernel_codes import BLOCK32_RAYS, RP_E, RP_N_E, RP_S_HI, RP_S_LO, RP_TABLE, RP_TABLE_RES
 from virtual.model_ids import MODEL_ROUGHPLASTIC
 
-__all__ = ["RP32_UNIFORMS", "LEAF32_UNIFORMS", "roughplastic_about32", "leaf_cuticle_about32", "leaf_body_normal32",
+__all__ = ["RP32_UNIFORMS", "LEAF32_UNIFORMS", "leaf_cuticle_about32", "leaf_body_normal32",
            "leaf_body_about32", "redo_coat_ray64", "rp_tables32", "gonio_coat32_chunk"]
 
-#: Uniforms the roughplastic's float32 attempt consumes per ray (u0-u6, :func:`roughplastic_about32`).
+#: Uniforms the roughplastic's float32 attempt consumes per ray (u0-u6,
+#: :func:`~virtual.kernels.ggx.roughplastic_about`'s float32 twin).
 RP32_UNIFORMS = 7
 #: Uniforms the leaf's float32 attempt consumes per ray (u0-u3 the cuticle's, u4-u8 the body's).
 LEAF32_UNIFORMS = 9
@@ -70,35 +76,8 @@ def _mirror_about32(a, wx, wy, wz, mx, my, mz, ni):
     """The mirror direction of w (wz > 0) about its isotropic GGX visible normal m
     (:func:`~virtual.kernels.ggx.ggx_normal`'s float32 twin): ``(sx, sy, sz, c, ni, no)``, c = w.m, ni
     and no the |(a x, a y, z)| of w and of the mirror direction (the masking terms)."""
-    c = max(wx * mx + wy * my + wz * mz, ZERO)
-    sx = TWO * c * mx - wx
-    sy = TWO * c * my - wy
-    sz = TWO * c * mz - wz
+    _, _, c, sx, sy, sz = ggx_mirror32(wx, wy, wz, mx, my, mz)
     return sx, sy, sz, c, ni, math.sqrt(a * a * (sx * sx + sy * sy) + sz * sz)
-
-
-@jit(inline="llvm")
-def roughplastic_about32(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num, base_den, t_o):
-    """:func:`~virtual.kernels.block_coat.roughplastic_given` in float32, from the visible normal m
-    of |w| (:func:`~virtual.kernels.ggx.ggx_normal`'s float32 twin from (u1, u2)) on: ``(ox, oy, oz,
-    alive, redo, doubt)``. The specular test is Mitsuba's separable masking, G2/G1 = G1(wo) =
-    2 oz / (oz + no); the table values come from the float32 table reads (module docstring)."""
-    flip = wz < ZERO
-    wz = abs(wz)
-    sx, sy, sz, c, _, no = _mirror_about32(p[0], wx, wy, wz, mx, my, mz, ZERO)
-    f, _ = fresnel_dielectric32(c, p[1])
-    s_num = f * (TWO * sz)
-    s_den = sz + no
-    spec = (sz > ZERO) & (u0 * s_den < s_num)
-    base = (~spec) & (u3 * base_den < base_num)
-    dx, dy, dz = warp_cosine_hemisphere32(u5, u4)
-    accepted = u6 < t_o
-    ox = sx if spec else dx
-    oy = sy if spec else dy
-    oz = sz if spec else (dz if accepted else ONE)
-    ok = wz > ZERO
-    doubt = in_doubt32(u0, s_num, s_den) | in_doubt32(u3, base_num, base_den) | in_doubt32(u6, t_o, ONE)
-    return ox, oy, (-oz if flip else oz), ok & (spec | (base & accepted)), ok & base & (~accepted), doubt
 
 
 @jit(inline="llvm")
@@ -424,7 +403,7 @@ def gonio_coat32_chunk(model, p, p64, conical, b, b64, cargs, ring_margin, secto
             for i in range(nb):
                 v[0, i], v[1, i], v[2, i], alive, redo, doubt = roughplastic_about32(
                     p, aux[0, i], aux[1, i], aux[2, i], v[0, i], v[1, i], v[2, i], u[s0 + i], u[s0 + 3 * nb + i],
-                    u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i], aux[3, i], aux[4, i], aux[5, i])
+                    u[s0 + 4 * nb + i], u[s0 + 5 * nb + i], u[s0 + 6 * nb + i], aux[3, i], aux[4, i], aux[5, i], True)
                 hit = code[i] == 1
                 code[i] = 4 if (doubt & hit) else (1 if (alive & hit) else (3 if (redo & hit) else (0 if hit else 2)))
         else:

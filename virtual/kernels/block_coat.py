@@ -26,7 +26,7 @@ import numpy as np
 from virtual.kernels import jit
 from virtual.kernels.coat import roughplastic_base_redo, rp_e, rp_t
 from virtual.kernels.emit import BEAM_CONICAL, emit_given
-from virtual.kernels.ggx import fresnel_dielectric
+from virtual.kernels.ggx import fresnel_dielectric, ggx_normal, roughplastic_about
 from virtual.kernels.scatter import ggx_given_parts, leaf_body_redo
 from virtual.kernels.warps import sincos_2pi, warp_cosine_hemisphere
 from virtual.kernels.xoshiro import LANES, fill_uniforms
@@ -54,28 +54,15 @@ def _specular_given(a, wx, wy, wz, u1, u2, separable):
 @jit(inline="llvm")
 def roughplastic_given(p, wx, wy, wz, u0, u1, u2, u3, u4, u5, u6, base_num, base_den, t_o):
     """:func:`~virtual.kernels.coat.roughplastic` with its uniforms given and one attempt of the
-    base's rejection loop: ``(ox, oy, oz, alive, redo)``; ``redo`` marks a base ray whose attempt
-    was rejected (``oz`` then carries only the side, +-1).
-
-    Specular when u0 < F G1(wo) (visible normal from (u1, u2); F and G1 rolled at once: the same
-    probability, and the direction does not depend on the roll); else the base when
-    u3 (1 - E_spec) < c t(cos_i); its attempt is Malley's direction from (u4, u5), kept when
-    u6 < t(cos_o). The table values come looked up (:func:`rp_lookups`): ``base_num`` = c t(cos_i),
-    ``base_den`` = 1 - E_spec(cos_i), ``t_o`` = t(sqrt(1 - u4)), the attempt's cosine.
-    """
-    flip = wz < 0.0
-    wz = abs(wz)
-    sx, sy, sz, c, g_num, g_den = _specular_given(p[0], wx, wy, wz, u1, u2, 1.0)
-    f, _ = fresnel_dielectric(c, p[1])
-    spec = (sz > 0.0) & (u0 * g_den < f * g_num)
-    base = (~spec) & (u3 * base_den < base_num)
-    dx, dy, dz = warp_cosine_hemisphere(u5, u4)
-    accepted = u6 < t_o
-    ox = sx if spec else dx
-    oy = sy if spec else dy
-    oz = sz if spec else (dz if accepted else 1.0)
-    ok = wz > 0.0
-    return ox, oy, (-oz if flip else oz), ok & (spec | (base & accepted)), ok & base & (~accepted)
+    base's rejection loop: ``(ox, oy, oz, alive, redo)``: the visible normal of |w| from (u1, u2)
+    (:func:`~virtual.kernels.ggx.ggx_normal`), then :func:`~virtual.kernels.ggx.roughplastic_about`
+    (the uniforms' roles there), the table values looked up by :func:`rp_lookups`."""
+    a = p[0]
+    ca, sa = sincos_2pi(u1)
+    mx, my, mz, _ = ggx_normal(a, a, wx, wy, wz, ca, sa, u2, False)
+    ox, oy, oz, alive, redo, _ = roughplastic_about(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num,
+                                                    base_den, t_o, False)
+    return ox, oy, oz, alive, redo
 
 
 @jit(inline="always")

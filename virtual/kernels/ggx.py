@@ -10,7 +10,8 @@ import the twin's functions (:mod:`virtual.kernels.block32`, :mod:`virtual.kerne
 :mod:`virtual.kernels.block32_coat`, ...), the float64 kernels these
 (:func:`~virtual.kernels.scatter.ggx_given_parts` is :func:`ggx_normal` then :func:`ggx_reflect`;
 the rough dielectric's and plastic's given forms in :mod:`virtual.kernels.branchfree` are
-:func:`ggx_normal` then :func:`dielectric_about`, :func:`plastic_about`). A step deciding with a
+:func:`ggx_normal` then :func:`dielectric_about`, :func:`plastic_about`; Mitsuba's roughplastic's
+in :mod:`virtual.kernels.block_coat`, :func:`ggx_normal` then :func:`roughplastic_about`). A step deciding with a
 uniform also returns ``doubt``, whether a decision lies within the float32 grid's reach of its
 threshold (``in_doubt``: always False in float64, where that code folds away).
 :func:`ggx_vndf` and :func:`ggx_fresnel_draw` draw from a stream: float64 only (their twins are
@@ -36,8 +37,8 @@ from virtual.kernels.xoshiro import next_double
 from virtual.kernels.precision64 import FOUR, HALF, ONE, TINY, TWO, ZERO, in_doubt, warp_cosine_hemisphere  # precision
 
 __all__ = ["ggx_n", "ggx_vndf_given", "ggx_vndf", "g2_over_g1_ratio", "g2_over_g1_masked_ratio", "g2_over_g1",
-           "g2_over_g1_masked", "ggx_normal", "ggx_reflect", "fresnel_conductor_ratio", "fresnel_dielectric",
-           "dielectric_about", "plastic_diffuse", "plastic_about", "ggx_fresnel_draw"]
+           "g2_over_g1_masked", "ggx_normal", "ggx_mirror", "ggx_reflect", "fresnel_conductor_ratio", "fresnel_dielectric",
+           "dielectric_about", "plastic_diffuse", "plastic_about", "roughplastic_about", "ggx_fresnel_draw"]
 
 
 @jit(inline="llvm")
@@ -128,18 +129,23 @@ def ggx_normal(ax, ay, wx, wy, wz, ca, sa, r2, plain):
 
 
 @jit(inline="llvm")
+def ggx_mirror(wx, wy, wz, mx, my, mz):
+    """``(flip, |wz|, c, ox, oy, oz)``: whether w comes from below, its cosine on the upper side,
+    c = w.m (>= 0) and the mirror direction 2 c m - w of (wx, wy, |wz|) about the normal m."""
+    flip = wz < ZERO
+    wz = abs(wz)
+    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    return flip, wz, c, TWO * c * mx - wx, TWO * c * my - wy, TWO * c * mz - wz
+
+
+@jit(inline="llvm")
 def ggx_reflect(ax, ay, separable, wx, wy, wz, mx, my, mz, ni, plain):
     """The second half: the reflection of w about the normal of :func:`ggx_normal` (side
     restored) and its terms, ``(ox, oy, oz, c, g_num, g_den, valid)`` -- the cosine w.m the Fresnel
     factor takes, G2/G1 as a ratio under the masking convention ``separable`` (0.0
     height-correlated, 1.0 separable) and whether both cosines are > 0. ``plain`` says ax == ay
     and height-correlated masking."""
-    flip = wz < ZERO
-    wz = abs(wz)
-    c = max(wx * mx + wy * my + wz * mz, ZERO)
-    ox = TWO * c * mx - wx
-    oy = TWO * c * my - wy
-    oz = TWO * c * mz - wz
+    flip, wz, c, ox, oy, oz = ggx_mirror(wx, wy, wz, mx, my, mz)
     if plain:
         no = math.sqrt(ax * ax * (ox * ox + oy * oy) + oz * oz)
         g_num, g_den = (wz + ni) * oz, ni * oz + no * wz
@@ -198,15 +204,13 @@ def dielectric_about(p, wx, wy, wz, mx, my, mz, ni, er, inv, u0, u3):
     inverse, which each precision's caller computes its own way (1/er in float64, eta or 1/eta
     in float32: the two round differently, and each precision's counts are pinned)."""
     a = p[0]
-    flip = wz < ZERO
-    wz = abs(wz)
-    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    flip, wz, c, rx, ry, rz = ggx_mirror(wx, wy, wz, mx, my, mz)
     f, ct = fresnel_dielectric(c, er)
     refl = u0 < f
     k = c * inv - ct
-    ox = TWO * c * mx - wx if refl else k * mx - wx * inv
-    oy = TWO * c * my - wy if refl else k * my - wy * inv
-    oz = TWO * c * mz - wz if refl else k * mz - wz * inv
+    ox = rx if refl else k * mx - wx * inv
+    oy = ry if refl else k * my - wy * inv
+    oz = rz if refl else k * mz - wz * inv
     az = oz if refl else -oz  # the cosine on the side the ray leaves to
     g_num, g_den = g2_over_g1_masked_ratio(wz, ni, az, ggx_n(ox, oy, az, a, a), p[2])
     alive = (wz > ZERO) & (az > ZERO) & (u3 * g_den < g_num)
@@ -232,15 +236,10 @@ def plastic_about(p, wx, wy, wz, mx, my, mz, ni, dx, dy, dz, fo, u0, u3, u6):
     direction :func:`~virtual.kernels.branchfree.plastic_diffuse_redo` draws. u0 < F: specular
     (G2/G1 by u3); else u0 is uniform on [F, 1), so u0 - F < kd (1 - F) is the diffuse survival
     with probability kd, no new uniform; the attempt is kept when u6 >= F(cos theta_o)."""
-    flip = wz < ZERO
-    wz = abs(wz)
     a = p[0]
-    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    flip, wz, c, sx, sy, sz = ggx_mirror(wx, wy, wz, mx, my, mz)
     f, _ = fresnel_dielectric(c, p[1])
     spec = u0 < f
-    sx = TWO * c * mx - wx
-    sy = TWO * c * my - wy
-    sz = TWO * c * mz - wz
     g_num, g_den = g2_over_g1_ratio(wz, ni, sz, ggx_n(sx, sy, sz, a, a))
     spec_ok = (sz > ZERO) & (u3 * g_den < g_num)
     diffuse = (u0 >= f) & ((u0 - f) < p[2] * (ONE - f))
@@ -257,6 +256,40 @@ def plastic_about(p, wx, wy, wz, mx, my, mz, ni, dx, dy, dz, fo, u0, u3, u6):
 
 
 @jit(inline="llvm")
+def roughplastic_about(p, wx, wy, wz, mx, my, mz, u0, u3, u4, u5, u6, base_num, base_den, t_o, plain):
+    """Mitsuba's roughplastic (``p`` = alpha, eta, kd_eff, c), two-sided, one attempt of the base's
+    rejection loop, from the visible normal m of |w| (:func:`ggx_normal` from (u1, u2)) on:
+    ``(ox, oy, oz, alive, redo, doubt)``; ``redo`` marks a base ray whose attempt was rejected
+    (``oz`` then carries only the side, +-1).
+
+    Specular when u0 < F G1(wo) (Mitsuba's separable masking: G2/G1 = G1(wo) = 2 oz / (oz + no);
+    F and G1 rolled at once: the same probability, and the direction does not depend on the
+    roll); else the base when u3 (1 - E_spec) < c t(cos_i); its attempt is Malley's direction from
+    (u4, u5), kept when u6 < t(cos_o). The table values come looked up: ``base_num`` = c t(cos_i),
+    ``base_den`` = 1 - E_spec(cos_i), ``t_o`` = t(sqrt(1 - u4)), the attempt's cosine. ``plain``
+    as :func:`ggx_normal` (the float32 block kernel's normal and no; the float64 one passes False)."""
+    a = p[0]
+    flip, wz, c, sx, sy, sz = ggx_mirror(wx, wy, wz, mx, my, mz)
+    if plain:
+        no = math.sqrt(a * a * (sx * sx + sy * sy) + sz * sz)
+    else:
+        no = ggx_n(sx, sy, sz, a, a)
+    f, _ = fresnel_dielectric(c, p[1])
+    s_num = f * (TWO * sz)
+    s_den = sz + no
+    spec = (sz > ZERO) & (u0 * s_den < s_num)
+    base = (~spec) & (u3 * base_den < base_num)
+    dx, dy, dz = warp_cosine_hemisphere(u5, u4)
+    accepted = u6 < t_o
+    ox = sx if spec else dx
+    oy = sy if spec else dy
+    oz = sz if spec else (dz if accepted else ONE)
+    ok = wz > ZERO
+    doubt = in_doubt(u0, s_num, s_den) | in_doubt(u3, base_num, base_den) | in_doubt(u6, t_o, ONE)
+    return ox, oy, (-oz if flip else oz), ok & (spec | (base & accepted)), ok & base & (~accepted), doubt
+
+
+@jit(inline="llvm")
 def ggx_fresnel_draw(wx, wy, wz, a, eta, s):
     """The start of the ray-by-ray samplers of the GGX-coated models (float64 only): a visible
     normal m of w (wz > 0, isotropic roughness ``a``) drawn from the stream ``s``, then the roll of
@@ -264,7 +297,7 @@ def ggx_fresnel_draw(wx, wy, wz, a, eta, s):
     whether the ray reflects, its mirror direction about m (read when it does), m, the cosine w.m
     and the refracted cosine (:func:`fresnel_dielectric`)."""
     mx, my, mz = ggx_vndf(wx, wy, wz, a, a, s)
-    c = max(wx * mx + wy * my + wz * mz, ZERO)
+    _, _, c, ox, oy, oz = ggx_mirror(wx, wy, wz, mx, my, mz)
     f, ct = fresnel_dielectric(c, eta)
     refl = next_double(s) < f
-    return refl, TWO * c * mx - wx, TWO * c * my - wy, TWO * c * mz - wz, mx, my, mz, c, ct
+    return refl, ox, oy, oz, mx, my, mz, c, ct
