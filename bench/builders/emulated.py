@@ -60,7 +60,7 @@ from drivers.kinematics import Joints, geometry_to_joints, joints_to_geometry
 from drivers.modbus import ModbusStageAxis
 from drivers.ocean import OceanSpectrometer
 from drivers.registers import load_register_map
-from virtual.specimens import parse_specimen
+from virtual.specimens import Specimen, parse_specimen, weighted_spectrum
 from virtual.wire.dynamixel_bus import BusControl, start_bus
 from virtual.wire.modbus_stage import StageEmulator
 from virtual.wire.ocean_spectrometer import SpectrometerEmulator
@@ -164,7 +164,7 @@ SPECTROMETER_START_S = 120.0
 _PREPARE_AT = Geometry(8.0, 0.0, 30.0, 180.0)
 
 
-def _mounted_specimen(specimen: str) -> Any:
+def _mounted_specimen(specimen: str) -> Specimen:
     """The specimen, parsed once per emulator process."""
     spec = _PROCESS_CACHE.get("specimen")
     if spec is None:
@@ -172,7 +172,7 @@ def _mounted_specimen(specimen: str) -> Any:
     return spec
 
 
-def _specimen_fraction(spec: Any, g: Any, wl: np.ndarray, aperture_deg: float) -> np.ndarray:
+def _specimen_fraction(spec: Specimen, g: Geometry, wl: np.ndarray, aperture_deg: float) -> np.ndarray:
     """``GAIN * mean_aperture(f cos(theta_r))`` of the specimen ``spec`` at geometry ``g``."""
     dirs, w_cos = cone_cos_weights(g.view, aperture_deg)
     wi = g.incident
@@ -183,14 +183,7 @@ def _specimen_fraction(spec: Any, g: Any, wl: np.ndarray, aperture_deg: float) -
     # it): all at once where the specimen can (a leaf: its cuticle's lobe once, its 1 nm body tables
     # interpolated per pixel), else on a 1 nm grid interpolated to the pixels (a coarse grid missed
     # a steep spectrum's band means by several per cent at diffuse geometries)
-    at = np.clip(wl, rng[0], rng[1])
-    many = getattr(spec, "bsdf_spectrum", None)
-    if many is not None:
-        return RESPONSE_GAIN * (np.asarray(many(wi, dirs, at), dtype=float) @ w_cos)
-    grid = np.arange(math.floor(at.min()), math.ceil(at.max()) + 1.0)
-    grid = np.clip(grid, rng[0], rng[1])
-    f = np.array([float(w_cos @ spec.bsdf(wi, dirs, float(w))) for w in grid])
-    return RESPONSE_GAIN * np.interp(at, grid, f)
+    return RESPONSE_GAIN * weighted_spectrum(spec, wi, dirs, w_cos, wl, grid_nm=1.0)
 
 
 def _write_mount(path: Path, mounted: str) -> None:

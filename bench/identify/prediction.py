@@ -35,7 +35,7 @@ from bench.core.errors import ConfigError, InputError
 from bench.core.geometry import Geometry, cie_geometry, cone_cos_weights, direction
 from drivers.ocean import wavelength_polynomial
 from virtual.collector import Collector
-from virtual.specimens import Specimen
+from virtual.specimens import Specimen, weighted_spectrum
 
 __all__ = ["predicted_brdf", "Band", "band_mean", "band_pixels", "record_bands", "cone_nodes", "patch_nodes", "record_aperture", "white_geometry",
            "virtual_body_patches", "directional_rt", "ideal_rf", "PATCH_BOUNDS", "PATCH_ORDER"]
@@ -73,15 +73,8 @@ def band_pixels(centres: Sequence[float] | np.ndarray, bandwidth_nm: float, pixe
 def band_mean(specimen: Specimen, wi: np.ndarray, dirs: np.ndarray, weights: np.ndarray, band: Band) -> float:
     """``band.weights @ (weights @ f(dirs))`` over the band's wavelengths: what a band of a
     spectral specimen reads (held at the specimen's range ends beyond it, as the emulated detector is)."""
-    rng = specimen.wavelength_range()
-    nodes = np.asarray(band.nodes, dtype=float)
-    at = np.clip(nodes, rng[0], rng[1]) if rng is not None else nodes
-    wb = np.asarray(band.weights, dtype=float)
-    many = getattr(specimen, "bsdf_spectrum", None)
-    if many is not None:
-        return float(wb @ (np.asarray(many(wi, dirs, at), dtype=float) @ weights))
-    return float(sum(b * float(weights @ np.asarray(specimen.bsdf(wi, dirs, float(w)), dtype=float))
-                     for b, w in zip(wb, at)))
+    values = weighted_spectrum(specimen, wi, dirs, weights, np.asarray(band.nodes, dtype=float))
+    return float(np.asarray(band.weights, dtype=float) @ values)
 
 
 def record_bands(meta: Mapping[str, Any]) -> dict[float, Band] | None:

@@ -33,7 +33,8 @@ import importlib
 from virtual.law_table import LAW_SPECIMENS
 from virtual.model_ids import MODEL_PYTHON
 from virtual.specimens.declare import (SPECIMENS, DeclaredSpecimen, Param, Specimen, Spectral, register_specimen,
-                                       specimen_families, specimen_family, specimen_table_markdown)
+                                       specimen_families, specimen_family, specimen_table_markdown,
+                                       weighted_spectrum)
 from virtual.specimens.diffuse import Lambertian, OrenNayar, Phong
 from virtual.specimens.leaf import Leaf
 from virtual.specimens.microfacet import ALPHA_MAX, ALPHA_MIN, GGX, AnisoGGX, RoughDielectric, RoughPlastic
@@ -43,7 +44,7 @@ from virtual.specimens.strings import known_specimen_names, parse_specimen
 __all__ = [
     "Spectral", "Param", "Specimen", "DeclaredSpecimen", "register_specimen", "specimen_family",
     "specimen_families", "specimen_table_markdown", "known_specimen_names", "parse_specimen", "SPECIMENS",
-    "MODEL_PYTHON",
+    "MODEL_PYTHON", "weighted_spectrum",
     "Lambertian", "OrenNayar", "Phong", "GGX", "AnisoGGX", "RoughPlastic", "RoughDielectric", "Leaf",
     "MitsubaRoughPlastic",
     "ALPHA_MIN", "ALPHA_MAX",

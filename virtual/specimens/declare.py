@@ -42,7 +42,8 @@ from bench.core.errors import SpecimenError
 from bench.core.plugins import SPECIMEN_GROUP, load_plugins
 
 __all__ = ["Spectral", "Param", "Specimen", "DeclaredSpecimen", "register_specimen", "specimen_family",
-           "SPECIMENS", "RESERVED_NAMES", "load_specimen_plugins", "specimen_families", "specimen_table_markdown"]
+           "SPECIMENS", "RESERVED_NAMES", "load_specimen_plugins", "specimen_families", "specimen_table_markdown",
+           "weighted_spectrum"]
 
 #: Names parsed by :func:`virtual.specimens.parse_specimen` itself (not declared families).
 RESERVED_NAMES = ("colorchecker", "mitsuba")
@@ -191,6 +192,29 @@ class Specimen:
         """Directions where the density is concentrated, with an angular width (radians):
         hints for the quadrature references (empty for smooth densities)."""
         return []
+
+
+def weighted_spectrum(specimen: Specimen, wi: np.ndarray, dirs: np.ndarray, weights: np.ndarray,
+                      wavelengths_nm: np.ndarray, grid_nm: float | None = None) -> np.ndarray:
+    """``weights @ bsdf(wi, dirs, w)`` at each wavelength ``w`` of ``wavelengths_nm`` (held at the
+    specimen's range ends beyond it): all at once through the specimen's ``bsdf_spectrum``
+    (``(wavelengths, directions)``) where it has one, else wavelength by wavelength -- at each
+    wavelength, or with ``grid_nm`` on a grid of that step interpolated to them (for many
+    wavelengths, e.g. a detector's pixels)."""
+    wl = np.asarray(wavelengths_nm, dtype=float)
+    rng = specimen.wavelength_range()
+    at = np.clip(wl, rng[0], rng[1]) if rng is not None else wl
+    many = getattr(specimen, "bsdf_spectrum", None)
+    if many is not None:
+        return np.asarray(many(wi, dirs, at), dtype=float) @ weights
+    if grid_nm is None:
+        return np.array([float(weights @ np.asarray(specimen.bsdf(wi, dirs, float(w)), dtype=float)) for w in at])
+    step = float(grid_nm)
+    grid = np.arange(step * math.floor(at.min() / step), step * math.ceil(at.max() / step) + step, step)
+    if rng is not None:
+        grid = np.clip(grid, rng[0], rng[1])
+    f = np.array([float(weights @ np.asarray(specimen.bsdf(wi, dirs, float(w)), dtype=float)) for w in grid])
+    return np.interp(at, grid, f)
 
 
 @dataclass(frozen=True)
