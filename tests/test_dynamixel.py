@@ -576,12 +576,6 @@ def test_e2e_a_line_that_stops_answering_raises_a_typed_error(emulator: Any, sil
     arm.close()
 
 
-if __name__ == "__main__":
-    if "--record" in sys.argv:
-        record_session_fixture()
-        print(f"recorded {SESSION_FIXTURE} ({len(load_fixture(SESSION_FIXTURE))} pairs)")
-
-
 def test_default_axes_reach_the_specular_direction() -> None:
     bus = DynamixelBus((1, 2, 3, 4), time_scale=50.0)
     cfg = {"axes": {j: {"id": i} for i, j in enumerate(JOINTS, 1)}, "poll_interval_s": 0.002}
@@ -659,3 +653,9 @@ def test_e2e_late_replies_time_out_and_leave_no_stale_bytes(emulator: Any) -> No
     g = Geometry.in_plane(20.0, 40.0)
     assert angular_distance_deg(arm.move_to(g), g) < 0.1
     arm.close()
+
+
+if __name__ == "__main__":
+    if "--record" in sys.argv:
+        record_session_fixture()
+        print(f"recorded {SESSION_FIXTURE} ({len(load_fixture(SESSION_FIXTURE))} pairs)")
