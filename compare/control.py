@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["RULES", "Violation", "Chart", "en_numbers", "chart", "violations", "run_length", "false_alarm_rate"]
 
@@ -69,8 +70,8 @@ class Chart:
         return d
 
 
-def en_numbers(measured: Sequence[float], u_measured: Sequence[float], reference: Sequence[float],
-               u_reference: Sequence[float], k: float = 2.0) -> np.ndarray:
+def en_numbers(measured: npt.ArrayLike, u_measured: npt.ArrayLike, reference: npt.ArrayLike,
+               u_reference: npt.ArrayLike, k: float = 2.0) -> np.ndarray:
     """E_n = (x - X) / sqrt(U_x^2 + U_X^2) with expanded uncertainties U = k u (ISO 13528:2015,
     9.7): |E_n| <= 1 agrees with the reference."""
     x, ux = np.asarray(measured, float), np.asarray(u_measured, float)

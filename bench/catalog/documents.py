@@ -25,16 +25,21 @@ import json
 import math
 import time
 import uuid
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator, Literal
 
 from bench.store import RunStore
 from bench.core.records import GEOMETRY_COLUMNS, hardware_name, json_default, record_identity, record_provenance
 
+if TYPE_CHECKING:  # annotations only: event_model is imported where documents are composed
+    from event_model.documents import Document
+
 __all__ = ["run_documents", "run_uid", "scan_ids", "STATUS_EXIT", "RUN_UID_NAMESPACE",
            "DOCUMENTS_LAYOUT", "STORE_SOURCE", "column_sources"]
 
+#: a stop document's exit_status
+ExitStatus = Literal["success", "abort", "fail"]
 #: our run status -> a stop document's exit_status
-STATUS_EXIT = {"completed": "success", "interrupted": "abort", "running": "abort", "failed": "fail"}
+STATUS_EXIT: dict[str, ExitStatus] = {"completed": "success", "interrupted": "abort", "running": "abort", "failed": "fail"}
 
 
 #: the namespace of the UUIDs (version 5) derived from run ids of runs no RunEngine wrote
@@ -218,7 +223,7 @@ def _point_times(store: RunStore, run_id: str) -> dict[int, float]:
     return {int(i): float(t) for i, t in zip(pts["idx"], pts["t_end"]) if t == t and t is not None}
 
 
-def run_documents(store: RunStore, run_id: str, scan_id: int | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
+def run_documents(store: RunStore, run_id: str, scan_id: int | None = None) -> Iterator[tuple[str, Document]]:
     """The Bluesky documents of stored run ``run_id`` (see the module docstring); a run without
     readings gives a start and a stop document only (no empty ``primary`` stream)."""
     import pandas as pd
@@ -246,7 +251,8 @@ def run_documents(store: RunStore, run_id: str, scan_id: int | None = None) -> I
                 "column_units": units, "kind": info["kind"], "status": info["status"],
                 "bench": ident.get("bench"), "body": ident.get("body"), "plan_name": ident.get("plan"),
                 "num_points": len(points[1]) if points is not None else n, "run_id": run_id}  # events, as Bluesky counts
-    bluesky_start = meta.get("bluesky_start") if isinstance(meta.get("bluesky_start"), dict) else {}
+    given = meta.get("bluesky_start")
+    bluesky_start = given if isinstance(given, dict) else {}
     if isinstance(bluesky_start.get("scan_id"), int):
         start_md["scan_id"] = bluesky_start["scan_id"]
     elif scan_id is not None:

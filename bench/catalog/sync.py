@@ -136,8 +136,11 @@ class CatalogServer:
                 probe.bind(("127.0.0.1", self.port))
         except OSError as exc:
             raise InputError(f"--port {self.port}: cannot listen on 127.0.0.1:{self.port} ({exc.strerror})") from None
-        self._tmp = tempfile.TemporaryDirectory(prefix="goniobench-tiled-") if catalog is None else None
-        self.directory = Path(self._tmp.name if self._tmp else catalog)
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        if catalog is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="goniobench-tiled-")
+            catalog = self._tmp.name
+        self.directory = Path(catalog)
         try:
             (self.directory / "data").mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -209,7 +212,7 @@ class CatalogServer:
             if not _catalog_key(uid):
                 self.damaged[rid] = f"start uid {uid[:60]!r} is not a UUID"
                 continue
-            if self._in_step(rid, uid, states.get(rid)):  # already there as the store has it
+            if self._in_step(rid, uid, states.get(rid), self._served):  # already there as the store has it
                 self.served.add(rid)
                 continue
             docs = list(run_documents(store, rid, ranks.get(rid)))
@@ -238,26 +241,27 @@ class CatalogServer:
             self.damaged[str(run_id)] = str(why)
         return bool(why)
 
-    def _in_step(self, run_id: str, uid: str, state: list[Any] | None) -> bool:
-        """Whether the catalog holds run ``uid`` whole and as the store has it now. A copy written
-        from another state of the run (served, then resumed and completed) or cut short (no stop
-        document: the writer was killed) is deleted, to be written again whole."""
-        if self._ledger.get(uid) == state and uid in self._served:
+    def _in_step(self, run_id: str, uid: str, state: list[Any] | None, served: set[str]) -> bool:
+        """Whether the catalog holds run ``uid`` whole and as the store has it now (``served``: the
+        start uids known in it, kept up to date here). A copy written from another state of the run
+        (served, then resumed and completed) or cut short (no stop document: the writer was killed)
+        is deleted, to be written again whole."""
+        if self._ledger.get(uid) == state and uid in served:
             return True  # written whole from this very state (recorded after its stop document)
         client = self._writer_client
-        if uid not in self._served and uid not in client:  # not even written live by a RunEngine since
+        if uid not in served and uid not in client:  # not even written live by a RunEngine since
             return False
         stop = client[uid].metadata.get("stop")
         recorded = self._ledger.get(uid)
         if stop and (recorded == state or (recorded is None and state is not None
                                            and stop.get("exit_status") == STATUS_EXIT.get(state[0]))):
-            self._served.add(uid)  # whole, and as the store has it (or written live by a RunEngine)
+            served.add(uid)  # whole, and as the store has it (or written live by a RunEngine)
             self._record(uid, state)
             return True
         log.info("catalog: run %s is %s; writing it again whole", run_id,
                  "cut short (no stop document)" if not stop else "from an older state of the run")
         client.delete_contents(uid, recursive=True, external_only=False)
-        self._served.discard(uid)
+        served.discard(uid)
         self.replaced.append(run_id)
         return False
 

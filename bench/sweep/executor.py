@@ -114,18 +114,19 @@ def run_sweep(spec: SweepSpec, store: RunStore, *, client: Any = None, progress:
         the reason, every committed task kept; :func:`resume_sweep` finishes it.
     """
     executor = _executor(client)
+    task_runs: dict[str, list[Any]] = {"worker": [None] * len(spec), "compute_s": [None] * len(spec)}
     meta = {"sweep": spec.name, "instrument": spec.instrument, "n_tasks": len(spec),
             "seeding": "series_seed = SeedSequence(seed, spawn_key=(blake2b64(series parameters),)); "
                        "wavelength stream = measurement_seed(series_seed, [specimen hash,] pm, mdeg theta_i, "
                        "mdeg phi_i); rays batched over wavelengths (gonio Lambertian, single-roughness GGX): one "
                        "stream measurement_seed(series_seed, [specimen hash,] mdeg theta_i, mdeg phi_i)",
-            "tasks": task_table(spec), "task_runs": {"worker": [None] * len(spec), "compute_s": [None] * len(spec)},
+            "tasks": task_table(spec), "task_runs": task_runs,
             "executions": [executor]}
     run_id = store.create_run(kind="sweep", plan=spec.source, bench={"kind": "virtual", "instrument": spec.instrument},
                               seed=spec.seed, meta=meta, n_planned=len(spec))
     log.info("sweep %s: run %s, %d tasks, %s", spec.name, run_id, len(spec), executor["kind"])
     return _execute(spec, store, run_id, set(), client, progress, numba_threads, window, retries, on_task, executor,
-                    meta["task_runs"])
+                    task_runs)
 
 
 def resume_sweep(store: RunStore, run_id: str, *, client: Any = None, progress: bool = False,

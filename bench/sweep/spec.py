@@ -250,8 +250,8 @@ def sweep_from_dict(d: Mapping[str, Any], default_name: str = "sweep", source: s
                 wavelengths=tuple(float(w) for w in wl[start:start + group]), rays=params["rays"],
                 method=params.get("method", "rays"), beam=params["beam"], delta=delta,
                 cone_deg=params.get("cone_deg"), key=key, seed=seed_i, common_random_numbers=crn))
-    source = {"sweep": s, **({"task": [dict(e) for e in entries]} if entries is not None else {})}
-    return SweepSpec(name=name, seed=seed, instrument=instrument, tasks=tuple(tasks), source=source)
+    plan = {"sweep": s, **({"task": [dict(e) for e in entries]} if entries is not None else {})}
+    return SweepSpec(name=name, seed=seed, instrument=instrument, tasks=tuple(tasks), source=plan)
 
 
 def _series(instrument: str, e: Mapping[str, Any], where: str, parse_wavelengths: Callable,

@@ -86,7 +86,9 @@ def run_task(task: SweepTask, numba_threads: int | None = None) -> TaskResult:
         JSON document per row: ~3x the write time of a 648-patch task).
     """
     if numba_threads is not None:
-        numba.set_num_threads(max(1, min(int(numba_threads), numba.config.NUMBA_NUM_THREADS)))
+        # numba's ceiling, set in numba.config from the environment at import (invisible to a type checker)
+        ceiling = int(vars(numba.config)["NUMBA_NUM_THREADS"])
+        numba.set_num_threads(max(1, min(int(numba_threads), ceiling)))
     with _kernel_guard(numba_threads):
         return _run_task(task)
 
@@ -95,6 +97,8 @@ def _run_task(task: SweepTask) -> TaskResult:
     t0 = time.time()
     c0 = time.perf_counter()
     if task.instrument == "gonio":
+        if task.collector is None:  # the spec gives every gonio task its collector
+            raise ValueError(f"sweep task {task.idx}: a gonio task without a collector")
         g = VirtualGoniophotometer(task.specimen, collector=task.collector, rays=task.rays, beam=task.beam,
                                    seed=task.seed, wavelengths=list(task.wavelengths), method=task.method,
                                    delta=task.delta, common_random_numbers=task.common_random_numbers)
@@ -110,6 +114,8 @@ def _run_task(task: SweepTask) -> TaskResult:
 
 def _spectro_rows(task: SweepTask) -> Any:
     """Store rows of a spectrophotometric task (:func:`spectrum_rows` of its measurement)."""
+    if task.geometry is None:  # the spec gives every spectro task its CIE geometry
+        raise ValueError(f"sweep task {task.idx}: a spectro task without a geometry")
     sp = VirtualSpectrophotometer(task.specimen, rays=task.rays, beam=task.beam, seed=task.seed,
                                   delta=task.delta, cone_deg=task.cone_deg,
                                   common_random_numbers=task.common_random_numbers)
