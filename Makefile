@@ -31,20 +31,20 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# pip byte-compiles the installed files one by one (half of the install's time); compileall does it
-# on every core. It must be done here: where PYTHONDONTWRITEBYTECODE is set, Python would otherwise
-# compile every imported module from source in every process. (A file it cannot compile -- some
-# packages ship Python 2 fixtures -- is skipped as pip skips it.)
+# pip byte-compiles all 12,000 installed files one by one (half of the install's time), though a
+# command imports a fraction of them: it installs without, and each module is compiled the first time
+# it is imported, once -- the recipes here write bytecode even where PYTHONDONTWRITEBYTECODE is set
+# (unexported below), so the install's kernel warm-up, the demo and the tests leave every module
+# they import compiled, and a user's commands read it.
+unexport PYTHONDONTWRITEBYTECODE
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --no-compile -e ".[test,scale,parquet,mitsuba,bluesky,tiled]"
-	@$(BIN)/python -m compileall -q -j 0 "$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" \
-	  >/dev/null 2>&1 || true
 	touch $(STAMP)
 
 # The project with every extra its tests use, the kernel code generated from the laws (make
-# kernels), its bytecode (written even where PYTHONDONTWRITEBYTECODE is set, so commands do not
-# recompile our sources each run) and every numba kernel compiled into the on-disk cache, two
-# processes at a time (seconds when current).
+# kernels), its bytecode (so commands do not recompile our sources each run), and every numba kernel
+# compiled into the on-disk cache, two processes at a time (seconds when current), which also leaves
+# the modules the commands import compiled.
 install: $(STAMP)
 	@$(BIN)/python -m virtual.kernels.generate >/dev/null
 	@$(BIN)/python -m compileall -q bench virtual drivers compare >/dev/null
