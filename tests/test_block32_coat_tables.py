@@ -75,6 +75,7 @@ def test_float32_table_values_are_within_a_few_roundings_of_the_float64_reads_at
         assert (err <= BOUND).all(), f"{spec}: relative errors {err} (c t, 1 - E, t(mo)) exceed {BOUND:.3g}"
 
 
+@pytest.mark.slow  # the power of the slow test above; compiles the float32 table reader (7-21 s)
 def test_power_directions_a_hundred_thousandth_of_a_radian_off_miss_the_bound():
     p = _hemisphere_params("roughplastic:alpha=0.3,eta=1.5,kd=0.5")
     theta = np.linspace(0.3, 1.3, 200)
@@ -93,6 +94,7 @@ def _base_probabilities(p: np.ndarray, mu_lo: float, mu_hi: float, rng) -> np.nd
     return num / den
 
 
+@pytest.mark.slow  # 3000 directions per cosine range through the float32 table reader (7 s)
 def test_the_base_bounds_hold_the_float32_probability_at_every_cosine_they_claim():
     """:func:`_rp_bounds`: for cosines in its [mu_lo, mu_hi], c t / (1 - E) as the kernel computes it lies
     inside [q_lo, q_hi] with half the margin to spare, so a ray it decides decides as the read would,
