@@ -3,12 +3,17 @@
 For Gaussian readings the Fisher information of a set of points is ``F = J^T C^-1 J``, with ``J``
 the derivative of each predicted calibrated reading (BRDF per band, :mod:`bench.identify.design_noise`)
 with respect to the free parameters at the prior guess (central differences on the specimen's
-density), and ``C`` the readings' covariance: each reading's own noise plus one relative scale
-error shared by the whole record (the white standard). With that rank-one term ``C^-1`` follows
-from the Sherman-Morrison formula, so ``F`` is a sum over points of small matrices and the
-greedy design adds, at each step, the candidate with the largest criterion gain per marginal
-bench second (:class:`bench.identify.time_model.TimeModel`), then exchanges chosen points for
-better ones of no greater cost, and trims to the budget with ``bench plan``'s own estimate.
+density), and ``C`` the readings' covariance as the fit counts it: each reading's own noise, one
+additive error per dark and wavelength shared by the readings that dark corrects (with
+``dark = "per-incidence"`` every reading of an incidence: a point at a new incidence brings a new
+dark), and the relative scale errors shared by the record (the white reading per wavelength, the
+white standard's certificate). Each shared term is rank one, so ``C^-1`` follows from the
+Sherman-Morrison formula level by level (darks, white reading, certificate:
+:mod:`bench.identify.design_information`), ``F`` is a few sums
+over points of small matrices, and the greedy design adds, at each step, the candidate with the
+largest criterion gain per marginal bench second (:class:`bench.identify.time_model.TimeModel`),
+then exchanges chosen points for better ones of no greater cost, and trims to the budget with
+``bench plan``'s own estimate.
 
 Criteria (maximised): ``D`` = log det F, ``A`` = -trace(F^-1), ``E`` = smallest eigenvalue of F.
 The Cramer-Rao bound ``sqrt(diag F^-1)`` gives the predicted standard errors, reported as 95 %
@@ -37,6 +42,7 @@ from bench.config import Bench
 from bench.core.errors import ConfigError, SpecimenError
 from bench.core.geometry import Geometry
 from bench.exposure import unsaturated
+from bench.identify.design_information import Information, dark_groups
 from bench.identify.design_noise import ReadingModel
 from bench.identify.prediction import Band, predicted_brdf
 from bench.identify.time_model import ReadingSettings, TimeModel
@@ -44,7 +50,7 @@ from virtual.specimens import DeclaredSpecimen
 
 __all__ = ["ModelPoint", "Information", "PriorInformation", "prior_information", "information", "prior_sensitivities",
            "mean_criterion", "PRIOR_SPREAD", "PRIOR_DRAWS", "Sensitivities", "sensitivities", "criterion", "Design", "design_plan", "CRITERIA",
-           "interval_widths", "Z95", "design_for_bench", "integration_choices"]
+           "interval_widths", "Z95", "design_for_bench", "integration_choices", "dark_groups"]
 
 CRITERIA = ("D", "A", "E")
 #: two-sided 95 % normal quantile: predicted interval width = 2 x Z95 x Cramer-Rao standard error
@@ -110,40 +116,6 @@ class ModelPoint:
 
 
 @dataclass
-class Information:
-    """Per-candidate pieces of the Fisher information: ``own[k]`` = J_k^T D_k^-1 J_k, ``cross[k]`` =
-    J_k^T D_k^-1 f_k and ``self_[k]`` = f_k^T D_k^-1 f_k (D the own variances), and the shared
-    relative variance ``rho2``."""
-
-    own: np.ndarray  # (n, p, p)
-    cross: np.ndarray  # (n, p)
-    self_: np.ndarray  # (n,)
-    rho2: float
-    brdf: np.ndarray  # (n, wavelengths) predicted
-    sigma: np.ndarray  # (n, wavelengths) own noise
-
-    def total(self, idx: Sequence[int] | np.ndarray) -> np.ndarray:
-        """Fisher information of the points ``idx`` (each measured once)."""
-        at = np.asarray(idx, dtype=int)
-        a = self.own[at].sum(axis=0)
-        b = self.cross[at].sum(axis=0)
-        c = float(self.self_[at].sum())
-        return a - self.rho2 * np.outer(b, b) / (1.0 + self.rho2 * c)
-
-    def with_each(self, idx: Sequence[int], cand: np.ndarray) -> np.ndarray:
-        """Fisher information of ``idx`` plus each one of ``cand``: ``(len(cand), p, p)``."""
-        at = np.asarray(idx, dtype=int)
-        a = self.own[at].sum(axis=0)[None] + self.own[cand]
-        b = self.cross[at].sum(axis=0)[None] + self.cross[cand]
-        c = float(self.self_[at].sum()) + self.self_[cand]
-        return a - (self.rho2 / (1.0 + self.rho2 * c))[:, None, None] * np.einsum("ni,nj->nij", b, b)
-
-    def scaled(self, s: float) -> "Information":
-        """The information divided by ``s`` (every Fisher matrix it gives is F / s)."""
-        return replace(self, own=self.own / s, cross=self.cross / math.sqrt(s))
-
-
-@dataclass
 class PriorInformation:
     """The information at each parameter point of a prior range, stacked: ``total`` gives
     ``(points, p, p)`` and ``with_each`` ``(len(cand), points, p, p)``. ``parts[m]`` is point m's
@@ -162,11 +134,13 @@ class PriorInformation:
 
 
 def prior_information(model: ModelPoint, pool: Sequence[Geometry], readings: ReadingModel, shared_scale: bool = True,
-                      sens: "Sensitivities | Sequence[Sensitivities] | None" = None) -> PriorInformation:
-    """The information of ``pool`` at each of ``model.prior_points()`` (:class:`PriorInformation`)."""
+                      sens: "Sensitivities | Sequence[Sensitivities] | None" = None,
+                      groups: np.ndarray | None = None) -> PriorInformation:
+    """The information of ``pool`` at each of ``model.prior_points()`` (:class:`PriorInformation`;
+    ``groups``: which dark each point is read with, :func:`dark_groups`)."""
     models = model.prior_points()
     sens_all = prior_sensitivities(models, pool, readings, sens)
-    parts = [information(m, pool, readings, shared_scale, x) for m, x in zip(models, sens_all)]
+    parts = [information(m, pool, readings, shared_scale, x, groups) for m, x in zip(models, sens_all)]
     scales = [_relative_scale(x) for x in sens_all]
     return PriorInformation(parts, [i.scaled(s / scales[0]) for i, s in zip(parts, scales)])
 
@@ -229,30 +203,36 @@ def prior_sensitivities(models: Sequence[ModelPoint], pool: Sequence[Geometry], 
 
 
 def information(model: ModelPoint, candidates: Sequence[Geometry], readings: ReadingModel,
-                shared_scale: bool = True, sens: Sensitivities | None = None) -> Information:
+                shared_scale: bool = True, sens: Sensitivities | None = None,
+                groups: np.ndarray | None = None) -> Information:
     """The per-candidate Fisher information of ``model``'s free parameters on a bench body.
 
-    ``shared_scale`` (default True): count the white standard's relative uncertainty as one error
-    common to the whole record (rank-one covariance), as the fit's likelihood does
-    (:func:`bench.identify.likelihood.record_covariance`: the budgets' full covariance);
-    False counts it in each reading's own variance (a diagonal covariance), which designs for an
-    error that averages away and, against the fit, chose 2.6x wider plans (README, "Accuracy per
-    bench-minute").
+    The readings' covariance is the record's (:func:`bench.identify.likelihood.record_covariance`,
+    the budgets' full covariance): each reading's own noise, each dark's error as one offset shared
+    by the readings it corrects (``groups``: :func:`dark_groups` of ``candidates`` read as the
+    readings' settings say, the default), the white reading's and the certificate's as relative
+    scales shared by the record. ``shared_scale`` False counts the white's terms in each reading's
+    own variance (a diagonal covariance but for the darks), which designs for an error that
+    averages away and, against the fit, chose 2.6x wider plans (docs/design.md).
     """
     sens = sens or sensitivities(model, candidates, readings.wavelengths, readings.aperture_deg,
                                  readings.standard.geometry, readings.bands)
     f0 = sens.brdf
-    sigma, rho = readings.noise(f0, candidates)
+    parts = readings.noise(f0, candidates)
+    sigma, white2, cert2 = parts.own, parts.white**2, parts.certificate**2
     if not shared_scale:
-        sigma, rho = np.sqrt(sigma**2 + (rho * f0) ** 2), 0.0
-    ok = np.isfinite(sigma) & (sigma > 0) & np.isfinite(f0)
-    w = np.where(ok, 1.0 / np.where(ok, sigma, 1.0) ** 2, 0.0)  # D^-1 (0 for a masked reading)
+        sigma = np.sqrt(sigma**2 + (white2 + cert2) * f0**2)
+        white2, cert2 = np.zeros_like(white2), np.zeros_like(cert2)
+    ok = np.isfinite(sigma) & (sigma > 0) & np.isfinite(f0) & np.isfinite(parts.dark)
+    w = np.where(ok, 1.0 / np.where(ok, sigma, 1.0) ** 2, 0.0)  # own variance^-1 (0 for a masked reading)
     f = np.where(ok, f0, 0.0)
+    g = np.where(ok, parts.dark, 0.0)
     j = np.where(ok[..., None], sens.jacobian, 0.0)  # (n, wavelengths, p)
-    own = np.einsum("nwi,nw,nwj->nij", j, w, j)
-    cross = np.einsum("nwi,nw,nw->ni", j, w, f)
-    self_ = np.einsum("nw,nw,nw->n", f, w, f)
-    return Information(own, cross, self_, rho * rho, f0, sigma)
+    if groups is None:
+        groups = dark_groups(candidates, readings.settings.dark)
+    return Information(np.einsum("nwi,nw,nwj->nwij", j, w, j), j * (w * f)[..., None], f * w * f,
+                       j * (w * g)[..., None], f * w * g, g * w * g, np.asarray(groups, dtype=int),
+                       white2, cert2, f0, sigma)
 
 
 def criterion(fisher: np.ndarray, name: str = "D") -> np.ndarray:
@@ -332,7 +312,8 @@ def design_plan(model: ModelPoint, candidates: Sequence[Geometry], readings: Rea
         raise ConfigError(f"design criterion must be one of {', '.join(CRITERIA)}, got {criterion_name!r}")
     _refuse_unaffordable(model, candidates, time, seconds)
     pool = list(candidates) + list(seed_points)
-    info = prior_information(model, pool, readings, shared_scale, sens)
+    info = prior_information(model, pool, readings, shared_scale, sens,
+                             dark_groups(pool, readings.settings.dark, measured=len(seed_points)))
     exact = info.parts[0]  # at the guess: the predicted widths
     n_cand = len(candidates)
     p = len(model.free)

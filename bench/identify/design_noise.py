@@ -16,9 +16,11 @@ on the expected readings:
 * real body: the relative uncertainty per reading the plan estimator assumes
   (:func:`bench.plans.estimate`), for want of a declared detector.
 
-Each reading's variance splits into a part of its own (signal and dark noise) and a relative
-part shared by every reading of the record (the white standard's certificate and the white
-reading's noise): the design's Fisher information treats the shared part as one scale error.
+Each reading's variance splits as the record's budgets split it (:meth:`ReadingModel.noise`): a part
+of its own (signal), the dark's (one offset per dark and wavelength, shared by every reading that
+dark corrects: with ``dark = "per-incidence"`` every reading of the incidence), and relative scales
+shared by the record's readings (the white reading per wavelength, the white's certificate): the
+design's Fisher information counts each shared part once, as the fit's covariance does.
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ from bench.core.roles import Reading
 from bench.identify.prediction import Band, band_pixels, predicted_brdf
 from bench.identify.time_model import ReadingSettings
 
-__all__ = ["ReadingModel", "bench_reading_model", "predicted_brdf", "SATURATION_MARGIN"]
+__all__ = ["ReadingModel", "NoiseParts", "bench_reading_model", "predicted_brdf", "SATURATION_MARGIN"]
 
 #: a design avoids readings predicted above this fraction of the detector's full scale
 SATURATION_MARGIN = 0.8
@@ -97,24 +99,42 @@ class ReadingModel:
     def _dark(self) -> Reading:
         return _reading(self.dark_level, np.sqrt(self.variance_floor), self.wavelengths, self.settings, dark=True)
 
-    def noise(self, brdf: np.ndarray, geometries: Sequence[Geometry]) -> tuple[np.ndarray, float]:
-        """Standard deviation of each reading's own noise ``(points, wavelengths)`` and the relative
-        standard deviation shared by all readings (white certificate and white reading)."""
+    def noise(self, brdf: np.ndarray, geometries: Sequence[Geometry]) -> "NoiseParts":
+        """Each reading's noise ``(points, wavelengths)`` split as the record's budgets split it
+        (:mod:`bench.core.budget`): its own (signal), the dark's (an offset shared by every reading
+        that dark corrects, per wavelength), and the relative scales shared by the record's readings
+        (the white reading per wavelength, the white's certificate)."""
         alone = self._calibration(with_standard=False, with_white_noise=False)
         full = self._calibration(with_standard=True, with_white_noise=True)
         dark = self._dark() if self.settings.dark != "none" else None
+        exact = replace(dark, std=np.zeros_like(dark.std)) if dark is not None else None
         own = np.empty(brdf.shape)
-        shared = []
+        with_dark = np.empty(brdf.shape)
         for k, g in enumerate(geometries):
             signal, std, saturated = self.counts(brdf[k], abs(math.cos(math.radians(g.theta_r))))
             r = replace(_reading(signal, std, self.wavelengths, self.settings), saturated=saturated)
-            a = alone.apply(r, g, dark)
-            f = full.apply(r, g, dark)
-            own[k] = a.std
-            with np.errstate(divide="ignore", invalid="ignore"):
-                shared.append(np.sqrt(np.maximum(f.std**2 - a.std**2, 0.0)) / f.brdf)
-        rel = np.asarray(shared)
-        return own, float(np.nanmedian(rel)) if np.isfinite(rel).any() else 0.0
+            own[k] = alone.apply(r, g, exact).std
+            with_dark[k] = alone.apply(r, g, dark).std
+        ref, u_ref, _ = full.reference_rate()
+        rf = np.asarray(self.standard.rf(self.wavelengths), dtype=float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            white = np.where(ref > 0, u_ref / ref, 0.0)
+        return NoiseParts(own, np.sqrt(np.maximum(with_dark**2 - own**2, 0.0)), white, self.standard.uncertainty / rf)
+
+
+@dataclass(frozen=True)
+class NoiseParts:
+    """The noise of calibrated readings ``(points, wavelengths)``, split by what shares it:
+    ``own`` each reading's own standard deviation (NaN where the calibration masks it), ``dark``
+    the BRDF a one-sigma error of the dark it was corrected with moves it by (shared by every
+    reading of that dark and wavelength), ``white`` and ``certificate`` per wavelength the relative
+    standard deviations of the white reading (shared by the record's readings of that wavelength)
+    and of the white's certificate (shared by all)."""
+
+    own: np.ndarray
+    dark: np.ndarray
+    white: np.ndarray
+    certificate: np.ndarray
 
 
 def _emulated_model(d: Mapping[str, Any], settings: ReadingSettings, standard: WhiteStandard) -> ReadingModel:
