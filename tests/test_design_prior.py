@@ -120,7 +120,7 @@ LEAF = "leaf:roughness=?,eta=?"
 # ~8 min on 2 cores (more when loaded): the leaf's cuticle albedo is rebuilt for every roughness and index a
 # design or a fit tries (a design over 9 prior points, 2 emulated scans and fits)
 @pytest.mark.slow
-def test_a_leafs_cuticle_at_the_default_prior_the_design_narrows_both_but_the_index_only_to_about_0_7x():
+def test_a_leafs_cuticle_at_the_default_prior_the_design_narrows_both_below_0_7x():
     """A healthy leaf's angular parameters (cuticle roughness 0.2, wax index 1.45; the PROSPECT-D
     body fixed) at the default prior (0.3, 1.5), seed 7. Measured (AMD EPYC, 2 loaded cores),
     designed / uniform fitted widths per seed 7, 8, 9, the design counting each dark as one offset
@@ -134,7 +134,7 @@ def test_a_leafs_cuticle_at_the_default_prior_the_design_narrows_both_but_the_in
     m = design_study.measure(LEAF, _emulated("leaf:healthy,roughness=0.2,eta=1.45"), seeds=[7],
                              methods=("uniform", "designed"))
     d = _ratios(m)[7]
-    assert d["roughness"] <= 0.7 and d["eta"] < 0.8, d
+    assert d["roughness"] <= 0.7 and d["eta"] <= 0.7, d  # the index was 0.71 while the design counted each dark per reading
     fitted = {p: m["results"]["designed"][0]["fit"][p][2] - m["results"]["designed"][0]["fit"][p][1] for p in m["parameters"]}
     predicted = m["designs"]["designed"]["predicted_widths"]
     assert all(0.5 <= predicted[p] / fitted[p] <= 2.0 for p in m["parameters"]), (predicted, fitted)
