@@ -70,13 +70,13 @@ def test_cie_geometries_and_aliases():
 def test_the_cone_quadrature_keeps_numpys_cross_product_and_gauss_legendre_rule_bit_for_bit():
     """The cone's frame and rule are computed without np.cross's axis handling and with the rule
     remembered per order: the same bits as numpy's own, which the recorded fits were made with."""
-    from bench.core.geometry import _cross, _gauss_legendre
+    from bench.core.geometry import _cross, gauss_legendre
 
     rng = np.random.default_rng(3)
     for a, b in rng.normal(size=(500, 2, 3)):
         assert np.array_equal(_cross(a, b), np.cross(a, b))
     for n in (1, 4, 8):
         x, w = np.polynomial.legendre.leggauss(n)
-        got = _gauss_legendre(n)
+        got = gauss_legendre(n)
         assert np.array_equal(got[0], x) and np.array_equal(got[1], w)
         assert not got[0].flags.writeable  # shared: nobody may change the remembered rule

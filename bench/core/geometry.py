@@ -26,6 +26,7 @@ __all__ = [
     "CIE_GEOMETRIES",
     "cie_geometry",
     "direction",
+    "gauss_legendre",
     "spherical",
     "cone_quadrature",
     "cone_cos_weights",
@@ -54,7 +55,7 @@ def spherical(v: np.ndarray) -> tuple[float, float]:
 
 
 @functools.lru_cache(maxsize=None)
-def _gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
+def gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
     """numpy's n-point Gauss-Legendre rule, computed once per order (a fit or a design asks for
     the same rule at every point and parameter step: recomputing it was a quarter of their time).
     Read-only, as it is shared."""
@@ -83,7 +84,7 @@ def cone_quadrature(axis: np.ndarray, half_angle_deg: float, rings: int = 4,
     u = _cross(t, np.array([0.0, 0.0, 1.0] if abs(t[2]) < 0.9 else [1.0, 0.0, 0.0]))
     u /= np.linalg.norm(u)
     v = _cross(t, u)
-    x, w = _gauss_legendre(rings)
+    x, w = gauss_legendre(rings)
     cap = 1.0 - math.cos(a)
     cos_off = 1.0 - (x + 1.0) / 2.0 * cap  # nodes in 1 - cos over [0, cap]
     sin_off = np.sqrt(np.maximum(1.0 - cos_off**2, 0.0))

@@ -32,7 +32,7 @@ import numpy as np
 
 from bench.bands import band_pixel_indices
 from bench.core.errors import ConfigError, InputError
-from bench.core.geometry import Geometry, cie_geometry, cone_cos_weights, direction
+from bench.core.geometry import Geometry, cie_geometry, cone_cos_weights, direction, gauss_legendre
 from drivers.ocean import wavelength_polynomial
 from virtual.collector import Collector
 from virtual.specimens import Specimen, weighted_spectrum
@@ -66,7 +66,7 @@ def band_pixels(centres: Sequence[float] | np.ndarray, bandwidth_nm: float, pixe
         pixels = [wl[band_pixel_indices(wl, float(c), float(bandwidth_nm))] for c in centres]
         if all(p.size for p in pixels):
             return tuple(Band(p, np.full(p.size, 1.0 / p.size)) for p in pixels)
-    x, w = np.polynomial.legendre.leggauss(BAND_ORDER)
+    x, w = gauss_legendre(BAND_ORDER)
     return tuple(Band(float(c) + half * x, w / 2.0) for c in centres)
 
 
@@ -150,7 +150,7 @@ def patch_nodes(theta_min: float, theta_max: float, phi_min: float, phi_max: flo
     collector patch (degrees): what a patch reading ``n / (N * PSA)`` estimates. In
     ``u = sin^2(theta)`` the projected solid angle is uniform (``dPSA = du dphi / 2``), so a
     Gauss-Legendre product rule in (u, phi) averages with equal measure."""
-    x, w = np.polynomial.legendre.leggauss(order)
+    x, w = gauss_legendre(order)
     lo, hi = math.sin(math.radians(theta_min)) ** 2, math.sin(math.radians(theta_max)) ** 2
     u = lo + (hi - lo) * (x + 1.0) / 2.0
     phi = math.radians(phi_min) + math.radians(phi_max - phi_min) * (x + 1.0) / 2.0
