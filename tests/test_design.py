@@ -100,6 +100,7 @@ def test_written_plan_passes_bench_plan_within_budget(designed, tmp_path, capsys
     assert header.startswith("# Designed by `bench plan --design") and "Predicted 95% interval widths" in header
     # the widths are the Cramer-Rao bound at the guess, said so, with their range over the prior range
     assert "averaged over 9 parameter points of the prior range" in header and "conditional on the prior" in header
+    assert "bench scan --sequential" in header  # the route that corrects the guess is named where the guess is
     assert made["prior_points"] == 9 and made["prior_spread"] == 4.0
     assert all(lo <= made["widths"][k] <= hi for k, (lo, hi) in made["width_range"].items())
     code, text, err = run_main(capsys, "plan", out, "--bench", designed["path"], "--body", "virtual", "--json")

@@ -167,3 +167,25 @@ def test_a_leafs_cuticle_the_sequential_design_clears_0_7x_on_both():
     for p, t in m["truth"].items():
         value, lo, hi = s["fit"][p]
         assert abs(value - t) <= 3 * (hi - lo) / (2 * 1.959963984540054), (p, s["fit"][p], t)
+
+
+# ~3 min on 2 cores: three seeds of the uniform scan and fit and the three-step sequential design
+@pytest.mark.slow
+def test_ggx_the_sequential_design_clears_0_7x_on_both_on_every_seed():
+    """A GGX conductor (alpha 0.3, eta 2.5) from the default prior (alpha 0.2, eta 1.5): the case
+    the one-shot design cannot clear robustly. Its roughness sits at 0.69x of the uniform plan's
+    width by the Cramer-Rao bound at the truth with the default 8 prior draws, 0.74-0.75x with 24
+    or 32 (the 8 draws' figure is the luck of their places), and 0.63x for the D design made at
+    the truth itself: the D criterion buys the index first. The sequential design re-centres on
+    the estimate and clears 0.7x on every seed. Measured (AMD EPYC Zen 3, 2 cores), sequential /
+    uniform fitted widths, seeds 7, 8, 9: alpha 0.639, 0.610, 0.624; eta 0.362, 0.339, 0.338; the
+    truth within 3 standard errors (0.3 % false alarm per parameter for honest errors)."""
+    m = design_study.measure("ggx:alpha=?,eta=?", _emulated("ggx:alpha=0.3,eta=2.5"), methods=("uniform", "sequential"))
+    res = m["results"]
+    for u, s in zip(res["uniform in-plane"], res["sequential"]):
+        ratios = {p: (s["fit"][p][2] - s["fit"][p][1]) / (u["fit"][p][2] - u["fit"][p][1]) for p in m["parameters"]}
+        assert all(r <= 0.7 for r in ratios.values()), (u["seed"], ratios)
+        assert s["seconds"] <= u["seconds"] * 1.001, (s["seconds"], u["seconds"])
+        for p, t in m["truth"].items():
+            value, lo, hi = s["fit"][p]
+            assert abs(value - t) <= 3 * (hi - lo) / (2 * 1.959963984540054), (u["seed"], p, s["fit"][p], t)

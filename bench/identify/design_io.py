@@ -120,6 +120,8 @@ def prior_lines(design: Design, prefix: str = "", labels: Mapping[str, str] | No
     lines.append(f"Predicted 95% interval widths (Cramer-Rao at the guess, 2 x 1.96 x se): "
                  f"{widths_text(design.widths, labels)}; conditional on the prior: the fits' widths may differ severalfold "
                  "when the specimen is far from it.")
+    lines.append("A one-shot plan cannot correct its guess; `bench scan --sequential` with the same model re-designs "
+                 "at each step's fit and is the route to the narrowest intervals far from the prior (docs/design.md).")
     if design.prior_points > 1 and design.width_range:
         lines.append("Over the prior range's points the predicted widths span "
                      + ", ".join(f"{k} {lo:.3g}..{hi:.3g}" for k, (lo, hi) in as_written(design.width_range, labels).items())
