@@ -65,6 +65,7 @@ from functools import lru_cache
 import numpy as np
 
 from bench.core.errors import SpecimenError
+from bench.core.geometry import gauss_legendre
 from virtual.fresnel import np_fresnel_dielectric
 
 __all__ = ["prospect_d", "LeafTables", "leaf_tables", "CuticleAlbedo", "cuticle_albedo", "cuticle_integrals",
@@ -131,7 +132,7 @@ def _cap_normals(theta: float, alpha: float, u: np.ndarray, v: np.ndarray):
 
 @lru_cache(maxsize=4)
 def _gl(n: int) -> tuple[np.ndarray, np.ndarray]:
-    x, w = np.polynomial.legendre.leggauss(n)
+    x, w = gauss_legendre(n)
     return 0.5 * (x + 1.0), 0.5 * w
 
 
@@ -237,7 +238,7 @@ class CuticleAlbedo:
         es = lambda t: cuticle_integrals(t, self.alpha, self.eta)[0]  # noqa: E731
         self._near = _Chebyshev(0.0, math.acos(_MU_SPLIT), es)
         self._grazing = _Chebyshev(math.log(_MU_MIN), math.log(_MU_SPLIT), lambda s: es(math.acos(math.exp(s))))
-        x, w = np.polynomial.legendre.leggauss(64)
+        x, w = gauss_legendre(64)
         m1, w1 = _MU_SPLIT + 0.5 * (1.0 - _MU_SPLIT) * (x + 1.0), 0.5 * (1.0 - _MU_SPLIT) * w
         m0, w0 = 0.5 * _MU_SPLIT * (x + 1.0), 0.5 * _MU_SPLIT * w
         self.average = float(2.0 * (np.sum(w1 * m1 * self(m1)) + np.sum(w0 * m0 * self(m0))))

@@ -16,7 +16,7 @@ from typing import Any, Mapping, get_args
 import numpy as np
 
 from bench.core.errors import ConfigError, InputError
-from bench.core.geometry import direction
+from bench.core.geometry import direction, gauss_legendre
 from bench.core.schemas import SceneFile
 from virtual import effects as fx
 from virtual import engine
@@ -82,7 +82,7 @@ def cone_probability(specimen: Specimen, wi: np.ndarray, axis: np.ndarray, half_
     t1 /= np.linalg.norm(t1)
     t2 = np.cross(a, t1)
     beta = math.radians(half_angle_deg)
-    x, w = np.polynomial.legendre.leggauss(order)
+    x, w = gauss_legendre(order)
     al = 0.5 * beta * (x + 1.0)
     wa = 0.5 * beta * w
     psi = np.arange(4 * order) * (2.0 * math.pi / (4 * order))

@@ -18,13 +18,15 @@ from functools import lru_cache
 
 import numpy as np
 
+from bench.core.geometry import gauss_legendre
+
 __all__ = ["mitsuba_rough_reflectance", "mitsuba_rough_transmittance"]
 
 
 @lru_cache(maxsize=4)
 def _square_rule(eta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mitsuba's nodes (u1, u2 in (0, 1)) and weights (their product / 4) for relative index eta."""
-    x, w = np.polynomial.legendre.leggauss(32 if eta > 1.0 else 128)
+    x, w = gauss_legendre(32 if eta > 1.0 else 128)
     nx, ny = np.meshgrid(x, x)
     wx, wy = np.meshgrid(w, w)
     return 0.5 * nx.ravel() + 0.5, 0.5 * ny.ravel() + 0.5, (wx * wy).ravel() * 0.25

@@ -21,6 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from bench.core.geometry import gauss_legendre
 from virtual.cubature import integrate_rectangle
 from virtual.fresnel import np_fresnel_conductor, np_fresnel_dielectric
 
@@ -122,7 +123,7 @@ def mirror(wi: np.ndarray) -> np.ndarray:
 @lru_cache(maxsize=256)
 def fresnel_hemispherical_average(eta: float) -> float:
     """F_avg = 2 int_0^1 F(mu) mu dmu for the dielectric of relative index eta (Gauss-Legendre)."""
-    x, w = np.polynomial.legendre.leggauss(256)
+    x, w = gauss_legendre(256)
     mu = 0.5 * (x + 1.0)
     return float(np.sum(w * 0.5 * 2.0 * mu * np_fresnel_dielectric(mu, eta)))
 
