@@ -63,6 +63,11 @@ class Information:
     sigma: np.ndarray  # (n, wavelengths) own noise
 
     @property
+    def _pieces(self) -> tuple[np.ndarray, ...]:
+        """The per-reading pieces in :func:`_dark_level`'s order."""
+        return self.jj, self.jf, self.ff, self.jg, self.fg, self.gg
+
+    @property
     def own(self) -> np.ndarray:
         """Each candidate's information with nothing shared: ``(n, p, p)``."""
         return self.jj.sum(axis=1)
@@ -72,7 +77,7 @@ class Information:
         every dark group over the points of ``at`` (zero for a group none of them uses)."""
         groups = int(self.group.max()) + 1 if self.group.size else 0
         sums = []
-        for x in (self.jj, self.jf, self.ff, self.jg, self.fg, self.gg):
+        for x in self._pieces:
             out = np.zeros((groups, *x.shape[1:]))
             np.add.at(out, self.group[at], x[at])
             sums.append(out)
@@ -102,7 +107,7 @@ class Information:
         cand = np.asarray(cand, dtype=int)
         a, b, c, sums = self._per_band(np.asarray(idx, dtype=int))
         before = [x[self.group[cand]] for x in sums]
-        after = [s + x[cand] for s, x in zip(before, (self.jj, self.jf, self.ff, self.jg, self.fg, self.gg))]
+        after = [s + x[cand] for s, x in zip(before, self._pieces)]
         na, nb, nc = _dark_level(*after)
         oa, ob, oc = _dark_level(*before)
         return self._shared(a[None] + na - oa, b[None] + nb - ob, c[None] + nc - oc)
